@@ -1,0 +1,68 @@
+"""The `al5d` command line: serve, emulator, send, run, demo."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+
+from al5d.config import ConfigError, load_config
+
+
+def _until_signal() -> threading.Event:
+    """An event set by SIGINT or SIGTERM (so that both end the program the same clean way)."""
+    done = threading.Event()
+
+    def handler(signum: int, frame: object) -> None:
+        done.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return done
+
+
+def _cmd_emulator(args: argparse.Namespace) -> int:
+    from al5d.emulator import Emulator, serve_forever
+
+    config = load_config(args.config)
+    serve_forever(Emulator(config, baud=args.baud, link=args.link), _until_signal())
+    return 0
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    print("al5d demo: not yet: the demo arrives with the server (issue 3 and 4)")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="al5d", description="Lynxmotion AL5D arm on an SSC-32U: server, client and emulator."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    emu = sub.add_parser("emulator", help="a standalone emulated SSC-32U on a pseudo terminal")
+    emu.add_argument("--baud", type=int, default=9600, choices=(9600, 38400, 115200))
+    emu.add_argument("--link", help="also make this path a symlink to the device")
+    emu.add_argument("--config", help="arm configuration (servo speeds); default: shipped")
+    emu.set_defaults(func=_cmd_emulator)
+
+    demo = sub.add_parser("demo", help="the DE01 demo on the embedded emulator")
+    demo.set_defaults(func=_cmd_demo)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        code: int = args.func(args)
+    except ConfigError as e:
+        print(f"al5d: configuration error:\n{e}", file=sys.stderr)
+        return 2
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

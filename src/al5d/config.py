@@ -1,0 +1,211 @@
+"""The arm configuration: joints, calibration, servo speeds, presets and server settings.
+
+Loaded from YAML (`config/al5d.yaml` by default) and validated with pydantic so
+that a mistake is reported with the key, the value and the reason. The
+emulator and the high-level driver read the same file, so what the emulated
+servos do and what the driver expects of them come from one place.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Annotated, Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from al5d.protocol import CHANNELS, PULSE_MAX_US, PULSE_MIN_US
+
+REQUIRED_PRESETS = ("park", "ready", "straight_up")
+DEFAULT_CONFIG = Path(__file__).resolve().parent / "data" / "al5d.yaml"
+
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class ConfigError(ValueError):
+    """The configuration file cannot be used; the message names the key and the reason."""
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class ReferencePoint(_Frozen):
+    """A measured calibration point: at `deg` degrees the servo needs `us` microseconds."""
+
+    deg: FiniteFloat
+    us: FiniteFloat = Field(ge=PULSE_MIN_US, le=PULSE_MAX_US)
+
+
+class Joint(_Frozen):
+    """One joint: its channel, safe range, calibration and servo speed."""
+
+    name: str = ""
+    channel: int
+    range_deg: tuple[FiniteFloat, FiniteFloat]
+    calibration: tuple[ReferencePoint, ReferencePoint]
+    speed_deg_s: FiniteFloat = Field(gt=0, le=10000)
+    unit: str = "deg"
+
+    @field_validator("channel")
+    @classmethod
+    def _channel_exists(cls, v: int) -> int:
+        if v not in CHANNELS:
+            raise ValueError(f"channel {v} is outside 0..31")
+        return v
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Joint:
+        lo, hi = self.range_deg
+        if not lo < hi:
+            raise ValueError(f"range_deg [{lo}, {hi}]: the first value must be below the second")
+        a, b = self.calibration
+        if a.deg == b.deg:
+            raise ValueError(f"calibration: both reference points are at {a.deg} degrees")
+        if a.us == b.us:
+            raise ValueError(f"calibration: both reference points give {a.us} us")
+        for end in (lo, hi):
+            us = self.to_us(end)
+            if not PULSE_MIN_US <= us <= PULSE_MAX_US:
+                raise ValueError(
+                    f"range_deg end {end} maps to {us:.0f} us, "
+                    f"outside {PULSE_MIN_US}..{PULSE_MAX_US}"
+                )
+        return self
+
+    @property
+    def us_per_deg(self) -> float:
+        """Signed scale: the sign is the joint's direction."""
+        a, b = self.calibration
+        return (b.us - a.us) / (b.deg - a.deg)
+
+    def to_us(self, deg: float) -> float:
+        a = self.calibration[0]
+        return a.us + (deg - a.deg) * self.us_per_deg
+
+    def to_deg(self, us: float) -> float:
+        a = self.calibration[0]
+        return a.deg + (us - a.us) / self.us_per_deg
+
+    def in_range(self, deg: float) -> bool:
+        lo, hi = self.range_deg
+        return lo <= deg <= hi
+
+    @property
+    def speed_us_s(self) -> float:
+        return self.speed_deg_s * abs(self.us_per_deg)
+
+
+class ServerSettings(_Frozen):
+    """How the high-level driver behaves, independent of the arm's geometry."""
+
+    queue_capacity: int = Field(default=1024, ge=1, le=1_000_000)
+    startup_speed_fraction: float = Field(default=0.5, gt=0, le=1)
+    max_move_time_ms: int = Field(default=60_000, ge=1, le=65_535)
+    joint_state_rate_hz: float = Field(default=20.0, gt=0, le=1000)
+    reconnect_interval_s: float = Field(default=0.5, gt=0, le=60)
+    baud: int = Field(default=9600)
+
+    @field_validator("baud")
+    @classmethod
+    def _known_baud(cls, v: int) -> int:
+        if v not in (9600, 38400, 115200):
+            raise ValueError(f"baud {v}: the SSC-32U runs at 9600, 38400 or 115200")
+        return v
+
+
+class ArmConfig(_Frozen):
+    """The whole arm: joints by name, presets in degrees, server settings."""
+
+    joints: dict[str, Joint]
+    presets: dict[str, dict[str, FiniteFloat]]
+    server: ServerSettings = ServerSettings()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _name_joints(cls, data: Any) -> Any:
+        if isinstance(data, Mapping) and isinstance(data.get("joints"), Mapping):
+            joints = {
+                name: ({**j, "name": name} if isinstance(j, Mapping) else j)
+                for name, j in data["joints"].items()
+            }
+            data = {**data, "joints": joints}
+        return data
+
+    @model_validator(mode="after")
+    def _consistent(self) -> ArmConfig:
+        if not self.joints:
+            raise ValueError("joints: at least one joint is needed")
+        seen: dict[int, str] = {}
+        for name, joint in self.joints.items():
+            if not name.isidentifier() or name != name.lower():
+                raise ValueError(f"joints.{name}: a joint name is a lower-case identifier")
+            if joint.channel in seen:
+                raise ValueError(
+                    f"joints.{name}.channel: channel {joint.channel} is already used by "
+                    f"{seen[joint.channel]}"
+                )
+            seen[joint.channel] = name
+        for preset in REQUIRED_PRESETS:
+            if preset not in self.presets:
+                raise ValueError(f"presets.{preset}: this preset is required")
+        for preset, pose in self.presets.items():
+            missing = [j for j in self.joints if j not in pose]
+            if missing:
+                raise ValueError(f"presets.{preset}: no angle for {', '.join(missing)}")
+            for jname, deg in pose.items():
+                if jname not in self.joints:
+                    raise ValueError(f"presets.{preset}.{jname}: no such joint")
+                joint = self.joints[jname]
+                if not joint.in_range(deg):
+                    lo, hi = joint.range_deg
+                    raise ValueError(
+                        f"presets.{preset}.{jname}: {deg} is outside the range {lo}..{hi}"
+                    )
+        return self
+
+    @property
+    def channels(self) -> tuple[int, ...]:
+        return tuple(j.channel for j in self.joints.values())
+
+    def joint_on_channel(self, channel: int) -> Joint | None:
+        for joint in self.joints.values():
+            if joint.channel == channel:
+                return joint
+        return None
+
+
+def _describe(err: ValidationError, source: str) -> str:
+    lines = []
+    for e in err.errors():
+        loc = ".".join(str(x) for x in e["loc"]) or "(top level)"
+        msg = e["msg"].removeprefix("Value error, ")
+        shown = e.get("input")
+        value = "" if isinstance(shown, Mapping) else f" (value: {shown!r})"
+        lines.append(f"{source}: {loc}: {msg}{value}")
+    return "\n".join(lines)
+
+
+def parse_config(data: Any, source: str = "<config>") -> ArmConfig:
+    """Validate already-loaded YAML data; raise ConfigError naming the key on failure."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{source}: the file must hold a mapping with joints and presets")
+    try:
+        return ArmConfig.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(_describe(e, source)) from None
+
+
+def load_config(path: str | Path | None = None) -> ArmConfig:
+    """Read and validate a configuration file (the shipped default when `path` is None)."""
+    p = Path(path) if path is not None else DEFAULT_CONFIG
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as e:
+        raise ConfigError(f"{p}: cannot read the configuration: {e.strerror}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{p}: not valid YAML: {e}") from None
+    return parse_config(data, str(p))

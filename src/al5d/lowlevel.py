@@ -1,0 +1,227 @@
+"""The SSC-32U low-level driver: one method per board function, serial I/O kept inside.
+
+It knows channels and pulse widths, never joints or degrees. It never waits for
+an acknowledgement (the board sends none); only queries read. Every serial
+failure, whatever pyserial or the OS calls it, leaves here as `SerialFault`
+with a message that says which port and what happened.
+
+Threads: a query (write then read) holds a query lock; `stop()` does not take
+it, so an emergency stop never waits behind a read. Writes are serialised by a
+short write lock so that the bytes of two commands never interleave.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import termios
+import threading
+from collections.abc import Iterable, Mapping, Sequence
+from types import TracebackType
+
+import serial
+
+from al5d import protocol as p
+
+#: Longest wait for an answer: the manual's 5 ms plus a VER string at 9600 baud, with margin.
+DEFAULT_READ_TIMEOUT_S = 0.1
+DEFAULT_WRITE_TIMEOUT_S = 0.5
+#: What a dead port raises, depending on the call: pyserial's own, the OS's, and termios's
+#: (tcflush on a pty whose master is gone raises termios.error, which is not an OSError).
+IO_ERRORS = (serial.SerialException, OSError, termios.error)
+
+
+class SerialFault(Exception):
+    """The serial link to the board failed or the device does not answer like an SSC-32U."""
+
+
+class Interrupted(Exception):
+    """A query lost its answer because an emergency stop flushed it; not a fault."""
+
+
+Targets = Mapping[int, int] | Sequence[p.ChannelTarget]
+
+
+class SSC32U:
+    """A connection to one SSC-32U (or the emulator) on a serial port.
+
+    `port` is a device path or a pyserial URL. On connect the driver cancels
+    any partial line the board may hold and checks the board with VER.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        baud: int = 9600,
+        *,
+        read_timeout_s: float = DEFAULT_READ_TIMEOUT_S,
+        write_timeout_s: float = DEFAULT_WRITE_TIMEOUT_S,
+        check: bool = True,
+    ) -> None:
+        self.port = port
+        self.baud = baud
+        self._read_timeout_s = read_timeout_s
+        self._write_lock = threading.Lock()
+        self._query_lock = threading.Lock()
+        self._stops = 0  # counts emergency stops, to tell a flushed query from a dead board
+        try:
+            self._ser = serial.serial_for_url(
+                port,
+                baudrate=baud,
+                timeout=read_timeout_s,
+                write_timeout=write_timeout_s,
+                exclusive=True,
+            )
+        except (*IO_ERRORS, ValueError) as e:
+            raise SerialFault(f"{port}: cannot open: {e}") from e
+        self.firmware = ""
+        if check:
+            try:
+                self._write(p.CANCEL)
+                self.firmware = self._check_version()
+            except SerialFault:
+                self.close()
+                raise
+
+    # -- life cycle ------------------------------------------------------------
+
+    def close(self) -> None:
+        with contextlib.suppress(*IO_ERRORS):  # closing a dead port must not raise
+            self._ser.close()
+
+    @property
+    def is_open(self) -> bool:
+        return bool(self._ser.is_open)
+
+    def __enter__(self) -> SSC32U:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # -- board functions ----------------------------------------------------------
+
+    def move(self, targets: Targets, time_ms: int | None = None) -> bytes:
+        """Group move: every channel to its pulse width (us), all arriving together.
+
+        `targets` maps channel -> pulse us, or lists `ChannelTarget`s with a
+        per-channel speed. Returns the bytes written.
+        """
+        if isinstance(targets, Mapping):
+            seq = [p.ChannelTarget(ch, pw) for ch, pw in targets.items()]
+        else:
+            seq = list(targets)
+        data = p.encode_group_move(seq, time_ms)
+        self._write(data)
+        return data
+
+    def write_command(self, data: bytes) -> None:
+        """Write bytes already encoded by `al5d.protocol` (a hot path skips re-encoding)."""
+        self._write(data)
+
+    def stop(self, channels: Iterable[int]) -> bytes:
+        """Emergency stop: drop unsent output, cancel its partial line, STOP every channel.
+
+        One write, without waiting for any query in progress. Returns the bytes written.
+        """
+        data = p.CANCEL + p.encode_stop(channels)
+        self._stops += 1
+        with self._write_lock:
+            try:
+                self._ser.reset_output_buffer()
+                self._ser.write(data)
+            except IO_ERRORS as e:
+                raise SerialFault(f"{self.port}: stop could not be written: {e}") from e
+        return data
+
+    def cancel(self) -> None:
+        """ESC: the board drops the partial line it holds."""
+        self._write(p.CANCEL)
+
+    def is_done(self) -> bool:
+        """Q: True when the board reports every move complete."""
+        answer = self._query(p.encode_query_movement(), 1, "Q")
+        try:
+            return not p.parse_movement(answer)
+        except p.ProtocolError as e:
+            raise SerialFault(f"{self.port}: not an SSC-32U answer: {e}") from e
+
+    def read_pulses(self, channels: Sequence[int]) -> dict[int, int]:
+        """QP: the pulse width (us, 10 us resolution) each channel puts out now; 0 = none yet."""
+        chans = list(channels)
+        answer = self._query(p.encode_query_pulse(chans), len(chans), "QP")
+        try:
+            return p.parse_pulses(answer, chans)
+        except p.ProtocolError as e:
+            raise SerialFault(f"{self.port}: not an SSC-32U answer: {e}") from e
+
+    def version(self) -> str:
+        """VER: the firmware string."""
+        answer = self._query(p.encode_version(), None, "VER")
+        try:
+            return p.parse_version(answer)
+        except p.ProtocolError as e:
+            raise SerialFault(f"{self.port}: not an SSC-32U answer: {e}") from e
+
+    def set_offsets(self, offsets: Mapping[int, int]) -> None:
+        """PO: volatile pulse trims, -100..100 us."""
+        self._write(p.encode_pulse_offset(offsets))
+
+    def set_outputs(self, levels: Mapping[int, bool]) -> None:
+        """H/L: use channels as digital outputs."""
+        self._write(p.encode_digital_output(levels))
+
+    def wire_time_s(self, command: bytes | int) -> float:
+        """Seconds the command (or that many bytes) needs on the wire at the current baud."""
+        n = command if isinstance(command, int) else len(command)
+        return p.wire_time_s(n, self.baud)
+
+    # -- inside ----------------------------------------------------------------------
+
+    def _check_version(self) -> str:
+        try:
+            firmware = self.version()
+        except SerialFault as e:
+            raise SerialFault(
+                f"{self.port}: does not answer like an SSC-32U at {self.baud} baud ({e}); "
+                "check the port, the baud rate (board button) and the power"
+            ) from e
+        if not firmware.upper().startswith("SSC32"):
+            raise SerialFault(
+                f"{self.port}: answered VER with {firmware!r}, which is not an SSC-32U"
+            )
+        return firmware
+
+    def _write(self, data: bytes) -> None:
+        with self._write_lock:
+            try:
+                self._ser.write(data)
+            except IO_ERRORS as e:
+                raise SerialFault(f"{self.port}: write failed: {e}") from e
+
+    def _query(self, data: bytes, n_answer: int | None, name: str) -> bytes:
+        with self._query_lock:
+            stops = self._stops
+            try:
+                self._ser.reset_input_buffer()
+                self._write(data)
+                if n_answer is None:
+                    answer = bytes(self._ser.read_until(p.CR))
+                    complete = answer.endswith(p.CR)
+                else:
+                    answer = bytes(self._ser.read(n_answer))
+                    complete = len(answer) == n_answer
+            except IO_ERRORS as e:
+                raise SerialFault(f"{self.port}: {name} failed: {e}") from e
+        if not complete:
+            if self._stops != stops:
+                raise Interrupted(f"{name} was flushed by an emergency stop")
+            got = f", got {answer!r}" if answer else ""
+            raise SerialFault(
+                f"{self.port}: no answer to {name} within {self._read_timeout_s * 1000:.0f} ms{got}"
+            )
+        return answer

@@ -1,0 +1,346 @@
+"""The SSC-32U serial protocol: pure encoding and parsing of commands and answers.
+
+One place for the bytes of the board, used by both sides: the low-level driver
+encodes commands and parses answers, the emulator parses commands and encodes
+answers. Nothing here does I/O. Encodings are minimal (no spaces, no fields the
+board does not need) because every byte costs 10 bit times on the wire.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+
+CR = b"\r"
+ESC = b"\x1b"
+#: Sent on its own, ESC ends whatever partial line the board holds without running it.
+CANCEL = ESC
+
+CHANNELS = range(32)
+PULSE_MIN_US = 500
+PULSE_MAX_US = 2500
+PULSE_OFF = 0
+OFFSET_RANGE = range(-100, 101)
+TIME_MAX_MS = 65535
+BITS_PER_BYTE = 10  # 8N1: start bit, 8 data bits, stop bit
+MOVING = b"+"
+DONE = b"."
+
+
+class ProtocolError(ValueError):
+    """A command that the board would not accept, or an answer that is not the board's."""
+
+
+@dataclass(frozen=True, slots=True)
+class ChannelTarget:
+    """One channel of a group move: pulse width in us and an optional speed in us/s."""
+
+    channel: int
+    pulse_us: int
+    speed_us_s: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class GroupMove:
+    """`#<ch>P<pw>[S<spd>]...[T<ms>]`: every channel starts and ends together."""
+
+    targets: tuple[ChannelTarget, ...]
+    time_ms: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Stop:
+    """`STOP<ch>`: the servo stops where its pulse is now."""
+
+    channel: int
+
+
+@dataclass(frozen=True, slots=True)
+class QueryMovement:
+    """`Q`: answered `+` while a move runs, `.` when it is complete."""
+
+
+@dataclass(frozen=True, slots=True)
+class QueryPulse:
+    """`QP<ch>` (repeated): one byte per channel, pulse width / 10."""
+
+    channels: tuple[int, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class Version:
+    """`VER`: answered with the firmware string and CR."""
+
+
+@dataclass(frozen=True, slots=True)
+class PulseOffset:
+    """`#<ch>PO<offset>`: a volatile trim of -100..100 us per channel."""
+
+    offsets: tuple[tuple[int, int], ...]
+
+
+@dataclass(frozen=True, slots=True)
+class DigitalOutput:
+    """`#<ch>H` / `#<ch>L`: the channel becomes a digital output, high or low."""
+
+    levels: tuple[tuple[int, bool], ...]
+
+
+@dataclass(frozen=True, slots=True)
+class Unrecognized:
+    """A line the board does not understand; the board ignores it."""
+
+    text: str
+    why: str
+
+
+Command = GroupMove | Stop | QueryMovement | QueryPulse | Version | PulseOffset | DigitalOutput
+
+
+def wire_time_s(n_bytes: int, baud: int) -> float:
+    """Seconds that `n_bytes` take on an 8N1 line at `baud`."""
+    if baud <= 0:
+        raise ValueError(f"baud must be positive, got {baud}")
+    return n_bytes * BITS_PER_BYTE / baud
+
+
+# -- encoding (client side) -------------------------------------------------
+
+
+def _check_channel(channel: int) -> None:
+    if channel not in CHANNELS:
+        raise ProtocolError(f"channel {channel} is outside 0..31")
+
+
+def _check_distinct(channels: Sequence[int]) -> None:
+    for ch in channels:
+        _check_channel(ch)
+    if len(set(channels)) != len(channels):
+        raise ProtocolError(f"channel given twice in {list(channels)}")
+
+
+def encode_group_move(targets: Sequence[ChannelTarget], time_ms: int | None = None) -> bytes:
+    """`#0P1500S750#1P1600T1000\\r`; S and T only where given (T0 is left out)."""
+    if not targets:
+        raise ProtocolError("a move needs at least one channel")
+    _check_distinct([t.channel for t in targets])
+    parts: list[str] = []
+    for t in targets:
+        if t.pulse_us != PULSE_OFF and not PULSE_MIN_US <= t.pulse_us <= PULSE_MAX_US:
+            raise ProtocolError(
+                f"channel {t.channel}: pulse {t.pulse_us} us is outside "
+                f"{PULSE_MIN_US}..{PULSE_MAX_US} (or 0 for off)"
+            )
+        if t.speed_us_s is None:
+            parts.append(f"#{t.channel}P{t.pulse_us}")
+        else:
+            if t.speed_us_s <= 0:
+                raise ProtocolError(f"channel {t.channel}: speed {t.speed_us_s} must be positive")
+            parts.append(f"#{t.channel}P{t.pulse_us}S{t.speed_us_s}")
+    if time_ms is not None:
+        if not 0 <= time_ms <= TIME_MAX_MS:
+            raise ProtocolError(f"time {time_ms} ms is outside 0..{TIME_MAX_MS}")
+        if time_ms:
+            parts.append(f"T{time_ms}")
+    return ("".join(parts) + "\r").encode("ascii")
+
+
+def encode_stop(channels: Iterable[int]) -> bytes:
+    """`STOP0\\rSTOP1\\r...`: one command per channel, all in one write."""
+    chans = list(channels)
+    if not chans:
+        raise ProtocolError("stop needs at least one channel")
+    _check_distinct(chans)
+    return "".join(f"STOP{ch}\r" for ch in chans).encode("ascii")
+
+
+def encode_query_movement() -> bytes:
+    return b"Q\r"
+
+
+def encode_query_pulse(channels: Iterable[int]) -> bytes:
+    """`QP0QP1QP2\\r`: the board answers one byte per channel, in order."""
+    chans = list(channels)
+    if not chans:
+        raise ProtocolError("a pulse query needs at least one channel")
+    for ch in chans:
+        _check_channel(ch)
+    return ("".join(f"QP{ch}" for ch in chans) + "\r").encode("ascii")
+
+
+def encode_version() -> bytes:
+    return b"VER\r"
+
+
+def encode_pulse_offset(offsets: Mapping[int, int]) -> bytes:
+    """`#0PO10#1PO-5\\r`."""
+    if not offsets:
+        raise ProtocolError("a pulse offset needs at least one channel")
+    for ch, off in offsets.items():
+        _check_channel(ch)
+        if off not in OFFSET_RANGE:
+            raise ProtocolError(f"channel {ch}: offset {off} us is outside -100..100")
+    return ("".join(f"#{ch}PO{off}" for ch, off in offsets.items()) + "\r").encode("ascii")
+
+
+def encode_digital_output(levels: Mapping[int, bool]) -> bytes:
+    """`#0H#1L\\r`."""
+    if not levels:
+        raise ProtocolError("a digital output needs at least one channel")
+    for ch in levels:
+        _check_channel(ch)
+    return ("".join(f"#{ch}{'H' if hi else 'L'}" for ch, hi in levels.items()) + "\r").encode(
+        "ascii"
+    )
+
+
+def encode(command: Command) -> bytes:
+    """The bytes of any command, CR included."""
+    match command:
+        case GroupMove(targets, time_ms):
+            return encode_group_move(targets, time_ms)
+        case Stop(channel):
+            return encode_stop([channel])
+        case QueryMovement():
+            return encode_query_movement()
+        case QueryPulse(channels):
+            return encode_query_pulse(channels)
+        case Version():
+            return encode_version()
+        case PulseOffset(offsets):
+            return encode_pulse_offset(dict(offsets))
+        case DigitalOutput(levels):
+            return encode_digital_output(dict(levels))
+    raise ProtocolError(f"not a command: {command!r}")
+
+
+# -- answers (client side parses, emulator encodes) ---------------------------
+
+
+def parse_movement(answer: bytes) -> bool:
+    """True while moving (`+`), False when complete (`.`)."""
+    if answer == MOVING:
+        return True
+    if answer == DONE:
+        return False
+    raise ProtocolError(f"Q answered {answer!r}, expected b'+' or b'.'")
+
+
+def encode_pulses(pulses_us: Sequence[int]) -> bytes:
+    """The QP answer: one byte per channel, pulse width / 10."""
+    return bytes(max(0, min(255, p // 10)) for p in pulses_us)
+
+
+def parse_pulses(answer: bytes, channels: Sequence[int]) -> dict[int, int]:
+    """Pulse widths in us from a QP answer (resolution 10 us; 0 = no pulse yet)."""
+    if len(answer) != len(channels):
+        raise ProtocolError(
+            f"QP for {len(channels)} channel(s) answered {len(answer)} byte(s): {answer!r}"
+        )
+    pulses = {ch: b * 10 for ch, b in zip(channels, answer, strict=True)}
+    for ch, p in pulses.items():
+        if p != PULSE_OFF and not PULSE_MIN_US <= p <= PULSE_MAX_US:
+            raise ProtocolError(f"QP{ch} answered {p // 10} ({p} us), outside 500..2500 us")
+    return pulses
+
+
+def parse_version(answer: bytes) -> str:
+    """The firmware string of a VER answer (which ends with CR)."""
+    if not answer.endswith(CR):
+        raise ProtocolError(f"VER answer has no CR: {answer!r}")
+    text = answer[:-1]
+    if not text or any(b < 0x20 or b > 0x7E for b in text):
+        raise ProtocolError(f"VER answer is not printable ASCII: {answer!r}")
+    return text.decode("ascii")
+
+
+# -- parsing commands (board side) ------------------------------------------
+
+_TOKEN = re.compile(
+    rb"#(?P<ch>\d+)(?:PO(?P<off>[+-]?\d+)|P(?P<pw>\d+)(?:S(?P<spd>\d+))?|(?P<hl>[HL]))"
+    rb"|T(?P<t>\d+)"
+    rb"|STOP(?P<stop>\d+)"
+    rb"|QP(?P<qp>\d+)"
+    rb"|(?P<q>Q)"
+    rb"|(?P<ver>VER)"
+)
+
+
+def parse_line(line: bytes) -> list[Command] | Unrecognized:
+    """The commands of one line (without its CR), as the board reads them.
+
+    Case and spaces/tabs do not matter. A line that does not parse as a whole
+    is returned as `Unrecognized`: the board ignores it, and so does the
+    emulator. Pulse widths outside 500..2500 are returned as sent; clipping is
+    the board's business, not the grammar's.
+    """
+    text = line.translate(None, b" \t").upper()
+    shown = line.decode("ascii", "replace")
+    if not text:
+        return Unrecognized(shown, "empty line")
+    commands: list[Command] = []
+    targets: list[ChannelTarget] = []
+    offsets: list[tuple[int, int]] = []
+    levels: list[tuple[int, bool]] = []
+    time_ms: int | None = None
+    group_at: int | None = None  # where the group move goes among the commands
+    pos = 0
+    while pos < len(text):
+        m = _TOKEN.match(text, pos)
+        if m is None:
+            return Unrecognized(shown, f"cannot read {text[pos : pos + 12]!r} at column {pos}")
+        pos = m.end()
+        g = m.groupdict()
+        if g["ch"] is not None:
+            ch = int(g["ch"])
+            if ch not in CHANNELS:
+                return Unrecognized(shown, f"channel {ch} is outside 0..31")
+            if g["off"] is not None:
+                offsets.append((ch, int(g["off"])))
+            elif g["hl"] is not None:
+                levels.append((ch, g["hl"] == b"H"))
+            else:
+                spd = int(g["spd"]) if g["spd"] is not None else None
+                targets.append(ChannelTarget(ch, int(g["pw"]), spd))
+                if group_at is None:
+                    group_at = len(commands)
+        elif g["t"] is not None:
+            time_ms = int(g["t"])
+            if group_at is None:
+                group_at = len(commands)
+        elif g["stop"] is not None:
+            commands.append(Stop(int(g["stop"])))
+        elif g["qp"] is not None:
+            ch = int(g["qp"])
+            if commands and isinstance(commands[-1], QueryPulse):
+                commands[-1] = QueryPulse((*commands[-1].channels, ch))
+            else:
+                commands.append(QueryPulse((ch,)))
+        elif g["q"] is not None:
+            commands.append(QueryMovement())
+        else:
+            commands.append(Version())
+    if time_ms is not None and not targets:
+        return Unrecognized(shown, "T without any channel to move")
+    if targets and group_at is not None:
+        commands.insert(group_at, GroupMove(tuple(targets), time_ms))
+    if offsets:
+        commands.append(PulseOffset(tuple(offsets)))
+    if levels:
+        commands.append(DigitalOutput(tuple(levels)))
+    return commands
+
+
+def group_duration_s(
+    moves: Mapping[int, tuple[int, int, int | None]], time_ms: int | None
+) -> float:
+    """The board's duration rule: max(T, max over channels of |delta pw| / S).
+
+    `moves` maps channel -> (from us, to us, speed us/s or None).
+    """
+    longest = (time_ms or 0) / 1000.0
+    for start, end, speed in moves.values():
+        if speed:
+            longest = max(longest, abs(end - start) / speed)
+    return longest

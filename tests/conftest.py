@@ -1,0 +1,30 @@
+"""Shared fixtures: the shipped arm configuration and an emulated SSC-32U on a real pty."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+
+from al5d.config import ArmConfig, load_config
+from al5d.emulator import Emulator
+from al5d.lowlevel import SSC32U
+
+
+@pytest.fixture(scope="session")
+def config() -> ArmConfig:
+    return load_config()
+
+
+@pytest.fixture
+def emulator(config: ArmConfig) -> Iterator[Emulator]:
+    with Emulator(config, baud=9600) as emu:
+        yield emu
+
+
+@pytest.fixture
+def board(emulator: Emulator) -> Iterator[SSC32U]:
+    with SSC32U(emulator.port, 9600) as b:
+        emulator.wait_for(lambda rs: any(r.raw == b"VER" for r in rs))
+        emulator.clear_records()
+        yield b

@@ -1,0 +1,117 @@
+"""Loading and validating the arm configuration."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from al5d.config import DEFAULT_CONFIG, ConfigError, load_config, parse_config
+
+REPO_CONFIG = Path(__file__).resolve().parents[1] / "config" / "al5d.yaml"
+
+
+@pytest.fixture
+def data() -> dict[str, Any]:
+    loaded: dict[str, Any] = yaml.safe_load(REPO_CONFIG.read_text())
+    return copy.deepcopy(loaded)
+
+
+def test_shipped_config_is_the_repository_one() -> None:
+    assert DEFAULT_CONFIG.read_text() == REPO_CONFIG.read_text()
+
+
+def test_shipped_config(data: dict[str, Any]) -> None:
+    cfg = parse_config(data)
+    assert list(cfg.joints) == ["base", "shoulder", "elbow", "wrist", "gripper", "wrist_rotate"]
+    assert cfg.channels == (0, 1, 2, 3, 4, 5)
+    assert set(cfg.presets) >= {"park", "ready", "straight_up"}
+    assert cfg.joints["base"].range_deg == (-90, 90)
+    assert cfg.joints["shoulder"].range_deg == (-30, 90)
+    assert cfg.joints["elbow"].range_deg == (0, 135)
+
+
+def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
+    cfg = parse_config(data)
+    shoulder = cfg.joints["shoulder"]
+    assert shoulder.to_us(0) == 1500
+    assert shoulder.to_us(90) == 600  # mounted reversed
+    assert shoulder.us_per_deg == -10
+    assert shoulder.to_deg(shoulder.to_us(37.5)) == pytest.approx(37.5)
+    assert shoulder.speed_us_s == pytest.approx(4280)
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (
+            lambda d: d["joints"]["base"].update(range_deg=[90, -90]),
+            r"joints\.base: .*range_deg \[90.0, -90.0\]",
+        ),
+        (
+            lambda d: d["joints"]["base"].update(channel=40),
+            r"joints\.base\.channel: .*channel 40 is outside 0\.\.31",
+        ),
+        (
+            lambda d: d["joints"]["elbow"].update(channel=0),
+            r"joints\.elbow\.channel: channel 0 is already used by base",
+        ),
+        (
+            lambda d: d["joints"]["wrist"].update(speed_deg_s=-5),
+            r"joints\.wrist\.speed_deg_s: .*greater than 0.*-5",
+        ),
+        (
+            lambda d: d["joints"]["wrist"].update(speed_deg_s="fast"),
+            r"joints\.wrist\.speed_deg_s: .*'fast'",
+        ),
+        (
+            lambda d: d["joints"]["base"].update(range_deg=[-120, 90]),
+            r"joints\.base: .*-120.0 maps to 300 us",
+        ),
+        (
+            lambda d: d["joints"]["base"]["calibration"][1].update(deg=-90),
+            r"joints\.base: .*both reference points",
+        ),
+        (
+            lambda d: d["joints"]["base"]["calibration"][0].update(us=3000),
+            r"joints\.base\.calibration\.0\.us",
+        ),
+        (lambda d: d["joints"]["base"].update(colour="red"), r"joints\.base\.colour: Extra inputs"),
+        (
+            lambda d: d["presets"]["park"].update(elbow=170),
+            r"presets\.park\.elbow: 170.* outside the range 0.0\.\.135\.0",
+        ),
+        (lambda d: d["presets"]["ready"].pop("wrist"), r"presets\.ready: no angle for wrist"),
+        (
+            lambda d: d["presets"]["ready"].update(finger=3),
+            r"presets\.ready\.finger: no such joint",
+        ),
+        (
+            lambda d: d["presets"].pop("straight_up"),
+            r"presets\.straight_up: this preset is required",
+        ),
+        (lambda d: d["server"].update(baud=12345), r"server\.baud: .*baud 12345"),
+        (lambda d: d["presets"]["park"].update(base=float("nan")), r"presets\.park\.base"),
+    ],
+)
+def test_a_bad_config_is_refused_naming_the_key(
+    data: dict[str, Any], edit: Any, message: str
+) -> None:
+    edit(data)
+    with pytest.raises(ConfigError, match=message):
+        parse_config(data, "arm.yaml")
+
+
+def test_file_errors(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_config(tmp_path / "missing.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("joints: [unclosed")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_config(bad)
+    bad.write_text("- just a list")
+    with pytest.raises(ConfigError, match="must hold a mapping"):
+        load_config(bad)

@@ -1,0 +1,223 @@
+"""The emulated SSC-32U, spoken to with raw bytes over a real pseudo terminal."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+
+import pytest
+import serial
+
+from al5d import protocol as p
+from al5d.config import ArmConfig
+from al5d.emulator import Emulator, Record
+
+
+@pytest.fixture
+def wire(emulator: Emulator) -> Iterator[serial.Serial]:
+    """A plain pyserial port on the emulator: the test speaks bytes, not our driver."""
+    with serial.Serial(emulator.port, 9600, timeout=0.5) as port:
+        yield port
+
+
+def last(emulator: Emulator, raw: bytes, timeout: float = 2.0) -> Record:
+    recs = emulator.wait_for(lambda rs: any(r.raw == raw for r in rs), timeout)
+    return [r for r in recs if r.raw == raw][-1]
+
+
+def test_version_answer(wire: serial.Serial) -> None:
+    wire.write(b"VER\r")
+    assert wire.read_until(b"\r") == b"SSC32-V2.50USB\r"
+
+
+def test_q_and_qp_answers_are_the_documented_bytes(wire: serial.Serial) -> None:
+    wire.write(b"QP0QP1\r")
+    assert wire.read(2) == b"\x00\x00"  # no pulse on either channel since power-up
+    wire.write(b"#0P1500#1P2000\r")
+    wire.write(b"Q\r")
+    assert wire.read(1) == b"."
+    wire.write(b"QP0QP1\r")
+    assert wire.read(2) == bytes([150, 200])
+    wire.write(b"#0P1000T1000\r")
+    wire.write(b"Q\r")
+    assert wire.read(1) == b"+"
+    wire.write(b"QP0\r")
+    mid = wire.read(1)[0] * 10
+    assert 1000 < mid < 1500
+
+
+def test_answers_after_a_small_delay(emulator: Emulator, wire: serial.Serial) -> None:
+    t0 = time.monotonic()
+    wire.write(b"Q\r")
+    assert wire.read(1) == b"."
+    elapsed = time.monotonic() - t0
+    # Two bytes out, one back: at least 3 byte times plus the answer delay.
+    assert elapsed >= p.wire_time_s(3, 9600) + emulator.answer_delay_s
+
+
+def test_case_spaces_and_several_commands_in_one_line(
+    emulator: Emulator, wire: serial.Serial
+) -> None:
+    wire.write(b"#0 p1500 #1P1600 t0 q\r")
+    assert wire.read(1) == b"."
+    rec = last(emulator, b"#0 p1500 #1P1600 t0 q")
+    assert rec.commands[0] == p.GroupMove((p.ChannelTarget(0, 1500), p.ChannelTarget(1, 1600)), 0)
+    assert emulator.pulse_us(0) == 1500 and emulator.pulse_us(1) == 1600
+
+
+def test_esc_cancels_the_line(emulator: Emulator, wire: serial.Serial) -> None:
+    wire.write(b"#0P1500T100\x1b")
+    rec = last(emulator, b"#0P1500T100")
+    assert rec.ignored == "cancelled by ESC"
+    assert emulator.pulse_us(0) == 0
+
+
+def test_unknown_input_is_ignored_and_recorded(emulator: Emulator, wire: serial.Serial) -> None:
+    wire.write(b"HELLO\r#0P1500\r")
+    rec = last(emulator, b"HELLO")
+    assert not rec.accepted and "cannot read" in (rec.ignored or "")
+    last(emulator, b"#0P1500")
+    assert emulator.pulse_us(0) == 1500
+
+
+def test_out_of_range_pulse_is_clipped_as_the_board_does(
+    emulator: Emulator, wire: serial.Serial
+) -> None:
+    wire.write(b"#0P3000\r")
+    rec = last(emulator, b"#0P3000")
+    assert "clipped to 2500" in (rec.ignored or "")
+    assert emulator.pulse_us(0) == 2500
+
+
+def test_first_command_after_power_up_ignores_speed_and_time(
+    emulator: Emulator, wire: serial.Serial
+) -> None:
+    wire.write(b"#0P2000T2000\r")
+    rec = last(emulator, b"#0P2000T2000")
+    assert "first command since power-up" in (rec.ignored or "")
+    assert emulator.pulse_us(0, rec.t_effect) == 2000  # jumped: no ramp
+    wire.write(b"Q\r")
+    assert wire.read(1) == b"."
+    # The second command is timed.
+    wire.write(b"#0P1000T1000\r")
+    rec2 = last(emulator, b"#0P1000T1000")
+    assert rec2.accepted
+    assert emulator.pulse_us(0, rec2.t_effect + 0.5) == pytest.approx(1500)
+
+
+def test_group_move_duration_rule_worked_example(emulator: Emulator, wire: serial.Serial) -> None:
+    # UG: S500 from 2000 to 750 with T2000 takes 2.5 s, because 1250 us at 500 us/s.
+    wire.write(b"#0P2000\r")
+    wire.write(b"#0P750S500T2000\r")
+    rec = last(emulator, b"#0P750S500T2000")
+    t = rec.t_effect
+    assert emulator.pulse_us(0, t + 1.0) == pytest.approx(1500)  # 500 us/s, not 625
+    assert emulator.pulse_us(0, t + 2.0) == pytest.approx(1000)
+    assert emulator.pulse_us(0, t + 2.5) == pytest.approx(750)
+    # And Q says so on the wire: still moving after 2.0 s, done after 2.5 s.
+    time.sleep(max(0.0, t + 2.2 - time.monotonic()))
+    wire.write(b"Q\r")
+    assert wire.read(1) == b"+"
+    time.sleep(max(0.0, t + 2.55 - time.monotonic()))
+    wire.write(b"Q\r")
+    assert wire.read(1) == b"."
+
+
+def test_stop_holds_the_pulse_and_q_says_moving_until_the_move_time_is_over(
+    emulator: Emulator, wire: serial.Serial
+) -> None:
+    wire.write(b"#0P1000\r#0P2000T1000\r")
+    move = last(emulator, b"#0P2000T1000")
+    time.sleep(0.3)
+    wire.write(b"STOP0\r")
+    stop = last(emulator, b"STOP0")
+    held = emulator.pulse_us(0, stop.t_effect)
+    assert 1100 < held < 1900
+    assert emulator.pulse_us(0, stop.t_effect + 0.5) == held
+    wire.write(b"QP0\r")
+    assert wire.read(1)[0] == int(held) // 10
+    wire.write(b"Q\r")
+    assert wire.read(1) == b"+"  # the manual's caveat: STOP does not end the move's time
+    time.sleep(max(0.0, move.t_effect + 1.05 - time.monotonic()))
+    wire.write(b"Q\r")
+    assert wire.read(1) == b"."
+
+
+def test_pulse_offset_and_digital_outputs(emulator: Emulator, wire: serial.Serial) -> None:
+    wire.write(b"#0P1500\r#0PO50\r#9H\r")
+    last(emulator, b"#9H")
+    time.sleep(0.2)
+    assert emulator.servo_us(0) == pytest.approx(1550)  # the servo sees pulse + offset
+    wire.write(b"QP0\r")
+    assert wire.read(1) == bytes([150])
+
+
+@pytest.mark.parametrize("baud", [9600, 115200])
+def test_a_command_takes_effect_when_its_cr_has_arrived(config: ArmConfig, baud: int) -> None:
+    command = b"#0P1500#1P1600#2P1700#3P1800#4P1900#5P2000T1234\r"
+    with Emulator(config, baud=baud) as emu, serial.Serial(emu.port, baud) as port:
+        for _ in range(5):
+            t_write = time.monotonic()
+            port.write(command)
+            rec = emu.wait_for(lambda rs: len(rs) > 0)[-1]
+            emu.clear_records()
+            wire = p.wire_time_s(len(command), baud)
+            assert rec.t_effect - t_write >= wire
+            assert rec.t_effect - t_write < wire + 0.05  # generous: only against a hang
+            time.sleep(0.01)
+
+
+def test_client_at_another_baud_is_noise(config: ArmConfig) -> None:
+    with Emulator(config, baud=9600) as emu, serial.Serial(emu.port, 115200, timeout=0.2) as port:
+        port.write(b"VER\r")
+        assert port.read(20) == b""
+        rec = emu.wait_for(lambda rs: len(rs) > 0)[-1]
+        assert "noise" in (rec.ignored or "")
+
+
+def test_output_flush_drops_bytes_not_yet_on_the_wire(
+    emulator: Emulator, wire: serial.Serial
+) -> None:
+    # 20 moves are 0.25 s of wire at 9600; a flush 20 ms later leaves most unsent.
+    for i in range(20):
+        wire.write(f"#0P{1000 + i * 10}\r".encode())
+    time.sleep(0.02)
+    wire.reset_output_buffer()
+    wire.write(b"\x1bSTOP0\r")
+    last(emulator, b"STOP0")
+    moves = [r for r in emulator.records if r.raw.startswith(b"#0P")]
+    assert 1 <= len(moves) < 20
+
+
+class TestServoModel:
+    def test_a_jump_is_followed_at_the_servo_speed(self, config: ArmConfig) -> None:
+        base = config.joints["base"]
+        with (
+            Emulator(config, initial_pose={"base": -90}) as emu,
+            serial.Serial(emu.port, 9600) as w,
+        ):
+            w.write(b"#0P2400\r")  # first command: the pulse jumps to +90 deg
+            rec = last(emu, b"#0P2400")
+            t = rec.t_effect
+            start = base.to_us(-90)
+            v = base.speed_us_s
+            assert emu.pulse_us(0, t) == 2400
+            assert emu.servo_us(0, t + 0.1) == pytest.approx(start + v * 0.1)
+            reach = t + (2400 - start) / v
+            assert emu.servo_us(0, reach + 0.01) == pytest.approx(2400)
+            # Within 1 degree: 10 us earlier than the full travel.
+            assert emu.settle_time(1.0, ["base"]) == pytest.approx(reach - 10 / v, abs=1e-4)
+
+    def test_a_slow_ramp_is_tracked_and_a_fast_one_lags(self, config: ArmConfig) -> None:
+        with Emulator(config, initial_pose={"base": 0}) as emu, serial.Serial(emu.port, 9600) as w:
+            w.write(b"#0P1500\r")
+            last(emu, b"#0P1500")
+            time.sleep(0.01)
+            w.write(b"#0P2400T2000\r")  # 450 us/s: slower than the servo (3330 us/s)
+            t = last(emu, b"#0P2400T2000").t_effect
+            for dt in (0.5, 1.0, 1.9):
+                assert emu.servo_us(0, t + dt) == pytest.approx(emu.pulse_us(0, t + dt))
+            w.write(b"#0P600T100\r")  # 18000 us/s: the servo cannot keep up
+            t2 = last(emu, b"#0P600T100").t_effect
+            assert emu.servo_us(0, t2 + 0.1) > emu.pulse_us(0, t2 + 0.1) + 100
+            assert emu.settle_time(1.0, ["base"]) > t2 + 0.1

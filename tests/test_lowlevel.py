@@ -1,0 +1,164 @@
+"""The low-level driver against the emulator over a real pseudo terminal."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from al5d.config import ArmConfig
+from al5d.emulator import Emulator, Fault
+from al5d.lowlevel import SSC32U, Interrupted, SerialFault
+
+
+def test_connect_checks_the_board(emulator: Emulator, board: SSC32U) -> None:
+    assert board.firmware == "SSC32-V2.50USB"
+    assert board.version() == "SSC32-V2.50USB"
+
+
+def test_one_call_per_board_function(emulator: Emulator, board: SSC32U) -> None:
+    assert board.read_pulses([0, 1]) == {0: 0, 1: 0}
+    assert board.move({0: 1500, 1: 1200}) == b"#0P1500#1P1200\r"
+    assert board.is_done()
+    board.move({0: 2000, 1: 1800}, time_ms=500)
+    assert not board.is_done()
+    board.stop([0, 1])
+    assert board.read_pulses([0, 1]) == {
+        0: emulator.pulse_us(0) // 10 * 10,
+        1: emulator.pulse_us(1) // 10 * 10,
+    }
+    board.set_offsets({0: 20})
+    board.set_outputs({9: True})
+    board.cancel()
+    raws = [r.raw for r in emulator.wait_for(lambda rs: len(rs) >= 10)]
+    assert (
+        raws
+        == [
+            b"QP0QP1",
+            b"#0P1500#1P1200",
+            b"Q",
+            b"#0P2000#1P1800T500",
+            b"Q",
+            b"",
+            b"STOP0",
+            b"STOP1",
+            b"QP0QP1",
+            b"#0PO20",
+            b"#9H",
+            b"",
+        ][: len(raws)]
+    )
+
+
+def test_wire_time_at_the_current_baud(emulator: Emulator, board: SSC32U) -> None:
+    assert board.wire_time_s(b"#0P1500\r") == pytest.approx(8 * 10 / 9600)
+    assert board.wire_time_s(96) == pytest.approx(0.1)
+
+
+def test_stop_is_one_write_that_first_cancels_any_partial_line(
+    emulator: Emulator, board: SSC32U
+) -> None:
+    assert board.stop(range(6)) == b"\x1bSTOP0\rSTOP1\rSTOP2\rSTOP3\rSTOP4\rSTOP5\r"
+
+
+def test_stop_drops_output_still_waiting(emulator: Emulator, board: SSC32U) -> None:
+    for i in range(30):
+        board.move({0: 1000 + 10 * i})  # 240 bytes: 250 ms of wire at 9600
+    time.sleep(0.005)  # see Emulator._flush: the emulator must have seen the bytes before the flush
+    board.stop([0])
+    emulator.wait_for(lambda rs: any(r.raw == b"STOP0" for r in rs))
+    moves = [r for r in emulator.records if r.raw.startswith(b"#0P")]
+    assert len(moves) < 30
+
+
+def test_stop_does_not_wait_behind_a_query(emulator: Emulator, board: SSC32U) -> None:
+    emulator.inject(Fault.NO_ANSWER)
+    errors: list[BaseException] = []
+
+    def query() -> None:
+        try:
+            board.is_done()
+        except (SerialFault, Interrupted) as e:
+            errors.append(e)
+
+    th = threading.Thread(target=query)
+    th.start()
+    time.sleep(0.02)  # the query now waits for an answer that will not come
+    t0 = time.monotonic()
+    board.stop([0, 1])
+    took = time.monotonic() - t0
+    th.join()
+    assert took < 0.05  # the query's read timeout is 0.1 s; stop did not wait for it
+    assert errors
+
+
+class TestFaults:
+    def test_no_answer(self, emulator: Emulator, board: SSC32U) -> None:
+        emulator.inject(Fault.NO_ANSWER)
+        with pytest.raises(SerialFault, match=r"no answer to Q within 100 ms"):
+            board.is_done()
+        with pytest.raises(SerialFault, match=r"no answer to QP within 100 ms"):
+            board.read_pulses([0])
+
+    def test_garbage_answer(self, emulator: Emulator, board: SSC32U) -> None:
+        emulator.inject(Fault.GARBAGE)
+        with pytest.raises(SerialFault, match=r"not an SSC-32U answer: Q answered b'\\xfe'"):
+            board.is_done()
+        with pytest.raises(SerialFault, match=r"not an SSC-32U answer: VER answer"):
+            board.version()
+        emulator.clear()
+        assert board.is_done()  # the leftover garbage does not spoil the next answer
+
+    def test_disconnect(self, emulator: Emulator, board: SSC32U) -> None:
+        emulator.inject(Fault.DISCONNECT)
+        with pytest.raises(SerialFault, match=r"failed: .*Input/output error"):
+            board.move({0: 1500})
+        with pytest.raises(SerialFault, match=board.port):
+            board.is_done()
+        with pytest.raises(SerialFault, match="stop could not be written"):
+            board.stop([0])
+        board.close()  # closing a dead port does not raise
+
+    def test_reconnect_behind_the_same_link(self, config: ArmConfig, tmp_path: object) -> None:
+        link = f"{tmp_path}/ssc32u"
+        with Emulator(config, link=link) as emu:
+            with SSC32U(link) as b:
+                b.move({0: 1500})
+                emu.wait_for(lambda rs: any(r.raw == b"#0P1500" for r in rs))
+            emu.inject(Fault.DISCONNECT)
+            with pytest.raises(SerialFault, match="cannot open"):
+                SSC32U(link)
+            emu.reconnect()
+            with SSC32U(link) as b:
+                assert b.read_pulses([0]) == {0: 1500}  # the board kept its state
+
+    def test_device_that_is_not_an_ssc32u(self, config: ArmConfig) -> None:
+        with (
+            Emulator(config, version="ARDUINO") as emu,
+            pytest.raises(
+                SerialFault, match="answered VER with 'ARDUINO', which is not an SSC-32U"
+            ),
+        ):
+            SSC32U(emu.port)
+
+    def test_silent_device(self, config: ArmConfig) -> None:
+        with Emulator(config) as emu:
+            emu.inject(Fault.NO_ANSWER)
+            with pytest.raises(SerialFault, match="does not answer like an SSC-32U at 9600 baud"):
+                SSC32U(emu.port)
+
+    def test_wrong_baud(self, config: ArmConfig) -> None:
+        with Emulator(config, baud=115200) as emu:
+            with pytest.raises(SerialFault, match="does not answer like an SSC-32U at 9600 baud"):
+                SSC32U(emu.port, 9600)
+            with SSC32U(emu.port, 115200) as b:
+                assert b.firmware.startswith("SSC32")
+
+    def test_missing_port(self) -> None:
+        with pytest.raises(SerialFault, match=r"/dev/nonexistent-ssc32u: cannot open"):
+            SSC32U("/dev/nonexistent-ssc32u")
+
+    def test_port_already_in_use(self, emulator: Emulator, board: SSC32U) -> None:
+        with pytest.raises(SerialFault, match="cannot open"):
+            SSC32U(emulator.port)
