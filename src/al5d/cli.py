@@ -31,6 +31,14 @@ def _cmd_emulator(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_serve(args: argparse.Namespace) -> int:
+    from al5d.server import ServerOptions, serve, setup_logging
+
+    setup_logging(args.log_level)
+    options = ServerOptions(port=args.port, baud=args.baud, config=args.config, stdin=args.stdin)
+    return serve(options)
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     print("al5d demo: not yet: the demo arrives with the server (issue 3 and 4)")
     return 0
@@ -41,6 +49,14 @@ def build_parser() -> argparse.ArgumentParser:
         prog="al5d", description="Lynxmotion AL5D arm on an SSC-32U: server, client and emulator."
     )
     sub = parser.add_subparsers(dest="command", required=True)
+
+    srv = sub.add_parser("serve", help="the arm server (embedded emulator without --port)")
+    srv.add_argument("--port", help="serial device of the SSC-32U; default: embedded emulator")
+    srv.add_argument("--baud", type=int, choices=(9600, 38400, 115200), help="default: config")
+    srv.add_argument("--config", help="arm configuration file; default: the shipped one")
+    srv.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    srv.add_argument("--stdin", action="store_true", help="also read instructions from stdin")
+    srv.set_defaults(func=_cmd_serve)
 
     emu = sub.add_parser("emulator", help="a standalone emulated SSC-32U on a pseudo terminal")
     emu.add_argument("--baud", type=int, default=9600, choices=(9600, 38400, 115200))

@@ -1,0 +1,211 @@
+"""Instructions and their outcomes as data, and the text grammar that reads and writes them.
+
+    park | ready | straight_up            [time=<ms>]
+    move <joint>=<degrees> [...]         [time=<ms>]
+    stop | release | shutdown
+    wait <ms>                            (sequence files only: a pause on the client)
+    # comment
+
+Every instruction carries an id, so that its one outcome (done, refused or
+cancelled) can be matched to it wherever it is reported.
+"""
+
+from __future__ import annotations
+
+import enum
+import itertools
+import os
+from dataclasses import dataclass, field
+
+PRESET_NAMES = ("park", "ready", "straight_up")
+
+
+class Kind(enum.Enum):
+    PRESET = "preset"
+    MOVE = "move"
+    STOP = "stop"
+    RELEASE = "release"
+    SHUTDOWN = "shutdown"
+
+
+SAFETY = (Kind.STOP, Kind.RELEASE, Kind.SHUTDOWN)
+
+_ids = itertools.count(1)
+_prefix = f"{os.getpid():x}"
+
+
+def new_id() -> str:
+    """A short id, unique within this process (cheap: a counter, not a uuid)."""
+    return f"{_prefix}-{next(_ids)}"
+
+
+@dataclass(frozen=True, slots=True)
+class Instruction:
+    """One instruction for the arm.
+
+    `joints` keeps the order and any duplicates as given, so that validation
+    can refuse a duplicate instead of silently taking one of them.
+    `time_ms` None (or 0) means as fast as the servos allow.
+    """
+
+    kind: Kind
+    preset: str = ""
+    joints: tuple[tuple[str, float], ...] = ()
+    time_ms: int | None = None
+    id: str = field(default_factory=new_id)
+
+    @property
+    def name(self) -> str:
+        """The instruction word: the preset's name, or move/stop/release/shutdown."""
+        return self.preset if self.kind is Kind.PRESET else self.kind.value
+
+    @property
+    def is_motion(self) -> bool:
+        return self.kind in (Kind.PRESET, Kind.MOVE)
+
+    def __str__(self) -> str:
+        return format_instruction(self)
+
+
+def preset(name: str, time_ms: int | None = None, id: str | None = None) -> Instruction:
+    return Instruction(Kind.PRESET, preset=name, time_ms=time_ms, id=id or new_id())
+
+
+def move(time_ms: int | None = None, id: str | None = None, **joints: float) -> Instruction:
+    return Instruction(Kind.MOVE, joints=tuple(joints.items()), time_ms=time_ms, id=id or new_id())
+
+
+def stop(id: str | None = None) -> Instruction:
+    return Instruction(Kind.STOP, id=id or new_id())
+
+
+def release(id: str | None = None) -> Instruction:
+    return Instruction(Kind.RELEASE, id=id or new_id())
+
+
+def shutdown(id: str | None = None) -> Instruction:
+    return Instruction(Kind.SHUTDOWN, id=id or new_id())
+
+
+class Result(enum.Enum):
+    DONE = "done"
+    REFUSED = "refused"
+    CANCELLED = "cancelled"
+
+
+@dataclass(frozen=True, slots=True)
+class Outcome:
+    """What became of an instruction: exactly one per instruction."""
+
+    id: str
+    instruction: str
+    result: Result
+    reason: str = ""
+    elapsed_ms: float = 0.0
+    expected_ms: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        return self.result is Result.DONE
+
+    def __str__(self) -> str:
+        text = f"{self.instruction} [{self.id}]: {self.result.value}"
+        if self.reason:
+            text += f": {self.reason}"
+        if self.result is Result.DONE and self.elapsed_ms:
+            text += f" ({self.elapsed_ms:.0f} ms)"
+        return text
+
+
+@dataclass(frozen=True, slots=True)
+class Wait:
+    """`wait <ms>` in a sequence file: the client pauses; the server never sees it."""
+
+    ms: int
+
+
+class GrammarError(ValueError):
+    """Text that is not an instruction; the message points at the offending word."""
+
+
+def _fmt_number(x: float) -> str:
+    return f"{x:g}" if x == x and abs(x) != float("inf") else str(x)
+
+
+def format_instruction(instr: Instruction) -> str:
+    """The text form, which `parse_instruction` reads back."""
+    words = [instr.name]
+    words += [f"{j}={_fmt_number(d)}" for j, d in instr.joints]
+    if instr.time_ms:
+        words.append(f"time={instr.time_ms}")
+    return " ".join(words)
+
+
+def _where(words: list[str], i: int) -> str:
+    return f"word {i + 1} {words[i]!r}"
+
+
+def _parse_ms(words: list[str], i: int, text: str) -> int:
+    try:
+        ms = int(text)
+    except ValueError:
+        raise GrammarError(f"{_where(words, i)}: {text!r} is not a whole number of ms") from None
+    if ms < 0:
+        raise GrammarError(f"{_where(words, i)}: time {ms} ms is negative")
+    return ms
+
+
+def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Instruction:
+    """Read one instruction. Range checks are the driver's: this only reads the words."""
+    words = text.split()
+    if not words:
+        raise GrammarError("empty instruction")
+    head = words[0].lower()
+    time_ms: int | None = None
+    joints: list[tuple[str, float]] = []
+    for i, word in enumerate(words[1:], start=1):
+        key, eq, value = word.partition("=")
+        if not eq or not key or not value:
+            raise GrammarError(f"{_where(words, i)}: expected <name>=<value>")
+        if head not in (*presets, "move"):
+            raise GrammarError(f"{_where(words, i)}: {head} takes no arguments")
+        if key.lower() == "time":
+            if time_ms is not None:
+                raise GrammarError(f"{_where(words, i)}: time given twice")
+            time_ms = _parse_ms(words, i, value)
+        elif head == "move":
+            try:
+                deg = float(value)
+            except ValueError:
+                raise GrammarError(
+                    f"{_where(words, i)}: {value!r} is not a number of degrees"
+                ) from None
+            joints.append((key.lower(), deg))
+        else:
+            raise GrammarError(f"{_where(words, i)}: a preset takes only time=<ms>")
+    if head in presets:
+        return Instruction(Kind.PRESET, preset=head, time_ms=time_ms)
+    if head == "move":
+        if not joints:
+            raise GrammarError("word 1 'move': name at least one <joint>=<degrees>")
+        return Instruction(Kind.MOVE, joints=tuple(joints), time_ms=time_ms)
+    for kind in SAFETY:
+        if head == kind.value:
+            return Instruction(kind)
+    known = " | ".join((*presets, "move", "stop", "release", "shutdown"))
+    raise GrammarError(f"word 1 {words[0]!r}: unknown instruction; expected {known}")
+
+
+def parse_sequence_line(
+    line: str, presets: tuple[str, ...] = PRESET_NAMES
+) -> Instruction | Wait | None:
+    """One line of a sequence file: an instruction, a client-side wait, or None (blank/comment)."""
+    text = line.split("#", 1)[0].strip()
+    if not text:
+        return None
+    words = text.split()
+    if words[0].lower() == "wait":
+        if len(words) != 2:
+            raise GrammarError("wait takes one number of ms: wait <ms>")
+        return Wait(_parse_ms(words, 1, words[1]))
+    return parse_instruction(text, presets)

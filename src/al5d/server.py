@@ -1,0 +1,105 @@
+"""The server process: the high-level driver on a real port or on the embedded emulator.
+
+`al5d serve` builds it. Without `--port` it starts an emulated SSC-32U in the
+same process, so anyone can run the server without an arm. SIGINT and SIGTERM
+park the arm first (D2), then the process exits 0.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import TextIO
+
+from al5d.config import ArmConfig, load_config
+from al5d.emulator import Emulator
+from al5d.highlevel import ArmDriver
+from al5d.instruction import GrammarError, Instruction, Outcome, parse_instruction, shutdown
+
+log = logging.getLogger("al5d")
+
+LOG_FORMAT = "%(asctime)s.%(msecs)03d %(levelname)s %(message)s"
+
+
+def setup_logging(level: str) -> None:
+    logging.basicConfig(
+        level=level.upper(), format=LOG_FORMAT, datefmt="%H:%M:%S", stream=sys.stderr
+    )
+
+
+@dataclass
+class ServerOptions:
+    port: str | None = None
+    baud: int | None = None
+    config: str | None = None
+    stdin: bool = False
+
+
+@contextmanager
+def arm(
+    options: ServerOptions, config: ArmConfig | None = None
+) -> Iterator[tuple[ArmDriver, Emulator | None]]:
+    """The driver on the given port, or on an embedded emulator; closed (parked) on exit."""
+    config = config or load_config(options.config)
+    baud = options.baud or config.server.baud
+    emulator: Emulator | None = None
+    port = options.port
+    if port is None:
+        emulator = Emulator(config, baud=baud).start()
+        port = emulator.port
+        log.info("no --port: using the embedded SSC-32U emulator on %s", port)
+    driver = ArmDriver(config, port, baud)
+    try:
+        driver.start()
+        yield driver, emulator
+    finally:
+        driver.close()
+        if emulator is not None:
+            emulator.close()
+
+
+def _read_instructions(driver: ArmDriver, stream: TextIO, out: TextIO) -> None:
+    """Instructions in the text grammar, one a line; each outcome printed when it comes."""
+    presets = tuple(driver.config.presets)
+
+    def show(outcome: Outcome) -> None:
+        print(outcome, file=out, flush=True)
+
+    for line in stream:
+        text = line.split("#", 1)[0].strip()
+        if not text:
+            continue
+        try:
+            instr: Instruction = parse_instruction(text, presets)
+        except GrammarError as e:
+            print(f"error: {e}", file=out, flush=True)
+            continue
+        driver.submit(instr).add_done_callback(lambda f: show(f.result()))
+
+
+def serve(options: ServerOptions) -> int:
+    """Run until shutdown (instruction or signal); the arm is parked before the end."""
+    stop_requested = threading.Event()
+
+    def on_signal(signum: int, frame: object) -> None:
+        stop_requested.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    with arm(options) as (driver, _):
+        if options.stdin:
+            threading.Thread(
+                target=_read_instructions, args=(driver, sys.stdin, sys.stdout), daemon=True
+            ).start()
+        while not driver.finished.is_set():
+            if stop_requested.wait(0.1):
+                log.info("signal received: shutting down (park first)")
+                driver.submit(shutdown(id="signal"))
+                driver.finished.wait()
+                break
+    return 0

@@ -1,0 +1,94 @@
+"""Running `al5d` commands as separate processes, and reading their output as it comes."""
+
+from __future__ import annotations
+
+import os
+import queue
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import IO
+
+AL5D = str(Path(sys.executable).with_name("al5d"))
+
+
+class Lines:
+    """The lines of a stream, collected by a thread so that a test can wait for one."""
+
+    def __init__(self, stream: IO[str]) -> None:
+        self.all: list[str] = []
+        self._cursor = 0  # wait_for looks after the line it matched last
+        self._q: queue.Queue[str | None] = queue.Queue()
+        threading.Thread(target=self._pump, args=(stream,), daemon=True).start()
+
+    def _pump(self, stream: IO[str]) -> None:
+        for line in stream:
+            self._q.put(line.rstrip("\n"))
+        self._q.put(None)
+
+    def wait_for(self, text: str, timeout: float = 20.0) -> str:
+        """The next line (after the last one matched) that contains `text`."""
+        for i in range(self._cursor, len(self.all)):
+            if text in self.all[i]:
+                self._cursor = i + 1
+                return self.all[i]
+        self._cursor = len(self.all)
+        deadline = time.monotonic() + timeout
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                line = self._q.get(timeout=left)
+            except queue.Empty:
+                break
+            if line is None:
+                break
+            self.all.append(line)
+            self._cursor = len(self.all)
+            if text in line:
+                return line
+        raise AssertionError(
+            f"no line with {text!r} in {timeout} s; got:\n" + "\n".join(self.all[-30:])
+        )
+
+    def drain(self, timeout: float = 2.0) -> list[str]:
+        deadline = time.monotonic() + timeout
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                line = self._q.get(timeout=left)
+            except queue.Empty:
+                break
+            if line is None:
+                break
+            self.all.append(line)
+        return self.all
+
+
+class Proc:
+    """An `al5d` subcommand in its own process, with its stdout and stderr lines."""
+
+    def __init__(self, *args: str, env: dict[str, str] | None = None, stdin: bool = False) -> None:
+        self.popen = subprocess.Popen(
+            [AL5D, *args],
+            stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, **(env or {})},
+        )
+        assert self.popen.stdout is not None and self.popen.stderr is not None
+        self.out = Lines(self.popen.stdout)
+        self.err = Lines(self.popen.stderr)
+
+    def send(self, line: str) -> None:
+        assert self.popen.stdin is not None
+        self.popen.stdin.write(line + "\n")
+        self.popen.stdin.flush()
+
+    def wait(self, timeout: float = 30.0) -> int:
+        return self.popen.wait(timeout)
+
+    def kill(self) -> None:
+        if self.popen.poll() is None:
+            self.popen.kill()
+            self.popen.wait(5)

@@ -1,0 +1,104 @@
+"""The instruction grammar: parse, format, and errors that point at the word."""
+
+from __future__ import annotations
+
+import pytest
+
+from al5d import instruction as ins
+from al5d.instruction import GrammarError, Instruction, Kind, Wait
+
+
+@pytest.mark.parametrize(
+    ("text", "kind", "preset", "joints", "time_ms"),
+    [
+        ("park", Kind.PRESET, "park", (), None),
+        ("READY", Kind.PRESET, "ready", (), None),
+        ("straight_up time=1500", Kind.PRESET, "straight_up", (), 1500),
+        ("move base=30", Kind.MOVE, "", (("base", 30.0),), None),
+        (
+            "move base=-12.5 Elbow=90 time=800",
+            Kind.MOVE,
+            "",
+            (("base", -12.5), ("elbow", 90.0)),
+            800,
+        ),
+        (
+            "move base=1 base=2",
+            Kind.MOVE,
+            "",
+            (("base", 1.0), ("base", 2.0)),
+            None,
+        ),  # driver refuses
+        ("stop", Kind.STOP, "", (), None),
+        ("release", Kind.RELEASE, "", (), None),
+        ("shutdown", Kind.SHUTDOWN, "", (), None),
+    ],
+)
+def test_parse(
+    text: str, kind: Kind, preset: str, joints: tuple[tuple[str, float], ...], time_ms: int | None
+) -> None:
+    instr = ins.parse_instruction(text)
+    assert (instr.kind, instr.preset, instr.joints, instr.time_ms) == (
+        kind,
+        preset,
+        joints,
+        time_ms,
+    )
+    assert instr.id
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("", "empty instruction"),
+        ("fly", r"word 1 'fly': unknown instruction"),
+        ("move", r"word 1 'move': name at least one"),
+        ("move base=abc", r"word 2 'base=abc': 'abc' is not a number of degrees"),
+        ("move base30", r"word 2 'base30': expected <name>=<value>"),
+        ("move base=10 time=fast", r"word 3 'time=fast': 'fast' is not a whole number of ms"),
+        ("move base=10 time=-5", r"word 3 'time=-5': time -5 ms is negative"),
+        ("move base=10 time=5 time=6", r"word 4 'time=6': time given twice"),
+        ("stop now=1", r"word 2 'now=1': stop takes no arguments"),
+        ("park base=3", r"word 2 'base=3': a preset takes only time=<ms>"),
+    ],
+)
+def test_grammar_errors_point_at_the_word(text: str, message: str) -> None:
+    with pytest.raises(GrammarError, match=message):
+        ins.parse_instruction(text)
+
+
+@pytest.mark.parametrize(
+    "instr",
+    [
+        ins.preset("park"),
+        ins.preset("ready", time_ms=2000),
+        ins.move(base=30.5, elbow=90),
+        ins.move(time_ms=700, wrist=-45, gripper=80),
+        ins.stop(),
+        ins.release(),
+        ins.shutdown(),
+    ],
+)
+def test_format_then_parse_gives_the_instruction_back(instr: Instruction) -> None:
+    back = ins.parse_instruction(ins.format_instruction(instr))
+    assert (back.kind, back.preset, back.joints, back.time_ms) == (
+        instr.kind,
+        instr.preset,
+        instr.joints,
+        instr.time_ms,
+    )
+
+
+def test_sequence_lines() -> None:
+    assert ins.parse_sequence_line("  # a comment") is None
+    assert ins.parse_sequence_line("") is None
+    assert ins.parse_sequence_line("wait 500") == Wait(500)
+    parsed = ins.parse_sequence_line("move base=10  # and a note")
+    assert isinstance(parsed, Instruction) and parsed.joints == (("base", 10.0),)
+    with pytest.raises(GrammarError, match="wait takes one number"):
+        ins.parse_sequence_line("wait")
+
+
+def test_ids_are_unique() -> None:
+    ids = {ins.stop().id for _ in range(1000)}
+    assert len(ids) == 1000

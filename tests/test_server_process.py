@@ -1,0 +1,52 @@
+"""`al5d serve` as a separate process on the embedded emulator."""
+
+from __future__ import annotations
+
+import signal
+
+from proc import Proc
+
+
+def test_serve_parks_takes_instructions_and_shuts_down() -> None:
+    proc = Proc("serve", "--stdin", "--log-level", "DEBUG", stdin=True)
+    try:
+        proc.err.wait_for("using the embedded SSC-32U emulator")
+        proc.err.wait_for("STATE: initializing")
+        proc.err.wait_for("STATE: ready")
+        proc.send("move base=30 time=300")
+        assert "done" in proc.out.wait_for("move [")
+        proc.send("move base=300")
+        assert "refused: base: 300 deg is outside the range -90..90" in proc.out.wait_for("move [")
+        proc.send("shutdown")
+        assert proc.wait() == 0
+        assert "shutdown" in proc.out.wait_for("shutdown [")
+        proc.err.drain()
+        assert any("STATE: shutting_down" in line for line in proc.err.all)
+        assert any("shutdown: parked" in line for line in proc.err.all)
+        assert any("EVENT: move_done" in line for line in proc.err.all)
+    finally:
+        proc.kill()
+
+
+def test_sigterm_and_sigint_park_first_then_exit_0() -> None:
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        proc = Proc("serve")
+        try:
+            proc.err.wait_for("STATE: ready")
+            proc.popen.send_signal(sig)
+            assert proc.wait() == 0
+            proc.err.drain()
+            assert any("STATE: shutting_down" in line for line in proc.err.all)
+            assert any("shutdown: parked" in line for line in proc.err.all)
+        finally:
+            proc.kill()
+
+
+def test_a_bad_config_is_a_clear_error(tmp_path: object) -> None:
+    bad = f"{tmp_path}/arm.yaml"
+    with open(bad, "w") as f:
+        f.write("joints: {}\npresets: {}\n")
+    proc = Proc("serve", "--config", bad)
+    assert proc.wait() == 2
+    proc.err.drain()
+    assert any("configuration error" in line for line in proc.err.all)
