@@ -2,23 +2,45 @@
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
+PIP    := $(BIN)/python -m pip --disable-pip-version-check
 STAMP  := $(VENV)/.installed
+IFACES := $(VENV)/.al5d_interfaces
+IFSRC  := $(wildcard interfaces/al5d_interfaces/*.txt interfaces/al5d_interfaces/*.xml \
+                     interfaces/al5d_interfaces/msg/* interfaces/al5d_interfaces/action/*)
 
 .PHONY: install demo test bench lint clean
 
-install: $(STAMP)
+install: $(STAMP) $(IFACES)
 
-$(STAMP): pyproject.toml
+# Every version is pinned: pyproject.toml pins what we use, constraints.txt
+# pins everything those bring along.
+$(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --disable-pip-version-check --upgrade pip==26.3
-	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[dev]'
+	$(PIP) install --quiet --upgrade pip==26.3
+	$(PIP) install --quiet -c constraints.txt -e '.[dev,ros,rosbuild]'
 	touch $(STAMP)
+
+# The ROS messages and action, built with rosidl into the venv's prefix so that
+# no environment script is needed at run time; skipped when up to date.
+$(IFACES): $(STAMP) $(IFSRC)
+	rm -rf build/al5d_interfaces && mkdir -p build
+	. $(BIN)/activate && export AMENT_PREFIX_PATH="$$VIRTUAL_ENV" && \
+	  cmake -S interfaces/al5d_interfaces -B build/al5d_interfaces -DBUILD_TESTING=OFF \
+	    -DCMAKE_INSTALL_PREFIX="$$VIRTUAL_ENV" -DPython3_EXECUTABLE="$$VIRTUAL_ENV/bin/python" \
+	    > build/cmake.log 2>&1 || (mkdir -p build; cat build/cmake.log; exit 1)
+	cmake --build build/al5d_interfaces -j 2 > build/build.log 2>&1 || (tail -40 build/build.log; exit 1)
+	cmake --install build/al5d_interfaces > build/install.log 2>&1 || (tail -20 build/install.log; exit 1)
+	$(BIN)/python -c "import al5d_interfaces.msg, al5d_interfaces.action"
+	touch $(IFACES)
 
 demo: install
 	$(BIN)/al5d demo
 
 test: install
 	$(BIN)/python -m pytest -q
+
+bench: install
+	$(BIN)/python bench/run.py
 
 lint: install
 	$(BIN)/ruff check src tests bench

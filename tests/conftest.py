@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 
 import pytest
+
+# A ROS domain of our own for the whole run (every server and client the tests start
+# inherits it), so that parallel runs on one host never see each other.
+os.environ["ROS_DOMAIN_ID"] = str(100 + os.getpid() % 120)
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 from al5d.config import ArmConfig, load_config
 from al5d.emulator import Emulator

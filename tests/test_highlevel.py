@@ -305,6 +305,19 @@ class TestStop:
         assert rig.driver.execute(ins.move(base=0), 10).ok
         assert state_lines(caplog)[-4:] == ["stopped", "ready", "moving", "ready"]
 
+    def test_a_move_after_a_stop_does_not_wait_for_the_stopped_moves_time(self, rig: Rig) -> None:
+        # UG-38: after a STOP in a timed move, Q says '+' until that move's time is over.
+        rig.driver.submit(ins.move(base=80, shoulder=60, time_ms=4000))  # the shoulder stays "busy"
+        rig.wait_move_count(2)
+        time.sleep(0.2)
+        rig.driver.execute(ins.stop(), 5)
+        rig.driver.execute(ins.release(), 5)
+        t0 = time.monotonic()
+        outcome = rig.driver.execute(ins.move(base=0), 10)
+        assert outcome.result is Result.DONE, outcome.reason
+        assert time.monotonic() - t0 < 2.0  # done by its own time, not the stopped move's 4 s
+        assert rig.driver.state is State.READY
+
     def test_stop_when_idle_locks_and_release_when_not_stopped_is_refused(self, rig: Rig) -> None:
         assert rig.driver.execute(ins.release(), 5).result is Result.REFUSED
         assert rig.driver.execute(ins.stop(), 5).ok

@@ -90,13 +90,19 @@ def test_format_then_parse_gives_the_instruction_back(instr: Instruction) -> Non
 
 
 def test_sequence_lines() -> None:
-    assert ins.parse_sequence_line("  # a comment") is None
-    assert ins.parse_sequence_line("") is None
-    assert ins.parse_sequence_line("wait 500") == Wait(500)
-    parsed = ins.parse_sequence_line("move base=10  # and a note")
-    assert isinstance(parsed, Instruction) and parsed.joints == (("base", 10.0),)
+    assert ins.parse_sequence_step("  # a comment") is None
+    assert ins.parse_sequence_step("") is None
+    assert ins.parse_sequence_step("wait 500") == (Wait(500), False)
+    step = ins.parse_sequence_step("move base=10  # and a note")
+    assert step is not None
+    instr, background = step
+    assert isinstance(instr, Instruction) and instr.joints == (("base", 10.0),) and not background
+    step = ins.parse_sequence_step("move base=10 time=3000 &")
+    assert step is not None and step[1] is True
     with pytest.raises(GrammarError, match="wait takes one number"):
-        ins.parse_sequence_line("wait")
+        ins.parse_sequence_step("wait")
+    with pytest.raises(GrammarError, match="cannot run in the background"):
+        ins.parse_sequence_step("wait 10 &")
 
 
 def test_ids_are_unique() -> None:

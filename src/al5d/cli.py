@@ -35,13 +35,30 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     from al5d.server import ServerOptions, serve, setup_logging
 
     setup_logging(args.log_level)
-    options = ServerOptions(port=args.port, baud=args.baud, config=args.config, stdin=args.stdin)
+    options = ServerOptions(
+        port=args.port, baud=args.baud, config=args.config, stdin=args.stdin, ros=not args.no_ros
+    )
     return serve(options)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    print("al5d demo: not yet: the demo arrives with the server (issue 3 and 4)")
-    return 0
+    from al5d.demo import run_demo
+    from al5d.server import setup_logging
+
+    setup_logging(args.log_level)
+    return run_demo(baud=args.baud)
+
+
+def _cmd_send(args: argparse.Namespace) -> int:
+    from al5d.client import send
+
+    return send(" ".join(args.instruction), wait_s=args.wait, timeout=args.timeout)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from al5d.client import run
+
+    return run(args.file, wait_s=args.wait, timeout=args.timeout)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -56,6 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument("--config", help="arm configuration file; default: the shipped one")
     srv.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     srv.add_argument("--stdin", action="store_true", help="also read instructions from stdin")
+    srv.add_argument("--no-ros", action="store_true", help="no ROS node (use with --stdin)")
     srv.set_defaults(func=_cmd_serve)
 
     emu = sub.add_parser("emulator", help="a standalone emulated SSC-32U on a pseudo terminal")
@@ -64,7 +82,26 @@ def build_parser() -> argparse.ArgumentParser:
     emu.add_argument("--config", help="arm configuration (servo speeds); default: shipped")
     emu.set_defaults(func=_cmd_emulator)
 
-    demo = sub.add_parser("demo", help="the DE01 demo on the embedded emulator")
+    for name, func, what in (
+        ("send", _cmd_send, "send one instruction and print its outcome"),
+        ("run", _cmd_run, "run a sequence file (the client application)"),
+    ):
+        cmd = sub.add_parser(name, help=what)
+        if name == "send":
+            cmd.add_argument("instruction", nargs="+", help="e.g. move base=30 elbow=90 time=800")
+        else:
+            cmd.add_argument(
+                "file", help="one instruction a line; wait <ms>; # comments; & = go on"
+            )
+        cmd.add_argument("--wait", type=float, default=10.0, help="seconds to find the server")
+        cmd.add_argument(
+            "--timeout", type=float, default=120.0, help="seconds to wait for an outcome"
+        )
+        cmd.set_defaults(func=func)
+
+    demo = sub.add_parser("demo", help="the DE01 demo on the embedded emulator, with a QoS table")
+    demo.add_argument("--baud", type=int, choices=(9600, 38400, 115200), help="default: config")
+    demo.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     demo.set_defaults(func=_cmd_demo)
     return parser
 

@@ -13,6 +13,7 @@ a servo reached its target is known exactly rather than polled.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import enum
 import fcntl
 import math
@@ -43,6 +44,7 @@ DEFAULT_VERSION = "SSC32-V2.50USB"
 DEFAULT_ANSWER_DELAY_S = 0.0003
 MAX_LINE = 1024
 GARBAGE = b"\xfe?\x00\xff\r"
+HISTORY = 100_000  # commands remembered per channel for reach_time
 
 _BAUDS = {
     getattr(termios, f"B{b}"): b
@@ -205,6 +207,8 @@ class Emulator:
         self._records: list[Record] = []
         self._faults: set[Fault] = set()
         self._servos: dict[int, Servo] = {}
+        # Per channel: the servo as each command left it, to answer "when did that move arrive".
+        self._history: dict[int, deque[Servo]] = {}
         t = now()
         if config is not None:
             pose = initial_pose if initial_pose is not None else config.presets["park"]
@@ -382,6 +386,31 @@ class Emulator:
                 times.append(servo.settle_time(tol_deg * abs(joint.us_per_deg)))
             return max(times)
 
+    def reach_time(
+        self, t_effect: float, tol_deg: float = 1.0, joints: Iterable[str] | None = None
+    ) -> float | None:
+        """When the move that took effect at `t_effect` had every joint within `tol_deg`.
+
+        None if a later command (a move or a STOP) changed one of those joints first:
+        that move never arrived. Works after the fact, from the servos' history.
+        """
+        if self.config is None:
+            raise ValueError("reach_time needs the arm configuration")
+        names = list(joints) if joints is not None else list(self.config.joints)
+        latest = t_effect
+        with self._lock:
+            for name in names:
+                joint = self.config.joints[name]
+                history = list(self._history.get(joint.channel, ()))
+                i = next((k for k, s in enumerate(history) if s.t0 == t_effect), None)
+                if i is None:
+                    continue  # this joint was not part of that move
+                settle = history[i].settle_time(tol_deg * abs(joint.us_per_deg))
+                if i + 1 < len(history) and history[i + 1].t0 < settle:
+                    return None
+                latest = max(latest, settle)
+        return latest
+
     def moving(self, t: float | None = None) -> bool:
         with self._lock:
             return self._busy(now() if t is None else t)
@@ -514,6 +543,7 @@ class Emulator:
                 held = servo.pulse_at(t)
                 servo.start_us = servo.end_us = held
                 servo.t0 = servo.t1 = t
+                self._remember(channel, servo)
                 # busy_until stays: the board keeps answering '+' until the move's time is over.
             case p.QueryMovement():
                 self._answer(p.MOVING if self._busy(t) else p.DONE, t)
@@ -572,6 +602,11 @@ class Emulator:
             servo.on = servo.known = True
             servo.end_us = pw
             servo.t0 = t
+            self._remember(ch, servo)
+
+    def _remember(self, channel: int, servo: Servo) -> None:
+        history = self._history.setdefault(channel, deque(maxlen=HISTORY))
+        history.append(dataclasses.replace(servo))
 
     def _answer(self, data: bytes, t: float) -> None:
         if Fault.NO_ANSWER in self._faults:

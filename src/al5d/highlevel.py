@@ -139,6 +139,17 @@ class Motion:
         return 1.0 if self.duration_s <= 0 else min(1.0, max(0.0, (t - self.t0) / self.duration_s))
 
 
+@dataclass(frozen=True, slots=True)
+class Sent:
+    """A move as it left for the board: for listeners that measure (the demo's QoS table)."""
+
+    instr: Instruction
+    data: bytes
+    t_submit: float  # when the instruction reached the driver
+    t_write: float  # when its bytes were written
+    motion: Motion
+
+
 def _outcome(job_or_instr: _Job | Instruction, result: Result, reason: str, t0: float) -> Outcome:
     instr = job_or_instr.instr if isinstance(job_or_instr, _Job) else job_or_instr
     expected = job_or_instr.expected_ms if isinstance(job_or_instr, _Job) else 0.0
@@ -239,11 +250,14 @@ class ArmDriver:
         self._parked = False  # the start-up park has been done
         self._pose: dict[str, float | None] = dict.fromkeys(config.joints)
         self._motion: Motion | None = None
+        # After a STOP inside a timed move the board answers Q with '+' until that move's
+        # time is over (UG-38); until then a move's completion is judged by time alone.
+        self._q_unreliable_until = 0.0
         self._worker = threading.Thread(target=self._run, name="al5d-worker", daemon=True)
         self.finished = threading.Event()
         self.outcome_listeners: list[Callable[[Outcome], None]] = []
         self.state_listeners: list[Callable[[State], None]] = []
-        self.motion_listeners: list[Callable[[str, Motion], None]] = []
+        self.motion_listeners: list[Callable[[Sent], None]] = []
 
     # -- public API ---------------------------------------------------------------
 
@@ -293,6 +307,41 @@ class ArmDriver:
         else:
             self._enqueue(instr, future, t0)
         return future
+
+    def cancel(self, instr_id: str, reason: str = "cancelled by the client") -> bool:
+        """Cancel one move: drop it if it waits; halt the arm (without the lock) if it runs.
+
+        False when the move has already ended (or was never here).
+        """
+        t0 = now()
+        with self._lock:
+            job = next((j for j in self._queue if j.instr.id == instr_id), None)
+            if job is not None:
+                self._queue.remove(job)
+                self._cv.notify_all()
+            else:
+                job = (
+                    self._current if self._current and self._current.instr.id == instr_id else None
+                )
+                if job is None or job is self._shutdown_job:
+                    return False
+                job.cancel.set()
+                board = self._board
+                motion, self._motion = self._motion, None
+                self._readback = True
+        if job.cancel.is_set():  # it was running: halt where it is
+            if motion is not None:
+                self._pose.update(motion.at(t0))
+                self._distrust_q(motion)
+            if board is not None:
+                try:
+                    board.stop(self.channels)
+                except SerialFault as e:
+                    with self._cv:
+                        self._fault = self._fault or e
+                        self._cv.notify_all()
+        _resolve(job.future, _outcome(job, Result.CANCELLED, reason, job.t_submit))
+        return True
 
     def execute(self, instr: Instruction, timeout: float | None = None) -> Outcome:
         """Submit and wait for the outcome."""
@@ -424,6 +473,7 @@ class ArmDriver:
                 error = e
         if motion is not None:
             self._pose.update(motion.at(now()))  # until the read-back says exactly where
+            self._distrust_q(motion)
         self._announce()
         reason = "cancelled by stop"
         if current is not None:
@@ -681,20 +731,23 @@ class ArmDriver:
         data, time_ms, _ = self._plan(job)
         job.expected_ms = float(time_ms)
         start = {j: v for j, v in self._pose.items() if v is not None}
+        t_write = now()
         board.write_command(data)
         # The move starts when its CR reaches the board, one wire time after the write.
-        t_sent = now() + board.wire_time_s(data)
+        t_sent = t_write + board.wire_time_s(data)
         motion = Motion(start, job.target, t_sent, time_ms / 1000.0)
         with self._lock:
-            raced = job.epoch != self._epoch
+            raced = job.epoch != self._epoch or job.cancel.is_set()
             if not raced:
                 self._motion = motion
         if raced:
             # A stop came between our check and our write: its STOP may be older than our move.
             board.stop(self.channels)
             return False
-        for listener in self.motion_listeners:
-            listener(job.instr.id, motion)
+        if self.motion_listeners:
+            sent = Sent(job.instr, data, job.t_submit, t_write, motion)
+            for listener in self.motion_listeners:
+                listener(sent)
         if not self._wait_done(job, board, t_sent + time_ms / 1000.0):
             return False  # cancelled: whoever cancelled has set the outcome
         with self._lock:
@@ -712,6 +765,9 @@ class ArmDriver:
         _resolve(job.future, _outcome(job, Result.DONE, "", job.t_submit))
         return True
 
+    def _distrust_q(self, stopped: Motion) -> None:
+        self._q_unreliable_until = max(self._q_unreliable_until, stopped.t0 + stopped.duration_s)
+
     def _wait_done(self, job: _Job, board: SSC32U, t_end: float) -> bool:
         """Wait out the move's time, then until `Q` says done. False if cancelled.
 
@@ -725,6 +781,8 @@ class ArmDriver:
                     board.is_done()
                 except Interrupted:
                     return False
+        if now() < self._q_unreliable_until:
+            return True  # Q still counts down a stopped move: its '+' says nothing of this one
         deadline = t_end + COMPLETION_GRACE_S
         while True:
             try:

@@ -4,6 +4,7 @@
     move <joint>=<degrees> [...]         [time=<ms>]
     stop | release | shutdown
     wait <ms>                            (sequence files only: a pause on the client)
+    <instruction> &                      (sequence files only: do not wait for its outcome)
     # comment
 
 Every instruction carries an id, so that its one outcome (done, refused or
@@ -196,16 +197,25 @@ def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Ins
     raise GrammarError(f"word 1 {words[0]!r}: unknown instruction; expected {known}")
 
 
-def parse_sequence_line(
+def parse_sequence_step(
     line: str, presets: tuple[str, ...] = PRESET_NAMES
-) -> Instruction | Wait | None:
-    """One line of a sequence file: an instruction, a client-side wait, or None (blank/comment)."""
+) -> tuple[Instruction | Wait, bool] | None:
+    """One line of a sequence file: (instruction or wait, whether it runs in the background).
+
+    None for a blank line or a comment. A line ending in `&` does not wait for
+    its outcome before the next line (as in a shell).
+    """
     text = line.split("#", 1)[0].strip()
     if not text:
         return None
+    background = text.endswith("&")
+    if background:
+        text = text[:-1].rstrip()
     words = text.split()
-    if words[0].lower() == "wait":
+    if words and words[0].lower() == "wait":
         if len(words) != 2:
             raise GrammarError("wait takes one number of ms: wait <ms>")
-        return Wait(_parse_ms(words, 1, words[1]))
-    return parse_instruction(text, presets)
+        if background:
+            raise GrammarError("wait cannot run in the background")
+        return Wait(_parse_ms(words, 1, words[1])), False
+    return parse_instruction(text, presets), background

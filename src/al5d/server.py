@@ -8,6 +8,7 @@ park the arm first (D2), then the process exits 0.
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import sys
 import threading
@@ -38,6 +39,7 @@ class ServerOptions:
     baud: int | None = None
     config: str | None = None
     stdin: bool = False
+    ros: bool = True
 
 
 @contextmanager
@@ -92,14 +94,24 @@ def serve(options: ServerOptions) -> int:
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     with arm(options) as (driver, _):
-        if options.stdin:
-            threading.Thread(
-                target=_read_instructions, args=(driver, sys.stdin, sys.stdout), daemon=True
-            ).start()
-        while not driver.finished.is_set():
-            if stop_requested.wait(0.1):
-                log.info("signal received: shutting down (park first)")
-                driver.submit(shutdown(id="signal"))
-                driver.finished.wait()
-                break
+        ros_server = None
+        if options.ros:
+            from al5d.ros import RosServer
+
+            ros_server = RosServer(driver)
+            log.info("ROS 2 node /al5d up (ROS_DOMAIN_ID=%s)", os.environ.get("ROS_DOMAIN_ID", "0"))
+        try:
+            if options.stdin:
+                threading.Thread(
+                    target=_read_instructions, args=(driver, sys.stdin, sys.stdout), daemon=True
+                ).start()
+            while not driver.finished.is_set():
+                if stop_requested.wait(0.1):
+                    log.info("signal received: shutting down (park first)")
+                    driver.submit(shutdown(id="signal"))
+                    driver.finished.wait()
+                    break
+        finally:
+            if ros_server is not None:
+                ros_server.close()
     return 0

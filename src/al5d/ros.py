@@ -1,0 +1,328 @@
+"""The ROS 2 node `al5d`: topics, services and the move action, mapped onto the high-level driver.
+
+A thin adapter: messages become `Instruction`s, outcomes become
+`InstructionResult`s. No callback waits for the arm. Services answer as soon as
+the driver has taken the instruction (stop and release are synchronous in the
+driver, a matter of microseconds). The move action's execute callback is a
+coroutine that awaits the driver's outcome, so that a thousand waiting goals
+hold no thread. Everything runs in one SingleThreadedExecutor in one thread.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+import threading
+from collections.abc import Callable
+from concurrent.futures import Future
+from typing import Any
+
+import rclpy
+from al5d_interfaces.action import Move
+from al5d_interfaces.msg import ArmInstruction, InstructionResult
+from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future as RosFuture
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory
+
+from al5d.highlevel import ArmDriver, State
+from al5d.instruction import Instruction, Kind, Outcome, Result, new_id
+
+NODE = "al5d"
+INSTRUCTION_TOPIC = "/al5d/instruction"
+RESULT_TOPIC = "/al5d/result"
+STATE_TOPIC = "/al5d/state"
+MOVE_ACTION = "/al5d/move"
+JOINT_STATES_TOPIC = "/joint_states"
+TRAJECTORY_TOPIC = "/al5d/joint_trajectory"
+SERVICES = {"/al5d/stop": Kind.STOP, "/al5d/release": Kind.RELEASE, "/al5d/shutdown": Kind.SHUTDOWN}
+
+#: Instructions and results: reliable and deep, so that a burst loses nothing.
+QOS_STREAM = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10_000,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+#: The state: latched, so that a late joiner gets the current one.
+QOS_LATCHED = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
+
+def ros_environment() -> None:
+    """Defaults that must be set before rclpy starts: local discovery, a writable log dir."""
+    # Nobody on the network drives the arm unless the user opens it on purpose.
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    if not any(os.path.isdir(os.environ.get(v, "")) for v in ("ROS_LOG_DIR", "ROS_HOME", "HOME")):
+        os.environ["ROS_LOG_DIR"] = tempfile.mkdtemp(prefix="al5d-ros-log-")
+
+
+def start_context() -> Context:
+    ros_environment()
+    context = Context()
+    # Our own SIGINT/SIGTERM handling parks the arm first; rclpy's would just stop.
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    return context
+
+
+class Spinner:
+    """An executor spinning in its own thread, stopped in the order rclpy needs."""
+
+    def __init__(self, node: Node, context: Context) -> None:
+        self.node = node
+        self.context = context
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(node)
+        self._running = True
+        self._thread = threading.Thread(
+            target=self._spin, name=f"{node.get_name()}-spin", daemon=True
+        )
+        self._thread.start()
+
+    def _spin(self) -> None:
+        while self._running and self.context.ok():
+            self.executor.spin_once(timeout_sec=0.1)
+
+    def close(self) -> None:
+        # Join the spin thread before shutting the executor down, or the process can abort.
+        self._running = False
+        self.executor.wake()
+        self._thread.join(5)
+        self.executor.shutdown(timeout_sec=1)
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+def to_message(instr: Instruction) -> ArmInstruction:
+    msg = ArmInstruction()
+    msg.instruction = instr.name
+    msg.joints = [j for j, _ in instr.joints]
+    msg.degrees = [float(d) for _, d in instr.joints]
+    msg.time_ms = instr.time_ms or 0
+    msg.id = instr.id
+    return msg
+
+
+def from_message(msg: ArmInstruction, presets: tuple[str, ...]) -> Instruction | str:
+    """The instruction in a message, or why it is not one."""
+    word = msg.instruction.strip().lower()
+    ident = msg.id or new_id()
+    time_ms = msg.time_ms or None
+    if word in presets:
+        return Instruction(Kind.PRESET, preset=word, time_ms=time_ms, id=ident)
+    if word == Kind.MOVE.value:
+        if len(msg.joints) != len(msg.degrees):
+            return f"joints and degrees differ in length ({len(msg.joints)} and {len(msg.degrees)})"
+        joints = tuple(zip(msg.joints, msg.degrees, strict=True))
+        return Instruction(Kind.MOVE, joints=joints, time_ms=time_ms, id=ident)
+    for kind in (Kind.STOP, Kind.RELEASE, Kind.SHUTDOWN):
+        if word == kind.value:
+            return Instruction(kind, id=ident)
+    known = " | ".join((*presets, "move", "stop", "release", "shutdown"))
+    return f"unknown instruction {msg.instruction!r}; expected {known}"
+
+
+def outcome_message(outcome: Outcome) -> InstructionResult:
+    msg = InstructionResult()
+    msg.id = outcome.id
+    msg.instruction = outcome.instruction
+    msg.outcome = outcome.result.value
+    msg.reason = outcome.reason
+    msg.elapsed_ms = float(outcome.elapsed_ms)
+    return msg
+
+
+def outcome_from_message(msg: InstructionResult) -> Outcome:
+    return Outcome(msg.id, msg.instruction, Result(msg.outcome), msg.reason, msg.elapsed_ms)
+
+
+class ArmNode(Node):
+    """Node `al5d`: every topic, service and action of the design, on one driver."""
+
+    def __init__(self, driver: ArmDriver, context: Context) -> None:
+        super().__init__(NODE, context=context)
+        self.driver = driver
+        self.presets = tuple(driver.config.presets)
+        self.joint_names = list(driver.config.joints)
+        self._goals: dict[str, ServerGoalHandle] = {}
+        self._goal_ids: dict[bytes, str] = {}
+        self.result_pub = self.create_publisher(InstructionResult, RESULT_TOPIC, QOS_STREAM)
+        self.state_pub = self.create_publisher(String, STATE_TOPIC, QOS_LATCHED)
+        self.joint_pub = self.create_publisher(JointState, JOINT_STATES_TOPIC, 10)
+        self.create_subscription(
+            ArmInstruction, INSTRUCTION_TOPIC, self._on_instruction, QOS_STREAM
+        )
+        self.create_subscription(JointTrajectory, TRAJECTORY_TOPIC, self._on_trajectory, QOS_STREAM)
+        for name, kind in SERVICES.items():
+            self.create_service(Trigger, name, self._trigger(kind))
+        self.move_server = ActionServer(
+            self,
+            Move,
+            MOVE_ACTION,
+            execute_callback=self._execute,
+            goal_callback=lambda goal: GoalResponse.ACCEPT,
+            cancel_callback=self._cancel,
+        )
+        self.create_timer(1.0 / driver.settings.joint_state_rate_hz, self._tick)
+        self.executor_ref: SingleThreadedExecutor | None = None
+        driver.outcome_listeners.append(self._publish_outcome)
+        driver.state_listeners.append(self._publish_state)
+        self._publish_state(driver.state)
+
+    # -- outputs -------------------------------------------------------------------
+
+    def _publish_outcome(self, outcome: Outcome) -> None:
+        self.result_pub.publish(outcome_message(outcome))
+
+    def _publish_state(self, state: State) -> None:
+        self.state_pub.publish(String(data=state.value))
+
+    def _tick(self) -> None:
+        """/joint_states at a fixed rate (radians, REP 103), and feedback for running goals."""
+        degrees = self.driver.positions()
+        msg = JointState()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.name = self.joint_names
+        msg.position = [math.radians(degrees[j]) for j in self.joint_names]
+        self.joint_pub.publish(msg)
+        for ident, handle in list(self._goals.items()):
+            progress = self.driver.progress(ident)
+            if progress is not None and handle.is_active:
+                fb = Move.Feedback()
+                fb.joints = self.joint_names
+                fb.degrees = [degrees[j] for j in self.joint_names]
+                fb.progress = progress
+                handle.publish_feedback(fb)
+
+    # -- inputs ---------------------------------------------------------------------
+
+    def _refuse_message(self, ident: str, name: str, reason: str) -> None:
+        self.get_logger().warning(f"refused {name} [{ident}]: {reason}")
+        self._publish_outcome(Outcome(ident, name, Result.REFUSED, reason))
+
+    def _on_instruction(self, msg: ArmInstruction) -> None:
+        instr = from_message(msg, self.presets)
+        if isinstance(instr, str):
+            self._refuse_message(msg.id or new_id(), msg.instruction, instr)
+            return
+        self.driver.submit(instr)
+
+    def _on_trajectory(self, msg: JointTrajectory) -> None:
+        """Each point becomes a queued move; its time is the step from the previous point."""
+        base = new_id()
+        previous = 0.0
+        for i, point in enumerate(msg.points):
+            ident = f"{base}.{i}"
+            if len(point.positions) != len(msg.joint_names):
+                reason = (
+                    f"point {i}: {len(point.positions)} positions for {len(msg.joint_names)} joints"
+                )
+                self._refuse_message(ident, "move", reason)
+                continue
+            t = point.time_from_start.sec + point.time_from_start.nanosec * 1e-9
+            step_ms = max(0, round((t - previous) * 1000))
+            previous = t
+            joints = tuple(
+                (n, math.degrees(r)) for n, r in zip(msg.joint_names, point.positions, strict=True)
+            )
+            self.driver.submit(
+                Instruction(Kind.MOVE, joints=joints, time_ms=step_ms or None, id=ident)
+            )
+
+    def _trigger(self, kind: Kind) -> Callable[[Any, Any], Any]:
+        def answer(request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+            future = self.driver.submit(Instruction(kind))
+            if future.done():
+                outcome = future.result()
+                response.success = outcome.ok
+                response.message = outcome.reason or f"{kind.value}: {outcome.result.value}"
+            else:  # shutdown: parking takes a while; the outcome follows on /al5d/result
+                response.success = True
+                response.message = "shutting down: parking, then the server ends"
+            return response
+
+        return answer
+
+    async def _execute(self, handle: ServerGoalHandle) -> Move.Result:
+        goal = handle.request
+        ident = new_id()
+        if goal.preset:
+            instr: Instruction | str = Instruction(
+                Kind.PRESET, preset=goal.preset, time_ms=goal.time_ms or None, id=ident
+            )
+        elif len(goal.joints) != len(goal.degrees):
+            instr = (
+                f"joints and degrees differ in length ({len(goal.joints)} and {len(goal.degrees)})"
+            )
+        else:
+            joints = tuple(zip(goal.joints, goal.degrees, strict=True))
+            instr = Instruction(Kind.MOVE, joints=joints, time_ms=goal.time_ms or None, id=ident)
+        if isinstance(instr, str):
+            self._refuse_message(ident, "move", instr)
+            outcome = Outcome(ident, "move", Result.REFUSED, instr)
+        else:
+            self._goals[ident] = handle
+            self._goal_ids[bytes(handle.goal_id.uuid)] = ident
+            try:
+                outcome = await self._wait(self.driver.submit(instr))
+            finally:
+                self._goals.pop(ident, None)
+                self._goal_ids.pop(bytes(handle.goal_id.uuid), None)
+        result = Move.Result()
+        result.outcome = outcome.result.value
+        result.reason = outcome.reason
+        result.expected_ms = float(outcome.expected_ms)
+        result.elapsed_ms = float(outcome.elapsed_ms)
+        if outcome.ok:
+            handle.succeed()
+        elif handle.is_cancel_requested:
+            handle.canceled()
+        else:
+            handle.abort()
+        return result
+
+    async def _wait(self, future: Future[Outcome]) -> Outcome:
+        """Await a driver future inside the executor without holding its thread."""
+        executor = self.executor
+        done: RosFuture = RosFuture(executor=executor)
+
+        def hand_over(f: Future[Outcome]) -> None:
+            done.set_result(f.result())
+            if executor is not None:
+                executor.wake()  # the awaiting task runs at the executor's next turn
+
+        future.add_done_callback(hand_over)
+        outcome: Outcome = await done
+        return outcome
+
+    def _cancel(self, handle: ServerGoalHandle) -> CancelResponse:
+        ident = self._goal_ids.get(bytes(handle.goal_id.uuid))
+        if ident is None:
+            return CancelResponse.REJECT
+        return CancelResponse.ACCEPT if self.driver.cancel(ident) else CancelResponse.REJECT
+
+
+class RosServer:
+    """The node with its executor thread, for `al5d serve`."""
+
+    def __init__(self, driver: ArmDriver) -> None:
+        self.context = start_context()
+        self.node = ArmNode(driver, self.context)
+        self.spinner = Spinner(self.node, self.context)
+
+    def close(self) -> None:
+        # Let the last results (the shutdown's) reach their readers before the node goes.
+        self.node.result_pub.wait_for_all_acked(rclpy.duration.Duration(seconds=1))
+        self.spinner.close()

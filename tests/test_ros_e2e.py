@@ -1,0 +1,372 @@
+"""End to end over real DDS: `al5d serve` in its own process, this process as a ROS 2 peer.
+
+The emulated board lives in this process behind a pty link, and the server
+opens it with `--port`, so that the tests see exactly what reached the board.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+from al5d_interfaces.action import Move
+from al5d_interfaces.msg import ArmInstruction, InstructionResult
+from builtin_interfaces.msg import Duration
+from proc import Proc
+from rclpy.action import ActionClient
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from al5d import protocol as p
+from al5d.config import ArmConfig
+from al5d.emulator import Emulator
+from al5d.ros import (
+    INSTRUCTION_TOPIC,
+    QOS_LATCHED,
+    QOS_STREAM,
+    RESULT_TOPIC,
+    Spinner,
+    start_context,
+)
+
+
+def wait_until(predicate: Any, timeout: float = 10.0, what: str = "condition") -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what} not met in {timeout} s")
+        time.sleep(0.01)
+
+
+def wait_future(future: Any, timeout: float = 10.0) -> Any:
+    done = threading.Event()
+    future.add_done_callback(lambda f: done.set())
+    assert done.wait(timeout), "no answer in time"
+    return future.result()
+
+
+class Peer:
+    """A ROS 2 node in the test process: publishes, calls, and listens like any client."""
+
+    def __init__(self) -> None:
+        self.context = start_context()
+        self.node = Node("al5d_test_peer", context=self.context)
+        self.pub = self.node.create_publisher(ArmInstruction, INSTRUCTION_TOPIC, QOS_STREAM)
+        self.results: dict[str, InstructionResult] = {}
+        self.joint_states: list[JointState] = []
+        self.node.create_subscription(InstructionResult, RESULT_TOPIC, self._on_result, QOS_STREAM)
+        self.node.create_subscription(JointState, "/joint_states", self.joint_states.append, 10)
+        self.services = {
+            n: self.node.create_client(Trigger, f"/al5d/{n}")
+            for n in ("stop", "release", "shutdown")
+        }
+        self.move = ActionClient(self.node, Move, "/al5d/move")
+        self.spinner = Spinner(self.node, self.context)
+
+    def _on_result(self, msg: InstructionResult) -> None:
+        self.results[msg.id] = msg
+
+    def wait_for_server(self) -> None:
+        wait_until(
+            lambda: (
+                self.pub.get_subscription_count() > 0
+                and self.node.count_publishers(RESULT_TOPIC) > 0
+            ),
+            20,
+            "the server's topics",
+        )
+        for client in self.services.values():
+            assert client.wait_for_service(timeout_sec=10)
+        assert self.move.wait_for_server(timeout_sec=10)
+
+    def send(self, ident: str, instruction: str, time_ms: int = 0, **joints: float) -> None:
+        msg = ArmInstruction(
+            instruction=instruction,
+            joints=list(joints),
+            degrees=[float(v) for v in joints.values()],
+            time_ms=time_ms,
+            id=ident,
+        )
+        self.pub.publish(msg)
+
+    def result(self, ident: str, timeout: float = 15.0) -> InstructionResult:
+        wait_until(lambda: ident in self.results, timeout, f"result {ident}")
+        return self.results[ident]
+
+    def trigger(self, name: str) -> Trigger.Response:
+        return wait_future(self.services[name].call_async(Trigger.Request()))
+
+    def goal(
+        self, preset: str = "", time_ms: int = 0, feedback: list[Any] | None = None, **joints: float
+    ) -> Any:
+        goal = Move.Goal(
+            preset=preset,
+            joints=list(joints),
+            degrees=[float(v) for v in joints.values()],
+            time_ms=time_ms,
+        )
+        handle = wait_future(
+            self.move.send_goal_async(
+                goal, feedback_callback=(feedback.append if feedback is not None else None)
+            )
+        )
+        assert handle.accepted
+        return handle
+
+    def close(self) -> None:
+        self.move.destroy()
+        self.spinner.close()
+
+
+@dataclass
+class Server:
+    proc: Proc
+    emu: Emulator
+    config: ArmConfig
+
+    def group_moves(self) -> list[p.GroupMove]:
+        return [c for r in self.emu.records for c in r.commands if isinstance(c, p.GroupMove)]
+
+    def pulses_of(self, pose: dict[str, float]) -> dict[int, int]:
+        return {
+            self.config.joints[j].channel: round(self.config.joints[j].to_us(d))
+            for j, d in pose.items()
+        }
+
+
+@pytest.fixture(scope="module")
+def peer() -> Iterator[Peer]:
+    node = Peer()
+    yield node
+    node.close()
+
+
+@pytest.fixture
+def server(config: ArmConfig, tmp_path: Path, peer: Peer) -> Iterator[Server]:
+    link = tmp_path / "ssc32u"
+    emu = Emulator(config, link=link).start()
+    proc = Proc("serve", "--port", str(link), "--log-level", "DEBUG")
+    try:
+        proc.err.wait_for("STATE: ready", 30)
+        peer.wait_for_server()
+        yield Server(proc, emu, config)
+        if proc.popen.poll() is None:
+            peer.trigger("shutdown")
+            assert proc.wait(30) == 0
+    finally:
+        proc.kill()
+        emu.close()
+
+
+def test_every_instruction_through_the_topic(server: Server, peer: Peer) -> None:
+    cfg = server.config
+    for ident, word in (("t-ready", "ready"), ("t-up", "straight_up"), ("t-park", "park")):
+        peer.send(ident, word)
+        r = peer.result(ident)
+        assert (r.outcome, r.instruction) == ("done", word)
+        assert {
+            t.channel: t.pulse_us for t in server.group_moves()[-1].targets
+        } == server.pulses_of(cfg.presets[word])
+    peer.send("t-move", "move", base=30, elbow=90)
+    assert peer.result("t-move").outcome == "done"
+    assert server.emu.records[-2].raw.startswith(b"#0P1800#2P1700T")
+    peer.send("t-timed", "move", time_ms=600, base=-30)
+    assert peer.result("t-timed").outcome == "done"
+    assert server.group_moves()[-1].time_ms == 600
+    peer.send("t-stop", "stop")
+    assert peer.result("t-stop").outcome == "done"
+    peer.send("t-release", "release")
+    assert peer.result("t-release").outcome == "done"
+    peer.send("t-shutdown", "shutdown")
+    assert server.proc.wait(30) == 0
+    assert peer.result("t-shutdown").outcome == "done"
+    assert server.emu.servo_degrees() == pytest.approx(cfg.presets["park"], abs=0.5)
+
+
+def test_bad_messages_are_refused_with_a_reason_and_nothing_reaches_the_board(
+    server: Server, peer: Peer
+) -> None:
+    n = len(server.emu.records)
+    peer.send("bad-range", "move", base=120)
+    r = peer.result("bad-range")
+    assert r.outcome == "refused" and "base: 120 deg is outside the range -90..90" in r.reason
+    peer.send("bad-word", "dance")
+    assert "unknown instruction 'dance'" in peer.result("bad-word").reason
+    bad = ArmInstruction(instruction="move", joints=["base", "elbow"], degrees=[1.0], id="bad-len")
+    peer.pub.publish(bad)
+    assert "joints and degrees differ in length (2 and 1)" in peer.result("bad-len").reason
+    time.sleep(0.2)
+    assert len(server.emu.records) == n
+
+
+def test_the_move_action(server: Server, peer: Peer) -> None:
+    feedback: list[Any] = []
+    handle = peer.goal(preset="ready", time_ms=800, feedback=feedback)
+    result = wait_future(handle.get_result_async()).result
+    assert (result.outcome, result.expected_ms) == ("done", 800.0)
+    assert result.elapsed_ms >= 800
+    assert feedback, "feedback while moving"
+    assert 0.0 <= feedback[-1].feedback.progress <= 1.0
+    assert list(feedback[-1].feedback.joints) == list(server.config.joints)
+    handle = peer.goal(base=-20, wrist=10)
+    assert wait_future(handle.get_result_async()).result.outcome == "done"
+    n = len(server.emu.records)
+    handle = peer.goal(shoulder=100)
+    result = wait_future(handle.get_result_async()).result
+    assert (
+        result.outcome == "refused"
+        and "shoulder: 100 deg is outside the range -30..90" in result.reason
+    )
+    assert len(server.emu.records) == n
+
+
+def test_the_services(server: Server, peer: Peer) -> None:
+    assert peer.trigger("release").success is False  # nothing to release
+    resp = peer.trigger("stop")
+    assert resp.success
+    resp = peer.trigger("release")
+    assert resp.success
+    resp = peer.trigger("shutdown")
+    assert resp.success and "parking" in resp.message
+    assert server.proc.wait(30) == 0
+    server.proc.err.drain()
+    assert any("shutdown: parked" in line for line in server.proc.err.all)
+
+
+def test_stop_during_a_move_with_queued_moves_and_goals(server: Server, peer: Peer) -> None:
+    running = peer.goal(base=80, shoulder=60, time_ms=3000)
+    goals = [peer.goal(base=b) for b in (-80, -40)]
+    for i in range(300):
+        peer.send(f"q-{i}", "move", base=(i % 90) - 45)
+    wait_until(
+        lambda: any(r.raw.startswith(b"#0P2300") for r in server.emu.records),
+        10,
+        "the long move on the board",
+    )
+    time.sleep(0.3)  # the 300 topic messages reach the server's queue; the long move still runs
+    t0 = time.monotonic()
+    resp = peer.trigger("stop")
+    answered = time.monotonic() - t0
+    assert resp.success
+    assert answered < 0.5  # generous: only that it did not wait for the 3 s move
+    for handle in [running, *goals]:
+        res = wait_future(handle.get_result_async())
+        assert res.result.outcome == "cancelled" and res.result.reason == "cancelled by stop"
+    outcomes = [peer.result(f"q-{i}") for i in range(300)]
+    # Queued ones are cancelled; any that reached the server after the stop are refused (locked).
+    assert all(r.outcome == "cancelled" or "send release first" in r.reason for r in outcomes)
+    assert sum(r.outcome == "cancelled" for r in outcomes) >= 200
+    stops = [r.raw for r in server.emu.records if r.raw.startswith(b"STOP")]
+    assert stops == [f"STOP{ch}".encode() for ch in range(6)]
+    peer.send("locked", "move", base=0)
+    assert "send release first" in peer.result("locked").reason
+    assert peer.trigger("release").success
+    peer.send("after", "move", base=0)
+    after = peer.result("after")
+    assert after.outcome == "done", after.reason
+
+
+def test_cancelling_a_goal_halts_the_arm_without_locking_it(server: Server, peer: Peer) -> None:
+    handle = peer.goal(base=80, time_ms=3000)
+    wait_until(lambda: any(r.raw.startswith(b"#0P2300T3000") for r in server.emu.records), 10)
+    cancel = wait_future(handle.cancel_goal_async())
+    assert len(cancel.goals_canceling) == 1
+    res = wait_future(handle.get_result_async())
+    assert res.result.outcome == "cancelled"
+    wait_until(lambda: any(r.raw == b"STOP0" for r in server.emu.records), 5, "STOP0 on the board")
+    peer.send("next", "move", base=0)
+    assert peer.result("next").outcome == "done"  # not locked
+
+
+def test_state_is_latched_for_a_late_joiner(server: Server, peer: Peer) -> None:
+    seen: list[str] = []
+    sub = peer.node.create_subscription(
+        String, "/al5d/state", lambda m: seen.append(m.data), QOS_LATCHED
+    )
+    try:
+        wait_until(lambda: seen, 10, "the latched state")
+        assert seen[0] == "ready"
+        peer.trigger("stop")
+        wait_until(lambda: seen[-1] == "stopped", 5, "stopped on /al5d/state")
+        peer.trigger("release")
+        wait_until(lambda: seen[-1] == "ready", 5, "ready on /al5d/state")
+    finally:
+        peer.node.destroy_subscription(sub)
+
+
+def test_joint_states_match_the_emulated_servos(server: Server, peer: Peer) -> None:
+    peer.send("js", "move", base=40, shoulder=10, elbow=70, wrist=-20, gripper=60, wrist_rotate=-30)
+    assert peer.result("js").outcome == "done"
+    peer.joint_states.clear()
+    wait_until(lambda: len(peer.joint_states) >= 3, 5, "joint_states")
+    msg = peer.joint_states[-1]
+    servo = server.emu.servo_degrees()
+    assert list(msg.name) == list(server.config.joints)
+    for name, rad in zip(msg.name, msg.position, strict=True):
+        assert math.degrees(rad) == pytest.approx(servo[name], abs=0.5)
+
+
+def test_a_joint_trajectory_becomes_queued_moves(server: Server, peer: Peer) -> None:
+    traj = JointTrajectory(joint_names=["base", "elbow"])
+    traj.points = [
+        JointTrajectoryPoint(
+            positions=[math.radians(20), math.radians(80)],
+            time_from_start=Duration(sec=0, nanosec=500_000_000),
+        ),
+        JointTrajectoryPoint(
+            positions=[math.radians(-20), math.radians(60)],
+            time_from_start=Duration(sec=1, nanosec=300_000_000),
+        ),
+    ]
+    before = len(server.group_moves())
+    pub = peer.node.create_publisher(JointTrajectory, "/al5d/joint_trajectory", QOS_STREAM)
+    wait_until(lambda: pub.get_subscription_count() > 0, 10)
+    pub.publish(traj)
+    wait_until(lambda: len(server.group_moves()) >= before + 2, 10, "two moves")
+    moves = server.group_moves()[before:]
+    assert [m.time_ms for m in moves] == [500, 800]
+    assert {t.channel: t.pulse_us for t in moves[1].targets} == server.pulses_of(
+        {"base": -20, "elbow": 60}
+    )
+
+
+def test_the_client_application(server: Server, peer: Peer, tmp_path: Path) -> None:
+    ok = Proc("send", "ready")
+    assert ok.wait(30) == 0
+    assert any(": done" in line for line in ok.out.drain())
+    refused = Proc("send", "move", "base=200")
+    assert refused.wait(30) == 1
+    assert any(
+        "refused: base: 200 deg is outside the range -90..90" in line
+        for line in refused.out.drain()
+    )
+    seq = tmp_path / "seq.txt"
+    seq.write_text("park\nmove base=10 time=300 &\nwait 100\nstop\nrelease\nmove base=5\n")
+    run = Proc("run", str(seq))
+    assert run.wait(30) == 1  # the background move was cancelled by the stop
+    out = run.out.drain()
+    assert any(line.startswith("park [") and "done" in line for line in out)
+    assert any("cancelled by stop" in line for line in out)
+    assert any(line.startswith("move [") and line.endswith("ms)") for line in out)
+
+
+def test_no_server_is_exit_2() -> None:
+    alone = Proc(
+        "send",
+        "park",
+        "--wait",
+        "1",
+        env={"ROS_DOMAIN_ID": str(int(os.environ["ROS_DOMAIN_ID"]) + 1)},
+    )
+    assert alone.wait(30) == 2
+    assert any("no al5d server answers" in line for line in alone.err.drain())
