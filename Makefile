@@ -17,7 +17,7 @@ install: $(STAMP) $(IFACES)
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(PIP) install --quiet --upgrade pip==26.3
-	$(PIP) install --quiet -c constraints.txt -e '.[dev,ros,rosbuild]'
+	$(PIP) install --quiet -c constraints.txt -e '.[dev,ros,rosbuild,bench]'
 	touch $(STAMP)
 
 # The ROS messages and action, built with rosidl into the venv's prefix so that

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 import os
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -16,116 +15,17 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from al5d_interfaces.action import Move
-from al5d_interfaces.msg import ArmInstruction, InstructionResult
+from al5d_interfaces.msg import ArmInstruction
 from builtin_interfaces.msg import Duration
 from proc import Proc
-from rclpy.action import ActionClient
-from rclpy.node import Node
-from sensor_msgs.msg import JointState
+from rospeer import Peer, wait_future, wait_until
 from std_msgs.msg import String
-from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d import protocol as p
 from al5d.config import ArmConfig
 from al5d.emulator import Emulator
-from al5d.ros import (
-    INSTRUCTION_TOPIC,
-    QOS_LATCHED,
-    QOS_STREAM,
-    RESULT_TOPIC,
-    Spinner,
-    start_context,
-)
-
-
-def wait_until(predicate: Any, timeout: float = 10.0, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what} not met in {timeout} s")
-        time.sleep(0.01)
-
-
-def wait_future(future: Any, timeout: float = 10.0) -> Any:
-    done = threading.Event()
-    future.add_done_callback(lambda f: done.set())
-    assert done.wait(timeout), "no answer in time"
-    return future.result()
-
-
-class Peer:
-    """A ROS 2 node in the test process: publishes, calls, and listens like any client."""
-
-    def __init__(self) -> None:
-        self.context = start_context()
-        self.node = Node("al5d_test_peer", context=self.context)
-        self.pub = self.node.create_publisher(ArmInstruction, INSTRUCTION_TOPIC, QOS_STREAM)
-        self.results: dict[str, InstructionResult] = {}
-        self.joint_states: list[JointState] = []
-        self.node.create_subscription(InstructionResult, RESULT_TOPIC, self._on_result, QOS_STREAM)
-        self.node.create_subscription(JointState, "/joint_states", self.joint_states.append, 10)
-        self.services = {
-            n: self.node.create_client(Trigger, f"/al5d/{n}")
-            for n in ("stop", "release", "shutdown")
-        }
-        self.move = ActionClient(self.node, Move, "/al5d/move")
-        self.spinner = Spinner(self.node, self.context)
-
-    def _on_result(self, msg: InstructionResult) -> None:
-        self.results[msg.id] = msg
-
-    def wait_for_server(self) -> None:
-        wait_until(
-            lambda: (
-                self.pub.get_subscription_count() > 0
-                and self.node.count_publishers(RESULT_TOPIC) > 0
-            ),
-            20,
-            "the server's topics",
-        )
-        for client in self.services.values():
-            assert client.wait_for_service(timeout_sec=10)
-        assert self.move.wait_for_server(timeout_sec=10)
-
-    def send(self, ident: str, instruction: str, time_ms: int = 0, **joints: float) -> None:
-        msg = ArmInstruction(
-            instruction=instruction,
-            joints=list(joints),
-            degrees=[float(v) for v in joints.values()],
-            time_ms=time_ms,
-            id=ident,
-        )
-        self.pub.publish(msg)
-
-    def result(self, ident: str, timeout: float = 15.0) -> InstructionResult:
-        wait_until(lambda: ident in self.results, timeout, f"result {ident}")
-        return self.results[ident]
-
-    def trigger(self, name: str) -> Trigger.Response:
-        return wait_future(self.services[name].call_async(Trigger.Request()))
-
-    def goal(
-        self, preset: str = "", time_ms: int = 0, feedback: list[Any] | None = None, **joints: float
-    ) -> Any:
-        goal = Move.Goal(
-            preset=preset,
-            joints=list(joints),
-            degrees=[float(v) for v in joints.values()],
-            time_ms=time_ms,
-        )
-        handle = wait_future(
-            self.move.send_goal_async(
-                goal, feedback_callback=(feedback.append if feedback is not None else None)
-            )
-        )
-        assert handle.accepted
-        return handle
-
-    def close(self) -> None:
-        self.move.destroy()
-        self.spinner.close()
+from al5d.ros import QOS_LATCHED, QOS_STREAM
 
 
 @dataclass

@@ -36,7 +36,12 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
     setup_logging(args.log_level)
     options = ServerOptions(
-        port=args.port, baud=args.baud, config=args.config, stdin=args.stdin, ros=not args.no_ros
+        port=args.port,
+        baud=args.baud,
+        config=args.config,
+        stdin=args.stdin,
+        ros=not args.no_ros,
+        trace=args.trace,
     )
     return serve(options)
 
@@ -74,6 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     srv.add_argument("--stdin", action="store_true", help="also read instructions from stdin")
     srv.add_argument("--no-ros", action="store_true", help="no ROS node (use with --stdin)")
+    srv.add_argument("--trace", help="write when each instruction message arrived (benchmarks)")
     srv.set_defaults(func=_cmd_serve)
 
     emu = sub.add_parser("emulator", help="a standalone emulated SSC-32U on a pseudo terminal")

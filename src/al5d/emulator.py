@@ -202,8 +202,10 @@ class Emulator:
         self.version = version
         self.answer_delay_s = answer_delay_s
         self._link = Path(link) if link is not None else None
-        self._lock = threading.RLock()
-        self._changed = threading.Condition(self._lock)
+        self._lock = threading.RLock()  # the board's model
+        # The records have a lock of their own: an observer that waits for a record
+        # never holds up the board (its answers have to come within milliseconds).
+        self._changed = threading.Condition(threading.Lock())
         self._records: list[Record] = []
         self._faults: set[Fault] = set()
         self._servos: dict[int, Servo] = {}
@@ -331,25 +333,33 @@ class Emulator:
 
     @property
     def records(self) -> list[Record]:
-        with self._lock:
+        with self._changed:
             return list(self._records)
 
     def clear_records(self) -> None:
-        with self._lock:
+        with self._changed:
             self._records.clear()
 
     def wait_for(
         self, predicate: Callable[[list[Record]], bool], timeout: float = 5.0
     ) -> list[Record]:
-        """Wait until `predicate(records)` holds; return the records (raises TimeoutError)."""
+        """Wait until `predicate(records)` holds; return the records (raises TimeoutError).
+
+        The predicate sees a copy, outside every lock of the board.
+        """
         deadline = now() + timeout
-        with self._changed:
-            while not predicate(self._records):
-                left = deadline - now()
-                if left <= 0:
-                    raise TimeoutError(f"emulator: condition not met in {timeout} s")
-                self._changed.wait(left)
-            return list(self._records)
+        while True:
+            with self._changed:
+                seen = len(self._records)
+                records = list(self._records)
+            if predicate(records):
+                return records
+            with self._changed:
+                while len(self._records) == seen:
+                    left = deadline - now()
+                    if left <= 0:
+                        raise TimeoutError(f"emulator: condition not met in {timeout} s")
+                    self._changed.wait(left)
 
     def pulse_us(self, channel: int, t: float | None = None) -> float:
         """The pulse the board puts out on `channel` (0 when off)."""
@@ -410,6 +420,28 @@ class Emulator:
                     return None
                 latest = max(latest, settle)
         return latest
+
+    def trajectory(
+        self, t_effect: float, times: Iterable[float], joints: Iterable[str] | None = None
+    ) -> dict[str, tuple[list[float], list[float]]]:
+        """Per joint, the commanded pulse and the servo position (both in degrees) at `times`,
+        as the move that took effect at `t_effect` left them (for plots)."""
+        if self.config is None:
+            raise ValueError("trajectory needs the arm configuration")
+        ts = list(times)
+        out: dict[str, tuple[list[float], list[float]]] = {}
+        with self._lock:
+            for name in joints if joints is not None else self.config.joints:
+                joint = self.config.joints[name]
+                history = self._history.get(joint.channel, deque())
+                snap = next((x for x in history if x.t0 == t_effect), None)
+                if snap is None:
+                    continue
+                out[name] = (
+                    [joint.to_deg(snap.pulse_at(t)) for t in ts],
+                    [joint.to_deg(snap.position_at(t)) for t in ts],
+                )
+        return out
 
     def moving(self, t: float | None = None) -> bool:
         with self._lock:

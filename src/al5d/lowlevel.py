@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import termios
 import threading
+import time
 from collections.abc import Iterable, Mapping, Sequence
 from types import TracebackType
 
@@ -22,8 +23,10 @@ import serial
 
 from al5d import protocol as p
 
-#: Longest wait for an answer: the manual's 5 ms plus a VER string at 9600 baud, with margin.
+#: How long an answer may take beyond its wire time (the manual says 50 us to 5 ms).
 DEFAULT_READ_TIMEOUT_S = 0.1
+#: Reads wake this often while they wait for an answer's deadline.
+READ_SLICE_S = 0.01
 DEFAULT_WRITE_TIMEOUT_S = 0.5
 #: What a dead port raises, depending on the call: pyserial's own, the OS's, and termios's
 #: (tcflush on a pty whose master is gone raises termios.error, which is not an OSError).
@@ -36,6 +39,10 @@ class SerialFault(Exception):
 
 class Interrupted(Exception):
     """A query lost its answer because an emergency stop flushed it; not a fault."""
+
+
+class _NoAnswer(Exception):
+    """A query's answer did not come by its deadline (the first time)."""
 
 
 Targets = Mapping[int, int] | Sequence[p.ChannelTarget]
@@ -63,11 +70,14 @@ class SSC32U:
         self._write_lock = threading.Lock()
         self._query_lock = threading.Lock()
         self._stops = 0  # counts emergency stops, to tell a flushed query from a dead board
+        # When the wire will have carried every byte written so far: a query's answer
+        # cannot come before its own bytes, and those queue behind the earlier ones.
+        self._wire_free_at = 0.0
         try:
             self._ser = serial.serial_for_url(
                 port,
                 baudrate=baud,
-                timeout=read_timeout_s,
+                timeout=READ_SLICE_S,
                 write_timeout=write_timeout_s,
                 exclusive=True,
             )
@@ -136,6 +146,8 @@ class SSC32U:
                 self._ser.write(data)
             except IO_ERRORS as e:
                 raise SerialFault(f"{self.port}: stop could not be written: {e}") from e
+            # The flush left at most the byte being sent ahead of ours.
+            self._wire_free_at = time.monotonic() + self.wire_time_s(len(data) + 1)
         return data
 
     def cancel(self) -> None:
@@ -202,26 +214,52 @@ class SSC32U:
                 self._ser.write(data)
             except IO_ERRORS as e:
                 raise SerialFault(f"{self.port}: write failed: {e}") from e
+            start = max(time.monotonic(), self._wire_free_at)
+            self._wire_free_at = start + self.wire_time_s(data)
 
     def _query(self, data: bytes, n_answer: int | None, name: str) -> bytes:
+        """Write a query and read its answer; one retry before a missing answer is a fault.
+
+        The retry covers a board (or an emulator in a busy process) that was late once;
+        a dead link fails twice.
+        """
+        try:
+            return self._query_once(data, n_answer, name)
+        except _NoAnswer:
+            return self._query_once(data, n_answer, name, last_try=True)
+
+    def _query_once(
+        self, data: bytes, n_answer: int | None, name: str, last_try: bool = False
+    ) -> bytes:
         with self._query_lock:
             stops = self._stops
             try:
                 self._ser.reset_input_buffer()
+                t_sent = time.monotonic()
                 self._write(data)
-                if n_answer is None:
-                    answer = bytes(self._ser.read_until(p.CR))
-                    complete = answer.endswith(p.CR)
-                else:
-                    answer = bytes(self._ser.read(n_answer))
-                    complete = len(answer) == n_answer
+                # The answer's deadline: our bytes on the wire (behind any before them),
+                # the answer's own bytes back (a VER string: ~16), then the margin.
+                back = self.wire_time_s(n_answer if n_answer is not None else 16)
+                deadline = self._wire_free_at + back + self._read_timeout_s
+                answer = b""
+                while True:
+                    if n_answer is None:
+                        answer += self._ser.read_until(p.CR)
+                        complete = answer.endswith(p.CR)
+                    else:
+                        answer += self._ser.read(n_answer - len(answer))
+                        complete = len(answer) == n_answer
+                    if complete or time.monotonic() > deadline:
+                        break
             except IO_ERRORS as e:
                 raise SerialFault(f"{self.port}: {name} failed: {e}") from e
         if not complete:
             if self._stops != stops:
                 raise Interrupted(f"{name} was flushed by an emergency stop")
+            if not last_try:
+                raise _NoAnswer(name)
             got = f", got {answer!r}" if answer else ""
             raise SerialFault(
-                f"{self.port}: no answer to {name} within {self._read_timeout_s * 1000:.0f} ms{got}"
+                f"{self.port}: no answer to {name} within {(deadline - t_sent) * 1000:.0f} ms{got}"
             )
         return answer

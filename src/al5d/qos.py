@@ -8,9 +8,10 @@ within the tolerance of its target, after the fact and exactly (no polling).
 from __future__ import annotations
 
 import threading
+from collections.abc import Iterable
 from dataclasses import dataclass
 
-from al5d.emulator import Emulator
+from al5d.emulator import Emulator, Record
 from al5d.highlevel import ArmDriver, Sent
 from al5d.instruction import Outcome, Result
 
@@ -32,6 +33,26 @@ class MoveQoS:
     @property
     def within_bound(self) -> bool | None:
         return None if self.reach_ms is None else self.reach_ms <= SA03_BOUND_MS
+
+
+def board_record(emulator: Emulator, data: bytes, t_after: float) -> Record | None:
+    """The emulator's record of the command `data` written at or after `t_after`."""
+    line = data.rstrip(b"\r")
+    return next((r for r in emulator.records if r.raw == line and r.t_effect >= t_after), None)
+
+
+def reach_time(
+    emulator: Emulator,
+    data: bytes,
+    t_after: float,
+    joints: Iterable[str],
+    tol_deg: float = TOLERANCE_DEG,
+) -> float | None:
+    """When every joint of the move `data` was within `tol_deg` of its target (None: never)."""
+    record = board_record(emulator, data, t_after)
+    if record is None:
+        return None
+    return emulator.reach_time(record.t_effect, tol_deg, joints)
 
 
 class QoSRecorder:
@@ -58,13 +79,9 @@ class QoSRecorder:
 
     def reach_time(self, sent: Sent) -> float | None:
         """Monotonic time at which the emulated arm reached this move's target (None: never)."""
-        line = sent.data.rstrip(b"\r")
-        record = next(
-            (r for r in self.emulator.records if r.raw == line and r.t_effect >= sent.t_write), None
+        return reach_time(
+            self.emulator, sent.data, sent.t_write, sent.motion.target.keys(), self.tol_deg
         )
-        if record is None:
-            return None
-        return self.emulator.reach_time(record.t_effect, self.tol_deg, sent.motion.target.keys())
 
     def rows(self) -> list[MoveQoS]:
         with self._lock:

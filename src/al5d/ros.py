@@ -14,6 +14,7 @@ import math
 import os
 import tempfile
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
@@ -156,6 +157,9 @@ class ArmNode(Node):
         self.driver = driver
         self.presets = tuple(driver.config.presets)
         self.joint_names = list(driver.config.joints)
+        # (id, monotonic ns) of each instruction message as its callback starts, when tracing
+        # (`al5d serve --trace FILE`, used by the benchmarks): an append, nothing more.
+        self.trace: list[tuple[str, int]] | None = None
         self._goals: dict[str, ServerGoalHandle] = {}
         self._goal_ids: dict[bytes, str] = {}
         self.result_pub = self.create_publisher(InstructionResult, RESULT_TOPIC, QOS_STREAM)
@@ -213,6 +217,8 @@ class ArmNode(Node):
         self._publish_outcome(Outcome(ident, name, Result.REFUSED, reason))
 
     def _on_instruction(self, msg: ArmInstruction) -> None:
+        if self.trace is not None:
+            self.trace.append((msg.id, time.monotonic_ns()))
         instr = from_message(msg, self.presets)
         if isinstance(instr, str):
             self._refuse_message(msg.id or new_id(), msg.instruction, instr)
@@ -317,12 +323,18 @@ class ArmNode(Node):
 class RosServer:
     """The node with its executor thread, for `al5d serve`."""
 
-    def __init__(self, driver: ArmDriver) -> None:
+    def __init__(self, driver: ArmDriver, trace: str | None = None) -> None:
         self.context = start_context()
         self.node = ArmNode(driver, self.context)
+        self.trace_path = trace
+        if trace is not None:
+            self.node.trace = []
         self.spinner = Spinner(self.node, self.context)
 
     def close(self) -> None:
         # Let the last results (the shutdown's) reach their readers before the node goes.
         self.node.result_pub.wait_for_all_acked(rclpy.duration.Duration(seconds=1))
         self.spinner.close()
+        if self.trace_path is not None and self.node.trace is not None:
+            with open(self.trace_path, "w", encoding="utf-8") as f:
+                f.writelines(f"{ident} {t}\n" for ident, t in self.node.trace)

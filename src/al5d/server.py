@@ -40,6 +40,7 @@ class ServerOptions:
     config: str | None = None
     stdin: bool = False
     ros: bool = True
+    trace: str | None = None
 
 
 @contextmanager
@@ -98,7 +99,7 @@ def serve(options: ServerOptions) -> int:
         if options.ros:
             from al5d.ros import RosServer
 
-            ros_server = RosServer(driver)
+            ros_server = RosServer(driver, trace=options.trace)
             log.info("ROS 2 node /al5d up (ROS_DOMAIN_ID=%s)", os.environ.get("ROS_DOMAIN_ID", "0"))
         try:
             if options.stdin:

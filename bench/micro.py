@@ -1,0 +1,114 @@
+"""In-process figures: translation, the serial write call, and driver throughput."""
+
+from __future__ import annotations
+
+import math
+import signal
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from proc import Proc
+from stats import figure
+
+from al5d import instruction as ins
+from al5d.config import ArmConfig
+from al5d.highlevel import ArmDriver, State
+from al5d.lowlevel import SSC32U
+
+WARMUP = 2000
+
+
+def translation(config: ArmConfig, n: int = 20000) -> dict[str, Any]:
+    """Instruction -> bytes: validation, the time model and the encoding of a 6-joint move."""
+    driver = ArmDriver(config, "unused")  # not started: only its pure parts are timed
+    pose = dict(config.presets["park"])
+    driver._pose.update(pose)  # a pose to plan from, as after the start-up park
+    instrs = [
+        ins.move(
+            base=(i % 170) - 85,
+            shoulder=10,
+            elbow=60 + i % 50,
+            wrist=-20,
+            gripper=30,
+            wrist_rotate=5,
+        )
+        for i in range(64)
+    ]
+    samples = []
+    clock = time.perf_counter_ns
+    for i in range(n + WARMUP):
+        instr = instrs[i % 64]
+        t0 = clock()
+        target = driver.validate(instr)
+        assert not isinstance(target, str)
+        minimum = driver.translator.minimum_ms(pose, target)
+        data = driver.translator.encode(target, max(instr.time_ms or 0, math.ceil(minimum)))
+        t1 = clock()
+        if i >= WARMUP:
+            samples.append((t1 - t0) / 1e6)
+    assert data.endswith(b"\r")
+    return figure("translation", samples, unit="instruction -> bytes, 6-joint move")
+
+
+@contextmanager
+def emulator_process(workdir: Path, baud: int = 115200) -> Iterator[str]:
+    """`al5d emulator` in its own process (so that it does not share our GIL); yields its port."""
+    link = workdir / f"emulator-{baud}"
+    proc = Proc("emulator", "--baud", str(baud), "--link", str(link))
+    try:
+        proc.out.wait_for(str(link), 20)
+        yield str(link)
+    finally:
+        proc.popen.send_signal(signal.SIGTERM)
+        proc.wait(20)
+
+
+def serial_write(workdir: Path, n: int = 5000) -> dict[str, Any]:
+    """The write call of the low-level driver on a real pty (the emulator reads the other end)."""
+    data = b"#0P1500#1P1500#2P1500#3P1500#4P1500#5P1500T500\r"
+    samples = []
+    clock = time.perf_counter_ns
+    with emulator_process(workdir) as port, SSC32U(port, 115200) as board:
+        for i in range(n + 500):
+            t0 = clock()
+            board.write_command(data)
+            t1 = clock()
+            if i >= 500:
+                samples.append((t1 - t0) / 1e6)
+            if i % 50 == 0:
+                time.sleep(0.002)  # let the emulator keep up, as a real stream of moves would
+    return figure("serial write", samples, unit=f"{len(data)}-byte group move")
+
+
+def throughput_in_process(config: ArmConfig, workdir: Path, n: int = 50000) -> dict[str, Any]:
+    """Instructions per second the driver accepts (validated and queued), and none lost."""
+    big = config.model_copy(
+        update={"server": config.server.model_copy(update={"queue_capacity": n + 10})}
+    )
+    with emulator_process(workdir) as port:
+        driver = ArmDriver(big, port, 115200)
+        driver.start()
+        driver.wait_for_state(State.READY, 10)
+        instrs = [ins.move(base=(i % 170) - 85, elbow=60 + i % 50) for i in range(n)]
+        for instr in instrs[:2000]:  # warm-up, then cleared
+            driver.submit(instr)
+        driver.execute(ins.stop(), 5)
+        driver.execute(ins.release(), 5)
+        instrs = [ins.move(base=(i % 170) - 85, elbow=60 + i % 50) for i in range(n)]
+        t0 = time.perf_counter()
+        futures = [driver.submit(instr) for instr in instrs]
+        elapsed = time.perf_counter() - t0
+        driver.execute(ins.stop(), 5)
+        outcomes = [f.result(30) for f in futures]
+        driver.close()
+    refused = sum(o.result is ins.Result.REFUSED for o in outcomes)
+    return {
+        "name": "throughput in-process",
+        "rate_per_s": n / elapsed,
+        "n": n,
+        "lost": n - len(outcomes),
+        "refused": refused,
+    }

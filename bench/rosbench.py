@@ -1,0 +1,387 @@
+"""Figures that need the server in its own process: ROS latency, command to board, stop, reach.
+
+The emulated board lives in this process behind a pty link (so its records and
+servo model are at hand); `al5d serve --port LINK` is a separate process; this
+process is also the ROS 2 client. Every time is CLOCK_MONOTONIC, which all
+processes on the machine share.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import random
+import re
+import signal
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+from proc import Proc
+from rospeer import Peer, wait_future, wait_until
+from stats import figure
+from std_srvs.srv import Trigger
+
+from al5d import protocol as p
+from al5d.config import DEFAULT_CONFIG, ArmConfig
+from al5d.emulator import Emulator, Record
+from al5d.qos import TOLERANCE_DEG
+
+STOP_LINES = [f"STOP{ch}".encode() for ch in range(6)]
+STOP_BYTES = len(p.CANCEL + p.encode_stop(range(6)))
+
+
+def bench_config(path: Path, queue_capacity: int) -> Path:
+    """The shipped configuration with a queue deep enough for the load figures."""
+    data = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    data["server"]["queue_capacity"] = queue_capacity
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def proc_stat(pid: int) -> tuple[float, int]:
+    """(CPU seconds used, resident kB) of a process, from /proc."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    ticks = int(fields[11]) + int(fields[12])  # utime + stime
+    rss = 0
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            rss = int(line.split()[1])
+    return ticks / os.sysconf("SC_CLK_TCK"), rss
+
+
+class Rig:
+    """Emulator here, server there, and this process as the client."""
+
+    def __init__(self, config: ArmConfig, baud: int, workdir: Path, peer: Peer) -> None:
+        self.config = config
+        self.baud = baud
+        self.peer = peer
+        self.link = workdir / f"ssc32u-{baud}"
+        self.trace = workdir / f"trace-{baud}.txt"
+        self.emu = Emulator(config, baud=baud, link=self.link).start()
+        cfg = bench_config(workdir / "bench.yaml", 100_000)
+        self.t_spawn = time.monotonic()
+        self.proc = Proc(
+            "serve",
+            "--port",
+            str(self.link),
+            "--baud",
+            str(baud),
+            "--config",
+            str(cfg),
+            "--trace",
+            str(self.trace),
+            "--log-level",
+            "INFO",
+        )
+        self.proc.err.wait_for("STATE: ready", 30)
+        self.t_ready = time.monotonic()
+        self.n = 0
+        peer.wait_for_server()
+        self.handshake(peer)
+
+    def ident(self, tag: str) -> str:
+        self.n += 1
+        return f"{tag}-{self.baud}-{self.n}"
+
+    def record_after(self, t: float, predicate: Any, timeout: float = 10.0) -> Record:
+        """The first record after `t` that matches (looking only at the records after `t`)."""
+
+        def find(records: list[Record]) -> Record | None:
+            newer = list(itertools.takewhile(lambda r: r.t_effect > t, reversed(records)))
+            return next((r for r in reversed(newer) if predicate(r)), None)
+
+        return find(self.emu.wait_for(lambda rs: find(rs) is not None, timeout))  # type: ignore[return-value]
+
+    def move(self, tag: str, time_ms: int = 0, **joints: float) -> tuple[str, float]:
+        ident = self.ident(tag)
+        t = time.monotonic()
+        self.peer.send(ident, "move", time_ms, **joints)
+        return ident, t
+
+    def barrier(self, timeout: float = 30.0, peer: Peer | None = None) -> None:
+        """Wait until the server has taken in everything sent so far.
+
+        Messages on the topic are handled in order; an unknown instruction is refused
+        at once, and the server logs the refusal with its id.
+        """
+        ident = self.ident("barrier")
+        (peer or self.peer).send(ident, "barrier")
+        self.proc.err.wait_for(f"[{ident}]", timeout)
+
+    def diagnose(self, what: str) -> str:
+        """What the server said and what the board saw last, for a figure that went wrong."""
+        lines = [x for x in self.proc.err.drain(0.5) if "refused" not in x][-12:]
+        records = [
+            f"{r.t_effect:.4f} {r.raw[:40]!r} {r.ignored or ''}" for r in self.emu.records[-8:]
+        ]
+        text = "\n".join([what, "server:", *lines, "board:", *records])
+        print(text, file=sys.stderr, flush=True)
+        return text
+
+    def handshake(self, peer: Peer, timeout: float = 30.0) -> None:
+        """Until this server has heard `peer`: a subscription count can be met by a reader
+        of a server that just ended, and messages sent before the match are lost."""
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                self.barrier(1.0, peer)
+                return
+            except AssertionError:
+                if time.monotonic() > deadline:
+                    raise
+
+    def settle(self) -> None:
+        """Wait for the arm to be idle and the results to have come."""
+        ident, _ = self.move("settle", base=0)
+        self.peer.result(ident, 60)
+
+    def close(self) -> dict[int, str]:
+        """Shut the server down; return its trace: monotonic ns by instruction id."""
+        self.proc.popen.send_signal(signal.SIGTERM)
+        self.proc.wait(60)
+        self.emu.close()
+        trace = {}
+        for line in self.trace.read_text().splitlines():
+            ident, t = line.rsplit(" ", 1)
+            trace[ident] = t
+        return trace
+
+
+def ros_latency(rig: Rig, n: int = 2000, warmup: int = 200) -> tuple[list[str], dict[str, float]]:
+    """Publish paced moves (queued on the server); the trace gives each callback's start."""
+    sent: dict[str, float] = {}
+    ids = []
+    for i in range(n + warmup):
+        ident = rig.ident("lat")
+        t = time.monotonic_ns()
+        rig.peer.send(ident, "move", 0, base=0.0)
+        if i >= warmup:
+            sent[ident] = t
+            ids.append(ident)
+        time.sleep(0.002)
+    rig.barrier()
+    rig.peer.trigger("stop")
+    rig.peer.trigger("release")
+    return ids, sent
+
+
+def command_to_board(rig: Rig, n: int = 300) -> dict[str, Any]:
+    """Publish one small move at a time; until its CR is in effect on the emulated board."""
+    total, software = [], []
+    for i in range(n + 20):
+        deg = 1.0 if i % 2 else -1.0
+        ident, t_pub = rig.move("c2b", base=deg)
+        rec = rig.record_after(t_pub, lambda r: r.raw.startswith(b"#0P"))
+        wire = p.wire_time_s(len(rec.raw) + 1, rig.baud)
+        rig.peer.result(ident)
+        if i >= 20:
+            total.append((rec.t_effect - t_pub) * 1000)
+            software.append((rec.t_effect - t_pub - wire) * 1000)
+    wire_ms = p.wire_time_s(len(b"#0P1510T3\r"), rig.baud) * 1000
+    return {
+        "total": figure(f"command to board {rig.baud}", total, wire_ms=wire_ms),
+        "software": figure(f"command to board {rig.baud} minus wire", software),
+    }
+
+
+def emergency_stop(rig: Rig, trials: int = 200, queued: int = 1000) -> dict[str, Any]:
+    """Stop by service and by topic while a move runs and `queued` moves wait; until STOP5 acts.
+
+    A peer of its own that does not take the results: each stop cancels a thousand
+    moves, and their results would load this process, whose emulator must answer
+    the driver's read-back within its deadline.
+    """
+    wire = p.wire_time_s(STOP_BYTES, rig.baud) * 1000
+    by: dict[str, list[float]] = {"service": [], "topic": []}
+    answered: list[float] = []
+    missed: list[str] = []
+    quiet = Peer(results=False, name="al5d_bench_stopper")
+    for client in quiet.services.values():
+        assert client.wait_for_service(timeout_sec=10)
+    rig.handshake(quiet)
+    for trial in range(trials):
+        via = "service" if trial % 2 == 0 else "topic"
+        t_long = time.monotonic()
+        quiet.send(rig.ident("long"), "move", 5000, base=80 if trial % 4 < 2 else -80, shoulder=40)
+        for k in range(queued):
+            quiet.send(rig.ident("q"), "move", 0, base=(k % 60) - 30)
+        rig.record_after(t_long, lambda r: b"T5000" in r.raw)
+        rig.barrier(peer=quiet)  # the queued moves are all in the server's queue
+        t0 = time.monotonic()
+        if via == "service":
+            future = quiet.services["stop"].call_async(Trigger.Request())
+        else:
+            quiet.send(rig.ident("stop"), "stop")
+        try:
+            rec = rig.record_after(t0, lambda r: r.raw == STOP_LINES[-1])
+        except TimeoutError:
+            missed.append(rig.diagnose(f"trial {trial} via {via}: no STOP on the board in 10 s"))
+            quiet.trigger("release")
+            rig.settle()
+            continue
+        if via == "service":
+            wait_future(future)
+            answered.append((time.monotonic() - t0) * 1000)
+        by[via].append((rec.t_effect - t0) * 1000)
+        assert quiet.trigger("release").success
+    quiet.close()
+    counts = [
+        int(m.group(1))
+        for line in rig.proc.err.drain(1)
+        if (m := re.search(r"stop: (\d+) move", line))
+    ]
+    out = {}
+    for via, samples in by.items():
+        out[via] = figure(f"stop via {via}", samples, wire_ms=wire)
+        out[f"{via} software"] = figure(f"stop via {via} minus wire", [s - wire for s in samples])
+    out["service answered"] = figure("stop service answered", answered)
+    out["queued at stop"] = {"min": min(counts) if counts else 0, "trials": len(counts)}
+    out["missed"] = missed
+    return out
+
+
+def physical_minimum_s(
+    config: ArmConfig, start: dict[str, float], target: dict[str, float]
+) -> float:
+    return max(abs(target[j] - start[j]) / config.joints[j].speed_deg_s for j in target)
+
+
+def reach(rig: Rig, n: int = 200, seed: int = 1) -> dict[str, Any]:
+    """SA03: request -> every emulated servo within 1 degree, against physics + wire time."""
+    cfg = rig.config
+    rng = random.Random(seed)
+    ident, _ = rig.move("start", **cfg.presets["park"])
+    rig.peer.result(ident, 30)
+    pose = dict(cfg.presets["park"])
+    reach_ms, margin_ms, rows = [], [], []
+
+    def one(target: dict[str, float], tag: str) -> tuple[float, float, Record]:
+        nonlocal pose
+        ident, t_pub = rig.move(tag, **target)
+        rec = rig.record_after(t_pub, lambda r: r.raw.startswith(b"#"))
+        result = rig.peer.result(ident, 30)
+        assert result.outcome == "done", result.reason
+        t_reach = rig.emu.reach_time(rec.t_effect, TOLERANCE_DEG, target)
+        assert t_reach is not None
+        bound = physical_minimum_s(cfg, pose, target) + p.wire_time_s(len(rec.raw) + 1, rig.baud)
+        pose = dict(target)
+        return (t_reach - t_pub) * 1000, bound * 1000, rec
+
+    for _ in range(n):
+        target = {j: rng.uniform(*cfg.joints[j].range_deg) for j in cfg.joints}
+        got, bound, _ = one(target, "reach")
+        reach_ms.append(got)
+        margin_ms.append(got - bound)
+        rows.append({"reach_ms": got, "bound_ms": bound})
+    low = {j: cfg.joints[j].range_deg[0] for j in cfg.joints}
+    high = {j: cfg.joints[j].range_deg[1] for j in cfg.joints}
+    one(low, "worst-from")
+    worst, worst_bound, worst_rec = one(high, "worst")
+    span = worst_bound / 1000 + 0.15
+    times = [worst_rec.t_effect - 0.05 + k * span / 400 for k in range(400)]
+    return {
+        "random": figure("reach time", reach_ms),
+        "margin": figure("reach time minus (physical minimum + wire)", margin_ms),
+        "worst_ms": worst,
+        "worst_bound_ms": worst_bound,
+        "worst_trajectory": {
+            "t_ms": [(t - worst_rec.t_effect) * 1000 for t in times],
+            "joints": rig.emu.trajectory(worst_rec.t_effect, times),
+        },
+        "within_2300": sum(r <= 2300 for r in reach_ms) / len(reach_ms),
+    }
+
+
+def throughput(rig: Rig, n: int = 10000) -> dict[str, Any]:
+    """A burst of `n` moves over ROS: the rate the server takes them in, and none lost."""
+    ids = []
+    t0 = time.monotonic_ns()
+    for k in range(n):
+        ident = rig.ident("burst")
+        ids.append(ident)
+        rig.peer.send(ident, "move", 0, base=(k % 60) - 30)
+    t_sent = time.monotonic_ns()
+    rig.barrier(60)  # the whole burst is in; the trace says when each message arrived
+    # Stop cancels what waits: every instruction then has its outcome.
+    rig.peer.trigger("stop")
+    wait_until(lambda: all(i in rig.peer.results for i in ids), 60, "every outcome")
+    rig.peer.trigger("release")
+    return {
+        "ids": ids,
+        "t0_ns": t0,
+        "t_sent_ns": t_sent,
+        "received": sum(i in rig.peer.results for i in ids),
+    }
+
+
+def footprint(rig: Rig, idle_s: float = 5.0) -> dict[str, Any]:
+    cpu0, rss = proc_stat(rig.proc.popen.pid)
+    time.sleep(idle_s)
+    cpu1, _ = proc_stat(rig.proc.popen.pid)
+    return {"rss_mb": rss / 1024, "idle_cpu_percent": (cpu1 - cpu0) / idle_s * 100}
+
+
+def cold_start(runs: int = 3) -> dict[str, Any]:
+    """`al5d serve` (embedded emulator) from spawn to STATE: ready."""
+    times = []
+    for _ in range(runs):
+        t0 = time.monotonic()
+        proc = Proc("serve", "--log-level", "INFO")
+        proc.err.wait_for("STATE: ready", 30)
+        times.append((time.monotonic() - t0) * 1000)
+        proc.popen.send_signal(signal.SIGINT)
+        proc.wait(30)
+    return figure("cold start to ready", times)
+
+
+def run(config: ArmConfig, log: Any) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    workdir = Path(tempfile.mkdtemp(prefix="al5d-bench-"))
+    log("cold start (3 runs of al5d serve)")
+    out["cold_start"] = cold_start()
+    peer = Peer()
+    try:
+        rig = Rig(config, 9600, workdir, peer)
+        out["cold_start_port_ms"] = (rig.t_ready - rig.t_spawn) * 1000
+        log("footprint: resident memory and idle CPU (5 s)")
+        out["footprint"] = footprint(rig)
+        log("ROS client -> server latency (2000 paced messages)")
+        ids, sent = ros_latency(rig)
+        log("command to board at 9600 baud (300 moves)")
+        out["c2b_9600"] = command_to_board(rig)
+        log("emergency stop (200 trials, 1000 moves queued each)")
+        peer.listen_results(False)  # 200,000 cancelled results would load this process
+        out["stop"] = emergency_stop(rig)
+        peer.listen_results(True)
+        rig.handshake(peer)
+        log("reach time, SA03 (200 random targets + the worst case)")
+        out["reach"] = reach(rig)
+        rig.settle()
+        trace = rig.close()
+        out["ros_latency"] = figure(
+            "ROS client -> server", [(int(trace[i]) - sent[i]) / 1e6 for i in ids if i in trace]
+        )
+        rig = Rig(config, 115200, workdir, peer)
+        log("command to board at 115200 baud (300 moves)")
+        out["c2b_115200"] = command_to_board(rig)
+        log("throughput over ROS (a burst of 10000 moves)")
+        burst = throughput(rig)
+        rig.settle()
+        trace = rig.close()
+        got = [int(trace[i]) for i in burst["ids"] if i in trace]
+        elapsed = (max(got) - burst["t0_ns"]) / 1e9
+        out["throughput_ros"] = {
+            "n": len(burst["ids"]),
+            "rate_per_s": len(got) / elapsed,
+            "lost": len(burst["ids"]) - burst["received"],
+            "reached_server": len(got),
+            "publish_rate_per_s": len(burst["ids"]) / ((burst["t_sent_ns"] - burst["t0_ns"]) / 1e9),
+        }
+    finally:
+        peer.close()
+    return out

@@ -1,0 +1,116 @@
+"""A ROS 2 peer of the server for tests and benchmarks: publishes, calls, listens."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+from al5d_interfaces.action import Move
+from al5d_interfaces.msg import ArmInstruction, InstructionResult
+from rclpy.action import ActionClient
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from al5d.ros import INSTRUCTION_TOPIC, QOS_STREAM, RESULT_TOPIC, Spinner, start_context
+
+
+def wait_until(predicate: Any, timeout: float = 10.0, what: str = "condition") -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what} not met in {timeout} s")
+        time.sleep(0.01)
+
+
+def wait_future(future: Any, timeout: float = 10.0) -> Any:
+    done = threading.Event()
+    future.add_done_callback(lambda f: done.set())
+    assert done.wait(timeout), "no answer in time"
+    return future.result()
+
+
+class Peer:
+    """A ROS 2 node in the test process: publishes, calls, and listens like any client."""
+
+    def __init__(self, results: bool = True, name: str = "al5d_test_peer") -> None:
+        self.context = start_context()
+        self.node = Node(name, context=self.context)
+        self.pub = self.node.create_publisher(ArmInstruction, INSTRUCTION_TOPIC, QOS_STREAM)
+        self.results: dict[str, InstructionResult] = {}
+        self.joint_states: list[JointState] = []
+        self._result_sub: Any = None
+        if results:  # a benchmark may not want a thousand results arriving as it measures
+            self.listen_results()
+        self.node.create_subscription(JointState, "/joint_states", self.joint_states.append, 10)
+        self.services = {
+            n: self.node.create_client(Trigger, f"/al5d/{n}")
+            for n in ("stop", "release", "shutdown")
+        }
+        self.move = ActionClient(self.node, Move, "/al5d/move")
+        self.spinner = Spinner(self.node, self.context)
+
+    def listen_results(self, on: bool = True) -> None:
+        """Take /al5d/result, or stop (a benchmark's burst of results loads this process)."""
+        if on and self._result_sub is None:
+            self._result_sub = self.node.create_subscription(
+                InstructionResult, RESULT_TOPIC, self._on_result, QOS_STREAM
+            )
+        elif not on and self._result_sub is not None:
+            self.node.destroy_subscription(self._result_sub)
+            self._result_sub = None
+
+    def _on_result(self, msg: InstructionResult) -> None:
+        self.results[msg.id] = msg
+
+    def wait_for_server(self) -> None:
+        wait_until(
+            lambda: (
+                self.pub.get_subscription_count() > 0
+                and self.node.count_publishers(RESULT_TOPIC) > 0
+            ),
+            20,
+            "the server's topics",
+        )
+        for client in self.services.values():
+            assert client.wait_for_service(timeout_sec=10)
+        assert self.move.wait_for_server(timeout_sec=10)
+
+    def send(self, ident: str, instruction: str, time_ms: int = 0, **joints: float) -> None:
+        msg = ArmInstruction(
+            instruction=instruction,
+            joints=list(joints),
+            degrees=[float(v) for v in joints.values()],
+            time_ms=time_ms,
+            id=ident,
+        )
+        self.pub.publish(msg)
+
+    def result(self, ident: str, timeout: float = 15.0) -> InstructionResult:
+        wait_until(lambda: ident in self.results, timeout, f"result {ident}")
+        return self.results[ident]
+
+    def trigger(self, name: str) -> Trigger.Response:
+        return wait_future(self.services[name].call_async(Trigger.Request()))
+
+    def goal(
+        self, preset: str = "", time_ms: int = 0, feedback: list[Any] | None = None, **joints: float
+    ) -> Any:
+        goal = Move.Goal(
+            preset=preset,
+            joints=list(joints),
+            degrees=[float(v) for v in joints.values()],
+            time_ms=time_ms,
+        )
+        handle = wait_future(
+            self.move.send_goal_async(
+                goal, feedback_callback=(feedback.append if feedback is not None else None)
+            )
+        )
+        assert handle.accepted
+        return handle
+
+    def close(self) -> None:
+        self.move.destroy()
+        self.spinner.close()
