@@ -166,6 +166,9 @@ def test_stop_during_a_move_with_queued_moves_and_goals(server: Server, peer: Pe
     # Queued ones are cancelled; any that reached the server after the stop are refused (locked).
     assert all(r.outcome == "cancelled" or "send release first" in r.reason for r in outcomes)
     assert sum(r.outcome == "cancelled" for r in outcomes) >= 200
+    wait_until(
+        lambda: any(r.raw == b"STOP5" for r in server.emu.records), 5, "every STOP on the board"
+    )
     stops = [r.raw for r in server.emu.records if r.raw.startswith(b"STOP")]
     assert stops == [f"STOP{ch}".encode() for ch in range(6)]
     peer.send("locked", "move", base=0)

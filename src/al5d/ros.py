@@ -24,7 +24,7 @@ from al5d_interfaces.action import Move
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -78,13 +78,27 @@ def start_context() -> Context:
     return context
 
 
+def make_executor(context: Context) -> Executor:
+    """rclpy's C++ EventsExecutor, or the Python SingleThreadedExecutor (AL5D_EXECUTOR=single).
+
+    The events executor takes each message without rebuilding a wait set of every
+    entity in Python, which is what limits the single-threaded one (see the README's
+    Performance section for the figures of both).
+    """
+    if os.environ.get("AL5D_EXECUTOR", "events") == "single":
+        return SingleThreadedExecutor(context=context)
+    from rclpy.experimental.events_executor import EventsExecutor
+
+    return EventsExecutor(context=context)
+
+
 class Spinner:
     """An executor spinning in its own thread, stopped in the order rclpy needs."""
 
     def __init__(self, node: Node, context: Context) -> None:
         self.node = node
         self.context = context
-        self.executor = SingleThreadedExecutor(context=context)
+        self.executor = make_executor(context)
         self.executor.add_node(node)
         self._running = True
         self._thread = threading.Thread(
@@ -180,7 +194,6 @@ class ArmNode(Node):
             cancel_callback=self._cancel,
         )
         self.create_timer(1.0 / driver.settings.joint_state_rate_hz, self._tick)
-        self.executor_ref: SingleThreadedExecutor | None = None
         driver.outcome_listeners.append(self._publish_outcome)
         driver.state_listeners.append(self._publish_state)
         self._publish_state(driver.state)
