@@ -28,39 +28,40 @@ class Lines:
             self._q.put(line.rstrip("\n"))
         self._q.put(None)
 
+    def _next(self, deadline: float) -> str | None:
+        """The next line that comes before `deadline` (None: none came, or the stream ended)."""
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return None
+        try:
+            line = self._q.get(timeout=left)
+        except queue.Empty:
+            return None
+        if line is not None:
+            self.all.append(line)
+        return line
+
     def wait_for(self, text: str, timeout: float = 20.0) -> str:
         """The next line (after the last one matched) that contains `text`."""
         for i in range(self._cursor, len(self.all)):
             if text in self.all[i]:
                 self._cursor = i + 1
                 return self.all[i]
-        self._cursor = len(self.all)
         deadline = time.monotonic() + timeout
-        while (left := deadline - time.monotonic()) > 0:
-            try:
-                line = self._q.get(timeout=left)
-            except queue.Empty:
-                break
-            if line is None:
-                break
-            self.all.append(line)
-            self._cursor = len(self.all)
+        while (line := self._next(deadline)) is not None:
             if text in line:
+                self._cursor = len(self.all)
                 return line
+        self._cursor = len(self.all)
         raise AssertionError(
             f"no line with {text!r} in {timeout} s; got:\n" + "\n".join(self.all[-30:])
         )
 
     def drain(self, timeout: float = 2.0) -> list[str]:
+        """Every line so far, after waiting up to `timeout` for more (or for the end)."""
         deadline = time.monotonic() + timeout
-        while (left := deadline - time.monotonic()) > 0:
-            try:
-                line = self._q.get(timeout=left)
-            except queue.Empty:
-                break
-            if line is None:
-                break
-            self.all.append(line)
+        while self._next(deadline) is not None:
+            pass
         return self.all
 
 

@@ -351,57 +351,57 @@ class TestShutdown:
         assert rig.driver.execute(ins.move(base=1), 5).result is Result.REFUSED
 
 
+@pytest.fixture
+def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, ArmDriver]]:
+    """A driver on an emulator behind a link, so that the board can be unplugged and back."""
+    link = f"{tmp_path}/ssc32u"
+    with Emulator(config, link=link) as emu:
+        driver = ArmDriver(config, link)
+        driver.start()
+        try:
+            driver.wait_for_state(State.READY, 10)
+            yield emu, driver
+        finally:
+            driver.close()
+
+
 class TestFault:
     def test_disconnect_during_a_move_then_recovery(
-        self, config: ArmConfig, tmp_path: object
+        self, config: ArmConfig, linked: tuple[Emulator, ArmDriver]
     ) -> None:
-        link = f"{tmp_path}/ssc32u"
-        with Emulator(config, link=link) as emu:
-            driver = ArmDriver(config, link)
-            driver.start()
-            try:
-                driver.wait_for_state(State.READY, 10)
-                running = driver.submit(ins.move(base=80, time_ms=2000))
-                queued = driver.submit(ins.move(base=0))
-                emu.wait_for(lambda rs: any(r.raw.startswith(b"#0P2300") for r in rs))
-                emu.inject(Fault.DISCONNECT)
-                driver.wait_for_state(State.FAULT, 5)
-                for f in (running, queued):
-                    o = f.result(5)
-                    assert o.result is Result.CANCELLED and "the serial link is lost" in o.reason
-                refused = driver.execute(ins.move(base=10), 5)
-                assert refused.result is Result.REFUSED and "serial link is lost" in refused.reason
-                emu.clear_records()
-                emu.reconnect()
-                driver.wait_for_state(State.READY, 5)
-                # No stale move replayed; positions re-learned from the board.
-                time.sleep(0.1)
-                assert not any(r.raw.startswith(b"#") for r in emu.records)
-                assert driver.positions()["base"] == pytest.approx(
-                    config.joints["base"].to_deg(emu.pulse_us(0)), abs=1.0
-                )
-                assert driver.execute(ins.move(base=5), 10).ok
-            finally:
-                driver.close()
+        emu, driver = linked
+        running = driver.submit(ins.move(base=80, time_ms=2000))
+        queued = driver.submit(ins.move(base=0))
+        emu.wait_for(lambda rs: any(r.raw.startswith(b"#0P2300") for r in rs))
+        emu.inject(Fault.DISCONNECT)
+        driver.wait_for_state(State.FAULT, 5)
+        for f in (running, queued):
+            o = f.result(5)
+            assert o.result is Result.CANCELLED and "the serial link is lost" in o.reason
+        refused = driver.execute(ins.move(base=10), 5)
+        assert refused.result is Result.REFUSED and "serial link is lost" in refused.reason
+        emu.clear_records()
+        emu.reconnect()
+        driver.wait_for_state(State.READY, 5)
+        # No stale move replayed; positions re-learned from the board.
+        time.sleep(0.1)
+        assert not any(r.raw.startswith(b"#") for r in emu.records)
+        assert driver.positions()["base"] == pytest.approx(
+            config.joints["base"].to_deg(emu.pulse_us(0)), abs=1.0
+        )
+        assert driver.execute(ins.move(base=5), 10).ok
 
     def test_stop_during_a_fault_keeps_the_arm_locked_after_reconnect(
-        self, config: ArmConfig, tmp_path: object
+        self, linked: tuple[Emulator, ArmDriver]
     ) -> None:
-        link = f"{tmp_path}/ssc32u"
-        with Emulator(config, link=link) as emu:
-            driver = ArmDriver(config, link)
-            driver.start()
-            try:
-                driver.wait_for_state(State.READY, 10)
-                emu.inject(Fault.DISCONNECT)
-                driver.submit(ins.move(base=10))  # the write fails: fault
-                driver.wait_for_state(State.FAULT, 5)
-                assert driver.execute(ins.stop(), 5).ok
-                emu.reconnect()
-                driver.wait_for_state(State.STOPPED, 5)
-                assert driver.execute(ins.release(), 5).ok
-            finally:
-                driver.close()
+        emu, driver = linked
+        emu.inject(Fault.DISCONNECT)
+        driver.submit(ins.move(base=10))  # the write fails: fault
+        driver.wait_for_state(State.FAULT, 5)
+        assert driver.execute(ins.stop(), 5).ok
+        emu.reconnect()
+        driver.wait_for_state(State.STOPPED, 5)
+        assert driver.execute(ins.release(), 5).ok
 
     def test_the_server_starts_without_a_board_and_connects_later(
         self, config: ArmConfig, tmp_path: object

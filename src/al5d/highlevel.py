@@ -233,8 +233,6 @@ class ArmDriver:
         config: ArmConfig,
         port: str,
         baud: int | None = None,
-        *,
-        open_board: Callable[[str, int], SSC32U] | None = None,
     ) -> None:
         self.config = config
         self.port = port
@@ -242,7 +240,6 @@ class ArmDriver:
         self.settings = config.server
         self.translator = Translator(config)
         self.channels = config.channels
-        self._open_board = open_board or (lambda port, baud: SSC32U(port, baud))
         self._lock = threading.Lock()
         self._cv = threading.Condition(self._lock)
         self._announce_lock = threading.Lock()
@@ -663,7 +660,7 @@ class ArmDriver:
 
     def _connect(self) -> bool:
         try:
-            board = self._open_board(self.port, self.baud)
+            board = SSC32U(self.port, self.baud)
         except SerialFault as e:
             self._enter_fault(e)
             return False
@@ -863,7 +860,7 @@ class ArmDriver:
                 if self._shutdown_job is not None:
                     return
             try:
-                board = self._open_board(self.port, self.baud)
+                board = SSC32U(self.port, self.baud)
                 # The board may still be running what it had before the link dropped:
                 # learn the pose once that is over, not halfway.
                 deadline = now() + self.settings.max_move_time_ms / 1000.0
