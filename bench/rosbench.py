@@ -140,15 +140,16 @@ class Rig:
         ident, _ = self.move("settle", base=0)
         self.peer.result(ident, 60)
 
-    def close(self) -> dict[int, str]:
-        """Shut the server down; return its trace: monotonic ns by instruction id."""
+    def close(self) -> dict[str, dict[str, int]]:
+        """Shut the server down; return its trace: by instruction id, when the message
+        reached its callback ("recv") and when the move's bytes were written ("write")."""
         self.proc.popen.send_signal(signal.SIGTERM)
         self.proc.wait(60)
         self.emu.close()
-        trace = {}
+        trace: dict[str, dict[str, int]] = {}
         for line in self.trace.read_text().splitlines():
-            ident, t = line.rsplit(" ", 1)
-            trace[ident] = t
+            ident, what, t = line.rsplit(" ", 2)
+            trace.setdefault(ident, {})[what] = int(t)
         return trace
 
 
@@ -173,6 +174,7 @@ def ros_latency(rig: Rig, n: int = 2000, warmup: int = 200) -> tuple[list[str], 
 def command_to_board(rig: Rig, n: int = 300) -> dict[str, Any]:
     """Publish one small move at a time; until its CR is in effect on the emulated board."""
     total, software = [], []
+    times: dict[str, tuple[float, float, float]] = {}  # id -> (published, in effect, wire), s
     for i in range(n + 20):
         deg = 1.0 if i % 2 else -1.0
         ident, t_pub = rig.move("c2b", base=deg)
@@ -182,10 +184,29 @@ def command_to_board(rig: Rig, n: int = 300) -> dict[str, Any]:
         if i >= 20:
             total.append((rec.t_effect - t_pub) * 1000)
             software.append((rec.t_effect - t_pub - wire) * 1000)
+            times[ident] = (t_pub, rec.t_effect, wire)
     wire_ms = p.wire_time_s(len(b"#0P1510T3\r"), rig.baud) * 1000
     return {
         "total": figure(f"command to board {rig.baud}", total, wire_ms=wire_ms),
         "software": figure(f"command to board {rig.baud} minus wire", software),
+        "times": times,
+    }
+
+
+def breakdown(c2b: dict[str, Any], trace: dict[str, dict[str, int]]) -> dict[str, Any]:
+    """Command to board in three parts, from the server's trace: ROS, server, board side."""
+    ros, server, board = [], [], []
+    for ident, (t_pub, t_effect, wire) in c2b.pop("times").items():
+        t = trace.get(ident, {})
+        if "recv" in t and "write" in t:
+            recv, write = t["recv"] / 1e9, t["write"] / 1e9
+            ros.append((recv - t_pub) * 1000)
+            server.append((write - recv) * 1000)
+            board.append((t_effect - write - wire) * 1000)
+    return {
+        "ros": figure("publish -> callback", ros),
+        "server": figure("callback -> bytes written", server),
+        "board": figure("written -> CR in effect, minus wire", board),
     }
 
 
@@ -364,8 +385,9 @@ def run(config: ArmConfig, log: Any) -> dict[str, Any]:
         rig.settle()
         trace = rig.close()
         out["ros_latency"] = figure(
-            "ROS client -> server", [(int(trace[i]) - sent[i]) / 1e6 for i in ids if i in trace]
+            "ROS client -> server", [(trace[i]["recv"] - sent[i]) / 1e6 for i in ids if i in trace]
         )
+        out["c2b_9600"]["parts"] = breakdown(out["c2b_9600"], trace)
         rig = Rig(config, 115200, workdir, peer)
         log("command to board at 115200 baud (300 moves)")
         out["c2b_115200"] = command_to_board(rig)
@@ -373,7 +395,8 @@ def run(config: ArmConfig, log: Any) -> dict[str, Any]:
         burst = throughput(rig)
         rig.settle()
         trace = rig.close()
-        got = [int(trace[i]) for i in burst["ids"] if i in trace]
+        out["c2b_115200"]["parts"] = breakdown(out["c2b_115200"], trace)
+        got = [trace[i]["recv"] for i in burst["ids"] if i in trace]
         elapsed = (max(got) - burst["t0_ns"]) / 1e9
         out["throughput_ros"] = {
             "n": len(burst["ids"]),

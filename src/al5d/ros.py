@@ -173,7 +173,7 @@ class ArmNode(Node):
         self.joint_names = list(driver.config.joints)
         # (id, monotonic ns) of each instruction message as its callback starts, when tracing
         # (`al5d serve --trace FILE`, used by the benchmarks): an append, nothing more.
-        self.trace: list[tuple[str, int]] | None = None
+        self.trace: list[tuple[str, str, int]] | None = None
         self._goals: dict[str, ServerGoalHandle] = {}
         self._goal_ids: dict[bytes, str] = {}
         self.result_pub = self.create_publisher(InstructionResult, RESULT_TOPIC, QOS_STREAM)
@@ -231,7 +231,7 @@ class ArmNode(Node):
 
     def _on_instruction(self, msg: ArmInstruction) -> None:
         if self.trace is not None:
-            self.trace.append((msg.id, time.monotonic_ns()))
+            self.trace.append((msg.id, "recv", time.monotonic_ns()))
         instr = from_message(msg, self.presets)
         if isinstance(instr, str):
             self._refuse_message(msg.id or new_id(), msg.instruction, instr)
@@ -342,6 +342,11 @@ class RosServer:
         self.trace_path = trace
         if trace is not None:
             self.node.trace = []
+            events = self.node.trace
+            # ...and when each move's bytes were written: the server's share of the path.
+            driver.motion_listeners.append(
+                lambda sent: events.append((sent.instr.id, "write", int(sent.t_write * 1e9)))
+            )
         self.spinner = Spinner(self.node, self.context)
 
     def close(self) -> None:
@@ -350,4 +355,4 @@ class RosServer:
         self.spinner.close()
         if self.trace_path is not None and self.node.trace is not None:
             with open(self.trace_path, "w", encoding="utf-8") as f:
-                f.writelines(f"{ident} {t}\n" for ident, t in self.node.trace)
+                f.writelines(f"{ident} {what} {t}\n" for ident, what, t in self.node.trace)
