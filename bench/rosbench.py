@@ -78,11 +78,16 @@ class Rig:
             "--log-level",
             "INFO",
         )
-        self.proc.err.wait_for("STATE: ready", 30)
-        self.t_ready = time.monotonic()
-        self.n = 0
-        peer.wait_for_server()
-        self.handshake(peer)
+        try:
+            self.proc.err.wait_for("STATE: ready", 30)
+            self.t_ready = time.monotonic()
+            self.n = 0
+            peer.wait_for_server()
+            self.handshake(peer)
+        except BaseException:
+            self.proc.kill()
+            self.emu.close()
+            raise
 
     def ident(self, tag: str) -> str:
         self.n += 1
@@ -236,6 +241,10 @@ def emergency_stop(rig: Rig, trials: int = 200, queued: int = 1000) -> dict[str,
         t0 = time.monotonic()
         if via == "service":
             future = quiet.services["stop"].call_async(Trigger.Request())
+            # When the answer came, not when we looked (after the STOP bytes on the board).
+            future.add_done_callback(
+                lambda f, t0=t0: answered.append((time.monotonic() - t0) * 1000)
+            )
         else:
             quiet.send(rig.ident("stop"), "stop")
         try:
@@ -247,7 +256,6 @@ def emergency_stop(rig: Rig, trials: int = 200, queued: int = 1000) -> dict[str,
             continue
         if via == "service":
             wait_future(future)
-            answered.append((time.monotonic() - t0) * 1000)
         by[via].append((rec.t_effect - t0) * 1000)
         assert quiet.trigger("release").success
     quiet.close()
@@ -366,8 +374,10 @@ def run(config: ArmConfig, log: Any) -> dict[str, Any]:
     log("cold start (3 runs of al5d serve)")
     out["cold_start"] = cold_start()
     peer = Peer()
+    rigs: list[Rig] = []
     try:
         rig = Rig(config, 9600, workdir, peer)
+        rigs.append(rig)
         out["cold_start_port_ms"] = (rig.t_ready - rig.t_spawn) * 1000
         log("footprint: resident memory and idle CPU (5 s)")
         out["footprint"] = footprint(rig)
@@ -389,6 +399,7 @@ def run(config: ArmConfig, log: Any) -> dict[str, Any]:
         )
         out["c2b_9600"]["parts"] = breakdown(out["c2b_9600"], trace)
         rig = Rig(config, 115200, workdir, peer)
+        rigs.append(rig)
         log("command to board at 115200 baud (300 moves)")
         out["c2b_115200"] = command_to_board(rig)
         log("throughput over ROS (a burst of 10000 moves)")
@@ -406,5 +417,10 @@ def run(config: ArmConfig, log: Any) -> dict[str, Any]:
             "publish_rate_per_s": len(burst["ids"]) / ((burst["t_sent_ns"] - burst["t0_ns"]) / 1e9),
         }
     finally:
+        # A server whose board is gone keeps reconnecting, as it should: a failed run
+        # must not leave it behind to load the next one.
+        for r in rigs:
+            r.proc.kill()
+            r.emu.close()
         peer.close()
     return out

@@ -116,6 +116,16 @@ def rows(r: dict[str, Any]) -> list[tuple[str, str, str, str, bool | None]]:
                 sw["p99_ms"] <= 1,
             )
         )
+    a = s["service answered"]
+    out.append(
+        (
+            "  ... the stop service's answer reached the client",
+            f"p50 {ms(a['p50_ms'])}, p99 {ms(a['p99_ms'])}, n={a['n']}",
+            "-",
+            "(answered at once)",
+            None,
+        )
+    )
     rc = r["reach"]
     out.append(
         (

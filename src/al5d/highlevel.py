@@ -38,6 +38,8 @@ now = time.monotonic
 
 #: How often `Q` is asked once a move's time is over.
 POLL_INTERVAL_S = 0.002
+#: How long the outcomes of moves cancelled by a stop wait, so the stop is answered first.
+CANCEL_DELAY_S = 0.005
 #: While a move runs, the link is checked this often (a Q is 3 bytes: 1 % of 9600 baud).
 HEALTH_INTERVAL_S = 0.25
 #: A move whose `Q` still says moving this long after its time is taken as a fault.
@@ -522,6 +524,9 @@ class ArmDriver:
 
     @staticmethod
     def _cancel_all(jobs: list[_Job], reason: str) -> None:
+        # Let the stop's caller answer first (a ROS service reply needs the GIL a few
+        # times); the cancelled outcomes are news, not safety, and may come 5 ms later.
+        time.sleep(CANCEL_DELAY_S)
         for job in jobs:
             _resolve(job.future, _outcome(job, Result.CANCELLED, reason, job.t_submit))
 
