@@ -411,12 +411,11 @@ class Emulator:
         with self._lock:
             for name in names:
                 joint = self.config.joints[name]
-                history = list(self._history.get(joint.channel, ()))
-                i = next((k for k, s in enumerate(history) if s.t0 == t_effect), None)
-                if i is None:
+                snap, later = self._snapshot(joint.channel, t_effect)
+                if snap is None:
                     continue  # this joint was not part of that move
-                settle = history[i].settle_time(tol_deg * abs(joint.us_per_deg))
-                if i + 1 < len(history) and history[i + 1].t0 < settle:
+                settle = snap.settle_time(tol_deg * abs(joint.us_per_deg))
+                if later is not None and later < settle:
                     return None
                 latest = max(latest, settle)
         return latest
@@ -433,8 +432,7 @@ class Emulator:
         with self._lock:
             for name in joints if joints is not None else self.config.joints:
                 joint = self.config.joints[name]
-                history = self._history.get(joint.channel, deque())
-                snap = next((x for x in history if x.t0 == t_effect), None)
+                snap, _ = self._snapshot(joint.channel, t_effect)
                 if snap is None:
                     continue
                 out[name] = (
@@ -635,6 +633,14 @@ class Emulator:
             servo.end_us = pw
             servo.t0 = t
             self._remember(ch, servo)
+
+    def _snapshot(self, channel: int, t_effect: float) -> tuple[Servo | None, float | None]:
+        """The servo as the command at `t_effect` left it, and when the next command came."""
+        history = list(self._history.get(channel, ()))
+        i = next((k for k, snap in enumerate(history) if snap.t0 == t_effect), None)
+        if i is None:
+            return None, None
+        return history[i], (history[i + 1].t0 if i + 1 < len(history) else None)
 
     def _remember(self, channel: int, servo: Servo) -> None:
         history = self._history.setdefault(channel, deque(maxlen=HISTORY))

@@ -322,7 +322,6 @@ class ArmDriver:
 
         False when the move has already ended (or was never here).
         """
-        t0 = now()
         with self._lock:
             job = next((j for j in self._queue if j.instr.id == instr_id), None)
             if job is not None:
@@ -337,18 +336,14 @@ class ArmDriver:
                 job.cancel.set()
                 board = self._board
                 motion, self._motion = self._motion, None
-                self._readback = True
         if job.cancel.is_set():  # it was running: halt where it is
-            if motion is not None:
-                self._pose.update(motion.at(t0))
-                self._distrust_q(motion)
-            if board is not None:
-                try:
-                    board.stop(self.channels)
-                except SerialFault as e:
-                    with self._cv:
-                        self._fault = self._fault or e
-                        self._cv.notify_all()
+            error = self._halt(board, motion)
+            with self._cv:
+                if error is None:
+                    self._readback = True
+                else:
+                    self._fault = self._fault or error
+                self._cv.notify_all()
         _resolve(job.future, _outcome(job, Result.CANCELLED, reason, job.t_submit))
         return True
 
@@ -486,17 +481,9 @@ class ArmDriver:
                 else self._state
             )
             self._transition(Event.STOP, new)
-        error: SerialFault | None = None
+        error = self._halt(board, motion)
         if board is None:
             error = SerialFault("no board connected")
-        else:
-            try:
-                board.stop(self.channels)
-            except SerialFault as e:
-                error = e
-        if motion is not None:
-            self._pose.update(motion.at(now()))  # until the read-back says exactly where
-            self._distrust_q(motion)
         self._announce()
         reason = "cancelled by stop"
         if current is not None:
@@ -521,6 +508,20 @@ class ArmDriver:
         if dropped or current:
             log.info("stop: %d move(s) cancelled", len(dropped) + (current is not None))
         _resolve(future, _outcome(instr, Result.DONE, note, t0))
+
+    def _halt(self, board: SSC32U | None, motion: Motion | None) -> SerialFault | None:
+        """STOP every channel first, then take the pose from where the interrupted motion was
+        (until the worker's read-back says exactly where). The error if STOP failed."""
+        error = None
+        if board is not None:
+            try:
+                board.stop(self.channels)
+            except SerialFault as e:
+                error = e
+        if motion is not None:
+            self._pose.update(motion.at(now()))
+            self._distrust_q(motion)
+        return error
 
     @staticmethod
     def _cancel_all(jobs: list[_Job], reason: str) -> None:
@@ -674,9 +675,9 @@ class ArmDriver:
             self._board = board
         return True
 
-    def _read_back(self) -> None:
+    def _read_back(self, board: SSC32U | None = None) -> None:
         """Learn where the servos are from the board (after a stop, at start, after a reconnect)."""
-        board = self._board
+        board = board or self._board
         if board is None:
             return
         for _ in range(3):
@@ -866,20 +867,23 @@ class ArmDriver:
                     return
             try:
                 board = SSC32U(self.port, self.baud)
+            except SerialFault as e:
+                log.debug("reconnect failed: %s", e)
+                continue
+            try:
                 # The board may still be running what it had before the link dropped:
                 # learn the pose once that is over, not halfway.
                 deadline = now() + self.settings.max_move_time_ms / 1000.0
                 while not board.is_done() and now() < deadline:
                     time.sleep(POLL_INTERVAL_S * 5)
-                pulses = board.read_pulses(self.channels)
+                self._read_back(board)
             except (SerialFault, Interrupted) as e:
                 log.debug("reconnect failed: %s", e)
+                board.close()  # it holds the port exclusively: the next try must open it
                 continue
-            pose = self.translator.degrees(pulses)
             with self._lock:
                 self._board = board
                 self._fault = None
-                self._pose.update(pose)
                 self._transition(Event.RECONNECTED, S.STOPPED if self._locked else S.READY)
             self._announce()
             log.info("reconnected to %s on %s", board.firmware, self.port)

@@ -15,7 +15,7 @@ import os
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from typing import Any
 
@@ -130,6 +130,16 @@ def to_message(instr: Instruction) -> ArmInstruction:
     return msg
 
 
+def move_from_fields(
+    joints: Sequence[str], degrees: Sequence[float], time_ms: int | None, ident: str
+) -> Instruction | str:
+    """A move from a message's or goal's parallel arrays, or why it is not one."""
+    if len(joints) != len(degrees):
+        return f"joints and degrees differ in length ({len(joints)} and {len(degrees)})"
+    pairs = tuple(zip(joints, degrees, strict=True))
+    return Instruction(Kind.MOVE, joints=pairs, time_ms=time_ms, id=ident)
+
+
 def from_message(msg: ArmInstruction, presets: tuple[str, ...]) -> Instruction | str:
     """The instruction in a message, or why it is not one."""
     word = msg.instruction.strip().lower()
@@ -138,10 +148,7 @@ def from_message(msg: ArmInstruction, presets: tuple[str, ...]) -> Instruction |
     if word in presets:
         return Instruction(Kind.PRESET, preset=word, time_ms=time_ms, id=ident)
     if word == Kind.MOVE.value:
-        if len(msg.joints) != len(msg.degrees):
-            return f"joints and degrees differ in length ({len(msg.joints)} and {len(msg.degrees)})"
-        joints = tuple(zip(msg.joints, msg.degrees, strict=True))
-        return Instruction(Kind.MOVE, joints=joints, time_ms=time_ms, id=ident)
+        return move_from_fields(msg.joints, msg.degrees, time_ms, ident)
     for kind in (Kind.STOP, Kind.RELEASE, Kind.SHUTDOWN):
         if word == kind.value:
             return Instruction(kind, id=ident)
@@ -281,13 +288,8 @@ class ArmNode(Node):
             instr: Instruction | str = Instruction(
                 Kind.PRESET, preset=goal.preset, time_ms=goal.time_ms or None, id=ident
             )
-        elif len(goal.joints) != len(goal.degrees):
-            instr = (
-                f"joints and degrees differ in length ({len(goal.joints)} and {len(goal.degrees)})"
-            )
         else:
-            joints = tuple(zip(goal.joints, goal.degrees, strict=True))
-            instr = Instruction(Kind.MOVE, joints=joints, time_ms=goal.time_ms or None, id=ident)
+            instr = move_from_fields(goal.joints, goal.degrees, goal.time_ms or None, ident)
         if isinstance(instr, str):
             self._refuse_message(ident, "move", instr)
             outcome = Outcome(ident, "move", Result.REFUSED, instr)
