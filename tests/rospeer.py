@@ -31,6 +31,39 @@ def wait_future(future: Any, timeout: float = 10.0) -> Any:
     return future.result()
 
 
+class LockedActionClient(ActionClient):
+    """rclpy's ActionClient, safe to call from a thread other than its executor's.
+
+    rclpy 7.1 sends a goal, result or cancel request and only then records its
+    pending future. A response that the executor thread takes in between is
+    dropped ("Ignoring unexpected ... response") and the future never completes
+    (ros2/rclpy#1123): a test hung on it once in CI. One lock around each send
+    and around the executor's handling of responses closes that window.
+    """
+
+    def __init__(self, node: Node, action_type: Any, name: str) -> None:
+        super().__init__(node, action_type, name)
+        self._send_lock = threading.RLock()
+
+    def send_goal_async(self, *args: Any, **kwargs: Any) -> Any:
+        with self._send_lock:
+            return super().send_goal_async(*args, **kwargs)
+
+    def _cancel_goal_async(self, goal_handle: Any) -> Any:
+        with self._send_lock:
+            return super()._cancel_goal_async(goal_handle)
+
+    def _get_result_async(self, goal_handle: Any) -> Any:
+        with self._send_lock:
+            return super()._get_result_async(goal_handle)
+
+    async def execute(self, taken_data: Any) -> None:
+        # The base coroutine never suspends for our callbacks (plain functions),
+        # so the lock is not held across a switch of tasks.
+        with self._send_lock:
+            await super().execute(taken_data)
+
+
 class Peer:
     """A ROS 2 node in the test process: publishes, calls, and listens like any client."""
 
@@ -48,7 +81,7 @@ class Peer:
             n: self.node.create_client(Trigger, f"/al5d/{n}")
             for n in ("stop", "release", "shutdown")
         }
-        self.move = ActionClient(self.node, Move, "/al5d/move")
+        self.move = LockedActionClient(self.node, Move, "/al5d/move")
         self.spinner = Spinner(self.node, self.context)
 
     def listen_results(self, on: bool = True) -> None:
