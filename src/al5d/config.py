@@ -169,12 +169,6 @@ class ArmConfig(_Frozen):
     def channels(self) -> tuple[int, ...]:
         return tuple(j.channel for j in self.joints.values())
 
-    def joint_on_channel(self, channel: int) -> Joint | None:
-        for joint in self.joints.values():
-            if joint.channel == channel:
-                return joint
-        return None
-
 
 def _describe(err: ValidationError, source: str) -> str:
     lines = []

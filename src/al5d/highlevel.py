@@ -363,16 +363,6 @@ class ArmDriver:
                     )
                 self._cv.wait(left)
 
-    def wait_idle(self, timeout: float = 30.0) -> None:
-        """Wait until nothing is queued or running."""
-        deadline = now() + timeout
-        with self._cv:
-            while self._queue or self._current is not None:
-                left = deadline - now()
-                if left <= 0:
-                    raise TimeoutError(f"still busy after {timeout} s")
-                self._cv.wait(left)
-
     def close(self, timeout: float = 30.0) -> None:
         """Shut down (park first) unless that has happened, and wait for the worker."""
         if self._worker.is_alive() and self._shutdown_job is None:

@@ -60,10 +60,6 @@ class Instruction:
         """The instruction word: the preset's name, or move/stop/release/shutdown."""
         return self.preset if self.kind is Kind.PRESET else self.kind.value
 
-    @property
-    def is_motion(self) -> bool:
-        return self.kind in (Kind.PRESET, Kind.MOVE)
-
     def __str__(self) -> str:
         return format_instruction(self)
 
