@@ -13,10 +13,11 @@ from typing import Any
 from proc import Proc
 from stats import figure
 
-from al5d import instruction as ins
-from al5d.config import ArmConfig
-from al5d.highlevel import ArmDriver, State
-from al5d.lowlevel import SSC32U
+from al5d.arm import instruction as ins
+from al5d.arm.config import ArmConfig
+from al5d.arm.driver import ArmDriver
+from al5d.arm.states import State
+from al5d.ssc32u.driver import SSC32U
 
 WARMUP = 2000
 
@@ -25,7 +26,7 @@ def translation(config: ArmConfig, n: int = 20000) -> dict[str, Any]:
     """Instruction -> bytes: validation, the time model and the encoding of a 6-joint move."""
     driver = ArmDriver(config, "unused")  # not started: only its pure parts are timed
     pose = dict(config.presets["park"])
-    driver._pose.update(pose)  # a pose to plan from, as after the start-up park
+    driver.shared.pose.update(pose)  # a pose to plan from, as after the start-up park
     instrs = [
         ins.move(
             base=(i % 170) - 85,

@@ -25,10 +25,10 @@ from rospeer import Peer, wait_future, wait_until
 from stats import figure
 from std_srvs.srv import Trigger
 
-from al5d import protocol as p
-from al5d.config import DEFAULT_CONFIG, ArmConfig
-from al5d.emulator import Emulator, Record
-from al5d.qos import TOLERANCE_DEG
+from al5d.app.qos import TOLERANCE_DEG
+from al5d.arm.config import DEFAULT_CONFIG, ArmConfig
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Emulator, Record
 
 STOP_LINES = [f"STOP{ch}".encode() for ch in range(6)]
 STOP_BYTES = len(p.CANCEL + p.encode_stop(range(6)))

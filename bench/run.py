@@ -26,7 +26,7 @@ import micro  # noqa: E402
 import plot  # noqa: E402
 import rosbench  # noqa: E402
 
-from al5d.config import load_config  # noqa: E402
+from al5d.arm.config import load_config  # noqa: E402
 
 OUT = HERE / "out"
 

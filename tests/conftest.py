@@ -12,9 +12,9 @@ import pytest
 os.environ["ROS_DOMAIN_ID"] = str(100 + os.getpid() % 120)
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
-from al5d.config import ArmConfig, load_config
-from al5d.emulator import Emulator
-from al5d.lowlevel import SSC32U
+from al5d.arm.config import ArmConfig, load_config
+from al5d.ssc32u.driver import SSC32U
+from al5d.ssc32u.emulator import Emulator
 
 
 @pytest.fixture(scope="session")

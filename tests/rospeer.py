@@ -13,7 +13,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from al5d.ros import INSTRUCTION_TOPIC, QOS_STREAM, RESULT_TOPIC, Spinner, start_context
+from al5d.ros.runtime import INSTRUCTION_TOPIC, QOS_STREAM, RESULT_TOPIC, Spinner, start_context
 
 
 def wait_until(predicate: Any, timeout: float = 10.0, what: str = "condition") -> None:

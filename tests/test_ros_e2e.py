@@ -23,10 +23,10 @@ from rospeer import Peer, wait_future, wait_until
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from al5d import protocol as p
-from al5d.config import ArmConfig
-from al5d.emulator import Emulator
-from al5d.ros import QOS_LATCHED, QOS_STREAM
+from al5d.arm.config import ArmConfig
+from al5d.ros.runtime import QOS_LATCHED, QOS_STREAM
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Emulator
 
 
 @dataclass

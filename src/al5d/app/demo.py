@@ -9,16 +9,16 @@ import sys
 import time
 from pathlib import Path
 
-from al5d.config import load_config
-from al5d.qos import QoSRecorder, format_table
-from al5d.server import ServerOptions, arm
+from al5d.app.qos import QoSRecorder, format_table
+from al5d.app.server import ServerOptions, arm
+from al5d.arm.config import load_config
 
-DEMO_SEQUENCE = Path(__file__).resolve().parent / "data" / "demo.seq"
+DEMO_SEQUENCE = Path(__file__).resolve().parent.parent / "data" / "demo.seq"
 
 
 def run_demo(sequence: Path = DEMO_SEQUENCE, baud: int | None = None) -> int:
     """Run the sequence through `al5d run` against this process's server; 0 if SA03 held."""
-    from al5d.ros import RosServer
+    from al5d.ros.node import RosServer
 
     # A domain of our own unless the user chose one: two demos on one host never meet.
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))
@@ -32,7 +32,7 @@ def run_demo(sequence: Path = DEMO_SEQUENCE, baud: int | None = None) -> int:
         recorder = QoSRecorder(driver, emulator)
         server = RosServer(driver)
         try:
-            client = [sys.executable, "-m", "al5d.cli", "run", str(sequence)]
+            client = [sys.executable, "-m", "al5d", "run", str(sequence)]
             print(f"al5d demo: client: al5d run {sequence}", flush=True)
             code = subprocess.call(client)
             driver.finished.wait(30)

@@ -8,9 +8,10 @@ from collections.abc import Iterator
 import pytest
 import serial
 
-from al5d import protocol as p
-from al5d.config import ArmConfig
-from al5d.emulator import Emulator, Record
+from al5d.arm.config import ArmConfig
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Emulator, Fault, Record
+from al5d.ssc32u.emulator.board import Board
 
 
 @pytest.fixture
@@ -221,3 +222,18 @@ class TestServoModel:
             t2 = last(emu, b"#0P600T100").t_effect
             assert emu.servo_us(0, t2 + 0.1) > emu.pulse_us(0, t2 + 0.1) + 100
             assert emu.settle_time(1.0, ["base"]) > t2 + 0.1
+
+
+def test_the_board_model_needs_no_pty(config: ArmConfig) -> None:
+    # The board's logic alone: lines in at their time of effect, answers out with their due time.
+    board = Board(config, baud=9600)
+    assert board.execute(b"#0P1500#1P2000", 10.0) == []
+    ((due, data),) = board.execute(b"QP0QP1", 10.5)
+    assert data == bytes([150, 200])
+    assert due == pytest.approx(10.5 + board.answer_delay_s + p.wire_time_s(2, 9600))
+    assert board.execute(b"#0P1000T1000", 11.0) == []
+    assert board.execute(b"Q", 11.5)[0][1] == b"+"
+    assert board.pulse_us(0, 11.5) == pytest.approx(1250)
+    assert [r.raw for r in board.records] == [b"#0P1500#1P2000", b"QP0QP1", b"#0P1000T1000", b"Q"]
+    board.inject(Fault.NO_ANSWER)
+    assert board.execute(b"VER", 12.0) == []

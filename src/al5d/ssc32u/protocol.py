@@ -12,20 +12,23 @@ import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
+from al5d.ssc32u.facts import (
+    BITS_PER_BYTE,
+    CHANNELS,
+    DONE,
+    MOVING,
+    OFFSET_RANGE,
+    PULSE_MAX_US,
+    PULSE_MIN_US,
+    PULSE_OFF,
+    QP_RESOLUTION_US,
+    TIME_MAX_MS,
+)
+
 CR = b"\r"
 ESC = b"\x1b"
 #: Sent on its own, ESC ends whatever partial line the board holds without running it.
 CANCEL = ESC
-
-CHANNELS = range(32)
-PULSE_MIN_US = 500
-PULSE_MAX_US = 2500
-PULSE_OFF = 0
-OFFSET_RANGE = range(-100, 101)
-TIME_MAX_MS = 65535
-BITS_PER_BYTE = 10  # 8N1: start bit, 8 data bits, stop bit
-MOVING = b"+"
-DONE = b"."
 
 
 class ProtocolError(ValueError):
@@ -120,6 +123,20 @@ def _check_distinct(channels: Sequence[int]) -> None:
         raise ProtocolError(f"channel given twice in {list(channels)}")
 
 
+def move_prefix(channel: int) -> str:
+    """`#<ch>P`: what comes before a channel's pulse width in a move.
+
+    The one place of the move's format, with `time_suffix`: a caller that encodes
+    many moves (the arm's translator) keeps these per channel and adds the pulse.
+    """
+    return f"#{channel}P"
+
+
+def time_suffix(time_ms: int | None) -> str:
+    """`T<ms>` and the CR that ends a group move; without T when the time is 0 or None."""
+    return f"T{time_ms}\r" if time_ms else "\r"
+
+
 def encode_group_move(targets: Sequence[ChannelTarget], time_ms: int | None = None) -> bytes:
     """`#0P1500S750#1P1600T1000\\r`; S and T only where given (T0 is left out)."""
     if not targets:
@@ -133,17 +150,15 @@ def encode_group_move(targets: Sequence[ChannelTarget], time_ms: int | None = No
                 f"{PULSE_MIN_US}..{PULSE_MAX_US} (or 0 for off)"
             )
         if t.speed_us_s is None:
-            parts.append(f"#{t.channel}P{t.pulse_us}")
+            parts.append(f"{move_prefix(t.channel)}{t.pulse_us}")
         else:
             if t.speed_us_s <= 0:
                 raise ProtocolError(f"channel {t.channel}: speed {t.speed_us_s} must be positive")
-            parts.append(f"#{t.channel}P{t.pulse_us}S{t.speed_us_s}")
-    if time_ms is not None:
-        if not 0 <= time_ms <= TIME_MAX_MS:
-            raise ProtocolError(f"time {time_ms} ms is outside 0..{TIME_MAX_MS}")
-        if time_ms:
-            parts.append(f"T{time_ms}")
-    return ("".join(parts) + "\r").encode("ascii")
+            parts.append(f"{move_prefix(t.channel)}{t.pulse_us}S{t.speed_us_s}")
+    if time_ms is not None and not 0 <= time_ms <= TIME_MAX_MS:
+        raise ProtocolError(f"time {time_ms} ms is outside 0..{TIME_MAX_MS}")
+    parts.append(time_suffix(time_ms))
+    return "".join(parts).encode("ascii")
 
 
 def encode_stop(channels: Iterable[int]) -> bytes:
@@ -229,7 +244,7 @@ def parse_movement(answer: bytes) -> bool:
 
 def encode_pulses(pulses_us: Sequence[int]) -> bytes:
     """The QP answer: one byte per channel, pulse width / 10."""
-    return bytes(max(0, min(255, p // 10)) for p in pulses_us)
+    return bytes(max(0, min(255, p // QP_RESOLUTION_US)) for p in pulses_us)
 
 
 def parse_pulses(answer: bytes, channels: Sequence[int]) -> dict[int, int]:
@@ -238,10 +253,13 @@ def parse_pulses(answer: bytes, channels: Sequence[int]) -> dict[int, int]:
         raise ProtocolError(
             f"QP for {len(channels)} channel(s) answered {len(answer)} byte(s): {answer!r}"
         )
-    pulses = {ch: b * 10 for ch, b in zip(channels, answer, strict=True)}
+    pulses = {ch: b * QP_RESOLUTION_US for ch, b in zip(channels, answer, strict=True)}
     for ch, p in pulses.items():
         if p != PULSE_OFF and not PULSE_MIN_US <= p <= PULSE_MAX_US:
-            raise ProtocolError(f"QP{ch} answered {p // 10} ({p} us), outside 500..2500 us")
+            raise ProtocolError(
+                f"QP{ch} answered {p // QP_RESOLUTION_US} ({p} us), "
+                f"outside {PULSE_MIN_US}..{PULSE_MAX_US} us"
+            )
     return pulses
 
 

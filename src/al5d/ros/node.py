@@ -1,21 +1,18 @@
-"""The ROS 2 node `al5d`: topics, services and the move action, mapped onto the high-level driver.
+"""The ROS 2 node `al5d`: topics, services and the move action, mapped onto the arm driver.
 
-A thin adapter: messages become `Instruction`s, outcomes become
-`InstructionResult`s. No callback waits for the arm. Services answer as soon as
-the driver has taken the instruction (stop and release are synchronous in the
-driver, a matter of microseconds). The move action's execute callback is a
-coroutine that awaits the driver's outcome, so that a thousand waiting goals
-hold no thread. Everything runs in one SingleThreadedExecutor in one thread.
+A thin adapter: messages become `Instruction`s (`al5d.ros.convert`), outcomes
+become `InstructionResult`s. No callback waits for the arm. Services answer as
+soon as the driver has taken the instruction (stop and release are synchronous
+in the driver, a matter of microseconds). The move action's execute callback
+is a coroutine that awaits the driver's outcome, so that a thousand waiting
+goals hold no thread. Everything runs in one executor in one thread.
 """
 
 from __future__ import annotations
 
 import math
-import os
-import tempfile
-import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
 
@@ -24,150 +21,31 @@ from al5d_interfaces.action import Move
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.context import Context
-from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future as RosFuture
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
-from al5d.highlevel import ArmDriver, State
-from al5d.instruction import Instruction, Kind, Outcome, Result, new_id
-
-NODE = "al5d"
-INSTRUCTION_TOPIC = "/al5d/instruction"
-RESULT_TOPIC = "/al5d/result"
-STATE_TOPIC = "/al5d/state"
-MOVE_ACTION = "/al5d/move"
-JOINT_STATES_TOPIC = "/joint_states"
-TRAJECTORY_TOPIC = "/al5d/joint_trajectory"
-SERVICES = {"/al5d/stop": Kind.STOP, "/al5d/release": Kind.RELEASE, "/al5d/shutdown": Kind.SHUTDOWN}
-
-#: Instructions and results: reliable and deep, so that a burst loses nothing.
-QOS_STREAM = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=10_000,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
+from al5d.arm.driver import ArmDriver
+from al5d.arm.instruction import Instruction, Kind, Outcome, Result, new_id
+from al5d.arm.states import State
+from al5d.ros.convert import from_message, move_from_fields, outcome_message
+from al5d.ros.runtime import (
+    INSTRUCTION_TOPIC,
+    JOINT_STATES_TOPIC,
+    MOVE_ACTION,
+    NODE,
+    QOS_LATCHED,
+    QOS_STREAM,
+    RESULT_TOPIC,
+    SERVICES,
+    STATE_TOPIC,
+    TRAJECTORY_TOPIC,
+    Spinner,
+    start_context,
 )
-#: The state: latched, so that a late joiner gets the current one.
-QOS_LATCHED = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
-
-
-def ros_environment() -> None:
-    """Defaults that must be set before rclpy starts: local discovery, a writable log dir."""
-    # Nobody on the network drives the arm unless the user opens it on purpose.
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    if not any(os.path.isdir(os.environ.get(v, "")) for v in ("ROS_LOG_DIR", "ROS_HOME", "HOME")):
-        os.environ["ROS_LOG_DIR"] = tempfile.mkdtemp(prefix="al5d-ros-log-")
-
-
-def start_context() -> Context:
-    ros_environment()
-    context = Context()
-    # Our own SIGINT/SIGTERM handling parks the arm first; rclpy's would just stop.
-    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
-    return context
-
-
-def make_executor(context: Context) -> Executor:
-    """rclpy's C++ EventsExecutor, or the Python SingleThreadedExecutor (AL5D_EXECUTOR=single).
-
-    The events executor takes each message without rebuilding a wait set of every
-    entity in Python, which is what limits the single-threaded one (see the README's
-    Performance section for the figures of both).
-    """
-    if os.environ.get("AL5D_EXECUTOR", "events") == "single":
-        return SingleThreadedExecutor(context=context)
-    from rclpy.experimental.events_executor import EventsExecutor
-
-    return EventsExecutor(context=context)
-
-
-class Spinner:
-    """An executor spinning in its own thread, stopped in the order rclpy needs."""
-
-    def __init__(self, node: Node, context: Context) -> None:
-        self.node = node
-        self.context = context
-        self.executor = make_executor(context)
-        self.executor.add_node(node)
-        self._running = True
-        self._thread = threading.Thread(
-            target=self._spin, name=f"{node.get_name()}-spin", daemon=True
-        )
-        self._thread.start()
-
-    def _spin(self) -> None:
-        while self._running and self.context.ok():
-            self.executor.spin_once(timeout_sec=0.1)
-
-    def close(self) -> None:
-        # Join the spin thread before shutting the executor down, or the process can abort.
-        self._running = False
-        self.executor.wake()
-        self._thread.join(5)
-        self.executor.shutdown(timeout_sec=1)
-        self.node.destroy_node()
-        self.context.try_shutdown()
-
-
-def to_message(instr: Instruction) -> ArmInstruction:
-    msg = ArmInstruction()
-    msg.instruction = instr.name
-    msg.joints = [j for j, _ in instr.joints]
-    msg.degrees = [float(d) for _, d in instr.joints]
-    msg.time_ms = instr.time_ms or 0
-    msg.id = instr.id
-    return msg
-
-
-def move_from_fields(
-    joints: Sequence[str], degrees: Sequence[float], time_ms: int | None, ident: str
-) -> Instruction | str:
-    """A move from a message's or goal's parallel arrays, or why it is not one."""
-    if len(joints) != len(degrees):
-        return f"joints and degrees differ in length ({len(joints)} and {len(degrees)})"
-    pairs = tuple(zip(joints, degrees, strict=True))
-    return Instruction(Kind.MOVE, joints=pairs, time_ms=time_ms, id=ident)
-
-
-def from_message(msg: ArmInstruction, presets: tuple[str, ...]) -> Instruction | str:
-    """The instruction in a message, or why it is not one."""
-    word = msg.instruction.strip().lower()
-    ident = msg.id or new_id()
-    time_ms = msg.time_ms or None
-    if word in presets:
-        return Instruction(Kind.PRESET, preset=word, time_ms=time_ms, id=ident)
-    if word == Kind.MOVE.value:
-        return move_from_fields(msg.joints, msg.degrees, time_ms, ident)
-    for kind in (Kind.STOP, Kind.RELEASE, Kind.SHUTDOWN):
-        if word == kind.value:
-            return Instruction(kind, id=ident)
-    known = " | ".join((*presets, "move", "stop", "release", "shutdown"))
-    return f"unknown instruction {msg.instruction!r}; expected {known}"
-
-
-def outcome_message(outcome: Outcome) -> InstructionResult:
-    msg = InstructionResult()
-    msg.id = outcome.id
-    msg.instruction = outcome.instruction
-    msg.outcome = outcome.result.value
-    msg.reason = outcome.reason
-    msg.elapsed_ms = float(outcome.elapsed_ms)
-    return msg
-
-
-def outcome_from_message(msg: InstructionResult) -> Outcome:
-    return Outcome(msg.id, msg.instruction, Result(msg.outcome), msg.reason, msg.elapsed_ms)
 
 
 class ArmNode(Node):

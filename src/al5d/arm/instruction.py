@@ -18,6 +18,7 @@ import itertools
 import os
 from dataclasses import dataclass, field
 
+#: The presets every arm has (PO01 park, PO02 ready, PO03 straight up).
 PRESET_NAMES = ("park", "ready", "straight_up")
 
 

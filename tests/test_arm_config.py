@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 import yaml
 
-from al5d.config import DEFAULT_CONFIG, ConfigError, load_config, parse_config
+from al5d.arm.config import DEFAULT_CONFIG, ConfigError, load_config, parse_config
 
 REPO_CONFIG = Path(__file__).resolve().parents[1] / "config" / "al5d.yaml"
 
@@ -20,8 +20,18 @@ def data() -> dict[str, Any]:
     return copy.deepcopy(loaded)
 
 
-def test_shipped_config_is_the_repository_one() -> None:
-    assert DEFAULT_CONFIG.read_text() == REPO_CONFIG.read_text()
+def test_one_default_config_file() -> None:
+    # The repository's config/al5d.yaml is the package's own file, not a copy of it.
+    assert REPO_CONFIG.resolve() == DEFAULT_CONFIG.resolve()
+    assert DEFAULT_CONFIG.is_file() and not DEFAULT_CONFIG.is_symlink()
+
+
+def test_a_servo_model_gives_the_speed_and_an_explicit_speed_wins(data: dict[str, Any]) -> None:
+    cfg = parse_config(data)
+    assert cfg.joints["shoulder"].servo == "HS-805BB"
+    assert cfg.joints["shoulder"].speed_deg_s == pytest.approx(60 / 0.14)
+    data["joints"]["shoulder"]["speed_deg_s"] = 200
+    assert parse_config(data).joints["shoulder"].speed_deg_s == 200
 
 
 def test_shipped_config(data: dict[str, Any]) -> None:
@@ -41,7 +51,7 @@ def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
     assert shoulder.to_us(90) == 600  # mounted reversed
     assert shoulder.us_per_deg == -10
     assert shoulder.to_deg(shoulder.to_us(37.5)) == pytest.approx(37.5)
-    assert shoulder.speed_us_s == pytest.approx(4280)
+    assert shoulder.speed_us_s == pytest.approx(60 / 0.14 * 10)  # HS-805BB: 0.14 s / 60 deg
 
 
 @pytest.mark.parametrize(
@@ -94,6 +104,14 @@ def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
             r"presets\.straight_up: this preset is required",
         ),
         (lambda d: d["server"].update(baud=12345), r"server\.baud: .*baud 12345"),
+        (
+            lambda d: d["joints"]["elbow"].update(servo="HS-9999"),
+            r"joints\.elbow: servo 'HS-9999' is not in the table; known: HS-485HB",
+        ),
+        (
+            lambda d: d["joints"]["elbow"].pop("servo"),
+            r"joints\.elbow: give the servo's model .* or its speed_deg_s",
+        ),
         (lambda d: d["presets"]["park"].update(base=float("nan")), r"presets\.park\.base"),
     ],
 )

@@ -18,7 +18,7 @@ from typing import TextIO
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 
-from al5d.instruction import (
+from al5d.arm.instruction import (
     PRESET_NAMES,
     GrammarError,
     Instruction,
@@ -28,15 +28,9 @@ from al5d.instruction import (
     parse_instruction,
     parse_sequence_step,
 )
-from al5d.ros import (
-    INSTRUCTION_TOPIC,
-    QOS_STREAM,
-    RESULT_TOPIC,
-    Spinner,
-    outcome_from_message,
-    start_context,
-    to_message,
-)
+from al5d.clock import Deadline
+from al5d.ros.convert import outcome_from_message, to_message
+from al5d.ros.runtime import INSTRUCTION_TOPIC, QOS_STREAM, RESULT_TOPIC, Spinner, start_context
 
 EXIT_DONE, EXIT_NOT_DONE, EXIT_NO_SERVER = 0, 1, 2
 
@@ -66,8 +60,8 @@ class Client:
 
     def wait_for_server(self, timeout: float) -> None:
         """Until our instructions reach a server and its results reach us (both directions)."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
+        deadline = Deadline(timeout)
+        while not deadline.expired:
             if (
                 self.pub.get_subscription_count() > 0
                 and self.node.count_publishers(RESULT_TOPIC) > 0
@@ -84,13 +78,12 @@ class Client:
         self.pub.publish(to_message(instr))
 
     def outcome(self, ident: str, timeout: float) -> Outcome | None:
-        deadline = time.monotonic() + timeout
+        deadline = Deadline(timeout)
         with self._cv:
             while ident not in self._outcomes:
-                left = deadline - time.monotonic()
-                if left <= 0:
+                if deadline.expired:
                     return None
-                self._cv.wait(left)
+                self._cv.wait(deadline.left())
             return self._outcomes[ident]
 
     def close(self) -> None:

@@ -7,9 +7,18 @@ import time
 
 import pytest
 
-from al5d.config import ArmConfig
-from al5d.emulator import Emulator, Fault
-from al5d.lowlevel import SSC32U, Interrupted, SerialFault
+from al5d.arm.config import ArmConfig
+from al5d.ssc32u.driver import SSC32U
+from al5d.ssc32u.emulator import Emulator, Fault
+from al5d.ssc32u.errors import (
+    GarbageAnswer,
+    Interrupted,
+    LinkLost,
+    NoAnswer,
+    NotAnSSC32U,
+    PortUnavailable,
+    SerialFault,
+)
 
 
 def test_connect_checks_the_board(emulator: Emulator, board: SSC32U) -> None:
@@ -96,7 +105,7 @@ def test_stop_does_not_wait_behind_a_query(emulator: Emulator, board: SSC32U) ->
 class TestFaults:
     def test_no_answer(self, emulator: Emulator, board: SSC32U) -> None:
         emulator.inject(Fault.NO_ANSWER)
-        with pytest.raises(SerialFault, match=r"no answer to Q within 1\d\d ms"):
+        with pytest.raises(NoAnswer, match=r"no answer to Q within 1\d\d ms"):
             board.is_done()
         with pytest.raises(SerialFault, match=r"no answer to QP within 1\d\d ms"):
             board.read_pulses([0])
@@ -113,7 +122,7 @@ class TestFaults:
 
     def test_garbage_answer(self, emulator: Emulator, board: SSC32U) -> None:
         emulator.inject(Fault.GARBAGE)
-        with pytest.raises(SerialFault, match=r"not an SSC-32U answer: Q answered b'\\xfe'"):
+        with pytest.raises(GarbageAnswer, match=r"not an SSC-32U answer: Q answered b'\\xfe'"):
             board.is_done()
         with pytest.raises(SerialFault, match=r"not an SSC-32U answer: VER answer"):
             board.version()
@@ -122,7 +131,7 @@ class TestFaults:
 
     def test_disconnect(self, emulator: Emulator, board: SSC32U) -> None:
         emulator.inject(Fault.DISCONNECT)
-        with pytest.raises(SerialFault, match=r"failed: .*Input/output error"):
+        with pytest.raises(LinkLost, match=r"failed: .*Input/output error"):
             board.move({0: 1500})
         with pytest.raises(SerialFault, match=board.port):
             board.is_done()
@@ -137,7 +146,7 @@ class TestFaults:
                 b.move({0: 1500})
                 emu.wait_for(lambda rs: any(r.raw == b"#0P1500" for r in rs))
             emu.inject(Fault.DISCONNECT)
-            with pytest.raises(SerialFault, match="cannot open"):
+            with pytest.raises(PortUnavailable, match="cannot open"):
                 SSC32U(link)
             emu.reconnect()
             with SSC32U(link) as b:
@@ -147,15 +156,18 @@ class TestFaults:
         with (
             Emulator(config, version="ARDUINO") as emu,
             pytest.raises(
-                SerialFault, match="answered VER with 'ARDUINO', which is not an SSC-32U"
-            ),
+                NotAnSSC32U, match="answered VER with 'ARDUINO', which is not an SSC-32U"
+            ) as caught,
         ):
             SSC32U(emu.port)
+        assert caught.value.received == b"ARDUINO"
 
     def test_silent_device(self, config: ArmConfig) -> None:
         with Emulator(config) as emu:
             emu.inject(Fault.NO_ANSWER)
-            with pytest.raises(SerialFault, match="does not answer like an SSC-32U at 9600 baud"):
+            with pytest.raises(
+                NotAnSSC32U, match=r"does not answer like an SSC-32U at 9600 baud.*received nothing"
+            ):
                 SSC32U(emu.port)
 
     def test_wrong_baud(self, config: ArmConfig) -> None:
@@ -166,7 +178,7 @@ class TestFaults:
                 assert b.firmware.startswith("SSC32")
 
     def test_missing_port(self) -> None:
-        with pytest.raises(SerialFault, match=r"/dev/nonexistent-ssc32u: cannot open"):
+        with pytest.raises(PortUnavailable, match=r"/dev/nonexistent-ssc32u: cannot open"):
             SSC32U("/dev/nonexistent-ssc32u")
 
     def test_port_already_in_use(self, emulator: Emulator, board: SSC32U) -> None:

@@ -8,7 +8,8 @@ import sys
 import threading
 from collections.abc import Sequence
 
-from al5d.config import ConfigError, load_config
+from al5d.arm.config import ConfigError, load_config
+from al5d.ssc32u.facts import BAUDS, FACTORY_BAUD
 
 
 def _until_signal() -> threading.Event:
@@ -24,7 +25,7 @@ def _until_signal() -> threading.Event:
 
 
 def _cmd_emulator(args: argparse.Namespace) -> int:
-    from al5d.emulator import Emulator, serve_forever
+    from al5d.ssc32u.emulator import Emulator, serve_forever
 
     config = load_config(args.config)
     serve_forever(Emulator(config, baud=args.baud, link=args.link), _until_signal())
@@ -32,7 +33,7 @@ def _cmd_emulator(args: argparse.Namespace) -> int:
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
-    from al5d.server import ServerOptions, serve, setup_logging
+    from al5d.app.server import ServerOptions, serve, setup_logging
 
     setup_logging(args.log_level)
     options = ServerOptions(
@@ -47,21 +48,21 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from al5d.demo import run_demo
-    from al5d.server import setup_logging
+    from al5d.app.demo import run_demo
+    from al5d.app.server import setup_logging
 
     setup_logging(args.log_level)
     return run_demo(baud=args.baud)
 
 
 def _cmd_send(args: argparse.Namespace) -> int:
-    from al5d.client import send
+    from al5d.ros.client import send
 
     return send(" ".join(args.instruction), wait_s=args.wait, timeout=args.timeout)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from al5d.client import run
+    from al5d.ros.client import run
 
     return run(args.file, wait_s=args.wait, timeout=args.timeout)
 
@@ -74,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     srv = sub.add_parser("serve", help="the arm server (embedded emulator without --port)")
     srv.add_argument("--port", help="serial device of the SSC-32U; default: embedded emulator")
-    srv.add_argument("--baud", type=int, choices=(9600, 38400, 115200), help="default: config")
+    srv.add_argument("--baud", type=int, choices=BAUDS, help="default: config")
     srv.add_argument("--config", help="arm configuration file; default: the shipped one")
     srv.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     srv.add_argument("--stdin", action="store_true", help="also read instructions from stdin")
@@ -83,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     srv.set_defaults(func=_cmd_serve)
 
     emu = sub.add_parser("emulator", help="a standalone emulated SSC-32U on a pseudo terminal")
-    emu.add_argument("--baud", type=int, default=9600, choices=(9600, 38400, 115200))
+    emu.add_argument("--baud", type=int, default=FACTORY_BAUD, choices=BAUDS)
     emu.add_argument("--link", help="also make this path a symlink to the device")
     emu.add_argument("--config", help="arm configuration (servo speeds); default: shipped")
     emu.set_defaults(func=_cmd_emulator)
@@ -106,7 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
         cmd.set_defaults(func=func)
 
     demo = sub.add_parser("demo", help="the DE01 demo on the embedded emulator, with a QoS table")
-    demo.add_argument("--baud", type=int, choices=(9600, 38400, 115200), help="default: config")
+    demo.add_argument("--baud", type=int, choices=BAUDS, help="default: config")
     demo.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     demo.set_defaults(func=_cmd_demo)
     return parser

@@ -2,8 +2,8 @@
 
 It knows channels and pulse widths, never joints or degrees. It never waits for
 an acknowledgement (the board sends none); only queries read. Every serial
-failure, whatever pyserial or the OS calls it, leaves here as `SerialFault`
-with a message that says which port and what happened.
+failure, whatever pyserial or the OS calls it, leaves here as a `SerialFault`
+subclass (see `al5d.ssc32u.errors`) with the port and what happened.
 
 Threads: a query (write then read) holds a query lock; `stop()` does not take
 it, so an emergency stop never waits behind a read. Writes are serialised by a
@@ -15,33 +15,38 @@ from __future__ import annotations
 import contextlib
 import termios
 import threading
-import time
 from collections.abc import Iterable, Mapping, Sequence
 from types import TracebackType
 
 import serial
 
-from al5d import protocol as p
+from al5d.clock import Deadline, now
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.errors import (
+    GarbageAnswer,
+    Interrupted,
+    LinkLost,
+    NoAnswer,
+    NotAnSSC32U,
+    PortUnavailable,
+    SerialFault,
+)
+from al5d.ssc32u.facts import ANSWER_DELAY_MAX_S, FACTORY_BAUD, FIRMWARE_PREFIX
 
-#: How long an answer may take beyond its wire time (the manual says 50 us to 5 ms).
-DEFAULT_READ_TIMEOUT_S = 0.1
+#: How long an answer may take beyond its wire time: the board's slowest (5 ms) many
+#: times over, because the host may be busy when the answer comes.
+DEFAULT_READ_TIMEOUT_S = 20 * ANSWER_DELAY_MAX_S
 #: Reads wake this often while they wait for an answer's deadline.
 READ_SLICE_S = 0.01
 DEFAULT_WRITE_TIMEOUT_S = 0.5
+#: A VER answer's length, for its deadline (`SSC32-V2.50USB\r` is 15 bytes).
+VERSION_ANSWER_BYTES = 16
 #: What a dead port raises, depending on the call: pyserial's own, the OS's, and termios's
 #: (tcflush on a pty whose master is gone raises termios.error, which is not an OSError).
 IO_ERRORS = (serial.SerialException, OSError, termios.error)
 
 
-class SerialFault(Exception):
-    """The serial link to the board failed or the device does not answer like an SSC-32U."""
-
-
-class Interrupted(Exception):
-    """A query lost its answer because an emergency stop flushed it; not a fault."""
-
-
-class _NoAnswer(Exception):
+class _Late(Exception):
     """A query's answer did not come by its deadline (the first time)."""
 
 
@@ -58,7 +63,7 @@ class SSC32U:
     def __init__(
         self,
         port: str,
-        baud: int = 9600,
+        baud: int = FACTORY_BAUD,
         *,
         read_timeout_s: float = DEFAULT_READ_TIMEOUT_S,
         write_timeout_s: float = DEFAULT_WRITE_TIMEOUT_S,
@@ -82,7 +87,7 @@ class SSC32U:
                 exclusive=True,
             )
         except (*IO_ERRORS, ValueError) as e:
-            raise SerialFault(f"{port}: cannot open: {e}") from e
+            raise PortUnavailable(port, f"cannot open: {e}; {PortUnavailable.advice}") from e
         self.firmware = ""
         if check:
             try:
@@ -130,7 +135,7 @@ class SSC32U:
         return data
 
     def write_command(self, data: bytes) -> None:
-        """Write bytes already encoded by `al5d.protocol` (a hot path skips re-encoding)."""
+        """Write bytes already encoded by `al5d.ssc32u.protocol` (a hot path skips re-encoding)."""
         self._write(data)
 
     def stop(self, channels: Iterable[int]) -> bytes:
@@ -145,9 +150,9 @@ class SSC32U:
                 self._ser.reset_output_buffer()
                 self._ser.write(data)
             except IO_ERRORS as e:
-                raise SerialFault(f"{self.port}: stop could not be written: {e}") from e
+                raise LinkLost(self.port, f"stop could not be written: {e}") from e
             # The flush left at most the byte being sent ahead of ours.
-            self._wire_free_at = time.monotonic() + self.wire_time_s(len(data) + 1)
+            self._wire_free_at = now() + self.wire_time_s(len(data) + 1)
         return data
 
     def cancel(self) -> None:
@@ -160,7 +165,7 @@ class SSC32U:
         try:
             return not p.parse_movement(answer)
         except p.ProtocolError as e:
-            raise SerialFault(f"{self.port}: not an SSC-32U answer: {e}") from e
+            raise GarbageAnswer(self.port, f"not an SSC-32U answer: {e}", answer) from e
 
     def read_pulses(self, channels: Sequence[int]) -> dict[int, int]:
         """QP: the pulse width (us, 10 us resolution) each channel puts out now; 0 = none yet."""
@@ -169,7 +174,7 @@ class SSC32U:
         try:
             return p.parse_pulses(answer, chans)
         except p.ProtocolError as e:
-            raise SerialFault(f"{self.port}: not an SSC-32U answer: {e}") from e
+            raise GarbageAnswer(self.port, f"not an SSC-32U answer: {e}", answer) from e
 
     def version(self) -> str:
         """VER: the firmware string."""
@@ -177,7 +182,7 @@ class SSC32U:
         try:
             return p.parse_version(answer)
         except p.ProtocolError as e:
-            raise SerialFault(f"{self.port}: not an SSC-32U answer: {e}") from e
+            raise GarbageAnswer(self.port, f"not an SSC-32U answer: {e}", answer) from e
 
     def set_offsets(self, offsets: Mapping[int, int]) -> None:
         """PO: volatile pulse trims, -100..100 us."""
@@ -197,14 +202,19 @@ class SSC32U:
     def _check_version(self) -> str:
         try:
             firmware = self.version()
-        except SerialFault as e:
-            raise SerialFault(
-                f"{self.port}: does not answer like an SSC-32U at {self.baud} baud ({e}); "
-                "check the port, the baud rate (board button) and the power"
+        except (NoAnswer, GarbageAnswer) as e:
+            got = f"; received {e.received!r}" if e.received else "; received nothing"
+            raise NotAnSSC32U(
+                self.port,
+                f"does not answer like an SSC-32U at {self.baud} baud ({e.what}){got}; "
+                f"{NotAnSSC32U.advice}",
+                e.received,
             ) from e
-        if not firmware.upper().startswith("SSC32"):
-            raise SerialFault(
-                f"{self.port}: answered VER with {firmware!r}, which is not an SSC-32U"
+        if not firmware.upper().startswith(FIRMWARE_PREFIX):
+            raise NotAnSSC32U(
+                self.port,
+                f"answered VER with {firmware!r}, which is not an SSC-32U; {NotAnSSC32U.advice}",
+                firmware.encode("ascii"),
             )
         return firmware
 
@@ -213,8 +223,8 @@ class SSC32U:
             try:
                 self._ser.write(data)
             except IO_ERRORS as e:
-                raise SerialFault(f"{self.port}: write failed: {e}") from e
-            start = max(time.monotonic(), self._wire_free_at)
+                raise LinkLost(self.port, f"write failed: {e}") from e
+            start = max(now(), self._wire_free_at)
             self._wire_free_at = start + self.wire_time_s(data)
 
     def _query(self, data: bytes, n_answer: int | None, name: str) -> bytes:
@@ -225,7 +235,7 @@ class SSC32U:
         """
         try:
             return self._query_once(data, n_answer, name)
-        except _NoAnswer:
+        except _Late:
             return self._query_once(data, n_answer, name, last_try=True)
 
     def _query_once(
@@ -235,12 +245,12 @@ class SSC32U:
             stops = self._stops
             try:
                 self._ser.reset_input_buffer()
-                t_sent = time.monotonic()
+                t_sent = now()
                 self._write(data)
                 # The answer's deadline: our bytes on the wire (behind any before them),
-                # the answer's own bytes back (a VER string: ~16), then the margin.
-                back = self.wire_time_s(n_answer if n_answer is not None else 16)
-                deadline = self._wire_free_at + back + self._read_timeout_s
+                # the answer's own bytes back, then the margin.
+                back = self.wire_time_s(n_answer if n_answer is not None else VERSION_ANSWER_BYTES)
+                deadline = Deadline(back + self._read_timeout_s, start=self._wire_free_at)
                 answer = b""
                 while True:
                     if n_answer is None:
@@ -249,17 +259,16 @@ class SSC32U:
                     else:
                         answer += self._ser.read(n_answer - len(answer))
                         complete = len(answer) == n_answer
-                    if complete or time.monotonic() > deadline:
+                    if complete or deadline.expired:
                         break
             except IO_ERRORS as e:
-                raise SerialFault(f"{self.port}: {name} failed: {e}") from e
+                raise LinkLost(self.port, f"{name} failed: {e}") from e
         if not complete:
             if self._stops != stops:
                 raise Interrupted(f"{name} was flushed by an emergency stop")
             if not last_try:
-                raise _NoAnswer(name)
+                raise _Late(name)
             got = f", got {answer!r}" if answer else ""
-            raise SerialFault(
-                f"{self.port}: no answer to {name} within {(deadline - t_sent) * 1000:.0f} ms{got}"
-            )
+            waited = (deadline.at - t_sent) * 1000
+            raise NoAnswer(self.port, f"no answer to {name} within {waited:.0f} ms{got}", answer)
         return answer

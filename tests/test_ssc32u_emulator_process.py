@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from al5d.lowlevel import SSC32U
+from al5d.ssc32u.driver import SSC32U
 
 AL5D = Path(sys.executable).with_name("al5d")
 

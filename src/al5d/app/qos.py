@@ -11,9 +11,10 @@ import threading
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from al5d.emulator import Emulator, Record
-from al5d.highlevel import ArmDriver, Sent
-from al5d.instruction import Outcome, Result
+from al5d.arm.driver import ArmDriver
+from al5d.arm.instruction import Outcome, Result
+from al5d.arm.jobs import Sent
+from al5d.ssc32u.emulator import Emulator, Record
 
 SA03_BOUND_MS = 2300.0
 TOLERANCE_DEG = 1.0

@@ -1,4 +1,4 @@
-"""The server process: the high-level driver on a real port or on the embedded emulator.
+"""The server process: the arm driver on a real port or on the embedded emulator.
 
 `al5d serve` builds it. Without `--port` it starts an emulated SSC-32U in the
 same process, so anyone can run the server without an arm. SIGINT and SIGTERM
@@ -15,12 +15,14 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
-from al5d.config import ArmConfig, load_config
-from al5d.emulator import Emulator
-from al5d.highlevel import ArmDriver
-from al5d.instruction import GrammarError, Instruction, Outcome, parse_instruction, shutdown
+from al5d.arm.config import ArmConfig, load_config
+from al5d.arm.driver import ArmDriver
+from al5d.arm.instruction import GrammarError, Instruction, Outcome, parse_instruction, shutdown
+
+if TYPE_CHECKING:
+    from al5d.ssc32u.emulator import Emulator
 
 log = logging.getLogger("al5d")
 
@@ -54,6 +56,8 @@ def arm(
     emulator: Emulator | None = None
     port = options.port
     if port is None:
+        from al5d.ssc32u.emulator import Emulator  # only where an emulated board is wanted
+
         emulator = Emulator(config, baud=baud).start()
         port = emulator.port
         log.info("no --port: using the embedded SSC-32U emulator on %s", port)
@@ -102,7 +106,7 @@ def serve(options: ServerOptions) -> int:
     with arm(options) as (driver, _):
         ros_server = None
         if options.ros:
-            from al5d.ros import RosServer
+            from al5d.ros.node import RosServer
 
             ros_server = RosServer(driver, trace=options.trace)
             log.info("ROS 2 node /al5d up (ROS_DOMAIN_ID=%s)", os.environ.get("ROS_DOMAIN_ID", "0"))

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from al5d import instruction as ins
-from al5d.instruction import GrammarError, Instruction, Kind, Wait
+from al5d.arm import instruction as ins
+from al5d.arm.instruction import GrammarError, Instruction, Kind, Wait
 
 
 @pytest.mark.parametrize(

@@ -14,13 +14,14 @@ from dataclasses import dataclass
 
 import pytest
 
-from al5d import instruction as ins
-from al5d import protocol as p
-from al5d.config import ArmConfig
-from al5d.emulator import Emulator, Fault, Record
-from al5d.highlevel import TRANSITIONS, ArmDriver, State
-from al5d.instruction import Outcome, Result
-from al5d.lowlevel import SSC32U
+from al5d.arm import instruction as ins
+from al5d.arm.config import ArmConfig
+from al5d.arm.driver import ArmDriver
+from al5d.arm.instruction import Outcome, Result
+from al5d.arm.states import TRANSITIONS, State
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.driver import SSC32U
+from al5d.ssc32u.emulator import Emulator, Fault, Record
 
 
 @dataclass
@@ -366,6 +367,55 @@ def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, ArmD
 
 
 class TestFault:
+    def test_a_board_at_another_baud_is_said_once_at_error_with_what_was_received(
+        self, config: ArmConfig, caplog: pytest.LogCaptureFixture
+    ) -> None:
+        caplog.set_level(logging.DEBUG, logger="al5d")
+        with Emulator(config, baud=115200) as emu:
+            driver = ArmDriver(config, emu.port, 9600)
+            driver.start()
+            try:
+                driver.wait_for_state(State.FAULT, 5)
+                time.sleep(3 * config.server.reconnect_interval_s + 0.5)  # a few retries
+                refused = driver.execute(ins.move(base=1), 5)
+            finally:
+                driver.close()
+        errors = [
+            r.getMessage()
+            for r in logged(caplog)
+            if r.levelno >= logging.WARNING and "refused" not in r.getMessage()
+        ]
+        said = [m for m in errors if "does not answer like an SSC-32U at 9600 baud" in m]
+        assert len(said) == 1 and "received nothing" in said[0] and "baud rate" in said[0]
+        assert refused.result is Result.REFUSED
+        assert "does not answer like an SSC-32U at 9600 baud" in refused.reason
+
+    def test_a_device_that_is_not_a_board_at_reconnect_is_a_warning_and_the_fault_reason(
+        self,
+        config: ArmConfig,
+        linked: tuple[Emulator, ArmDriver],
+        caplog: pytest.LogCaptureFixture,
+    ) -> None:
+        caplog.set_level(logging.DEBUG, logger="al5d")
+        emu, driver = linked
+        emu.inject(Fault.DISCONNECT)
+        driver.submit(ins.move(base=10))  # the write fails: fault
+        driver.wait_for_state(State.FAULT, 5)
+        emu.version = "ARDUINO"  # another device appears at the same path
+        emu.reconnect()
+        time.sleep(3 * config.server.reconnect_interval_s + 0.5)
+        warned = [
+            r.getMessage()
+            for r in logged(caplog)
+            if r.levelno == logging.WARNING and "reconnect:" in r.getMessage()
+        ]
+        assert len(warned) == 1 and "answered VER with 'ARDUINO'" in warned[0]
+        refused = driver.execute(ins.move(base=1), 5)
+        assert "'ARDUINO', which is not an SSC-32U" in refused.reason
+        emu.version = "SSC32-V2.50USB"  # the board is back
+        driver.wait_for_state(State.READY, 5)
+        assert driver.execute(ins.move(base=5), 10).ok
+
     def test_disconnect_during_a_move_then_recovery(
         self, config: ArmConfig, linked: tuple[Emulator, ArmDriver]
     ) -> None:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from al5d import protocol as p
-from al5d.protocol import ChannelTarget as CT
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.protocol import ChannelTarget as CT
 
 
 @pytest.mark.parametrize(

@@ -1,9 +1,11 @@
 """The arm configuration: joints, calibration, servo speeds, presets and server settings.
 
-Loaded from YAML (`config/al5d.yaml` by default) and validated with pydantic so
-that a mistake is reported with the key, the value and the reason. The
-emulator and the high-level driver read the same file, so what the emulated
-servos do and what the driver expects of them come from one place.
+Loaded from YAML and validated with pydantic so that a mistake is reported
+with the key, the value and the reason. The default is the package's own
+`al5d/data/al5d.yaml` (the repository's `config/al5d.yaml` links to it), found
+the same way by the server, the tests and an installed package. The emulator
+and the arm driver read the same file, so what the emulated servos do and what
+the driver expects of them come from one place.
 """
 
 from __future__ import annotations
@@ -15,10 +17,13 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from al5d.protocol import CHANNELS, PULSE_MAX_US, PULSE_MIN_US
+from al5d.arm.instruction import PRESET_NAMES
+from al5d.arm.servos import SERVOS
+from al5d.ssc32u.facts import BAUDS, CHANNELS, FACTORY_BAUD, PULSE_MAX_US, PULSE_MIN_US
 
-REQUIRED_PRESETS = ("park", "ready", "straight_up")
-DEFAULT_CONFIG = Path(__file__).resolve().parent / "data" / "al5d.yaml"
+#: Every arm has these presets (PO01..PO03); a config may add more.
+REQUIRED_PRESETS = PRESET_NAMES
+DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "data" / "al5d.yaml"
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 
@@ -39,14 +44,28 @@ class ReferencePoint(_Frozen):
 
 
 class Joint(_Frozen):
-    """One joint: its channel, safe range, calibration and servo speed."""
+    """One joint: its channel, safe range, calibration and servo (model, or speed)."""
 
     name: str = ""
     channel: int
     range_deg: tuple[FiniteFloat, FiniteFloat]
     calibration: tuple[ReferencePoint, ReferencePoint]
+    #: A model of `al5d.arm.servos.SERVOS`; it gives the speed unless speed_deg_s is given.
+    servo: str | None = None
     speed_deg_s: FiniteFloat = Field(gt=0, le=10000)
     unit: str = "deg"
+
+    @model_validator(mode="before")
+    @classmethod
+    def _speed_from_servo(cls, data: Any) -> Any:
+        if not isinstance(data, Mapping) or data.get("speed_deg_s") is not None:
+            return data
+        model = data.get("servo")
+        if model is None:
+            raise ValueError("give the servo's model (servo: HS-485HB) or its speed_deg_s")
+        if model not in SERVOS:
+            raise ValueError(f"servo {model!r} is not in the table; known: {', '.join(SERVOS)}")
+        return {**data, "speed_deg_s": SERVOS[model].speed_deg_s}
 
     @field_validator("channel")
     @classmethod
@@ -65,13 +84,14 @@ class Joint(_Frozen):
             raise ValueError(f"calibration: both reference points are at {a.deg} degrees")
         if a.us == b.us:
             raise ValueError(f"calibration: both reference points give {a.us} us")
+        if self.servo is not None and self.servo not in SERVOS:
+            known = ", ".join(SERVOS)
+            raise ValueError(f"servo {self.servo!r} is not in the table; known: {known}")
+        pmin, pmax = SERVOS[self.servo].pulse_us if self.servo else (PULSE_MIN_US, PULSE_MAX_US)
         for end in (lo, hi):
             us = self.to_us(end)
-            if not PULSE_MIN_US <= us <= PULSE_MAX_US:
-                raise ValueError(
-                    f"range_deg end {end} maps to {us:.0f} us, "
-                    f"outside {PULSE_MIN_US}..{PULSE_MAX_US}"
-                )
+            if not pmin <= us <= pmax:
+                raise ValueError(f"range_deg end {end} maps to {us:.0f} us, outside {pmin}..{pmax}")
         return self
 
     @property
@@ -105,13 +125,13 @@ class ServerSettings(_Frozen):
     max_move_time_ms: int = Field(default=60_000, ge=1, le=65_535)
     joint_state_rate_hz: float = Field(default=20.0, gt=0, le=1000)
     reconnect_interval_s: float = Field(default=0.5, gt=0, le=60)
-    baud: int = Field(default=9600)
+    baud: int = Field(default=FACTORY_BAUD)
 
     @field_validator("baud")
     @classmethod
     def _known_baud(cls, v: int) -> int:
-        if v not in (9600, 38400, 115200):
-            raise ValueError(f"baud {v}: the SSC-32U runs at 9600, 38400 or 115200")
+        if v not in BAUDS:
+            raise ValueError(f"baud {v}: the SSC-32U runs at {', '.join(map(str, BAUDS))}")
         return v
 
 

@@ -1,0 +1,8 @@
+"""The applications: the command line, the server process, the demo and its QoS table.
+
+- `cli`: `al5d serve | emulator | send | run | demo`.
+- `server`: `al5d serve`, the arm driver on a port or on the embedded emulator, with ROS.
+- `demo`: DE01 on the embedded emulator, with the DE02 table of `qos`.
+
+The top layer: it may import every other part of al5d.
+"""

@@ -1,0 +1,287 @@
+"""The arm driver's caller side: instructions in, one outcome each; the stop that never waits.
+
+A plain Python API, usable without ROS:
+
+    driver = ArmDriver(config, port)      # port of the board (or of the emulator)
+    driver.start()                        # connects and parks (STATE: initializing -> ready)
+    outcome = driver.execute(move(base=30, elbow=90))
+    driver.submit(stop())                 # a Future[Outcome], resolved at once
+
+Everything here runs in the caller's thread: validation, queueing, stop,
+release, cancel and shutdown. The board I/O that may take long is the
+worker's (`al5d.arm.worker`); the two meet in `al5d.arm.shared`. An emergency
+stop writes STOP itself, without waiting for the worker, the queue or a serial
+read, then bumps the epoch so that nothing queued before it is ever sent.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+
+from al5d.arm import instruction as ins
+from al5d.arm.config import ArmConfig
+from al5d.arm.instruction import Instruction, Kind, Outcome, Result
+from al5d.arm.jobs import Job, Motion, Sent, finish, outcome, resolve
+from al5d.arm.shared import Shared
+from al5d.arm.states import Event, State, next_state, refusal, release_refusal
+from al5d.arm.translate import Translator
+from al5d.arm.validate import Limits, check
+from al5d.arm.worker import Worker
+from al5d.clock import now
+from al5d.ssc32u.driver import SSC32U
+from al5d.ssc32u.errors import LinkLost, SerialFault
+
+log = logging.getLogger("al5d")
+
+#: How long the outcomes of moves cancelled by a stop wait, so the stop is answered first.
+CANCEL_DELAY_S = 0.005
+
+
+class ArmDriver:
+    """The arm: instructions in, group moves and stops out, one outcome per instruction."""
+
+    def __init__(self, config: ArmConfig, port: str, baud: int | None = None) -> None:
+        self.config = config
+        self.port = port
+        self.baud = baud or config.server.baud
+        self.settings = config.server
+        self.translator = Translator(config)
+        self.limits = Limits.of(config)
+        self.channels = config.channels
+        self.shared = Shared(config)
+        self._worker = Worker(config, self.shared, port, self.baud, self.submit)
+        self._thread = threading.Thread(target=self._worker.run, name="al5d-worker", daemon=True)
+        self.finished = self.shared.finished
+        self.outcome_listeners: list[Callable[[Outcome], None]] = self.shared.outcome_listeners
+        self.state_listeners: list[Callable[[State], None]] = self.shared.state_listeners
+        self.motion_listeners: list[Callable[[Sent], None]] = self.shared.motion_listeners
+
+    # -- public API ---------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the worker: it connects, parks (D1, VE03), then the arm is ready."""
+        log.info("STATE: %s", self.shared.state.value)
+        log.debug("EVENT: %s", Event.START.value)
+        self._thread.start()
+
+    @property
+    def state(self) -> State:
+        return self.shared.state
+
+    @property
+    def locked(self) -> bool:
+        return self.shared.locked
+
+    def positions(self, t: float | None = None) -> dict[str, float]:
+        """Estimated joint angles now (degrees; NaN where unknown since power-up)."""
+        return self.shared.positions(t)
+
+    def progress(self, instr_id: str) -> float | None:
+        """0..1 of the expected time of the move `instr_id` if it is the one running."""
+        job, motion = self.shared.current, self.shared.motion
+        if job is None or motion is None or job.instr.id != instr_id:
+            return None
+        return motion.progress(now())
+
+    def validate(self, instr: Instruction) -> dict[str, float] | str:
+        """The target pose of a motion instruction, or the reason to refuse it whole (D3)."""
+        return check(instr, self.limits)
+
+    def submit(self, instr: Instruction) -> Future[Outcome]:
+        """Hand over an instruction; its Future resolves to its one outcome."""
+        t0 = now()
+        future: Future[Outcome] = Future()
+        if self.outcome_listeners:
+            future.add_done_callback(self._tell_outcome)
+        kind = instr.kind
+        if kind is Kind.STOP:
+            self._stop(instr, future, t0)
+        elif kind is Kind.RELEASE:
+            self._release(instr, future, t0)
+        elif kind is Kind.SHUTDOWN:
+            self._shutdown(instr, future, t0)
+        else:
+            self._enqueue(instr, future, t0)
+        return future
+
+    def execute(self, instr: Instruction, timeout: float | None = None) -> Outcome:
+        """Submit and wait for the outcome."""
+        return self.submit(instr).result(timeout)
+
+    def cancel(self, instr_id: str, reason: str = "cancelled by the client") -> bool:
+        """Cancel one move: drop it if it waits; halt the arm (without the lock) if it runs.
+
+        False when the move has already ended (or was never here).
+        """
+        shared = self.shared
+        with shared.lock:
+            job = next((j for j in shared.queue if j.instr.id == instr_id), None)
+            if job is not None:
+                shared.queue.remove(job)
+                shared.cv.notify_all()
+            else:
+                current = shared.current
+                job = current if current and current.instr.id == instr_id else None
+                if job is None or job is shared.shutdown_job:
+                    return False
+                job.cancel.set()
+                board = shared.board
+                motion, shared.motion = shared.motion, None
+        if job.cancel.is_set():  # it was running: halt where it is
+            error = self._halt(board, motion)
+            with shared.cv:
+                if error is None:
+                    shared.readback = True
+                else:
+                    shared.fault = shared.fault or error
+                shared.cv.notify_all()
+        finish(job, Result.CANCELLED, reason)
+        return True
+
+    def wait_for_state(self, state: State, timeout: float = 10.0) -> None:
+        """Wait until `state` has been entered and announced (logged, listeners told)."""
+        self.shared.wait_announced(state, timeout)
+
+    def close(self, timeout: float = 30.0) -> None:
+        """Shut down (park first) unless that has happened, and wait for the worker."""
+        if self._thread.is_alive() and self.shared.shutdown_job is None:
+            self.submit(ins.shutdown())
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+        board = self.shared.board
+        if board is not None:
+            board.close()
+        self.finished.set()
+
+    # -- the caller's side ------------------------------------------------------------
+
+    def _tell_outcome(self, future: Future[Outcome]) -> None:
+        result = future.result()
+        for listener in self.outcome_listeners:
+            try:
+                listener(result)
+            except Exception:  # a listener must not break the driver
+                log.exception("outcome listener failed")
+
+    def _refuse(self, instr: Instruction, future: Future[Outcome], reason: str, t0: float) -> None:
+        log.debug("EVENT: %s", Event.REFUSED.value)
+        log.warning("refused %s [%s]: %s", instr.name, instr.id, reason)
+        resolve(future, outcome(instr, Result.REFUSED, reason, t0))
+
+    def _enqueue(self, instr: Instruction, future: Future[Outcome], t0: float) -> None:
+        target = check(instr, self.limits)
+        if isinstance(target, str):
+            self._refuse(instr, future, target, t0)
+            return
+        shared = self.shared
+        with shared.lock:
+            reason = refusal(shared.state, shared.fault)
+            if not reason:
+                capacity = self.settings.queue_capacity
+                if len(shared.queue) >= capacity:
+                    reason = f"the queue is full ({capacity} moves wait)"
+                else:
+                    shared.queue.append(Job(instr, target, future, shared.epoch, t0))
+                    shared.cv.notify_all()
+                    return
+        self._refuse(instr, future, reason, t0)
+
+    def _stop(self, instr: Instruction, future: Future[Outcome], t0: float) -> None:
+        """VE01/D4: halt at once, drop the queue, lock. Never waits for the worker."""
+        shared = self.shared
+        with shared.lock:
+            current, dropped = shared.take_pending()
+            shared.locked = True
+            board = shared.board
+            motion, shared.motion = shared.motion, None
+            shared.fire(Event.STOP)
+        error = self._halt(board, motion)
+        if board is None:
+            error = LinkLost(self.port, "no board connected")
+        shared.announce()
+        reason = "cancelled by stop"
+        if current is not None:
+            current.cancel.set()
+            if current is not shared.shutdown_job:  # shutdown still ends, with its own outcome
+                finish(current, Result.CANCELLED, reason)
+        if dropped:
+            # A thousand outcomes to hand out (and publish) must not hold up the caller,
+            # which may be the ROS executor that has to answer the stop service.
+            threading.Thread(
+                target=self._cancel_all, args=(dropped, reason), name="al5d-cancel", daemon=True
+            ).start()
+        with shared.cv:
+            if error is None:
+                shared.readback = True
+            elif shared.fault is None and shared.state is not State.FAULT:
+                shared.fault = error
+            shared.cv.notify_all()
+        note = f"the serial link is lost ({error}); the arm is locked" if error else ""
+        if dropped or current:
+            log.info("stop: %d move(s) cancelled", len(dropped) + (current is not None))
+        resolve(future, outcome(instr, Result.DONE, note, t0))
+
+    def _halt(self, board: SSC32U | None, motion: Motion | None) -> SerialFault | None:
+        """STOP every channel first, then take the pose from where the interrupted motion was
+        (until the worker's read-back says exactly where). The error if STOP failed."""
+        error = None
+        if board is not None:
+            try:
+                board.stop(self.channels)
+            except SerialFault as e:
+                error = e
+        if motion is not None:
+            self.shared.pose.update(motion.at(now()))
+            self.shared.distrust_q(motion)
+        return error
+
+    @staticmethod
+    def _cancel_all(jobs: list[Job], reason: str) -> None:
+        # Let the stop's caller answer first (a ROS service reply needs the GIL a few
+        # times); the cancelled outcomes are news, not safety, and may come 5 ms later.
+        time.sleep(CANCEL_DELAY_S)
+        for job in jobs:
+            finish(job, Result.CANCELLED, reason)
+
+    def _release(self, instr: Instruction, future: Future[Outcome], t0: float) -> None:
+        shared = self.shared
+        with shared.lock:
+            state = shared.state
+            allowed = next_state(state, Event.RELEASE, shared.guards()) is not None
+            if allowed:
+                shared.fire(Event.RELEASE)
+                shared.locked = False
+        if not allowed:
+            self._refuse(instr, future, release_refusal(state), t0)
+            return
+        shared.announce()
+        note = "" if state is State.STOPPED else "unlocked; the serial link is still lost"
+        resolve(future, outcome(instr, Result.DONE, note, t0))
+
+    def _shutdown(self, instr: Instruction, future: Future[Outcome], t0: float) -> None:
+        shared = self.shared
+        current: Job | None = None
+        dropped: list[Job] = []
+        with shared.lock:
+            if shared.shutdown_job is not None:
+                reason = "the server is already shutting down"
+            else:
+                reason = ""
+                current, dropped = shared.take_pending()
+                park = dict(self.config.presets["park"])
+                fraction = self.settings.startup_speed_fraction
+                shared.shutdown_job = Job(instr, park, future, shared.epoch, t0, fraction)
+                shared.fire(Event.SHUTDOWN)
+        if reason:
+            self._refuse(instr, future, reason, t0)
+            return
+        shared.announce()
+        if current is not None:
+            current.cancel.set()
+            finish(current, Result.CANCELLED, "cancelled by shutdown")
+        for job in dropped:
+            finish(job, Result.CANCELLED, "cancelled by shutdown")

@@ -1,0 +1,98 @@
+"""Moves on their way through the driver: the job, the motion it makes, and its one outcome.
+
+Data shared by the caller's side (`driver`) and the worker (`worker`), and
+the two helpers that make and set an outcome exactly once.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Mapping
+from concurrent.futures import Future, InvalidStateError
+from dataclasses import dataclass, field
+from enum import Enum
+
+from al5d.arm.instruction import Instruction, Outcome, Result
+from al5d.arm.states import State
+from al5d.clock import now
+
+
+class Mode(Enum):
+    """Why the worker runs a move, and the states in which it may still be sent."""
+
+    STARTUP = (State.INITIALIZING,)
+    QUEUE = (State.READY, State.MOVING)
+    SHUTDOWN = (State.SHUTTING_DOWN,)
+
+    @property
+    def states(self) -> tuple[State, ...]:
+        return self.value  # type: ignore[no-any-return]
+
+
+@dataclass(slots=True)
+class Job:
+    """A motion instruction on its way: validated target, its future, the epoch it belongs to."""
+
+    instr: Instruction
+    target: dict[str, float]
+    future: Future[Outcome]
+    epoch: int
+    t_submit: float
+    speed_fraction: float = 1.0
+    cancel: threading.Event = field(default_factory=threading.Event)
+    expected_ms: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class Motion:
+    """The move the board is running: from where, to where, when, for how long."""
+
+    start: Mapping[str, float]
+    target: Mapping[str, float]
+    t0: float
+    duration_s: float
+
+    def progress(self, t: float) -> float:
+        return 1.0 if self.duration_s <= 0 else min(1.0, max(0.0, (t - self.t0) / self.duration_s))
+
+    def at(self, t: float) -> dict[str, float]:
+        f = self.progress(t)
+        return {j: s + (self.target.get(j, s) - s) * f for j, s in self.start.items()}
+
+
+@dataclass(frozen=True, slots=True)
+class Sent:
+    """A move as it left for the board: for listeners that measure (the demo's QoS table)."""
+
+    instr: Instruction
+    data: bytes
+    t_submit: float  # when the instruction reached the driver
+    t_write: float  # when its bytes were written
+    motion: Motion
+
+
+def outcome(job_or_instr: Job | Instruction, result: Result, reason: str, t0: float) -> Outcome:
+    instr = job_or_instr.instr if isinstance(job_or_instr, Job) else job_or_instr
+    expected = job_or_instr.expected_ms if isinstance(job_or_instr, Job) else 0.0
+    return Outcome(
+        id=instr.id,
+        instruction=instr.name,
+        result=result,
+        reason=reason,
+        elapsed_ms=(now() - t0) * 1000.0,
+        expected_ms=expected,
+    )
+
+
+def resolve(future: Future[Outcome], result: Outcome) -> bool:
+    """Set the one outcome; False if another thread was first (stop racing completion)."""
+    try:
+        future.set_result(result)
+    except InvalidStateError:
+        return False
+    return True
+
+
+def finish(job: Job, result: Result, reason: str = "") -> bool:
+    """Resolve a job's future with its outcome, timed from its submission."""
+    return resolve(job.future, outcome(job, result, reason, job.t_submit))

@@ -1,0 +1,137 @@
+"""The arm driver's shared state: one lock, the state machine, the queue, the pose.
+
+The caller's side (`driver.ArmDriver`) and the move worker (`worker.Worker`)
+meet only here. The rules:
+
+- One lock (`lock`, and its condition `cv`) guards every field. It is never
+  held during serial I/O, so that a stop never waits behind a read.
+- State changes happen under the lock (`fire`, which asks the state table);
+  their log lines (INF01, INF02) and the state listeners follow outside it,
+  in order (`announce`).
+- An emergency stop bumps `epoch`: a job of an older epoch is never written.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections import deque
+from collections.abc import Callable
+
+from al5d.arm.config import ArmConfig
+from al5d.arm.instruction import Outcome
+from al5d.arm.jobs import Job, Motion, Sent
+from al5d.arm.states import Event, Guards, State, Task, TransitionError, next_state
+from al5d.clock import Deadline, now
+from al5d.ssc32u.driver import SSC32U
+from al5d.ssc32u.errors import SerialFault
+
+log = logging.getLogger("al5d")
+
+
+class Shared:
+    """Everything both threads of the driver read and write, behind one lock."""
+
+    def __init__(self, config: ArmConfig) -> None:
+        self.lock = threading.Lock()
+        self.cv = threading.Condition(self.lock)
+        self._announce_lock = threading.Lock()
+        self._notes: list[tuple[Event, State, State]] = []
+        self.state = State.INITIALIZING
+        self.announced = State.INITIALIZING  # the state last logged and told to the listeners
+        self.locked = False  # stop was pressed and release has not come yet
+        self.epoch = 0
+        self.queue: deque[Job] = deque()
+        self.current: Job | None = None
+        self.board: SSC32U | None = None
+        self.fault: SerialFault | None = None
+        self.readback = False  # the worker is to read the pose back from the board
+        self.shutdown_job: Job | None = None
+        self.parked = False  # the start-up park has been done
+        self.pose: dict[str, float | None] = dict.fromkeys(config.joints)
+        self.motion: Motion | None = None
+        # After a STOP inside a timed move the board answers Q with '+' until that move's
+        # time is over (UG-38); until then a move's completion is judged by time alone.
+        self.q_unreliable_until = 0.0
+        self.finished = threading.Event()
+        self.outcome_listeners: list[Callable[[Outcome], None]] = []
+        self.state_listeners: list[Callable[[State], None]] = []
+        self.motion_listeners: list[Callable[[Sent], None]] = []
+
+    # -- the state machine (lock held) ------------------------------------------------
+
+    def guards(self) -> Guards:
+        return Guards(queue_empty=not self.queue, locked=self.locked)
+
+    def fire(self, event: Event) -> State:
+        """Take the transition the table gives for `event`; its log lines follow in `announce`."""
+        old = self.state
+        new = next_state(old, event, self.guards())
+        if new is None:
+            raise TransitionError(f"no transition from {old.value} on {event.value}")
+        self.state = new
+        self._notes.append((event, old, new))
+        self.cv.notify_all()
+        return new
+
+    def take_pending(self) -> tuple[Job | None, list[Job]]:
+        """End the epoch: the running job and the queued ones, which are never to be sent."""
+        self.epoch += 1
+        dropped = list(self.queue)
+        self.queue.clear()
+        return self.current, dropped
+
+    # -- outside the lock -------------------------------------------------------------
+
+    def announce(self) -> None:
+        """Log the transitions made so far (INF01, INF02) and tell the listeners, in order."""
+        with self._announce_lock:
+            with self.lock:
+                notes, self._notes = self._notes, []
+            for event, old, new in notes:
+                log.debug("EVENT: %s", event.value)
+                if new is not old:
+                    log.info("STATE: %s", new.value)
+                    for listener in self.state_listeners:
+                        listener(new)
+                with self.cv:
+                    self.announced = new
+                    self.cv.notify_all()
+
+    def wait_announced(self, state: State, timeout: float) -> None:
+        deadline = Deadline(timeout)
+        with self.cv:
+            while self.announced is not state:
+                if deadline.expired:
+                    raise TimeoutError(
+                        f"state {state.value} not reached in {timeout} s (now {self.state.value})"
+                    )
+                self.cv.wait(deadline.left())
+
+    def next_task(self) -> tuple[Task, Job | None]:
+        """The worker's next task (waits for one): a shutdown first, then faults, then moves."""
+        with self.cv:
+            while True:
+                if self.shutdown_job is not None:
+                    return Task.SHUTDOWN, self.shutdown_job
+                if self.fault is not None or self.state is State.FAULT:
+                    return Task.RECOVER, None
+                if self.readback:
+                    self.readback = False
+                    return Task.READBACK, None
+                if self.queue:
+                    return Task.MOVE, self.queue.popleft()
+                self.cv.wait()
+
+    def distrust_q(self, stopped: Motion) -> None:
+        self.q_unreliable_until = max(self.q_unreliable_until, stopped.t0 + stopped.duration_s)
+
+    def positions(self, t: float | None = None) -> dict[str, float]:
+        """Estimated joint angles (degrees; NaN where unknown since power-up)."""
+        motion = self.motion
+        pose = self.pose
+        if motion is not None:
+            est = motion.at(now() if t is None else t)
+            return {j: est.get(j, v if v is not None else math.nan) for j, v in pose.items()}
+        return {j: (v if v is not None else math.nan) for j, v in pose.items()}

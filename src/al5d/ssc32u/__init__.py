@@ -1,0 +1,13 @@
+"""The SSC-32U servo controller: its facts, its protocol, a driver and an emulator.
+
+- `facts`: the board's numbers as data (bauds, pulse limits, timings, firmware name).
+- `protocol`: the bytes of every command and answer, as pure functions.
+- `errors`: what can go wrong on the serial link, named for what the user must check.
+- `driver`: `SSC32U`, one method per board function; serial I/O stays inside.
+- `emulator`: an SSC-32U on a pseudo terminal (a pure board model and its pty link).
+
+This layer knows channels and pulse widths, never joints or degrees of an arm.
+It imports nothing of al5d but `al5d.clock`; the emulator is imported only where
+an emulated board is wanted (the server's embedded default, tests, the demo,
+the benchmarks).
+"""

@@ -1,0 +1,111 @@
+"""An emulated SSC-32U on a pseudo terminal, faithful to the board's protocol and timing.
+
+`Emulator` is the board's model (`board.Board`: commands, servos, answers,
+records) on its serial link (`pty.PtyLink`: a pty at the client's baud). Use it
+as a context manager, or `start()` and `close()`:
+
+    with Emulator(config, baud=9600) as emu:
+        print(emu.port)          # open this with SSC32U or any serial program
+        emu.records              # every line received, with its time of effect
+        emu.servo_degrees()      # where the emulated servos are
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Mapping
+from types import TracebackType
+
+from al5d.ssc32u import facts
+from al5d.ssc32u.emulator.board import (
+    DEFAULT_ANSWER_DELAY_S,
+    ArmDescription,
+    Board,
+    Fault,
+    Record,
+    ServoJoint,
+)
+from al5d.ssc32u.emulator.pty import PtyLink
+
+__all__ = ["ArmDescription", "Emulator", "Fault", "Record", "ServoJoint", "serve_forever"]
+
+
+class Emulator(Board):
+    """An SSC-32U on a pseudo terminal.
+
+    `port` is the path a client opens (the `link` symlink when one is given,
+    so that it survives a reconnect). `baud` is the board's own setting: a
+    client at another baud is heard as noise, as with the real board.
+    """
+
+    def __init__(
+        self,
+        config: ArmDescription | None = None,
+        *,
+        baud: int = facts.FACTORY_BAUD,
+        link: str | os.PathLike[str] | None = None,
+        version: str = facts.FIRMWARE,
+        answer_delay_s: float = DEFAULT_ANSWER_DELAY_S,
+        initial_pose: Mapping[str, float] | None = None,
+    ) -> None:
+        super().__init__(
+            config,
+            baud=baud,
+            version=version,
+            answer_delay_s=answer_delay_s,
+            initial_pose=initial_pose,
+        )
+        self._link = PtyLink(self, link)
+
+    # -- life cycle ------------------------------------------------------
+
+    def start(self) -> Emulator:
+        self._link.open()
+        return self
+
+    def close(self) -> None:
+        self._link.close()
+        self._link.remove_link()
+
+    def __enter__(self) -> Emulator:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    @property
+    def port(self) -> str:
+        return str(self._link.link) if self._link.link is not None else self._link.device
+
+    @property
+    def device(self) -> str:
+        """The pty slave itself (changes on reconnect)."""
+        return self._link.device
+
+    # -- faults on the link ---------------------------------------------------
+
+    def inject(self, fault: Fault) -> None:
+        """Start a fault. DISCONNECT closes the pty: the client's I/O fails until reconnect()."""
+        super().inject(fault)
+        if fault is Fault.DISCONNECT:
+            self._link.close()
+
+    def reconnect(self) -> None:
+        """Plug the adapter back in: a new pty behind the same link; the servos kept their state."""
+        self.clear(Fault.DISCONNECT)
+        if self._link.is_open:
+            self._link.close()
+        self._link.open()
+
+
+def serve_forever(emulator: Emulator, stop: threading.Event) -> None:
+    """Run until `stop` is set (used by `al5d emulator`)."""
+    with emulator:
+        print(emulator.port, flush=True)
+        stop.wait()

@@ -1,0 +1,238 @@
+"""The emulated board's serial link: a pseudo terminal carrying bytes at the client's baud.
+
+The client (our driver, or any program that speaks to a serial port) opens the
+pty's slave like a USB serial adapter. The link reads the master side no
+faster than the wire would carry the bytes at the baud the client set (10 bit
+times a byte), so bytes not yet "sent" stay in the pty and a client's output
+flush really drops them. Each byte gets a virtual arrival time; a line goes to
+the board when its CR arrives, and the board's answers are written back when
+they are due.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import queue
+import select
+import struct
+import termios
+import threading
+import time
+import tty
+from collections import deque
+from pathlib import Path
+from typing import NamedTuple
+
+from al5d.clock import now
+from al5d.ssc32u import facts
+from al5d.ssc32u.emulator.board import Answer, Board, Record
+
+MAX_LINE = 1024
+#: What termios calls the bauds a client may set.
+_BAUDS = {
+    getattr(termios, f"B{b}"): b
+    for b in (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400)
+}
+
+
+class _Slot(NamedTuple):
+    """A byte on the virtual wire: when its first bit leaves the client, when its last arrives."""
+
+    start: float
+    arrival: float
+    byte: int
+    heard: bool  # sent at the board's baud; otherwise the board hears noise
+
+
+class PtyLink:
+    """A pty whose master side is the board: opened by `open()`, ended by `close()`.
+
+    `link` (optional) is a symlink kept pointing at the current slave, so that a
+    client's path survives a reconnect (a new pty) as a USB device path would.
+    """
+
+    def __init__(self, board: Board, link: str | os.PathLike[str] | None = None) -> None:
+        self.board = board
+        self.link = Path(link) if link is not None else None
+        self._master = -1
+        self._slave = -1
+        self.device = ""
+        self._threads: list[threading.Thread] = []
+        self._running = threading.Event()
+        self._answers: queue.Queue[Answer | None] = queue.Queue()
+        self._wake_r, self._wake_w = -1, -1
+
+    @property
+    def is_open(self) -> bool:
+        return self._running.is_set()
+
+    def open(self) -> None:
+        self._open_pty()
+        self._running.set()
+        self._threads = [
+            threading.Thread(target=self._read_loop, name="ssc32u-rx", daemon=True),
+            threading.Thread(target=self._answer_loop, name="ssc32u-tx", daemon=True),
+        ]
+        for th in self._threads:
+            th.start()
+
+    def close(self) -> None:
+        """Close the pty: the client's reads and writes fail, as when a cable is pulled."""
+        self._running.clear()
+        self._answers.put(None)
+        if self._wake_w >= 0:
+            with contextlib.suppress(OSError):
+                os.write(self._wake_w, b"x")
+        for th in self._threads:
+            if th is not threading.current_thread():
+                th.join(timeout=2)
+        self._threads = []
+        for fd in (self._master, self._slave, self._wake_r, self._wake_w):
+            if fd >= 0:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        self._master = self._slave = self._wake_r = self._wake_w = -1
+        self._answers = queue.Queue()
+
+    def remove_link(self) -> None:
+        if self.link is not None and self.link.is_symlink():
+            with contextlib.suppress(OSError):
+                self.link.unlink()
+
+    def _open_pty(self) -> None:
+        master, slave = os.openpty()
+        # Raw before any client opens it, or the line discipline eats CR.
+        tty.setraw(slave)
+        attrs = termios.tcgetattr(slave)
+        speed = getattr(termios, f"B{self.board.baud}")
+        attrs[4] = attrs[5] = speed
+        termios.tcsetattr(slave, termios.TCSANOW, attrs)
+        os.set_blocking(master, False)
+        # Packet mode: the master hears of the client's output flushes (TIOCPKT_FLUSHWRITE).
+        fcntl.ioctl(master, termios.TIOCPKT, struct.pack("i", 1))
+        self._master, self._slave = master, slave
+        self.device = os.ttyname(slave)
+        self._wake_r, self._wake_w = os.pipe()
+        if self.link is not None:
+            tmp = self.link.with_name(self.link.name + ".tmp")
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+            tmp.symlink_to(self.device)
+            tmp.replace(self.link)
+
+    def client_baud(self) -> int:
+        """The baud the client set on its side (0 if it set one termios does not name)."""
+        try:
+            speed = termios.tcgetattr(self._master)[4]
+        except (termios.error, OSError):
+            return self.board.baud
+        return _BAUDS.get(speed, 0)
+
+    def _read_loop(self) -> None:
+        """Put each byte on a virtual wire at the client's baud and act on each line at its CR.
+
+        Bytes are read from the pty as soon as the client writes them and get
+        a slot on the wire: byte after byte, 10 bit times each, starting when
+        written or when the wire is free. The master runs in packet mode, so a
+        client's output flush (TCOFLUSH) is reported here; it drops the bytes
+        whose slot has not begun, as a USB adapter drops what it has not sent.
+        """
+        wire: deque[_Slot] = deque()
+        ends: deque[float] = deque()  # arrival times of the CR/ESC bytes on the wire
+        line = bytearray()
+        line_free = 0.0  # when the wire has carried the last byte given to it
+        master, wake = self._master, self._wake_r
+        while self._running.is_set():
+            timeout = max(0.0, ends[0] - now()) if ends else 0.5
+            try:
+                ready, _, _ = select.select([master, wake], [], [], timeout)
+            except (OSError, ValueError):
+                return
+            if wake in ready or not self._running.is_set():
+                return
+            if master in ready:
+                t_seen = now()
+                try:
+                    packet = os.read(master, 4096)
+                except BlockingIOError:
+                    packet = b""
+                except OSError:
+                    return
+                if not packet:
+                    continue
+                if packet[0] != 0:  # a status packet: only a flush of the client's output matters
+                    if packet[0] & termios.TIOCPKT_FLUSHWRITE:
+                        line_free = self._flush(wire, ends, t_seen, line_free)
+                    continue
+                line_free = self._on_wire(packet[1:], t_seen, line_free, wire, ends)
+            self._deliver(wire, ends, line)
+
+    def _on_wire(
+        self, data: bytes, t_seen: float, line_free: float, wire: deque[_Slot], ends: deque[float]
+    ) -> float:
+        """Give each byte its slot; return when the wire is free again."""
+        baud = self.client_baud()
+        heard = baud == self.board.baud
+        bt = facts.BITS_PER_BYTE / (baud or self.board.baud)
+        t = max(t_seen, line_free)
+        for byte in data:
+            wire.append(_Slot(t, t + bt, byte, heard))
+            t += bt
+            if byte in (0x0D, 0x1B):
+                ends.append(t)
+        return t
+
+    def _deliver(self, wire: deque[_Slot], ends: deque[float], line: bytearray) -> None:
+        """Hand the board every byte that has arrived by now; a line at its CR (or ESC)."""
+        t_now = now()
+        while wire and wire[0].arrival <= t_now:
+            _, arrival, byte, heard = wire.popleft()
+            if byte in (0x0D, 0x1B):
+                ends.popleft()
+                if not heard:
+                    self.board.note(Record(arrival, bytes(line), (), self._noise_reason()))
+                elif byte == 0x0D:
+                    for answer in self.board.execute(bytes(line), arrival):
+                        self._answers.put(answer)
+                else:
+                    self.board.note(Record(arrival, bytes(line), (), "cancelled by ESC"))
+                line.clear()
+            elif len(line) < MAX_LINE:
+                line.append(byte)
+
+    def _noise_reason(self) -> str:
+        return f"noise: client at {self.client_baud()} baud, board at {self.board.baud}"
+
+    @staticmethod
+    def _flush(wire: deque[_Slot], ends: deque[float], t_flush: float, line_free: float) -> float:
+        """Drop the bytes whose slot had not begun at `t_flush`; return when the wire is free.
+
+        Limit: the kernel reports a flush before any data still unread in the
+        master; bytes written a few microseconds before a flush, before this
+        thread could read them, are taken as written after it and escape it.
+        """
+        while wire and wire[-1].start > t_flush:
+            if wire.pop().byte in (0x0D, 0x1B):
+                ends.pop()
+        return wire[-1].arrival if wire else min(line_free, t_flush)
+
+    def _answer_loop(self) -> None:
+        answers, master = self._answers, self._master
+        while True:
+            item = answers.get()
+            if item is None:
+                return
+            due, data = item
+            _sleep_until(due)
+            try:
+                os.write(master, data)
+            except OSError:
+                return
+
+
+def _sleep_until(t: float) -> None:
+    wait = t - now()
+    if wait > 0:
+        time.sleep(wait)
