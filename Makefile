@@ -7,10 +7,13 @@ STAMP  := $(VENV)/.installed
 IFACES := $(VENV)/.al5d_interfaces
 IFSRC  := $(wildcard interfaces/al5d_interfaces/*.txt interfaces/al5d_interfaces/*.xml \
                      interfaces/al5d_interfaces/msg/* interfaces/al5d_interfaces/action/*)
+# Standard message packages that are not on PyPI (control_msgs for MoveIt's
+# controllers, tf2_msgs for /tf), one stamp each.
+STDMSGS := $(VENV)/.control_msgs $(VENV)/.tf2_msgs
 
 .PHONY: install demo test bench lint clean
 
-install: $(STAMP) $(IFACES)
+install: $(STAMP) $(IFACES) $(STDMSGS)
 
 # Every version is pinned: pyproject.toml pins what we use, constraints.txt
 # pins everything those bring along.
@@ -32,6 +35,29 @@ $(IFACES): $(STAMP) $(IFSRC)
 	cmake --install build/al5d_interfaces > build/install.log 2>&1 || (tail -20 build/install.log; exit 1)
 	$(BIN)/python -c "import al5d_interfaces.msg, al5d_interfaces.action"
 	touch $(IFACES)
+
+# control_msgs and tf2_msgs, built the same way, but only when the import fails:
+# a user with a real ROS install keeps their own packages. A package we built
+# ourselves (its package.xml in the venv says "built by al5d") is rebuilt when
+# its sources change or its stamp is removed.
+$(VENV)/.control_msgs: CHECK := control_msgs.msg, control_msgs.action
+$(VENV)/.control_msgs: $(wildcard interfaces/control_msgs/*.txt interfaces/control_msgs/*.xml \
+                         interfaces/control_msgs/msg/* interfaces/control_msgs/action/*)
+$(VENV)/.tf2_msgs: CHECK := tf2_msgs.msg
+$(VENV)/.tf2_msgs: $(wildcard interfaces/tf2_msgs/*.txt interfaces/tf2_msgs/*.xml interfaces/tf2_msgs/msg/*)
+$(STDMSGS): $(VENV)/.%: $(STAMP)
+	@if ! grep -qs "built by al5d" $(VENV)/share/$*/package.xml && \
+	    $(BIN)/python -c "import $(CHECK)" 2>/dev/null; then \
+	  echo "$*: already installed, not built"; touch $@; exit 0; fi; \
+	echo "$*: building interfaces/$* into $(VENV)"; \
+	rm -rf build/$* && mkdir -p build/$* && \
+	. $(BIN)/activate && export AMENT_PREFIX_PATH="$$VIRTUAL_ENV" && \
+	{ cmake -S interfaces/$* -B build/$* -DBUILD_TESTING=OFF \
+	    -DCMAKE_INSTALL_PREFIX="$$VIRTUAL_ENV" -DPython3_EXECUTABLE="$$VIRTUAL_ENV/bin/python" \
+	    > build/$*/cmake.log 2>&1 || { cat build/$*/cmake.log; exit 1; }; } && \
+	{ cmake --build build/$* -j 2 > build/$*/build.log 2>&1 || { tail -40 build/$*/build.log; exit 1; }; } && \
+	{ cmake --install build/$* > build/$*/install.log 2>&1 || { tail -20 build/$*/install.log; exit 1; }; } && \
+	$(BIN)/python -c "import $(CHECK)" && touch $@
 
 demo: install
 	$(BIN)/al5d demo
