@@ -11,7 +11,7 @@ IFSRC  := $(wildcard interfaces/al5d_interfaces/*.txt interfaces/al5d_interfaces
 # controllers, tf2_msgs for /tf), one stamp each.
 STDMSGS := $(VENV)/.control_msgs $(VENV)/.tf2_msgs
 
-.PHONY: install demo test bench lint clean
+.PHONY: install demo test bench soak lint clean
 
 install: $(STAMP) $(IFACES) $(STDMSGS)
 
@@ -67,6 +67,10 @@ test: install
 
 bench: install
 	$(BIN)/python bench/run.py
+
+# The reliability suites, longer than in `make test`, with their figures (about 5 minutes).
+soak: install
+	$(BIN)/python bench/soak.py
 
 lint: install
 	$(BIN)/ruff check src tests bench

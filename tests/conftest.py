@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Iterator
 
@@ -12,7 +13,11 @@ import pytest
 os.environ["ROS_DOMAIN_ID"] = str(100 + os.getpid() % 120)
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
+from armrig import Rig, make_rig
+
 from al5d.arm.config import ArmConfig, load_config
+from al5d.arm.driver import ArmDriver
+from al5d.arm.states import State
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator
 
@@ -34,3 +39,24 @@ def board(emulator: Emulator) -> Iterator[SSC32U]:
         emulator.wait_for(lambda rs: any(r.raw == b"VER" for r in rs))
         emulator.clear_records()
         yield b
+
+
+@pytest.fixture
+def rig(config: ArmConfig, caplog: pytest.LogCaptureFixture) -> Iterator[Rig]:
+    """A driver, started and ready, on an emulated board in this process."""
+    caplog.set_level(logging.DEBUG, logger="al5d")
+    yield from make_rig(config)
+
+
+@pytest.fixture
+def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, ArmDriver]]:
+    """A driver on an emulator behind a link, so that the board can be unplugged and back."""
+    link = f"{tmp_path}/ssc32u"
+    with Emulator(config, link=link) as emu:
+        driver = ArmDriver(config, link)
+        driver.start()
+        try:
+            driver.wait_for_state(State.READY, 10)
+            yield emu, driver
+        finally:
+            driver.close()

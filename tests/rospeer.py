@@ -13,7 +13,14 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from al5d.ros.runtime import INSTRUCTION_TOPIC, QOS_STREAM, RESULT_TOPIC, Spinner, start_context
+from al5d.ros.runtime import (
+    INSTRUCTION_TOPIC,
+    QOS_INSTRUCTIONS,
+    QOS_STREAM,
+    RESULT_TOPIC,
+    Spinner,
+    start_context,
+)
 
 
 def wait_until(predicate: Any, timeout: float = 10.0, what: str = "condition") -> None:
@@ -70,7 +77,7 @@ class Peer:
     def __init__(self, results: bool = True, name: str = "al5d_test_peer") -> None:
         self.context = start_context()
         self.node = Node(name, context=self.context)
-        self.pub = self.node.create_publisher(ArmInstruction, INSTRUCTION_TOPIC, QOS_STREAM)
+        self.pub = self.node.create_publisher(ArmInstruction, INSTRUCTION_TOPIC, QOS_INSTRUCTIONS)
         self.results: dict[str, InstructionResult] = {}
         self.joint_states: list[JointState] = []
         self._result_sub: Any = None

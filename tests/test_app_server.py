@@ -3,8 +3,13 @@
 from __future__ import annotations
 
 import signal
+from pathlib import Path
 
 from proc import Proc
+
+from al5d.app.server import EXIT_NOT_PARKED
+from al5d.arm.config import load_config
+from al5d.ssc32u.emulator import Emulator, Fault
 
 
 def test_serve_parks_takes_instructions_and_shuts_down() -> None:
@@ -50,3 +55,25 @@ def test_a_bad_config_is_a_clear_error(tmp_path: object) -> None:
     assert proc.wait() == 2
     proc.err.drain()
     assert any("configuration error" in line for line in proc.err.all)
+
+
+def test_a_shutdown_that_cannot_park_exits_non_zero_and_says_so(tmp_path: Path) -> None:
+    # Issue 9: the board lost during the shutdown's park was `done` and exit 0.
+    link = tmp_path / "ssc32u"
+    with Emulator(load_config(), link=link) as emu:
+        proc = Proc("serve", "--port", str(link), "--stdin", stdin=True)
+        try:
+            proc.err.wait_for("STATE: ready")
+            proc.send("straight_up")
+            assert "done" in proc.out.wait_for("straight_up [")
+            proc.send("shutdown")
+            emu.wait_for(lambda rs: rs[-1].raw.startswith(b"#") if rs else False, 10)
+            emu.inject(Fault.DISCONNECT)
+            assert proc.wait() == EXIT_NOT_PARKED
+            line = proc.out.wait_for("shutdown [")
+            assert "cancelled" in line and "not parked" in line
+            proc.err.drain()
+            assert any("STATE: fault" in x for x in proc.err.all)
+            assert any("the arm was not parked" in x for x in proc.err.all)
+        finally:
+            proc.kill()

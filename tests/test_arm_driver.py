@@ -8,11 +8,10 @@ import math
 import random
 import threading
 import time
-from collections.abc import Iterator
 from concurrent.futures import Future
-from dataclasses import dataclass
 
 import pytest
+from armrig import Rig, group_pulses, logged, make_rig, min_ms, pulses, state_lines, written
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
@@ -21,76 +20,7 @@ from al5d.arm.instruction import Outcome, Result
 from al5d.arm.states import TRANSITIONS, State
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.driver import SSC32U
-from al5d.ssc32u.emulator import Emulator, Fault, Record
-
-
-@dataclass
-class Rig:
-    driver: ArmDriver
-    emu: Emulator
-    config: ArmConfig
-
-    def moves(self) -> list[Record]:
-        return [r for r in self.emu.records if any(isinstance(c, p.GroupMove) for c in r.commands)]
-
-    def last_move(self) -> p.GroupMove:
-        cmd = self.moves()[-1].commands[0]
-        assert isinstance(cmd, p.GroupMove)
-        return cmd
-
-    def wait_move_count(self, n: int, timeout: float = 5.0) -> None:
-        self.emu.wait_for(
-            lambda rs: sum(any(isinstance(c, p.GroupMove) for c in r.commands) for r in rs) >= n,
-            timeout,
-        )
-
-
-def pulses(config: ArmConfig, pose: dict[str, float]) -> dict[int, int]:
-    return {config.joints[j].channel: round(config.joints[j].to_us(d)) for j, d in pose.items()}
-
-
-def group_pulses(move: p.GroupMove) -> dict[int, int]:
-    return {t.channel: t.pulse_us for t in move.targets}
-
-
-def min_ms(
-    config: ArmConfig, start: dict[str, float], target: dict[str, float], fraction: float = 1.0
-) -> int:
-    longest = max(
-        abs(d - start[j]) / (config.joints[j].speed_deg_s * fraction) for j, d in target.items()
-    )
-    return math.ceil(longest * 1000 - 1e-9)
-
-
-def make_rig(config: ArmConfig) -> Iterator[Rig]:
-    emu = Emulator(config).start()
-    driver = ArmDriver(config, emu.port)
-    driver.start()
-    try:
-        driver.wait_for_state(State.READY, 10)
-        yield Rig(driver, emu, config)
-    finally:
-        driver.close()
-        emu.close()
-
-
-@pytest.fixture
-def rig(config: ArmConfig, caplog: pytest.LogCaptureFixture) -> Iterator[Rig]:
-    caplog.set_level(logging.DEBUG, logger="al5d")
-    yield from make_rig(config)
-
-
-def logged(caplog: pytest.LogCaptureFixture) -> list[logging.LogRecord]:
-    """Log records of the fixture's setup and of the test itself."""
-    return caplog.get_records("setup") + caplog.get_records("call")
-
-
-def state_lines(caplog: pytest.LogCaptureFixture) -> list[str]:
-    return [
-        r.getMessage()[len("STATE: ") :]
-        for r in logged(caplog)
-        if r.getMessage().startswith("STATE: ")
-    ]
+from al5d.ssc32u.emulator import Emulator, Fault
 
 
 class TestStartup:
@@ -235,12 +165,12 @@ class TestRefusals:
     def test_refused_whole_with_nothing_written(
         self, rig: Rig, instr: ins.Instruction, reason: str
     ) -> None:
-        before = len(rig.emu.records)
+        before = written(rig.emu.records)
         outcome = rig.driver.execute(instr, 5)
         assert outcome.result is Result.REFUSED
         assert reason in outcome.reason
         time.sleep(0.05)
-        assert len(rig.emu.records) == before
+        assert written(rig.emu.records) == before
 
     def test_one_bad_joint_refuses_the_whole_move(self, rig: Rig) -> None:
         before = len(rig.moves())
@@ -352,20 +282,6 @@ class TestShutdown:
         assert rig.driver.execute(ins.move(base=1), 5).result is Result.REFUSED
 
 
-@pytest.fixture
-def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, ArmDriver]]:
-    """A driver on an emulator behind a link, so that the board can be unplugged and back."""
-    link = f"{tmp_path}/ssc32u"
-    with Emulator(config, link=link) as emu:
-        driver = ArmDriver(config, link)
-        driver.start()
-        try:
-            driver.wait_for_state(State.READY, 10)
-            yield emu, driver
-        finally:
-            driver.close()
-
-
 class TestFault:
     def test_a_board_at_another_baud_is_said_once_at_error_with_what_was_received(
         self, config: ArmConfig, caplog: pytest.LogCaptureFixture
@@ -383,7 +299,7 @@ class TestFault:
         errors = [
             r.getMessage()
             for r in logged(caplog)
-            if r.levelno >= logging.WARNING and "refused" not in r.getMessage()
+            if r.levelno >= logging.WARNING and r.getMessage().startswith(("serial", "reconnect"))
         ]
         said = [m for m in errors if "does not answer like an SSC-32U at 9600 baud" in m]
         assert len(said) == 1 and "received nothing" in said[0] and "baud rate" in said[0]

@@ -39,7 +39,10 @@ def test_the_table_holds_the_design_transitions_and_no_others() -> None:
         (S.SHUTTING_DOWN, E.STOP, S.SHUTTING_DOWN),
         (S.FAULT, E.RECONNECTED, S.READY),
         (S.FAULT, E.RECONNECTED, S.STOPPED),
-        (S.SHUTTING_DOWN, E.SERIAL_FAULT, S.SHUTTING_DOWN),
+        # A server that started without its board parks once it is there, before ready.
+        (S.FAULT, E.RECONNECTED, S.INITIALIZING),
+        # A shutdown whose park fails shows the fault (it was SHUTTING_DOWN, silently).
+        (S.SHUTTING_DOWN, E.SERIAL_FAULT, S.FAULT),
         *((s, E.SHUTDOWN, S.SHUTTING_DOWN) for s in ALIVE),
         *((s, E.SERIAL_FAULT, S.FAULT) for s in ALIVE if s is not S.FAULT),
     }
@@ -53,11 +56,19 @@ def test_a_move_ends_in_ready_only_when_the_move_list_is_empty(
     assert next_state(S.MOVING, E.MOVE_DONE, Guards(queue_empty=queue_empty)) is expected
 
 
-@pytest.mark.parametrize(("locked", "expected"), [(True, S.STOPPED), (False, S.READY)])
-def test_a_reconnect_keeps_the_lock_of_a_stop_that_came_during_the_fault(
-    locked: bool, expected: State
+@pytest.mark.parametrize(
+    ("locked", "parked", "expected"),
+    [
+        (True, True, S.STOPPED),
+        (True, False, S.STOPPED),
+        (False, True, S.READY),
+        (False, False, S.INITIALIZING),
+    ],
+)
+def test_a_reconnect_keeps_the_lock_and_parks_a_board_never_parked(
+    locked: bool, parked: bool, expected: State
 ) -> None:
-    assert next_state(S.FAULT, E.RECONNECTED, Guards(locked=locked)) is expected
+    assert next_state(S.FAULT, E.RECONNECTED, Guards(locked=locked, parked=parked)) is expected
 
 
 def test_release_during_a_fault_only_takes_a_lock_off() -> None:
@@ -73,7 +84,7 @@ def test_a_stop_is_taken_in_every_state(state: State) -> None:
 @pytest.mark.parametrize("state", ALIVE)
 def test_shutdown_and_a_serial_fault_are_taken_in_every_live_state(state: State) -> None:
     assert next_state(state, E.SHUTDOWN) is S.SHUTTING_DOWN
-    assert next_state(S.SHUTTING_DOWN, E.SERIAL_FAULT) is S.SHUTTING_DOWN
+    assert next_state(S.SHUTTING_DOWN, E.SERIAL_FAULT) is S.FAULT
 
 
 @pytest.mark.parametrize(

@@ -17,6 +17,7 @@ from typing import Any
 
 import pytest
 from al5d_interfaces.msg import ArmInstruction
+from armrig import written
 from builtin_interfaces.msg import Duration
 from proc import Proc
 from rospeer import Peer, wait_future, wait_until
@@ -24,7 +25,7 @@ from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d.arm.config import ArmConfig
-from al5d.ros.runtime import QOS_LATCHED, QOS_STREAM
+from al5d.ros.runtime import QOS_INSTRUCTIONS, QOS_LATCHED
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
 
@@ -97,7 +98,7 @@ def test_every_instruction_through_the_topic(server: Server, peer: Peer) -> None
 def test_bad_messages_are_refused_with_a_reason_and_nothing_reaches_the_board(
     server: Server, peer: Peer
 ) -> None:
-    n = len(server.emu.records)
+    n = written(server.emu.records)
     peer.send("bad-range", "move", base=120)
     r = peer.result("bad-range")
     assert r.outcome == "refused" and "base: 120 deg is outside the range -90..90" in r.reason
@@ -107,7 +108,7 @@ def test_bad_messages_are_refused_with_a_reason_and_nothing_reaches_the_board(
     peer.pub.publish(bad)
     assert "joints and degrees differ in length (2 and 1)" in peer.result("bad-len").reason
     time.sleep(0.2)
-    assert len(server.emu.records) == n
+    assert written(server.emu.records) == n
 
 
 def test_the_move_action(server: Server, peer: Peer) -> None:
@@ -121,14 +122,14 @@ def test_the_move_action(server: Server, peer: Peer) -> None:
     assert list(feedback[-1].feedback.joints) == list(server.config.joints)
     handle = peer.goal(base=-20, wrist=10)
     assert wait_future(handle.get_result_async()).result.outcome == "done"
-    n = len(server.emu.records)
+    n = written(server.emu.records)
     handle = peer.goal(shoulder=100)
     result = wait_future(handle.get_result_async()).result
     assert (
         result.outcome == "refused"
         and "shoulder: 100 deg is outside the range -30..90" in result.reason
     )
-    assert len(server.emu.records) == n
+    assert written(server.emu.records) == n
 
 
 def test_no_action_answer_is_lost_when_the_executor_thread_races_the_caller(
@@ -186,10 +187,13 @@ def test_stop_during_a_move_with_queued_moves_and_goals(server: Server, peer: Pe
     assert all(r.outcome == "cancelled" or "send release first" in r.reason for r in outcomes)
     assert sum(r.outcome == "cancelled" for r in outcomes) >= 200
     wait_until(
-        lambda: any(r.raw == b"STOP5" for r in server.emu.records), 5, "every STOP on the board"
+        lambda: sum(r.raw.startswith(b"STOP") for r in server.emu.records) == 6,
+        5,
+        "every STOP on the board",
     )
     stops = [r.raw for r in server.emu.records if r.raw.startswith(b"STOP")]
-    assert stops == [f"STOP{ch}".encode() for ch in range(6)]
+    # The moving joints first, the faster first (shoulder 85 deg, base 80 deg in the same time).
+    assert stops == [b"STOP1", b"STOP0", b"STOP2", b"STOP3", b"STOP4", b"STOP5"]
     peer.send("locked", "move", base=0)
     assert "send release first" in peer.result("locked").reason
     assert peer.trigger("release").success
@@ -251,7 +255,7 @@ def test_a_joint_trajectory_becomes_queued_moves(server: Server, peer: Peer) -> 
         ),
     ]
     before = len(server.group_moves())
-    pub = peer.node.create_publisher(JointTrajectory, "/al5d/joint_trajectory", QOS_STREAM)
+    pub = peer.node.create_publisher(JointTrajectory, "/al5d/joint_trajectory", QOS_INSTRUCTIONS)
     wait_until(lambda: pub.get_subscription_count() > 0, 10)
     pub.publish(traj)
     wait_until(lambda: len(server.group_moves()) >= before + 2, 10, "two moves")
@@ -292,3 +296,37 @@ def test_no_server_is_exit_2() -> None:
     )
     assert alone.wait(30) == 2
     assert any("no al5d server answers" in line for line in alone.err.drain())
+
+
+def test_the_client_prints_each_outcome_when_it_comes(
+    server: Server, peer: Peer, tmp_path: Path
+) -> None:
+    # Issue 9: the cancelled outcomes of background lines printed after the next line's.
+    seq = tmp_path / "stop.seq"
+    seq.write_text(
+        "move base=80 time=3000 &\nmove base=-80 &\nmove elbow=30 &\nwait 500\nstop\n"
+        "wait 500\nmove base=10\n"
+    )
+    run = Proc("run", str(seq))
+    assert run.wait(30) == 1
+    out = run.out.drain()
+    cancelled = [i for i, line in enumerate(out) if "cancelled by stop" in line]
+    assert len(cancelled) == 3
+    # All three while the client waits, before the next line is even sent.
+    assert max(cancelled) < out.index("> move base=10")
+    assert any("send release first" in line for line in out[out.index("> move base=10") :])
+
+
+def test_cancelling_a_goal_ends_moving_on_the_state_topic(server: Server, peer: Peer) -> None:
+    seen: list[str] = []
+    sub = peer.node.create_subscription(
+        String, "/al5d/state", lambda m: seen.append(m.data), QOS_LATCHED
+    )
+    try:
+        handle = peer.goal(base=80, time_ms=3000)
+        wait_until(lambda: seen and seen[-1] == "moving", 10, "moving")
+        wait_future(handle.cancel_goal_async())
+        wait_until(lambda: seen[-1] == "ready", 5, "ready after the cancel")
+        assert peer.trigger("release").success is False  # not locked: nothing to release
+    finally:
+        peer.node.destroy_subscription(sub)

@@ -28,7 +28,14 @@ def _cmd_emulator(args: argparse.Namespace) -> int:
     from al5d.ssc32u.emulator import Emulator, serve_forever
 
     config = load_config(args.config)
-    serve_forever(Emulator(config, baud=args.baud, link=args.link), _until_signal())
+    emulator = Emulator(config, baud=args.baud, link=args.link)
+    if args.record is None:
+        serve_forever(emulator, _until_signal())
+    elif args.record == "-":
+        serve_forever(emulator, _until_signal(), sys.stdout)
+    else:
+        with open(args.record, "w", encoding="utf-8") as record:
+            serve_forever(emulator, _until_signal(), record)
     return 0
 
 
@@ -87,6 +94,11 @@ def build_parser() -> argparse.ArgumentParser:
     emu.add_argument("--baud", type=int, default=FACTORY_BAUD, choices=BAUDS)
     emu.add_argument("--link", help="also make this path a symlink to the device")
     emu.add_argument("--config", help="arm configuration (servo speeds); default: shipped")
+    emu.add_argument(
+        "--record",
+        metavar="FILE",
+        help="write every line the board receives as JSON (time of effect, bytes); - = stdout",
+    )
     emu.set_defaults(func=_cmd_emulator)
 
     for name, func, what in (

@@ -7,8 +7,11 @@ park the arm first (D2), then the process exits 0.
 
 from __future__ import annotations
 
+import atexit
 import logging
+import logging.handlers
 import os
+import queue
 import signal
 import sys
 import threading
@@ -27,13 +30,23 @@ if TYPE_CHECKING:
 log = logging.getLogger("al5d")
 
 SWITCH_INTERVAL_S = 0.0005
+#: `al5d serve`'s exit code when the server ended without the arm in park.
+EXIT_NOT_PARKED = 3
 LOG_FORMAT = "%(asctime)s.%(msecs)03d %(levelname)s %(message)s"
 
 
 def setup_logging(level: str) -> None:
-    logging.basicConfig(
-        level=level.upper(), format=LOG_FORMAT, datefmt="%H:%M:%S", stream=sys.stderr
-    )
+    """Log lines to stderr, written by a thread of their own: a thousand refusals logged in a
+    flood cost their callers a hand-over each, not a write to the terminal each."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(LOG_FORMAT, datefmt="%H:%M:%S"))
+    lines: queue.SimpleQueue[logging.LogRecord] = queue.SimpleQueue()
+    listener = logging.handlers.QueueListener(lines, handler)
+    listener.start()
+    atexit.register(listener.stop)  # the last lines are written before the process ends
+    hand_over = logging.handlers.QueueHandler(lines)
+    hand_over.setFormatter(logging.Formatter("%(message)s"))  # the listener's handler formats
+    logging.basicConfig(level=level.upper(), handlers=[hand_over])
 
 
 @dataclass
@@ -91,7 +104,11 @@ def _read_instructions(driver: ArmDriver, stream: TextIO, out: TextIO) -> None:
 
 
 def serve(options: ServerOptions) -> int:
-    """Run until shutdown (instruction or signal); the arm is parked before the end."""
+    """Run until shutdown (instruction or signal); the arm is parked before the end.
+
+    Exit 0 once the arm is parked; EXIT_NOT_PARKED when the final park could not be
+    done (the board was lost, or a stop came during it).
+    """
     stop_requested = threading.Event()
 
     def on_signal(signum: int, frame: object) -> None:
@@ -124,4 +141,7 @@ def serve(options: ServerOptions) -> int:
         finally:
             if ros_server is not None:
                 ros_server.close()
+    if driver.parked_at_end is False:
+        log.error("the arm was not parked: exit %d", EXIT_NOT_PARKED)
+        return EXIT_NOT_PARKED
     return 0

@@ -121,10 +121,17 @@ class ServerSettings(_Frozen):
     """How the high-level driver behaves, independent of the arm's geometry."""
 
     queue_capacity: int = Field(default=1024, ge=1, le=1_000_000)
+    #: Instruction messages that may wait in DDS for the server to take them (back-pressure
+    #: beyond: the sender is slowed, nothing is lost).
+    instruction_backlog: int = Field(default=1000, ge=10, le=1_000_000)
     startup_speed_fraction: float = Field(default=0.5, gt=0, le=1)
     max_move_time_ms: int = Field(default=60_000, ge=1, le=65_535)
     joint_state_rate_hz: float = Field(default=20.0, gt=0, le=1000)
     reconnect_interval_s: float = Field(default=0.5, gt=0, le=60)
+    #: The link is checked with a `Q` (3 bytes) this often while the arm is idle...
+    idle_check_interval_s: float = Field(default=0.5, gt=0, le=60)
+    #: ...and this often while a move runs: a dead link is a fault within about 0.3 s.
+    moving_check_interval_s: float = Field(default=0.15, gt=0, le=60)
     baud: int = Field(default=FACTORY_BAUD)
 
     @field_validator("baud")

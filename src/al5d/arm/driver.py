@@ -25,8 +25,8 @@ from concurrent.futures import Future
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result
-from al5d.arm.jobs import Job, Motion, Sent, finish, outcome, resolve
-from al5d.arm.shared import Shared
+from al5d.arm.jobs import Job, Motion, Sent, finish, outcome, resolve, stop_order
+from al5d.arm.shared import Shared, tell
 from al5d.arm.states import Event, State, next_state, refusal, release_refusal
 from al5d.arm.translate import Translator
 from al5d.arm.validate import Limits, check
@@ -39,6 +39,49 @@ log = logging.getLogger("al5d")
 
 #: How long the outcomes of moves cancelled by a stop wait, so the stop is answered first.
 CANCEL_DELAY_S = 0.005
+#: Refusals logged a second at most; the rest are counted and said in one line.
+REFUSALS_LOGGED_PER_S = 20
+
+
+class RefusalLog:
+    """WARNING lines for refusals, at most REFUSALS_LOGGED_PER_S a second.
+
+    A flood of ten thousand refused instructions a second is one reason ten
+    thousand times: the first few are logged, then one line says how many more
+    there were. Every refusal still has its outcome; only the log is thinned.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._second = -1
+        self._logged = 0
+        self._quiet = 0
+        self._last = ""
+
+    def refused(self, instr: Instruction, reason: str) -> None:
+        second = int(now())
+        with self._lock:
+            if second != self._second:
+                quiet, last = self._quiet, self._last
+                self._second, self._logged, self._quiet = second, 0, 0
+            else:
+                quiet = 0
+            speak = self._logged < REFUSALS_LOGGED_PER_S
+            if speak:
+                self._logged += 1
+            else:
+                self._quiet += 1
+                self._last = reason
+        if quiet:
+            log.warning("refused %d more instruction(s) in that second (the last: %s)", quiet, last)
+        if speak:
+            log.warning("refused %s [%s]: %s", instr.name, instr.id, reason)
+
+    def close(self) -> None:
+        with self._lock:
+            quiet, self._quiet = self._quiet, 0
+        if quiet:
+            log.warning("refused %d more instruction(s) (the last: %s)", quiet, self._last)
 
 
 class ArmDriver:
@@ -52,8 +95,10 @@ class ArmDriver:
         self.translator = Translator(config)
         self.limits = Limits.of(config)
         self.channels = config.channels
+        self._channel_of = {name: j.channel for name, j in config.joints.items()}
         self.shared = Shared(config)
-        self._worker = Worker(config, self.shared, port, self.baud, self.submit)
+        self._refusals = RefusalLog()
+        self._worker = Worker(config, self.shared, port, self.baud)
         self._thread = threading.Thread(target=self._worker.run, name="al5d-worker", daemon=True)
         self.finished = self.shared.finished
         self.outcome_listeners: list[Callable[[Outcome], None]] = self.shared.outcome_listeners
@@ -131,8 +176,11 @@ class ArmDriver:
                 job.cancel.set()
                 board = shared.board
                 motion, shared.motion = shared.motion, None
+                if shared.state is State.MOVING:
+                    shared.fire(Event.MOVE_DONE)  # the move has ended: it did not complete
         if job.cancel.is_set():  # it was running: halt where it is
             error = self._halt(board, motion)
+            shared.announce()
             with shared.cv:
                 if error is None:
                     shared.readback = True
@@ -141,6 +189,14 @@ class ArmDriver:
                 shared.cv.notify_all()
         finish(job, Result.CANCELLED, reason)
         return True
+
+    @property
+    def parked_at_end(self) -> bool | None:
+        """After a shutdown: whether the arm reached park (None while no shutdown has ended)."""
+        job = self.shared.shutdown_job
+        if job is None or not job.future.done():
+            return None
+        return job.future.result().ok
 
     def wait_for_state(self, state: State, timeout: float = 10.0) -> None:
         """Wait until `state` has been entered and announced (logged, listeners told)."""
@@ -155,21 +211,17 @@ class ArmDriver:
         board = self.shared.board
         if board is not None:
             board.close()
+        self._refusals.close()
         self.finished.set()
 
     # -- the caller's side ------------------------------------------------------------
 
     def _tell_outcome(self, future: Future[Outcome]) -> None:
-        result = future.result()
-        for listener in self.outcome_listeners:
-            try:
-                listener(result)
-            except Exception:  # a listener must not break the driver
-                log.exception("outcome listener failed")
+        tell(self.outcome_listeners, future.result(), "outcome")
 
     def _refuse(self, instr: Instruction, future: Future[Outcome], reason: str, t0: float) -> None:
         log.debug("EVENT: %s", Event.REFUSED.value)
-        log.warning("refused %s [%s]: %s", instr.name, instr.id, reason)
+        self._refusals.refused(instr, reason)
         resolve(future, outcome(instr, Result.REFUSED, reason, t0))
 
     def _enqueue(self, instr: Instruction, future: Future[Outcome], t0: float) -> None:
@@ -179,7 +231,10 @@ class ArmDriver:
             return
         shared = self.shared
         with shared.lock:
-            reason = refusal(shared.state, shared.fault)
+            if shared.shutdown_job is not None:
+                reason = "the server is shutting down"
+            else:
+                reason = refusal(shared.state, shared.fault)
             if not reason:
                 capacity = self.settings.queue_capacity
                 if len(shared.queue) >= capacity:
@@ -231,7 +286,7 @@ class ArmDriver:
         error = None
         if board is not None:
             try:
-                board.stop(self.channels)
+                board.stop(stop_order(motion, now(), self._channel_of))
             except SerialFault as e:
                 error = e
         if motion is not None:

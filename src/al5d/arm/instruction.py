@@ -143,13 +143,22 @@ def _where(words: list[str], i: int) -> str:
     return f"word {i + 1} {words[i]!r}"
 
 
-def _parse_ms(words: list[str], i: int, text: str) -> int:
+#: The largest time an instruction message can carry (its `time_ms` is a uint32): a larger
+#: one would wrap around on the way, so the text is refused before it is packed.
+TIME_FIELD_MAX_MS = 2**32 - 1
+#: The longest `wait` of a sequence file: an hour.
+WAIT_MAX_MS = 3_600_000
+
+
+def _parse_ms(words: list[str], i: int, text: str, limit: int = TIME_FIELD_MAX_MS) -> int:
     try:
         ms = int(text)
     except ValueError:
         raise GrammarError(f"{_where(words, i)}: {text!r} is not a whole number of ms") from None
     if ms < 0:
         raise GrammarError(f"{_where(words, i)}: time {ms} ms is negative")
+    if ms > limit:
+        raise GrammarError(f"{_where(words, i)}: {ms} ms is above the limit of {limit} ms")
     return ms
 
 
@@ -214,5 +223,34 @@ def parse_sequence_step(
             raise GrammarError("wait takes one number of ms: wait <ms>")
         if background:
             raise GrammarError("wait cannot run in the background")
-        return Wait(_parse_ms(words, 1, words[1])), False
+        return Wait(_parse_ms(words, 1, words[1], WAIT_MAX_MS)), False
     return parse_instruction(text, presets), background
+
+
+Step = tuple[Instruction | Wait, bool]
+
+
+def parse_sequence(
+    data: bytes, name: str = "<sequence>", presets: tuple[str, ...] = PRESET_NAMES
+) -> list[Step]:
+    """Every step of a sequence file, checked whole before anything is sent.
+
+    The first error stops it, naming the file, the line and the word:
+    `demo.seq:3: word 2 'base=x': 'x' is not a number of degrees`.
+    """
+    steps: list[Step] = []
+    for number, raw in enumerate(data.splitlines(), start=1):
+        try:
+            line = raw.decode("utf-8")
+        except UnicodeDecodeError as e:
+            byte = raw[e.start : e.start + 1].hex()
+            raise GrammarError(
+                f"{name}:{number}: not UTF-8 text (byte 0x{byte} at column {e.start + 1})"
+            ) from None
+        try:
+            step = parse_sequence_step(line, presets)
+        except GrammarError as e:
+            raise GrammarError(f"{name}:{number}: {e}") from None
+        if step is not None:
+            steps.append(step)
+    return steps

@@ -59,6 +59,21 @@ class Motion:
         f = self.progress(t)
         return {j: s + (self.target.get(j, s) - s) * f for j, s in self.start.items()}
 
+    def moving(self, t: float) -> list[str]:
+        """The joints still moving at `t`, the fastest (deg/s) first."""
+        if self.duration_s <= 0 or t >= self.t0 + self.duration_s:
+            return []
+        speed = {j: abs(self.target[j] - s) for j, s in self.start.items() if j in self.target}
+        return sorted((j for j, d in speed.items() if d > 0), key=lambda j: -speed[j])
+
+
+def stop_order(motion: Motion | None, t: float, channels: Mapping[str, int]) -> list[int]:
+    """The channels in the order to STOP them: the moving joints first, fastest first, then
+    the others in channel order. Each STOP is 7 bytes (7.3 ms at 9600 baud): a servo that
+    moves should not wait behind five that do not."""
+    first = [channels[j] for j in (motion.moving(t) if motion is not None else [])]
+    return first + sorted(ch for ch in channels.values() if ch not in first)
+
 
 @dataclass(frozen=True, slots=True)
 class Sent:

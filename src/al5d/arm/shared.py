@@ -17,7 +17,8 @@ import logging
 import math
 import threading
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from typing import TypeVar
 
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Outcome
@@ -28,6 +29,20 @@ from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.errors import SerialFault
 
 log = logging.getLogger("al5d")
+T = TypeVar("T")
+
+
+def tell(listeners: Iterable[Callable[[T], None]], value: T, what: str) -> None:
+    """Hand `value` to every listener; one that raises is logged and the rest still hear it.
+
+    Listeners run in the driver's threads (the worker's among them): a failing one
+    must never stop a move from completing or a state from being announced.
+    """
+    for listener in list(listeners):
+        try:
+            listener(value)
+        except Exception:
+            log.exception("%s listener %r failed; the driver goes on", what, listener)
 
 
 class Shared:
@@ -62,7 +77,7 @@ class Shared:
     # -- the state machine (lock held) ------------------------------------------------
 
     def guards(self) -> Guards:
-        return Guards(queue_empty=not self.queue, locked=self.locked)
+        return Guards(queue_empty=not self.queue, locked=self.locked, parked=self.parked)
 
     def fire(self, event: Event) -> State:
         """Take the transition the table gives for `event`; its log lines follow in `announce`."""
@@ -93,8 +108,7 @@ class Shared:
                 log.debug("EVENT: %s", event.value)
                 if new is not old:
                     log.info("STATE: %s", new.value)
-                    for listener in self.state_listeners:
-                        listener(new)
+                    tell(self.state_listeners, new, "state")
                 with self.cv:
                     self.announced = new
                     self.cv.notify_all()
@@ -109,20 +123,28 @@ class Shared:
                     )
                 self.cv.wait(deadline.left())
 
-    def next_task(self) -> tuple[Task, Job | None]:
-        """The worker's next task (waits for one): a shutdown first, then faults, then moves."""
+    def next_task(self, watch_every: float) -> tuple[Task, Job | None]:
+        """The worker's next task (waits for one): a shutdown first, then faults, then moves;
+        WATCH when the arm has been idle on a connected board for `watch_every` seconds."""
+        idle = Deadline(watch_every)
         with self.cv:
             while True:
                 if self.shutdown_job is not None:
                     return Task.SHUTDOWN, self.shutdown_job
                 if self.fault is not None or self.state is State.FAULT:
                     return Task.RECOVER, None
+                if self.state is State.INITIALIZING and not self.parked:
+                    return Task.STARTUP, None
                 if self.readback:
                     self.readback = False
                     return Task.READBACK, None
                 if self.queue:
                     return Task.MOVE, self.queue.popleft()
-                self.cv.wait()
+                if idle.expired:
+                    if self.board is not None:
+                        return Task.WATCH, None
+                    idle = Deadline(watch_every)
+                self.cv.wait(idle.left())
 
     def distrust_q(self, stopped: Motion) -> None:
         self.q_unreliable_until = max(self.q_unreliable_until, stopped.t0 + stopped.duration_s)

@@ -39,8 +39,10 @@ class Task(Enum):
 
     SHUTDOWN = "park and end"
     RECOVER = "reconnect"
+    STARTUP = "park once, at half speed, before ready"
     READBACK = "read the pose back"
     MOVE = "run the next move"
+    WATCH = "check the idle link"
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,6 +51,7 @@ class Guards:
 
     queue_empty: bool = True  # no move waits behind the one that ends
     locked: bool = False  # an emergency stop has not been released
+    parked: bool = True  # the start-up park has been done (D1, VE03)
 
 
 def more_moves_or_ready(g: Guards) -> State:
@@ -57,8 +60,11 @@ def more_moves_or_ready(g: Guards) -> State:
 
 
 def locked_or_ready(g: Guards) -> State:
-    """The board is back: still `stopped` if a stop came during the fault."""
-    return State.STOPPED if g.locked else State.READY
+    """The board is back: still `stopped` if a stop came during the fault; `initializing`
+    if the start-up park has yet to be done (a server that started without its board)."""
+    if g.locked:
+        return State.STOPPED
+    return State.READY if g.parked else State.INITIALIZING
 
 
 def unlock_only_if_locked(g: Guards) -> State | None:
@@ -86,7 +92,8 @@ TABLE: dict[tuple[State, Event], Rule] = {
     (S.STOPPED, E.RELEASE): S.READY,
     (S.FAULT, E.RELEASE): unlock_only_if_locked,
     (S.FAULT, E.RECONNECTED): locked_or_ready,
-    (S.SHUTTING_DOWN, E.SERIAL_FAULT): S.SHUTTING_DOWN,  # the shutdown ends all the same
+    # The shutdown ends all the same, but the state says the arm could not be parked.
+    (S.SHUTTING_DOWN, E.SERIAL_FAULT): S.FAULT,
     **{(s, E.SHUTDOWN): S.SHUTTING_DOWN for s in _ALIVE},
     **{(s, E.SERIAL_FAULT): S.FAULT for s in _ALIVE if s is not S.FAULT},
 }
@@ -108,7 +115,12 @@ def _outcomes(rule: Rule) -> set[State]:
     if isinstance(rule, State):
         return {rule}
     both = (True, False)
-    seen = {rule(Guards(queue_empty=q, locked=lock)) for q in both for lock in both}
+    seen = {
+        rule(Guards(queue_empty=q, locked=lock, parked=park))
+        for q in both
+        for lock in both
+        for park in both
+    }
     return {s for s in seen if s is not None}
 
 

@@ -9,18 +9,18 @@ finds its job's epoch old or its cancel flag set, and lets go.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import math
-import time
 from collections.abc import Callable
 from concurrent.futures import Future
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.arm.instruction import Instruction, Outcome, Result
-from al5d.arm.jobs import Job, Mode, Motion, Sent, finish
-from al5d.arm.shared import Shared
+from al5d.arm.instruction import Result
+from al5d.arm.jobs import Job, Mode, Motion, Sent, finish, stop_order
+from al5d.arm.shared import Shared, tell
 from al5d.arm.states import Event, State, Task
 from al5d.arm.translate import Translator
 from al5d.clock import Deadline, now
@@ -31,8 +31,6 @@ log = logging.getLogger("al5d")
 
 #: How often `Q` is asked once a move's time is over.
 POLL_INTERVAL_S = 0.002
-#: While a move runs, the link is checked this often (a Q is 3 bytes: 1 % of 9600 baud).
-HEALTH_INTERVAL_S = 0.25
 #: A move whose `Q` still says moving this long after its time is taken as a fault.
 COMPLETION_GRACE_S = 2.0
 
@@ -46,7 +44,6 @@ class Worker:
         shared: Shared,
         port: str,
         baud: int,
-        submit: Callable[[Instruction], Future[Outcome]],
     ) -> None:
         self.config = config
         self.shared = shared
@@ -55,15 +52,14 @@ class Worker:
         self.settings = config.server
         self.translator = Translator(config)
         self.channels = config.channels
-        self._submit = submit
+        self._channel_of = {name: j.channel for name, j in config.joints.items()}
 
     def run(self) -> None:
         shared = self.shared
         try:
-            if self._connect():
-                self._startup_park()
+            self._connect()
             while True:
-                task, job = shared.next_task()
+                task, job = shared.next_task(self.settings.idle_check_interval_s)
                 if task is Task.SHUTDOWN:
                     assert job is not None
                     self._park_and_end(job)
@@ -72,8 +68,12 @@ class Worker:
                     if shared.state is not State.FAULT and shared.fault is not None:
                         self._enter_fault(shared.fault)  # a stop found the link dead
                     self._recover()
+                elif task is Task.STARTUP:
+                    self._startup_park()
                 elif task is Task.READBACK:
                     self._guarded(self._read_back)
+                elif task is Task.WATCH:
+                    self._guarded(self._check_link)
                 elif job is not None:
                     self._guarded(functools.partial(self._run_job, job))
         except Exception:
@@ -91,16 +91,24 @@ class Worker:
         except SerialFault as e:
             self._enter_fault(e)
 
-    def _connect(self) -> bool:
+    def _connect(self) -> None:
         try:
             board = SSC32U(self.port, self.baud)
         except SerialFault as e:
             self._enter_fault(e)
-            return False
+            return
         log.info("connected to %s on %s at %d baud", board.firmware, self.port, self.baud)
         with self.shared.lock:
             self.shared.board = board
-        return True
+
+    def _check_link(self) -> None:
+        """An idle arm's link is checked too (a `Q` is 3 bytes: every 0.5 s is 0.6 % of the
+        wire at 9600 baud), so that a pulled cable or a silent board is a fault at once, not
+        at the next move. A stop never waits for it (the query lock is not the stop's)."""
+        board = self.shared.board
+        if board is not None:
+            with contextlib.suppress(Interrupted):  # a stop flushed the answer: the link lives
+                board.is_done()
 
     def _read_back(self, board: SSC32U | None = None) -> None:
         """Learn where the servos are from the board (after a stop, at start, after a reconnect)."""
@@ -124,6 +132,7 @@ class Worker:
         )
 
     def _startup_park(self) -> None:
+        """D1, VE03: park once, at half speed where the board allows it, before `ready`."""
         shared = self.shared
         self._guarded(self._read_back)
         if shared.board is None:
@@ -206,12 +215,11 @@ class Worker:
                 shared.motion = motion
         if raced:
             # A stop came between our check and our write: its STOP may be older than our move.
-            board.stop(self.channels)
+            board.stop(stop_order(motion, now(), self._channel_of))
             return False
         if shared.motion_listeners:
             sent = Sent(job.instr, data, job.t_submit, t_write, motion)
-            for listener in shared.motion_listeners:
-                listener(sent)
+            tell(shared.motion_listeners, sent, "motion")
         if not self._wait_done(job, board, t_sent + time_ms / 1000.0):
             return False  # cancelled: whoever cancelled has set the outcome
         with shared.lock:
@@ -232,12 +240,13 @@ class Worker:
     def _wait_done(self, job: Job, board: SSC32U, t_end: float) -> bool:
         """Wait out the move's time, then until `Q` says done. False if cancelled.
 
-        During a long move a `Q` every HEALTH_INTERVAL_S finds a dead link early.
+        During a long move a `Q` every `moving_check_interval_s` finds a dead link early.
         """
+        every = self.settings.moving_check_interval_s
         while (left := t_end - now()) > 0:
-            if job.cancel.wait(min(left, HEALTH_INTERVAL_S)):
+            if job.cancel.wait(min(left, every)):
                 return False
-            if t_end - now() > HEALTH_INTERVAL_S / 2:
+            if t_end - now() > every / 2:
                 try:
                     board.is_done()
                 except Interrupted:
@@ -265,6 +274,8 @@ class Worker:
             shared.fault = error
             board, shared.board = shared.board, None
             current, dropped = shared.take_pending()
+            if shared.motion is not None:  # Q counts it down still, if the board goes on with it
+                shared.distrust_q(shared.motion)
             shared.motion = None
             if shared.state is not State.FAULT:
                 shared.fire(Event.SERIAL_FAULT)
@@ -294,11 +305,7 @@ class Worker:
                 self._reconnect_failed(e)
                 continue
             try:
-                # The board may still be running what it had before the link dropped:
-                # learn the pose once that is over, not halfway.
-                deadline = Deadline(self.settings.max_move_time_ms / 1000.0)
-                while not board.is_done() and not deadline.expired:
-                    time.sleep(POLL_INTERVAL_S * 5)
+                self._halt_what_was_cancelled(board)
                 self._read_back(board)
             except (SerialFault, Interrupted) as e:
                 log.debug("reconnect failed: %s", e)
@@ -307,12 +314,18 @@ class Worker:
             with shared.lock:
                 shared.board = board
                 shared.fault = None
-                shared.fire(Event.RECONNECTED)
+                shared.fire(Event.RECONNECTED)  # to `initializing` if never parked: see run()
             shared.announce()
             log.info("reconnected to %s on %s", board.firmware, self.port)
-            if not shared.parked and not shared.locked:
-                self._submit(ins.preset("park", time_ms=None, id="startup"))
             return
+
+    def _halt_what_was_cancelled(self, board: SSC32U) -> None:
+        """A board back from a lost link may still be running the move it had: that move was
+        cancelled (and its client told so) when the link went, so it is halted here, and the
+        pose read back is where the arm stopped, not where a cancelled move was going."""
+        if now() < self.shared.q_unreliable_until or not board.is_done():
+            board.stop(self.channels)
+            log.warning("reconnect: halted the move the board was still running (cancelled)")
 
     def _reconnect_failed(self, error: SerialFault) -> None:
         """Keep trying; but a device that is not a board is said clearly, once, and becomes
@@ -340,10 +353,12 @@ class Worker:
                 done = self._run_job(job, Mode.SHUTDOWN)
             except SerialFault as e:
                 self._enter_fault(e)
-        if not done:
-            if shared.board is None:
-                reason = f"the serial link is lost ({shared.fault}): the arm could not be parked"
-            else:
-                reason = "stopped before the arm reached park"
-            finish(job, Result.DONE, reason)
-        log.info("shutdown: %s", "parked" if done else job.future.result().reason)
+        if done:
+            log.info("shutdown: parked")
+            return
+        if shared.board is None:
+            reason = f"the serial link is lost ({shared.fault}): the arm is not parked"
+        else:
+            reason = "stopped before the arm reached park: the arm is not parked"
+        finish(job, Result.CANCELLED, reason)
+        log.error("shutdown: %s", reason)

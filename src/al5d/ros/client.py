@@ -9,10 +9,12 @@ Exit codes: 0 done, 1 refused or cancelled (or not an instruction), 2 no server.
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TextIO
 
@@ -26,11 +28,18 @@ from al5d.arm.instruction import (
     Result,
     Wait,
     parse_instruction,
-    parse_sequence_step,
+    parse_sequence,
 )
 from al5d.clock import Deadline
 from al5d.ros.convert import outcome_from_message, to_message
-from al5d.ros.runtime import INSTRUCTION_TOPIC, QOS_STREAM, RESULT_TOPIC, Spinner, start_context
+from al5d.ros.runtime import (
+    INSTRUCTION_TOPIC,
+    QOS_INSTRUCTIONS,
+    QOS_STREAM,
+    RESULT_TOPIC,
+    Spinner,
+    start_context,
+)
 
 EXIT_DONE, EXIT_NOT_DONE, EXIT_NO_SERVER = 0, 1, 2
 
@@ -47,16 +56,21 @@ class Client:
 
         self.context = start_context()
         self.node = Node(f"al5d_client_{os.getpid()}", context=self.context)
-        self.pub = self.node.create_publisher(ArmInstruction, INSTRUCTION_TOPIC, QOS_STREAM)
+        self.pub = self.node.create_publisher(ArmInstruction, INSTRUCTION_TOPIC, QOS_INSTRUCTIONS)
         self.node.create_subscription(InstructionResult, RESULT_TOPIC, self._on_result, QOS_STREAM)
         self._outcomes: dict[str, Outcome] = {}
+        self._watchers: dict[str, Callable[[Outcome], None]] = {}
         self._cv = threading.Condition()
         self.spinner = Spinner(self.node, self.context)
 
     def _on_result(self, msg: InstructionResult) -> None:
+        outcome = outcome_from_message(msg)
         with self._cv:
-            self._outcomes[msg.id] = outcome_from_message(msg)
+            self._outcomes[msg.id] = outcome
+            watcher = self._watchers.pop(msg.id, None)
             self._cv.notify_all()
+        if watcher is not None:
+            watcher(outcome)
 
     def wait_for_server(self, timeout: float) -> None:
         """Until our instructions reach a server and its results reach us (both directions)."""
@@ -77,6 +91,15 @@ class Client:
     def send(self, instr: Instruction) -> None:
         self.pub.publish(to_message(instr))
 
+    def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None:
+        """Call `watcher` with the outcome of `ident` as soon as it comes (at once if it has)."""
+        with self._cv:
+            outcome = self._outcomes.get(ident)
+            if outcome is None:
+                self._watchers[ident] = watcher
+        if outcome is not None:
+            watcher(outcome)
+
     def outcome(self, ident: str, timeout: float) -> Outcome | None:
         deadline = Deadline(timeout)
         with self._cv:
@@ -90,12 +113,26 @@ class Client:
         self.spinner.close()
 
 
-def _report(outcome: Outcome | None, instr: Instruction, out: TextIO) -> bool:
-    if outcome is None:
-        print(f"{instr.name} [{instr.id}]: no outcome (timed out)", file=out, flush=True)
-        return False
-    print(outcome, file=out, flush=True)
-    return outcome.result is Result.DONE
+class Report:
+    """Prints each outcome when it comes, whichever thread it comes in; keeps the verdict."""
+
+    def __init__(self, out: TextIO) -> None:
+        self._out = out
+        self._lock = threading.Lock()
+        self.all_done = True
+
+    def line(self, text: str) -> None:
+        with self._lock:
+            print(text, file=self._out, flush=True)
+
+    def outcome(self, outcome: Outcome | None, *, instr: Instruction) -> None:
+        if outcome is None:
+            text = f"{instr.name} [{instr.id}]: no outcome (timed out)"
+        else:
+            text = str(outcome)
+        with self._lock:
+            self.all_done &= outcome is not None and outcome.result is Result.DONE
+            print(text, file=self._out, flush=True)
 
 
 def send(text: str, *, wait_s: float, timeout: float, out: TextIO = sys.stdout) -> int:
@@ -105,12 +142,12 @@ def send(text: str, *, wait_s: float, timeout: float, out: TextIO = sys.stdout) 
         print(f"al5d send: {e}", file=sys.stderr)
         return EXIT_NOT_DONE
     client = Client()
+    report = Report(out)
     try:
         client.wait_for_server(wait_s)
         client.send(instr)
-        return (
-            EXIT_DONE if _report(client.outcome(instr.id, timeout), instr, out) else EXIT_NOT_DONE
-        )
+        report.outcome(client.outcome(instr.id, timeout), instr=instr)
+        return EXIT_DONE if report.all_done else EXIT_NOT_DONE
     except NoServer as e:
         print(f"al5d send: {e}", file=sys.stderr)
         return EXIT_NO_SERVER
@@ -119,43 +156,41 @@ def send(text: str, *, wait_s: float, timeout: float, out: TextIO = sys.stdout) 
 
 
 def run(path: str | Path, *, wait_s: float, timeout: float, out: TextIO = sys.stdout) -> int:
-    """Run a sequence file; 0 if every instruction was done, 1 if any was not."""
+    """Run a sequence file; 0 if every instruction was done, 1 if any was not.
+
+    The file is checked whole before its first line is sent. Each outcome is
+    printed when it comes: a line run in the background (`&`) reports as soon
+    as its outcome arrives, not after the next line's.
+    """
     try:
-        lines = Path(path).read_text(encoding="utf-8").splitlines()
+        steps = parse_sequence(Path(path).read_bytes(), str(path), PRESET_NAMES)
     except OSError as e:
         print(f"al5d run: cannot read {path}: {e.strerror}", file=sys.stderr)
         return EXIT_NOT_DONE
-    steps = []
-    for number, line in enumerate(lines, start=1):
-        try:
-            step = parse_sequence_step(line, PRESET_NAMES)
-        except GrammarError as e:
-            print(f"al5d run: {path}:{number}: {e}", file=sys.stderr)
-            return EXIT_NOT_DONE
-        if step is not None:
-            steps.append(step)
+    except GrammarError as e:
+        print(f"al5d run: {e}", file=sys.stderr)
+        return EXIT_NOT_DONE
     client = Client()
+    report = Report(out)
     try:
         client.wait_for_server(wait_s)
-        all_done = True
-        pending: list[Instruction] = []
-        for item, background in steps:
+        background: list[Instruction] = []
+        for item, in_background in steps:
             if isinstance(item, Wait):
-                print(f"wait {item.ms} ms", file=out, flush=True)
+                report.line(f"wait {item.ms} ms")
                 time.sleep(item.ms / 1000)
                 continue
-            print(f"> {item}{' &' if background else ''}", file=out, flush=True)
+            report.line(f"> {item}{' &' if in_background else ''}")
+            if in_background:
+                background.append(item)
+                client.watch(item.id, functools.partial(report.outcome, instr=item))
             client.send(item)
-            if background:
-                pending.append(item)
-                continue
-            all_done &= _report(client.outcome(item.id, timeout), item, out)
-            # Outcomes of background lines that have come meanwhile, in order.
-            while pending and (o := client.outcome(pending[0].id, 0)) is not None:
-                all_done &= _report(o, pending.pop(0), out)
-        for item in pending:
-            all_done &= _report(client.outcome(item.id, timeout), item, out)
-        return EXIT_DONE if all_done else EXIT_NOT_DONE
+            if not in_background:
+                report.outcome(client.outcome(item.id, timeout), instr=item)
+        for item in background:
+            if client.outcome(item.id, timeout) is None:
+                report.outcome(None, instr=item)
+        return EXIT_DONE if report.all_done else EXIT_NOT_DONE
     except NoServer as e:
         print(f"al5d run: {e}", file=sys.stderr)
         return EXIT_NO_SERVER

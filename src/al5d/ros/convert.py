@@ -6,10 +6,24 @@ from collections.abc import Sequence
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 
-from al5d.arm.instruction import SAFETY, Instruction, Kind, Outcome, Result, new_id
+from al5d.arm.instruction import (
+    SAFETY,
+    TIME_FIELD_MAX_MS,
+    Instruction,
+    Kind,
+    Outcome,
+    Result,
+    new_id,
+)
 
 
 def to_message(instr: Instruction) -> ArmInstruction:
+    """The message of an instruction; a time its uint32 field cannot carry is an error here,
+    not a number that wraps around on the way (4294967301 ms would arrive as 5 ms)."""
+    if instr.time_ms is not None and not 0 <= instr.time_ms <= TIME_FIELD_MAX_MS:
+        raise ValueError(
+            f"time {instr.time_ms} ms does not fit the message (0..{TIME_FIELD_MAX_MS})"
+        )
     msg = ArmInstruction()
     msg.instruction = instr.name
     msg.joints = [j for j, _ in instr.joints]

@@ -10,11 +10,10 @@ goals hold no thread. Everything runs in one executor in one thread.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
-from collections.abc import Callable
 from concurrent.futures import Future
-from typing import Any
 
 import rclpy
 from al5d_interfaces.action import Move
@@ -25,7 +24,6 @@ from rclpy.node import Node
 from rclpy.task import Future as RosFuture
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
-from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 from al5d.arm.driver import ArmDriver
@@ -37,15 +35,20 @@ from al5d.ros.runtime import (
     JOINT_STATES_TOPIC,
     MOVE_ACTION,
     NODE,
+    QOS_INSTRUCTIONS,
     QOS_LATCHED,
     QOS_STREAM,
     RESULT_TOPIC,
-    SERVICES,
     STATE_TOPIC,
     TRAJECTORY_TOPIC,
+    PublishThread,
     Spinner,
+    bound_backlog,
     start_context,
 )
+from al5d.ros.safety import SafetyNode
+
+log = logging.getLogger("al5d")
 
 
 class ArmNode(Node):
@@ -62,14 +65,17 @@ class ArmNode(Node):
         self._goals: dict[str, ServerGoalHandle] = {}
         self._goal_ids: dict[bytes, str] = {}
         self.result_pub = self.create_publisher(InstructionResult, RESULT_TOPIC, QOS_STREAM)
+        self.results: PublishThread[Outcome] = PublishThread(
+            self.result_pub, outcome_message, "al5d-results"
+        )
         self.state_pub = self.create_publisher(String, STATE_TOPIC, QOS_LATCHED)
         self.joint_pub = self.create_publisher(JointState, JOINT_STATES_TOPIC, 10)
         self.create_subscription(
-            ArmInstruction, INSTRUCTION_TOPIC, self._on_instruction, QOS_STREAM
+            ArmInstruction, INSTRUCTION_TOPIC, self._on_instruction, QOS_INSTRUCTIONS
         )
-        self.create_subscription(JointTrajectory, TRAJECTORY_TOPIC, self._on_trajectory, QOS_STREAM)
-        for name, kind in SERVICES.items():
-            self.create_service(Trigger, name, self._trigger(kind))
+        self.create_subscription(
+            JointTrajectory, TRAJECTORY_TOPIC, self._on_trajectory, QOS_INSTRUCTIONS
+        )
         self.move_server = ActionServer(
             self,
             Move,
@@ -86,7 +92,7 @@ class ArmNode(Node):
     # -- outputs -------------------------------------------------------------------
 
     def _publish_outcome(self, outcome: Outcome) -> None:
-        self.result_pub.publish(outcome_message(outcome))
+        self.results.put(outcome)
 
     def _publish_state(self, state: State) -> None:
         self.state_pub.publish(String(data=state.value))
@@ -145,20 +151,6 @@ class ArmNode(Node):
                 Instruction(Kind.MOVE, joints=joints, time_ms=step_ms or None, id=ident)
             )
 
-    def _trigger(self, kind: Kind) -> Callable[[Any, Any], Any]:
-        def answer(request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-            future = self.driver.submit(Instruction(kind))
-            if future.done():
-                outcome = future.result()
-                response.success = outcome.ok
-                response.message = outcome.reason or f"{kind.value}: {outcome.result.value}"
-            else:  # shutdown: parking takes a while; the outcome follows on /al5d/result
-                response.success = True
-                response.message = "shutting down: parking, then the server ends"
-            return response
-
-        return answer
-
     async def _execute(self, handle: ServerGoalHandle) -> Move.Result:
         goal = handle.request
         ident = new_id()
@@ -214,11 +206,17 @@ class ArmNode(Node):
 
 
 class RosServer:
-    """The node with its executor thread, for `al5d serve`."""
+    """The nodes with their executor threads, for `al5d serve`: `al5d` for the instructions,
+    the action and the outputs, and `al5d_safety` for the stop, release and shutdown."""
 
     def __init__(self, driver: ArmDriver, trace: str | None = None) -> None:
+        backlog = driver.settings.instruction_backlog
+        theirs = bound_backlog(INSTRUCTION_TOPIC, backlog)
+        if theirs:
+            log.warning("Fast DDS profiles from %s: the instruction backlog is theirs", theirs)
         self.context = start_context()
         self.node = ArmNode(driver, self.context)
+        self.safety = SafetyNode(driver, self.context)
         self.trace_path = trace
         if trace is not None:
             self.node.trace = []
@@ -227,12 +225,16 @@ class RosServer:
             driver.motion_listeners.append(
                 lambda sent: events.append((sent.instr.id, "write", int(sent.t_write * 1e9)))
             )
-        self.spinner = Spinner(self.node, self.context)
+        self.safety_spinner = Spinner(self.safety, self.context, owns_context=False)
+        self.spinner = Spinner(self.node, self.context, owns_context=False)
 
     def close(self) -> None:
         # Let the last results (the shutdown's) reach their readers before the node goes.
+        self.node.results.close()
         self.node.result_pub.wait_for_all_acked(rclpy.duration.Duration(seconds=1))
+        self.safety_spinner.close()
         self.spinner.close()
+        self.context.try_shutdown()
         if self.trace_path is not None and self.node.trace is not None:
             with open(self.trace_path, "w", encoding="utf-8") as f:
                 f.writelines(f"{ident} {what} {t}\n" for ident, what, t in self.node.trace)

@@ -33,9 +33,10 @@ from al5d.ssc32u.errors import (
 )
 from al5d.ssc32u.facts import ANSWER_DELAY_MAX_S, FACTORY_BAUD, FIRMWARE_PREFIX
 
-#: How long an answer may take beyond its wire time: the board's slowest (5 ms) many
-#: times over, because the host may be busy when the answer comes.
-DEFAULT_READ_TIMEOUT_S = 20 * ANSWER_DELAY_MAX_S
+#: How long an answer may take beyond its wire time: the board's slowest (5 ms) ten
+#: times over, because the host may be busy when the answer comes; one late answer is
+#: asked again, so a silent board is found after two of these.
+DEFAULT_READ_TIMEOUT_S = 10 * ANSWER_DELAY_MAX_S
 #: Reads wake this often while they wait for an answer's deadline.
 READ_SLICE_S = 0.01
 DEFAULT_WRITE_TIMEOUT_S = 0.5

@@ -13,9 +13,11 @@ as a context manager, or `start()` and `close()`:
 from __future__ import annotations
 
 import os
+import queue
 import threading
 from collections.abc import Mapping
 from types import TracebackType
+from typing import TextIO
 
 from al5d.ssc32u import facts
 from al5d.ssc32u.emulator.board import (
@@ -104,8 +106,27 @@ class Emulator(Board):
         self._link.open()
 
 
-def serve_forever(emulator: Emulator, stop: threading.Event) -> None:
-    """Run until `stop` is set (used by `al5d emulator`)."""
+def serve_forever(emulator: Emulator, stop: threading.Event, record: TextIO | None = None) -> None:
+    """Run until `stop` is set (used by `al5d emulator`); the device path is the first line
+    of stdout. With `record`, every line the board receives is written there as JSON, with
+    its time of effect (CLOCK_MONOTONIC), by a thread of its own so the board never waits."""
+    lines: queue.SimpleQueue[Record | None] = queue.SimpleQueue()
+    writer = None
+    if record is not None:
+        out = record
+
+        def write() -> None:
+            while (rec := lines.get()) is not None:
+                out.write(rec.to_json() + "\n")
+                if lines.empty():
+                    out.flush()
+
+        writer = threading.Thread(target=write, name="ssc32u-record", daemon=True)
+        writer.start()
+        emulator.record_listeners.append(lines.put)
     with emulator:
         print(emulator.port, flush=True)
         stop.wait()
+    if writer is not None:
+        lines.put(None)
+        writer.join(5)

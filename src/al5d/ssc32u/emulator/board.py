@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import json
 import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
@@ -74,6 +75,25 @@ class Record:
     def accepted(self) -> bool:
         return self.ignored is None
 
+    def to_json(self) -> str:
+        """One line for a record stream (`al5d emulator --record`): time, bytes, why ignored."""
+        return json.dumps(
+            {
+                "t": round(self.t_effect, 6),
+                "raw": self.raw.decode("latin-1"),
+                "ignored": self.ignored,
+            }
+        )
+
+    @classmethod
+    def from_json(cls, line: str) -> Record:
+        """A record read back from a stream; its commands parsed again from its bytes."""
+        data = json.loads(line)
+        raw = data["raw"].encode("latin-1")
+        parsed = p.parse_line(raw)
+        commands = () if isinstance(parsed, p.Unrecognized) else tuple(parsed)
+        return cls(data["t"], raw, commands, data["ignored"])
+
 
 Answer = tuple[float, bytes]  # (when its last byte is due at the client, the bytes)
 
@@ -104,6 +124,8 @@ class Board:
         # never holds up the board (its answers have to come within milliseconds).
         self._changed = threading.Condition(threading.Lock())
         self._records: list[Record] = []
+        #: Called with each new record, in the board's thread: keep it short.
+        self.record_listeners: list[Callable[[Record], None]] = []
         self._faults: set[Fault] = set()
         self._servos: dict[int, Servo] = {}
         # Per channel: the servo as each command left it, to answer "when did that move arrive".
@@ -253,6 +275,8 @@ class Board:
         with self._changed:
             self._records.append(rec)
             self._changed.notify_all()
+        for listener in self.record_listeners:
+            listener(rec)
 
     def execute(self, raw: bytes, t: float) -> list[Answer]:
         """Act on one line whose CR arrived at `t`; the answers it causes, with their due time."""

@@ -1,0 +1,81 @@
+"""`al5d emulator` in a process of its own, its records streamed back: a board that does not
+share the GIL of the process that measures it (the tests' floods, the benchmarks)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import threading
+from collections.abc import Callable
+from pathlib import Path
+
+from proc import AL5D
+
+from al5d.clock import Deadline
+from al5d.ssc32u.emulator import Record
+
+
+def _before_the_board() -> None:
+    """A real board answers in its own time whatever the computer does; the emulated one
+    runs ahead of the load the tests make (where the OS lets us), so that a flood on 2
+    cores does not starve it into answering late, which the driver rightly calls a fault."""
+    with contextlib.suppress(OSError):
+        os.nice(-10)
+
+
+class BoardProcess:
+    """An emulated SSC-32U at `link`; `records` and `wait_for` as the in-process emulator has."""
+
+    def __init__(self, link: Path, baud: int = 9600) -> None:
+        self.port = str(link)
+        self.baud = baud
+        self._records: list[Record] = []
+        self._changed = threading.Condition()
+        self.popen = subprocess.Popen(
+            [AL5D, "emulator", "--baud", str(baud), "--link", str(link), "--record", "-"],
+            stdout=subprocess.PIPE,
+            text=True,
+            env=os.environ.copy(),
+            preexec_fn=_before_the_board,
+        )
+        assert self.popen.stdout is not None
+        first = self.popen.stdout.readline().strip()  # the device path comes first
+        assert first == str(link), f"al5d emulator said {first!r}"
+        threading.Thread(target=self._read, name="board-records", daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.popen.stdout is not None
+        for line in self.popen.stdout:
+            rec = Record.from_json(line)
+            with self._changed:
+                self._records.append(rec)
+                self._changed.notify_all()
+
+    @property
+    def records(self) -> list[Record]:
+        with self._changed:
+            return list(self._records)
+
+    def wait_for(
+        self, predicate: Callable[[list[Record]], bool], timeout: float = 5.0
+    ) -> list[Record]:
+        deadline = Deadline(timeout)
+        with self._changed:
+            while True:
+                records = list(self._records)
+                if predicate(records):
+                    return records
+                if deadline.expired:
+                    raise TimeoutError(f"board process: condition not met in {timeout} s")
+                self._changed.wait(deadline.left())
+
+    def close(self) -> None:
+        if self.popen.poll() is None:
+            self.popen.send_signal(signal.SIGTERM)
+            try:
+                self.popen.wait(10)
+            except subprocess.TimeoutExpired:
+                self.popen.kill()
+                self.popen.wait(5)

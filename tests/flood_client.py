@@ -1,0 +1,73 @@
+"""A client that floods `/al5d/instruction` at a steady rate: run as its own process.
+
+    python tests/flood_client.py RATE SECONDS PREFIX [--mix] [--keep-last]
+
+Publishes RATE moves a second for SECONDS, with ids PREFIX-0, PREFIX-1, ...,
+once a line comes on stdin; with --mix, every 500th message is a stop and the
+next a release (a clumsy user among a hostile client's traffic). The writer
+keeps all it has not delivered (KEEP_ALL, as `al5d send` does), or with
+--keep-last the last 10,000 only (as clients before issue 9 did). Prints one
+line of JSON when ready, and one when done: how many it sent, in how long,
+and how many publishes raised.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+from al5d_interfaces.msg import ArmInstruction
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from al5d.ros.runtime import INSTRUCTION_TOPIC, Spinner, start_context
+
+
+def main() -> int:
+    rate, seconds, prefix = float(sys.argv[1]), float(sys.argv[2]), sys.argv[3]
+    mix = "--mix" in sys.argv
+    history = HistoryPolicy.KEEP_LAST if "--keep-last" in sys.argv else HistoryPolicy.KEEP_ALL
+    qos = QoSProfile(history=history, depth=10_000, reliability=ReliabilityPolicy.RELIABLE)
+    context = start_context()
+    node = Node(f"al5d_flood_{prefix}", context=context)
+    pub = node.create_publisher(ArmInstruction, INSTRUCTION_TOPIC, qos)
+    spinner = Spinner(node, context)
+    deadline = time.monotonic() + 20
+    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    print(json.dumps({"ready": True}), flush=True)
+    sys.stdin.readline()  # go
+    n = int(rate * seconds)
+    failed = 0
+    t0 = time.monotonic()
+    for i in range(n):
+        due = t0 + i / rate
+        # A steady rate in 1 ms ticks, sleeping between them: a busy wait would take a
+        # whole core from the server and the board on this 2-core machine.
+        if (wait := due - time.monotonic()) > 0.001:
+            time.sleep(wait)
+        word = "move"
+        if mix and i % 500 == 499:
+            word = "stop"
+        elif mix and i % 500 == 0 and i:
+            word = "release"
+        msg = ArmInstruction(instruction=word, id=f"{prefix}-{i}")
+        if word == "move":
+            msg.joints = ["base"]
+            msg.degrees = [float(i % 60 - 30)]
+        try:
+            pub.publish(msg)
+        except Exception:  # a publish that cannot go is a loss the sender sees
+            failed += 1
+    elapsed = time.monotonic() - t0
+    # Let the last samples leave before the writer goes away with the process.
+    pub.wait_for_all_acked(Duration(seconds=30))
+    print(json.dumps({"sent": n, "seconds": elapsed, "failed": failed}), flush=True)
+    spinner.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

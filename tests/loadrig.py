@@ -1,0 +1,200 @@
+"""Floods over real DDS, and the emergency stop measured under them (issue 9's load suite).
+
+The server is `al5d serve` in its own process on an emulated board in this
+process (so the board's record is at hand); the flood comes from a third
+process (`flood_client.py`); this process also calls the stop service and
+counts every outcome on `/al5d/result`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+from al5d_interfaces.msg import ArmInstruction, InstructionResult
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rospeer import Peer, wait_future
+from std_srvs.srv import Trigger
+
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Record
+
+
+class Board(Protocol):
+    """What the suite reads of a board: the in-process emulator or `BoardProcess`."""
+
+    baud: int
+
+    @property
+    def records(self) -> list[Record]: ...
+
+    def wait_for(
+        self, predicate: Callable[[list[Record]], bool], timeout: float = ...
+    ) -> list[Record]: ...
+
+
+HERE = Path(__file__).resolve().parent
+#: A reader that keeps every result it has not handed over: what we count must not be
+#: lost on our side of the wire.
+QOS_ALL = QoSProfile(
+    history=HistoryPolicy.KEEP_ALL, depth=1, reliability=ReliabilityPolicy.RELIABLE
+)
+
+
+def proc_status(pid: int) -> dict[str, int]:
+    """Resident memory (kB) and threads of a process, from /proc."""
+    out = {}
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        key, _, value = line.partition(":")
+        if key in ("VmRSS", "Threads"):
+            out[key] = int(value.split()[0])
+    return out
+
+
+class Counter:
+    """Every result on /al5d/result, by id: how many came for each."""
+
+    def __init__(self, peer: Peer) -> None:
+        self.lock = threading.Lock()
+        self.seen: dict[str, int] = {}
+        self.reasons: dict[str, str] = {}
+        peer.node.create_subscription(InstructionResult, "/al5d/result", self._on, QOS_ALL)
+
+    def _on(self, msg: InstructionResult) -> None:
+        with self.lock:
+            self.seen[msg.id] = self.seen.get(msg.id, 0) + 1
+            self.reasons[msg.id] = f"{msg.outcome}: {msg.reason}"
+
+    def count(self, ids: list[str]) -> tuple[int, int]:
+        """(ids with an outcome, ids with more than one)."""
+        with self.lock:
+            got = sum(i in self.seen for i in ids)
+            twice = sum(self.seen.get(i, 0) > 1 for i in ids)
+        return got, twice
+
+
+@dataclass
+class FloodResult:
+    rate: float
+    seconds: float
+    sent: int = 0
+    failed_publishes: int = 0
+    outcomes: int = 0
+    duplicates: int = 0
+    drained_s: float = 0.0
+    stop_service_ms: list[float] = field(default_factory=list)
+    stop_topic_ms: list[float] = field(default_factory=list)
+    stops_missed: int = 0
+    notes: list[str] = field(default_factory=list)
+    before: dict[str, int] = field(default_factory=dict)
+    after: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def lost(self) -> int:
+        return self.sent - self.outcomes
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**self.__dict__, "lost": self.lost}
+
+
+def first_stop_after(emu: Board, t: float, timeout: float = 10.0) -> Record:
+    """The first STOP in effect on the board after `t` (raises TimeoutError)."""
+
+    def find(records: list[Record]) -> Record | None:
+        return next((r for r in records if r.t_effect > t and r.raw.startswith(b"STOP")), None)
+
+    found = find(emu.wait_for(lambda rs: find(rs) is not None, timeout))
+    assert found is not None
+    return found
+
+
+def stop_latency_ms(emu: Board, peer: Peer, via: str, baud: int) -> float | None:
+    """Stop by service or topic; ms until the first STOP is in effect, minus ESC and its wire."""
+    t0 = time.monotonic()
+    if via == "service":
+        future = peer.services["stop"].call_async(Trigger.Request())
+    else:
+        peer.pub.publish(ArmInstruction(instruction="stop", id=f"stop-{t0}"))
+    try:
+        rec = first_stop_after(emu, t0)
+    except TimeoutError:
+        return None
+    if via == "service":
+        wait_future(future, 10)
+    wire = p.wire_time_s(len(p.CANCEL + b"STOP0\r"), baud)
+    return (rec.t_effect - t0 - wire) * 1000
+
+
+def flood(
+    emu: Board,
+    peer: Peer,
+    counter: Counter,
+    server_pid: int,
+    rate: float,
+    seconds: float,
+    prefix: str,
+    stops_every_s: float = 0.5,
+    client_flags: tuple[str, ...] = (),
+    diagnose: Callable[[], str] = lambda: "",
+) -> FloodResult:
+    """Flood at `rate` for `seconds`; meanwhile stop (service and topic in turn) and release
+    every `stops_every_s`, measuring each stop on the board."""
+    result = FloodResult(rate, seconds, before=proc_status(server_pid))
+    client = subprocess.Popen(
+        [
+            sys.executable,
+            str(HERE / "flood_client.py"),
+            str(rate),
+            str(seconds),
+            prefix,
+            *client_flags,
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env=os.environ.copy(),
+    )
+    assert client.stdin is not None and client.stdout is not None
+    try:
+        assert json.loads(client.stdout.readline()).get("ready")
+        time.sleep(0.3)  # both directions matched
+        client.stdin.write("go\n")
+        client.stdin.flush()
+        t_end = time.monotonic() + seconds
+        via = "service"
+        while time.monotonic() < t_end - stops_every_s:
+            time.sleep(stops_every_s)
+            ms = stop_latency_ms(emu, peer, via, emu.baud)
+            if ms is None:
+                result.stops_missed += 1
+                result.notes.append(f"a stop via {via} never reached the board:\n{diagnose()}")
+            else:
+                (result.stop_service_ms if via == "service" else result.stop_topic_ms).append(ms)
+            wait_future(peer.services["release"].call_async(Trigger.Request()), 10)
+            via = "topic" if via == "service" else "service"
+        done = json.loads(client.stdout.readline())
+        result.sent, result.failed_publishes = done["sent"], done["failed"]
+        t_sent = time.monotonic()
+        # The moves still queued get their outcomes from one more stop, not a minute of moving.
+        wait_future(peer.services["stop"].call_async(Trigger.Request()), 10)
+        wait_future(peer.services["release"].call_async(Trigger.Request()), 10)
+        ids = [f"{prefix}-{i}" for i in range(result.sent)]
+        deadline = time.monotonic() + 120
+        while counter.count(ids)[0] < len(ids) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        result.drained_s = time.monotonic() - t_sent
+        result.outcomes, result.duplicates = counter.count(ids)
+        time.sleep(0.5)
+        result.after = proc_status(server_pid)
+    finally:
+        client.kill()
+        client.wait(10)
+    return result

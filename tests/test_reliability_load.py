@@ -1,0 +1,94 @@
+"""The load suite: floods over real DDS with stops and releases mixed in (issue 9).
+
+`al5d serve` in its own process on a board in its own process; the flood from a
+third; this process stops and releases every half second and counts every
+outcome. Every instruction must get exactly one outcome, every stop must reach
+the board, and the server's threads and memory must stay flat. The stop's
+latency under each flood is written to `build/reliability/load.json` (its
+target, checked in `make soak`: within 50 ms of the quiet figure at p99).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from boardproc import BoardProcess
+from loadrig import Counter, FloodResult, flood, stop_latency_ms
+from proc import Proc
+from rospeer import Peer
+
+OUT = Path(__file__).resolve().parents[1] / "build" / "reliability"
+RATES = (2000, 5000, 10000)
+SECONDS = 3.0
+
+
+@pytest.fixture(scope="module")
+def loaded(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[BoardProcess, Proc, Peer]]:
+    link = tmp_path_factory.mktemp("load") / "ssc32u"
+    board = BoardProcess(link)
+    server = Proc("serve", "--port", str(link), "--log-level", "INFO")
+    peer = Peer(results=False, name="al5d_load_peer")
+    try:
+        server.err.wait_for("STATE: ready", 30)
+        peer.wait_for_server()
+        # Unmeasured: the first answer of a service may wait for its reader to be discovered.
+        for name in ("stop", "release"):
+            peer.trigger(name)
+        yield board, server, peer
+    finally:
+        peer.close()
+        server.kill()
+        board.close()
+
+
+RESULTS: dict[str, object] = {}
+
+
+def test_quiet_stops(loaded: tuple[BoardProcess, Proc, Peer]) -> None:
+    board, _, peer = loaded
+    quiet = {"service": [], "topic": []}
+    for via in ("service", "topic") * 10:
+        ms = stop_latency_ms(board, peer, via, board.baud)
+        assert ms is not None, f"a stop via {via} never reached the board"
+        quiet[via].append(ms)
+        peer.trigger("release")
+    RESULTS["quiet"] = quiet
+
+
+@pytest.mark.parametrize("rate", RATES)
+def test_a_flood_loses_nothing_and_the_stop_gets_through(
+    loaded: tuple[BoardProcess, Proc, Peer], rate: int
+) -> None:
+    board, server, peer = loaded
+    counter = RESULTS.setdefault("counter", Counter(peer))
+    assert isinstance(counter, Counter)
+    result: FloodResult = flood(
+        board,
+        peer,
+        counter,
+        server.popen.pid,
+        rate,
+        SECONDS,
+        f"f{rate}",
+        diagnose=lambda: "\n".join(server.err.drain(0.5)[-15:]),
+    )
+    RESULTS[str(rate)] = result.as_dict()
+    assert result.sent == int(rate * SECONDS)
+    assert result.failed_publishes == 0
+    assert result.lost == 0 and result.duplicates == 0
+    assert result.stops_missed == 0, result.notes
+    assert len(result.stop_service_ms) + len(result.stop_topic_ms) >= 2
+    assert result.after["Threads"] == result.before["Threads"]
+    assert result.after["VmRSS"] - result.before["VmRSS"] < 30_000  # kB: flat, not growing
+    assert server.popen.poll() is None
+
+
+def test_write_the_figures() -> None:
+    OUT.mkdir(parents=True, exist_ok=True)
+    figures = {k: v for k, v in RESULTS.items() if k != "counter"}
+    if not figures:
+        pytest.fail("no flood ran before this one")
+    (OUT / "load.json").write_text(json.dumps(figures, indent=1))
