@@ -43,8 +43,9 @@ def translation(config: ArmConfig, n: int = 20000) -> dict[str, Any]:
     for i in range(n + WARMUP):
         instr = instrs[i % 64]
         t0 = clock()
-        target = driver.validate(instr)
-        assert not isinstance(target, str)
+        steps = driver.validate(instr)
+        assert not isinstance(steps, str)
+        target = steps[0].target
         minimum = driver.translator.minimum_ms(pose, target)
         data = driver.translator.encode(target, max(instr.time_ms or 0, math.ceil(minimum)))
         t1 = clock()

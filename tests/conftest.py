@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -60,3 +63,17 @@ def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, ArmD
             yield emu, driver
         finally:
             driver.close()
+
+
+def pytest_terminal_summary(terminalreporter: Any) -> None:
+    """The fuzz suites' case counts, at the end of the run (and in build/reliability)."""
+    from fuzzcount import CASES
+
+    if not CASES:
+        return
+    terminalreporter.write_sep("-", "fuzz cases run")
+    for suite, n in sorted(CASES.items()):
+        terminalreporter.write_line(f"{suite}: {n}")
+    out = Path(__file__).resolve().parents[1] / "build" / "reliability"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "fuzz.json").write_text(json.dumps(dict(CASES), indent=1))

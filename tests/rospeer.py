@@ -16,6 +16,7 @@ from std_srvs.srv import Trigger
 from al5d.ros.runtime import (
     INSTRUCTION_TOPIC,
     QOS_INSTRUCTIONS,
+    QOS_SERVICES,
     QOS_STREAM,
     RESULT_TOPIC,
     Spinner,
@@ -48,8 +49,19 @@ class LockedActionClient(ActionClient):
     and around the executor's handling of responses closes that window.
     """
 
-    def __init__(self, node: Node, action_type: Any, name: str) -> None:
-        super().__init__(node, action_type, name)
+    def __init__(self, node: Node, action_type: Any, name: str, deep: bool = True) -> None:
+        # Deep service queues, as the server's: a burst of 300 answers must not overwrite
+        # each other in this client's readers (rclpy's default keeps the last 10).
+        queues = (
+            {
+                "goal_service_qos_profile": QOS_SERVICES,
+                "result_service_qos_profile": QOS_SERVICES,
+                "cancel_service_qos_profile": QOS_SERVICES,
+            }
+            if deep
+            else {}
+        )
+        super().__init__(node, action_type, name, **queues)
         self._send_lock = threading.RLock()
 
     def send_goal_async(self, *args: Any, **kwargs: Any) -> Any:
@@ -85,7 +97,7 @@ class Peer:
             self.listen_results()
         self.node.create_subscription(JointState, "/joint_states", self.joint_states.append, 10)
         self.services = {
-            n: self.node.create_client(Trigger, f"/al5d/{n}")
+            n: self.node.create_client(Trigger, f"/al5d/{n}", qos_profile=QOS_SERVICES)
             for n in ("stop", "release", "shutdown")
         }
         self.move = LockedActionClient(self.node, Move, "/al5d/move")
@@ -135,20 +147,30 @@ class Peer:
         return wait_future(self.services[name].call_async(Trigger.Request()))
 
     def goal(
-        self, preset: str = "", time_ms: int = 0, feedback: list[Any] | None = None, **joints: float
+        self,
+        preset: str = "",
+        time_ms: int = 0,
+        feedback: list[Any] | None = None,
+        accepted: bool = True,
+        **joints: float,
     ) -> Any:
+        """Send a Move goal; its handle, once the server has accepted it (or, with
+        `accepted=False`, rejected it)."""
         goal = Move.Goal(
             preset=preset,
             joints=list(joints),
             degrees=[float(v) for v in joints.values()],
             time_ms=time_ms,
         )
+        return self.send_goal(goal, feedback, accepted)
+
+    def send_goal(self, goal: Any, feedback: list[Any] | None = None, accepted: bool = True) -> Any:
         handle = wait_future(
             self.move.send_goal_async(
                 goal, feedback_callback=(feedback.append if feedback is not None else None)
             )
         )
-        assert handle.accepted
+        assert handle.accepted is accepted
         return handle
 
     def close(self) -> None:

@@ -77,3 +77,13 @@ def test_a_shutdown_that_cannot_park_exits_non_zero_and_says_so(tmp_path: Path) 
             assert any("the arm was not parked" in x for x in proc.err.all)
         finally:
             proc.kill()
+
+
+def test_a_log_level_in_any_case() -> None:
+    # Issue 10: `--log-level debug` (as ROS users type it) was refused.
+    proc = Proc("serve", "--log-level", "debug", "--no-ros")
+    try:
+        proc.err.wait_for("EVENT: start")  # a DEBUG line
+    finally:
+        proc.popen.send_signal(signal.SIGTERM)
+        proc.wait()

@@ -108,3 +108,36 @@ def test_sequence_lines() -> None:
 def test_ids_are_unique() -> None:
     ids = {ins.stop().id for _ in range(1000)}
     assert len(ids) == 1000
+
+
+class TestSequenceFiles:
+    """Issue 10: a sequence file is checked whole; every error names the file, line, word."""
+
+    def test_a_huge_wait_is_an_error_naming_the_line_not_a_crash(self) -> None:
+        data = b"park\nmove base=10\nwait 99999999999999999999999\n"
+        with pytest.raises(GrammarError) as caught:
+            ins.parse_sequence(data, "demo.seq")
+        assert str(caught.value) == (
+            "demo.seq:3: word 2 '99999999999999999999999': 99999999999999999999999 ms "
+            "is above the limit of 3600000 ms"
+        )
+
+    def test_invalid_utf8_is_an_error_naming_the_line(self) -> None:
+        with pytest.raises(
+            GrammarError, match=r"^x.seq:2: not UTF-8 text \(byte 0xff at column 6\)"
+        ):
+            ins.parse_sequence(b"park\nmove \xff\n", "x.seq")
+
+    def test_a_time_a_message_cannot_carry_is_refused_before_packing(self) -> None:
+        with pytest.raises(GrammarError, match="4294967301 ms is above the limit of 4294967295"):
+            ins.parse_instruction("move base=30 time=4294967301")
+
+    def test_the_whole_file_is_read_before_anything(self) -> None:
+        steps = ins.parse_sequence(b"# demo\npark\nmove base=10 &\nwait 100\n\nstop\n", "d.seq")
+        assert [type(s).__name__ for s, _ in steps] == [
+            "Instruction",
+            "Instruction",
+            "Wait",
+            "Instruction",
+        ]
+        assert [bg for _, bg in steps] == [False, True, False, False]

@@ -8,7 +8,7 @@ import pytest
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.arm.validate import Limits, check, explain
+from al5d.arm.validate import Limits, Step, check, explain
 
 
 @pytest.fixture(scope="module")
@@ -19,9 +19,13 @@ def limits(config: ArmConfig) -> Limits:
 def test_a_valid_move_gives_its_target_and_a_preset_its_pose(
     limits: Limits, config: ArmConfig
 ) -> None:
-    assert check(ins.move(base=30, elbow=90.5, time_ms=800), limits) == {"base": 30, "elbow": 90.5}
-    assert check(ins.preset("ready"), limits) == config.presets["ready"]
-    assert check(ins.move(base=-90, shoulder=90), limits) == {"base": -90, "shoulder": 90}
+    assert check(ins.move(base=30, elbow=90.5, time_ms=800), limits) == (
+        Step({"base": 30, "elbow": 90.5}, 800),
+    )
+    assert check(ins.preset("ready"), limits) == (Step(dict(config.presets["ready"]), None),)
+    assert check(ins.move(base=-90, shoulder=90), limits) == (
+        Step({"base": -90, "shoulder": 90}, None),
+    )
 
 
 def test_every_problem_is_named_at_once(limits: Limits) -> None:
@@ -54,3 +58,36 @@ def test_every_problem_is_named_at_once(limits: Limits) -> None:
 )
 def test_refusals(limits: Limits, instr: ins.Instruction, reason: str) -> None:
     assert check(instr, limits) == reason
+
+
+def test_a_trajectory_is_judged_whole_and_its_first_bad_point_named(limits: Limits) -> None:
+    good = [ins.Point((("base", 10.0), ("elbow", 80.0)), 500), ins.Point((("base", -10.0),), 1300)]
+    assert check(ins.trajectory(good), limits) == (
+        Step({"base": 10.0, "elbow": 80.0}, 500),
+        Step({"base": -10.0}, 800),
+    )
+    bad_range = [*good, ins.Point((("elbow", 170.0),), 1500), ins.Point((("base", 0.0),), 2000)]
+    assert check(ins.trajectory(bad_range), limits) == (
+        "point 2: elbow: 170 deg is outside the range 0..135"
+    )
+    same_time = [good[0], ins.Point((("base", 0.0),), 500)]
+    assert check(ins.trajectory(same_time), limits) == (
+        "point 1: time_from_start 500 ms is not after point 0 (500 ms)"
+    )
+    at_zero = [ins.Point((("base", 0.0),), 0)]
+    assert check(ins.trajectory(at_zero), limits) == (
+        "point 0: time_from_start 0 ms is not after the start"
+    )
+    assert check(ins.trajectory([]), limits) == "a trajectory has no points"
+    too_long = [ins.Point((("base", 0.0),), 60_001)]
+    assert "above the limit of 60000 ms" in str(check(ins.trajectory(too_long), limits))
+
+
+def test_a_reason_never_repeats_a_huge_input(limits: Limits) -> None:
+    huge = "x" * 1_000_000
+    reason = check(ins.move(**{huge: 1.0}), limits)
+    assert isinstance(reason, str) and len(reason) < 300 and "1000000 characters" in reason
+    many = ins.Instruction(ins.Kind.MOVE, joints=tuple((f"j{i}", 1.0) for i in range(10_000)))
+    reason = check(many, limits)
+    assert isinstance(reason, str) and reason.endswith("; and 9995 more")
+    assert "at most 256" in str(check(ins.move(base=1, id="i" * 257), limits))

@@ -10,6 +10,7 @@ import math
 import os
 import sys
 import time
+import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +20,7 @@ import pytest
 from al5d_interfaces.msg import ArmInstruction
 from armrig import written
 from builtin_interfaces.msg import Duration
+from loadrig import proc_status
 from proc import Proc
 from rospeer import Peer, wait_future, wait_until
 from std_msgs.msg import String
@@ -123,19 +125,22 @@ def test_the_move_action(server: Server, peer: Peer) -> None:
     handle = peer.goal(base=-20, wrist=10)
     assert wait_future(handle.get_result_async()).result.outcome == "done"
     n = written(server.emu.records)
-    handle = peer.goal(shoulder=100)
-    result = wait_future(handle.get_result_async()).result
-    assert (
-        result.outcome == "refused"
-        and "shoulder: 100 deg is outside the range -30..90" in result.reason
-    )
+    # Issue 10: judged in the goal callback and rejected, the reason on /al5d/result under
+    # the goal's UUID; nothing reaches the board.
+    handle = peer.goal(shoulder=100, accepted=False)
+    refusal = peer.result(bytes(handle.goal_id.uuid).hex())
+    assert refusal.outcome == "refused"
+    assert "shoulder: 100 deg is outside the range -30..90" in refusal.reason
+    ambiguous = peer.goal(preset="straight_up", elbow=500, accepted=False)
+    assert "ambiguous" in peer.result(bytes(ambiguous.goal_id.uuid).hex()).reason
+    time.sleep(0.2)
     assert written(server.emu.records) == n
 
 
 def test_no_action_answer_is_lost_when_the_executor_thread_races_the_caller(
     server: Server, peer: Peer
 ) -> None:
-    # Refused goals answer at once, and a tiny switch interval lets the peer's spin thread
+    # Rejected goals answer at once, and a tiny switch interval lets the peer's spin thread
     # take the answer between rclpy sending the request and recording it (ros2/rclpy#1123).
     # With rclpy's plain ActionClient, 2 of 3 runs of 200 goals hung; with LockedActionClient,
     # none of 900.
@@ -143,9 +148,7 @@ def test_no_action_answer_is_lost_when_the_executor_thread_races_the_caller(
     sys.setswitchinterval(1e-6)
     try:
         for _ in range(400):
-            handle = peer.goal(shoulder=100)
-            result = wait_future(handle.get_result_async(), 5).result
-            assert result.outcome == "refused"
+            peer.goal(shoulder=100, accepted=False)
     finally:
         sys.setswitchinterval(interval)
 
@@ -242,28 +245,88 @@ def test_joint_states_match_the_emulated_servos(server: Server, peer: Peer) -> N
         assert math.degrees(rad) == pytest.approx(servo[name], abs=0.5)
 
 
-def test_a_joint_trajectory_becomes_queued_moves(server: Server, peer: Peer) -> None:
-    traj = JointTrajectory(joint_names=["base", "elbow"])
-    traj.points = [
-        JointTrajectoryPoint(
-            positions=[math.radians(20), math.radians(80)],
-            time_from_start=Duration(sec=0, nanosec=500_000_000),
-        ),
-        JointTrajectoryPoint(
-            positions=[math.radians(-20), math.radians(60)],
-            time_from_start=Duration(sec=1, nanosec=300_000_000),
-        ),
-    ]
-    before = len(server.group_moves())
+def trajectory(ident: str, *points: tuple[dict[str, float], float]) -> JointTrajectory:
+    """A JointTrajectory of (degrees by joint, seconds from the start) points."""
+    names = list(points[0][0]) if points else ["base"]
+    traj = JointTrajectory(joint_names=names)
+    traj.header.frame_id = ident
+    for pose, t in points:
+        sec = int(t)
+        traj.points.append(
+            JointTrajectoryPoint(
+                positions=[math.radians(pose[n]) for n in names],
+                time_from_start=Duration(sec=sec, nanosec=round((t - sec) * 1e9)),
+            )
+        )
+    return traj
+
+
+@pytest.fixture
+def trajectories(peer: Peer) -> Any:
     pub = peer.node.create_publisher(JointTrajectory, "/al5d/joint_trajectory", QOS_INSTRUCTIONS)
     wait_until(lambda: pub.get_subscription_count() > 0, 10)
-    pub.publish(traj)
-    wait_until(lambda: len(server.group_moves()) >= before + 2, 10, "two moves")
+    yield pub
+    peer.node.destroy_publisher(pub)
+
+
+def test_a_joint_trajectory_runs_its_points_in_order_as_one_instruction(
+    server: Server, peer: Peer, trajectories: Any
+) -> None:
+    before = len(server.group_moves())
+    trajectories.publish(
+        trajectory("t-good", ({"base": 20, "elbow": 80}, 0.5), ({"base": -20, "elbow": 60}, 1.3))
+    )
+    result = peer.result("t-good")  # one outcome, under the header's frame_id
+    assert (result.outcome, result.instruction) == ("done", "trajectory")
     moves = server.group_moves()[before:]
     assert [m.time_ms for m in moves] == [500, 800]
     assert {t.channel: t.pulse_us for t in moves[1].targets} == server.pulses_of(
         {"base": -20, "elbow": 60}
     )
+
+
+@pytest.mark.parametrize(
+    ("points", "reason"),
+    [
+        (
+            (
+                ({"base": 10, "elbow": 80}, 0.5),
+                ({"base": 20, "elbow": 90}, 1.0),
+                ({"base": 0, "elbow": 170}, 1.5),
+                ({"base": 0, "elbow": 80}, 2.0),
+            ),
+            "point 2: elbow: 170 deg is outside the range 0..135",
+        ),
+        (
+            (({"base": 10}, 0.5), ({"base": 20}, 0.5)),
+            "point 1: time_from_start 500 ms is not after",
+        ),
+        ((({"base": 10}, 0.0),), "point 0: time_from_start 0 ms is not after the start"),
+        ((({"base": 10}, 1.0), ({"base": 20}, 0.8)), "point 1: time_from_start 800 ms is not"),
+        ((), "a trajectory has no points"),
+        ((({"finger": 10}, 1.0),), "point 0: unknown joint 'finger'"),
+    ],
+)
+def test_a_bad_trajectory_is_refused_whole_with_nothing_written(
+    server: Server, peer: Peer, trajectories: Any, points: Any, reason: str
+) -> None:
+    # Issue 10: with elbow=170 in point 2 of 4, points 0, 1 and 3 ran.
+    n = written(server.emu.records)
+    ident = f"t-bad-{uuid.uuid4().hex}"
+    trajectories.publish(trajectory(ident, *points))
+    result = peer.result(ident)
+    assert result.outcome == "refused" and reason in result.reason
+    time.sleep(0.2)
+    assert written(server.emu.records) == n
+
+
+def test_a_trajectory_with_the_wrong_sizes_is_refused(
+    server: Server, peer: Peer, trajectories: Any
+) -> None:
+    traj = trajectory("t-sizes", ({"base": 10, "elbow": 80}, 0.5))
+    traj.points[0].positions = [0.1]
+    trajectories.publish(traj)
+    assert "point 0: 1 positions for 2 joints" in peer.result("t-sizes").reason
 
 
 def test_the_client_application(server: Server, peer: Peer, tmp_path: Path) -> None:
@@ -330,3 +393,41 @@ def test_cancelling_a_goal_ends_moving_on_the_state_topic(server: Server, peer: 
         assert peer.trigger("release").success is False  # not locked: nothing to release
     finally:
         peer.node.destroy_subscription(sub)
+
+
+def test_huge_strings_are_refused_without_inflating_the_server(server: Server, peer: Peer) -> None:
+    # Issue 10: 80 instructions carrying 1 MB strings raised the server from 84 to 264 MB,
+    # every reason repeating the whole bad word.
+    megabyte = "w" * 1_000_000
+
+    def flood(round: int) -> int:
+        """Send 80 such instructions; the server's growth in kB once all are answered."""
+        before = proc_status(server.proc.popen.pid)["VmRSS"]
+        for i in range(80):
+            msg = ArmInstruction(instruction="move", joints=["base"], degrees=[1.0])
+            msg.id = f"huge-{round}-{i}"
+            if i % 4 == 0:
+                msg.instruction = megabyte
+            elif i % 4 == 1:
+                msg.joints = [megabyte]
+            elif i % 4 == 2:
+                msg.instruction, msg.joints, msg.degrees = "p" + megabyte, [], []
+            else:
+                msg.id += "-" + megabyte
+            peer.pub.publish(msg)
+        mine = f"huge-{round}-"
+        wait_until(lambda: sum(i.startswith(mine) for i in peer.results) >= 80, 30, "outcomes")
+        reasons = [r for i, r in peer.results.items() if i.startswith(mine)]
+        assert all(r.outcome == "refused" for r in reasons)
+        assert max(len(r.reason) for r in reasons) < 400
+        assert max(len(r.id) for r in reasons) <= 256
+        time.sleep(0.5)
+        return proc_status(server.proc.popen.pid)["VmRSS"] - before
+
+    # The first megabytes grow the buffers of DDS and of the allocator (by 60 to 70 MB
+    # here), the next few a little more (0 to 12 MB a round), then about nothing: bounded,
+    # where every reason used to keep its megabyte in the results' history (over 2 MB a
+    # message: 180 MB a round).
+    growth = [flood(r) for r in range(1, 8)]
+    assert sum(growth) < 150_000, f"the server grew by {growth} kB"
+    assert sum(growth[-2:]) < 15_000, f"the server grew by {growth} kB: it keeps growing"

@@ -7,9 +7,18 @@ import signal
 import sys
 import threading
 from collections.abc import Sequence
+from typing import Any
 
 from al5d.arm.config import ConfigError, load_config
 from al5d.ssc32u.facts import BAUDS, FACTORY_BAUD
+
+#: `--log-level`, in any case (ROS users type `--log-level debug`).
+LOG_LEVEL: dict[str, Any] = {
+    "default": "INFO",
+    "type": str.upper,
+    "choices": ("DEBUG", "INFO", "WARNING", "ERROR"),
+    "help": "DEBUG, INFO, WARNING or ERROR, in any case",
+}
 
 
 def _until_signal() -> threading.Event:
@@ -84,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument("--port", help="serial device of the SSC-32U; default: embedded emulator")
     srv.add_argument("--baud", type=int, choices=BAUDS, help="default: config")
     srv.add_argument("--config", help="arm configuration file; default: the shipped one")
-    srv.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    srv.add_argument("--log-level", **LOG_LEVEL)
     srv.add_argument("--stdin", action="store_true", help="also read instructions from stdin")
     srv.add_argument("--no-ros", action="store_true", help="no ROS node (use with --stdin)")
     srv.add_argument("--trace", help="write when each instruction message arrived (benchmarks)")
@@ -120,7 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser("demo", help="the DE01 demo on the embedded emulator, with a QoS table")
     demo.add_argument("--baud", type=int, choices=BAUDS, help="default: config")
-    demo.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    demo.add_argument("--log-level", **LOG_LEVEL)
     demo.set_defaults(func=_cmd_demo)
     return parser
 

@@ -24,12 +24,12 @@ from concurrent.futures import Future
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.arm.instruction import Instruction, Kind, Outcome, Result
+from al5d.arm.instruction import MAX_ID, MAX_QUOTE, Instruction, Kind, Outcome, Result
 from al5d.arm.jobs import Job, Motion, Sent, finish, outcome, resolve, stop_order
 from al5d.arm.shared import Shared, tell
 from al5d.arm.states import Event, State, next_state, refusal, release_refusal
 from al5d.arm.translate import Translator
-from al5d.arm.validate import Limits, check
+from al5d.arm.validate import Limits, Step, Steps, check
 from al5d.arm.worker import Worker
 from al5d.clock import now
 from al5d.ssc32u.driver import SSC32U
@@ -58,7 +58,7 @@ class RefusalLog:
         self._quiet = 0
         self._last = ""
 
-    def refused(self, instr: Instruction, reason: str) -> None:
+    def refused(self, name: str, ident: str, reason: str) -> None:
         second = int(now())
         with self._lock:
             if second != self._second:
@@ -75,7 +75,7 @@ class RefusalLog:
         if quiet:
             log.warning("refused %d more instruction(s) in that second (the last: %s)", quiet, last)
         if speak:
-            log.warning("refused %s [%s]: %s", instr.name, instr.id, reason)
+            log.warning("refused %s [%s]: %s", name, ident, reason)
 
     def close(self) -> None:
         with self._lock:
@@ -126,14 +126,14 @@ class ArmDriver:
         return self.shared.positions(t)
 
     def progress(self, instr_id: str) -> float | None:
-        """0..1 of the expected time of the move `instr_id` if it is the one running."""
+        """0..1 of the instruction `instr_id` if it is the one running (by its steps)."""
         job, motion = self.shared.current, self.shared.motion
         if job is None or motion is None or job.instr.id != instr_id:
             return None
-        return motion.progress(now())
+        return (job.step + motion.progress(now())) / len(job.steps)
 
-    def validate(self, instr: Instruction) -> dict[str, float] | str:
-        """The target pose of a motion instruction, or the reason to refuse it whole (D3)."""
+    def validate(self, instr: Instruction) -> Steps | str:
+        """The steps of a motion instruction, or the reason to refuse it whole (D3)."""
         return check(instr, self.limits)
 
     def submit(self, instr: Instruction) -> Future[Outcome]:
@@ -152,6 +152,15 @@ class ArmDriver:
         else:
             self._enqueue(instr, future, t0)
         return future
+
+    def refuse(self, ident: str, name: str, reason: str) -> Outcome:
+        """Refuse what never became an instruction (a malformed message): logged like any
+        refusal, and its outcome told to the outcome listeners (so it is published)."""
+        refused = Outcome(ident[:MAX_ID], name[:MAX_QUOTE], Result.REFUSED, reason)
+        log.debug("EVENT: %s", Event.REFUSED.value)
+        self._refusals.refused(refused.instruction, refused.id, reason)
+        tell(self.outcome_listeners, refused, "outcome")
+        return refused
 
     def execute(self, instr: Instruction, timeout: float | None = None) -> Outcome:
         """Submit and wait for the outcome."""
@@ -221,13 +230,13 @@ class ArmDriver:
 
     def _refuse(self, instr: Instruction, future: Future[Outcome], reason: str, t0: float) -> None:
         log.debug("EVENT: %s", Event.REFUSED.value)
-        self._refusals.refused(instr, reason)
+        self._refusals.refused(instr.name[:MAX_QUOTE], instr.id[:MAX_ID], reason)
         resolve(future, outcome(instr, Result.REFUSED, reason, t0))
 
     def _enqueue(self, instr: Instruction, future: Future[Outcome], t0: float) -> None:
-        target = check(instr, self.limits)
-        if isinstance(target, str):
-            self._refuse(instr, future, target, t0)
+        steps = check(instr, self.limits)
+        if isinstance(steps, str):
+            self._refuse(instr, future, steps, t0)
             return
         shared = self.shared
         with shared.lock:
@@ -240,7 +249,7 @@ class ArmDriver:
                 if len(shared.queue) >= capacity:
                     reason = f"the queue is full ({capacity} moves wait)"
                 else:
-                    shared.queue.append(Job(instr, target, future, shared.epoch, t0))
+                    shared.queue.append(Job(instr, steps, future, shared.epoch, t0))
                     shared.cv.notify_all()
                     return
         self._refuse(instr, future, reason, t0)
@@ -327,7 +336,7 @@ class ArmDriver:
             else:
                 reason = ""
                 current, dropped = shared.take_pending()
-                park = dict(self.config.presets["park"])
+                park = (Step(dict(self.config.presets["park"]), None),)
                 fraction = self.settings.startup_speed_fraction
                 shared.shutdown_job = Job(instr, park, future, shared.epoch, t0, fraction)
                 shared.fire(Event.SHUTDOWN)

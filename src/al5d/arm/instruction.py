@@ -8,13 +8,15 @@
     # comment
 
 Every instruction carries an id, so that its one outcome (done, refused or
-cancelled) can be matched to it wherever it is reported.
+cancelled) can be matched to it wherever it is reported. A trajectory (points
+to reach at given times, from ROS) is one instruction with one outcome.
 """
 
 from __future__ import annotations
 
 import enum
 import itertools
+import math
 import os
 from dataclasses import dataclass, field
 
@@ -25,6 +27,7 @@ PRESET_NAMES = ("park", "ready", "straight_up")
 class Kind(enum.Enum):
     PRESET = "preset"
     MOVE = "move"
+    TRAJECTORY = "trajectory"
     STOP = "stop"
     RELEASE = "release"
     SHUTDOWN = "shutdown"
@@ -41,6 +44,27 @@ def new_id() -> str:
     return f"{_prefix}-{next(_ids)}"
 
 
+#: The longest id an instruction may carry, and the most of a word a reason quotes:
+#: a megabyte of id or word must not become a megabyte in every log line and result.
+MAX_ID = 256
+MAX_QUOTE = 40
+
+
+def quote(text: str, limit: int = MAX_QUOTE) -> str:
+    """`repr(text)`, cut to about `limit` characters: what a reason may repeat of an input."""
+    if len(text) <= limit:
+        return repr(text)
+    return repr(text[:limit]) + f"... ({len(text)} characters)"
+
+
+@dataclass(frozen=True, slots=True)
+class Point:
+    """A trajectory's point: joint angles (degrees) to reach `at_ms` after the start."""
+
+    joints: tuple[tuple[str, float], ...]
+    at_ms: int
+
+
 @dataclass(frozen=True, slots=True)
 class Instruction:
     """One instruction for the arm.
@@ -55,6 +79,7 @@ class Instruction:
     joints: tuple[tuple[str, float], ...] = ()
     time_ms: int | None = None
     id: str = field(default_factory=new_id)
+    points: tuple[Point, ...] = ()
 
     @property
     def name(self) -> str:
@@ -71,6 +96,10 @@ def preset(name: str, time_ms: int | None = None, id: str | None = None) -> Inst
 
 def move(time_ms: int | None = None, id: str | None = None, **joints: float) -> Instruction:
     return Instruction(Kind.MOVE, joints=tuple(joints.items()), time_ms=time_ms, id=id or new_id())
+
+
+def trajectory(points: list[Point] | tuple[Point, ...], id: str | None = None) -> Instruction:
+    return Instruction(Kind.TRAJECTORY, points=tuple(points), id=id or new_id())
 
 
 def stop(id: str | None = None) -> Instruction:
@@ -127,11 +156,16 @@ class GrammarError(ValueError):
 
 
 def _fmt_number(x: float) -> str:
-    return f"{x:g}" if x == x and abs(x) != float("inf") else str(x)
+    """The shortest text that reads back as the same number (`1e+06` would lose digits)."""
+    if math.isfinite(x) and x == int(x) and abs(x) < 1e15:
+        return str(int(x))
+    return repr(float(x))
 
 
 def format_instruction(instr: Instruction) -> str:
     """The text form, which `parse_instruction` reads back."""
+    if instr.kind is Kind.TRAJECTORY:
+        return f"trajectory of {len(instr.points)} point(s)"
     words = [instr.name]
     words += [f"{j}={_fmt_number(d)}" for j, d in instr.joints]
     if instr.time_ms:
@@ -140,7 +174,7 @@ def format_instruction(instr: Instruction) -> str:
 
 
 def _where(words: list[str], i: int) -> str:
-    return f"word {i + 1} {words[i]!r}"
+    return f"word {i + 1} {quote(words[i])}"
 
 
 #: The largest time an instruction message can carry (its `time_ms` is a uint32): a larger
@@ -154,7 +188,9 @@ def _parse_ms(words: list[str], i: int, text: str, limit: int = TIME_FIELD_MAX_M
     try:
         ms = int(text)
     except ValueError:
-        raise GrammarError(f"{_where(words, i)}: {text!r} is not a whole number of ms") from None
+        raise GrammarError(
+            f"{_where(words, i)}: {quote(text)} is not a whole number of ms"
+        ) from None
     if ms < 0:
         raise GrammarError(f"{_where(words, i)}: time {ms} ms is negative")
     if ms > limit:
@@ -185,7 +221,7 @@ def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Ins
                 deg = float(value)
             except ValueError:
                 raise GrammarError(
-                    f"{_where(words, i)}: {value!r} is not a number of degrees"
+                    f"{_where(words, i)}: {quote(value)} is not a number of degrees"
                 ) from None
             joints.append((key.lower(), deg))
         else:
@@ -200,7 +236,7 @@ def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Ins
         if head == kind.value:
             return Instruction(kind)
     known = " | ".join((*presets, "move", "stop", "release", "shutdown"))
-    raise GrammarError(f"word 1 {words[0]!r}: unknown instruction; expected {known}")
+    raise GrammarError(f"word 1 {quote(words[0])}: unknown instruction; expected {known}")
 
 
 def parse_sequence_step(

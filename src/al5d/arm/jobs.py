@@ -12,8 +12,9 @@ from concurrent.futures import Future, InvalidStateError
 from dataclasses import dataclass, field
 from enum import Enum
 
-from al5d.arm.instruction import Instruction, Outcome, Result
+from al5d.arm.instruction import MAX_ID, MAX_QUOTE, Instruction, Outcome, Result
 from al5d.arm.states import State
+from al5d.arm.validate import Steps
 from al5d.clock import now
 
 
@@ -31,16 +32,20 @@ class Mode(Enum):
 
 @dataclass(slots=True)
 class Job:
-    """A motion instruction on its way: validated target, its future, the epoch it belongs to."""
+    """A motion instruction on its way: its validated steps, its future, its epoch.
+
+    A move or a preset is one step (one group move); a trajectory one per point.
+    """
 
     instr: Instruction
-    target: dict[str, float]
+    steps: Steps
     future: Future[Outcome]
     epoch: int
     t_submit: float
     speed_fraction: float = 1.0
     cancel: threading.Event = field(default_factory=threading.Event)
     expected_ms: float = 0.0
+    step: int = 0  # the step running now
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,8 +95,8 @@ def outcome(job_or_instr: Job | Instruction, result: Result, reason: str, t0: fl
     instr = job_or_instr.instr if isinstance(job_or_instr, Job) else job_or_instr
     expected = job_or_instr.expected_ms if isinstance(job_or_instr, Job) else 0.0
     return Outcome(
-        id=instr.id,
-        instruction=instr.name,
+        id=instr.id[:MAX_ID],
+        instruction=instr.name[:MAX_QUOTE],
         result=result,
         reason=reason,
         elapsed_ms=(now() - t0) * 1000.0,

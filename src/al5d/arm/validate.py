@@ -1,8 +1,10 @@
 """Whether an instruction can run, judged whole before anything is written (D3, VE02).
 
-Pure functions of the instruction and the arm's limits: `check` is the fast
-path for the usual, valid move; `explain` gives every reason to refuse one,
-naming the joint, the value and the range.
+Pure functions of the instruction and the arm's limits. `check` gives the
+steps to run (one for a move or a preset, one per point for a trajectory) or
+the reason to refuse the whole instruction; its fast path serves the usual,
+valid move, and `explain` names every problem: the joint, the value and the
+range, or the point of a trajectory and what is wrong with it.
 """
 
 from __future__ import annotations
@@ -12,7 +14,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from al5d.arm.config import ArmConfig
-from al5d.arm.instruction import Instruction, Kind
+from al5d.arm.instruction import MAX_ID, Instruction, Kind, Point, quote
+
+#: A reason lists this many problems at most, then says how many more there were.
+MAX_PROBLEMS = 5
+#: The most points a trajectory may have.
+MAX_POINTS = 10_000
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,27 +39,103 @@ class Limits:
         )
 
 
-def check(instr: Instruction, limits: Limits) -> dict[str, float] | str:
-    """The target pose of a motion instruction, or the reason to refuse it whole."""
+@dataclass(frozen=True, slots=True)
+class Step:
+    """One group move to make: the target (degrees, the joints named) and its time."""
+
+    target: dict[str, float]
+    time_ms: int | None
+
+
+Steps = tuple[Step, ...]
+
+
+def check(instr: Instruction, limits: Limits) -> Steps | str:
+    """The steps of a motion instruction, or the reason to refuse it whole."""
+    if len(instr.id) > MAX_ID:
+        return f"the id is {len(instr.id)} characters long; at most {MAX_ID}"
+    if instr.kind is Kind.TRAJECTORY:
+        return _trajectory(instr.points, limits)
     time_ms = instr.time_ms
     if time_ms is not None and not 0 <= time_ms <= limits.max_time_ms:
         return explain(instr, limits)
     if instr.kind is Kind.PRESET:
         pose = limits.presets.get(instr.preset)
-        return dict(pose) if pose is not None else explain(instr, limits)
-    # One pass for the usual, valid move; a NaN fails the range test like any bad value.
+        return (Step(dict(pose), time_ms),) if pose is not None else explain(instr, limits)
+    target = _target(instr.joints, limits)
+    return (Step(target, time_ms),) if target is not None else explain(instr, limits)
+
+
+def _target(joints: tuple[tuple[str, float], ...], limits: Limits) -> dict[str, float] | None:
+    """One pass for the usual, valid set of joints; a NaN fails the range test like any
+    bad value. None when anything is wrong (`_joint_problems` says what)."""
     ranges = limits.ranges
     target: dict[str, float] = {}
-    for name, deg in instr.joints:
+    for name, deg in joints:
         r = ranges.get(name)
         if r is None or name in target or not r[0] <= deg <= r[1]:
-            return explain(instr, limits)
+            return None
         target[name] = deg
-    return target if target else explain(instr, limits)
+    return target or None
+
+
+def _joint_problems(joints: tuple[tuple[str, float], ...], limits: Limits) -> list[str]:
+    if not joints:
+        return ["a move names no joint"]
+    ranges = limits.ranges
+    problems: list[str] = []
+    seen: set[str] = set()
+    for name, deg in joints:
+        r = ranges.get(name)
+        if r is None:
+            problems.append(f"unknown joint {quote(name)}; joints are {', '.join(ranges)}")
+        elif name in seen:
+            problems.append(f"{name} is given twice")
+        elif not math.isfinite(deg):
+            problems.append(f"{name}: {deg} is not a finite number of degrees")
+        elif not r[0] <= deg <= r[1]:
+            problems.append(f"{name}: {deg:g} deg is outside the range {r[0]:g}..{r[1]:g}")
+        seen.add(name)
+    return problems
+
+
+def _listed(problems: list[str]) -> str:
+    shown = problems[:MAX_PROBLEMS]
+    more = len(problems) - len(shown)
+    return "; ".join(shown) + (f"; and {more} more" if more else "")
+
+
+def _trajectory(points: tuple[Point, ...], limits: Limits) -> Steps | str:
+    """Every point checked before any is run; the reason names the first bad point."""
+    if not points:
+        return "a trajectory has no points"
+    if len(points) > MAX_POINTS:
+        return f"a trajectory of {len(points)} points is more than the {MAX_POINTS} taken"
+    steps: list[Step] = []
+    before = 0
+    for i, point in enumerate(points):
+        target = _target(point.joints, limits)
+        if target is None:
+            return f"point {i}: {_listed(_joint_problems(point.joints, limits))}"
+        if point.at_ms <= before:
+            after = "the start" if i == 0 else f"point {i - 1} ({before} ms)"
+            return f"point {i}: time_from_start {point.at_ms} ms is not after {after}"
+        step = point.at_ms - before
+        if step > limits.max_time_ms:
+            return (
+                f"point {i}: {step} ms after {'the start' if i == 0 else f'point {i - 1}'}, "
+                f"above the limit of {limits.max_time_ms} ms"
+            )
+        steps.append(Step(target, step))
+        before = point.at_ms
+    return tuple(steps)
 
 
 def explain(instr: Instruction, limits: Limits) -> str:
     """Every reason to refuse the instruction, naming the joint, the value and the range."""
+    if instr.kind is Kind.TRAJECTORY:
+        result = _trajectory(instr.points, limits)
+        return result if isinstance(result, str) else ""
     problems: list[str] = []
     time_ms = instr.time_ms
     if time_ms is not None and time_ms < 0:
@@ -62,21 +145,6 @@ def explain(instr: Instruction, limits: Limits) -> str:
     if instr.kind is Kind.PRESET:
         if instr.preset not in limits.presets:
             known = ", ".join(limits.presets)
-            return f"unknown preset {instr.preset!r}; presets are {known}"
-        return "; ".join(problems)
-    if not instr.joints:
-        problems.append("a move names no joint")
-    ranges = limits.ranges
-    seen: set[str] = set()
-    for name, deg in instr.joints:
-        r = ranges.get(name)
-        if r is None:
-            problems.append(f"unknown joint {name!r}; joints are {', '.join(ranges)}")
-        elif name in seen:
-            problems.append(f"{name} is given twice")
-        elif not math.isfinite(deg):
-            problems.append(f"{name}: {deg} is not a finite number of degrees")
-        elif not r[0] <= deg <= r[1]:
-            problems.append(f"{name}: {deg:g} deg is outside the range {r[0]:g}..{r[1]:g}")
-        seen.add(name)
-    return "; ".join(problems)
+            return f"unknown preset {quote(instr.preset)}; presets are {known}"
+        return _listed(problems)
+    return _listed(problems + _joint_problems(instr.joints, limits))

@@ -23,6 +23,7 @@ from al5d.arm.jobs import Job, Mode, Motion, Sent, finish, stop_order
 from al5d.arm.shared import Shared, tell
 from al5d.arm.states import Event, State, Task
 from al5d.arm.translate import Translator
+from al5d.arm.validate import Step
 from al5d.clock import Deadline, now
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.errors import Interrupted, NotAnSSC32U, SerialFault
@@ -144,32 +145,28 @@ class Worker:
                 "ignores speed and time for it, so this park goes at full servo speed",
                 ", ".join(unknown),
             )
-        park = ins.preset("park", id="startup")
-        job = Job(
-            park,
-            dict(self.config.presets["park"]),
-            Future(),
-            shared.epoch,
-            now(),
-            self.settings.startup_speed_fraction,
-        )
+        park = (Step(dict(self.config.presets["park"]), None),)
+        fraction = self.settings.startup_speed_fraction
+        job = Job(ins.preset("park", id="startup"), park, Future(), shared.epoch, now(), fraction)
         self._guarded(lambda: self._run_job(job, Mode.STARTUP))
 
-    def _plan(self, job: Job) -> tuple[bytes, int]:
+    def _plan(self, job: Job, step: Step) -> tuple[bytes, int]:
         """The bytes and the time to send (ms), from where the arm is."""
-        minimum = self.translator.minimum_ms(self.shared.pose, job.target, job.speed_fraction)
+        minimum = self.translator.minimum_ms(self.shared.pose, step.target, job.speed_fraction)
         min_ms = math.ceil(minimum - 1e-9)
-        requested = job.instr.time_ms or 0
+        requested = step.time_ms or 0
         time_ms = max(requested, min_ms)
         if requested and requested < min_ms:
+            point = f" point {job.step}" if len(job.steps) > 1 else ""
             log.warning(
-                "INF03: %s [%s] cannot be done in the requested %d ms; expected %d ms",
+                "INF03: %s [%s]%s cannot be done in the requested %d ms; expected %d ms",
                 job.instr.name,
                 job.instr.id,
+                point,
                 requested,
                 time_ms,
             )
-        return self.translator.encode(job.target, time_ms), time_ms
+        return self.translator.encode(step.target, time_ms), time_ms
 
     def _run_job(self, job: Job, mode: Mode = Mode.QUEUE) -> bool:
         """Send one move and wait for it; True when it completed (its outcome is then set)."""
@@ -200,32 +197,42 @@ class Worker:
                     shared.cv.notify_all()
 
     def _drive(self, job: Job, board: SSC32U, mode: Mode) -> bool:
+        """Run the job's steps in order; True when the last is done (its outcome is then set).
+
+        A step after another starts when the one before has run its time (the board's
+        pulses are there); only the last waits for `Q` to confirm.
+        """
         shared = self.shared
-        data, time_ms = self._plan(job)
-        job.expected_ms = float(time_ms)
-        start = {j: v for j, v in shared.pose.items() if v is not None}
-        t_write = now()
-        board.write_command(data)
-        # The move starts when its CR reaches the board, one wire time after the write.
-        t_sent = t_write + board.wire_time_s(data)
-        motion = Motion(start, job.target, t_sent, time_ms / 1000.0)
-        with shared.lock:
-            raced = job.epoch != shared.epoch or job.cancel.is_set()
-            if not raced:
-                shared.motion = motion
-        if raced:
-            # A stop came between our check and our write: its STOP may be older than our move.
-            board.stop(stop_order(motion, now(), self._channel_of))
-            return False
-        if shared.motion_listeners:
-            sent = Sent(job.instr, data, job.t_submit, t_write, motion)
-            tell(shared.motion_listeners, sent, "motion")
-        if not self._wait_done(job, board, t_sent + time_ms / 1000.0):
-            return False  # cancelled: whoever cancelled has set the outcome
-        with shared.lock:
-            if job.epoch != shared.epoch:
+        last = len(job.steps) - 1
+        for k, step in enumerate(job.steps):
+            job.step = k
+            data, time_ms = self._plan(job, step)
+            job.expected_ms += time_ms
+            start = {j: v for j, v in shared.pose.items() if v is not None}
+            t_write = now()
+            board.write_command(data)
+            # The move starts when its CR reaches the board, one wire time after the write.
+            t_sent = t_write + board.wire_time_s(data)
+            motion = Motion(start, step.target, t_sent, time_ms / 1000.0)
+            with shared.lock:
+                raced = job.epoch != shared.epoch or job.cancel.is_set()
+                if not raced:
+                    shared.motion = motion
+            if raced:
+                # A stop came between our check and our write: its STOP may be older than
+                # our move.
+                board.stop(stop_order(motion, now(), self._channel_of))
                 return False
-            shared.pose.update(job.target)
+            if shared.motion_listeners:
+                sent = Sent(job.instr, data, job.t_submit, t_write, motion)
+                tell(shared.motion_listeners, sent, "motion")
+            if not self._wait_done(job, board, t_sent + time_ms / 1000.0, confirm=k == last):
+                return False  # cancelled: whoever cancelled has set the outcome
+            with shared.lock:
+                if job.epoch != shared.epoch:
+                    return False
+                shared.pose.update(step.target)
+        with shared.lock:
             shared.motion = None
             shared.current = None
             if mode is Mode.STARTUP:
@@ -237,11 +244,10 @@ class Worker:
         finish(job, Result.DONE)
         return True
 
-    def _wait_done(self, job: Job, board: SSC32U, t_end: float) -> bool:
-        """Wait out the move's time, then until `Q` says done. False if cancelled.
-
-        During a long move a `Q` every `moving_check_interval_s` finds a dead link early.
-        """
+    def _wait_done(self, job: Job, board: SSC32U, t_end: float, confirm: bool = True) -> bool:
+        """Wait out the move's time, then (with `confirm`) until `Q` says done. False if
+        cancelled. During a long move a `Q` every `moving_check_interval_s` finds a dead
+        link early."""
         every = self.settings.moving_check_interval_s
         while (left := t_end - now()) > 0:
             if job.cancel.wait(min(left, every)):
@@ -251,7 +257,7 @@ class Worker:
                     board.is_done()
                 except Interrupted:
                     return False
-        if now() < self.shared.q_unreliable_until:
+        if not confirm or now() < self.shared.q_unreliable_until:
             return True  # Q still counts down a stopped move: its '+' says nothing of this one
         deadline = Deadline(COMPLETION_GRACE_S, start=t_end)
         while True:

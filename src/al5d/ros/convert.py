@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
+from trajectory_msgs.msg import JointTrajectory
 
 from al5d.arm.instruction import (
     SAFETY,
@@ -12,8 +14,10 @@ from al5d.arm.instruction import (
     Instruction,
     Kind,
     Outcome,
+    Point,
     Result,
     new_id,
+    quote,
 )
 
 
@@ -49,6 +53,8 @@ def from_message(msg: ArmInstruction, presets: tuple[str, ...]) -> Instruction |
     ident = msg.id or new_id()
     time_ms = msg.time_ms or None
     if word in presets:
+        if len(msg.joints) or len(msg.degrees):
+            return f"{word} is a preset: it takes no joints (ambiguous); send a move instead"
         return Instruction(Kind.PRESET, preset=word, time_ms=time_ms, id=ident)
     if word == Kind.MOVE.value:
         return move_from_fields(msg.joints, msg.degrees, time_ms, ident)
@@ -56,7 +62,7 @@ def from_message(msg: ArmInstruction, presets: tuple[str, ...]) -> Instruction |
         if word == kind.value:
             return Instruction(kind, id=ident)
     known = " | ".join((*presets, "move", *(k.value for k in SAFETY)))
-    return f"unknown instruction {msg.instruction!r}; expected {known}"
+    return f"unknown instruction {quote(msg.instruction)}; expected {known}"
 
 
 def outcome_message(outcome: Outcome) -> InstructionResult:
@@ -71,3 +77,30 @@ def outcome_message(outcome: Outcome) -> InstructionResult:
 
 def outcome_from_message(msg: InstructionResult) -> Outcome:
     return Outcome(msg.id, msg.instruction, Result(msg.outcome), msg.reason, msg.elapsed_ms)
+
+
+def trajectory_id(msg: JointTrajectory) -> str:
+    """The id a trajectory's outcome carries: `header.frame_id` when the sender set it (a
+    JointTrajectory has no id field, and its frame is unused), else the header's stamp,
+    `<sec>.<nanosec>`, which a sender that stamps its messages knows."""
+    if msg.header.frame_id:
+        return str(msg.header.frame_id)
+    stamp = msg.header.stamp
+    return f"{stamp.sec}.{stamp.nanosec:09d}"
+
+
+def trajectory_from_message(msg: JointTrajectory) -> Instruction | str:
+    """The trajectory of a message (radians to degrees, times to ms), or why it is not one.
+
+    The points' joints and times are judged by the driver's validation, whole.
+    """
+    names = list(msg.joint_names)
+    points: list[Point] = []
+    for i, point in enumerate(msg.points):
+        if len(point.positions) != len(names):
+            return f"point {i}: {len(point.positions)} positions for {len(names)} joints"
+        t = point.time_from_start
+        at_ms = round((t.sec + t.nanosec * 1e-9) * 1000)
+        degrees = (math.degrees(r) for r in point.positions)
+        points.append(Point(tuple(zip(names, degrees, strict=True)), at_ms))
+    return Instruction(Kind.TRAJECTORY, points=tuple(points), id=trajectory_id(msg))

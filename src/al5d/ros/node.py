@@ -13,23 +13,25 @@ from __future__ import annotations
 import logging
 import math
 import time
-from concurrent.futures import Future
 
 import rclpy
-from al5d_interfaces.action import Move
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
-from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.context import Context
 from rclpy.node import Node
-from rclpy.task import Future as RosFuture
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
 from al5d.arm.driver import ArmDriver
-from al5d.arm.instruction import Instruction, Kind, Outcome, Result, new_id
+from al5d.arm.instruction import Outcome, new_id
 from al5d.arm.states import State
-from al5d.ros.convert import from_message, move_from_fields, outcome_message
+from al5d.ros.actions import MoveAction
+from al5d.ros.convert import (
+    from_message,
+    outcome_message,
+    trajectory_from_message,
+    trajectory_id,
+)
 from al5d.ros.runtime import (
     INSTRUCTION_TOPIC,
     JOINT_STATES_TOPIC,
@@ -62,8 +64,6 @@ class ArmNode(Node):
         # (id, monotonic ns) of each instruction message as its callback starts, when tracing
         # (`al5d serve --trace FILE`, used by the benchmarks): an append, nothing more.
         self.trace: list[tuple[str, str, int]] | None = None
-        self._goals: dict[str, ServerGoalHandle] = {}
-        self._goal_ids: dict[bytes, str] = {}
         self.result_pub = self.create_publisher(InstructionResult, RESULT_TOPIC, QOS_STREAM)
         self.results: PublishThread[Outcome] = PublishThread(
             self.result_pub, outcome_message, "al5d-results"
@@ -76,14 +76,7 @@ class ArmNode(Node):
         self.create_subscription(
             JointTrajectory, TRAJECTORY_TOPIC, self._on_trajectory, QOS_INSTRUCTIONS
         )
-        self.move_server = ActionServer(
-            self,
-            Move,
-            MOVE_ACTION,
-            execute_callback=self._execute,
-            goal_callback=lambda goal: GoalResponse.ACCEPT,
-            cancel_callback=self._cancel,
-        )
+        self.move_action = MoveAction(self, driver, MOVE_ACTION)
         self.create_timer(1.0 / driver.settings.joint_state_rate_hz, self._tick)
         driver.outcome_listeners.append(self._publish_outcome)
         driver.state_listeners.append(self._publish_state)
@@ -105,104 +98,26 @@ class ArmNode(Node):
         msg.name = self.joint_names
         msg.position = [math.radians(degrees[j]) for j in self.joint_names]
         self.joint_pub.publish(msg)
-        for ident, handle in list(self._goals.items()):
-            progress = self.driver.progress(ident)
-            if progress is not None and handle.is_active:
-                fb = Move.Feedback()
-                fb.joints = self.joint_names
-                fb.degrees = [degrees[j] for j in self.joint_names]
-                fb.progress = progress
-                handle.publish_feedback(fb)
+        self.move_action.feedback(degrees)
 
     # -- inputs ---------------------------------------------------------------------
-
-    def _refuse_message(self, ident: str, name: str, reason: str) -> None:
-        self.get_logger().warning(f"refused {name} [{ident}]: {reason}")
-        self._publish_outcome(Outcome(ident, name, Result.REFUSED, reason))
 
     def _on_instruction(self, msg: ArmInstruction) -> None:
         if self.trace is not None:
             self.trace.append((msg.id, "recv", time.monotonic_ns()))
         instr = from_message(msg, self.presets)
         if isinstance(instr, str):
-            self._refuse_message(msg.id or new_id(), msg.instruction, instr)
+            self.driver.refuse(msg.id or new_id(), msg.instruction, instr)
             return
         self.driver.submit(instr)
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:
-        """Each point becomes a queued move; its time is the step from the previous point."""
-        base = new_id()
-        previous = 0.0
-        for i, point in enumerate(msg.points):
-            ident = f"{base}.{i}"
-            if len(point.positions) != len(msg.joint_names):
-                reason = (
-                    f"point {i}: {len(point.positions)} positions for {len(msg.joint_names)} joints"
-                )
-                self._refuse_message(ident, "move", reason)
-                continue
-            t = point.time_from_start.sec + point.time_from_start.nanosec * 1e-9
-            step_ms = max(0, round((t - previous) * 1000))
-            previous = t
-            joints = tuple(
-                (n, math.degrees(r)) for n, r in zip(msg.joint_names, point.positions, strict=True)
-            )
-            self.driver.submit(
-                Instruction(Kind.MOVE, joints=joints, time_ms=step_ms or None, id=ident)
-            )
-
-    async def _execute(self, handle: ServerGoalHandle) -> Move.Result:
-        goal = handle.request
-        ident = new_id()
-        if goal.preset:
-            instr: Instruction | str = Instruction(
-                Kind.PRESET, preset=goal.preset, time_ms=goal.time_ms or None, id=ident
-            )
-        else:
-            instr = move_from_fields(goal.joints, goal.degrees, goal.time_ms or None, ident)
+        """A trajectory is one instruction: every point checked, then all run or none."""
+        instr = trajectory_from_message(msg)
         if isinstance(instr, str):
-            self._refuse_message(ident, "move", instr)
-            outcome = Outcome(ident, "move", Result.REFUSED, instr)
-        else:
-            self._goals[ident] = handle
-            self._goal_ids[bytes(handle.goal_id.uuid)] = ident
-            try:
-                outcome = await self._wait(self.driver.submit(instr))
-            finally:
-                self._goals.pop(ident, None)
-                self._goal_ids.pop(bytes(handle.goal_id.uuid), None)
-        result = Move.Result()
-        result.outcome = outcome.result.value
-        result.reason = outcome.reason
-        result.expected_ms = float(outcome.expected_ms)
-        result.elapsed_ms = float(outcome.elapsed_ms)
-        if outcome.ok:
-            handle.succeed()
-        elif handle.is_cancel_requested:
-            handle.canceled()
-        else:
-            handle.abort()
-        return result
-
-    async def _wait(self, future: Future[Outcome]) -> Outcome:
-        """Await a driver future inside the executor without holding its thread."""
-        executor = self.executor
-        done: RosFuture = RosFuture(executor=executor)
-
-        def hand_over(f: Future[Outcome]) -> None:
-            done.set_result(f.result())
-            if executor is not None:
-                executor.wake()  # the awaiting task runs at the executor's next turn
-
-        future.add_done_callback(hand_over)
-        outcome: Outcome = await done
-        return outcome
-
-    def _cancel(self, handle: ServerGoalHandle) -> CancelResponse:
-        ident = self._goal_ids.get(bytes(handle.goal_id.uuid))
-        if ident is None:
-            return CancelResponse.REJECT
-        return CancelResponse.ACCEPT if self.driver.cancel(ident) else CancelResponse.REJECT
+            self.driver.refuse(trajectory_id(msg), "trajectory", instr)
+            return
+        self.driver.submit(instr)
 
 
 class RosServer:

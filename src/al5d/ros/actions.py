@@ -1,0 +1,155 @@
+"""The move action (`/al5d/move`): goals judged whole before they are accepted.
+
+Like ros2_controllers' trajectory controller, the goal callback validates the
+whole goal and rejects a bad one before accepting it; the reason is also
+published on `/al5d/result`, with the goal's UUID (hex) as the id, so that a
+client can match it. An accepted goal's instruction carries the same id.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from concurrent.futures import Future
+from typing import Any
+
+from al5d_interfaces.action import Move
+from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
+from rclpy.node import Node
+from rclpy.task import Future as RosFuture
+
+from al5d.arm.driver import ArmDriver
+from al5d.arm.instruction import Instruction, Kind, Outcome
+from al5d.ros.convert import move_from_fields
+from al5d.ros.runtime import QOS_SERVICES
+
+#: How long a finished goal's result is kept for its client to fetch: rclpy keeps them
+#: 900 s by default and republishes every one kept on each status change, so that each
+#: goal cost more than the one before (2 ms with none kept, 10 ms with 3,000).
+RESULT_KEPT_S = 10.0
+
+
+class IdentifiedActionServer(ActionServer):
+    """An ActionServer whose goal callback can learn the goal's UUID (`goal_id_now`).
+
+    rclpy hands the goal callback the goal alone; this records the UUID just before
+    (rclpy 7.1 calls the callback within `_execute_goal_request` before its first
+    await, in the executor's one thread, so the two cannot be told apart).
+    """
+
+    goal_id_now = ""
+
+    async def _execute_goal_request(self, request_header_and_message: Any) -> None:
+        _, goal_request = request_header_and_message
+        self.goal_id_now = bytes(goal_request.goal_id.uuid).hex()
+        await super()._execute_goal_request(request_header_and_message)
+
+
+def action_server(
+    node: Node,
+    action_type: Any,
+    name: str,
+    execute: Callable[[ServerGoalHandle], Any],
+    goal: Callable[[Any], GoalResponse],
+    cancel: Callable[[ServerGoalHandle], CancelResponse],
+) -> IdentifiedActionServer:
+    """An action server with deep service queues and a short result history."""
+    return IdentifiedActionServer(
+        node,
+        action_type,
+        name,
+        execute_callback=execute,
+        goal_callback=goal,
+        cancel_callback=cancel,
+        goal_service_qos_profile=QOS_SERVICES,
+        result_service_qos_profile=QOS_SERVICES,
+        cancel_service_qos_profile=QOS_SERVICES,
+        result_timeout=int(RESULT_KEPT_S),
+    )
+
+
+async def outcome_of(node: Node, future: Future[Outcome]) -> Outcome:
+    """Await a driver future inside the node's executor without holding its thread."""
+    executor = node.executor
+    done: RosFuture = RosFuture(executor=executor)
+
+    def hand_over(f: Future[Outcome]) -> None:
+        done.set_result(f.result())
+        if executor is not None:
+            executor.wake()  # the awaiting task runs at the executor's next turn
+
+    future.add_done_callback(hand_over)
+    outcome: Outcome = await done
+    return outcome
+
+
+def goal_instruction(goal: Any, ident: str) -> Instruction | str:
+    """The instruction of a Move goal, or why it is not one (a preset and joints: ambiguous)."""
+    time_ms = goal.time_ms or None
+    if goal.preset and (len(goal.joints) or len(goal.degrees)):
+        return (
+            f"the goal names a preset ({goal.preset[:40]!r}) and joints: ambiguous; "
+            "name one or the other"
+        )
+    if goal.preset:
+        return Instruction(Kind.PRESET, preset=goal.preset, time_ms=time_ms, id=ident)
+    return move_from_fields(goal.joints, goal.degrees, time_ms, ident)
+
+
+class MoveAction:
+    """`/al5d/move` on a node: validate in the goal callback, run, report, cancel."""
+
+    def __init__(self, node: Node, driver: ArmDriver, name: str) -> None:
+        self.node = node
+        self.driver = driver
+        self.joint_names = list(driver.config.joints)
+        #: running goals by their instruction id (the goal's UUID in hex)
+        self.running: dict[str, ServerGoalHandle] = {}
+        self.server = action_server(node, Move, name, self._execute, self._goal, self._cancel)
+
+    def _goal(self, goal: Any) -> GoalResponse:
+        ident = self.server.goal_id_now
+        instr = goal_instruction(goal, ident)
+        reason = instr if isinstance(instr, str) else self.driver.validate(instr)
+        if isinstance(reason, str):
+            self.driver.refuse(ident, "move", reason)
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    async def _execute(self, handle: ServerGoalHandle) -> Move.Result:
+        ident = bytes(handle.goal_id.uuid).hex()
+        instr = goal_instruction(handle.request, ident)
+        assert not isinstance(instr, str)  # the goal callback refused those
+        self.running[ident] = handle
+        try:
+            outcome = await outcome_of(self.node, self.driver.submit(instr))
+        finally:
+            self.running.pop(ident, None)
+        result = Move.Result()
+        result.outcome = outcome.result.value
+        result.reason = outcome.reason
+        result.expected_ms = float(outcome.expected_ms)
+        result.elapsed_ms = float(outcome.elapsed_ms)
+        if outcome.ok:
+            handle.succeed()
+        elif handle.is_cancel_requested:
+            handle.canceled()
+        else:
+            handle.abort()
+        return result
+
+    def _cancel(self, handle: ServerGoalHandle) -> CancelResponse:
+        ident = bytes(handle.goal_id.uuid).hex()
+        if ident not in self.running:
+            return CancelResponse.REJECT
+        return CancelResponse.ACCEPT if self.driver.cancel(ident) else CancelResponse.REJECT
+
+    def feedback(self, degrees: dict[str, float]) -> None:
+        """Current degrees and progress to every running goal (the joint-state rate)."""
+        for ident, handle in list(self.running.items()):
+            progress = self.driver.progress(ident)
+            if progress is not None and handle.is_active:
+                fb = Move.Feedback()
+                fb.joints = self.joint_names
+                fb.degrees = [degrees[j] for j in self.joint_names]
+                fb.progress = progress
+                handle.publish_feedback(fb)
