@@ -5,22 +5,22 @@ BIN    := $(VENV)/bin
 PIP    := $(BIN)/python -m pip --disable-pip-version-check
 STAMP  := $(VENV)/.installed
 IFACES := $(VENV)/.al5d_interfaces
-IFSRC  := $(wildcard interfaces/al5d_interfaces/*.txt interfaces/al5d_interfaces/*.xml \
+IFSRC  := interfaces/wheel_includes.cmake $(wildcard interfaces/al5d_interfaces/*.txt interfaces/al5d_interfaces/*.xml \
                      interfaces/al5d_interfaces/msg/* interfaces/al5d_interfaces/action/*)
 # Standard message packages that are not on PyPI (control_msgs for MoveIt's
 # controllers, tf2_msgs for /tf), one stamp each.
 STDMSGS := $(VENV)/.control_msgs $(VENV)/.tf2_msgs
 
-.PHONY: install demo test bench soak lint clean
+.PHONY: install chromium demo test bench soak lint clean
 
-install: $(STAMP) $(IFACES) $(STDMSGS)
+install: $(STAMP) $(IFACES) $(STDMSGS) chromium
 
 # Every version is pinned: pyproject.toml pins what we use, constraints.txt
 # pins everything those bring along.
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(PIP) install --quiet --upgrade pip==26.3
-	$(PIP) install --quiet -c constraints.txt -e '.[dev,ros,rosbuild,bench]'
+	$(PIP) install --quiet -c constraints.txt -e '.[dev,ros,rosbuild,bench,web]'
 	touch $(STAMP)
 
 # The ROS messages and action, built with rosidl into the venv's prefix so that
@@ -41,10 +41,10 @@ $(IFACES): $(STAMP) $(IFSRC)
 # ourselves (its package.xml in the venv says "built by al5d") is rebuilt when
 # its sources change or its stamp is removed.
 $(VENV)/.control_msgs: CHECK := control_msgs.msg, control_msgs.action
-$(VENV)/.control_msgs: $(wildcard interfaces/control_msgs/*.txt interfaces/control_msgs/*.xml \
+$(VENV)/.control_msgs: interfaces/wheel_includes.cmake $(wildcard interfaces/control_msgs/*.txt interfaces/control_msgs/*.xml \
                          interfaces/control_msgs/msg/* interfaces/control_msgs/action/*)
 $(VENV)/.tf2_msgs: CHECK := tf2_msgs.msg
-$(VENV)/.tf2_msgs: $(wildcard interfaces/tf2_msgs/*.txt interfaces/tf2_msgs/*.xml interfaces/tf2_msgs/msg/*)
+$(VENV)/.tf2_msgs: interfaces/wheel_includes.cmake $(wildcard interfaces/tf2_msgs/*.txt interfaces/tf2_msgs/*.xml interfaces/tf2_msgs/msg/*)
 $(STDMSGS): $(VENV)/.%: $(STAMP)
 	@if ! grep -qs "built by al5d" $(VENV)/share/$*/package.xml && \
 	    $(BIN)/python -c "import $(CHECK)" 2>/dev/null; then \
@@ -59,11 +59,25 @@ $(STDMSGS): $(VENV)/.%: $(STAMP)
 	{ cmake --install build/$* > build/$*/install.log 2>&1 || { tail -20 build/$*/install.log; exit 1; }; } && \
 	$(BIN)/python -c "import $(CHECK)" && touch $@
 
+# The web view's browser test (tests/test_web.py) drives Debian's headless Chromium with
+# playwright, which cannot download a browser of its own here. Installed when missing,
+# pinned to the version Debian offers (bookworm-security replaces it on each security
+# release: then update the pin to what `apt-cache policy chromium` offers).
+CHROMIUM_VERSION := 156.0.8078.79-1~deb12u1
+chromium:
+	@command -v chromium >/dev/null || { \
+	  echo "chromium: installing $(CHROMIUM_VERSION) (apt-get)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+	    --no-install-recommends chromium=$(CHROMIUM_VERSION) >/dev/null; }
+
 demo: install
 	$(BIN)/al5d demo
 
+# Two workers for most of the suite (it waits on servos, wires and DDS more than on the
+# CPU), then the load suites (marked solo) alone.
 test: install
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not solo"
+	$(BIN)/python -m pytest -q -m solo
 
 bench: install
 	$(BIN)/python bench/run.py

@@ -1,13 +1,15 @@
 """Figures that need the server in its own process: ROS latency, command to board, stop, reach.
 
-The emulated board lives in this process behind a pty link (so its records and
-servo model are at hand); `al5d serve --port LINK` is a separate process; this
-process is also the ROS 2 client. Every time is CLOCK_MONOTONIC, which all
-processes on the machine share.
+Three processes: the emulated board (`al5d emulator --record -`, so that the
+times it stamps are not held up by this process's GIL), `al5d serve --port
+LINK`, and this one, the ROS 2 client, which reads the board's record and
+replays it in a servo model of its own for the reach times. Every time is
+CLOCK_MONOTONIC, which all processes on the machine share.
 """
 
 from __future__ import annotations
 
+import functools
 import itertools
 import os
 import random
@@ -20,16 +22,19 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from boardproc import BoardProcess
 from proc import Proc
 from rospeer import Peer, wait_future, wait_until
+from spy import profiled, top_frames
 from stats import figure
 from std_srvs.srv import Trigger
 
 from al5d.app.qos import TOLERANCE_DEG
 from al5d.arm.config import DEFAULT_CONFIG, ArmConfig
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.emulator import Emulator, Record
+from al5d.ssc32u.emulator import Record
 
+OUT = Path(__file__).resolve().parent / "out"
 STOP_LINES = [f"STOP{ch}".encode() for ch in range(6)]
 STOP_BYTES = len(p.CANCEL + p.encode_stop(range(6)))
 
@@ -54,15 +59,22 @@ def proc_stat(pid: int) -> tuple[float, int]:
 
 
 class Rig:
-    """Emulator here, server there, and this process as the client."""
+    """The board and the server in processes of their own, and this process as the client."""
 
-    def __init__(self, config: ArmConfig, baud: int, workdir: Path, peer: Peer) -> None:
+    def __init__(
+        self,
+        config: ArmConfig,
+        baud: int,
+        workdir: Path,
+        peer: Peer,
+        env: dict[str, str] | None = None,
+    ) -> None:
         self.config = config
         self.baud = baud
         self.peer = peer
         self.link = workdir / f"ssc32u-{baud}"
         self.trace = workdir / f"trace-{baud}.txt"
-        self.emu = Emulator(config, baud=baud, link=self.link).start()
+        self.emu = BoardProcess(self.link, baud, config)
         cfg = bench_config(workdir / "bench.yaml", 100_000)
         self.t_spawn = time.monotonic()
         self.proc = Proc(
@@ -77,6 +89,7 @@ class Rig:
             str(self.trace),
             "--log-level",
             "INFO",
+            env=env,
         )
         try:
             self.proc.err.wait_for("STATE: ready", 30)
@@ -274,6 +287,269 @@ def emergency_stop(rig: Rig, trials: int = 200, queued: int = 1000) -> dict[str,
     return out
 
 
+def _stops(channels: list[int], t0: float, records: list[Record]) -> list[Record]:
+    wanted = {f"STOP{ch}".encode() for ch in channels}
+    return [r for r in records if r.t_effect > t0 and r.raw in wanted]
+
+
+def _halted(channels: list[int], t0: float, records: list[Record]) -> bool:
+    return len(_stops(channels, t0, records)) >= len(channels)
+
+
+def stop_order(rig: Rig, trials: int = 10) -> dict[str, Any]:
+    """By number of moving joints: stop request (service) until the last MOVING servo's STOP
+    is in effect. The moving joints' STOPs go first, the fastest first; in channel order
+    (before issue 9) the last moving one could wait behind every STOP before its channel."""
+    cfg = rig.config
+    names = list(cfg.joints)
+    out: dict[str, Any] = {}
+    for k in range(1, len(names) + 1):
+        moving = names[-k:]  # the last channels: the worst case for channel order
+        channels = [cfg.joints[j].channel for j in moving]
+        samples = []
+        for trial in range(trials):
+            target = {
+                j: cfg.joints[j].range_deg[trial % 2] * 0.8
+                + cfg.joints[j].range_deg[1 - trial % 2] * 0.2
+                for j in moving
+            }
+            ident, t_pub = rig.move("order", 3000, **target)
+            rig.record_after(t_pub, lambda r: b"T3000" in r.raw)
+            time.sleep(0.3)
+            t0 = time.monotonic()
+            wait_future(rig.peer.services["stop"].call_async(Trigger.Request()))
+            stops = rig.emu.wait_for(functools.partial(_halted, channels, t0), 10)
+            samples.append((max(r.t_effect for r in _stops(channels, t0, stops)) - t0) * 1000)
+            rig.peer.trigger("release")
+            rig.peer.result(ident)
+        ours = len(p.CANCEL) + sum(len(f"STOP{ch}\r") for ch in channels)
+        in_channel_order = len(p.CANCEL) + sum(
+            len(f"STOP{ch}\r") for ch in sorted(cfg.channels) if ch <= max(channels)
+        )
+        out[str(k)] = figure(
+            f"stop: last of {k} moving servos halted",
+            samples,
+            wire_ms=p.wire_time_s(ours, rig.baud) * 1000,
+            channel_order_wire_ms=p.wire_time_s(in_channel_order, rig.baud) * 1000,
+        )
+    return out
+
+
+def goal_cost(rig: Rig, before: int = 3000, n: int = 100) -> dict[str, Any]:
+    """Round trip of a Move goal (send -> accepted -> result), and the server's CPU per goal,
+    with no goal before and after `before` finished goals (rclpy used to keep them all)."""
+    from al5d_interfaces.action import Move
+
+    def rounds(count: int) -> tuple[list[float], float]:
+        cpu0, _ = proc_stat(rig.proc.popen.pid)
+        samples = []
+        for i in range(count):
+            t0 = time.monotonic()
+            handle = wait_future(
+                rig.peer.move.send_goal_async(Move.Goal(joints=["base"], degrees=[float(i % 2)]))
+            )
+            wait_future(handle.get_result_async())
+            samples.append((time.monotonic() - t0) * 1000)
+        cpu1, _ = proc_stat(rig.proc.popen.pid)
+        return samples, (cpu1 - cpu0) / count * 1000
+
+    first, cpu_first = rounds(n)
+    _, rss0 = proc_stat(rig.proc.popen.pid)
+    rounds(before)
+    last, cpu_last = rounds(n)
+    _, rss1 = proc_stat(rig.proc.popen.pid)
+    return {
+        "first": figure("goal round trip, the first goals", first, cpu_ms=cpu_first),
+        "after": figure(
+            f"goal round trip after {before} goals", last, cpu_ms=cpu_last, before=before
+        ),
+        "memory_per_goal_kb": (rss1 - rss0) / (before + n),
+    }
+
+
+def _fjt_client(rig: Rig) -> Any:
+    from control_msgs.action import FollowJointTrajectory
+    from rospeer import LockedActionClient
+
+    client = LockedActionClient(
+        rig.peer.node, FollowJointTrajectory, rig.peer.names.follow_joint_trajectory
+    )
+    assert client.wait_for_server(timeout_sec=10)
+    return client
+
+
+def _fjt_goal(rig: Rig, points: list[tuple[float, dict[str, float]]]) -> Any:
+    from builtin_interfaces.msg import Duration
+    from control_msgs.action import FollowJointTrajectory
+    from trajectory_msgs.msg import JointTrajectoryPoint
+
+    goal = FollowJointTrajectory.Goal()
+    names = list(points[0][1])
+    goal.trajectory.joint_names = names
+    for t, degrees in points:
+        values = rig.config.model.to_urdf(degrees)
+        ns = round(t * 1e9)
+        goal.trajectory.points.append(
+            JointTrajectoryPoint(
+                positions=[values[j] for j in names],
+                time_from_start=Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000),
+            )
+        )
+    return goal
+
+
+def trajectory_timing(rig: Rig, runs: int = 5, points: int = 10, seed: int = 3) -> dict[str, Any]:
+    """FollowJointTrajectory: when the emulated servos reached each point, against its
+    time_from_start counted from the first group move's effect (execution start)."""
+    from action_msgs.msg import GoalStatus
+
+    cfg, rng = rig.config, random.Random(seed)
+    client = _fjt_client(rig)
+    arm = ["base", "shoulder", "elbow", "wrist", "wrist_rotate"]
+    late_ms: list[float] = []
+    wire_ms = error = 0.0
+    try:
+        for _ in range(runs):
+            rig.settle()
+            pose: dict[str, float] | None = None  # where the last run left it: unknown here
+            plan: list[tuple[float, dict[str, float]]] = []
+            t = 0.0
+            for _ in range(points):
+                target = {j: rng.uniform(*cfg.joints[j].range_deg) * 0.3 for j in arm}
+                target["elbow"] = rng.uniform(30, 90)
+                # Feasible with 30 % to spare: the figure is our timing, not the servos'.
+                need = (
+                    1.0
+                    if pose is None
+                    else max(abs(target[j] - pose[j]) / cfg.joints[j].speed_deg_s for j in arm)
+                )
+                t += max(0.08, need * 1.3)
+                plan.append((round(t, 3), target))
+                pose = target
+            t_send = time.monotonic()
+            handle = wait_future(client.send_goal_async(_fjt_goal(rig, plan)))
+            assert handle.accepted
+            answer = wait_future(handle.get_result_async(), 60)
+            assert answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result.error_string
+            records = [
+                r
+                for r in rig.emu.wait_for(lambda rs: True, 1)
+                if r.t_effect > t_send and r.raw.startswith(b"#")
+            ][-points:]
+            assert len(records) == points, f"{len(records)} group moves for {points} points"
+            model = rig.emu.model()
+            start = records[0].t_effect
+            wire_ms = p.wire_time_s(len(records[0].raw) + 1, rig.baud) * 1000
+            for (at, target), rec in zip(plan, records, strict=True):
+                # The board's pulses reach the point when its group move's time has run;
+                # the servos follow within the tolerance (the plan is within their speed).
+                (cmd,) = rec.commands
+                assert isinstance(cmd, p.GroupMove) and cmd.time_ms is not None
+                t_point = rec.t_effect + cmd.time_ms / 1000
+                late_ms.append(abs(t_point - start - at) * 1000)
+                # The servo as this move left it (servo_degrees(t) is the latest move's).
+                there = model.trajectory(rec.t_effect, [t_point], target)
+                error = max(error, max(abs(there[j][1][0] - d) for j, d in target.items()))
+    finally:
+        client.destroy()
+    return figure(
+        "|trajectory point reached - its time_from_start|",
+        late_ms,
+        wire_ms=wire_ms,
+        servo_error_deg=error,
+    )
+
+
+def trajectory_goal_latency(rig: Rig, rounds: int = 20) -> dict[str, Any]:
+    """Send -> goal response for a 100-point trajectory: accepted (then cancelled at once),
+    and with its last point out of range (rejected)."""
+    client = _fjt_client(rig)
+    plan = [(0.2 * (i + 1), {"base": 20.0 * ((i % 2) * 2 - 1)}) for i in range(100)]
+    good = _fjt_goal(rig, plan)
+    bad = _fjt_goal(rig, [*plan[:-1], (plan[-1][0], {"base": 500.0})])
+    accept, reject = [], []
+    try:
+        for _ in range(rounds):
+            rig.settle()
+            t0 = time.monotonic()
+            handle = wait_future(client.send_goal_async(good))
+            accept.append((time.monotonic() - t0) * 1000)
+            assert handle.accepted
+            wait_future(handle.cancel_goal_async())
+            wait_future(handle.get_result_async(), 10)
+            t0 = time.monotonic()
+            handle = wait_future(client.send_goal_async(bad))
+            reject.append((time.monotonic() - t0) * 1000)
+            assert not handle.accepted
+    finally:
+        client.destroy()
+    return {
+        "accepted": figure("100-point trajectory goal accepted", accept),
+        "rejected": figure("100-point trajectory goal rejected", reject),
+    }
+
+
+def line_path(rig: Rig) -> dict[str, Any]:
+    """`move_to path=line` from the record of the board: the tool's largest distance from
+    the straight line, the group moves used, and the time against one joint-space move."""
+    from al5d_interfaces.msg import ArmInstruction
+
+    from al5d.model import distance_to_segment, forward
+
+    geometry = rig.config.model.geometry
+    start_xyz, end_xyz = (0.25, -0.12, 0.06), (0.25, 0.12, 0.14)
+
+    def move_to(xyz: tuple[float, float, float], line: bool) -> tuple[list[Record], float]:
+        ident = rig.ident("line" if line else "joint")
+        fields = ["x", "y", "z", "pitch"] + (["path"] if line else [])
+        values = [*xyz, -0.5235987755982988] + ([1.0] if line else [])
+        t0 = time.monotonic()
+        rig.peer.pub.publish(
+            ArmInstruction(instruction="move_to", joints=fields, degrees=values, id=ident)
+        )
+        result = rig.peer.result(ident, 30)
+        assert result.outcome == "done", result.reason
+        moves = [
+            r
+            for r in rig.emu.wait_for(lambda rs: True, 1)
+            if r.t_effect > t0 and r.raw.startswith(b"#")
+        ]
+        return moves, result.elapsed_ms
+
+    figures: dict[str, Any] = {}
+    for line in (False, True):
+        move_to(start_xyz, False)
+        moves, _ = move_to(end_xyz, line)
+        model = rig.emu.model()
+        t_first = moves[0].t_effect
+        t_end = model.settle_time(0.05)
+        worst = 0.0
+        for pose in executed(model, moves, t_end):
+            tip = forward(geometry, pose).position
+            worst = max(worst, distance_to_segment(start_xyz, end_xyz, tip))
+        figures["line" if line else "joint"] = {
+            "segments": len(moves),
+            "max_deviation_mm": worst * 1000,
+            "time_ms": (t_end - t_first) * 1000,
+        }
+    return figures
+
+
+def executed(model: Any, moves: list[Record], t_end: float, dt: float = 0.001) -> list[Any]:
+    """The servos' angles every `dt` from the first move's effect to `t_end`, each move's
+    span from its own snapshot (`servo_degrees(t)` tells the latest move's only)."""
+    last = model.servo_degrees()  # the joints no move here touches stay where they are
+    poses = []
+    for i, rec in enumerate(moves):
+        t1 = moves[i + 1].t_effect if i + 1 < len(moves) else t_end
+        times = [rec.t_effect + k * dt for k in range(max(1, int((t1 - rec.t_effect) / dt)))]
+        span = model.trajectory(rec.t_effect, times)
+        for k in range(len(times)):
+            last = {**last, **{j: servo[k] for j, (_, servo) in span.items()}}
+            poses.append(last)
+    return poses
+
+
 def physical_minimum_s(
     config: ArmConfig, start: dict[str, float], target: dict[str, float]
 ) -> float:
@@ -295,7 +571,7 @@ def reach(rig: Rig, n: int = 200, seed: int = 1) -> dict[str, Any]:
         rec = rig.record_after(t_pub, lambda r: r.raw.startswith(b"#"))
         result = rig.peer.result(ident, 30)
         assert result.outcome == "done", result.reason
-        t_reach = rig.emu.reach_time(rec.t_effect, TOLERANCE_DEG, target)
+        t_reach = rig.emu.model().reach_time(rec.t_effect, TOLERANCE_DEG, target)
         assert t_reach is not None
         bound = physical_minimum_s(cfg, pose, target) + p.wire_time_s(len(rec.raw) + 1, rig.baud)
         pose = dict(target)
@@ -320,7 +596,7 @@ def reach(rig: Rig, n: int = 200, seed: int = 1) -> dict[str, Any]:
         "worst_bound_ms": worst_bound,
         "worst_trajectory": {
             "t_ms": [(t - worst_rec.t_effect) * 1000 for t in times],
-            "joints": rig.emu.trajectory(worst_rec.t_effect, times),
+            "joints": rig.emu.model().trajectory(worst_rec.t_effect, times),
         },
         "within_2300": sum(r <= 2300 for r in reach_ms) / len(reach_ms),
     }
@@ -371,6 +647,7 @@ def cold_start(runs: int = 3) -> dict[str, Any]:
 def run(config: ArmConfig, log: Any) -> dict[str, Any]:
     out: dict[str, Any] = {}
     workdir = Path(tempfile.mkdtemp(prefix="al5d-bench-"))
+    OUT.mkdir(exist_ok=True)
     log("cold start (3 runs of al5d serve)")
     out["cold_start"] = cold_start()
     peer = Peer()
@@ -383,15 +660,30 @@ def run(config: ArmConfig, log: Any) -> dict[str, Any]:
         out["footprint"] = footprint(rig)
         log("ROS client -> server latency (2000 paced messages)")
         ids, sent = ros_latency(rig)
-        log("command to board at 9600 baud (300 moves)")
-        out["c2b_9600"] = command_to_board(rig)
+        log("command to board at 9600 baud (300 moves), py-spy on the server")
+        raw = OUT / "command-path-9600.txt"
+        with profiled(rig.proc.popen.pid, raw):
+            out["c2b_9600"] = command_to_board(rig)
+        out["profile_9600"] = {
+            "file": str(raw),
+            "top": top_frames(raw, "ArmNode._on_instruction") if raw.exists() else [],
+        }
         log("emergency stop (200 trials, 1000 moves queued each)")
         peer.listen_results(False)  # 200,000 cancelled results would load this process
         out["stop"] = emergency_stop(rig)
         peer.listen_results(True)
         rig.handshake(peer)
+        log("stop order: the last moving servo halted, by number of moving joints")
+        out["stop_order"] = stop_order(rig)
         log("reach time, SA03 (200 random targets + the worst case)")
         out["reach"] = reach(rig)
+        log("FollowJointTrajectory: 10-point timing (5 runs), 100-point goal latency")
+        out["trajectory_timing"] = trajectory_timing(rig)
+        out["trajectory_goals"] = trajectory_goal_latency(rig)
+        log("move_to path=line against path=joint, from the board's record")
+        out["line_path"] = line_path(rig)
+        log("Move goals: round trip with none and with 3000 goals before")
+        out["goals"] = goal_cost(rig)
         rig.settle()
         trace = rig.close()
         out["ros_latency"] = figure(
@@ -400,8 +692,9 @@ def run(config: ArmConfig, log: Any) -> dict[str, Any]:
         out["c2b_9600"]["parts"] = breakdown(out["c2b_9600"], trace)
         rig = Rig(config, 115200, workdir, peer)
         rigs.append(rig)
-        log("command to board at 115200 baud (300 moves)")
-        out["c2b_115200"] = command_to_board(rig)
+        log("command to board at 115200 baud (300 moves), flame graph of the server")
+        with profiled(rig.proc.popen.pid, OUT / "command-path-115200.svg", "flamegraph"):
+            out["c2b_115200"] = command_to_board(rig)
         log("throughput over ROS (a burst of 10000 moves)")
         burst = throughput(rig)
         rig.settle()

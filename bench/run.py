@@ -23,8 +23,10 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 import micro  # noqa: E402
+import model_bench  # noqa: E402
 import plot  # noqa: E402
 import rosbench  # noqa: E402
+import webbench  # noqa: E402
 
 from al5d.arm.config import load_config  # noqa: E402
 
@@ -126,6 +128,94 @@ def rows(r: dict[str, Any]) -> list[tuple[str, str, str, str, bool | None]]:
             None,
         )
     )
+    for k, f in r["stop_order"].items():
+        out.append(
+            (
+                f"  ... stop, last of {k} moving servo(s) halted (moving joints first)",
+                f"p50 {ms(f['p50_ms'])}, max {ms(f['max_ms'])} (wire {ms(f['wire_ms'])}; "
+                f"in channel order the wire alone was {ms(f['channel_order_wire_ms'])})",
+                "-",
+                "(information)",
+                None,
+            )
+        )
+    g = r["goals"]
+    out.append(
+        (
+            "Move goal round trip (send -> result), a one-degree move",
+            f"first goals p50 {ms(g['first']['p50_ms'])} (server CPU {g['first']['cpu_ms']:.2f} "
+            f"ms/goal); after {g['after']['before']} goals p50 {ms(g['after']['p50_ms'])} "
+            f"(CPU {g['after']['cpu_ms']:.2f} ms/goal); memory {g['memory_per_goal_kb']:.2f} "
+            "kB/goal",
+            "-",
+            "flat: after within 20 % of first",
+            g["after"]["p50_ms"] <= g["first"]["p50_ms"] * 1.2,
+        )
+    )
+    top = r["profile_9600"]["top"]
+    out.append(
+        (
+            "  ... where the server's command path spends its CPU (py-spy, self time)",
+            "; ".join(f"{frame} {share * 100:.0f} %" for frame, share in top) or "(no samples)",
+            "-",
+            "(information)",
+            None,
+        )
+    )
+    tt = r["trajectory_timing"]
+    out.append(
+        (
+            "FollowJointTrajectory: |point reached - time_from_start| (10 points x 5)",
+            f"p50 {ms(tt['p50_ms'])}, max {ms(tt['max_ms'])} (wire {ms(tt['wire_ms'])}); "
+            f"servos within {tt['servo_error_deg']:.2f} deg of each point then",
+            "-",
+            "max <= wire + 5 ms",
+            tt["max_ms"] <= tt["wire_ms"] + 5,
+        )
+    )
+    tg = r["trajectory_goals"]
+    out.append(
+        (
+            "  ... a 100-point trajectory goal: accepted / rejected (send -> answer)",
+            f"p50 {ms(tg['accepted']['p50_ms'])} / {ms(tg['rejected']['p50_ms'])}, "
+            f"p99 {ms(tg['accepted']['p99_ms'])} / {ms(tg['rejected']['p99_ms'])}",
+            "-",
+            "(information)",
+            None,
+        )
+    )
+    lp = r["line_path"]
+    out.append(
+        (
+            "move_to path=line: tool's max distance from the line (board record)",
+            f"{lp['line']['max_deviation_mm']:.2f} mm in {lp['line']['segments']} group moves, "
+            f"{ms(lp['line']['time_ms'])}; path=joint: {lp['joint']['max_deviation_mm']:.1f} mm "
+            f"in 1, {ms(lp['joint']['time_ms'])}",
+            "-",
+            "<= 1 mm",
+            lp["line"]["max_deviation_mm"] <= 1,
+        )
+    )
+    mk = r["model"]
+    out.append(
+        (
+            "IK solve (closed form)",
+            f"p50 {ms(mk['ik_p50_ms'])}, p99 {ms(mk['ik_p99_ms'])}",
+            "-",
+            "p99 <= 0.02 ms",
+            mk["ik_p99_ms"] <= 0.02,
+        )
+    )
+    out.append(
+        (
+            "FK/IK round trip over the workspace (max tip error)",
+            f"{mk['round_trip_mm']:.1e} mm over {mk['round_trip_n']:,} poses (joint grid); "
+            f"{mk['cartesian_mm']:.1e} mm over {mk['cartesian_solved']:,} reachable targets",
+            "-",
+            "<= 0.01 mm",
+            max(mk["round_trip_mm"], mk["cartesian_mm"]) <= 0.01,
+        )
+    )
     rc = r["reach"]
     out.append(
         (
@@ -193,6 +283,22 @@ def rows(r: dict[str, Any]) -> list[tuple[str, str, str, str, bool | None]]:
     return out
 
 
+def model_figures() -> dict[str, Any]:
+    model, _ = model_bench.load_model(model_bench.SHIPPED)
+    p50, p99 = model_bench.ik_timing(model)
+    n, err = model_bench.round_trip_joint_grid(model)
+    points, solved, cerr = model_bench.round_trip_cartesian_grid(model)
+    return {
+        "ik_p50_ms": p50,
+        "ik_p99_ms": p99,
+        "round_trip_n": n,
+        "round_trip_mm": err,
+        "cartesian_points": points,
+        "cartesian_solved": solved,
+        "cartesian_mm": cerr,
+    }
+
+
 def table(lines: list[tuple[str, str, str, str, bool | None]]) -> str:
     w = [max(len(x[i]) for x in lines) for i in range(4)]
     head = ("figure", "ours", "design doc", "target")
@@ -221,13 +327,19 @@ def main() -> int:
     results["serial_write"] = micro.serial_write(workdir)
     log("throughput in-process (50000 moves)")
     results["throughput_in_process"] = micro.throughput_in_process(config, workdir)
+    log("robot model: IK time, FK/IK round trips")
+    results["model"] = model_figures()
     results.update(rosbench.run(config, log))
+    log("the web view (a real headless browser)")
+    results["web"] = webbench.run(log)
     results["elapsed_s"] = time.monotonic() - started
     lines = rows(results)
     OUT.mkdir(exist_ok=True)
     (OUT / "results.json").write_text(json.dumps(results, indent=1))
     plot.draw(results, OUT / "bench.png")
     print(table(lines))
+    print("\nThe web view (al5d web, headless Chromium):")
+    print(webbench.table(results["web"]))
     held = sum(x[4] is True for x in lines)
     targets = sum(x[4] is not None for x in lines)
     print(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -37,9 +38,14 @@ class Rig:
         )
 
 
+#: The link checks the driver makes on its own: `Q`, or `QP` of one channel (which also
+#: finds a board that has reset).
+LINK_CHECK = re.compile(rb"Q|QP\d{1,2}")
+
+
 def written(records: list[Record]) -> list[bytes]:
-    """The lines the board received, but the link checks (`Q`) the driver makes on its own."""
-    return [r.raw for r in records if r.raw != b"Q"]
+    """The lines the board received, but the link checks the driver makes on its own."""
+    return [r.raw for r in records if not LINK_CHECK.fullmatch(r.raw)]
 
 
 def pulses(config: ArmConfig, pose: dict[str, float]) -> dict[int, int]:

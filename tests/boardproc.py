@@ -13,8 +13,10 @@ from pathlib import Path
 
 from proc import AL5D
 
+from al5d.arm.config import ArmConfig
 from al5d.clock import Deadline
 from al5d.ssc32u.emulator import Record
+from al5d.ssc32u.emulator.board import Board
 
 
 def _before_the_board() -> None:
@@ -28,10 +30,13 @@ def _before_the_board() -> None:
 class BoardProcess:
     """An emulated SSC-32U at `link`; `records` and `wait_for` as the in-process emulator has."""
 
-    def __init__(self, link: Path, baud: int = 9600) -> None:
+    def __init__(self, link: Path, baud: int = 9600, config: ArmConfig | None = None) -> None:
         self.port = str(link)
         self.baud = baud
         self._records: list[Record] = []
+        self._replayed = 0
+        #: The board's model here, fed the records it streams (see `model`).
+        self._model = Board(config, baud=baud) if config is not None else None
         self._changed = threading.Condition()
         self.popen = subprocess.Popen(
             [AL5D, "emulator", "--baud", str(baud), "--link", str(link), "--record", "-"],
@@ -70,6 +75,24 @@ class BoardProcess:
                 if deadline.expired:
                     raise TimeoutError(f"board process: condition not met in {timeout} s")
                 self._changed.wait(deadline.left())
+
+    def model(self) -> Board:
+        """The board's logic replayed here from its record: the same servo model (reach
+        times, trajectories) as the process's own, without sharing its GIL.
+
+        The replay starts from the same power-up state, and every line the board acted on
+        takes effect at the same time; lines it never ran (cancelled by ESC, or noise)
+        are left out.
+        """
+        assert self._model is not None, "BoardProcess(config=...) to replay the servos"
+        with self._changed:
+            new = self._records[self._replayed :]
+            self._replayed = len(self._records)
+        for rec in new:
+            if rec.ignored == "cancelled by ESC" or (rec.ignored or "").startswith("noise"):
+                continue
+            self._model.execute(rec.raw, rec.t_effect)
+        return self._model
 
     def close(self) -> None:
         if self.popen.poll() is None:

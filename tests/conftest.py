@@ -12,8 +12,14 @@ from typing import Any
 import pytest
 
 # A ROS domain of our own for the whole run (every server and client the tests start
-# inherits it), so that parallel runs on one host never see each other.
-os.environ["ROS_DOMAIN_ID"] = str(100 + os.getpid() % 120)
+# inherits it), so that parallel runs on one host never see each other: two runs differ
+# by their pytest process (under pytest-xdist, the workers' parent), and each xdist
+# worker takes two domains of its own (one test uses the next domain as "another").
+os.environ["ROS_DOMAIN_ID"] = str(
+    100
+    + (os.getppid() if "PYTEST_XDIST_WORKER" in os.environ else os.getpid()) % 20 * 6
+    + int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")) % 3 * 2
+)
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 from armrig import Rig, make_rig
@@ -63,6 +69,22 @@ def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, ArmD
             yield emu, driver
         finally:
             driver.close()
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    """Under pytest-xdist, a worker hands its fuzz counts to the controller."""
+    from fuzzcount import CASES
+
+    output = getattr(session.config, "workeroutput", None)
+    if output is not None:
+        output["fuzz_cases"] = dict(CASES)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node: Any, error: Any) -> None:
+    from fuzzcount import CASES
+
+    CASES.update(getattr(node, "workeroutput", {}).get("fuzz_cases", {}))
 
 
 def pytest_terminal_summary(terminalreporter: Any) -> None:

@@ -14,11 +14,10 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from al5d.ros.runtime import (
-    INSTRUCTION_TOPIC,
     QOS_INSTRUCTIONS,
     QOS_SERVICES,
     QOS_STREAM,
-    RESULT_TOPIC,
+    Names,
     Spinner,
     start_context,
 )
@@ -84,30 +83,34 @@ class LockedActionClient(ActionClient):
 
 
 class Peer:
-    """A ROS 2 node in the test process: publishes, calls, and listens like any client."""
+    """A ROS 2 node in the test process: publishes, calls, and listens like any client, to
+    the server in `namespace` (none by default)."""
 
-    def __init__(self, results: bool = True, name: str = "al5d_test_peer") -> None:
+    def __init__(
+        self, results: bool = True, name: str = "al5d_test_peer", namespace: str = ""
+    ) -> None:
+        self.names = names = Names.of(namespace)
         self.context = start_context()
         self.node = Node(name, context=self.context)
-        self.pub = self.node.create_publisher(ArmInstruction, INSTRUCTION_TOPIC, QOS_INSTRUCTIONS)
+        self.pub = self.node.create_publisher(ArmInstruction, names.instruction, QOS_INSTRUCTIONS)
         self.results: dict[str, InstructionResult] = {}
         self.joint_states: list[JointState] = []
         self._result_sub: Any = None
         if results:  # a benchmark may not want a thousand results arriving as it measures
             self.listen_results()
-        self.node.create_subscription(JointState, "/joint_states", self.joint_states.append, 10)
+        self.node.create_subscription(JointState, names.joint_states, self.joint_states.append, 10)
         self.services = {
-            n: self.node.create_client(Trigger, f"/al5d/{n}", qos_profile=QOS_SERVICES)
-            for n in ("stop", "release", "shutdown")
+            n.rsplit("/", 1)[-1]: self.node.create_client(Trigger, n, qos_profile=QOS_SERVICES)
+            for n in names.services
         }
-        self.move = LockedActionClient(self.node, Move, "/al5d/move")
+        self.move = LockedActionClient(self.node, Move, names.move)
         self.spinner = Spinner(self.node, self.context)
 
     def listen_results(self, on: bool = True) -> None:
         """Take /al5d/result, or stop (a benchmark's burst of results loads this process)."""
         if on and self._result_sub is None:
             self._result_sub = self.node.create_subscription(
-                InstructionResult, RESULT_TOPIC, self._on_result, QOS_STREAM
+                InstructionResult, self.names.result, self._on_result, QOS_STREAM
             )
         elif not on and self._result_sub is not None:
             self.node.destroy_subscription(self._result_sub)
@@ -116,11 +119,16 @@ class Peer:
     def _on_result(self, msg: InstructionResult) -> None:
         self.results[msg.id] = msg
 
+    def results_now(self) -> dict[str, InstructionResult]:
+        """A copy of the results so far, safe to iterate while the spin thread adds more
+        (dict() copies in one step under the GIL; a Python loop over the dict does not)."""
+        return dict(self.results)
+
     def wait_for_server(self) -> None:
         wait_until(
             lambda: (
                 self.pub.get_subscription_count() > 0
-                and self.node.count_publishers(RESULT_TOPIC) > 0
+                and self.node.count_publishers(self.names.result) > 0
             ),
             20,
             "the server's topics",

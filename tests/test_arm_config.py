@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import math
 from pathlib import Path
 from typing import Any
 
@@ -113,6 +114,15 @@ def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
             r"joints\.elbow: give the servo's model .* or its speed_deg_s",
         ),
         (lambda d: d["presets"]["park"].update(base=float("nan")), r"presets\.park\.base"),
+        (
+            lambda d: d["geometry"].update(ulna_mm=-5),
+            r"geometry\.ulna_mm: Input should be greater than 0 \(value: -5\)",
+        ),
+        (lambda d: d["geometry"].update(ulna=183), r"geometry\.ulna: Extra inputs"),
+        (
+            lambda d: d["joints"].update(finger=d["joints"].pop("gripper")),
+            r"joints: an AL5D has base, .*; missing: gripper; not an AL5D joint: finger",
+        ),
     ],
 )
 def test_a_bad_config_is_refused_naming_the_key(
@@ -133,3 +143,11 @@ def test_file_errors(tmp_path: Path) -> None:
     bad.write_text("- just a list")
     with pytest.raises(ConfigError, match="must hold a mapping"):
         load_config(bad)
+
+
+def test_the_geometry_makes_the_robot_model(data: dict[str, Any]) -> None:
+    data["geometry"]["ulna_mm"] = 183.0  # a measured arm
+    model = parse_config(data).model
+    assert model.geometry.ulna == pytest.approx(0.183)
+    assert model.geometry.humerus == pytest.approx(0.14605)
+    assert model.urdf_limits("elbow") == pytest.approx((0.0, math.radians(135)))

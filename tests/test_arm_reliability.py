@@ -58,14 +58,15 @@ class TestIdleLink:
         assert not any(r.raw.startswith(b"#") for r in emu.records)  # nothing replayed
         assert driver.execute(ins.move(base=5), 10).ok
 
-    def test_the_idle_check_is_a_q_and_a_stop_is_not_held_by_it(
+    def test_the_idle_check_is_one_qp_and_a_stop_is_not_held_by_it(
         self, config: ArmConfig, linked: tuple[Emulator, ArmDriver]
     ) -> None:
         emu, driver = linked
         emu.clear_records()
         time.sleep(1.2)
         raws = [r.raw for r in emu.records]
-        assert raws and set(raws) == {b"Q"}  # only the 3-byte check, about every 0.5 s
+        # Only the 4-byte check of one channel's pulse, about every 0.5 s.
+        assert raws and set(raws) == {f"QP{config.joints['base'].channel}".encode()}
         emu.inject(Fault.NO_ANSWER)  # a check now waits for an answer that never comes...
         time.sleep(config.server.idle_check_interval_s + 0.01)
         t0 = time.monotonic()

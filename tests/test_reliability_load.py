@@ -20,6 +20,8 @@ from loadrig import Counter, FloodResult, flood, stop_latency_ms
 from proc import Proc
 from rospeer import Peer
 
+pytestmark = pytest.mark.solo  # load suites: alone (see pyproject.toml)
+
 OUT = Path(__file__).resolve().parents[1] / "build" / "reliability"
 RATES = (2000, 5000, 10000)
 SECONDS = 3.0

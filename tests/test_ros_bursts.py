@@ -23,6 +23,8 @@ from std_srvs.srv import Trigger
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u.emulator import Emulator
 
+pytestmark = pytest.mark.solo  # load suites: alone (see pyproject.toml)
+
 
 @pytest.fixture(scope="module")
 def server(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Peer]:

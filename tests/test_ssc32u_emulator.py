@@ -176,18 +176,7 @@ def test_client_at_another_baud_is_noise(config: ArmConfig) -> None:
         assert "noise" in (rec.ignored or "")
 
 
-def test_output_flush_drops_bytes_not_yet_on_the_wire(
-    emulator: Emulator, wire: serial.Serial
-) -> None:
-    # 20 moves are 0.25 s of wire at 9600; a flush 20 ms later leaves most unsent.
-    for i in range(20):
-        wire.write(f"#0P{1000 + i * 10}\r".encode())
-    time.sleep(0.02)
-    wire.reset_output_buffer()
-    wire.write(b"\x1bSTOP0\r")
-    last(emulator, b"STOP0")
-    moves = [r for r in emulator.records if r.raw.startswith(b"#0P")]
-    assert 1 <= len(moves) < 20
+# Output flushes (USB and UART) and line feeds: test_ssc32u_emulator_link.py.
 
 
 class TestServoModel:

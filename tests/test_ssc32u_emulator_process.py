@@ -6,9 +6,16 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import pytest
+import serial
+
+from al5d.app.cli import build_parser
+from al5d.ssc32u import protocol as p
 from al5d.ssc32u.driver import SSC32U
+from al5d.ssc32u.emulator import Record
 
 AL5D = Path(sys.executable).with_name("al5d")
 
@@ -33,3 +40,116 @@ def test_standalone_emulator(tmp_path: Path) -> None:
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(timeout=10) == 0
     assert not link.exists()
+
+
+class Standalone:
+    """`al5d emulator` with `args`, its device on a pyserial port of raw bytes."""
+
+    def __init__(self, tmp_path: Path, *args: str) -> None:
+        self.link = tmp_path / "board"
+        self.proc = subprocess.Popen(
+            [str(AL5D), "emulator", "--link", str(self.link), *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        assert self.proc.stdout is not None
+        assert self.proc.stdout.readline().strip() == str(self.link)
+        self.port = serial.Serial(str(self.link), 9600, timeout=1)
+
+    def ask(self, line: bytes, n: int | None = None) -> bytes:
+        self.port.reset_input_buffer()
+        self.port.write(line)
+        return self.port.read_until(b"\r") if n is None else self.port.read(n)
+
+    def answer_s(self) -> float:
+        """The least of a few Q round trips."""
+        times = []
+        for _ in range(3):
+            time.sleep(0.05)
+            t0 = time.monotonic()
+            assert self.ask(b"Q\r", 1) == b"."
+            times.append(time.monotonic() - t0)
+        return min(times)
+
+    def flood_then_flush(self) -> int:
+        """QP0 after 20 moves of channel 0 and an output flush 20 ms into them."""
+        for i in range(20):
+            self.port.write(f"#0P{1000 + i * 10}\r".encode())
+        time.sleep(0.02)
+        self.port.reset_output_buffer()
+        return self.ask(b"\x1bQP0\r", 1)[0]
+
+    def close(self) -> str:
+        self.port.close()
+        self.proc.send_signal(signal.SIGTERM)
+        _, err = self.proc.communicate(timeout=10)
+        assert self.proc.returncode == 0
+        return err
+
+
+def test_standalone_defaults_to_the_real_link_and_takes_the_board_settings(
+    tmp_path: Path,
+) -> None:
+    record = tmp_path / "record.jsonl"
+    board = Standalone(
+        tmp_path,
+        *("--input", "A=0", "--input", "VB=128", "--startup", "#0P1500"),
+        *("--power-up", "1=1200", "--register", "R32=-50", "--announce-reset"),
+        *("--record", str(record)),
+    )
+    try:
+        # USB: a short answer waits for the 16 ms latency timer; a flush drops nothing.
+        assert board.answer_s() >= 0.016 + p.wire_time_s(3, 9600)
+        assert board.ask(b"QP0QP1QP2\r", 3) == bytes([150, 120, 0])
+        assert board.ask(b"A B\r", 2) == b"01"
+        assert board.ask(b"VB VB\r", 2) == bytes([0, 128])
+        assert board.ask(b"R32\r") == b"-50\r"
+        assert board.ask(b"R0\r") == b"9\r"  # the startup string's and the pulses' bits
+        assert board.flood_then_flush() == 119, "the USB link dropped written moves"
+        # SIGUSR1: a brown-out, announced, then the power-up settings again.
+        board.ask(b"#1P2000\r#2P2000\rVER\r")
+        board.proc.send_signal(signal.SIGUSR1)
+        assert board.port.read_until(b"\r") == b'"#0P1500;"\r'
+        assert board.ask(b"QP0QP1QP2\r", 3) == bytes([150, 120, 0])
+    finally:
+        err = board.close()
+    assert "usb link" in err and "latency timer 16 ms" in err
+    records = [Record.from_json(x) for x in record.read_text().splitlines()]
+    assert [r.source for r in records if r.raw == b"#0P1500"] == ["startup", "startup"]
+    assert sum(r.source == "reset" for r in records) == 1
+    assert sum(r.raw.startswith(b"#0P1") and r.source == "serial" for r in records) == 20
+
+
+def test_standalone_low_latency_and_uart(tmp_path: Path) -> None:
+    fast = Standalone(tmp_path, "--latency-timer", "40", "--low-latency")
+    try:
+        assert fast.answer_s() < 0.010
+    finally:
+        err = fast.close()
+    assert "low-latency mode (1 ms)" in err
+    uart = Standalone(tmp_path, "--transport", "uart")
+    try:
+        assert uart.flood_then_flush() < 119, "the UART link kept what the flush dropped"
+    finally:
+        err = uart.close()
+    assert "uart link" in err
+
+
+@pytest.mark.parametrize(
+    ("flag", "value"),
+    [
+        ("--input", "I=1"),
+        ("--input", "VA=300"),
+        ("--input", "A"),
+        ("--register", "256=1"),
+        ("--register", "0=x"),
+        ("--power-up", "0=3000"),
+        ("--latency-timer", "0"),
+        ("--transport", "can"),
+    ],
+)
+def test_standalone_refuses_bad_settings_before_it_starts(flag: str, value: str) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        build_parser().parse_args(["emulator", flag, value])
+    assert exit_.value.code == 2

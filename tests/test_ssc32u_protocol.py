@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.protocol import ChannelTarget as CT
@@ -130,3 +132,164 @@ def test_duration_rule_worked_example() -> None:
     assert p.group_duration_s({0: (2000, 750, 500)}, 2000) == pytest.approx(2.5)
     assert p.group_duration_s({0: (2000, 1500, 500)}, 2000) == pytest.approx(2.0)
     assert p.group_duration_s({0: (2000, 750, None)}, None) == 0.0
+
+
+# -- line feeds, the new commands and their answers (issue 11) ---------------------------
+
+
+@pytest.mark.parametrize(
+    ("line", "expected"),
+    [
+        (b"\nVER", [p.Version()]),
+        (b"VER\n", [p.Version()]),
+        (b"#9P1800\n", [p.GroupMove((CT(9, 1800),))]),
+        (b"\n#0P1500\n#1P1600\nT500\n", [p.GroupMove((CT(0, 1500), CT(1, 1600)), 500)]),
+        (b"Q\nP\n3", [p.QueryPulse((3,))]),
+    ],
+)
+def test_line_feeds_are_ignored_like_spaces_and_tabs(
+    line: bytes, expected: list[p.Command]
+) -> None:
+    assert p.parse_line(line) == expected
+
+
+def test_the_manuals_input_register_and_startup_commands_parse() -> None:
+    digital = [p.ReadDigital(pin, latched) for latched in (False, True) for pin in "ABCDEF"]
+    assert p.parse_line(b"A B C D E F AL BL CL DL EL FL") == digital
+    # UG-33's example: grouped reads need no spaces.
+    assert p.parse_line(b"ABEDL") == [
+        p.ReadDigital("A"),
+        p.ReadDigital("B"),
+        p.ReadDigital("E"),
+        p.ReadDigital("D", latched=True),
+    ]
+    assert p.parse_line(b"VA VB VC VD VE VF VG VH") == [p.ReadAnalog(x) for x in "ABCDEFGH"]
+    assert p.parse_line(b"ver") == [p.Version()]  # VER is not VE then R
+    assert p.parse_line(b"R0=1023") == [p.WriteRegister(0, 1023)]
+    assert p.parse_line(b"R32 = -50") == [p.WriteRegister(32, -50)]
+    assert p.parse_line(b"R 32") == [p.ReadRegister(32)]
+    assert p.parse_line(b"RDFLT") == [p.DefaultRegisters()]
+    assert p.parse_line(b"SS") == [p.ShowStartup()]
+    assert p.parse_line(b"SSDEL 5") == [p.DeleteStartup(5)]
+    assert p.parse_line(b"STOP 5") == [p.Stop(5)]
+    assert p.parse_line(b"#3:123") == [p.ByteOutput(3, 123)]
+    # SSCAT keeps every space but the one after it (UG-39), and the case.
+    assert p.parse_line(b"SSCAT #0P1000#1P2000T3000;") == [p.AppendStartup("#0P1000#1P2000T3000;")]
+    assert p.parse_line(b"sscat PL0 SQ5 SM50;") == [p.AppendStartup("PL0 SQ5 SM50;")]
+    assert p.parse_line(b"SSCAT  two") == [p.AppendStartup(" two")]
+    assert p.parse_line(b"\nSSCAT x;\n") == [p.AppendStartup("x;")]
+
+
+@pytest.mark.parametrize(
+    "line", [b"G", b"GL", b"VI", b"R256", b"R1=", b"#4:1", b"#0:256", b"AX", b"SSDEL"]
+)
+def test_malformed_input_and_register_lines_are_rejected_whole(line: bytes) -> None:
+    assert isinstance(p.parse_line(line), p.Unrecognized)
+
+
+def test_the_new_commands_bytes() -> None:
+    reads = [p.ReadDigital("A"), p.ReadDigital("B", latched=True), p.ReadAnalog("H")]
+    assert p.encode_input_reads(reads) == b"ABLVH\r"
+    assert p.encode_register_read(32) == b"R32\r"
+    assert p.encode_register_write(32, -50) == b"R32=-50\r"
+    assert p.encode(p.DefaultRegisters()) == b"RDFLT\r"
+    assert p.encode(p.ShowStartup()) == b"SS\r"
+    assert p.encode_startup_append("#0P1000;") == b"SSCAT #0P1000;\r"
+    assert p.encode_startup_delete(255) == b"SSDEL255\r"
+    assert p.encode_byte_output(3, 123) == b"#3:123\r"
+    for call in (
+        lambda: p.encode_input_reads([p.ReadDigital("G")]),  # G and H are analog only
+        lambda: p.encode_input_reads([p.ReadAnalog("I")]),
+        lambda: p.encode_input_reads([]),
+        lambda: p.encode_register_read(256),
+        lambda: p.encode_register_write(0, 65536),
+        lambda: p.encode_startup_append("x" * 101),
+        lambda: p.encode_startup_append("a\rb"),
+        lambda: p.encode_byte_output(4, 0),
+    ):
+        with pytest.raises(p.ProtocolError):
+            call()
+
+
+def test_the_new_answers() -> None:
+    # UG-33, UG-37, UG-39: ASCII 0/1 per pin; registers in decimal then CR; SS quoted then CR.
+    assert p.parse_digital(b"0110", 4) == [False, True, True, False]
+    with pytest.raises(p.ProtocolError):
+        p.parse_digital(b"01", 3)
+    with pytest.raises(p.ProtocolError):
+        p.parse_digital(b"\x01", 1)
+    assert p.parse_register(b"1023\r") == 1023
+    assert p.parse_register(b"-50\r") == -50
+    for bad in (b"1023", b"OK\r", b"\r"):
+        with pytest.raises(p.ProtocolError):
+            p.parse_register(bad)
+    answer = b'"#0P1000#1P2000T3000;PL0 SQ5 SM50;"\r'
+    assert p.parse_startup(answer) == "#0P1000#1P2000T3000;PL0 SQ5 SM50;"
+    assert p.parse_startup(b'""\r') == ""
+    with pytest.raises(p.ProtocolError):
+        p.parse_startup(b"#0P1000;\r")
+
+
+# -- properties ---------------------------------------------------------------------------
+
+_channels = st.integers(0, 31)
+_pins = st.sampled_from("ABCDEF")
+_commands: st.SearchStrategy[p.Command] = st.one_of(
+    st.builds(
+        lambda chans, pws, t: p.GroupMove(
+            tuple(CT(ch, pw) for ch, pw in zip(chans, pws, strict=False)), t
+        ),
+        st.lists(_channels, min_size=1, max_size=6, unique=True),
+        st.lists(st.integers(500, 2500), min_size=6, max_size=6),
+        st.one_of(st.none(), st.integers(1, 65535)),
+    ),
+    st.builds(p.Stop, _channels),
+    st.just(p.QueryMovement()),
+    st.builds(lambda cs: p.QueryPulse(tuple(cs)), st.lists(_channels, min_size=1, max_size=6)),
+    st.just(p.Version()),
+    st.builds(lambda ch, off: p.PulseOffset(((ch, off),)), _channels, st.integers(-100, 100)),
+    st.builds(lambda ch, hi: p.DigitalOutput(((ch, hi),)), _channels, st.booleans()),
+    st.builds(p.ByteOutput, st.integers(0, 3), st.integers(0, 255)),
+    st.builds(p.ReadDigital, _pins, st.booleans()),
+    st.builds(p.ReadAnalog, st.sampled_from("ABCDEFGH")),
+    st.builds(p.ReadRegister, st.integers(0, 255)),
+    st.builds(p.WriteRegister, st.integers(0, 255), st.integers(-32768, 65535)),
+    st.just(p.DefaultRegisters()),
+    st.just(p.ShowStartup()),
+    st.builds(p.DeleteStartup, st.integers(0, 255)),
+)
+
+
+@given(_commands, st.data())
+def test_blanks_and_line_feeds_anywhere_change_nothing(
+    command: p.Command, data: st.DataObject
+) -> None:
+    """UG-24: spaces, tabs and line feeds are ignored, wherever they are in a command."""
+    line = p.encode(command)[:-1]
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(line)), max_size=8)))
+    blanks = data.draw(
+        st.lists(st.sampled_from([b" ", b"\t", b"\n"]), min_size=len(cuts), max_size=len(cuts))
+    )
+    spaced = bytearray()
+    start = 0
+    for cut, blank in zip(cuts, blanks, strict=True):
+        spaced += line[start:cut] + blank
+        start = cut
+    spaced += line[start:]
+    case = data.draw(st.sampled_from([bytes.lower, bytes.upper, bytes]))
+    assert p.parse_line(case(bytes(spaced))) == [command]
+
+
+@given(
+    st.text(st.characters(min_codepoint=0x20, max_codepoint=0x7E), min_size=1, max_size=100),
+    st.data(),
+)
+def test_startup_text_keeps_its_spaces_and_loses_its_line_feeds(
+    text: str, data: st.DataObject
+) -> None:
+    line = p.encode_startup_append(text)[:-1]
+    at = sorted(data.draw(st.lists(st.integers(0, len(line)), max_size=4)))
+    with_lf = bytearray(line)
+    for i in reversed(at):
+        with_lf[i:i] = b"\n"
+    assert p.parse_line(bytes(with_lf)) == [p.AppendStartup(text)]

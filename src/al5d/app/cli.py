@@ -1,8 +1,9 @@
-"""The `al5d` command line: serve, emulator, send, run, demo."""
+"""The `al5d` command line: serve, emulator, send, run, demo, web."""
 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
@@ -33,11 +34,36 @@ def _until_signal() -> threading.Event:
     return done
 
 
+NAMESPACE_HELP = "ROS namespace of the arm (several arms: one each), e.g. left"
+
+
+def _namespace(text: str) -> str:
+    """A ROS namespace, or argparse's error naming why not."""
+    from al5d.arm.config import namespace_problem
+
+    problem = namespace_problem(text)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
+    return text
+
+
 def _cmd_emulator(args: argparse.Namespace) -> int:
-    from al5d.ssc32u.emulator import Emulator, serve_forever
+    from al5d.ssc32u.emulator import Emulator, Link, Transport, serve_forever
 
     config = load_config(args.config)
-    emulator = Emulator(config, baud=args.baud, link=args.link)
+    usb = Link(Transport(args.transport), args.latency_timer, args.low_latency)
+    emulator = Emulator(
+        config,
+        baud=args.baud,
+        link=args.link,
+        usb=usb,
+        inputs=dict(args.input),
+        registers=dict(args.register),
+        startup=args.startup,
+        power_up=dict(args.power_up),
+        announce_reset=args.announce_reset,
+    )
+    print(f"al5d emulator: SSC-32U at {args.baud} baud, {usb.describe()}", file=sys.stderr)
     if args.record is None:
         serve_forever(emulator, _until_signal())
     elif args.record == "-":
@@ -59,6 +85,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         stdin=args.stdin,
         ros=not args.no_ros,
         trace=args.trace,
+        namespace=args.namespace,
     )
     return serve(options)
 
@@ -68,19 +95,58 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from al5d.app.server import setup_logging
 
     setup_logging(args.log_level)
+    if args.web:
+        import random
+
+        from al5d.web.app import web_beside
+
+        # One domain for the demo's server and the web view's process.
+        os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))
+        with web_beside():
+            return run_demo(baud=args.baud)
     return run_demo(baud=args.baud)
+
+
+def _cmd_web(args: argparse.Namespace) -> int:
+    from al5d.app.server import setup_logging
+    from al5d.web.app import WebOptions, serve_web
+
+    setup_logging(args.log_level)
+    options = WebOptions(args.port, args.host, args.namespace, args.config)
+    return serve_web(options)
+
+
+def _cmd_urdf(args: argparse.Namespace) -> int:
+    from al5d.model import build_chain, urdf_from_chain
+
+    config = load_config(args.config)
+    print(urdf_from_chain(build_chain(config.model, config.speeds_deg_s), "al5d"))
+    return 0
+
+
+def _cmd_moveit(args: argparse.Namespace) -> int:
+    from al5d.app.moveit import write_moveit_config
+
+    for path in write_moveit_config(args.out, load_config(args.config), args.namespace):
+        print(path)
+    return 0
 
 
 def _cmd_send(args: argparse.Namespace) -> int:
     from al5d.ros.client import send
 
-    return send(" ".join(args.instruction), wait_s=args.wait, timeout=args.timeout)
+    return send(
+        " ".join(args.instruction),
+        wait_s=args.wait,
+        timeout=args.timeout,
+        namespace=args.namespace,
+    )
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from al5d.ros.client import run
 
-    return run(args.file, wait_s=args.wait, timeout=args.timeout)
+    return run(args.file, wait_s=args.wait, timeout=args.timeout, namespace=args.namespace)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -97,6 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument("--stdin", action="store_true", help="also read instructions from stdin")
     srv.add_argument("--no-ros", action="store_true", help="no ROS node (use with --stdin)")
     srv.add_argument("--trace", help="write when each instruction message arrived (benchmarks)")
+    srv.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: config")
     srv.set_defaults(func=_cmd_serve)
 
     emu = sub.add_parser("emulator", help="a standalone emulated SSC-32U on a pseudo terminal")
@@ -107,6 +174,63 @@ def build_parser() -> argparse.ArgumentParser:
         "--record",
         metavar="FILE",
         help="write every line the board receives as JSON (time of effect, bytes); - = stdout",
+    )
+    from al5d.ssc32u.emulator import settings
+
+    emu.add_argument(
+        "--transport",
+        choices=("usb", "uart"),
+        default="usb",
+        help="usb (default): the board's USB port, an output flush drops nothing written and "
+        "short answers wait for the latency timer; uart: a plain serial line, a flush drops "
+        "unsent bytes",
+    )
+    emu.add_argument(
+        "--latency-timer",
+        metavar="MS",
+        type=settings.latency_ms,
+        default=settings.LATENCY_TIMER_MS,
+        help="the USB chip's latency timer, 1..255 ms (default %(default)s)",
+    )
+    emu.add_argument(
+        "--low-latency",
+        action="store_true",
+        help="as if the host had set the port's low-latency mode (the timer at 1 ms)",
+    )
+    emu.add_argument(
+        "--input",
+        metavar="PIN=LEVEL",
+        action="append",
+        default=[],
+        type=settings.input_setting,
+        help="an input pin: A..H=0|1|open, VA..VH=0..255|open (repeat; default all open)",
+    )
+    emu.add_argument(
+        "--register",
+        metavar="N=VALUE",
+        action="append",
+        default=[],
+        type=settings.register_setting,
+        help="a register at power-up, e.g. 0=8 (repeat); R4 is the baud / 10",
+    )
+    emu.add_argument(
+        "--startup",
+        metavar="TEXT",
+        default="",
+        help="the startup string, run at power-up (R0 bit 0 is set), e.g. '#0P1500;#1P1500;'",
+    )
+    emu.add_argument(
+        "--power-up",
+        metavar="CH=US",
+        action="append",
+        default=[],
+        type=settings.pulse_setting,
+        help="a channel's pulse at power-up (the initial pulse width registers; repeat)",
+    )
+    emu.add_argument(
+        "--announce-reset",
+        action="store_true",
+        help="a reset (SIGUSR1) sends what SS answers, unasked",
     )
     emu.set_defaults(func=_cmd_emulator)
 
@@ -122,15 +246,39 @@ def build_parser() -> argparse.ArgumentParser:
                 "file", help="one instruction a line; wait <ms>; # comments; & = go on"
             )
         cmd.add_argument("--wait", type=float, default=10.0, help="seconds to find the server")
+        cmd.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
         cmd.add_argument(
             "--timeout", type=float, default=120.0, help="seconds to wait for an outcome"
         )
         cmd.set_defaults(func=func)
 
+    urdf = sub.add_parser("urdf", help="print the URDF of the arm, made from the configuration")
+    urdf.add_argument("--config", help="arm configuration file; default: the shipped one")
+    urdf.set_defaults(func=_cmd_urdf)
+
+    moveit = sub.add_parser(
+        "moveit", help="write a MoveIt configuration (URDF, SRDF, limits, controllers)"
+    )
+    moveit.add_argument("out", help="directory to write the files into (made if missing)")
+    moveit.add_argument("--config", help="arm configuration file; default: the shipped one")
+    moveit.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
+    moveit.set_defaults(func=_cmd_moveit)
+
     demo = sub.add_parser("demo", help="the DE01 demo on the embedded emulator, with a QoS table")
     demo.add_argument("--baud", type=int, choices=BAUDS, help="default: config")
     demo.add_argument("--log-level", **LOG_LEVEL)
+    demo.add_argument("--web", action="store_true", help="with the web view open (al5d web)")
     demo.set_defaults(func=_cmd_demo)
+
+    web = sub.add_parser("web", help="the live web view and control panel (a ROS 2 client)")
+    web.add_argument("--port", type=int, default=8080, help="default 8080 (0: any free port)")
+    web.add_argument(
+        "--host", default="127.0.0.1", help="default 127.0.0.1; any other lets others move the arm"
+    )
+    web.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: config")
+    web.add_argument("--config", help="arm configuration file; default: the shipped one")
+    web.add_argument("--log-level", **LOG_LEVEL)
+    web.set_defaults(func=_cmd_web)
     return parser
 
 
@@ -142,6 +290,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as e:
         print(f"al5d: configuration error:\n{e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `al5d urdf | head`: the reader has had enough
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     return code
 
 

@@ -85,11 +85,15 @@ class QoSRecorder:
         )
 
     def rows(self) -> list[MoveQoS]:
+        """One row per instruction: a straight line's group moves are one row, reached
+        when its last one was."""
         with self._lock:
-            sent = list(self._sent)
+            last: dict[str, Sent] = {}
+            for sent in self._sent:
+                last[sent.instr.id] = sent  # in order: the last group move of each wins
             outcomes = dict(self._outcomes)
         rows = []
-        for s in sent:
+        for s in last.values():
             outcome = outcomes.get(s.instr.id)
             reached = self.reach_time(s)
             rows.append(

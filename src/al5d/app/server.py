@@ -57,6 +57,8 @@ class ServerOptions:
     stdin: bool = False
     ros: bool = True
     trace: str | None = None
+    #: The ROS namespace; None: the config's (server.namespace).
+    namespace: str | None = None
 
 
 @contextmanager
@@ -125,8 +127,12 @@ def serve(options: ServerOptions) -> int:
         if options.ros:
             from al5d.ros.node import RosServer
 
-            ros_server = RosServer(driver, trace=options.trace)
-            log.info("ROS 2 node /al5d up (ROS_DOMAIN_ID=%s)", os.environ.get("ROS_DOMAIN_ID", "0"))
+            ros_server = RosServer(driver, trace=options.trace, namespace=options.namespace)
+            log.info(
+                "ROS 2 node %s up (ROS_DOMAIN_ID=%s)",
+                ros_server.node.get_fully_qualified_name(),
+                os.environ.get("ROS_DOMAIN_ID", "0"),
+            )
         try:
             if options.stdin:
                 threading.Thread(

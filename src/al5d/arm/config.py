@@ -10,6 +10,8 @@ the driver expects of them come from one place.
 
 from __future__ import annotations
 
+import functools
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any
@@ -19,6 +21,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from al5d.arm.instruction import PRESET_NAMES
 from al5d.arm.servos import SERVOS
+from al5d.model import JOINTS as AL5D_JOINTS
+from al5d.model import ArmModel
 from al5d.ssc32u.facts import BAUDS, CHANNELS, FACTORY_BAUD, PULSE_MAX_US, PULSE_MIN_US
 
 #: Every arm has these presets (PO01..PO03); a config may add more.
@@ -117,6 +121,21 @@ class Joint(_Frozen):
         return self.speed_deg_s * abs(self.us_per_deg)
 
 
+#: One segment of a ROS name: a letter, then letters, digits and underscores.
+_NAME_SEGMENT = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+
+
+def namespace_problem(namespace: str) -> str | None:
+    """Why `namespace` (`left`, `/left`, `/lab/left`; "" or "/" for none) is no ROS namespace."""
+    ns = namespace.strip("/")
+    if ns and not all(_NAME_SEGMENT.fullmatch(seg) for seg in ns.split("/")):
+        return (
+            f"namespace {namespace[:40]!r}: each part must start with a letter and hold only "
+            "letters, digits and underscores"
+        )
+    return None
+
+
 class ServerSettings(_Frozen):
     """How the high-level driver behaves, independent of the arm's geometry."""
 
@@ -128,11 +147,22 @@ class ServerSettings(_Frozen):
     max_move_time_ms: int = Field(default=60_000, ge=1, le=65_535)
     joint_state_rate_hz: float = Field(default=20.0, gt=0, le=1000)
     reconnect_interval_s: float = Field(default=0.5, gt=0, le=60)
-    #: The link is checked with a `Q` (3 bytes) this often while the arm is idle...
+    #: The link (and that the board has not reset) is checked with a `QP` of one channel
+    #: (4 bytes) this often while the arm is idle...
     idle_check_interval_s: float = Field(default=0.5, gt=0, le=60)
     #: ...and this often while a move runs: a dead link is a fault within about 0.3 s.
     moving_check_interval_s: float = Field(default=0.15, gt=0, le=60)
     baud: int = Field(default=FACTORY_BAUD)
+    #: The ROS namespace of this arm's names ("" none; `left` gives /left/al5d/...).
+    namespace: str = ""
+
+    @field_validator("namespace")
+    @classmethod
+    def _ros_namespace(cls, v: str) -> str:
+        problem = namespace_problem(v)
+        if problem:
+            raise ValueError(problem)
+        return v
 
     @field_validator("baud")
     @classmethod
@@ -142,11 +172,36 @@ class ServerSettings(_Frozen):
         return v
 
 
+class Geometry(_Frozen):
+    """The arm's lengths in millimetres; the defaults are Lynxmotion's published constants.
+
+    Arms differ (sources give an ulna of 177 to 187 mm): measure yours.
+    """
+
+    #: Table to the shoulder axis, along the base axis.
+    base_height_mm: FiniteFloat = Field(default=67.31, gt=0, le=1000)
+    #: Base axis to the shoulder axis, horizontally along the arm (0 on the AL5D).
+    shoulder_offset_mm: FiniteFloat = Field(default=0.0, ge=0, le=1000)
+    #: Shoulder axis to elbow axis (5.75 in).
+    humerus_mm: FiniteFloat = Field(default=146.05, gt=0, le=1000)
+    #: Elbow axis to the wrist pitch axis (7.375 in).
+    ulna_mm: FiniteFloat = Field(default=187.325, gt=0, le=1000)
+    #: Wrist pitch axis to the tool tip (tool0), the wrist rotate included.
+    gripper_mm: FiniteFloat = Field(default=100.0, gt=0, le=1000)
+    #: The gap between the fingers fully open (the gripper's range's first end).
+    gripper_open_mm: FiniteFloat = Field(default=32.0, gt=0, le=500)
+
+    def metres(self) -> dict[str, float]:
+        """The lengths in metres, named as `al5d.model.Geometry` names them."""
+        return {name.removesuffix("_mm"): value / 1000.0 for name, value in self}
+
+
 class ArmConfig(_Frozen):
-    """The whole arm: joints by name, presets in degrees, server settings."""
+    """The whole arm: joints by name, presets in degrees, geometry, server settings."""
 
     joints: dict[str, Joint]
     presets: dict[str, dict[str, FiniteFloat]]
+    geometry: Geometry = Geometry()
     server: ServerSettings = ServerSettings()
 
     @model_validator(mode="before")
@@ -162,8 +217,14 @@ class ArmConfig(_Frozen):
 
     @model_validator(mode="after")
     def _consistent(self) -> ArmConfig:
-        if not self.joints:
-            raise ValueError("joints: at least one joint is needed")
+        missing = [j for j in AL5D_JOINTS if j not in self.joints]
+        extra = [j for j in self.joints if j not in AL5D_JOINTS]
+        if missing or extra:
+            raise ValueError(
+                f"joints: an AL5D has {', '.join(AL5D_JOINTS)}"
+                + (f"; missing: {', '.join(missing)}" if missing else "")
+                + (f"; not an AL5D joint: {', '.join(extra)}" if extra else "")
+            )
         seen: dict[int, str] = {}
         for name, joint in self.joints.items():
             if not name.isidentifier() or name != name.lower():
@@ -195,6 +256,16 @@ class ArmConfig(_Frozen):
     @property
     def channels(self) -> tuple[int, ...]:
         return tuple(j.channel for j in self.joints.values())
+
+    @functools.cached_property
+    def model(self) -> ArmModel:
+        """The arm as a robot model (ranges and geometry): kinematics, URDF, MoveIt data."""
+        ranges = {name: j.range_deg for name, j in self.joints.items()}
+        return ArmModel.from_config(ranges, self.geometry.metres())
+
+    @property
+    def speeds_deg_s(self) -> dict[str, float]:
+        return {name: j.speed_deg_s for name, j in self.joints.items()}
 
 
 def _describe(err: ValidationError, source: str) -> str:

@@ -29,8 +29,9 @@ from al5d.arm.jobs import Job, Motion, Sent, finish, outcome, resolve, stop_orde
 from al5d.arm.shared import Shared, tell
 from al5d.arm.states import Event, State, next_state, refusal, release_refusal
 from al5d.arm.translate import Translator
-from al5d.arm.validate import Limits, Step, Steps, check
+from al5d.arm.validate import Limits, Step, Steps, check, planned
 from al5d.arm.worker import Worker
+from al5d.arm.writer import StepWriter
 from al5d.clock import now
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.errors import LinkLost, SerialFault
@@ -98,7 +99,8 @@ class ArmDriver:
         self._channel_of = {name: j.channel for name, j in config.joints.items()}
         self.shared = Shared(config)
         self._refusals = RefusalLog()
-        self._worker = Worker(config, self.shared, port, self.baud)
+        self.writer = StepWriter(self.shared, self.translator, self._channel_of)
+        self._worker = Worker(config, self.shared, port, self.baud, self.writer)
         self._thread = threading.Thread(target=self._worker.run, name="al5d-worker", daemon=True)
         self.finished = self.shared.finished
         self.outcome_listeners: list[Callable[[Outcome], None]] = self.shared.outcome_listeners
@@ -239,20 +241,80 @@ class ArmDriver:
             self._refuse(instr, future, steps, t0)
             return
         shared = self.shared
+        pose: dict[str, float | None] | None = None
+        if not steps:  # a Cartesian move: planned now if the arm is idle, else at its start
+            with shared.lock:
+                pose = dict(shared.pose) if self._idle() else None
+            if pose is not None:
+                steps = planned(instr, pose, self.limits, self.translator)
+                if isinstance(steps, str):
+                    self._refuse(instr, future, steps, t0)
+                    return
+        board = None
         with shared.lock:
+            if pose is not None and shared.pose != pose:
+                steps = ()  # the arm moved while we planned: plan again at its start
             if shared.shutdown_job is not None:
                 reason = "the server is shutting down"
             else:
                 reason = refusal(shared.state, shared.fault)
             if not reason:
+                job = Job(instr, steps, future, shared.epoch, t0)
                 capacity = self.settings.queue_capacity
-                if len(shared.queue) >= capacity:
+                if self._idle() and len(steps) == 1:
+                    board = shared.board  # the fast path: this thread writes the move
+                    shared.current = job
+                    shared.fire(Event.MOVE)
+                elif len(shared.queue) >= capacity:
                     reason = f"the queue is full ({capacity} moves wait)"
                 else:
-                    shared.queue.append(Job(instr, steps, future, shared.epoch, t0))
+                    shared.queue.append(job)
                     shared.cv.notify_all()
                     return
-        self._refuse(instr, future, reason, t0)
+        if reason:
+            self._refuse(instr, future, reason, t0)
+        elif board is not None:
+            self._write_now(job, board)
+
+    def _idle(self) -> bool:
+        """An arm at rest with its board: no move runs, is being written, or waits, and its
+        pose is not being read back (lock held)."""
+        shared = self.shared
+        return (
+            shared.state is State.READY
+            and shared.board is not None
+            and shared.current is None
+            and shared.handed is None
+            and not shared.queue
+            and not shared.readback
+        )
+
+    def _write_now(self, job: Job, board: SSC32U) -> None:
+        """The fast path: write an idle arm's move from this thread, without the hand-over to
+        the worker (a thread wake and the GIL, most of the server's share of the latency);
+        then the worker waits for it to complete. The job is current and of this epoch
+        before the write, and the epoch is checked after it (`StepWriter.write`): a stop
+        at any moment leaves its STOP last on the wire."""
+        shared = self.shared
+        try:
+            written = self.writer.write(job, job.steps[0], board)
+        except SerialFault as e:
+            with shared.cv:
+                if shared.current is job:
+                    shared.current = None
+                shared.fault = shared.fault or e  # the worker enters the fault
+                shared.cv.notify_all()
+            job.cancel.set()
+            finish(job, Result.CANCELLED, f"the serial link is lost: {e}")
+            return
+        with shared.cv:
+            if written is None or job.epoch != shared.epoch:
+                if shared.current is job:  # a stop took it: its outcome is set
+                    shared.current = None
+            else:
+                shared.handed = (job, written)
+            shared.cv.notify_all()
+        shared.announce()
 
     def _stop(self, instr: Instruction, future: Future[Outcome], t0: float) -> None:
         """VE01/D4: halt at once, drop the queue, lock. Never waits for the worker."""

@@ -2,6 +2,8 @@
 
     park | ready | straight_up            [time=<ms>]
     move <joint>=<degrees> [...]         [time=<ms>]
+    move_to x=<mm> y=<mm> z=<mm> [pitch=<deg>] [roll=<deg>] [gripper=<deg>]
+            [time=<ms>] [path=joint|line]
     stop | release | shutdown
     wait <ms>                            (sequence files only: a pause on the client)
     <instruction> &                      (sequence files only: do not wait for its outcome)
@@ -27,6 +29,7 @@ PRESET_NAMES = ("park", "ready", "straight_up")
 class Kind(enum.Enum):
     PRESET = "preset"
     MOVE = "move"
+    MOVE_TO = "move_to"
     TRAJECTORY = "trajectory"
     STOP = "stop"
     RELEASE = "release"
@@ -66,6 +69,25 @@ class Point:
 
 
 @dataclass(frozen=True, slots=True)
+class ToolTarget:
+    """Where `move_to` puts the tool tip (tool0): a point in base_link, in metres.
+
+    The gripper's pitch (its axis to the horizontal, + up) and roll (the wrist
+    rotate) in degrees; without a pitch the reachable one nearest the current is
+    taken, without a roll the wrist rotate stays. `gripper` in its servo degrees.
+    `line` keeps the tip within 1 mm of the straight line to the point.
+    """
+
+    x_m: float
+    y_m: float
+    z_m: float
+    pitch_deg: float | None = None
+    roll_deg: float | None = None
+    gripper_deg: float | None = None
+    line: bool = False
+
+
+@dataclass(frozen=True, slots=True)
 class Instruction:
     """One instruction for the arm.
 
@@ -80,6 +102,7 @@ class Instruction:
     time_ms: int | None = None
     id: str = field(default_factory=new_id)
     points: tuple[Point, ...] = ()
+    tool: ToolTarget | None = None
 
     @property
     def name(self) -> str:
@@ -96,6 +119,23 @@ def preset(name: str, time_ms: int | None = None, id: str | None = None) -> Inst
 
 def move(time_ms: int | None = None, id: str | None = None, **joints: float) -> Instruction:
     return Instruction(Kind.MOVE, joints=tuple(joints.items()), time_ms=time_ms, id=id or new_id())
+
+
+def move_to(
+    x_mm: float,
+    y_mm: float,
+    z_mm: float,
+    *,
+    pitch: float | None = None,
+    roll: float | None = None,
+    gripper: float | None = None,
+    line: bool = False,
+    time_ms: int | None = None,
+    id: str | None = None,
+) -> Instruction:
+    """The tool tip to a point (millimetres, as the text grammar), optionally pitch and roll."""
+    tool = ToolTarget(x_mm / 1000, y_mm / 1000, z_mm / 1000, pitch, roll, gripper, line)
+    return Instruction(Kind.MOVE_TO, tool=tool, time_ms=time_ms, id=id or new_id())
 
 
 def trajectory(points: list[Point] | tuple[Point, ...], id: str | None = None) -> Instruction:
@@ -167,6 +207,18 @@ def format_instruction(instr: Instruction) -> str:
     if instr.kind is Kind.TRAJECTORY:
         return f"trajectory of {len(instr.points)} point(s)"
     words = [instr.name]
+    if instr.tool is not None:
+        t = instr.tool
+        words += [
+            f"{k}={_fmt_number(v * 1000)}" for k, v in (("x", t.x_m), ("y", t.y_m), ("z", t.z_m))
+        ]
+        words += [
+            f"{k}={_fmt_number(v)}"
+            for k, v in (("pitch", t.pitch_deg), ("roll", t.roll_deg), ("gripper", t.gripper_deg))
+            if v is not None
+        ]
+        if t.line:
+            words.append("path=line")
     words += [f"{j}={_fmt_number(d)}" for j, d in instr.joints]
     if instr.time_ms:
         words.append(f"time={instr.time_ms}")
@@ -198,6 +250,41 @@ def _parse_ms(words: list[str], i: int, text: str, limit: int = TIME_FIELD_MAX_M
     return ms
 
 
+#: The words of `move_to`: the point in mm, then what it may add.
+TOOL_WORDS = ("x", "y", "z", "pitch", "roll", "gripper", "path")
+
+
+def _number(words: list[str], i: int, value: str, unit: str) -> float:
+    try:
+        return float(value)
+    except ValueError:
+        raise GrammarError(
+            f"{_where(words, i)}: {quote(value)} is not a number of {unit}"
+        ) from None
+
+
+def _tool(words: list[str], values: dict[str, tuple[int, str]]) -> ToolTarget:
+    """The `move_to` target of the words read (key -> (word index, value))."""
+    missing = [k for k in ("x", "y", "z") if k not in values]
+    if missing:
+        raise GrammarError(f"word 1 'move_to': name {', '.join(f'{k}=<mm>' for k in missing)}")
+    mm = {k: _number(words, *values[k], "mm") / 1000 for k in ("x", "y", "z")}
+    deg = {
+        k: _number(words, *values[k], "degrees")
+        for k in ("pitch", "roll", "gripper")
+        if k in values
+    }
+    line = False
+    if "path" in values:
+        i, path = values["path"]
+        if path.lower() not in ("joint", "line"):
+            raise GrammarError(f"{_where(words, i)}: path is joint or line")
+        line = path.lower() == "line"
+    return ToolTarget(
+        mm["x"], mm["y"], mm["z"], deg.get("pitch"), deg.get("roll"), deg.get("gripper"), line
+    )
+
+
 def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Instruction:
     """Read one instruction. Range checks are the driver's: this only reads the words."""
     words = text.split()
@@ -206,24 +293,26 @@ def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Ins
     head = words[0].lower()
     time_ms: int | None = None
     joints: list[tuple[str, float]] = []
+    tool_words: dict[str, tuple[int, str]] = {}
     for i, word in enumerate(words[1:], start=1):
         key, eq, value = word.partition("=")
         if not eq or not key or not value:
             raise GrammarError(f"{_where(words, i)}: expected <name>=<value>")
-        if head not in (*presets, "move"):
+        if head not in (*presets, "move", "move_to"):
             raise GrammarError(f"{_where(words, i)}: {head} takes no arguments")
-        if key.lower() == "time":
+        key = key.lower()
+        if key == "time":
             if time_ms is not None:
                 raise GrammarError(f"{_where(words, i)}: time given twice")
             time_ms = _parse_ms(words, i, value)
         elif head == "move":
-            try:
-                deg = float(value)
-            except ValueError:
-                raise GrammarError(
-                    f"{_where(words, i)}: {quote(value)} is not a number of degrees"
-                ) from None
-            joints.append((key.lower(), deg))
+            joints.append((key, _number(words, i, value, "degrees")))
+        elif head == "move_to":
+            if key not in TOOL_WORDS:
+                raise GrammarError(f"{_where(words, i)}: move_to takes {', '.join(TOOL_WORDS)}")
+            if key in tool_words:
+                raise GrammarError(f"{_where(words, i)}: {key} given twice")
+            tool_words[key] = (i, value)
         else:
             raise GrammarError(f"{_where(words, i)}: a preset takes only time=<ms>")
     if head in presets:
@@ -232,10 +321,12 @@ def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Ins
         if not joints:
             raise GrammarError("word 1 'move': name at least one <joint>=<degrees>")
         return Instruction(Kind.MOVE, joints=tuple(joints), time_ms=time_ms)
+    if head == "move_to":
+        return Instruction(Kind.MOVE_TO, tool=_tool(words, tool_words), time_ms=time_ms)
     for kind in SAFETY:
         if head == kind.value:
             return Instruction(kind)
-    known = " | ".join((*presets, "move", "stop", "release", "shutdown"))
+    known = " | ".join((*presets, "move", "move_to", "stop", "release", "shutdown"))
     raise GrammarError(f"word 1 {quote(words[0])}: unknown instruction; expected {known}")
 
 

@@ -46,6 +46,10 @@ class Job:
     cancel: threading.Event = field(default_factory=threading.Event)
     expected_ms: float = 0.0
     step: int = 0  # the step running now
+    #: When the step written last is due to end on the board (CLOCK_MONOTONIC): the steps
+    #: after the first keep to the schedule of the first, so that a late wake-up of one
+    #: step does not make every later point late too.
+    t_due: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -78,6 +82,17 @@ def stop_order(motion: Motion | None, t: float, channels: Mapping[str, int]) -> 
     moves should not wait behind five that do not."""
     first = [channels[j] for j in (motion.moving(t) if motion is not None else [])]
     return first + sorted(ch for ch in channels.values() if ch not in first)
+
+
+@dataclass(frozen=True, slots=True)
+class Written:
+    """A step on its way: the motion it makes on the board, and when its time is over."""
+
+    motion: Motion
+    t_end: float
+    #: Its bytes' time on the wire: the next step is written this much before `t_end`, so
+    #: that it takes effect as this one ends (the steps of a trajectory run back to back).
+    wire_s: float
 
 
 @dataclass(frozen=True, slots=True)

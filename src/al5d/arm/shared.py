@@ -22,7 +22,7 @@ from typing import TypeVar
 
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Outcome
-from al5d.arm.jobs import Job, Motion, Sent
+from al5d.arm.jobs import Job, Motion, Sent, Written
 from al5d.arm.states import Event, Guards, State, Task, TransitionError, next_state
 from al5d.clock import Deadline, now
 from al5d.ssc32u.driver import SSC32U
@@ -59,9 +59,14 @@ class Shared:
         self.epoch = 0
         self.queue: deque[Job] = deque()
         self.current: Job | None = None
+        #: A move the caller's thread has written on an idle arm (the fast path), for the
+        #: worker to see through: wait for it, then set its outcome.
+        self.handed: tuple[Job, Written] | None = None
         self.board: SSC32U | None = None
         self.fault: SerialFault | None = None
-        self.readback = False  # the worker is to read the pose back from the board
+        #: The worker is to read the pose back from the board, or is reading it: no move
+        #: may be written meanwhile, or the pose read would be a snapshot of it.
+        self.readback = False
         self.shutdown_job: Job | None = None
         self.parked = False  # the start-up park has been done
         self.pose: dict[str, float | None] = dict.fromkeys(config.joints)
@@ -95,6 +100,7 @@ class Shared:
         self.epoch += 1
         dropped = list(self.queue)
         self.queue.clear()
+        self.handed = None  # a move the caller wrote is the current one: cancelled with it
         return self.current, dropped
 
     # -- outside the lock -------------------------------------------------------------
@@ -123,26 +129,31 @@ class Shared:
                     )
                 self.cv.wait(deadline.left())
 
-    def next_task(self, watch_every: float) -> tuple[Task, Job | None]:
+    def next_task(self, watch_every: float) -> tuple[Task, Job | None, Written | None]:
         """The worker's next task (waits for one): a shutdown first, then faults, then moves;
-        WATCH when the arm has been idle on a connected board for `watch_every` seconds."""
+        WATCH when the arm has been idle on a connected board for `watch_every` seconds.
+        With FOLLOW comes the written first step of the job (the fast path's)."""
         idle = Deadline(watch_every)
         with self.cv:
             while True:
                 if self.shutdown_job is not None:
-                    return Task.SHUTDOWN, self.shutdown_job
+                    return Task.SHUTDOWN, self.shutdown_job, None
                 if self.fault is not None or self.state is State.FAULT:
-                    return Task.RECOVER, None
+                    return Task.RECOVER, None, None
                 if self.state is State.INITIALIZING and not self.parked:
-                    return Task.STARTUP, None
-                if self.readback:
-                    self.readback = False
-                    return Task.READBACK, None
-                if self.queue:
-                    return Task.MOVE, self.queue.popleft()
+                    return Task.STARTUP, None, None
+                if self.handed is not None:
+                    (job, written), self.handed = self.handed, None
+                    return Task.FOLLOW, job, written
+                if self.readback:  # cleared by the worker once the pose is read
+                    return Task.READBACK, None, None
+                # While the caller's thread writes a move (it is current and not yet
+                # handed over), nothing else may go out.
+                if self.queue and self.current is None:
+                    return Task.MOVE, self.queue.popleft(), None
                 if idle.expired:
-                    if self.board is not None:
-                        return Task.WATCH, None
+                    if self.board is not None and self.current is None:
+                        return Task.WATCH, None, None
                     idle = Deadline(watch_every)
                 self.cv.wait(idle.left())
 

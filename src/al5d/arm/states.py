@@ -40,6 +40,7 @@ class Task(Enum):
     SHUTDOWN = "park and end"
     RECOVER = "reconnect"
     STARTUP = "park once, at half speed, before ready"
+    FOLLOW = "see through a move the caller wrote"
     READBACK = "read the pose back"
     MOVE = "run the next move"
     WATCH = "check the idle link"

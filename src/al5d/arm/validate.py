@@ -13,8 +13,11 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from al5d.arm import cartesian
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import MAX_ID, Instruction, Kind, Point, quote
+from al5d.arm.translate import Translator
+from al5d.model import ArmModel
 
 #: A reason lists this many problems at most, then says how many more there were.
 MAX_PROBLEMS = 5
@@ -29,6 +32,8 @@ class Limits:
     ranges: Mapping[str, tuple[float, float]]
     presets: Mapping[str, Mapping[str, float]]
     max_time_ms: int
+    #: The robot model, for Cartesian moves.
+    model: ArmModel | None = None
 
     @classmethod
     def of(cls, config: ArmConfig) -> Limits:
@@ -36,6 +41,7 @@ class Limits:
             ranges={n: j.range_deg for n, j in config.joints.items()},
             presets=config.presets,
             max_time_ms=config.server.max_move_time_ms,
+            model=config.model,
         )
 
 
@@ -51,11 +57,19 @@ Steps = tuple[Step, ...]
 
 
 def check(instr: Instruction, limits: Limits) -> Steps | str:
-    """The steps of a motion instruction, or the reason to refuse it whole."""
+    """The steps of a motion instruction, or the reason to refuse it whole.
+
+    A Cartesian move's steps depend on where the arm is when it starts: what can be
+    judged now is judged, and its steps are empty (planned at its start, `planned`).
+    """
     if len(instr.id) > MAX_ID:
         return f"the id is {len(instr.id)} characters long; at most {MAX_ID}"
     if instr.kind is Kind.TRAJECTORY:
         return _trajectory(instr.points, limits)
+    if instr.kind is Kind.MOVE_TO:
+        if limits.model is None:
+            return "move_to needs the arm's robot model"
+        return cartesian.precheck(instr, limits.ranges, limits.max_time_ms, limits.model) or ()
     time_ms = instr.time_ms
     if time_ms is not None and not 0 <= time_ms <= limits.max_time_ms:
         return explain(instr, limits)
@@ -148,3 +162,24 @@ def explain(instr: Instruction, limits: Limits) -> str:
             return f"unknown preset {quote(instr.preset)}; presets are {known}"
         return _listed(problems)
     return _listed(problems + _joint_problems(instr.joints, limits))
+
+
+def planned(
+    instr: Instruction,
+    pose: Mapping[str, float | None],
+    limits: Limits,
+    translator: Translator,
+) -> Steps | str:
+    """A Cartesian move's steps from `pose`, checked like any move's; or why not."""
+    assert limits.model is not None
+    moves = cartesian.plan(instr, pose, limits.model, translator)
+    if isinstance(moves, str):
+        return moves
+    steps: list[Step] = []
+    for i, (target, time_ms) in enumerate(moves):
+        problems = _joint_problems(tuple(target.items()), limits)
+        if problems:  # the model keeps to the ranges; this is the last guard before the wire
+            where = f"point {i}: " if len(moves) > 1 else ""
+            return where + _listed(problems)
+        steps.append(Step(target, time_ms))
+    return tuple(steps)

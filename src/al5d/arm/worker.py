@@ -2,31 +2,31 @@
 
 It takes its tasks from the shared state (`Shared.next_task`) and does the
 board I/O that may take long: the moves, the wait for their completion (their
-time, then `Q`), the read-backs and the reconnects. It never holds the lock
-during I/O. The caller's side may stop the arm at any moment; the worker then
-finds its job's epoch old or its cancel flag set, and lets go.
+time, then `Q`), and, through its `link.Link`, the read-backs, the idle checks
+and the reconnects. It never holds the lock during I/O. The caller's side may
+stop the arm at any moment; the worker then finds its job's epoch old or its
+cancel flag set, and lets go.
 """
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import logging
-import math
 from collections.abc import Callable
 from concurrent.futures import Future
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Result
-from al5d.arm.jobs import Job, Mode, Motion, Sent, finish, stop_order
-from al5d.arm.shared import Shared, tell
+from al5d.arm.jobs import Job, Mode, Written, finish
+from al5d.arm.link import Link
+from al5d.arm.shared import Shared
 from al5d.arm.states import Event, State, Task
-from al5d.arm.translate import Translator
-from al5d.arm.validate import Step
+from al5d.arm.validate import Limits, Step, planned
+from al5d.arm.writer import StepWriter
 from al5d.clock import Deadline, now
 from al5d.ssc32u.driver import SSC32U
-from al5d.ssc32u.errors import Interrupted, NotAnSSC32U, SerialFault
+from al5d.ssc32u.errors import Interrupted, SerialFault
 
 log = logging.getLogger("al5d")
 
@@ -45,38 +45,43 @@ class Worker:
         shared: Shared,
         port: str,
         baud: int,
+        writer: StepWriter,
     ) -> None:
         self.config = config
         self.shared = shared
         self.port = port
-        self.baud = baud
         self.settings = config.server
-        self.translator = Translator(config)
-        self.channels = config.channels
-        self._channel_of = {name: j.channel for name, j in config.joints.items()}
+        self.link = Link(config, shared, port, baud)
+        self.writer = writer
+        self.limits = Limits.of(config)
 
     def run(self) -> None:
         shared = self.shared
         try:
-            self._connect()
+            self.link.connect()
             while True:
-                task, job = shared.next_task(self.settings.idle_check_interval_s)
+                task, job, written = shared.next_task(self.settings.idle_check_interval_s)
                 if task is Task.SHUTDOWN:
                     assert job is not None
                     self._park_and_end(job)
                     return
                 if task is Task.RECOVER:
                     if shared.state is not State.FAULT and shared.fault is not None:
-                        self._enter_fault(shared.fault)  # a stop found the link dead
-                    self._recover()
+                        self.link.enter_fault(shared.fault)  # a stop found the link dead
+                    self.link.recover()
                 elif task is Task.STARTUP:
                     self._startup_park()
                 elif task is Task.READBACK:
-                    self._guarded(self._read_back)
+                    try:
+                        self._guarded(self.link.read_back)
+                    finally:
+                        with shared.cv:
+                            shared.readback = False
+                            shared.cv.notify_all()
                 elif task is Task.WATCH:
-                    self._guarded(self._check_link)
+                    self._guarded(self.link.check)
                 elif job is not None:
-                    self._guarded(functools.partial(self._run_job, job))
+                    self._guarded(functools.partial(self._run_job, job, Mode.QUEUE, written))
         except Exception:
             log.exception("the worker failed; the server ends")
             raise
@@ -90,101 +95,44 @@ class Worker:
         try:
             work()
         except SerialFault as e:
-            self._enter_fault(e)
-
-    def _connect(self) -> None:
-        try:
-            board = SSC32U(self.port, self.baud)
-        except SerialFault as e:
-            self._enter_fault(e)
-            return
-        log.info("connected to %s on %s at %d baud", board.firmware, self.port, self.baud)
-        with self.shared.lock:
-            self.shared.board = board
-
-    def _check_link(self) -> None:
-        """An idle arm's link is checked too (a `Q` is 3 bytes: every 0.5 s is 0.6 % of the
-        wire at 9600 baud), so that a pulled cable or a silent board is a fault at once, not
-        at the next move. A stop never waits for it (the query lock is not the stop's)."""
-        board = self.shared.board
-        if board is not None:
-            with contextlib.suppress(Interrupted):  # a stop flushed the answer: the link lives
-                board.is_done()
-
-    def _read_back(self, board: SSC32U | None = None) -> None:
-        """Learn where the servos are from the board (after a stop, at start, after a reconnect)."""
-        board = board or self.shared.board
-        if board is None:
-            return
-        for _ in range(3):
-            try:
-                pulses = board.read_pulses(self.channels)
-                break
-            except Interrupted:
-                continue  # another stop flushed the query: ask again
-        else:
-            return
-        pose = self.translator.degrees(pulses)
-        with self.shared.lock:
-            self.shared.pose.update(pose)
-            self.shared.motion = None
-        log.debug(
-            "read back: %s", {j: (None if v is None else round(v, 1)) for j, v in pose.items()}
-        )
+            self.link.enter_fault(e)
 
     def _startup_park(self) -> None:
         """D1, VE03: park once, at half speed where the board allows it, before `ready`."""
         shared = self.shared
-        self._guarded(self._read_back)
+        self._guarded(self.link.read_back)
         if shared.board is None:
             return
-        unknown = [j for j, v in shared.pose.items() if v is None]
-        if unknown:
-            log.warning(
-                "D1: first command since the board powered up (no pulse on %s): the board "
-                "ignores speed and time for it, so this park goes at full servo speed",
-                ", ".join(unknown),
-            )
+        # A joint with no pulse yet goes at full speed (D1): the writer warns of it.
         park = (Step(dict(self.config.presets["park"]), None),)
         fraction = self.settings.startup_speed_fraction
         job = Job(ins.preset("park", id="startup"), park, Future(), shared.epoch, now(), fraction)
         self._guarded(lambda: self._run_job(job, Mode.STARTUP))
 
-    def _plan(self, job: Job, step: Step) -> tuple[bytes, int]:
-        """The bytes and the time to send (ms), from where the arm is."""
-        minimum = self.translator.minimum_ms(self.shared.pose, step.target, job.speed_fraction)
-        min_ms = math.ceil(minimum - 1e-9)
-        requested = step.time_ms or 0
-        time_ms = max(requested, min_ms)
-        if requested and requested < min_ms:
-            point = f" point {job.step}" if len(job.steps) > 1 else ""
-            log.warning(
-                "INF03: %s [%s]%s cannot be done in the requested %d ms; expected %d ms",
-                job.instr.name,
-                job.instr.id,
-                point,
-                requested,
-                time_ms,
-            )
-        return self.translator.encode(step.target, time_ms), time_ms
-
-    def _run_job(self, job: Job, mode: Mode = Mode.QUEUE) -> bool:
-        """Send one move and wait for it; True when it completed (its outcome is then set)."""
+    def _run_job(self, job: Job, mode: Mode = Mode.QUEUE, first: Written | None = None) -> bool:
+        """Send a job's moves and wait for them; True when it completed (its outcome is then
+        set). With `first`, the caller's thread is current and has written the first step
+        (the fast path): the worker sees the job through from there."""
         shared = self.shared
+        if not job.steps and not self._plan_now(job):
+            return False
         with shared.lock:
             board = shared.board
             stale = job.epoch != shared.epoch or board is None or shared.state not in mode.states
-            if not stale:
+            if not stale and first is None:
                 shared.current = job
                 if mode is Mode.QUEUE:
                     shared.fire(Event.MOVE)
         if stale or board is None:
             if mode is not Mode.SHUTDOWN:
                 finish(job, Result.CANCELLED, "cancelled by stop")
+            with shared.lock:
+                if shared.current is job:
+                    shared.current = None
             return False
         shared.announce()
         try:
-            return self._drive(job, board, mode)
+            return self._drive(job, board, mode, first)
         except SerialFault as e:
             job.cancel.set()
             if mode is not Mode.SHUTDOWN:  # the shutdown reports its own outcome
@@ -196,37 +144,36 @@ class Worker:
                     shared.current = None
                     shared.cv.notify_all()
 
-    def _drive(self, job: Job, board: SSC32U, mode: Mode) -> bool:
+    def _plan_now(self, job: Job) -> bool:
+        """Plan a Cartesian move from where the arm is now; refuse it (False) if it cannot be."""
+        with self.shared.lock:
+            pose = dict(self.shared.pose)
+        steps = planned(job.instr, pose, self.limits, self.writer.translator)
+        if isinstance(steps, str):
+            log.warning("refused %s [%s]: %s", job.instr.name, job.instr.id, steps)
+            finish(job, Result.REFUSED, steps)
+            return False
+        job.steps = steps
+        return True
+
+    def _drive(self, job: Job, board: SSC32U, mode: Mode, first: Written | None = None) -> bool:
         """Run the job's steps in order; True when the last is done (its outcome is then set).
 
         A step after another starts when the one before has run its time (the board's
-        pulses are there); only the last waits for `Q` to confirm.
+        pulses are there); only the last waits for `Q` to confirm. `first` is a first
+        step the caller's thread has written already (the fast path).
         """
         shared = self.shared
         last = len(job.steps) - 1
         for k, step in enumerate(job.steps):
             job.step = k
-            data, time_ms = self._plan(job, step)
-            job.expected_ms += time_ms
-            start = {j: v for j, v in shared.pose.items() if v is not None}
-            t_write = now()
-            board.write_command(data)
-            # The move starts when its CR reaches the board, one wire time after the write.
-            t_sent = t_write + board.wire_time_s(data)
-            motion = Motion(start, step.target, t_sent, time_ms / 1000.0)
-            with shared.lock:
-                raced = job.epoch != shared.epoch or job.cancel.is_set()
-                if not raced:
-                    shared.motion = motion
-            if raced:
-                # A stop came between our check and our write: its STOP may be older than
-                # our move.
-                board.stop(stop_order(motion, now(), self._channel_of))
-                return False
-            if shared.motion_listeners:
-                sent = Sent(job.instr, data, job.t_submit, t_write, motion)
-                tell(shared.motion_listeners, sent, "motion")
-            if not self._wait_done(job, board, t_sent + time_ms / 1000.0, confirm=k == last):
+            written = first if k == 0 and first is not None else self.writer.write(job, step, board)
+            if written is None:
+                return False  # a stop came between our check and our write: its STOP stands
+            # The next step goes out one wire time early, so that it takes effect as this one
+            # ends (its bytes are about as many as this one's).
+            until = written.t_end if k == last else written.t_end - written.wire_s
+            if not self._wait_done(job, board, until, confirm=k == last):
                 return False  # cancelled: whoever cancelled has set the outcome
             with shared.lock:
                 if job.epoch != shared.epoch:
@@ -254,7 +201,7 @@ class Worker:
                 return False
             if t_end - now() > every / 2:
                 try:
-                    board.is_done()
+                    self.link.watch(board)
                 except Interrupted:
                     return False
         if not confirm or now() < self.shared.q_unreliable_until:
@@ -273,92 +220,17 @@ class Worker:
                     self.port, f"Q still says moving {COMPLETION_GRACE_S} s after the move's time"
                 )
 
-    def _enter_fault(self, error: SerialFault) -> None:
-        shared = self.shared
-        log.error("serial fault: %s", error)
-        with shared.lock:
-            shared.fault = error
-            board, shared.board = shared.board, None
-            current, dropped = shared.take_pending()
-            if shared.motion is not None:  # Q counts it down still, if the board goes on with it
-                shared.distrust_q(shared.motion)
-            shared.motion = None
-            if shared.state is not State.FAULT:
-                shared.fire(Event.SERIAL_FAULT)
-        shared.announce()
-        if board is not None:
-            board.close()
-        reason = f"the serial link is lost: {error}"
-        for job in ([current] if current is not None else []) + dropped:
-            if job is not shared.shutdown_job:
-                job.cancel.set()
-                finish(job, Result.CANCELLED, reason)
-
-    def _recover(self) -> None:
-        """Reconnect every few tenths of a second; re-learn the positions; no stale move replays."""
-        shared = self.shared
-        interval = self.settings.reconnect_interval_s
-        while True:
-            with shared.cv:
-                if shared.shutdown_job is not None:
-                    return
-                shared.cv.wait(interval)
-                if shared.shutdown_job is not None:
-                    return
-            try:
-                board = SSC32U(self.port, self.baud)
-            except SerialFault as e:
-                self._reconnect_failed(e)
-                continue
-            try:
-                self._halt_what_was_cancelled(board)
-                self._read_back(board)
-            except (SerialFault, Interrupted) as e:
-                log.debug("reconnect failed: %s", e)
-                board.close()  # it holds the port exclusively: the next try must open it
-                continue
-            with shared.lock:
-                shared.board = board
-                shared.fault = None
-                shared.fire(Event.RECONNECTED)  # to `initializing` if never parked: see run()
-            shared.announce()
-            log.info("reconnected to %s on %s", board.firmware, self.port)
-            return
-
-    def _halt_what_was_cancelled(self, board: SSC32U) -> None:
-        """A board back from a lost link may still be running the move it had: that move was
-        cancelled (and its client told so) when the link went, so it is halted here, and the
-        pose read back is where the arm stopped, not where a cancelled move was going."""
-        if now() < self.shared.q_unreliable_until or not board.is_done():
-            board.stop(self.channels)
-            log.warning("reconnect: halted the move the board was still running (cancelled)")
-
-    def _reconnect_failed(self, error: SerialFault) -> None:
-        """Keep trying; but a device that is not a board is said clearly, once, and becomes
-        the fault's reason (a missing port is the usual unplugged cable: quiet)."""
-        shared = self.shared
-        known = shared.fault
-        if not isinstance(error, NotAnSSC32U):
-            log.debug("reconnect failed: %s", error)
-            return
-        if isinstance(known, NotAnSSC32U) and known.received == error.received:
-            log.debug("reconnect failed: %s", error)
-            return
-        log.warning("reconnect: %s", error)
-        with shared.lock:
-            shared.fault = error
-
     def _park_and_end(self, job: Job) -> None:
         """D2: park, wait until parked, then end (the worker returns after this)."""
         shared = self.shared
         if shared.board is not None:
-            self._guarded(self._read_back)  # the arm may have stopped anywhere
+            self._guarded(self.link.read_back)  # the arm may have stopped anywhere
         done = False
         if shared.board is not None:
             try:
                 done = self._run_job(job, Mode.SHUTDOWN)
             except SerialFault as e:
-                self._enter_fault(e)
+                self.link.enter_fault(e)
         if done:
             log.info("shutdown: parked")
             return

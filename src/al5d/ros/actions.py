@@ -19,7 +19,8 @@ from rclpy.task import Future as RosFuture
 
 from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind, Outcome
-from al5d.ros.convert import move_from_fields
+from al5d.model import ArmModel
+from al5d.ros.convert import move_from_fields, tool_from_fields
 from al5d.ros.runtime import QOS_SERVICES
 
 #: How long a finished goal's result is kept for its client to fetch: rclpy keeps them
@@ -82,8 +83,12 @@ async def outcome_of(node: Node, future: Future[Outcome]) -> Outcome:
     return outcome
 
 
-def goal_instruction(goal: Any, ident: str) -> Instruction | str:
-    """The instruction of a Move goal, or why it is not one (a preset and joints: ambiguous)."""
+def goal_instruction(goal: Any, ident: str, model: ArmModel) -> Instruction | str:
+    """The instruction of a Move goal, or why it is not one (a preset and joints: ambiguous).
+
+    Joints named x, y and z make a Cartesian goal (`move_to`, in ROS units: see
+    `al5d.ros.convert.TOOL_FIELDS`).
+    """
     time_ms = goal.time_ms or None
     if goal.preset and (len(goal.joints) or len(goal.degrees)):
         return (
@@ -92,38 +97,74 @@ def goal_instruction(goal: Any, ident: str) -> Instruction | str:
         )
     if goal.preset:
         return Instruction(Kind.PRESET, preset=goal.preset, time_ms=time_ms, id=ident)
+    if {"x", "y", "z"} & set(goal.joints):
+        tool = tool_from_fields(goal.joints, goal.degrees, model)
+        if isinstance(tool, str):
+            return tool
+        return Instruction(Kind.MOVE_TO, tool=tool, time_ms=time_ms, id=ident)
     return move_from_fields(goal.joints, goal.degrees, time_ms, ident)
 
 
-class MoveAction:
-    """`/al5d/move` on a node: validate in the goal callback, run, report, cancel."""
+class GoalRunner:
+    """What every action of ours shares: its running goals by instruction id (the goal's
+    UUID in hex), and a cancel that halts the arm where it is (without the lock)."""
 
-    def __init__(self, node: Node, driver: ArmDriver, name: str) -> None:
+    #: The instruction name a rejected goal's refusal carries on the result topic.
+    name = "goal"
+    server: IdentifiedActionServer
+
+    def __init__(self, node: Node, driver: ArmDriver) -> None:
         self.node = node
         self.driver = driver
-        self.joint_names = list(driver.config.joints)
-        #: running goals by their instruction id (the goal's UUID in hex)
-        self.running: dict[str, ServerGoalHandle] = {}
-        self.server = action_server(node, Move, name, self._execute, self._goal, self._cancel)
+        self.running: dict[str, Any] = {}
+
+    def judge(self, goal: Any, ident: str) -> Any:
+        """What the goal asks for, ready to run, or the reason to reject it (a str)."""
+        raise NotImplementedError
 
     def _goal(self, goal: Any) -> GoalResponse:
         ident = self.server.goal_id_now
-        instr = goal_instruction(goal, ident)
-        reason = instr if isinstance(instr, str) else self.driver.validate(instr)
-        if isinstance(reason, str):
-            self.driver.refuse(ident, "move", reason)
+        judged = self.judge(goal, ident)
+        if isinstance(judged, str):
+            self.driver.refuse(ident, self.name, judged)
             return GoalResponse.REJECT
         return GoalResponse.ACCEPT
 
-    async def _execute(self, handle: ServerGoalHandle) -> Move.Result:
-        ident = bytes(handle.goal_id.uuid).hex()
-        instr = goal_instruction(handle.request, ident)
-        assert not isinstance(instr, str)  # the goal callback refused those
-        self.running[ident] = handle
+    async def _run(self, ident: str, entry: Any, instr: Instruction) -> Outcome:
+        """Submit the goal's instruction and await its outcome, listed as running meanwhile."""
+        self.running[ident] = entry
         try:
-            outcome = await outcome_of(self.node, self.driver.submit(instr))
+            return await outcome_of(self.node, self.driver.submit(instr))
         finally:
             self.running.pop(ident, None)
+
+    def _cancel(self, handle: ServerGoalHandle) -> CancelResponse:
+        ident = bytes(handle.goal_id.uuid).hex()
+        if ident not in self.running:
+            return CancelResponse.REJECT
+        return CancelResponse.ACCEPT if self.driver.cancel(ident) else CancelResponse.REJECT
+
+
+class MoveAction(GoalRunner):
+    """`/al5d/move` on a node: validate in the goal callback, run, report, cancel."""
+
+    def __init__(self, node: Node, driver: ArmDriver, name: str) -> None:
+        super().__init__(node, driver)
+        self.joint_names = list(driver.config.joints)
+        self.server = action_server(node, Move, name, self._execute, self._goal, self._cancel)
+
+    name = "move"
+
+    def judge(self, goal: Any, ident: str) -> Instruction | str:
+        instr = goal_instruction(goal, ident, self.driver.config.model)
+        reason = instr if isinstance(instr, str) else self.driver.validate(instr)
+        return reason if isinstance(reason, str) else instr
+
+    async def _execute(self, handle: ServerGoalHandle) -> Move.Result:
+        ident = bytes(handle.goal_id.uuid).hex()
+        instr = goal_instruction(handle.request, ident, self.driver.config.model)
+        assert not isinstance(instr, str)  # the goal callback refused those
+        outcome = await self._run(ident, handle, instr)
         result = Move.Result()
         result.outcome = outcome.result.value
         result.reason = outcome.reason
@@ -136,12 +177,6 @@ class MoveAction:
         else:
             handle.abort()
         return result
-
-    def _cancel(self, handle: ServerGoalHandle) -> CancelResponse:
-        ident = bytes(handle.goal_id.uuid).hex()
-        if ident not in self.running:
-            return CancelResponse.REJECT
-        return CancelResponse.ACCEPT if self.driver.cancel(ident) else CancelResponse.REJECT
 
     def feedback(self, degrees: dict[str, float]) -> None:
         """Current degrees and progress to every running goal (the joint-state rate)."""

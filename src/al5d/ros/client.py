@@ -33,10 +33,9 @@ from al5d.arm.instruction import (
 from al5d.clock import Deadline
 from al5d.ros.convert import outcome_from_message, to_message
 from al5d.ros.runtime import (
-    INSTRUCTION_TOPIC,
     QOS_INSTRUCTIONS,
     QOS_STREAM,
-    RESULT_TOPIC,
+    Names,
     Spinner,
     start_context,
 )
@@ -49,15 +48,19 @@ class NoServer(Exception):
 
 
 class Client:
-    """A ROS 2 node that publishes instructions and collects their outcomes by id."""
+    """A ROS 2 node that publishes instructions and collects their outcomes by id, for the
+    server in `namespace` (none by default)."""
 
-    def __init__(self) -> None:
+    def __init__(self, namespace: str | None = None) -> None:
         from rclpy.node import Node
 
+        self.names = names = Names.of(namespace)
         self.context = start_context()
-        self.node = Node(f"al5d_client_{os.getpid()}", context=self.context)
-        self.pub = self.node.create_publisher(ArmInstruction, INSTRUCTION_TOPIC, QOS_INSTRUCTIONS)
-        self.node.create_subscription(InstructionResult, RESULT_TOPIC, self._on_result, QOS_STREAM)
+        self.node = Node(
+            f"al5d_client_{os.getpid()}", namespace=names.node_namespace, context=self.context
+        )
+        self.pub = self.node.create_publisher(ArmInstruction, names.instruction, QOS_INSTRUCTIONS)
+        self.node.create_subscription(InstructionResult, names.result, self._on_result, QOS_STREAM)
         self._outcomes: dict[str, Outcome] = {}
         self._watchers: dict[str, Callable[[Outcome], None]] = {}
         self._cv = threading.Condition()
@@ -78,13 +81,13 @@ class Client:
         while not deadline.expired:
             if (
                 self.pub.get_subscription_count() > 0
-                and self.node.count_publishers(RESULT_TOPIC) > 0
+                and self.node.count_publishers(self.names.result) > 0
             ):
                 return
             time.sleep(0.02)
         domain = os.environ.get("ROS_DOMAIN_ID", "0")
         raise NoServer(
-            f"no al5d server answers on {INSTRUCTION_TOPIC} (ROS_DOMAIN_ID={domain}) "
+            f"no al5d server answers on {self.names.instruction} (ROS_DOMAIN_ID={domain}) "
             f"within {timeout:g} s: is 'al5d serve' running?"
         )
 
@@ -135,13 +138,20 @@ class Report:
             print(text, file=self._out, flush=True)
 
 
-def send(text: str, *, wait_s: float, timeout: float, out: TextIO = sys.stdout) -> int:
+def send(
+    text: str,
+    *,
+    wait_s: float,
+    timeout: float,
+    out: TextIO = sys.stdout,
+    namespace: str | None = None,
+) -> int:
     try:
         instr = parse_instruction(text, PRESET_NAMES)
     except GrammarError as e:
         print(f"al5d send: {e}", file=sys.stderr)
         return EXIT_NOT_DONE
-    client = Client()
+    client = Client(namespace)
     report = Report(out)
     try:
         client.wait_for_server(wait_s)
@@ -155,7 +165,14 @@ def send(text: str, *, wait_s: float, timeout: float, out: TextIO = sys.stdout) 
         client.close()
 
 
-def run(path: str | Path, *, wait_s: float, timeout: float, out: TextIO = sys.stdout) -> int:
+def run(
+    path: str | Path,
+    *,
+    wait_s: float,
+    timeout: float,
+    out: TextIO = sys.stdout,
+    namespace: str | None = None,
+) -> int:
     """Run a sequence file; 0 if every instruction was done, 1 if any was not.
 
     The file is checked whole before its first line is sent. Each outcome is
@@ -170,7 +187,7 @@ def run(path: str | Path, *, wait_s: float, timeout: float, out: TextIO = sys.st
     except GrammarError as e:
         print(f"al5d run: {e}", file=sys.stderr)
         return EXIT_NOT_DONE
-    client = Client()
+    client = Client(namespace)
     report = Report(out)
     try:
         client.wait_for_server(wait_s)

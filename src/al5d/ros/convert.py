@@ -16,9 +16,70 @@ from al5d.arm.instruction import (
     Outcome,
     Point,
     Result,
+    ToolTarget,
     new_id,
     quote,
 )
+from al5d.model import ArmModel, ModelError
+
+#: A `move_to` over ROS names its values in `joints` and gives them in `degrees`, in
+#: ROS units: x, y, z in metres (base_link), pitch and roll in radians, gripper the gap
+#: in metres (or gripper_deg in the servo's degrees, as the text grammar has it), and
+#: path 0 (one group move) or 1 (a straight line).
+TOOL_FIELDS = ("x", "y", "z", "pitch", "roll", "gripper", "gripper_deg", "path")
+
+
+def tool_fields(instr: Instruction) -> tuple[list[str], list[float]]:
+    """A `move_to`'s names and values in the message's units."""
+    t = instr.tool
+    assert t is not None
+    pairs: list[tuple[str, float]] = [("x", t.x_m), ("y", t.y_m), ("z", t.z_m)]
+    if t.pitch_deg is not None:
+        pairs.append(("pitch", math.radians(t.pitch_deg)))
+    if t.roll_deg is not None:
+        pairs.append(("roll", math.radians(t.roll_deg)))
+    if t.gripper_deg is not None:
+        pairs.append(("gripper_deg", t.gripper_deg))
+    if t.line:
+        pairs.append(("path", 1.0))
+    return [n for n, _ in pairs], [v for _, v in pairs]
+
+
+def tool_from_fields(
+    names: Sequence[str], values: Sequence[float], model: ArmModel
+) -> ToolTarget | str:
+    """The target of a `move_to` from a message's or goal's names and values, or why not."""
+    if len(names) != len(values):
+        return f"joints and degrees differ in length ({len(names)} and {len(values)})"
+    given: dict[str, float] = {}
+    for name, value in zip(names, values, strict=True):
+        if name not in TOOL_FIELDS:
+            return f"move_to takes {', '.join(TOOL_FIELDS)}, not {quote(name)}"
+        if name in given:
+            return f"{name} is given twice"
+        given[name] = float(value)
+    missing = [k for k in ("x", "y", "z") if k not in given]
+    if missing:
+        return f"move_to needs {', '.join(missing)} (metres)"
+    if "gripper" in given and "gripper_deg" in given:
+        return "gripper and gripper_deg are given both: ambiguous"
+    path = given.get("path", 0.0)
+    if path not in (0.0, 1.0):
+        return f"path is 0 (one group move) or 1 (a straight line), not {path:g}"
+    gripper = given.get("gripper_deg")
+    if "gripper" in given:
+        gripper = model.gripper_map.deg_from_gap(given["gripper"])
+    # Degrees to a nanodegree: -30 sent as radians comes back -30, not -29.999999999999996.
+    pitch, roll = given.get("pitch"), given.get("roll")
+    return ToolTarget(
+        given["x"],
+        given["y"],
+        given["z"],
+        None if pitch is None else round(math.degrees(pitch), 9),
+        None if roll is None else round(math.degrees(roll), 9),
+        gripper,
+        path == 1.0,
+    )
 
 
 def to_message(instr: Instruction) -> ArmInstruction:
@@ -30,8 +91,11 @@ def to_message(instr: Instruction) -> ArmInstruction:
         )
     msg = ArmInstruction()
     msg.instruction = instr.name
-    msg.joints = [j for j, _ in instr.joints]
-    msg.degrees = [float(d) for _, d in instr.joints]
+    if instr.kind is Kind.MOVE_TO:
+        msg.joints, msg.degrees = tool_fields(instr)
+    else:
+        msg.joints = [j for j, _ in instr.joints]
+        msg.degrees = [float(d) for _, d in instr.joints]
     msg.time_ms = instr.time_ms or 0
     msg.id = instr.id
     return msg
@@ -47,11 +111,18 @@ def move_from_fields(
     return Instruction(Kind.MOVE, joints=pairs, time_ms=time_ms, id=ident)
 
 
-def from_message(msg: ArmInstruction, presets: tuple[str, ...]) -> Instruction | str:
+def from_message(
+    msg: ArmInstruction, presets: tuple[str, ...], model: ArmModel
+) -> Instruction | str:
     """The instruction in a message, or why it is not one."""
     word = msg.instruction.strip().lower()
     ident = msg.id or new_id()
     time_ms = msg.time_ms or None
+    if word == Kind.MOVE_TO.value:
+        tool = tool_from_fields(msg.joints, msg.degrees, model)
+        if isinstance(tool, str):
+            return tool
+        return Instruction(Kind.MOVE_TO, tool=tool, time_ms=time_ms, id=ident)
     if word in presets:
         if len(msg.joints) or len(msg.degrees):
             return f"{word} is a preset: it takes no joints (ambiguous); send a move instead"
@@ -61,7 +132,7 @@ def from_message(msg: ArmInstruction, presets: tuple[str, ...]) -> Instruction |
     for kind in SAFETY:
         if word == kind.value:
             return Instruction(kind, id=ident)
-    known = " | ".join((*presets, "move", *(k.value for k in SAFETY)))
+    known = " | ".join((*presets, "move", "move_to", *(k.value for k in SAFETY)))
     return f"unknown instruction {quote(msg.instruction)}; expected {known}"
 
 
@@ -89,11 +160,10 @@ def trajectory_id(msg: JointTrajectory) -> str:
     return f"{stamp.sec}.{stamp.nanosec:09d}"
 
 
-def trajectory_from_message(msg: JointTrajectory) -> Instruction | str:
-    """The trajectory of a message (radians to degrees, times to ms), or why it is not one.
-
-    The points' joints and times are judged by the driver's validation, whole.
-    """
+def trajectory_from_message(msg: JointTrajectory, model: ArmModel) -> Instruction | str:
+    """The trajectory of a message (the URDF's joint values to the arm's degrees, times to
+    ms), or why it is not one. The points' joints and times are judged by the driver's
+    validation, whole; a name the URDF does not have is kept for it to name."""
     names = list(msg.joint_names)
     points: list[Point] = []
     for i, point in enumerate(msg.points):
@@ -101,6 +171,18 @@ def trajectory_from_message(msg: JointTrajectory) -> Instruction | str:
             return f"point {i}: {len(point.positions)} positions for {len(names)} joints"
         t = point.time_from_start
         at_ms = round((t.sec + t.nanosec * 1e-9) * 1000)
-        degrees = (math.degrees(r) for r in point.positions)
-        points.append(Point(tuple(zip(names, degrees, strict=True)), at_ms))
+        degrees = [
+            (name, arm_degrees(model, name, value))
+            for name, value in zip(names, point.positions, strict=True)
+        ]
+        points.append(Point(tuple(degrees), at_ms))
     return Instruction(Kind.TRAJECTORY, points=tuple(points), id=trajectory_id(msg))
+
+
+def arm_degrees(model: ArmModel, joint: str, value: float) -> float:
+    """A URDF joint value (REP 103 radians, the gripper's gap in metres) in the arm's degrees;
+    for a joint the URDF does not have, the value as degrees (for validation to name)."""
+    try:
+        return model.from_urdf({joint: value})[joint]
+    except ModelError:
+        return math.degrees(value)

@@ -11,14 +11,13 @@ goals hold no thread. Everything runs in one executor in one thread.
 from __future__ import annotations
 
 import logging
-import math
+import os
 import time
 
 import rclpy
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rclpy.context import Context
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
@@ -26,23 +25,20 @@ from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Outcome, new_id
 from al5d.arm.states import State
 from al5d.ros.actions import MoveAction
+from al5d.ros.controllers import FollowTrajectoryAction, GripperAction
 from al5d.ros.convert import (
     from_message,
     outcome_message,
     trajectory_from_message,
     trajectory_id,
 )
+from al5d.ros.robot import RobotPublisher
 from al5d.ros.runtime import (
-    INSTRUCTION_TOPIC,
-    JOINT_STATES_TOPIC,
-    MOVE_ACTION,
     NODE,
     QOS_INSTRUCTIONS,
     QOS_LATCHED,
     QOS_STREAM,
-    RESULT_TOPIC,
-    STATE_TOPIC,
-    TRAJECTORY_TOPIC,
+    Names,
     PublishThread,
     Spinner,
     bound_backlog,
@@ -54,29 +50,32 @@ log = logging.getLogger("al5d")
 
 
 class ArmNode(Node):
-    """Node `al5d`: every topic, service and action of the design, on one driver."""
+    """Node `al5d`: every topic and action of the design, on one driver, under `names`."""
 
-    def __init__(self, driver: ArmDriver, context: Context) -> None:
-        super().__init__(NODE, context=context)
+    def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
+        super().__init__(NODE, namespace=names.node_namespace, context=context)
         self.driver = driver
+        self.names = names
         self.presets = tuple(driver.config.presets)
         self.joint_names = list(driver.config.joints)
         # (id, monotonic ns) of each instruction message as its callback starts, when tracing
         # (`al5d serve --trace FILE`, used by the benchmarks): an append, nothing more.
         self.trace: list[tuple[str, str, int]] | None = None
-        self.result_pub = self.create_publisher(InstructionResult, RESULT_TOPIC, QOS_STREAM)
+        self.result_pub = self.create_publisher(InstructionResult, names.result, QOS_STREAM)
         self.results: PublishThread[Outcome] = PublishThread(
             self.result_pub, outcome_message, "al5d-results"
         )
-        self.state_pub = self.create_publisher(String, STATE_TOPIC, QOS_LATCHED)
-        self.joint_pub = self.create_publisher(JointState, JOINT_STATES_TOPIC, 10)
+        self.state_pub = self.create_publisher(String, names.state, QOS_LATCHED)
+        self.robot = RobotPublisher(self, driver.config, names)
         self.create_subscription(
-            ArmInstruction, INSTRUCTION_TOPIC, self._on_instruction, QOS_INSTRUCTIONS
+            ArmInstruction, names.instruction, self._on_instruction, QOS_INSTRUCTIONS
         )
         self.create_subscription(
-            JointTrajectory, TRAJECTORY_TOPIC, self._on_trajectory, QOS_INSTRUCTIONS
+            JointTrajectory, names.trajectory, self._on_trajectory, QOS_INSTRUCTIONS
         )
-        self.move_action = MoveAction(self, driver, MOVE_ACTION)
+        self.move_action = MoveAction(self, driver, names.move)
+        self.trajectory_action = FollowTrajectoryAction(self, driver, names.follow_joint_trajectory)
+        self.gripper_action = GripperAction(self, driver, names.gripper_command)
         self.create_timer(1.0 / driver.settings.joint_state_rate_hz, self._tick)
         driver.outcome_listeners.append(self._publish_outcome)
         driver.state_listeners.append(self._publish_state)
@@ -93,19 +92,17 @@ class ArmNode(Node):
     def _tick(self) -> None:
         """/joint_states at a fixed rate (radians, REP 103), and feedback for running goals."""
         degrees = self.driver.positions()
-        msg = JointState()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.name = self.joint_names
-        msg.position = [math.radians(degrees[j]) for j in self.joint_names]
-        self.joint_pub.publish(msg)
+        self.robot.publish(degrees)
         self.move_action.feedback(degrees)
+        self.trajectory_action.feedback(degrees)
+        self.gripper_action.feedback()
 
     # -- inputs ---------------------------------------------------------------------
 
     def _on_instruction(self, msg: ArmInstruction) -> None:
         if self.trace is not None:
             self.trace.append((msg.id, "recv", time.monotonic_ns()))
-        instr = from_message(msg, self.presets)
+        instr = from_message(msg, self.presets, self.driver.config.model)
         if isinstance(instr, str):
             self.driver.refuse(msg.id or new_id(), msg.instruction, instr)
             return
@@ -113,7 +110,7 @@ class ArmNode(Node):
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:
         """A trajectory is one instruction: every point checked, then all run or none."""
-        instr = trajectory_from_message(msg)
+        instr = trajectory_from_message(msg, self.driver.config.model)
         if isinstance(instr, str):
             self.driver.refuse(trajectory_id(msg), "trajectory", instr)
             return
@@ -124,14 +121,18 @@ class RosServer:
     """The nodes with their executor threads, for `al5d serve`: `al5d` for the instructions,
     the action and the outputs, and `al5d_safety` for the stop, release and shutdown."""
 
-    def __init__(self, driver: ArmDriver, trace: str | None = None) -> None:
+    def __init__(
+        self, driver: ArmDriver, trace: str | None = None, namespace: str | None = None
+    ) -> None:
+        names = Names.of(driver.settings.namespace if namespace is None else namespace)
+        self.names = names
         backlog = driver.settings.instruction_backlog
-        theirs = bound_backlog(INSTRUCTION_TOPIC, backlog)
+        theirs = bound_backlog(names.instruction, backlog)
         if theirs:
             log.warning("Fast DDS profiles from %s: the instruction backlog is theirs", theirs)
         self.context = start_context()
-        self.node = ArmNode(driver, self.context)
-        self.safety = SafetyNode(driver, self.context)
+        self.node = ArmNode(driver, self.context, names)
+        self.safety = SafetyNode(driver, self.context, names)
         self.trace_path = trace
         if trace is not None:
             self.node.trace = []
@@ -140,14 +141,22 @@ class RosServer:
             driver.motion_listeners.append(
                 lambda sent: events.append((sent.instr.id, "write", int(sent.t_write * 1e9)))
             )
-        self.safety_spinner = Spinner(self.safety, self.context, owns_context=False)
-        self.spinner = Spinner(self.node, self.context, owns_context=False)
+        # AL5D_SAFETY=shared puts the safety services on the main executor thread: the
+        # arrangement before issue 9, kept to measure against (bench/executors.py).
+        together = os.environ.get("AL5D_SAFETY", "own") == "shared"
+        self.spinner = Spinner(
+            self.node, self.context, owns_context=False, more=[self.safety] if together else []
+        )
+        self.safety_spinner = (
+            None if together else Spinner(self.safety, self.context, owns_context=False)
+        )
 
     def close(self) -> None:
         # Let the last results (the shutdown's) reach their readers before the node goes.
         self.node.results.close()
         self.node.result_pub.wait_for_all_acked(rclpy.duration.Duration(seconds=1))
-        self.safety_spinner.close()
+        if self.safety_spinner is not None:
+            self.safety_spinner.close()
         self.spinner.close()
         self.context.try_shutdown()
         if self.trace_path is not None and self.node.trace is not None:

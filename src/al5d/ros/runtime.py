@@ -7,6 +7,7 @@ import queue
 import tempfile
 import threading
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
 import rclpy
@@ -17,16 +18,103 @@ from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
+from al5d.arm.config import namespace_problem
 from al5d.arm.instruction import Kind
 
 NODE = "al5d"
-INSTRUCTION_TOPIC = "/al5d/instruction"
-RESULT_TOPIC = "/al5d/result"
-STATE_TOPIC = "/al5d/state"
-MOVE_ACTION = "/al5d/move"
-JOINT_STATES_TOPIC = "/joint_states"
-TRAJECTORY_TOPIC = "/al5d/joint_trajectory"
-SERVICES = {"/al5d/stop": Kind.STOP, "/al5d/release": Kind.RELEASE, "/al5d/shutdown": Kind.SHUTDOWN}
+SAFETY_NODE = "al5d_safety"
+
+
+@dataclass(frozen=True)
+class Names:
+    """Every public name of one arm's server, under its namespace (ROS conventions).
+
+    With no namespace the names are the design's (`/al5d/instruction`, `/joint_states`,
+    `/arm_controller/follow_joint_trajectory`); with namespace `left` the node-private
+    names become `/left/al5d/...`, the robot's and the controllers' `/left/...`, and the
+    TF frames `left/base_link`... The one place that spells them, for the server, the
+    clients and the web view alike.
+    """
+
+    namespace: str = ""
+
+    @classmethod
+    def of(cls, namespace: str | None) -> Names:
+        """`left`, `/left` or `/lab/left` (None or "" or "/": none); refused with the reason."""
+        problem = namespace_problem(namespace or "")
+        if problem:
+            raise ValueError(problem)
+        ns = (namespace or "").strip("/")
+        return cls(f"/{ns}" if ns else "")
+
+    @property
+    def node_namespace(self) -> str:
+        return self.namespace or "/"
+
+    def private(self, name: str) -> str:
+        return f"{self.namespace}/{NODE}/{name}"
+
+    def shared(self, name: str) -> str:
+        return f"{self.namespace}/{name}"
+
+    @property
+    def frame_prefix(self) -> str:
+        return f"{self.namespace.lstrip('/')}/" if self.namespace else ""
+
+    @property
+    def instruction(self) -> str:
+        return self.private("instruction")
+
+    @property
+    def result(self) -> str:
+        return self.private("result")
+
+    @property
+    def state(self) -> str:
+        return self.private("state")
+
+    @property
+    def move(self) -> str:
+        return self.private("move")
+
+    @property
+    def trajectory(self) -> str:
+        return self.private("joint_trajectory")
+
+    @property
+    def tool_pose(self) -> str:
+        return self.private("tool_pose")
+
+    @property
+    def joint_states(self) -> str:
+        return self.shared("joint_states")
+
+    @property
+    def robot_description(self) -> str:
+        return self.shared("robot_description")
+
+    @property
+    def follow_joint_trajectory(self) -> str:
+        return self.shared("arm_controller/follow_joint_trajectory")
+
+    @property
+    def gripper_command(self) -> str:
+        return self.shared("gripper_controller/gripper_cmd")
+
+    @property
+    def services(self) -> dict[str, Kind]:
+        return {self.private(k.value): k for k in (Kind.STOP, Kind.RELEASE, Kind.SHUTDOWN)}
+
+
+#: The names with no namespace, as the design gives them.
+DEFAULT_NAMES = Names()
+INSTRUCTION_TOPIC = DEFAULT_NAMES.instruction
+RESULT_TOPIC = DEFAULT_NAMES.result
+STATE_TOPIC = DEFAULT_NAMES.state
+MOVE_ACTION = DEFAULT_NAMES.move
+TRAJECTORY_TOPIC = DEFAULT_NAMES.trajectory
+JOINT_STATES_TOPIC = "joint_states"
+SERVICES = DEFAULT_NAMES.services
 
 #: Instructions: reliable, and kept until taken (KEEP_ALL), so that a flood faster than
 #: the server slows its sender instead of overwriting what it sent (back-pressure).
@@ -160,15 +248,24 @@ class PublishThread(Generic[T]):
 class Spinner:
     """An executor spinning in its own thread, stopped in the order rclpy needs.
 
-    With `owns_context`, closing it also ends the ROS context (a process with one node).
+    With `owns_context`, closing it also ends the ROS context (a process with one node);
+    `more` nodes share the executor and its thread.
     """
 
-    def __init__(self, node: Node, context: Context, owns_context: bool = True) -> None:
+    def __init__(
+        self,
+        node: Node,
+        context: Context,
+        owns_context: bool = True,
+        more: list[Node] | None = None,
+    ) -> None:
         self.node = node
         self.context = context
         self.owns_context = owns_context
+        self.more = list(more or [])
         self.executor = make_executor(context)
-        self.executor.add_node(node)
+        for each in (node, *self.more):
+            self.executor.add_node(each)
         self._running = True
         self._thread = threading.Thread(
             target=self._spin, name=f"{node.get_name()}-spin", daemon=True
@@ -185,6 +282,7 @@ class Spinner:
         self.executor.wake()
         self._thread.join(5)
         self.executor.shutdown(timeout_sec=1)
-        self.node.destroy_node()
+        for each in (self.node, *self.more):
+            each.destroy_node()
         if self.owns_context:
             self.context.try_shutdown()

@@ -19,18 +19,17 @@ from std_srvs.srv import Trigger
 
 from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind
-from al5d.ros.runtime import QOS_SERVICES, SERVICES
-
-SAFETY_NODE = "al5d_safety"
+from al5d.ros.runtime import QOS_SERVICES, SAFETY_NODE, Names
 
 
 class SafetyNode(Node):
-    """Node `al5d_safety`: `/al5d/stop`, `/al5d/release`, `/al5d/shutdown` (std_srvs/Trigger)."""
+    """Node `al5d_safety`: `/al5d/stop`, `/al5d/release`, `/al5d/shutdown` (std_srvs/Trigger),
+    under the server's namespace."""
 
-    def __init__(self, driver: ArmDriver, context: Context) -> None:
-        super().__init__(SAFETY_NODE, context=context)
+    def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
+        super().__init__(SAFETY_NODE, namespace=names.node_namespace, context=context)
         self.driver = driver
-        for name, kind in SERVICES.items():
+        for name, kind in names.services.items():
             self.create_service(Trigger, name, self._trigger(kind), qos_profile=QOS_SERVICES)
 
     def _trigger(self, kind: Kind) -> Callable[[Any, Any], Any]:

@@ -13,6 +13,7 @@ short write lock so that the bytes of two commands never interleave.
 from __future__ import annotations
 
 import contextlib
+import logging
 import termios
 import threading
 from collections.abc import Iterable, Mapping, Sequence
@@ -32,6 +33,8 @@ from al5d.ssc32u.errors import (
     SerialFault,
 )
 from al5d.ssc32u.facts import ANSWER_DELAY_MAX_S, FACTORY_BAUD, FIRMWARE_PREFIX
+
+log = logging.getLogger("al5d")
 
 #: How long an answer may take beyond its wire time: the board's slowest (5 ms) ten
 #: times over, because the host may be busy when the answer comes; one late answer is
@@ -89,6 +92,7 @@ class SSC32U:
             )
         except (*IO_ERRORS, ValueError) as e:
             raise PortUnavailable(port, f"cannot open: {e}; {PortUnavailable.advice}") from e
+        self.low_latency = self._ask_low_latency()
         self.firmware = ""
         if check:
             try:
@@ -97,6 +101,26 @@ class SSC32U:
             except SerialFault:
                 self.close()
                 raise
+
+    def _ask_low_latency(self) -> bool:
+        """Ask the USB serial chip to pass short answers on at once.
+
+        The board's FTDI chip holds a short answer until its latency timer runs out
+        (16 ms by default): every query would wait that long. Linux lets the host set
+        low-latency mode (1 ms) on such ports; a port that is no USB serial device (a pty,
+        a network URL) says no, and nothing else changes."""
+        try:
+            self._ser.set_low_latency_mode(True)
+        except (AttributeError, ValueError, *IO_ERRORS) as e:
+            log.info(
+                "%s: low-latency mode not available (%s): a short answer may wait for the "
+                "USB chip's latency timer (16 ms by default)",
+                self.port,
+                e,
+            )
+            return False
+        log.info("%s: low-latency mode set (answers wait 1 ms in the USB chip, not 16)", self.port)
+        return True
 
     # -- life cycle ------------------------------------------------------------
 
@@ -135,9 +159,13 @@ class SSC32U:
         self._write(data)
         return data
 
-    def write_command(self, data: bytes) -> None:
-        """Write bytes already encoded by `al5d.ssc32u.protocol` (a hot path skips re-encoding)."""
-        self._write(data)
+    def write_command(self, data: bytes) -> float:
+        """Write bytes already encoded by `al5d.ssc32u.protocol` (a hot path skips re-encoding).
+
+        Returns when their last byte will have reached the board (CLOCK_MONOTONIC): after
+        the bytes before them on the wire (a stop, a query) and their own wire time.
+        """
+        return self._write(data)
 
     def stop(self, channels: Iterable[int]) -> bytes:
         """Emergency stop: drop unsent output, cancel its partial line, STOP every channel.
@@ -193,6 +221,10 @@ class SSC32U:
         """H/L: use channels as digital outputs."""
         self._write(p.encode_digital_output(levels))
 
+    def arrival(self, n_bytes: int) -> float:
+        """When a command of `n_bytes` written now would have reached the board."""
+        return max(now(), self._wire_free_at) + self.wire_time_s(n_bytes)
+
     def wire_time_s(self, command: bytes | int) -> float:
         """Seconds the command (or that many bytes) needs on the wire at the current baud."""
         n = command if isinstance(command, int) else len(command)
@@ -219,7 +251,7 @@ class SSC32U:
             )
         return firmware
 
-    def _write(self, data: bytes) -> None:
+    def _write(self, data: bytes) -> float:
         with self._write_lock:
             try:
                 self._ser.write(data)
@@ -227,6 +259,7 @@ class SSC32U:
                 raise LinkLost(self.port, f"write failed: {e}") from e
             start = max(now(), self._wire_free_at)
             self._wire_free_at = start + self.wire_time_s(data)
+            return self._wire_free_at
 
     def _query(self, data: bytes, n_answer: int | None, name: str) -> bytes:
         """Write a query and read its answer; one retry before a missing answer is a fault.

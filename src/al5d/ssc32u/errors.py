@@ -58,5 +58,12 @@ class GarbageAnswer(SerialFault):
     advice = "check the baud rate and the cable"
 
 
+class BoardReset(SerialFault):
+    """The board restarted (a brown-out under heavy servo current, say): its pulses are gone
+    and it has forgotten where the servos were, so its next move would run at full speed."""
+
+    advice = "check the servos' power supply: it must hold its voltage at full servo current"
+
+
 class Interrupted(Exception):
     """A query lost its answer because an emergency stop flushed it; not a fault."""

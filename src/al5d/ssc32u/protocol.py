@@ -13,15 +13,24 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from al5d.ssc32u.facts import (
+    ANALOG_PINS,
     BITS_PER_BYTE,
+    BLANKS,
     CHANNELS,
+    DIGITAL_PINS,
     DONE,
+    HIGH,
+    LOW,
     MOVING,
     OFFSET_RANGE,
     PULSE_MAX_US,
     PULSE_MIN_US,
     PULSE_OFF,
     QP_RESOLUTION_US,
+    REGISTER_VALUES,
+    REGISTERS,
+    STARTUP_MAX_CHARS,
+    STARTUP_QUOTE,
     TIME_MAX_MS,
 )
 
@@ -91,6 +100,68 @@ class DigitalOutput:
 
 
 @dataclass(frozen=True, slots=True)
+class ByteOutput:
+    """`#<bank>:<value>`: the 8 channels of a bank (0 = 0..7, ..., 3 = 24..31) as outputs."""
+
+    bank: int
+    value: int
+
+
+@dataclass(frozen=True, slots=True)
+class ReadDigital:
+    """`A`..`F`, latched `AL`..`FL`: answered ASCII `0` or `1`, no CR."""
+
+    pin: str
+    latched: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class ReadAnalog:
+    """`VA`..`VH`: answered one byte, 0 (0 V) to 255 (4.98 V)."""
+
+    pin: str
+
+
+@dataclass(frozen=True, slots=True)
+class ReadRegister:
+    """`R<n>`: answered the value in decimal ASCII, then CR."""
+
+    number: int
+
+
+@dataclass(frozen=True, slots=True)
+class WriteRegister:
+    """`R<n>=<v>`: stored (EEPROM); most registers act at the next power-up."""
+
+    number: int
+    value: int
+
+
+@dataclass(frozen=True, slots=True)
+class DefaultRegisters:
+    """`RDFLT`: every register to its default; answered `OK` and CR when done."""
+
+
+@dataclass(frozen=True, slots=True)
+class ShowStartup:
+    """`SS`: answered the startup string between double quotes, then CR."""
+
+
+@dataclass(frozen=True, slots=True)
+class AppendStartup:
+    """`SSCAT <text>`: the rest of the line, spaces kept, added to the startup string."""
+
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class DeleteStartup:
+    """`SSDEL<n>`: the last n characters of the startup string deleted."""
+
+    count: int
+
+
+@dataclass(frozen=True, slots=True)
 class Unrecognized:
     """A line the board does not understand; the board ignores it."""
 
@@ -98,7 +169,35 @@ class Unrecognized:
     why: str
 
 
-Command = GroupMove | Stop | QueryMovement | QueryPulse | Version | PulseOffset | DigitalOutput
+Command = (
+    GroupMove
+    | Stop
+    | QueryMovement
+    | QueryPulse
+    | Version
+    | PulseOffset
+    | DigitalOutput
+    | ByteOutput
+    | ReadDigital
+    | ReadAnalog
+    | ReadRegister
+    | WriteRegister
+    | DefaultRegisters
+    | ShowStartup
+    | AppendStartup
+    | DeleteStartup
+)
+#: The commands the board answers.
+Query = (
+    QueryMovement
+    | QueryPulse
+    | Version
+    | ReadDigital
+    | ReadAnalog
+    | ReadRegister
+    | DefaultRegisters
+    | ShowStartup
+)
 
 
 def wire_time_s(n_bytes: int, baud: int) -> float:
@@ -210,6 +309,66 @@ def encode_digital_output(levels: Mapping[int, bool]) -> bytes:
     )
 
 
+def encode_byte_output(bank: int, value: int) -> bytes:
+    """`#3:123\\r`: bit 0 of the value is the bank's lowest channel."""
+    if bank not in range(4):
+        raise ProtocolError(f"bank {bank} is outside 0..3")
+    if value not in range(256):
+        raise ProtocolError(f"byte {value} is outside 0..255")
+    return f"#{bank}:{value}\r".encode("ascii")
+
+
+def _input_read(read: ReadDigital | ReadAnalog) -> str:
+    if isinstance(read, ReadAnalog):
+        if read.pin not in ANALOG_PINS or len(read.pin) != 1:
+            raise ProtocolError(f"no analog input {read.pin!r}: pins are {ANALOG_PINS}")
+        return f"V{read.pin}"
+    if read.pin not in DIGITAL_PINS or len(read.pin) != 1:
+        raise ProtocolError(f"no digital input {read.pin!r}: pins are {DIGITAL_PINS}")
+    return read.pin + ("L" if read.latched else "")
+
+
+def encode_input_reads(reads: Iterable[ReadDigital | ReadAnalog]) -> bytes:
+    """`ABLVA\\r`: one answer byte per read, in order (no separator is needed: no read
+    starts with L, so `A` then `BL` cannot be taken for `AL` then `B`)."""
+    parts = [_input_read(r) for r in reads]
+    if not parts:
+        raise ProtocolError("an input read needs at least one pin")
+    return ("".join(parts) + "\r").encode("ascii")
+
+
+def _check_register(number: int) -> None:
+    if number not in REGISTERS:
+        raise ProtocolError(f"register {number} is outside 0..255")
+
+
+def encode_register_read(number: int) -> bytes:
+    _check_register(number)
+    return f"R{number}\r".encode("ascii")
+
+
+def encode_register_write(number: int, value: int) -> bytes:
+    _check_register(number)
+    if value not in REGISTER_VALUES:
+        raise ProtocolError(f"register value {value} is outside -32768..65535")
+    return f"R{number}={value}\r".encode("ascii")
+
+
+def encode_startup_append(text: str) -> bytes:
+    """`SSCAT <text>\\r`: the board drops the one blank after SSCAT and keeps the rest."""
+    if not text or len(text) > STARTUP_MAX_CHARS:
+        raise ProtocolError(f"a startup string part has 1..{STARTUP_MAX_CHARS} characters")
+    if any(not 0x20 <= ord(c) <= 0x7E for c in text):
+        raise ProtocolError(f"a startup string is printable ASCII: {text!r}")
+    return f"SSCAT {text}\r".encode("ascii")
+
+
+def encode_startup_delete(count: int) -> bytes:
+    if count not in range(256):
+        raise ProtocolError(f"SSDEL deletes 0..255 characters, not {count}")
+    return f"SSDEL{count}\r".encode("ascii")
+
+
 def encode(command: Command) -> bytes:
     """The bytes of any command, CR included."""
     match command:
@@ -227,6 +386,22 @@ def encode(command: Command) -> bytes:
             return encode_pulse_offset(dict(offsets))
         case DigitalOutput(levels):
             return encode_digital_output(dict(levels))
+        case ByteOutput(bank, value):
+            return encode_byte_output(bank, value)
+        case ReadDigital() | ReadAnalog():
+            return encode_input_reads([command])
+        case ReadRegister(number):
+            return encode_register_read(number)
+        case WriteRegister(number, value):
+            return encode_register_write(number, value)
+        case DefaultRegisters():
+            return b"RDFLT\r"
+        case ShowStartup():
+            return b"SS\r"
+        case AppendStartup(text):
+            return encode_startup_append(text)
+        case DeleteStartup(count):
+            return encode_startup_delete(count)
     raise ProtocolError(f"not a command: {command!r}")
 
 
@@ -273,30 +448,89 @@ def parse_version(answer: bytes) -> str:
     return text.decode("ascii")
 
 
+def parse_digital(answer: bytes, n: int) -> list[bool]:
+    """The levels of a digital read of `n` pins: True for high (`1`)."""
+    if len(answer) != n or any(bytes([b]) not in (LOW, HIGH) for b in answer):
+        raise ProtocolError(f"a read of {n} digital input(s) answered {answer!r}")
+    return [bytes([b]) == HIGH for b in answer]
+
+
+def _cr_line(answer: bytes, what: str) -> str:
+    if not answer.endswith(CR) or any(b < 0x20 or b > 0x7E for b in answer[:-1]):
+        raise ProtocolError(f"{what} answer is not printable ASCII then CR: {answer!r}")
+    return answer[:-1].decode("ascii")
+
+
+def parse_register(answer: bytes) -> int:
+    """The value of an `R<n>` answer (`1023\\r`, `-50\\r`)."""
+    text = _cr_line(answer, "register")
+    if not re.fullmatch(r"-?\d+", text):
+        raise ProtocolError(f"register answer is not a decimal number: {answer!r}")
+    return int(text)
+
+
+def parse_startup(answer: bytes) -> str:
+    """The startup string of an `SS` answer (`"#0P1500;"\\r`)."""
+    text = _cr_line(answer, "SS")
+    quote = STARTUP_QUOTE.decode("ascii")
+    if len(text) < 2 or text[0] != quote or text[-1] != quote:
+        raise ProtocolError(f"SS answer is not quoted: {answer!r}")
+    return text[1:-1]
+
+
 # -- parsing commands (board side) ------------------------------------------
 
+# Order matters where one token starts another: STOP and SSDEL before SS, QP before Q,
+# VER before VE, RDFLT before R<n>, AL before A.
 _TOKEN = re.compile(
     rb"#(?P<ch>\d+)(?:PO(?P<off>[+-]?\d+)|P(?P<pw>\d+)(?:S(?P<spd>\d+))?|(?P<hl>[HL]))"
+    rb"|#(?P<bank>\d+):(?P<byte>\d+)"
     rb"|T(?P<t>\d+)"
     rb"|STOP(?P<stop>\d+)"
+    rb"|SSDEL(?P<ssdel>\d+)?"
+    rb"|(?P<ss>SS)"
     rb"|QP(?P<qp>\d+)"
     rb"|(?P<q>Q)"
     rb"|(?P<ver>VER)"
+    rb"|V(?P<analog>[A-H])"
+    rb"|(?P<rdflt>RDFLT)"
+    rb"|R(?P<reg>\d+)(?:=(?P<val>[+-]?\d+))?"
+    rb"|(?P<digital>[A-F])(?P<latched>L)?"
 )
+_SSCAT = b"SSCAT"
+
+
+def _startup_append(line: bytes) -> AppendStartup | None:
+    """`SSCAT <text>` when the line is one: its text is everything after SSCAT and the one
+    blank that follows it, spaces included (UG-39), so it cannot go through the blank-free
+    tokens. Line feeds are dropped even there: a CR LF client puts one in every line."""
+    line = line.replace(b"\n", b"")
+    i = 0
+    for letter in _SSCAT:
+        while i < len(line) and line[i] in BLANKS:
+            i += 1
+        if i >= len(line) or line[i] & 0xDF != letter:
+            return None
+        i += 1
+    if i < len(line) and line[i] in b" \t":
+        i += 1
+    return AppendStartup(line[i:].decode("latin-1"))
 
 
 def parse_line(line: bytes) -> list[Command] | Unrecognized:
     """The commands of one line (without its CR), as the board reads them.
 
-    Case and spaces/tabs do not matter. A line that does not parse as a whole
-    is returned as `Unrecognized`: the board ignores it, and so does the
-    emulator. Pulse widths outside 500..2500 are returned as sent; clipping is
-    the board's business, not the grammar's.
+    Case, spaces, tabs and line feeds do not matter (UG-24). A line that does not
+    parse as a whole is returned as `Unrecognized`: the board ignores it, and so
+    does the emulator. Pulse widths outside 500..2500 are returned as sent;
+    clipping is the board's business, not the grammar's.
     """
-    text = line.translate(None, b" \t").upper()
+    text = line.translate(None, BLANKS).upper()
     shown = line.decode("ascii", "replace")
     if not text:
         return Unrecognized(shown, "empty line")
+    if (append := _startup_append(line)) is not None:
+        return [append]
     commands: list[Command] = []
     targets: list[ChannelTarget] = []
     offsets: list[tuple[int, int]] = []
@@ -323,6 +557,11 @@ def parse_line(line: bytes) -> list[Command] | Unrecognized:
                 targets.append(ChannelTarget(ch, int(g["pw"]), spd))
                 if group_at is None:
                     group_at = len(commands)
+        elif g["bank"] is not None:
+            bank, value = int(g["bank"]), int(g["byte"])
+            if bank not in range(4) or value not in range(256):
+                return Unrecognized(shown, f"byte output #{bank}:{value} is outside 0..3:0..255")
+            commands.append(ByteOutput(bank, value))
         elif g["t"] is not None:
             time_ms = int(g["t"])
             if group_at is None:
@@ -337,8 +576,28 @@ def parse_line(line: bytes) -> list[Command] | Unrecognized:
                 commands.append(QueryPulse((ch,)))
         elif g["q"] is not None:
             commands.append(QueryMovement())
-        else:
+        elif g["ver"] is not None:
             commands.append(Version())
+        elif m.group().startswith(b"SSDEL"):
+            if g["ssdel"] is None:  # not SS, D, EL: a command word is read whole
+                return Unrecognized(shown, "SSDEL without a count")
+            commands.append(DeleteStartup(int(g["ssdel"])))
+        elif g["ss"] is not None:
+            commands.append(ShowStartup())
+        elif g["analog"] is not None:
+            commands.append(ReadAnalog(g["analog"].decode("ascii")))
+        elif g["rdflt"] is not None:
+            commands.append(DefaultRegisters())
+        elif g["reg"] is not None:
+            number = int(g["reg"])
+            if number not in REGISTERS:
+                return Unrecognized(shown, f"register {number} is outside 0..255")
+            if g["val"] is None:
+                commands.append(ReadRegister(number))
+            else:
+                commands.append(WriteRegister(number, int(g["val"])))
+        else:
+            commands.append(ReadDigital(g["digital"].decode("ascii"), g["latched"] is not None))
     if time_ms is not None and not targets:
         return Unrecognized(shown, "T without any channel to move")
     if targets and group_at is not None:

@@ -1,36 +1,55 @@
 """An emulated SSC-32U on a pseudo terminal, faithful to the board's protocol and timing.
 
-`Emulator` is the board's model (`board.Board`: commands, servos, answers,
-records) on its serial link (`pty.PtyLink`: a pty at the client's baud). Use it
-as a context manager, or `start()` and `close()`:
+`Emulator` is the board's model (`board.Board`: commands, servos, inputs,
+registers, answers, records) on its serial link (`pty.PtyLink`: a pty at the
+client's baud, through the USB chip or a plain UART, `usb.Link`). Use it as a
+context manager, or `start()` and `close()`:
 
     with Emulator(config, baud=9600) as emu:
         print(emu.port)          # open this with SSC32U or any serial program
         emu.records              # every line received, with its time of effect
         emu.servo_degrees()      # where the emulated servos are
+        emu.set_input("A", 0)    # a switch on input A closes
+        emu.inject(Fault.RESET)  # a brown-out
 """
 
 from __future__ import annotations
 
 import os
 import queue
+import signal
 import threading
 from collections.abc import Mapping
 from types import TracebackType
 from typing import TextIO
 
 from al5d.ssc32u import facts
+from al5d.ssc32u.emulator import settings
 from al5d.ssc32u.emulator.board import (
     DEFAULT_ANSWER_DELAY_S,
+    Answer,
     ArmDescription,
     Board,
     Fault,
+    InputValue,
     Record,
     ServoJoint,
 )
 from al5d.ssc32u.emulator.pty import PtyLink
+from al5d.ssc32u.emulator.usb import LEGACY, Link, Transport
 
-__all__ = ["ArmDescription", "Emulator", "Fault", "Record", "ServoJoint", "serve_forever"]
+__all__ = [
+    "LEGACY",
+    "ArmDescription",
+    "Emulator",
+    "Fault",
+    "Link",
+    "Record",
+    "ServoJoint",
+    "Transport",
+    "serve_forever",
+    "settings",
+]
 
 
 class Emulator(Board):
@@ -39,6 +58,10 @@ class Emulator(Board):
     `port` is the path a client opens (the `link` symlink when one is given,
     so that it survives a reconnect). `baud` is the board's own setting: a
     client at another baud is heard as noise, as with the real board.
+    `usb` is the link's model: `Link()` for the board's USB port as it is
+    (an output flush drops nothing, a 16 ms latency timer), `LEGACY` (the
+    default here) for the timing our own driver and tests were written against.
+    The other settings are the board's (see `board.Board`).
     """
 
     def __init__(
@@ -47,9 +70,15 @@ class Emulator(Board):
         *,
         baud: int = facts.FACTORY_BAUD,
         link: str | os.PathLike[str] | None = None,
+        usb: Link = LEGACY,
         version: str = facts.FIRMWARE,
         answer_delay_s: float = DEFAULT_ANSWER_DELAY_S,
         initial_pose: Mapping[str, float] | None = None,
+        inputs: Mapping[str, InputValue] | None = None,
+        registers: Mapping[int, int] | None = None,
+        startup: str = "",
+        power_up: Mapping[int, int] | None = None,
+        announce_reset: bool = False,
     ) -> None:
         super().__init__(
             config,
@@ -57,8 +86,14 @@ class Emulator(Board):
             version=version,
             answer_delay_s=answer_delay_s,
             initial_pose=initial_pose,
+            inputs=inputs,
+            registers=registers,
+            startup=startup,
+            power_up=power_up,
+            announce_reset=announce_reset,
         )
-        self._link = PtyLink(self, link)
+        self.usb = usb
+        self._link = PtyLink(self, link, usb)
 
     # -- life cycle ------------------------------------------------------
 
@@ -93,10 +128,17 @@ class Emulator(Board):
     # -- faults on the link ---------------------------------------------------
 
     def inject(self, fault: Fault) -> None:
-        """Start a fault. DISCONNECT closes the pty: the client's I/O fails until reconnect()."""
+        """Start a fault. DISCONNECT closes the pty: the client's I/O fails until reconnect().
+        RESET restarts the board now (see `reset`)."""
         super().inject(fault)
         if fault is Fault.DISCONNECT:
             self._link.close()
+
+    def reset(self, t: float | None = None, announce: bool | None = None) -> list[Answer]:
+        """A brown-out and restart (see `Board.reset`); whatever the board sends, goes out."""
+        answers = super().reset(t, announce)
+        self._link.send(answers)
+        return answers
 
     def reconnect(self) -> None:
         """Plug the adapter back in: a new pty behind the same link; the servos kept their state."""
@@ -109,7 +151,10 @@ class Emulator(Board):
 def serve_forever(emulator: Emulator, stop: threading.Event, record: TextIO | None = None) -> None:
     """Run until `stop` is set (used by `al5d emulator`); the device path is the first line
     of stdout. With `record`, every line the board receives is written there as JSON, with
-    its time of effect (CLOCK_MONOTONIC), by a thread of its own so the board never waits."""
+    its time of effect (CLOCK_MONOTONIC), by a thread of its own so the board never waits.
+    In the main thread, SIGUSR1 resets the board (a brown-out), for programs under test."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGUSR1, lambda signum, frame: emulator.inject(Fault.RESET))
     lines: queue.SimpleQueue[Record | None] = queue.SimpleQueue()
     writer = None
     if record is not None:
@@ -123,6 +168,8 @@ def serve_forever(emulator: Emulator, stop: threading.Event, record: TextIO | No
 
         writer = threading.Thread(target=write, name="ssc32u-record", daemon=True)
         writer.start()
+        for rec in emulator.records:  # the power-up's (its startup string), before the link
+            lines.put(rec)
         emulator.record_listeners.append(lines.put)
     with emulator:
         print(emulator.port, flush=True)

@@ -20,6 +20,7 @@ from typing import Protocol
 from al5d.clock import Deadline, now
 from al5d.ssc32u import facts
 from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator.inputs import Pin, input_level
 from al5d.ssc32u.emulator.servo import DEFAULT_SPEED_US_S, Servo
 
 #: How long the emulated board takes to start answering a query: within the manual's
@@ -35,6 +36,15 @@ class Fault(enum.Enum):
     DISCONNECT = "disconnect"  # the adapter is unplugged: the client's I/O fails
     NO_ANSWER = "no_answer"  # queries are not answered
     GARBAGE = "garbage"  # queries are answered with bytes that are not the board's
+    # A brown-out: the board restarts at once (an event: it does not stay injected).
+    # Pulses off, positions forgotten, latches cleared, then its power-up settings again.
+    RESET = "reset"
+
+
+#: Where a record's line came from.
+SERIAL = "serial"  # received on the serial link
+STARTUP = "startup"  # a command of the startup string, run at power-up
+RESET = "reset"  # not a line: the board restarted here
 
 
 class ServoJoint(Protocol):
@@ -70,20 +80,23 @@ class Record:
     raw: bytes
     commands: tuple[p.Command, ...]
     ignored: str | None = None  # why the board did nothing with it
+    source: str = SERIAL
 
     @property
     def accepted(self) -> bool:
         return self.ignored is None
 
     def to_json(self) -> str:
-        """One line for a record stream (`al5d emulator --record`): time, bytes, why ignored."""
-        return json.dumps(
-            {
-                "t": round(self.t_effect, 6),
-                "raw": self.raw.decode("latin-1"),
-                "ignored": self.ignored,
-            }
-        )
+        """One line for a record stream (`al5d emulator --record`): time, bytes, why ignored,
+        and where the line came from when not from the serial link."""
+        data: dict[str, object] = {
+            "t": round(self.t_effect, 6),
+            "raw": self.raw.decode("latin-1"),
+            "ignored": self.ignored,
+        }
+        if self.source != SERIAL:
+            data["source"] = self.source
+        return json.dumps(data)
 
     @classmethod
     def from_json(cls, line: str) -> Record:
@@ -92,18 +105,38 @@ class Record:
         raw = data["raw"].encode("latin-1")
         parsed = p.parse_line(raw)
         commands = () if isinstance(parsed, p.Unrecognized) else tuple(parsed)
-        return cls(data["t"], raw, commands, data["ignored"])
+        return cls(data["t"], raw, commands, data["ignored"], data.get("source", SERIAL))
 
 
 Answer = tuple[float, bytes]  # (when its last byte is due at the client, the bytes)
 
 
+InputValue = bool | int | str | None
+
+
+def default_registers(baud: int = facts.FACTORY_BAUD) -> dict[int, int]:
+    """Every register as `RDFLT` leaves it: 0, but R4 holding the baud / 10."""
+    regs = dict.fromkeys(facts.REGISTERS, 0)
+    regs[facts.R_BAUD] = baud // 10
+    return regs
+
+
 class Board:
-    """The board's model: servos, faults, the record of every line, and the answers to queries.
+    """The board's model: servos, inputs, registers, faults, the record of every line, and
+    the answers to queries.
 
     `config` describes the arm on the channels (speeds, and a calibration for the
     views in degrees); `initial_pose` (degrees) is where the physical servos stand
     at power-up, by default the arm's park pose (where it was switched off, PO01).
+
+    Power-up state, as a board's EEPROM gives it: `registers` (number -> value),
+    `startup` (the startup string, run at power-up; a missing final `;` is added,
+    since only terminated commands run) and `power_up` (channel -> pulse us, kept in
+    the initial pulse width registers). `startup` and `power_up` also set their
+    enable bits in R0. `inputs` sets the input pins (`A`=0/1, `VA`=0..255, or
+    "open"; see `inputs.input_level`); unset pins are open. `announce_reset` makes
+    a reset send what `SS` would answer, so that a client's handling of unasked-for
+    bytes can be tested (the guide mentions nothing a board sends at power-up).
     """
 
     def __init__(
@@ -114,11 +147,17 @@ class Board:
         version: str = facts.FIRMWARE,
         answer_delay_s: float = DEFAULT_ANSWER_DELAY_S,
         initial_pose: Mapping[str, float] | None = None,
+        inputs: Mapping[str, InputValue] | None = None,
+        registers: Mapping[int, int] | None = None,
+        startup: str = "",
+        power_up: Mapping[int, int] | None = None,
+        announce_reset: bool = False,
     ) -> None:
         self.config = config
         self.baud = baud
         self.version = version
         self.answer_delay_s = answer_delay_s
+        self.announce_reset = announce_reset
         self._lock = threading.RLock()  # the board's model
         # The records have a lock of their own: an observer that waits for a record
         # never holds up the board (its answers have to come within milliseconds).
@@ -130,7 +169,29 @@ class Board:
         self._servos: dict[int, Servo] = {}
         # Per channel: the servo as each command left it, to answer "when did that move arrive".
         self._history: dict[int, deque[Servo]] = {}
-        t = now()
+        self._pins = {pin: Pin() for pin in facts.ANALOG_PINS}
+        for name, value in (inputs or {}).items():
+            pin, level = input_level(name, value)
+            self._pins[pin].level = level
+        self._registers = default_registers(baud)
+        for number, value in (registers or {}).items():
+            self._check_register(number, value)
+            self._registers[number] = value
+        for ch, pw in (power_up or {}).items():
+            if ch not in facts.CHANNELS or not facts.PULSE_MIN_US <= pw <= facts.PULSE_MAX_US:
+                raise ValueError(f"power-up pulse {ch}: {pw} us; channels 0..31, 500..2500 us")
+            self._registers[facts.R_PULSE_WIDTH + ch] = pw
+            self._registers[facts.R_ENABLE] |= facts.ENABLE_PULSE_WIDTH
+        self._startup = ""
+        if startup:
+            end = facts.STARTUP_END
+            self._startup = (startup if startup.endswith(end) else startup + end)[
+                : facts.STARTUP_MAX_CHARS
+            ]
+            self._registers[facts.R_ENABLE] |= facts.ENABLE_STARTUP_STRING
+        self._tx_free = float("-inf")  # when the board's serial output has sent its last answer
+        #: When the board last powered up (a reset is one): a partial line from before is lost.
+        self.powered_at = t = now()
         if config is not None:
             pose = initial_pose if initial_pose is not None else config.presets.get("park", {})
             for name, joint in config.joints.items():
@@ -139,6 +200,13 @@ class Board:
                     position_us=joint.to_us(pose.get(name, 0.0)),
                     t_position=t,
                 )
+        with self._lock:
+            self._power_up(t)  # what its startup string would answer goes nowhere: no link yet
+
+    @staticmethod
+    def _check_register(number: int, value: int) -> None:
+        if number not in facts.REGISTERS or value not in facts.REGISTER_VALUES:
+            raise ValueError(f"register R{number}={value}: R0..R255, values -32768..65535")
 
     # -- faults ------------------------------------------------------------
 
@@ -146,9 +214,88 @@ class Board:
         return fault in self._faults
 
     def inject(self, fault: Fault) -> None:
-        """Start a fault (on a bare board, DISCONNECT only marks it; the link acts on it)."""
+        """Start a fault (on a bare board, DISCONNECT only marks it; the link acts on it).
+
+        RESET is an event, not a state: the board restarts now (see `reset`) and the fault
+        is not kept; the answers its startup string makes go nowhere on a bare board."""
+        if fault is Fault.RESET:
+            self.reset()
+            return
         with self._lock:
             self._faults.add(fault)
+
+    def reset(self, t: float | None = None, announce: bool | None = None) -> list[Answer]:
+        """A brown-out and restart at `t` (now): every pulse off (`QP` answers 0), every
+        position forgotten (the next move runs at full speed), Q's moves over, latches
+        cleared and inputs digital again, offsets and outputs gone; then the power-up
+        settings (registers, startup string) apply as at power-up. The physical servos
+        stay where they were, limp. Returns the answers the restart sends (the startup
+        string's queries, and the `SS` answer if `announce`, by default `announce_reset`).
+        """
+        t = now() if t is None else t
+        announce = self.announce_reset if announce is None else announce
+        with self._lock:
+            for ch, servo in self._servos.items():
+                servo.advance(t)
+                self._remember(ch, servo)
+            self.note(Record(t, b"", (), "board reset: pulses off, positions forgotten", RESET))
+            answers = self._power_up(t)
+            if announce and (sent := self._answer(self._startup_answer(), t)) is not None:
+                answers.append(sent)
+        return answers
+
+    def _power_up(self, t: float) -> list[Answer]:
+        """The board's start: nothing known, nothing on, then the enabled power-up settings."""
+        self.powered_at = t
+        self._tx_free = float("-inf")  # a restart ends whatever it was sending
+        for servo in self._servos.values():
+            servo.advance(t)
+            servo.on = servo.known = False
+            servo.start_us = servo.end_us = 0.0
+            servo.t0 = servo.t1 = servo.busy_until = t
+            servo.offset_us = 0
+            servo.output_high = None
+        for pin in self._pins.values():
+            pin.power_up(t)
+        enable = self._registers[facts.R_ENABLE]
+        if enable & facts.ENABLE_GLOBAL_DISABLE:
+            return []
+        lo, hi = facts.OFFSET_RANGE[0], facts.OFFSET_RANGE[-1]
+        for ch in facts.CHANNELS:
+            offset = self._registers[facts.R_PULSE_OFFSET + ch]
+            if enable & facts.ENABLE_PULSE_OFFSET and offset:
+                self._servo(ch, t).offset_us = max(lo, min(hi, offset))
+            pw = self._registers[facts.R_PULSE_WIDTH + ch]
+            if enable & facts.ENABLE_PULSE_WIDTH and pw:
+                servo = self._servo(ch, t)
+                servo.on = servo.known = True
+                servo.start_us = servo.end_us = max(facts.PULSE_MIN_US, min(facts.PULSE_MAX_US, pw))
+                self._remember(ch, servo)
+        answers: list[Answer] = []
+        if enable & facts.ENABLE_STARTUP_STRING:
+            # Only terminated commands run: the text after the last `;` is not a command yet.
+            for command in self._startup.split(facts.STARTUP_END)[:-1]:
+                answers += self._execute(command.encode("latin-1"), t, STARTUP)
+        return answers
+
+    # -- inputs, registers and the startup string (observers and tests) ---------
+
+    def set_input(self, name: str, value: InputValue, t: float | None = None) -> None:
+        """Drive an input pin from now (or `t`): `A`..`H` with 0/1/True/False, `VA`..`VH`
+        with 0..255, or None / "open"."""
+        pin, level = input_level(name, value)
+        with self._lock:
+            self._pins[pin].set(now() if t is None else t, level)
+
+    def register(self, number: int) -> int:
+        with self._lock:
+            return self._registers[number]
+
+    @property
+    def startup(self) -> str:
+        """The stored startup string."""
+        with self._lock:
+            return self._startup
 
     def clear(self, fault: Fault | None = None) -> None:
         with self._lock:
@@ -193,6 +340,13 @@ class Board:
         with self._lock:
             servo = self._servos.get(channel)
             return servo.pulse_at(now() if t is None else t) if servo else 0.0
+
+    def output(self, channel: int) -> bool | None:
+        """The level of `channel` as a digital output (`#<ch>H`/`L`, `#<bank>:<byte>`);
+        None while it is not one."""
+        with self._lock:
+            servo = self._servos.get(channel)
+            return servo.output_high if servo else None
 
     def servo_us(self, channel: int, t: float | None = None) -> float:
         """Where the physical servo on `channel` is, as a pulse width."""
@@ -279,20 +433,31 @@ class Board:
             listener(rec)
 
     def execute(self, raw: bytes, t: float) -> list[Answer]:
-        """Act on one line whose CR arrived at `t`; the answers it causes, with their due time."""
+        """Act on one line whose CR arrived at `t`; its answer, with its due time.
+
+        The board runs a line's commands after its CR and sends their answers as one
+        burst, in the order of the queries.
+        """
+        with self._lock:
+            return self._execute(raw, t, SERIAL)
+
+    def _execute(self, raw: bytes, t: float, source: str) -> list[Answer]:
         parsed = p.parse_line(raw)
         if isinstance(parsed, p.Unrecognized):
-            self.note(Record(t, raw, (), parsed.why))
+            self.note(Record(t, raw, (), parsed.why, source))
             return []
         notes: list[str] = []
-        answers: list[Answer] = []
-        with self._lock:
-            for cmd in parsed:
-                data = self._apply(cmd, t, notes)
-                if data is not None and (answer := self._answer(data, t)) is not None:
-                    answers.append(answer)
-        self.note(Record(t, raw, tuple(parsed), "; ".join(notes) if notes else None))
-        return answers
+        data = bytearray()
+        delay = 0.0
+        for cmd in parsed:
+            answer = self._apply(cmd, t, notes)
+            if answer is not None:
+                data += answer
+            if isinstance(cmd, p.DefaultRegisters):
+                delay = facts.DEFAULTS_TIME_S  # "may take over a second" before its OK
+        self.note(Record(t, raw, tuple(parsed), "; ".join(notes) if notes else None, source))
+        sent = self._answer(bytes(data), t, delay) if data else None
+        return [sent] if sent is not None else []
 
     def _busy(self, t: float) -> bool:
         return any(s.busy_until > t for s in self._servos.values())
@@ -329,11 +494,44 @@ class Board:
                     servo.offset_us = max(lo, min(hi, off))
             case p.DigitalOutput(levels):
                 for ch, high in levels:
-                    servo = self._servo(ch, t)
-                    servo.advance(t)
-                    servo.on = False
-                    servo.output_high = high
+                    self._output(ch, high, t)
+            case p.ByteOutput(bank, value):
+                for bit in range(8):
+                    self._output(bank * 8 + bit, bool(value >> bit & 1), t)
+            case p.ReadDigital(pin, latched):
+                return self._pins[pin].latched(t) if latched else self._pins[pin].digital(t)
+            case p.ReadAnalog(pin):
+                return bytes([self._pins[pin].read_analog(t)])
+            case p.ReadRegister(number):
+                return f"{self._registers[number]}".encode("ascii") + p.CR
+            case p.WriteRegister(number, value):
+                if value in facts.REGISTER_VALUES:
+                    self._registers[number] = value
+                else:
+                    notes.append(f"R{number}={value}: not a 16-bit value, not stored")
+            case p.DefaultRegisters():
+                self._registers = default_registers()
+                return facts.DEFAULTS_DONE
+            case p.ShowStartup():
+                return self._startup_answer()
+            case p.AppendStartup(text):
+                whole = self._startup + text
+                if len(whole) > facts.STARTUP_MAX_CHARS:
+                    notes.append(f"startup string full: {len(whole) - 100} character(s) dropped")
+                self._startup = whole[: facts.STARTUP_MAX_CHARS]
+            case p.DeleteStartup(count):
+                self._startup = self._startup[: max(0, len(self._startup) - count)]
         return None
+
+    def _output(self, channel: int, high: bool, t: float) -> None:
+        servo = self._servo(channel, t)
+        servo.advance(t)
+        servo.on = False
+        servo.output_high = high
+
+    def _startup_answer(self) -> bytes:
+        quote = facts.STARTUP_QUOTE
+        return quote + self._startup.encode("latin-1") + quote + p.CR
 
     def _group_move(self, cmd: p.GroupMove, t: float, notes: list[str]) -> None:
         spans: dict[int, tuple[int, int, int | None]] = {}
@@ -387,10 +585,14 @@ class Board:
         history = self._history.setdefault(channel, deque(maxlen=HISTORY))
         history.append(dataclasses.replace(servo))
 
-    def _answer(self, data: bytes, t: float) -> Answer | None:
+    def _answer(self, data: bytes, t: float, delay: float = 0.0) -> Answer | None:
+        """The answer's due time: after the board's answer delay, behind any answer it is
+        still sending, then its own bytes at the board's baud."""
         if Fault.NO_ANSWER in self._faults:
             return None
         if Fault.GARBAGE in self._faults:
             data = GARBAGE
         bt = facts.BITS_PER_BYTE / self.baud
-        return (t + self.answer_delay_s + len(data) * bt, data)
+        start = max(t + self.answer_delay_s + delay, self._tx_free)
+        self._tx_free = start + len(data) * bt
+        return (self._tx_free, data)

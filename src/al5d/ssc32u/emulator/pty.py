@@ -1,12 +1,16 @@
 """The emulated board's serial link: a pseudo terminal carrying bytes at the client's baud.
 
 The client (our driver, or any program that speaks to a serial port) opens the
-pty's slave like a USB serial adapter. The link reads the master side no
-faster than the wire would carry the bytes at the baud the client set (10 bit
-times a byte), so bytes not yet "sent" stay in the pty and a client's output
-flush really drops them. Each byte gets a virtual arrival time; a line goes to
-the board when its CR arrives, and the board's answers are written back when
-they are due.
+pty's slave like the board's USB port. The link reads the master side as soon
+as the client writes and gives each byte a virtual slot on the wire at the
+baud the client set (10 bit times a byte); a line goes to the board when its CR
+arrives. The board's answers are written back when they are due: on the USB
+link (`usb.Link`, the default) they first wait in the FTDI chip for its latency
+timer, on a plain UART they come as the board sends them.
+
+A client's output flush (TCOFLUSH) reaches the link through the pty's packet
+mode. On the USB link it drops nothing: Linux's USB serial drivers keep bytes
+already written. On a UART it drops the bytes whose slot has not begun.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from typing import NamedTuple
 from al5d.clock import now
 from al5d.ssc32u import facts
 from al5d.ssc32u.emulator.board import Answer, Board, Record
+from al5d.ssc32u.emulator.usb import FtdiChip, Link, Packet, byte_arrivals
 
 MAX_LINE = 1024
 #: What termios calls the bauds a client may set.
@@ -51,11 +56,18 @@ class PtyLink:
 
     `link` (optional) is a symlink kept pointing at the current slave, so that a
     client's path survives a reconnect (a new pty) as a USB device path would.
+    `model` is what the link between computer and board does (USB or UART).
     """
 
-    def __init__(self, board: Board, link: str | os.PathLike[str] | None = None) -> None:
+    def __init__(
+        self,
+        board: Board,
+        link: str | os.PathLike[str] | None = None,
+        model: Link | None = None,
+    ) -> None:
         self.board = board
         self.link = Path(link) if link is not None else None
+        self.model = model if model is not None else Link()
         self._master = -1
         self._slave = -1
         self.device = ""
@@ -63,10 +75,16 @@ class PtyLink:
         self._running = threading.Event()
         self._answers: queue.Queue[Answer | None] = queue.Queue()
         self._wake_r, self._wake_w = -1, -1
+        self._line_began = 0.0  # when the first byte of the board's partial line arrived
 
     @property
     def is_open(self) -> bool:
         return self._running.is_set()
+
+    def send(self, answers: list[Answer]) -> None:
+        """Answers the board makes by itself (its startup string after a reset)."""
+        for answer in answers:
+            self._answers.put(answer)
 
     def open(self) -> None:
         self._open_pty()
@@ -136,8 +154,8 @@ class PtyLink:
         Bytes are read from the pty as soon as the client writes them and get
         a slot on the wire: byte after byte, 10 bit times each, starting when
         written or when the wire is free. The master runs in packet mode, so a
-        client's output flush (TCOFLUSH) is reported here; it drops the bytes
-        whose slot has not begun, as a USB adapter drops what it has not sent.
+        client's output flush (TCOFLUSH) is reported here; on a UART it drops the
+        bytes whose slot has not begun, on USB nothing.
         """
         wire: deque[_Slot] = deque()
         ends: deque[float] = deque()  # arrival times of the CR/ESC bytes on the wire
@@ -163,7 +181,8 @@ class PtyLink:
                 if not packet:
                     continue
                 if packet[0] != 0:  # a status packet: only a flush of the client's output matters
-                    if packet[0] & termios.TIOCPKT_FLUSHWRITE:
+                    flushed = packet[0] & termios.TIOCPKT_FLUSHWRITE
+                    if flushed and self.model.flush_drops_unsent:
                         line_free = self._flush(wire, ends, t_seen, line_free)
                     continue
                 line_free = self._on_wire(packet[1:], t_seen, line_free, wire, ends)
@@ -185,10 +204,16 @@ class PtyLink:
         return t
 
     def _deliver(self, wire: deque[_Slot], ends: deque[float], line: bytearray) -> None:
-        """Hand the board every byte that has arrived by now; a line at its CR (or ESC)."""
+        """Hand the board every byte that has arrived by now; a line at its CR (or ESC).
+
+        A line begun before the board last powered up (a reset) is lost with its memory."""
         t_now = now()
         while wire and wire[0].arrival <= t_now:
             _, arrival, byte, heard = wire.popleft()
+            if line and self._line_began < self.board.powered_at <= arrival:
+                line.clear()
+            if not line:
+                self._line_began = arrival
             if byte in (0x0D, 0x1B):
                 ends.popleft()
                 if not heard:
@@ -219,17 +244,40 @@ class PtyLink:
         return wire[-1].arrival if wire else min(line_free, t_flush)
 
     def _answer_loop(self) -> None:
+        """Write each answer back when it is due: on USB, as the FTDI chip sends it on."""
         answers, master = self._answers, self._master
+        hold = self.model.hold_s
+        chip = FtdiChip(hold) if hold is not None else None
         while True:
-            item = answers.get()
+            wait = None if chip is None or chip.due == float("inf") else chip.due - now()
+            try:
+                item = answers.get(timeout=max(0.0, wait) if wait is not None else None)
+            except queue.Empty:  # the chip's latency timer ran out before another answer
+                assert chip is not None
+                packet = chip.expire()
+                if packet is not None and not _write(master, packet):
+                    return
+                continue
             if item is None:
                 return
             due, data = item
-            _sleep_until(due)
-            try:
-                os.write(master, data)
-            except OSError:
-                return
+            if chip is None:
+                if not _write(master, Packet(due, data)):
+                    return
+                continue
+            for packet in chip.feed(byte_arrivals(due, len(data), self.board.baud), data):
+                if not _write(master, packet):
+                    return
+
+
+def _write(master: int, packet: Packet) -> bool:
+    """Write `packet` to the pty at its time; False once the pty is gone."""
+    _sleep_until(packet.t)
+    try:
+        os.write(master, packet.data)
+    except OSError:
+        return False
+    return True
 
 
 def _sleep_until(t: float) -> None:

@@ -1,0 +1,270 @@
+"""The web view's figures: STOP clicked in a real browser until STOP on the board, the view's
+update rate while a move runs, and the web process's CPU while idle.
+
+Five processes: the emulated board (`al5d emulator --record -`, its times not held up
+by this process's GIL), `al5d serve --port LINK`, `al5d web`, headless Chromium, and
+this one (playwright and a ROS peer). Every time is CLOCK_MONOTONIC, which the
+processes share, except the click's: the browser stamps it with the wall clock
+(`performance.timeOrigin + performance.now()`), and the bench maps it onto the
+monotonic clock with an offset measured against the page (the uncertainty is
+printed: half the best round trip of the calibration).
+
+    .venv/bin/python bench/webbench.py          # prints the figures, writes bench/out/web.json
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+sys.path[:0] = [str(HERE), str(HERE.parent / "tests")]
+os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+from boardproc import BoardProcess  # noqa: E402
+from playwright.sync_api import sync_playwright  # noqa: E402
+from proc import Proc  # noqa: E402
+from rosbench import STOP_BYTES, proc_stat  # noqa: E402
+from rospeer import Peer, wait_until  # noqa: E402
+from stats import figure  # noqa: E402
+from webrig import StateWatch, WebProc, dismiss_notifications, launch, open_page  # noqa: E402
+
+from al5d.arm.config import load_config  # noqa: E402
+from al5d.ros.runtime import Names  # noqa: E402
+from al5d.ssc32u import protocol as p  # noqa: E402
+from al5d.ssc32u.emulator import Record  # noqa: E402
+
+OUT = HERE / "out"
+BAUD = 9600
+#: The page stamps a click on STOP as the browser dispatches it (capture phase, before
+#: viser's own handler sends the message).
+STAMP_CLICKS = """() => {
+  window.__stops = [];
+  document.addEventListener("click", (e) => {
+    const b = e.target.closest("button");
+    const now = performance.timeOrigin + performance.now();
+    if (b && b.innerText.includes("STOP")) window.__stops.push(now);
+  }, true);
+}"""
+#: Each change of the tool readout as the page's DOM takes it (a MutationObserver: headless
+#: Chromium runs no animation frames unless something asks for a picture).
+COUNT_UPDATES = """() => {
+  window.__updates = [];
+  let last = null;
+  new MutationObserver(() => {
+    const el = document.getElementById("al5d-tool");
+    const text = el ? el.textContent : null;
+    if (text !== last) { window.__updates.push(performance.now()); last = text; }
+  }).observe(document.body, { childList: true, subtree: true, characterData: true });
+}"""
+
+
+def log(text: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
+
+
+def clock_offset(page: Any, rounds: int = 30) -> tuple[float, float]:
+    """(page wall-clock ms minus our monotonic ms, uncertainty ms): the tightest round trip."""
+    best = (float("inf"), 0.0)
+    for _ in range(rounds):
+        t0 = time.monotonic()
+        wall_ms = page.evaluate("performance.timeOrigin + performance.now()")
+        t1 = time.monotonic()
+        rtt = (t1 - t0) * 1000
+        if rtt < best[0]:
+            best = (rtt, wall_ms - (t0 + t1) / 2 * 1000)
+    return best[1], best[0] / 2
+
+
+def stops_after(records: list[Record], n0: int) -> list[Record]:
+    return [r for r in records[n0:] if any(isinstance(c, p.Stop) for c in r.commands)]
+
+
+def stop_clicks(
+    page: Any, board: BoardProcess, peer: Peer, state: StateWatch, trials: int = 50
+) -> dict[str, Any]:
+    """STOP clicked in the page while a long move runs, until the STOPs take effect."""
+    page.evaluate(STAMP_CLICKS)
+    stop = page.get_by_role("button", name="STOP")
+    wire_all = p.wire_time_s(STOP_BYTES, BAUD) * 1000
+    first_line = len(p.CANCEL) + len(b"STOP0\r")
+    wire_first = p.wire_time_s(first_line, BAUD) * 1000
+    to_all: list[float] = []
+    to_first: list[float] = []
+    offsets: list[float] = []
+    for trial in range(trials):
+        n0 = len(board.records)
+        peer.send(f"web-long-{trial}", "move", 5000, base=60 if trial % 2 else -60)
+        board.wait_for(
+            lambda rs, n0=n0: any(b"T5000" in r.raw for r in rs[n0:]), 10
+        )  # the move runs on the board
+        time.sleep(0.05 + random.random() * 0.1)
+        offset, err = clock_offset(page, 5)
+        offsets.append(err)
+        n1 = len(board.records)
+        stop.click()
+        records = board.wait_for(lambda rs, n1=n1: len(stops_after(rs, n1)) >= 6, 10)
+        clicked_ms = page.evaluate("window.__stops[window.__stops.length - 1]") - offset
+        stops = stops_after(records, n1)
+        to_first.append(stops[0].t_effect * 1000 - clicked_ms)
+        to_all.append(stops[5].t_effect * 1000 - clicked_ms)
+        state.wait_for("stopped", 5)
+        assert peer.trigger("release").success
+        state.wait_for("ready", 5)
+    return {
+        "click_to_all_stops": figure(
+            "STOP click -> every STOP in effect", to_all, wire_ms=wire_all
+        ),
+        "software": figure("STOP click -> every STOP, minus wire", [x - wire_all for x in to_all]),
+        "click_to_first_stop": figure(
+            "STOP click -> first STOP in effect", to_first, wire_ms=wire_first
+        ),
+        "clock_uncertainty_ms": max(offsets),
+    }
+
+
+def update_rate(page: Any, peer: Peer, state: StateWatch, move_ms: int = 3000) -> dict[str, Any]:
+    """The page's redraws of the tool readout (one per joint state that changed) and the
+    websocket frames it received, per second, over the middle of a move."""
+    frames: list[float] = []
+    page.on(
+        "websocket", lambda ws: ws.on("framereceived", lambda _: frames.append(time.monotonic()))
+    )
+    page.reload()
+    page.wait_for_selector("#al5d-tool", timeout=30_000)
+    dismiss_notifications(page)
+    time.sleep(1.0)
+    page.evaluate(COUNT_UPDATES)
+    frames.clear()
+    t_page0 = page.evaluate("performance.now()")
+    t0 = time.monotonic()
+    peer.send("web-rate", "move", move_ms, base=-60 if random.random() < 0.5 else 60)
+    assert peer.result("web-rate", 30).outcome == "done"
+    state.wait_for("ready", 5)
+    updates = page.evaluate("window.__updates")
+    # The middle of the move: away from its start (the instruction's trip) and its end.
+    lo, hi = 0.5, move_ms / 1000 - 0.3
+    in_page = [u for u in updates if lo <= (u - t_page0) / 1000 <= hi]
+    in_ws = [f for f in frames if lo <= f - t0 <= hi]
+    span = hi - lo
+    return {
+        "page_updates_per_s": len(in_page) / span,
+        "ws_frames_per_s": len(in_ws) / span,
+        "window_s": span,
+    }
+
+
+def idle_cpu(pid: int, seconds: float = 10.0) -> float:
+    cpu0, _ = proc_stat(pid)
+    time.sleep(seconds)
+    cpu1, _ = proc_stat(pid)
+    return (cpu1 - cpu0) / seconds * 100
+
+
+def run(log: Any = log, trials: int = 50) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    workdir = Path(tempfile.mkdtemp(prefix="al5d-webbench-"))
+    config = load_config()
+    board = BoardProcess(workdir / "ssc32u", BAUD, config)
+    server = Proc("serve", "--port", str(workdir / "ssc32u"), "--log-level", "INFO")
+    web: WebProc | None = None
+    peer: Peer | None = None
+    try:
+        server.err.wait_for("STATE: ready", 30)
+        web = WebProc()
+        peer = Peer(name="al5d_webbench_peer")
+        state = StateWatch(peer.node, Names())
+        peer.wait_for_server()
+        log("web process CPU while idle, no page open (10 s)")
+        out["web_idle_cpu_no_page_percent"] = idle_cpu(web.proc.popen.pid)
+        with sync_playwright() as playwright:
+            browser = launch(playwright)
+            try:
+                page = open_page(browser, web.url)
+                dismiss_notifications(page)
+                time.sleep(2.0)
+                log("web process and server CPU while idle, the page open (10 s)")
+                cpu0 = proc_stat(server.popen.pid)[0]
+                out["web_idle_cpu_percent"] = idle_cpu(web.proc.popen.pid)
+                out["server_idle_cpu_with_page_percent"] = (
+                    (proc_stat(server.popen.pid)[0] - cpu0) / 10 * 100
+                )
+                log(f"STOP clicked in the page, {trials} times, each during a 5 s move")
+                out["stop"] = stop_clicks(page, board, peer, state, trials)
+                log("the view's update rate during a 3 s move")
+                out["updates"] = update_rate(page, peer, state)
+            finally:
+                browser.close()
+        wait_until(lambda: state.now == "ready", 5, "ready")
+    finally:
+        if peer is not None:
+            peer.close()
+        if web is not None:
+            web.close()
+        if server.popen.poll() is None:
+            server.popen.send_signal(signal.SIGTERM)
+            server.wait(60)
+        board.close()
+    return out
+
+
+def table(r: dict[str, Any]) -> str:
+    s, sw, first = (
+        r["stop"]["click_to_all_stops"],
+        r["stop"]["software"],
+        r["stop"]["click_to_first_stop"],
+    )
+    u = r["updates"]
+    rows = [
+        (
+            "STOP click in the page -> every STOP in effect (9600 baud)",
+            f"p50 {s['p50_ms']:.1f} ms, p99 {s['p99_ms']:.1f} ms, n={s['n']} "
+            f"(wire {s['wire_ms']:.1f} ms)",
+        ),
+        (
+            "  ... minus wire (software share; target p99 <= 50 ms)",
+            f"p50 {sw['p50_ms']:.1f} ms, p99 {sw['p99_ms']:.1f} ms: "
+            + ("held" if sw["p99_ms"] <= 50 else "NOT held"),
+        ),
+        (
+            "STOP click -> first STOP in effect (the moving joint)",
+            f"p50 {first['p50_ms']:.1f} ms, p99 {first['p99_ms']:.1f} ms "
+            f"(wire {first['wire_ms']:.1f} ms)",
+        ),
+        (
+            "  ... click time mapped to the monotonic clock within",
+            f"{r['stop']['clock_uncertainty_ms']:.2f} ms",
+        ),
+        (
+            "view updates in the page during a move (target >= 20/s)",
+            f"{u['page_updates_per_s']:.1f}/s redraws of the arm's readout, "
+            f"{u['ws_frames_per_s']:.1f}/s websocket frames",
+        ),
+        ("web process CPU while idle, page open", f"{r['web_idle_cpu_percent']:.1f} %"),
+        ("web process CPU while idle, no page", f"{r['web_idle_cpu_no_page_percent']:.1f} %"),
+        ("server CPU while idle, page open", f"{r['server_idle_cpu_with_page_percent']:.1f} %"),
+    ]
+    width = max(len(a) for a, _ in rows)
+    return "\n".join(f"{a:<{width}}  {b}" for a, b in rows)
+
+
+def main() -> int:
+    t0 = time.monotonic()
+    r = run()
+    OUT.mkdir(exist_ok=True)
+    (OUT / "web.json").write_text(json.dumps(r, indent=1))
+    print(table(r))
+    print(f"({time.monotonic() - t0:.0f} s; samples in {OUT / 'web.json'})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

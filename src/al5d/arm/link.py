@@ -1,0 +1,199 @@
+"""The board's connection, kept by the worker: connect, watch the idle link, fault, reconnect.
+
+Everything here runs in the worker's thread (`al5d.arm.worker`) and does board
+I/O without holding the shared lock. A lost link, a silent or babbling board, or
+a board that has reset becomes the `fault` state: every pending move gets its
+outcome, and the link is tried again every `reconnect_interval_s` until the
+board answers; then the pose is read back and no cancelled move is replayed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+
+from al5d.arm.config import ArmConfig
+from al5d.arm.instruction import Result
+from al5d.arm.jobs import finish
+from al5d.arm.shared import Shared
+from al5d.arm.states import Event, State
+from al5d.arm.translate import Translator
+from al5d.clock import now
+from al5d.ssc32u.driver import SSC32U
+from al5d.ssc32u.errors import BoardReset, Interrupted, NotAnSSC32U, SerialFault
+
+log = logging.getLogger("al5d")
+RESET_LOCKED = "the arm is locked after the board's reset: send release to go on"
+
+
+class Link:
+    """The worker's hold on the board: open it, check it, lose it, get it back."""
+
+    def __init__(self, config: ArmConfig, shared: Shared, port: str, baud: int) -> None:
+        self.config = config
+        self.shared = shared
+        self.port = port
+        self.baud = baud
+        self.settings = config.server
+        self.translator = Translator(config)
+        self.channels = config.channels
+
+    def connect(self) -> None:
+        try:
+            board = SSC32U(self.port, self.baud)
+        except SerialFault as e:
+            self.enter_fault(e)
+            return
+        log.info("connected to %s on %s at %d baud", board.firmware, self.port, self.baud)
+        with self.shared.lock:
+            self.shared.board = board
+
+    def check(self) -> None:
+        """An idle arm's link is checked too (`QP` of one channel and its answer are 5 bytes:
+        every 0.5 s is 1 % of the wire at 9600 baud), so that a pulled cable, a silent board
+        or a reset is a fault at once, not at the next move. A stop never waits for it (the
+        query lock is not the stop's)."""
+        board = self.shared.board
+        if board is not None:
+            with contextlib.suppress(Interrupted):  # a stop flushed the answer: the link lives
+                self.watch(board)
+
+    def watch(self, board: SSC32U) -> None:
+        """Check the link, and that the board has not reset: `QP` of a joint whose pulse
+        is known (4 bytes, as cheap as `Q`). A board that answers 0 there has restarted
+        (a brown-out) and lost its pulses; its next move would run at full speed."""
+        shared = self.shared
+        joint = next((j for j, v in shared.pose.items() if v is not None), None)
+        if joint is None:  # nothing known to have been lost: the link alone
+            board.is_done()
+            return
+        channel = self.config.joints[joint].channel
+        if board.read_pulses([channel])[channel] == 0:
+            raise self._reset(board, joint)
+
+    def _reset(self, board: SSC32U, joint: str) -> BoardReset:
+        channel = self.config.joints[joint].channel
+        return BoardReset(
+            board.port,
+            f"the board has reset: {joint} (channel {channel}) has no pulse any more, and "
+            f"the board has forgotten where every servo was; {BoardReset.advice}",
+        )
+
+    def read_back(self, board: SSC32U | None = None) -> None:
+        """Learn where the servos are from the board (after a stop, at start, after a reconnect)."""
+        board = board or self.shared.board
+        if board is None:
+            return
+        for _ in range(3):
+            try:
+                pulses = board.read_pulses(self.channels)
+                break
+            except Interrupted:
+                continue  # another stop flushed the query: ask again
+        else:
+            return
+        pose = self.translator.degrees(pulses)
+        lost = [j for j, v in pose.items() if v is None and self.shared.pose.get(j) is not None]
+        if lost:  # a reset between the last check and this read (during a stop, say)
+            raise self._reset(board, lost[0])
+        with self.shared.lock:
+            self.shared.pose.update(pose)
+            self.shared.motion = None
+        log.debug(
+            "read back: %s", {j: (None if v is None else round(v, 1)) for j, v in pose.items()}
+        )
+
+    def _forget_pose(self) -> None:
+        """After a reset, a safety event: nothing moves again until a person has looked at
+        the arm and released it, and no move is sent believing the board remembers the
+        last one (the pose is unknown: read back as such on reconnecting). The caller
+        holds the shared lock."""
+        self.shared.locked = True
+        self.shared.pose.update(dict.fromkeys(self.shared.pose))
+
+    def enter_fault(self, error: SerialFault) -> None:
+        shared = self.shared
+        log.error("serial fault: %s", error)
+        reset = isinstance(error, BoardReset)
+        with shared.lock:
+            shared.fault = error
+            if reset:
+                self._forget_pose()
+            board, shared.board = shared.board, None
+            current, dropped = shared.take_pending()
+            if shared.motion is not None:  # Q counts it down still, if the board goes on with it
+                shared.distrust_q(shared.motion)
+            shared.motion = None
+            if shared.state is not State.FAULT:
+                shared.fire(Event.SERIAL_FAULT)
+        shared.announce()
+        if board is not None:
+            board.close()
+        reason = str(error) if reset else f"the serial link is lost: {error}"
+        if reset:
+            log.warning(RESET_LOCKED)
+        for job in ([current] if current is not None else []) + dropped:
+            if job is not shared.shutdown_job:
+                job.cancel.set()
+                finish(job, Result.CANCELLED, reason)
+
+    def recover(self) -> None:
+        """Reconnect every few tenths of a second; re-learn the positions; no stale move replays."""
+        shared = self.shared
+        interval = self.settings.reconnect_interval_s
+        while True:
+            with shared.cv:
+                if shared.shutdown_job is not None:
+                    return
+                shared.cv.wait(interval)
+                if shared.shutdown_job is not None:
+                    return
+            try:
+                board = SSC32U(self.port, self.baud)
+            except SerialFault as e:
+                self._reconnect_failed(e)
+                continue
+            try:
+                self._halt_what_was_cancelled(board)
+                try:
+                    self.read_back(board)
+                except BoardReset as e:  # it restarted while the link was down
+                    log.error("serial fault: %s", e)
+                    log.warning(RESET_LOCKED)
+                    with shared.lock:
+                        self._forget_pose()
+                    self.read_back(board)
+            except (SerialFault, Interrupted) as e:
+                log.debug("reconnect failed: %s", e)
+                board.close()  # it holds the port exclusively: the next try must open it
+                continue
+            with shared.lock:
+                shared.board = board
+                shared.fault = None
+                shared.fire(Event.RECONNECTED)  # to `initializing` if never parked: see run()
+            shared.announce()
+            log.info("reconnected to %s on %s", board.firmware, self.port)
+            return
+
+    def _halt_what_was_cancelled(self, board: SSC32U) -> None:
+        """A board back from a lost link may still be running the move it had: that move was
+        cancelled (and its client told so) when the link went, so it is halted here, and the
+        pose read back is where the arm stopped, not where a cancelled move was going."""
+        if now() < self.shared.q_unreliable_until or not board.is_done():
+            board.stop(self.channels)
+            log.warning("reconnect: halted the move the board was still running (cancelled)")
+
+    def _reconnect_failed(self, error: SerialFault) -> None:
+        """Keep trying; but a device that is not a board is said clearly, once, and becomes
+        the fault's reason (a missing port is the usual unplugged cable: quiet)."""
+        shared = self.shared
+        known = shared.fault
+        if not isinstance(error, NotAnSSC32U):
+            log.debug("reconnect failed: %s", error)
+            return
+        if isinstance(known, NotAnSSC32U) and known.received == error.received:
+            log.debug("reconnect failed: %s", error)
+            return
+        log.warning("reconnect: %s", error)
+        with shared.lock:
+            shared.fault = error

@@ -1,0 +1,83 @@
+"""The AL5D as a robot model: geometry, joint conventions, kinematics, URDF, lines, MoveIt.
+
+Pure: standard library and numpy only, nothing else of al5d. Angles in the
+arm's own degrees (dict joint -> degrees) unless a name says URDF; lengths in
+metres. The one table from arm degrees to URDF values is `joints.CONVENTIONS`
+(with `joints.GripperMap` for the gripper).
+"""
+
+from al5d.model.arm import ArmModel
+from al5d.model.chain import Chain, build_chain, joint_transforms, link_poses, tool_pose
+from al5d.model.errors import (
+    InvalidInput,
+    JointOutOfRange,
+    ModelError,
+    OutOfReach,
+    PathUnreachable,
+    Unreachable,
+)
+from al5d.model.geometry import Geometry
+from al5d.model.joints import (
+    ARM_JOINTS,
+    CONVENTIONS,
+    JOINTS,
+    GripperMap,
+    Range,
+    Ranges,
+    joint_from_urdf,
+    joint_to_urdf,
+)
+from al5d.model.kinematics import (
+    ToolPose,
+    forward,
+    joint_positions,
+    solve,
+    solve_nearest_pitch,
+    tool_position,
+    tool_quaternion,
+)
+from al5d.model.lines import LinePlan, distance_to_segment, plan_line, segment_deviation
+from al5d.model.moveit import controllers, joint_limits, kinematics, moveit_config, srdf
+from al5d.model.urdf import urdf, urdf_from_chain
+
+__all__ = [
+    "ARM_JOINTS",
+    "CONVENTIONS",
+    "JOINTS",
+    "ArmModel",
+    "Chain",
+    "Geometry",
+    "GripperMap",
+    "InvalidInput",
+    "JointOutOfRange",
+    "LinePlan",
+    "ModelError",
+    "OutOfReach",
+    "PathUnreachable",
+    "Range",
+    "Ranges",
+    "ToolPose",
+    "Unreachable",
+    "build_chain",
+    "controllers",
+    "distance_to_segment",
+    "forward",
+    "joint_from_urdf",
+    "joint_limits",
+    "joint_positions",
+    "joint_to_urdf",
+    "joint_transforms",
+    "kinematics",
+    "link_poses",
+    "moveit_config",
+    "plan_line",
+    "segment_deviation",
+    "solve",
+    "solve_nearest_pitch",
+    "srdf",
+    "tool_pose",
+    "tool_position",
+    "tool_quaternion",
+    "urdf",
+    "urdf_from_chain",
+]

@@ -1,0 +1,100 @@
+"""URDF text from the chain: the robot_description that RViz, MoveIt and /tf tools read."""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from typing import Final
+
+from al5d.model.arm import ArmModel
+from al5d.model.chain import DEFAULT_EFFORT, Chain, Shape, build_chain
+
+#: RGBA of the two materials the shapes use.
+MATERIALS: Final[Mapping[str, tuple[float, float, float, float]]] = {
+    "dark": (0.15, 0.15, 0.17, 1.0),
+    "metal": (0.72, 0.74, 0.78, 1.0),
+}
+
+
+def num(value: float) -> str:
+    """A float as URDF text: shortest exact form, no negative zero."""
+    v = float(value)
+    return "0" if v == 0.0 else repr(v)
+
+
+def _vec(values: tuple[float, ...]) -> str:
+    return " ".join(num(v) for v in values)
+
+
+def _approx(values: tuple[float, ...]) -> str:
+    # Shapes are approximate anyway: micrometres are plenty, and the text stays short.
+    return " ".join(num(round(v, 6)) for v in values)
+
+
+def _geometry(parent: ET.Element, shape: Shape) -> None:
+    ET.SubElement(parent, "origin", xyz=_approx(shape.center), rpy="0 0 0")
+    geometry = ET.SubElement(parent, "geometry")
+    if shape.kind == "box":
+        ET.SubElement(geometry, "box", size=_approx(shape.size))
+    else:
+        ET.SubElement(
+            geometry, "cylinder", radius=_approx(shape.size[:1]), length=_approx(shape.size[1:2])
+        )
+
+
+def urdf_from_chain(chain: Chain, robot_name: str = "al5d") -> str:
+    """The URDF XML (a string, with declaration) of a chain."""
+    robot = ET.Element("robot", name=robot_name)
+    for name, rgba in MATERIALS.items():
+        material = ET.SubElement(robot, "material", name=name)
+        ET.SubElement(material, "color", rgba=_vec(rgba))
+    for link in chain.links:
+        element = ET.SubElement(robot, "link", name=link.name)
+        if link.shape is None:
+            continue
+        visual = ET.SubElement(element, "visual")
+        _geometry(visual, link.shape)
+        ET.SubElement(visual, "material", name=link.shape.material)
+        _geometry(ET.SubElement(element, "collision"), link.shape)
+    for joint in chain.joints:
+        element = ET.SubElement(robot, "joint", name=joint.name, type=joint.type)
+        ET.SubElement(element, "parent", link=joint.parent)
+        ET.SubElement(element, "child", link=joint.child)
+        ET.SubElement(element, "origin", xyz=_vec(joint.xyz), rpy=_vec(joint.rpy))
+        if joint.type == "fixed":
+            continue
+        ET.SubElement(element, "axis", xyz=_vec(joint.axis))
+        if joint.limit is not None:
+            lim = joint.limit
+            ET.SubElement(
+                element,
+                "limit",
+                lower=num(lim.lower),
+                upper=num(lim.upper),
+                velocity=num(lim.velocity),
+                effort=num(lim.effort),
+            )
+        if joint.mimic is not None:
+            m = joint.mimic
+            ET.SubElement(
+                element,
+                "mimic",
+                joint=m.joint,
+                multiplier=num(m.multiplier),
+                offset=num(m.offset),
+            )
+    ET.indent(robot, space="  ")
+    return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
+
+
+def urdf(
+    model: ArmModel,
+    speeds_deg_s: Mapping[str, float],
+    *,
+    robot_name: str = "al5d",
+    prefix: str = "",
+    effort: float = DEFAULT_EFFORT,
+) -> str:
+    """The AL5D's URDF from the model and the servos' speeds (deg/s per joint)."""
+    chain = build_chain(model, speeds_deg_s, prefix=prefix, effort=effort)
+    return urdf_from_chain(chain, robot_name)

@@ -1,0 +1,326 @@
+"""The standard control actions MoveIt drives: FollowJointTrajectory and GripperCommand.
+
+`arm_controller/follow_joint_trajectory` and `gripper_controller/gripper_cmd`
+in the server's namespace, the names MoveIt's simple controller manager looks
+for with controllers named `arm_controller` and `gripper_controller`. They
+behave as ros2_controllers' joint_trajectory_controller and gripper controller
+do where it matters to a client:
+
+- the goal callback judges the whole goal and rejects a bad one before it is
+  accepted (nothing is written for it; the reason is also published on the
+  result topic, with the goal's UUID in hex as the id);
+- a new trajectory goal preempts a running one, which is aborted and says so;
+- a cancel halts the arm where it is, without the emergency lock: CANCELED;
+- an emergency stop aborts the goal, and the arm is locked as always.
+
+Values are the URDF's (REP 103 radians, the gripper's gap in metres); the
+one mapping to the arm's degrees is the model's.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from control_msgs.action import FollowJointTrajectory, GripperCommand
+from rclpy.action.server import ServerGoalHandle
+from rclpy.node import Node
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+from al5d.arm.driver import ArmDriver
+from al5d.arm.instruction import Instruction, Kind, Outcome, Result
+from al5d.arm.jobs import Sent
+from al5d.clock import now
+from al5d.model import ArmModel
+from al5d.ros.actions import GoalRunner, action_server
+from al5d.ros.convert import trajectory_from_message
+
+FJT = FollowJointTrajectory.Result
+#: The gripper's gap counts as reached within this (metres): a quarter of a servo
+#: microsecond's worth is far below it, a visible miss far above.
+GRIPPER_REACHED_M = 0.0005
+
+
+def _seconds(duration: Any) -> float:
+    return float(duration.sec) + float(duration.nanosec) * 1e-9
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    """A joint's position tolerance (URDF units); None: not checked."""
+
+    joint: str
+    position: float | None
+
+
+def tolerances(given: Sequence[Any], joints: Sequence[str]) -> list[Tolerance] | str:
+    """The goal's tolerances for our joints (0: the default, none; -1: no limit), or why not."""
+    out: list[Tolerance] = []
+    for t in given:
+        if t.name not in joints:
+            return f"a tolerance names {t.name[:40]!r}, which is not a joint of the trajectory"
+        if not math.isfinite(t.position):
+            return f"{t.name}: tolerance {t.position} is not a number"
+        out.append(Tolerance(t.name, t.position if t.position > 0 else None))
+    return out
+
+
+@dataclass
+class Running:
+    """A trajectory goal while it runs: its points in URDF values, and when it started."""
+
+    handle: ServerGoalHandle
+    names: list[str]
+    times: list[float]  # each point's time_from_start, seconds
+    points: list[list[float]]  # each point's positions, URDF values
+    first: list[float]  # where the named joints were when it was accepted
+    path: list[Tolerance]
+    t0: float | None = None  # when its first move reached the board
+    violated: str = ""  # a path tolerance broken: why
+    preempted_by: str = ""
+
+    def desired(self, t: float) -> list[float]:
+        """Where the trajectory says the joints are at `t` (linear between points, as the
+        board moves: its group moves interpolate pulses, which are linear in the values)."""
+        if self.t0 is None or t <= self.t0:  # not yet started on the board
+            return list(self.first)
+        s = t - self.t0
+        before_t, before = 0.0, self.first
+        for at, point in zip(self.times, self.points, strict=True):
+            if s < at:
+                f = (s - before_t) / (at - before_t)
+                return [a + (b - a) * f for a, b in zip(before, point, strict=True)]
+            before_t, before = at, point
+        return list(before)
+
+
+@dataclass(frozen=True)
+class Judged:
+    """An accepted trajectory goal: its instruction and its tolerances."""
+
+    instr: Instruction
+    path: list[Tolerance]
+    end: list[Tolerance]
+
+
+class FollowTrajectoryAction(GoalRunner):
+    """`arm_controller/follow_joint_trajectory` on a node, onto the arm driver."""
+
+    def __init__(self, node: Node, driver: ArmDriver, name: str) -> None:
+        super().__init__(node, driver)
+        self.model: ArmModel = driver.config.model
+        self.running: dict[str, Running] = {}
+        self.server = action_server(
+            node, FollowJointTrajectory, name, self._execute, self._goal, self._cancel
+        )
+        driver.motion_listeners.append(self._on_motion)
+
+    # -- judging a goal ---------------------------------------------------------------
+
+    name = "follow_joint_trajectory"
+
+    def judge(self, goal: Any, ident: str) -> Judged | str:
+        if len(goal.multi_dof_trajectory.points):
+            return "multi-DOF trajectories are not supported: the AL5D has single-DOF joints"
+        instr = trajectory_from_message(goal.trajectory, self.model)
+        if isinstance(instr, str):
+            return instr
+        instr = Instruction(Kind.TRAJECTORY, points=instr.points, id=ident)
+        reason = self.driver.validate(instr)
+        if isinstance(reason, str):
+            return reason
+        names = list(goal.trajectory.joint_names)
+        path = tolerances(goal.path_tolerance, names)
+        end = tolerances(goal.goal_tolerance, names)
+        for t in (path, end):
+            if isinstance(t, str):
+                return t
+        assert not isinstance(path, str) and not isinstance(end, str)
+        return Judged(instr, path, end)
+
+    # -- running it -------------------------------------------------------------------
+
+    async def _execute(self, handle: ServerGoalHandle) -> Any:
+        ident = bytes(handle.goal_id.uuid).hex()
+        goal = handle.request
+        judged = self.judge(goal, ident)
+        if isinstance(judged, str):  # the arm's limits cannot change, but be sure
+            handle.abort()
+            return _result(FJT.INVALID_GOAL, judged)
+        for other, run in list(self.running.items()):  # the newest goal wins, as in the JTC
+            run.preempted_by = ident
+            self.driver.cancel(other, f"preempted by trajectory goal {ident}")
+        names = list(goal.trajectory.joint_names)
+        here = self._actual(names)
+        run = Running(
+            handle,
+            names,
+            [_seconds(p.time_from_start) for p in goal.trajectory.points],
+            [list(p.positions) for p in goal.trajectory.points],
+            here,
+            judged.path,
+        )
+        outcome = await self._run(ident, run, judged.instr)
+        return self._finish(run, outcome, judged.end, goal)
+
+    def _finish(self, run: Running, outcome: Outcome, end: list[Tolerance], goal: Any) -> Any:
+        handle = run.handle
+        if outcome.result is Result.CANCELLED and run.preempted_by:
+            handle.abort()
+            return _result(FJT.INVALID_GOAL, f"preempted by goal {run.preempted_by}")
+        if outcome.result is Result.CANCELLED and run.violated:
+            handle.abort()
+            return _result(FJT.PATH_TOLERANCE_VIOLATED, run.violated)
+        if outcome.result is Result.CANCELLED and handle.is_cancel_requested:
+            handle.canceled()
+            return _result(FJT.SUCCESSFUL, "cancelled: the arm halted where it was")
+        if not outcome.ok:
+            handle.abort()
+            # An emergency stop (or a fault) left the arm off its path.
+            return _result(FJT.PATH_TOLERANCE_VIOLATED, f"{outcome.result.value}: {outcome.reason}")
+        last = run.times[-1] * 1000.0
+        late = outcome.expected_ms - last
+        note = (
+            f"the last point was reached {late:.0f} ms after its time_from_start: "
+            "faster than the servos can move (INF03)"
+            if late >= 1.0
+            else ""
+        )
+        allowed = _seconds(goal.goal_time_tolerance)
+        if note and allowed > 0 and late / 1000.0 > allowed:
+            handle.abort()
+            return _result(
+                FJT.GOAL_TOLERANCE_VIOLATED, f"{note}; goal_time_tolerance is {allowed:g} s"
+            )
+        actual = dict(zip(run.names, self._actual(run.names), strict=True))
+        final = dict(zip(run.names, run.points[-1], strict=True))
+        for t in end:
+            miss = abs(actual[t.joint] - final[t.joint])
+            if t.position is not None and miss > t.position:
+                handle.abort()
+                return _result(
+                    FJT.GOAL_TOLERANCE_VIOLATED,
+                    f"{t.joint} ended {miss:.4g} from its goal, tolerance {t.position:g}",
+                )
+        handle.succeed()
+        return _result(FJT.SUCCESSFUL, note)
+
+    def _on_motion(self, sent: Sent) -> None:
+        """The first move of a running goal on the board: its clock starts (any thread)."""
+        run = self.running.get(sent.instr.id)
+        if run is not None and run.t0 is None:
+            # The path starts where the board starts it, which a read-back after a halt
+            # may have corrected since the goal was accepted.
+            start = self.model.to_urdf(sent.motion.start)
+            run.first = [start.get(n, v) for n, v in zip(run.names, run.first, strict=True)]
+            run.t0 = sent.motion.t0
+
+    def _actual(self, names: Sequence[str]) -> list[float]:
+        values = self.model.to_urdf(self.driver.positions())
+        return [values[n] for n in names]
+
+    # -- feedback ---------------------------------------------------------------------
+
+    def feedback(self, degrees: Mapping[str, float]) -> None:
+        """Desired, actual and error to every running goal (the joint-state rate); a path
+        tolerance broken halts the goal."""
+        if not self.running or any(v != v for v in degrees.values()):
+            return
+        values = self.model.to_urdf(degrees)
+        t = now()
+        stamp = self.node.get_clock().now().to_msg()
+        for ident, run in list(self.running.items()):
+            desired = run.desired(t)
+            actual = [values[n] for n in run.names]
+            error = [d - a for d, a in zip(desired, actual, strict=True)]
+            fb = FollowJointTrajectory.Feedback()
+            fb.header.stamp = stamp
+            fb.joint_names = run.names
+            fb.desired = JointTrajectoryPoint(positions=desired)
+            fb.actual = JointTrajectoryPoint(positions=actual)
+            fb.error = JointTrajectoryPoint(positions=error)
+            if run.handle.is_active:
+                run.handle.publish_feedback(fb)
+            for tol in run.path:
+                i = run.names.index(tol.joint)
+                if tol.position is not None and abs(error[i]) > tol.position and not run.violated:
+                    run.violated = (
+                        f"{tol.joint} was {abs(error[i]):.4g} off its path, "
+                        f"tolerance {tol.position:g}"
+                    )
+                    self.driver.cancel(ident, run.violated)
+
+
+def _result(code: int, text: str) -> Any:
+    result = FollowJointTrajectory.Result()
+    result.error_code = code
+    result.error_string = text
+    return result
+
+
+class GripperAction(GoalRunner):
+    """`gripper_controller/gripper_cmd`: the gap in metres, through the gripper servo.
+
+    No force sensing: `effort` is 0 and `stalled` always false.
+    """
+
+    JOINT = "gripper"
+
+    def __init__(self, node: Node, driver: ArmDriver, name: str) -> None:
+        super().__init__(node, driver)
+        self.model: ArmModel = driver.config.model
+        self.server = action_server(
+            node, GripperCommand, name, self._execute, self._goal, self._cancel
+        )
+
+    name = "gripper_cmd"
+
+    def judge(self, goal: Any, ident: str) -> Instruction | str:
+        gap = goal.command.position
+        if not math.isfinite(gap):
+            return f"gripper position {gap} is not a number of metres"
+        lo, hi = self.model.urdf_limits(self.JOINT)
+        if not lo <= gap <= hi:
+            return f"gripper gap {gap:.4g} m is outside {lo:g}..{hi:.4g} m"
+        degrees = self.model.from_urdf({self.JOINT: gap})[self.JOINT]
+        instr = Instruction(Kind.MOVE, joints=((self.JOINT, degrees),), id=ident)
+        reason = self.driver.validate(instr)
+        return reason if isinstance(reason, str) else instr
+
+    async def _execute(self, handle: ServerGoalHandle) -> Any:
+        ident = bytes(handle.goal_id.uuid).hex()
+        instr = self.judge(handle.request, ident)
+        if isinstance(instr, str):
+            handle.abort()
+            return GripperCommand.Result()
+        outcome = await self._run(ident, handle, instr)
+        result = GripperCommand.Result()
+        result.position = self._gap()
+        result.effort = 0.0
+        result.stalled = False
+        result.reached_goal = (
+            outcome.ok
+            and abs(result.position - handle.request.command.position) <= GRIPPER_REACHED_M
+        )
+        if outcome.ok:
+            handle.succeed()
+        elif outcome.result is Result.CANCELLED and handle.is_cancel_requested:
+            handle.canceled()
+        else:
+            handle.abort()
+        return result
+
+    def _gap(self) -> float:
+        return self.model.to_urdf(self.driver.positions()).get(self.JOINT, math.nan)
+
+    def feedback(self) -> None:
+        if not self.running:
+            return
+        fb = GripperCommand.Feedback()
+        fb.position = self._gap()
+        fb.stalled = False
+        for handle in list(self.running.values()):
+            if handle.is_active:
+                handle.publish_feedback(fb)

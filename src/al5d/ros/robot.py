@@ -1,0 +1,109 @@
+"""The arm as ROS sees a robot: its description, its joint states and its transforms.
+
+- `/robot_description` (std_msgs/String, reliable, transient local, depth 1): the
+  URDF generated from the configuration, as robot_state_publisher offers it.
+- `/joint_states`: the URDF's joint names, REP 103 values (radians, the gap in
+  metres for `gripper`), at the joint-state rate.
+- `/tf` at the same rate and `/tf_static` once (latched), base_link to tool0.
+- `~/tool_pose` (`/al5d/tool_pose`, geometry_msgs/PoseStamped): tool0 in base_link.
+
+Names are relative (`robot_description`, `joint_states`) or private, so that a
+namespace puts them under it; `/tf` and `/tf_static` are the one shared tree,
+where a namespaced arm's frames carry its prefix.
+
+The one mapping from the arm's degrees to these values is the model's
+(`ArmModel.to_urdf`, from `al5d.model.joints.CONVENTIONS`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from geometry_msgs.msg import PoseStamped, TransformStamped
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from tf2_msgs.msg import TFMessage
+
+from al5d.arm.config import ArmConfig
+from al5d.model import build_chain, joint_transforms, tool_pose, urdf_from_chain
+from al5d.model.transforms import Transform
+from al5d.ros.runtime import QOS_LATCHED, Names
+
+#: /tf_static: every transform kept for late joiners (tf2's own profile: depth 1 would
+#: do for one message, but other static broadcasters share the topic).
+QOS_TF_STATIC = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=100,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
+
+def _transform(parent: str, child: str, t: Transform, stamp: object) -> TransformStamped:
+    msg = TransformStamped()
+    msg.header.stamp = stamp
+    msg.header.frame_id = parent
+    msg.child_frame_id = child
+    (msg.transform.translation.x, msg.transform.translation.y, msg.transform.translation.z) = (
+        t.translation
+    )
+    r = msg.transform.rotation
+    r.x, r.y, r.z, r.w = t.rotation
+    return msg
+
+
+class RobotPublisher:
+    """Publishes the robot's description, joint states, transforms and tool pose for a node."""
+
+    def __init__(self, node: Node, config: ArmConfig, names: Names) -> None:
+        self.node = node
+        self.model = config.model
+        self.chain = build_chain(self.model, config.speeds_deg_s, prefix=names.frame_prefix)
+        self.description = node.create_publisher(String, names.robot_description, QOS_LATCHED)
+        self.joint_states = node.create_publisher(JointState, names.joint_states, 10)
+        self.tf = node.create_publisher(TFMessage, "/tf", 100)
+        self.tf_static = node.create_publisher(TFMessage, "/tf_static", QOS_TF_STATIC)
+        self.tool_pose = node.create_publisher(PoseStamped, names.tool_pose, 10)
+        self.names = list(self.chain.movable)
+        self._moving = [j for j in self.chain.joints if j.type != "fixed"]
+        self._fixed = [j for j in self.chain.joints if j.type == "fixed"]
+        self.description.publish(String(data=urdf_from_chain(self.chain, "al5d")))
+        stamp = node.get_clock().now().to_msg()
+        steps = joint_transforms(self.chain, dict.fromkeys(self.names, 0.0))
+        self.tf_static.publish(
+            TFMessage(
+                transforms=[
+                    _transform(j.parent, j.child, steps[j.name], stamp) for j in self._fixed
+                ]
+            )
+        )
+
+    def publish(self, degrees: Mapping[str, float]) -> None:
+        """Joint states, /tf and the tool pose for the arm's degrees (NaN: unknown yet)."""
+        if any(v != v for v in degrees.values()):
+            return  # before the first read-back: nothing true to say
+        values = self.model.to_urdf(degrees)
+        stamp = self.node.get_clock().now().to_msg()
+        msg = JointState()
+        msg.header.stamp = stamp
+        msg.name = self.names
+        msg.position = [values[n] for n in self.names]
+        self.joint_states.publish(msg)
+        steps = joint_transforms(self.chain, values)
+        self.tf.publish(
+            TFMessage(
+                transforms=[
+                    _transform(j.parent, j.child, steps[j.name], stamp) for j in self._moving
+                ]
+            )
+        )
+        pose = tool_pose(self.chain, values)
+        out = PoseStamped()
+        out.header.stamp = stamp
+        out.header.frame_id = self.chain.root
+        p, q = out.pose.position, out.pose.orientation
+        p.x, p.y, p.z = pose.translation
+        q.x, q.y, q.z, q.w = pose.rotation
+        self.tool_pose.publish(out)

@@ -1,0 +1,17 @@
+"""The live web view and control panel (`al5d web`): a ROS 2 client that serves one page.
+
+Like RViz, it talks to the server only over ROS (the public names of
+`al5d.ros.runtime.Names`), in its own process, so that a browser never slows
+the arm. The page is built with viser: the arm in 3D from /robot_description,
+moving with /joint_states, the target of the running move as a ghost, sliders,
+a draggable target for the tool, presets, STOP, and what happened.
+
+    link.py    the ROS side: subscriptions, the instruction publisher, the stop service
+    plan.py    pure: targets of instructions, the outcome log, the joint history, debounce
+    guard.py   who may open the page's websocket (same origin, known host names)
+    page.py    the viser page: scene, controls, banners
+    app.py     `al5d web`: the page on a port, until SIGINT/SIGTERM
+
+Imports al5d.arm, al5d.model, al5d.ros (the public names, QoS, conversions),
+rclpy and viser; nothing imports it but al5d.app.
+"""

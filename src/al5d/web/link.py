@@ -1,0 +1,147 @@
+"""The page's ROS side: a client node of the server, by the public names of one namespace.
+
+It reads what any client may read and sends what any client may send; the server
+does not know it is a web page. Nothing it does can hold the server up: the
+joint states come best effort (a page that falls behind loses samples, it never
+makes the server resend them), the instruction topic is read best effort too
+(to show the target of a move sent by anyone), and the server's writers of the
+state and the results keep their last samples whatever a reader does.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+from al5d_interfaces.msg import ArmInstruction, InstructionResult
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from al5d.arm.instruction import Instruction, Kind, Outcome, new_id
+from al5d.arm.instruction import stop as stop_instruction
+from al5d.model import ArmModel
+from al5d.ros.convert import from_message, outcome_from_message, to_message
+from al5d.ros.runtime import (
+    QOS_INSTRUCTIONS,
+    QOS_LATCHED,
+    QOS_SERVICES,
+    Names,
+    Spinner,
+    start_context,
+)
+
+#: Samples that may be dropped: the latest is all the page wants.
+QOS_LATEST = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
+#: Outcomes: reliable (a refusal's reason must reach the page) but shallow; the server's
+#: writer keeps its own history and is never slowed by a reader's.
+QOS_OUTCOMES = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=100,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+
+class Listener(Protocol):
+    """What the link hands over, in its executor's thread."""
+
+    def on_description(self, urdf: str) -> None: ...
+
+    def on_joints(self, names: Sequence[str], positions: Sequence[float], t: float) -> None: ...
+
+    def on_state(self, state: str) -> None: ...
+
+    def on_outcome(self, outcome: Outcome) -> None: ...
+
+    def on_instruction(self, instr: Instruction) -> None: ...
+
+
+class Link:
+    """The web process's node: subscriptions to the server's outputs, the instruction topic,
+    and the stop and release services."""
+
+    def __init__(
+        self, names: Names, listener: Listener, model: ArmModel, presets: tuple[str, ...]
+    ) -> None:
+        self.names = names
+        self.listener = listener
+        self.model = model
+        self.presets = presets
+        self.context = start_context()
+        self.node = node = Node(
+            f"al5d_web_{os.getpid()}", namespace=names.node_namespace, context=self.context
+        )
+        self.pub = node.create_publisher(ArmInstruction, names.instruction, QOS_INSTRUCTIONS)
+        node.create_subscription(String, names.robot_description, self._on_description, QOS_LATCHED)
+        node.create_subscription(JointState, names.joint_states, self._on_joints, QOS_LATEST)
+        node.create_subscription(String, names.state, self._on_state, QOS_LATCHED)
+        node.create_subscription(InstructionResult, names.result, self._on_result, QOS_OUTCOMES)
+        node.create_subscription(
+            ArmInstruction, names.instruction, self._on_instruction, QOS_LATEST
+        )
+        by_kind = {kind: name for name, kind in names.services.items()}
+        self.stop_client = node.create_client(Trigger, by_kind[Kind.STOP], qos_profile=QOS_SERVICES)
+        self.release_client = node.create_client(
+            Trigger, by_kind[Kind.RELEASE], qos_profile=QOS_SERVICES
+        )
+        self.spinner = Spinner(node, self.context)
+
+    # -- from the server ------------------------------------------------------------
+
+    def _on_description(self, msg: String) -> None:
+        self.listener.on_description(str(msg.data))
+
+    def _on_joints(self, msg: JointState) -> None:
+        self.listener.on_joints(list(msg.name), list(msg.position), time.monotonic())
+
+    def _on_state(self, msg: String) -> None:
+        self.listener.on_state(str(msg.data))
+
+    def _on_result(self, msg: InstructionResult) -> None:
+        try:
+            outcome = outcome_from_message(msg)
+        except ValueError:  # an outcome word this page does not know: not the server's
+            return
+        self.listener.on_outcome(outcome)
+
+    def _on_instruction(self, msg: ArmInstruction) -> None:
+        instr = from_message(msg, self.presets, self.model)
+        if not isinstance(instr, str):  # the server refuses it; its outcome will say why
+            self.listener.on_instruction(instr)
+
+    # -- to the server ---------------------------------------------------------------
+
+    def send(self, instr: Instruction) -> None:
+        self.pub.publish(to_message(instr))
+
+    def stop(self) -> str:
+        """The emergency stop, by the service (it never waits behind instructions); on the
+        instruction topic when no server offers the service. Returns which way it went."""
+        if self.stop_client.service_is_ready():
+            self.stop_client.call_async(Trigger.Request())
+            return "service"
+        self.send(stop_instruction(id=new_id()))
+        return "topic"
+
+    def release(self) -> Any:
+        if self.release_client.service_is_ready():
+            return self.release_client.call_async(Trigger.Request())
+        self.send(Instruction(Kind.RELEASE))
+        return None
+
+    def server_count(self) -> int:
+        """How many servers read the instruction topic (this node's own reader excluded)."""
+        return max(0, self.pub.get_subscription_count() - 1)
+
+    def close(self) -> None:
+        self.spinner.close()

@@ -1,0 +1,69 @@
+"""The shipped MoveIt configuration (issue 14): generated from the config, so it cannot drift."""
+
+from __future__ import annotations
+
+import io
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import yaml
+import yourdfpy
+from proc import Proc
+
+from al5d.app.moveit import moveit_files
+from al5d.arm.config import load_config
+from al5d.ros.runtime import Names
+
+SHIPPED = Path(__file__).resolve().parent.parent / "config" / "moveit"
+CONFIG = load_config(None)
+
+
+def test_the_shipped_files_are_what_the_shipped_config_makes() -> None:
+    made = moveit_files(CONFIG)
+    assert sorted(p.name for p in SHIPPED.iterdir()) == sorted(made)
+    for name, text in made.items():
+        assert (SHIPPED / name).read_text(encoding="utf-8") == text, (
+            f"config/moveit/{name} is stale: run `al5d moveit config/moveit`"
+        )
+
+
+def test_al5d_moveit_writes_them(tmp_path: Path) -> None:
+    proc = Proc("moveit", str(tmp_path / "out"), "--namespace", "left")
+    assert proc.wait(30) == 0
+    for name, text in moveit_files(CONFIG, "left").items():
+        assert (tmp_path / "out" / name).read_text(encoding="utf-8") == text
+    urdf = (tmp_path / "out" / "al5d.urdf").read_text(encoding="utf-8")
+    assert 'link name="left/base_link"' in urdf and 'link name="left/tool0"' in urdf
+
+
+def test_every_joint_and_limit_agrees_with_the_urdf_and_the_config() -> None:
+    robot = yourdfpy.URDF.load(
+        io.StringIO((SHIPPED / "al5d.urdf").read_text(encoding="utf-8")), load_meshes=False
+    )
+    movable = {j.name: j for j in robot.robot.joints if j.type != "fixed" and j.mimic is None}
+    limits = yaml.safe_load((SHIPPED / "joint_limits.yaml").read_text())["joint_limits"]
+    assert set(limits) == set(movable)
+    model = CONFIG.model
+    for name, joint in movable.items():
+        lo, hi = model.urdf_limits(name)
+        assert math.isclose(joint.limit.lower, lo) and math.isclose(joint.limit.upper, hi)
+        assert math.isclose(limits[name]["max_velocity"], joint.limit.velocity)
+        if name != "gripper":  # revolute: the servo's speed in rad/s
+            speed = math.radians(CONFIG.joints[name].speed_deg_s)
+            assert math.isclose(limits[name]["max_velocity"], speed, rel_tol=1e-9)
+    srdf = ET.fromstring((SHIPPED / "al5d.srdf").read_text(encoding="utf-8"))
+    for preset, degrees in CONFIG.presets.items():
+        state = srdf.find(f"group_state[@name='{preset}'][@group='arm']")
+        assert state is not None, f"preset {preset} is no named state"
+        urdf_values = model.to_urdf(degrees)
+        for j in state.findall("joint"):
+            assert math.isclose(float(j.get("value", "nan")), urdf_values[j.get("name", "")])
+    controllers = yaml.safe_load((SHIPPED / "moveit_controllers.yaml").read_text())
+    manager = controllers["moveit_simple_controller_manager"]
+    arm = manager["arm_controller"]
+    assert set(arm["joints"]) == set(movable) - {"gripper"}
+    names = Names()
+    for controller in manager["controller_names"]:
+        action = f"/{controller}/{manager[controller]['action_ns']}"
+        assert action in (names.follow_joint_trajectory, names.gripper_command)

@@ -1,0 +1,214 @@
+"""Straight-line moves: every hop stays near the line, with fewer hops than a fixed split."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import re
+from collections.abc import Mapping
+
+import pytest
+from test_model_support import GEOMETRY, MODEL, PRESETS, mid_pose
+
+from al5d.model import (
+    ARM_JOINTS,
+    InvalidInput,
+    PathUnreachable,
+    Unreachable,
+    forward,
+    plan_line,
+    segment_deviation,
+    solve,
+)
+from al5d.model.lines import LinePlan
+from al5d.model.transforms import Vec3
+
+READY = {j: float(PRESETS["ready"][j]) for j in ARM_JOINTS}
+TOL = 0.001
+DENSE = 2000
+
+MOVES: list[tuple[dict[str, float], Vec3, float | None, float | None]] = [
+    (READY, (0.20, 0.15, 0.05), -30.0, None),
+    (READY, (0.15, -0.20, 0.15), -30.0, 45.0),
+    (READY, (0.30, 0.00, 0.20), 0.0, None),
+    (READY, (0.25, 0.00, 0.05), None, None),
+    (mid_pose(), (0.12, 0.22, 0.02), -60.0, -20.0),
+]
+
+
+def hop_deviations(start: Mapping[str, float], plan: LinePlan) -> list[float]:
+    stops = [start, *plan.waypoints]
+    return [
+        segment_deviation(GEOMETRY, a, b, plan.start, plan.end, DENSE)
+        for a, b in itertools.pairwise(stops)
+    ]
+
+
+def fewest_uniform_hops(start: Mapping[str, float], plan: LinePlan) -> int:
+    """The smallest n for which n equal hops along the line hold the tolerance."""
+    d_pitch = plan.pitch_deg[1] - plan.pitch_deg[0]
+    d_roll = plan.roll_deg[1] - plan.roll_deg[0]
+
+    def at(t: float) -> dict[str, float]:
+        p = [a + t * (b - a) for a, b in zip(plan.start, plan.end, strict=True)]
+        pitch = plan.pitch_deg[0] + t * d_pitch
+        return solve(MODEL, p[0], p[1], p[2], pitch, plan.roll_deg[0] + t * d_roll)
+
+    for n in range(1, 200):
+        stops = [dict(start)] + [at(i / n) for i in range(1, n + 1)]
+        devs = (
+            segment_deviation(GEOMETRY, a, b, plan.start, plan.end, 400)
+            for a, b in itertools.pairwise(stops)
+        )
+        if max(devs) <= TOL:
+            return n
+    raise AssertionError("no uniform split holds the tolerance")
+
+
+@pytest.mark.parametrize(("start", "target", "pitch", "roll"), MOVES)
+def test_every_hop_stays_within_the_tolerance_of_the_line(
+    start: dict[str, float], target: Vec3, pitch: float | None, roll: float | None
+) -> None:
+    plan = plan_line(MODEL, start, target, pitch, roll, tolerance_m=TOL)
+    devs = hop_deviations(start, plan)
+    assert max(devs) <= TOL * (1 + 1e-6)
+    assert plan.max_deviation_m == pytest.approx(max(devs), abs=1e-7)
+    # Hops are as long as allowed: all but the last use most of the tolerance.
+    assert all(d > 0.9 * TOL for d in devs[:-1])
+
+
+@pytest.mark.parametrize(("start", "target", "pitch", "roll"), MOVES)
+def test_waypoints_lie_on_the_line_with_pitch_and_roll_interpolated(
+    start: dict[str, float], target: Vec3, pitch: float | None, roll: float | None
+) -> None:
+    plan = plan_line(MODEL, start, target, pitch, roll)
+    assert plan.fractions[-1] == 1.0
+    assert all(a < b for a, b in itertools.pairwise(plan.fractions))
+    p0, p1 = plan.start, plan.end
+    assert p0 == pytest.approx(forward(GEOMETRY, start).position)
+    for f, q in zip(plan.fractions, plan.waypoints, strict=True):
+        pose = forward(GEOMETRY, q)
+        on_line = [a + f * (b - a) for a, b in zip(p0, p1, strict=True)]
+        assert math.dist(pose.position, on_line) <= 1e-8
+        expected_pitch = plan.pitch_deg[0] + f * (plan.pitch_deg[1] - plan.pitch_deg[0])
+        assert pose.pitch_deg == pytest.approx(expected_pitch, abs=1e-6)
+        expected_roll = plan.roll_deg[0] + f * (plan.roll_deg[1] - plan.roll_deg[0])
+        assert pose.roll_deg == pytest.approx(expected_roll, abs=1e-9)
+        assert all(MODEL.ranges.of(j).lo <= q[j] <= MODEL.ranges.of(j).hi for j in ARM_JOINTS)
+    assert forward(GEOMETRY, plan.waypoints[-1]).position == pytest.approx(target, abs=1e-8)
+
+
+@pytest.mark.parametrize(("start", "target", "pitch", "roll"), MOVES)
+def test_the_plan_never_needs_more_hops_than_the_best_uniform_split(
+    start: dict[str, float], target: Vec3, pitch: float | None, roll: float | None
+) -> None:
+    plan = plan_line(MODEL, start, target, pitch, roll, tolerance_m=TOL)
+    assert len(plan.waypoints) <= fewest_uniform_hops(start, plan)
+
+
+@pytest.mark.parametrize(
+    ("target", "pitch"),
+    [((0.15, 0.0, 0.02), -90.0), ((0.10, 0.25, 0.05), -30.0), ((0.05, 0.30, 0.10), -30.0)],
+)
+def test_where_the_curvature_varies_the_plan_beats_any_uniform_split(
+    target: Vec3, pitch: float
+) -> None:
+    # Uniform hops must all be as short as the worst stretch needs; ours are not.
+    plan = plan_line(MODEL, READY, target, pitch, tolerance_m=TOL)
+    assert len(plan.waypoints) < fewest_uniform_hops(READY, plan)
+
+
+def test_the_plan_needs_far_fewer_hops_than_a_fixed_step() -> None:
+    # A naive planner's fixed 5 mm step (it holds 1 mm here only by being short).
+    plan = plan_line(MODEL, READY, (0.20, 0.15, 0.05), -30.0, tolerance_m=TOL)
+    length = math.dist(plan.start, plan.end)
+    assert len(plan.waypoints) * 3 < math.ceil(length / 0.005)
+
+
+def test_one_group_move_alone_would_leave_the_line() -> None:
+    # The reason for the planner: joints moving linearly make the tip curve.
+    plan = plan_line(MODEL, READY, (0.20, 0.15, 0.05), -30.0)
+    end = plan.waypoints[-1]
+    assert segment_deviation(GEOMETRY, READY, end, plan.start, plan.end) > 10 * TOL
+    assert len(plan.waypoints) > 1
+
+
+def test_a_short_move_is_a_single_hop() -> None:
+    p = forward(GEOMETRY, READY).position
+    plan = plan_line(MODEL, READY, (p[0] + 0.005, p[1], p[2]), -30.0)
+    assert plan.fractions == (1.0,)
+
+
+def test_a_tighter_tolerance_needs_more_hops() -> None:
+    loose = plan_line(MODEL, READY, (0.20, 0.15, 0.05), -30.0, tolerance_m=0.002)
+    tight = plan_line(MODEL, READY, (0.20, 0.15, 0.05), -30.0, tolerance_m=0.0002)
+    assert len(tight.waypoints) > len(loose.waypoints)
+    assert tight.max_deviation_m <= 0.0002
+
+
+def test_without_a_pitch_the_start_pitch_is_kept_when_reachable() -> None:
+    plan = plan_line(MODEL, READY, (0.28, 0.05, 0.08))
+    assert plan.pitch_deg == pytest.approx((-30.0, -30.0))
+    assert plan.roll_deg == (0.0, 0.0)
+
+
+def test_a_line_through_the_unreachable_is_refused_whole_naming_where() -> None:
+    # From the ready pose out to 420 mm ahead: reach ends part of the way along.
+    target = (0.42, 0.0, 0.10)
+    with pytest.raises(PathUnreachable) as info:
+        plan_line(MODEL, READY, target, -30.0)
+    err = info.value
+    assert 0.0 < err.fraction < 1.0
+    assert re.fullmatch(r"the line fails at \d+% of the path: out of reach: .*", str(err))
+    p0 = forward(GEOMETRY, READY).position
+
+    def ok(t: float) -> bool:
+        p = [a + t * (b - a) for a, b in zip(p0, target, strict=True)]
+        try:
+            solve(MODEL, p[0], p[1], p[2], -30.0)
+        except Unreachable:
+            return False
+        return True
+
+    assert ok(err.fraction - 0.002) and not ok(err.fraction + 0.0005)
+
+
+def test_a_line_that_dips_out_of_range_midway_is_refused_even_if_both_ends_work() -> None:
+    # Across the front of the base at low height: both ends reachable, the middle
+    # passes too close to the base for the elbow's range.
+    start = solve(MODEL, 0.06, 0.20, 0.03, -90.0)
+    target = (0.06, -0.20, 0.03)
+    solve(MODEL, *target, -90.0)
+    with pytest.raises(PathUnreachable) as info:
+        plan_line(MODEL, start, target, -90.0)
+    assert 0.0 < info.value.fraction < 1.0
+
+
+def test_a_line_over_the_base_axis_keeps_the_base_where_it_is() -> None:
+    # Both headings are in range here; IK alone would swing the base 180 deg at the
+    # axis, the planner's base hint keeps it and lets the arm lean back instead.
+    start = solve(MODEL, 0.0, 0.03, 0.49, 90.0)
+    plan = plan_line(MODEL, start, (0.0, -0.03, 0.49), 90.0)
+    assert {w["base"] for w in plan.waypoints} == {start["base"]} == {-90.0}
+    assert max(hop_deviations(start, plan)) <= TOL * (1 + 1e-6)
+
+
+def test_a_line_past_the_side_the_base_cannot_face_is_refused_where_the_joints_jump() -> None:
+    start = {
+        "base": 38.24,
+        "shoulder": -13.84,
+        "elbow": 39.49,
+        "wrist": 75.24,
+        "wrist_rotate": -63.0,
+    }
+    with pytest.raises(PathUnreachable, match=r"fails at 60% .*the joints would jump here"):
+        plan_line(MODEL, start, (0.0162, -0.0099, 0.409))
+
+
+def test_bad_inputs_are_refused() -> None:
+    with pytest.raises(InvalidInput):
+        plan_line(MODEL, READY, (math.nan, 0.0, 0.1), 0.0)
+    with pytest.raises(InvalidInput):
+        plan_line(MODEL, READY, (0.2, 0.0, 0.1), 0.0, tolerance_m=0.0)
+    with pytest.raises(InvalidInput, match="start needs joint wrist"):
+        plan_line(MODEL, {j: 0.0 for j in ARM_JOINTS if j != "wrist"}, (0.2, 0.0, 0.1), 0.0)

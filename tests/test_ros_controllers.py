@@ -1,0 +1,310 @@
+"""The standard control actions as MoveIt's simple controller manager uses them (issue 14).
+
+Over real DDS against `al5d serve` in its own process; the emulated board is in
+this process behind a pty, so the tests see exactly what reached it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import pytest
+from action_msgs.msg import GoalStatus
+from builtin_interfaces.msg import Duration
+from control_msgs.action import FollowJointTrajectory, GripperCommand
+from control_msgs.msg import JointTolerance
+from proc import Proc
+from rospeer import LockedActionClient, Peer, wait_future, wait_until
+from std_msgs.msg import String
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+from al5d.arm.config import ArmConfig
+from al5d.ros.runtime import QOS_LATCHED
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Emulator
+
+ARM = ["base", "shoulder", "elbow", "wrist", "wrist_rotate"]
+FJT = FollowJointTrajectory.Result
+
+
+@dataclass
+class Rig:
+    emu: Emulator
+    peer: Peer
+    config: ArmConfig
+    fjt: LockedActionClient
+    gripper: LockedActionClient
+    states: list[str]
+
+    def group_moves(self) -> list[p.GroupMove]:
+        return [c for r in self.emu.records for c in r.commands if isinstance(c, p.GroupMove)]
+
+    def urdf(self, **degrees: float) -> list[float]:
+        """Arm degrees of the five arm joints in the URDF's radians (REP 103), in ARM order."""
+        values = self.config.model.to_urdf(degrees)
+        return [values[j] for j in ARM]
+
+    def trajectory(
+        self, points: list[tuple[float, dict[str, float]]], names: list[str] | None = None
+    ) -> FollowJointTrajectory.Goal:
+        goal = FollowJointTrajectory.Goal()
+        goal.trajectory.joint_names = names or ARM
+        for t, degrees in points:
+            sec = int(t)
+            goal.trajectory.points.append(
+                JointTrajectoryPoint(
+                    positions=self.urdf(**degrees),
+                    time_from_start=Duration(sec=sec, nanosec=round((t - sec) * 1e9)),
+                )
+            )
+        return goal
+
+    def send(self, client: LockedActionClient, goal: Any, feedback: list[Any] | None = None) -> Any:
+        return wait_future(
+            client.send_goal_async(
+                goal, feedback_callback=feedback.append if feedback is not None else None
+            )
+        )
+
+    def recover(self) -> None:
+        """Back to ready, whatever the last test left."""
+        if self.states[-1] != "ready":
+            self.peer.trigger("release")
+            wait_until(lambda: self.states[-1] == "ready", 10, "ready")
+
+
+def pose(**degrees: float) -> dict[str, float]:
+    return {j: degrees.get(j, 0.0) for j in ARM}
+
+
+@pytest.fixture(scope="module")
+def rig(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    link = tmp_path_factory.mktemp("controllers") / "ssc32u"
+    emu = Emulator(config, link=link).start()
+    proc = Proc("serve", "--port", str(link), "--log-level", "INFO")
+    peer = Peer(name="al5d_moveit_peer")
+    fjt = LockedActionClient(
+        peer.node, FollowJointTrajectory, "/arm_controller/follow_joint_trajectory"
+    )
+    gripper = LockedActionClient(peer.node, GripperCommand, "/gripper_controller/gripper_cmd")
+    states: list[str] = []
+    peer.node.create_subscription(
+        String, "/al5d/state", lambda m: states.append(m.data), QOS_LATCHED
+    )
+    try:
+        proc.err.wait_for("STATE: ready", 30)
+        peer.wait_for_server()
+        assert fjt.wait_for_server(timeout_sec=10) and gripper.wait_for_server(timeout_sec=10)
+        wait_until(lambda: states, 5, "the state")
+        yield Rig(emu, peer, config, fjt, gripper, states)
+    finally:
+        fjt.destroy()
+        gripper.destroy()
+        peer.close()
+        proc.kill()
+        emu.close()
+
+
+def test_a_trajectory_runs_one_group_move_per_point_in_order_at_its_times(rig: Rig) -> None:
+    rig.recover()
+    points = [
+        (0.4, pose(base=20, shoulder=10, elbow=60)),
+        (0.9, pose(base=-20, shoulder=20, elbow=80, wrist=-10)),
+        (1.2, pose(base=0, shoulder=30, elbow=90, wrist_rotate=30)),
+    ]
+    rig.emu.clear_records()
+    feedback: list[Any] = []
+    handle = rig.send(rig.fjt, rig.trajectory(points), feedback)
+    assert handle.accepted
+    t0 = time.monotonic()
+    answer = wait_future(handle.get_result_async(), 15)
+    took = time.monotonic() - t0
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED
+    assert answer.result.error_code == FJT.SUCCESSFUL, answer.result.error_string
+    records = [r for r in rig.emu.records if any(isinstance(c, p.GroupMove) for c in r.commands)]
+    moves = rig.group_moves()
+    assert len(moves) == len(points) == len(records)
+    # Each point is reached at its time_from_start, counted from the first move's effect:
+    # the board's pulses get there when each group move's time has run.
+    start = records[0].t_effect
+    for rec, move, (at, _) in zip(records, moves, points, strict=True):
+        assert move.time_ms is not None
+        # Generous (a loaded machine wakes late; `make bench` measures how close), yet below
+        # a step's wire time (42 ms at 9600 baud), which a step ignoring the wire would lose.
+        assert abs(rec.t_effect + move.time_ms / 1000 - start - at) < 0.02
+    channels = {j: rig.config.joints[j].channel for j in ARM}
+    for move, (_, degrees) in zip(moves, points, strict=True):
+        pulses = {t.channel: t.pulse_us for t in move.targets}
+        for j, deg in degrees.items():
+            assert abs(pulses[channels[j]] - rig.config.joints[j].to_us(deg)) <= 1
+    assert 1.2 <= took < 3.0
+    # Feedback: desired, actual and error for the named joints, as the arm moved.
+    assert feedback, "no feedback while the trajectory ran"
+    last = feedback[-1].feedback
+    assert list(last.joint_names) == ARM
+    fb = (last.desired.positions, last.actual.positions, last.error.positions)
+    for d, a, e in zip(*fb, strict=True):
+        assert math.isclose(e, d - a, abs_tol=1e-9)
+    ends = rig.emu.servo_degrees()
+    for j, deg in points[-1][1].items():
+        assert abs(ends[j] - deg) < 0.5
+
+
+def test_joints_not_named_keep_their_place(rig: Rig) -> None:
+    rig.recover()
+    before = rig.emu.servo_degrees()
+    goal = FollowJointTrajectory.Goal()
+    goal.trajectory.joint_names = ["elbow"]
+    goal.trajectory.points = [
+        JointTrajectoryPoint(
+            positions=[rig.urdf(**pose(elbow=70))[2]],
+            time_from_start=Duration(sec=0, nanosec=300_000_000),
+        )
+    ]
+    handle = rig.send(rig.fjt, goal)
+    assert wait_future(handle.get_result_async(), 10).status == GoalStatus.STATUS_SUCCEEDED
+    after = rig.emu.servo_degrees()
+    assert abs(after["elbow"] - 70) < 0.5
+    for j in ("base", "shoulder", "wrist", "wrist_rotate", "gripper"):
+        assert abs(after[j] - before[j]) < 0.5
+
+
+@pytest.mark.parametrize(
+    ("change", "reason"),
+    [
+        ("unknown joint", "unknown joint"),
+        ("decreasing time", "not after point 0"),
+        ("out of range", "point 1"),
+        ("sizes", "positions for 5 joints"),
+    ],
+)
+def test_a_bad_trajectory_is_rejected_whole_and_writes_nothing(
+    rig: Rig, change: str, reason: str
+) -> None:
+    rig.recover()
+    goal = rig.trajectory([(0.3, pose(base=10)), (0.6, pose(base=20)), (0.9, pose(base=30))])
+    pts = goal.trajectory.points
+    if change == "unknown joint":
+        goal.trajectory.joint_names = ["base", "shoulder", "elbow", "wrist", "thumb"]
+    elif change == "decreasing time":
+        pts[1].time_from_start = Duration(sec=0, nanosec=200_000_000)
+    elif change == "out of range":
+        pts[1].positions = rig.urdf(**pose(elbow=170))  # its range is 0..135
+    else:
+        pts[2].positions = pts[2].positions[:4]
+    rig.emu.clear_records()
+    handle = rig.send(rig.fjt, goal)
+    assert not handle.accepted
+    ident = bytes(handle.goal_id.uuid).hex()
+    refusal = rig.peer.result(ident)
+    assert refusal.outcome == "refused" and reason in refusal.reason, refusal.reason
+    time.sleep(0.2)
+    assert rig.group_moves() == []
+
+
+def test_a_cancel_halts_the_arm_where_it_is_without_the_lock(rig: Rig) -> None:
+    rig.recover()
+    goal = rig.trajectory([(1.5, pose(base=60, elbow=40)), (3.0, pose(base=-60, elbow=100))])
+    handle = rig.send(rig.fjt, goal)
+    assert handle.accepted
+    time.sleep(0.6)
+    wait_future(handle.cancel_goal_async())
+    answer = wait_future(handle.get_result_async(), 10)
+    assert answer.status == GoalStatus.STATUS_CANCELED
+    here = rig.emu.servo_degrees()
+    time.sleep(0.3)
+    assert abs(rig.emu.servo_degrees()["base"] - here["base"]) < 0.5, "still moving"
+    assert 5 < here["base"] < 55, "halted mid-way"
+    time.sleep(0.2)
+    assert rig.states[-1] == "ready", "a cancel must not lock the arm"
+
+
+def test_an_emergency_stop_aborts_the_goal_and_locks(rig: Rig) -> None:
+    rig.recover()
+    goal = rig.trajectory([(1.5, pose(base=-60)), (3.0, pose(base=60))])
+    handle = rig.send(rig.fjt, goal)
+    assert handle.accepted
+    time.sleep(0.6)
+    assert rig.peer.trigger("stop").success
+    answer = wait_future(handle.get_result_async(), 10)
+    assert answer.status == GoalStatus.STATUS_ABORTED
+    assert "stop" in answer.result.error_string
+    wait_until(lambda: rig.states[-1] == "stopped", 5, "stopped")
+    # Locked: the next goal is refused until release.
+    later = rig.send(rig.fjt, rig.trajectory([(0.3, pose())]))
+    if later.accepted:
+        assert wait_future(later.get_result_async(), 10).status == GoalStatus.STATUS_ABORTED
+    rig.recover()
+
+
+def test_a_new_goal_preempts_the_running_one(rig: Rig) -> None:
+    rig.recover()
+    first = rig.send(rig.fjt, rig.trajectory([(2.0, pose(base=70)), (4.0, pose(base=-70))]))
+    time.sleep(0.4)
+    second = rig.send(rig.fjt, rig.trajectory([(0.5, pose(base=-10, elbow=45))]))
+    assert first.accepted and second.accepted
+    old = wait_future(first.get_result_async(), 10)
+    assert old.status == GoalStatus.STATUS_ABORTED and "preempted" in old.result.error_string
+    new = wait_future(second.get_result_async(), 10)
+    assert new.status == GoalStatus.STATUS_SUCCEEDED
+    assert abs(rig.emu.servo_degrees()["elbow"] - 45) < 0.5
+    assert rig.states[-1] == "ready"
+
+
+def test_tolerances_report_a_point_faster_than_the_servos(rig: Rig) -> None:
+    rig.recover()
+    fast = [(0.05, pose(base=-80)), (0.1, pose(base=80))]  # ~1.5 s of base travel
+    goal = rig.trajectory(fast)
+    goal.goal_time_tolerance = Duration(sec=0, nanosec=100_000_000)
+    answer = wait_future(rig.send(rig.fjt, goal).get_result_async(), 15)
+    assert answer.status == GoalStatus.STATUS_ABORTED
+    assert answer.result.error_code == FJT.GOAL_TOLERANCE_VIOLATED
+    assert "after its time_from_start" in answer.result.error_string
+    rig.recover()
+    goal = rig.trajectory([(0.05, pose(base=-80))])  # from base=80, where the last ended
+    goal.path_tolerance = [JointTolerance(name="base", position=0.05)]
+    answer = wait_future(rig.send(rig.fjt, goal).get_result_async(), 15)
+    assert answer.status == GoalStatus.STATUS_ABORTED
+    assert answer.result.error_code == FJT.PATH_TOLERANCE_VIOLATED
+    assert "off its path" in answer.result.error_string
+    assert rig.states[-1] == "ready"
+
+
+def test_a_slow_enough_trajectory_with_tolerances_succeeds(rig: Rig) -> None:
+    rig.recover()
+    goal = rig.trajectory([(1.0, pose(base=10, elbow=50))])
+    goal.goal_tolerance = [JointTolerance(name=j, position=0.01) for j in ARM]
+    goal.path_tolerance = [JointTolerance(name=j, position=0.05) for j in ARM]
+    goal.goal_time_tolerance = Duration(sec=0, nanosec=100_000_000)
+    answer = wait_future(rig.send(rig.fjt, goal).get_result_async(), 15)
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result.error_string
+
+
+@pytest.mark.parametrize("gap_mm", [30.0, 2.0])
+def test_the_gripper_command_opens_and_closes_to_a_gap_in_metres(rig: Rig, gap_mm: float) -> None:
+    rig.recover()
+    goal = GripperCommand.Goal()
+    goal.command.position = gap_mm / 1000
+    answer = wait_future(rig.send(rig.gripper, goal).get_result_async(), 10)
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED
+    result = answer.result
+    assert result.reached_goal and not result.stalled
+    assert abs(result.position - gap_mm / 1000) < 0.0005
+    board = rig.config.model.to_urdf(rig.emu.servo_degrees())["gripper"]
+    assert abs(board - gap_mm / 1000) < 0.0005
+
+
+def test_a_gripper_gap_beyond_its_opening_is_rejected(rig: Rig) -> None:
+    rig.recover()
+    goal = GripperCommand.Goal()
+    goal.command.position = 0.2
+    rig.emu.clear_records()
+    handle = rig.send(rig.gripper, goal)
+    assert not handle.accepted
+    refusal = rig.peer.result(bytes(handle.goal_id.uuid).hex())
+    assert "outside" in refusal.reason
+    assert rig.group_moves() == []

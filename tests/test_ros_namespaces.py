@@ -1,0 +1,121 @@
+"""Several arms side by side (issue 14): two servers in two namespaces, each driven alone."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from control_msgs.action import FollowJointTrajectory
+from proc import Proc
+from rospeer import Peer, wait_until
+from tf2_msgs.msg import TFMessage
+
+from al5d.arm.config import ArmConfig
+from al5d.ros.runtime import Names
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Emulator
+
+
+@dataclass
+class Arm:
+    name: str
+    emu: Emulator
+    proc: Proc
+    peer: Peer
+
+    def group_moves(self) -> list[p.GroupMove]:
+        return [c for r in self.emu.records for c in r.commands if isinstance(c, p.GroupMove)]
+
+
+@pytest.fixture(scope="module")
+def arms(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[list[Arm]]:
+    made: list[Arm] = []
+    try:
+        for name in ("left", "right"):
+            link = tmp_path_factory.mktemp(name) / "ssc32u"
+            emu = Emulator(config, link=link).start()
+            proc = Proc("serve", "--port", str(link), "--namespace", name, "--log-level", "INFO")
+            made.append(Arm(name, emu, proc, Peer(name=f"al5d_{name}_peer", namespace=name)))
+        for arm in made:
+            arm.proc.err.wait_for("STATE: ready", 30)
+            arm.peer.wait_for_server()
+        yield made
+    finally:
+        for arm in made:
+            arm.peer.close()
+            arm.proc.kill()
+            arm.emu.close()
+
+
+def test_names_follow_ros_conventions() -> None:
+    assert Names.of(None).instruction == "/al5d/instruction"
+    assert Names.of("").joint_states == "/joint_states"
+    assert Names.of("/").follow_joint_trajectory == "/arm_controller/follow_joint_trajectory"
+    left = Names.of("left")
+    assert left.instruction == "/left/al5d/instruction"
+    assert sorted(left.services) == ["/left/al5d/release", "/left/al5d/shutdown", "/left/al5d/stop"]
+    assert left.joint_states == "/left/joint_states"
+    assert left.robot_description == "/left/robot_description"
+    assert left.gripper_command == "/left/gripper_controller/gripper_cmd"
+    assert left.frame_prefix == "left/"
+    assert Names.of("/lab/left/").frame_prefix == "lab/left/"
+    for bad in ("1arm", "left arm", "a//b", "a-b"):
+        with pytest.raises(ValueError, match="namespace"):
+            Names.of(bad)
+
+
+def test_each_server_moves_its_own_arm_only(arms: list[Arm]) -> None:
+    left, right = arms
+    for arm in arms:
+        arm.emu.clear_records()
+    left.peer.send("l-1", "move", time_ms=300, base=40)
+    assert left.peer.result("l-1").outcome == "done"
+    assert len(left.group_moves()) == 1 and right.group_moves() == []
+    right.peer.send("r-1", "move", time_ms=300, base=-40)
+    assert right.peer.result("r-1").outcome == "done"
+    assert len(left.group_moves()) == 1 and len(right.group_moves()) == 1
+    assert abs(left.emu.servo_degrees()["base"] - 40) < 0.5
+    assert abs(right.emu.servo_degrees()["base"] + 40) < 0.5
+    # A stop for one arm leaves the other free.
+    assert left.peer.trigger("stop").success
+    right.peer.send("r-2", "move", time_ms=200, base=0)
+    assert right.peer.result("r-2").outcome == "done"
+    assert left.peer.trigger("release").success
+
+
+def test_each_arm_has_its_joint_states_controllers_and_prefixed_frames(arms: list[Arm]) -> None:
+    for arm in arms:
+        wait_until(lambda a=arm: a.peer.joint_states, 5, f"{arm.name} joint states")
+        names = arm.peer.names
+        assert arm.peer.node.count_publishers(names.robot_description) == 1
+        client = arm.peer.node.create_client(
+            FollowJointTrajectory.Impl.SendGoalService,
+            f"{names.follow_joint_trajectory}/_action/send_goal",
+        )
+        assert client.wait_for_service(timeout_sec=5)
+        arm.peer.node.destroy_client(client)
+    frames: set[str] = set()
+    sub = arms[0].peer.node.create_subscription(
+        TFMessage, "/tf", lambda m: frames.update(t.child_frame_id for t in m.transforms), 100
+    )
+    try:
+        wait_until(
+            lambda: {f.split("/")[0] for f in frames} == {"left", "right"}, 5, "both arms' frames"
+        )
+    finally:
+        arms[0].peer.node.destroy_subscription(sub)
+    assert all(f.startswith(("left/", "right/")) for f in frames)
+
+
+def test_the_command_line_client_takes_the_namespace(arms: list[Arm], tmp_path: Path) -> None:
+    left, right = arms
+    for arm in arms:
+        arm.emu.clear_records()
+    sent = Proc("send", "--namespace", "right", "move", "elbow=70", "time=200")
+    assert sent.wait(30) == 0, sent.err.drain()
+    assert right.group_moves() and left.group_moves() == []
+    lost = Proc("send", "--namespace", "middle", "--wait", "1", "ready")
+    assert lost.wait(30) == 2
+    assert "/middle/al5d/instruction" in "\n".join(lost.err.drain())

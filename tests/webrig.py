@@ -1,0 +1,141 @@
+"""The web view's test rig: `al5d web` in its own process, and a real headless Chromium.
+
+Shared by tests/test_web.py and bench/webbench.py. The browser is Debian's
+`chromium` (the Makefile installs it), driven by playwright, which cannot download
+a browser of its own here. WebGL runs on SwiftShader, Chromium's CPU renderer.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+from proc import Proc
+from std_msgs.msg import String
+
+from al5d.ros.runtime import QOS_LATCHED, Names
+
+CHROMIUM = os.environ.get("AL5D_CHROMIUM", "/usr/bin/chromium")
+#: Software WebGL: a headless machine has no GPU.
+CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+VIEWPORT = {"width": 1280, "height": 800}
+
+
+class BrowserUnavailable(RuntimeError):
+    """Chromium could not be started; the message says why and what to do."""
+
+
+def launch(playwright: Any) -> Any:
+    """Headless Chromium, or BrowserUnavailable with the reason."""
+    if not Path(CHROMIUM).exists():
+        raise BrowserUnavailable(
+            f"no browser at {CHROMIUM}: `make install` installs Debian's chromium"
+        )
+    try:
+        return playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+    except Exception as e:
+        raise BrowserUnavailable(f"headless Chromium at {CHROMIUM} did not start: {e}") from e
+
+
+class WebProc:
+    """`al5d web --port 0` (any free port) in its own process; `url` once it serves."""
+
+    def __init__(self, *args: str) -> None:
+        self.proc = Proc("web", "--port", "0", *args)
+        line = self.proc.out.wait_for("al5d web: http", 30)
+        self.url = line.split(": ", 1)[1].strip()
+        self.port = int(self.url.rstrip("/").rsplit(":", 1)[1])
+
+    def close(self) -> None:
+        if self.proc.popen.poll() is None:
+            self.proc.popen.terminate()
+            try:
+                self.proc.wait(10)
+            except Exception:
+                self.proc.kill()
+
+
+def open_page(browser: Any, url: str, timeout_s: float = 30.0) -> Any:
+    """The page, once the arm's joint states have reached it (the tool readout is there)."""
+    page = browser.new_page(viewport=VIEWPORT)
+    page.goto(url)
+    page.wait_for_selector("#al5d-tool", timeout=timeout_s * 1000)
+    return page
+
+
+def dismiss_notifications(page: Any) -> None:
+    """Close viser's toasts (software WebGL, here): they would hide part of the view."""
+    for button in page.locator(".mantine-Notification-closeButton").all():
+        button.click()
+
+
+def arm_pixels(png: bytes) -> int:
+    """How many pixels of the canvas show the arm's dark parts (base, turntable, wrist).
+
+    The page is white with a light grey grid and shadows; only the arm is dark, so a
+    canvas where this is 0 did not render the arm (blank, or only the grid)."""
+    rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.int16)
+    return int(np.count_nonzero(rgb.max(axis=2) < 100))
+
+
+def wait_for_arm(page: Any, timeout_s: float = 20.0, at_least: int = 300) -> bytes:
+    """A screenshot of the 3D view once the arm is drawn in it."""
+    canvas = page.locator("canvas").first
+    deadline = time.monotonic() + timeout_s
+    while True:
+        png: bytes = canvas.screenshot()
+        if arm_pixels(png) >= at_least:
+            return png
+        if time.monotonic() > deadline:
+            raise AssertionError(f"the arm was not drawn in {timeout_s} s")
+        time.sleep(0.3)
+
+
+class StateWatch:
+    """The server's latched state (/NS/al5d/state), as a ROS client sees it."""
+
+    def __init__(self, node: Any, names: Names) -> None:
+        self.states: list[str] = []
+        self._changed = threading.Condition()
+        node.create_subscription(String, names.state, self._on, QOS_LATCHED)
+
+    def _on(self, msg: String) -> None:
+        with self._changed:
+            self.states.append(str(msg.data))
+            self._changed.notify_all()
+
+    @property
+    def now(self) -> str | None:
+        with self._changed:
+            return self.states[-1] if self.states else None
+
+    def wait_for(self, state: str, timeout: float = 10.0) -> None:
+        deadline = time.monotonic() + timeout
+        with self._changed:
+            while not self.states or self.states[-1] != state:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise AssertionError(f"state {state!r} not reached; states: {self.states}")
+                self._changed.wait(left)
+
+
+def wait_text(
+    page: Any, selector: str, want: Callable[[str], bool], timeout_s: float = 10.0
+) -> str:
+    """The text of `selector` once `want` holds for it."""
+    deadline = time.monotonic() + timeout_s
+    text = ""
+    while time.monotonic() < deadline:
+        found = page.locator(selector)
+        text = found.first.inner_text() if found.count() else ""  # hidden: not in the page
+        if want(text):
+            return str(text)
+        time.sleep(0.05)
+    raise AssertionError(f"{selector}: {text!r} after {timeout_s} s")
