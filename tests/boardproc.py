@@ -16,7 +16,7 @@ from proc import AL5D
 from al5d.arm.config import ArmConfig
 from al5d.clock import Deadline
 from al5d.ssc32u.emulator import Record
-from al5d.ssc32u.emulator.board import Board
+from al5d.ssc32u.emulator.board import RESET, Board
 
 
 def _before_the_board() -> None:
@@ -81,17 +81,20 @@ class BoardProcess:
         times, trajectories) as the process's own, without sharing its GIL.
 
         The replay starts from the same power-up state, and every line the board acted on
-        takes effect at the same time; lines it never ran (cancelled by ESC, or noise)
-        are left out.
+        takes effect at the same time, and so does every reset; lines it never ran
+        (cancelled by ESC, or noise) are left out.
         """
         assert self._model is not None, "BoardProcess(config=...) to replay the servos"
         with self._changed:
             new = self._records[self._replayed :]
             self._replayed = len(self._records)
         for rec in new:
-            if rec.ignored == "cancelled by ESC" or (rec.ignored or "").startswith("noise"):
+            if rec.source == RESET:
+                self._model.reset(rec.t_effect)
+            elif rec.ignored == "cancelled by ESC" or (rec.ignored or "").startswith("noise"):
                 continue
-            self._model.execute(rec.raw, rec.t_effect)
+            else:
+                self._model.execute(rec.raw, rec.t_effect)
         return self._model
 
     def close(self) -> None:

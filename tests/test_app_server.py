@@ -15,7 +15,8 @@ from al5d.ssc32u.emulator import Emulator, Fault
 def test_serve_parks_takes_instructions_and_shuts_down() -> None:
     proc = Proc("serve", "--stdin", "--log-level", "DEBUG", stdin=True)
     try:
-        proc.err.wait_for("using the embedded SSC-32U emulator")
+        # The board's USB link, as it is: a flush drops nothing, answers wait 16 ms.
+        assert "usb link" in proc.err.wait_for("using the embedded SSC-32U emulator")
         proc.err.wait_for("STATE: initializing")
         proc.err.wait_for("STATE: ready")
         proc.send("move base=30 time=300")

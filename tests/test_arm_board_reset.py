@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import random
 import time
+from collections.abc import Iterator
 
 import pytest
 from armrig import Rig, logged
@@ -25,6 +28,124 @@ def warnings(caplog: pytest.LogCaptureFixture, text: str) -> list[str]:
         for r in logged(caplog)
         if r.levelno >= logging.WARNING and text in r.getMessage()
     ]
+
+
+@contextlib.contextmanager
+def driving(emu: Emulator, config: ArmConfig) -> Iterator[ArmDriver]:
+    driver = ArmDriver(config, emu.port)
+    driver.start()
+    try:
+        driver.wait_for_state(State.READY, 15)
+        yield driver
+    finally:
+        driver.close()
+
+
+def reset_found(
+    driver: ArmDriver, emu: Emulator, caplog: pytest.LogCaptureFixture, within: float
+) -> None:
+    """The reset was a safety event: found, the arm locked, the pose forgotten and read back
+    (unknown where the board has no pulse, the board's pulse where it has one)."""
+    driver.wait_for_state(State.FAULT, within)
+    driver.wait_for_state(State.STOPPED, 5)  # back, but locked
+    assert warnings(caplog, "the board has reset")
+    for name, deg in driver.positions().items():
+        joint = driver.config.joints[name]
+        pulse = emu.pulse_us(joint.channel)
+        if pulse == 0:
+            assert math.isnan(deg), (name, deg)
+        else:
+            assert deg == pytest.approx(joint.to_deg(pulse), abs=1.0), (name, deg, pulse)
+
+
+#: A board with no pulse after a reset, and one whose registers give every channel 1500 us
+#: at power-up (base's park pulse, but not shoulder's 1750 or elbow's 2050).
+POWER_UP = {"none": None, "1500 us": dict.fromkeys(range(6), 1500)}
+
+
+@pytest.mark.parametrize("power_up", POWER_UP.values(), ids=POWER_UP.keys())
+def test_a_reset_then_a_move_at_once_is_found_during_that_move(
+    config: ArmConfig, caplog: pytest.LogCaptureFixture, power_up: dict[int, int] | None
+) -> None:
+    """The move after the reset restores base only: the check reads back the joint written
+    least recently (shoulder, parked), whose pulse is gone or is the power-up one."""
+    caplog.set_level(logging.DEBUG, logger="al5d")
+    with Emulator(config, power_up=power_up) as emu, driving(emu, config) as driver:
+        assert driver.execute(ins.move(base=30), 10).ok
+        emu.inject(Fault.RESET)
+        t0 = time.monotonic()
+        move = driver.execute(ins.move(base=0, time_ms=2000), 10)
+        took = time.monotonic() - t0
+        assert move.result is Result.CANCELLED and "the board has reset" in move.reason
+        # Found by a check during the move (every 0.15 s), long before its 2 s were over.
+        assert took < 1.0, took
+        reset_found(driver, emu, caplog, 5)
+        n = len([r for r in emu.records if r.raw.startswith(b"#")])
+        refused = driver.execute(ins.move(shoulder=0), 5)
+        assert refused.result is Result.REFUSED
+        assert len([r for r in emu.records if r.raw.startswith(b"#")]) == n
+
+
+def test_a_reset_of_a_board_with_power_up_pulses_is_found_while_idle(
+    config: ArmConfig, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.DEBUG, logger="al5d")
+    with Emulator(config, power_up=POWER_UP["1500 us"]) as emu, driving(emu, config) as driver:
+        assert driver.execute(ins.move(base=30), 10).ok
+        time.sleep(0.6)  # an idle check or more with nothing amiss
+        assert driver.state is State.READY
+        emu.inject(Fault.RESET)
+        assert emu.pulse_us(config.joints["shoulder"].channel) == 1500
+        reset_found(driver, emu, caplog, 2 * config.server.idle_check_interval_s + 1)
+        assert "puts out 1500 us where the driver expects" in warnings(caplog, "reset:")[0]
+
+
+def test_moves_and_stops_racing_the_checks_never_look_like_a_reset(
+    config: ArmConfig, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Checks back to back (every 2 ms), each held 10 ms between choosing what it expects
+    and asking; every stop held 40 ms between its STOPs and the pose it leaves: a move or
+    a stop written meanwhile changes the pulse under the check, which must not judge it."""
+    caplog.set_level(logging.DEBUG, logger="al5d")
+    server = config.server.model_copy(
+        update={"idle_check_interval_s": 0.002, "moving_check_interval_s": 0.002}
+    )
+    fast = config.model_copy(update={"server": server})
+    rng = random.Random(11)
+    with Emulator(fast) as emu, driving(emu, fast) as driver:
+        board = driver.shared.board
+        assert board is not None
+        read_pulses, stop = board.read_pulses, board.stop
+
+        def slow_read(channels: list[int]) -> dict[int, int]:
+            time.sleep(0.01)
+            return read_pulses(channels)
+
+        def slow_stop(channels: list[int]) -> bytes:
+            data = stop(channels)
+            time.sleep(0.04)
+            return data
+
+        board.read_pulses = slow_read  # type: ignore[assignment,method-assign]
+        board.stop = slow_stop  # type: ignore[assignment,method-assign]
+        checks = len([r for r in emu.records if r.raw.startswith(b"QP")])
+        for trial in range(30):
+            # Every joint, so that the joint the check reads back is one that moves.
+            target = {
+                name: rng.uniform(lo + 0.2 * (hi - lo), hi - 0.2 * (hi - lo))
+                for name, (lo, hi) in ((n, j.range_deg) for n, j in config.joints.items())
+            }
+            move = driver.submit(ins.move(time_ms=rng.choice([0, 150, 300]), **target))
+            if trial % 2:
+                time.sleep(rng.uniform(0, 0.15))
+                assert driver.execute(ins.stop(), 5).ok
+                assert move.result(5).result in (Result.DONE, Result.CANCELLED)
+                assert driver.execute(ins.release(), 5).ok
+            else:
+                assert move.result(5).ok, trial
+            assert not warnings(caplog, "the board has reset"), trial
+        assert driver.state is not State.FAULT
+        assert len([r for r in emu.records if r.raw.startswith(b"QP")]) - checks > 150
 
 
 def test_a_reset_while_idle_locks_the_arm_and_forgets_the_pose(
@@ -83,6 +204,9 @@ def test_a_board_with_pulses_at_power_up_gets_the_half_speed_start_up_park(
 def test_the_driver_asks_for_low_latency_and_says_what_it_got(
     config: ArmConfig, caplog: pytest.LogCaptureFixture
 ) -> None:
+    """Only the refusal can be tested here: low-latency mode is the TIOCSSERIAL ioctl, which
+    only a serial driver with a UART behind it takes (USB serial, 8250); a pty refuses it,
+    and the one such port a test machine may have is its console, not a test's to change."""
     caplog.set_level(logging.INFO, logger="al5d")
     with Emulator(config) as emu, SSC32U(emu.port) as board:
         # A pseudo terminal is no USB serial device: the ioctl is refused, and said so.

@@ -9,7 +9,7 @@ import pytest
 
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u.driver import DEFAULT_READ_TIMEOUT_S, SSC32U
-from al5d.ssc32u.emulator import Emulator, Fault
+from al5d.ssc32u.emulator import UART, Emulator, Fault, Link
 from al5d.ssc32u.errors import (
     GarbageAnswer,
     Interrupted,
@@ -33,9 +33,10 @@ def test_one_call_per_board_function(emulator: Emulator, board: SSC32U) -> None:
     board.move({0: 2000, 1: 1800}, time_ms=500)
     assert not board.is_done()
     board.stop([0, 1])
+    # QP answers the pulse (held since the STOP, rounded to 1 us) in steps of 10 us.
     assert board.read_pulses([0, 1]) == {
-        0: emulator.pulse_us(0) // 10 * 10,
-        1: emulator.pulse_us(1) // 10 * 10,
+        0: round(emulator.pulse_us(0)) // 10 * 10,
+        1: round(emulator.pulse_us(1)) // 10 * 10,
     }
     board.set_offsets({0: 20})
     board.set_outputs({9: True})
@@ -71,14 +72,73 @@ def test_stop_is_one_write_that_first_cancels_any_partial_line(
     assert board.stop(range(6)) == b"\x1bSTOP0\rSTOP1\rSTOP2\rSTOP3\rSTOP4\rSTOP5\r"
 
 
-def test_stop_drops_output_still_waiting(emulator: Emulator, board: SSC32U) -> None:
+def test_stop_on_a_uart_drops_output_still_waiting(config: ArmConfig) -> None:
+    with Emulator(config, usb=UART) as emu, SSC32U(emu.port) as board:
+        for i in range(30):
+            board.move({0: 1000 + 10 * i})  # 240 bytes: 250 ms of wire at 9600
+        # The first has arrived: the link holds the rest, not yet on the wire.
+        emu.wait_for(lambda rs: any(r.raw == b"#0P1000" for r in rs))
+        board.stop([0])
+        emu.wait_for(lambda rs: any(r.raw == b"STOP0" for r in rs))
+        moves = [r.raw for r in emu.records if r.raw.startswith(b"#0P")]
+    assert 1 <= len(moves) < 30
+    assert moves == [f"#0P{1000 + 10 * i}".encode() for i in range(len(moves))]
+
+
+def test_stop_on_the_usb_link_drops_nothing_and_comes_last(
+    emulator: Emulator, board: SSC32U
+) -> None:
     for i in range(30):
-        board.move({0: 1000 + 10 * i})  # 240 bytes: 250 ms of wire at 9600
-    time.sleep(0.005)  # see Emulator._flush: the emulator must have seen the bytes before the flush
+        board.move({0: 1000 + 10 * i})
+    emulator.wait_for(lambda rs: any(r.raw == b"#0P1000" for r in rs))
     board.stop([0])
-    emulator.wait_for(lambda rs: any(r.raw == b"STOP0" for r in rs))
-    moves = [r for r in emulator.records if r.raw.startswith(b"#0P")]
-    assert len(moves) < 30
+    raws = [r.raw for r in emulator.wait_for(lambda rs: any(r.raw == b"STOP0" for r in rs))]
+    assert [r for r in raws if r.startswith(b"#0P")] == [
+        f"#0P{1000 + 10 * i}".encode() for i in range(30)
+    ]
+    assert raws[-1] == b"STOP0"
+
+
+def test_a_query_after_a_stop_on_the_usb_link_is_asked_once_and_leaves_nothing(
+    config: ArmConfig,
+) -> None:
+    """On the USB link a stop's flush drops nothing already written: its STOPs queue behind
+    the rest of a long move, and so does a query after it. Its deadline allows for that
+    (one ask, no retry), and the query after it gets its own answer."""
+    with Emulator(config, usb=Link()) as emu, SSC32U(emu.port) as board:
+        board.move(dict.fromkeys(range(6), 1500))
+        emu.wait_for(lambda rs: any(r.raw.startswith(b"#0P1500") for r in rs))
+        board.move({ch: 1200 + ch for ch in range(10)}, time_ms=3000)  # 86 bytes: 90 ms
+        board.move({ch: 1800 + ch for ch in range(10)}, time_ms=3000)
+        # The first has arrived: the link has long had the second, 90 ms of wire still to
+        # go, and the stop's ESC and STOPs go behind it.
+        emu.wait_for(lambda rs: any(r.raw.startswith(b"#0P1200") for r in rs))
+        board.stop(range(6))
+        pulses = board.read_pulses([0])
+        assert 1200 <= pulses[0] <= 1800
+        assert any(r.raw.startswith(b"#0P1800") for r in emu.records), "the move was dropped"
+        assert board.is_done() in (True, False)  # not the QP's byte: GarbageAnswer
+        assert board.read_pulses([0, 1]) == {
+            0: round(emu.pulse_us(0)) // 10 * 10,
+            1: round(emu.pulse_us(1)) // 10 * 10,
+        }
+    assert [r.raw for r in emu.records].count(b"QP0") == 1, "the first QP was asked again"
+
+
+def test_a_late_first_answer_is_never_left_for_the_next_query(config: ArmConfig) -> None:
+    """A board that answers late once: the query asks again, and the first answer, which
+    comes before the second, is not left in the buffer for the next query to read."""
+    with Emulator(config, usb=Link()) as emu, SSC32U(emu.port) as board:
+        board.move({0: 1500})
+        emu.answer_delay_s = 0.08  # beyond the margin: 50 ms, and 16 ms in the USB chip
+        t0 = time.monotonic()
+        assert board.read_pulses([0]) == {0: 1500}
+        assert time.monotonic() - t0 > 0.08
+        emu.answer_delay_s = 0.0003
+        for _ in range(3):
+            assert board.is_done()  # the '.' of Q, not the QP's 150
+            assert board.read_pulses([0]) == {0: 1500}
+    assert [r.raw for r in emu.records].count(b"QP0") == 5
 
 
 def test_stop_does_not_wait_behind_a_query(emulator: Emulator, board: SSC32U) -> None:
@@ -105,10 +165,11 @@ def test_stop_does_not_wait_behind_a_query(emulator: Emulator, board: SSC32U) ->
 class TestFaults:
     def test_no_answer(self, emulator: Emulator, board: SSC32U) -> None:
         emulator.inject(Fault.NO_ANSWER)
-        # The wire (4 bytes: 4 ms at 9600) and the margin of 50 ms, then once more.
-        with pytest.raises(NoAnswer, match=r"no answer to Q within 5\d ms"):
+        # Twice the wire (4 bytes: 4 ms at 9600, 1 back) and the margin (50 ms, and 16 ms
+        # in the USB chip), and the margin once more for the first of the two answers.
+        with pytest.raises(NoAnswer, match=r"no answer to Q, asked twice, within 1[3-6]\d ms"):
             board.is_done()
-        with pytest.raises(SerialFault, match=r"no answer to QP within 5\d ms"):
+        with pytest.raises(SerialFault, match=r"no answer to QP, asked twice, within 1[3-6]\d ms"):
             board.read_pulses([0])
 
     def test_one_late_answer_is_asked_again_not_a_fault(

@@ -15,11 +15,8 @@ from hypothesis import strategies as st
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u import facts
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.emulator import LEGACY, Emulator, Link, Transport
+from al5d.ssc32u.emulator import UART, USB, Emulator, Link, Transport
 from al5d.ssc32u.emulator.usb import FtdiChip, Packet, byte_arrivals
-
-USB = Link()
-UART = Link(Transport.UART)
 
 
 @pytest.fixture
@@ -93,10 +90,14 @@ def test_random_blanks_and_line_ends_from_raw_bytes(config: ArmConfig) -> None:
 
 
 def _flood_then_flush(emu: Emulator, port: serial.Serial) -> list[bytes]:
-    # 20 moves are 0.25 s of wire at 9600; a flush 20 ms later finds most of them unsent.
+    """20 moves (0.17 s of wire at 9600), flushed when the first has arrived: by then the
+    link has read them all from the pty, and most have not started on the wire.
+
+    A flush at once, before the link could read them, would find them in the pty, which
+    drops them itself whatever the model (the README's "What it does not model")."""
     for i in range(20):
         port.write(f"#0P{1000 + i * 10}\r".encode())
-    time.sleep(0.02)
+    emu.wait_for(lambda rs: any(r.raw == b"#0P1000" for r in rs), 2)
     port.reset_output_buffer()
     port.write(b"\x1bSTOP0\r")
     emu.wait_for(lambda rs: any(r.raw == b"STOP0" for r in rs), 5)
@@ -123,9 +124,10 @@ def test_a_flush_on_a_uart_drops_what_has_not_started(config: ArmConfig) -> None
     assert sent == [f"#0P{1000 + i * 10}".encode() for i in range(len(sent))]
 
 
-def test_the_embedded_default_is_the_legacy_uart_model(emulator: Emulator) -> None:
-    assert emulator.usb == LEGACY and LEGACY.flush_drops_unsent and LEGACY.hold_s is None
-    assert Link().transport is Transport.USB and not Link().flush_drops_unsent
+def test_the_default_is_the_boards_usb_link_and_a_uart_is_asked_for(emulator: Emulator) -> None:
+    assert emulator.usb == USB == Link() and USB.transport is Transport.USB
+    assert not USB.flush_drops_unsent and USB.hold_s == 0.016
+    assert UART.flush_drops_unsent and UART.hold_s is None
 
 
 # -- the latency timer ------------------------------------------------------------------------

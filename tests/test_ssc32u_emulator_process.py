@@ -11,8 +11,10 @@ from pathlib import Path
 
 import pytest
 import serial
+from boardproc import BoardProcess
 
 from al5d.app.cli import build_parser
+from al5d.arm.config import ArmConfig
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Record
@@ -47,6 +49,9 @@ class Standalone:
 
     def __init__(self, tmp_path: Path, *args: str) -> None:
         self.link = tmp_path / "board"
+        if "--record" not in args:
+            args = (*args, "--record", str(tmp_path / "board.jsonl"))
+        self.record = Path(args[args.index("--record") + 1])
         self.proc = subprocess.Popen(
             [str(AL5D), "emulator", "--link", str(self.link), *args],
             stdout=subprocess.PIPE,
@@ -73,10 +78,14 @@ class Standalone:
         return min(times)
 
     def flood_then_flush(self) -> int:
-        """QP0 after 20 moves of channel 0 and an output flush 20 ms into them."""
+        """QP0 after 20 moves of channel 0 and an output flush once the first has arrived
+        (the link has read them all from the pty by then: see the README's "What it does
+        not model" for a flush at once)."""
         for i in range(20):
             self.port.write(f"#0P{1000 + i * 10}\r".encode())
-        time.sleep(0.02)
+        deadline = time.monotonic() + 2
+        while b'"#0P1000"' not in self.record.read_bytes() and time.monotonic() < deadline:
+            time.sleep(0.001)
         self.port.reset_output_buffer()
         return self.ask(b"\x1bQP0\r", 1)[0]
 
@@ -153,3 +162,25 @@ def test_standalone_refuses_bad_settings_before_it_starts(flag: str, value: str)
     with pytest.raises(SystemExit) as exit_:
         build_parser().parse_args(["emulator", flag, value])
     assert exit_.value.code == 2
+
+
+def test_a_board_process_replays_its_resets(config: ArmConfig, tmp_path: Path) -> None:
+    """The servo model replayed from the record stream of `al5d emulator`: a reset (SIGUSR1)
+    turns its pulses off there too, and the move after it runs at full speed."""
+    board = BoardProcess(tmp_path / "board", config=config)
+    try:
+        with SSC32U(board.port) as client:
+            client.move({0: 1500, 1: 1200})
+            board.wait_for(lambda rs: any(r.raw == b"#0P1500#1P1200" for r in rs))
+            assert board.model().pulse_us(0) == 1500
+            board.popen.send_signal(signal.SIGUSR1)
+            board.wait_for(lambda rs: any(r.source == "reset" for r in rs))
+            model = board.model()
+            assert model.pulse_us(0) == model.pulse_us(1) == 0
+            client.move({0: 2000}, time_ms=1000)
+            rec = board.wait_for(lambda rs: rs[-1].raw == b"#0P2000T1000")[-1]
+            model = board.model()
+            assert model.pulse_us(0, rec.t_effect + 0.01) == 2000  # a first command again
+            assert model.pulse_us(1) == 0
+    finally:
+        board.close()

@@ -75,7 +75,8 @@ def arm(
 
         emulator = Emulator(config, baud=baud).start()
         port = emulator.port
-        log.info("no --port: using the embedded SSC-32U emulator on %s", port)
+        link = emulator.usb.describe()
+        log.info("no --port: using the embedded SSC-32U emulator on %s, %s", port, link)
     driver = ArmDriver(config, port, baud)
     try:
         driver.start()

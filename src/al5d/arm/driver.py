@@ -185,6 +185,7 @@ class ArmDriver:
                 if job is None or job is shared.shutdown_job:
                     return False
                 job.cancel.set()
+                shared.begin_write()
                 board = shared.board
                 motion, shared.motion = shared.motion, None
                 if shared.state is State.MOVING:
@@ -193,6 +194,7 @@ class ArmDriver:
             error = self._halt(board, motion)
             shared.announce()
             with shared.cv:
+                shared.end_write()
                 if error is None:
                     shared.readback = True
                 else:
@@ -264,6 +266,7 @@ class ArmDriver:
                 if self._idle() and len(steps) == 1:
                     board = shared.board  # the fast path: this thread writes the move
                     shared.current = job
+                    shared.begin_write()
                     shared.fire(Event.MOVE)
                 elif len(shared.queue) >= capacity:
                     reason = f"the queue is full ({capacity} moves wait)"
@@ -300,6 +303,7 @@ class ArmDriver:
             written = self.writer.write(job, job.steps[0], board)
         except SerialFault as e:
             with shared.cv:
+                shared.end_write()
                 if shared.current is job:
                     shared.current = None
                 shared.fault = shared.fault or e  # the worker enters the fault
@@ -308,6 +312,7 @@ class ArmDriver:
             finish(job, Result.CANCELLED, f"the serial link is lost: {e}")
             return
         with shared.cv:
+            shared.end_write()
             if written is None or job.epoch != shared.epoch:
                 if shared.current is job:  # a stop took it: its outcome is set
                     shared.current = None
@@ -322,6 +327,7 @@ class ArmDriver:
         with shared.lock:
             current, dropped = shared.take_pending()
             shared.locked = True
+            shared.begin_write()
             board = shared.board
             motion, shared.motion = shared.motion, None
             shared.fire(Event.STOP)
@@ -341,6 +347,7 @@ class ArmDriver:
                 target=self._cancel_all, args=(dropped, reason), name="al5d-cancel", daemon=True
             ).start()
         with shared.cv:
+            shared.end_write()
             if error is None:
                 shared.readback = True
             elif shared.fault is None and shared.state is not State.FAULT:

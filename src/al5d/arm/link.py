@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+from dataclasses import dataclass
 
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Result
@@ -21,9 +22,30 @@ from al5d.arm.translate import Translator
 from al5d.clock import now
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.errors import BoardReset, Interrupted, NotAnSSC32U, SerialFault
+from al5d.ssc32u.facts import QP_RESOLUTION_US
 
 log = logging.getLogger("al5d")
 RESET_LOCKED = "the arm is locked after the board's reset: send release to go on"
+#: How far a pulse read back may be from the one expected at rest: `QP` answers in steps
+#: of 10 us (rounded down), and a pose read back is itself one of those steps.
+REST_MARGIN_US = 2 * QP_RESOLUTION_US
+#: During a motion, how late (or early) the board may be on the driver's schedule: a
+#: step of a trajectory goes out one wire time before the one before ends, and a few
+#: bytes more or less on the wire are a few ms. The margin is this long at full speed.
+MOTION_SLACK_S = 0.02
+
+
+@dataclass(frozen=True, slots=True)
+class Probe:
+    """A link check's `QP`: the channel it reads, and the pulses (us) it expects there."""
+
+    joint: str
+    channel: int
+    low_us: float
+    high_us: float
+    #: `Shared.writes` when the check began, None if a write was under way: the answer is
+    #: judged only if no write began until it came.
+    writes: int | None
 
 
 class Link:
@@ -59,31 +81,74 @@ class Link:
                 self.watch(board)
 
     def watch(self, board: SSC32U) -> None:
-        """Check the link, and that the board has not reset: `QP` of a joint whose pulse
-        is known (4 bytes, as cheap as `Q`). A board that answers 0 there has restarted
-        (a brown-out) and lost its pulses; its next move would run at full speed."""
+        """Check the link, and that the board has not reset: `QP` of one channel (4 bytes,
+        as cheap as `Q`), the one of the joint written least recently (a move after a reset
+        restores only its own channels). A pulse other than the driver expects there is a
+        reset (the pulses of a board with none at power-up are 0, of one with power-up
+        pulses those), or something else has moved the servo: either way the board no
+        longer holds what the driver believes, and its next move would run at full speed.
+
+        A write from the caller's thread (the fast path, a stop, a cancel) that races the
+        query changes the pulse under it: such a check is a link check only."""
         shared = self.shared
-        joint = next((j for j, v in shared.pose.items() if v is not None), None)
-        if joint is None:  # nothing known to have been lost: the link alone
+        with shared.lock:
+            probe = self._probe()
+        if probe is None:  # nothing known to have been lost: the link alone
             board.is_done()
             return
-        channel = self.config.joints[joint].channel
-        if board.read_pulses([channel])[channel] == 0:
-            raise self._reset(board, joint)
+        pulse = board.read_pulses([probe.channel])[probe.channel]
+        with shared.lock:
+            judged = probe.writes is not None and shared.writes == probe.writes
+        if judged and not probe.low_us <= pulse <= probe.high_us:
+            raise self._reset(board, probe.joint, pulse, probe)
 
-    def _reset(self, board: SSC32U, joint: str) -> BoardReset:
+    def _probe(self) -> Probe | None:
+        """What the next check reads back, and the pulses the driver expects there (lock held):
+        at rest the known pose's pulse, during a motion (or just after one) anything on its
+        way, with margins."""
+        shared = self.shared
+        joint = shared.stalest()
+        if joint is None:
+            return None
+        config = self.config.joints[joint]
+        pose = shared.pose[joint]
+        assert pose is not None
+        ends = [pose]
+        margin = float(REST_MARGIN_US)
+        motion = shared.motion
+        if motion is not None and joint in motion.target:
+            ends += [motion.start.get(joint, pose), motion.target[joint]]
+        way = shared.way(joint, now())
+        if way is not None:
+            ends += way
+        if len(ends) > 1:
+            margin += MOTION_SLACK_S * config.speed_us_s
+        pulses = [config.to_us(deg) for deg in ends]
+        writes = None if shared.writing else shared.writes
+        return Probe(joint, config.channel, min(pulses) - margin, max(pulses) + margin, writes)
+
+    def _reset(
+        self, board: SSC32U, joint: str, pulse: int = 0, probe: Probe | None = None
+    ) -> BoardReset:
         channel = self.config.joints[joint].channel
+        if pulse == 0:
+            what = "has no pulse any more"
+        else:
+            assert probe is not None
+            expected = f"{probe.low_us:.0f}..{probe.high_us:.0f}"
+            what = f"puts out {pulse} us where the driver expects {expected} us"
         return BoardReset(
             board.port,
-            f"the board has reset: {joint} (channel {channel}) has no pulse any more, and "
-            f"the board has forgotten where every servo was; {BoardReset.advice}",
+            f"the board has reset: {joint} (channel {channel}) {what}, and the board has "
+            f"forgotten where every servo was; {BoardReset.advice}",
         )
 
-    def read_back(self, board: SSC32U | None = None) -> None:
-        """Learn where the servos are from the board (after a stop, at start, after a reconnect)."""
+    def read_back(self, board: SSC32U | None = None) -> bool:
+        """Learn where the servos are from the board (after a stop, at start, after a
+        reconnect); False if stops kept interrupting it (the pose is then still a guess)."""
         board = board or self.shared.board
         if board is None:
-            return
+            return False
         for _ in range(3):
             try:
                 pulses = board.read_pulses(self.channels)
@@ -91,7 +156,7 @@ class Link:
             except Interrupted:
                 continue  # another stop flushed the query: ask again
         else:
-            return
+            return False
         pose = self.translator.degrees(pulses)
         lost = [j for j, v in pose.items() if v is None and self.shared.pose.get(j) is not None]
         if lost:  # a reset between the last check and this read (during a stop, say)
@@ -102,6 +167,7 @@ class Link:
         log.debug(
             "read back: %s", {j: (None if v is None else round(v, 1)) for j, v in pose.items()}
         )
+        return True
 
     def _forget_pose(self) -> None:
         """After a reset, a safety event: nothing moves again until a person has looked at
@@ -154,7 +220,7 @@ class Link:
                 self._reconnect_failed(e)
                 continue
             try:
-                self._halt_what_was_cancelled(board)
+                self.halt_what_was_cancelled(board, "reconnect")
                 try:
                     self.read_back(board)
                 except BoardReset as e:  # it restarted while the link was down
@@ -175,13 +241,13 @@ class Link:
             log.info("reconnected to %s on %s", board.firmware, self.port)
             return
 
-    def _halt_what_was_cancelled(self, board: SSC32U) -> None:
-        """A board back from a lost link may still be running the move it had: that move was
-        cancelled (and its client told so) when the link went, so it is halted here, and the
-        pose read back is where the arm stopped, not where a cancelled move was going."""
+    def halt_what_was_cancelled(self, board: SSC32U, why: str) -> None:
+        """A board may still be running a move that was cancelled without a halt (when the
+        link went, or by a shutdown), and its client told so: it is halted here, and the pose
+        read back is where the arm stopped, not a snapshot of it on its way."""
         if now() < self.shared.q_unreliable_until or not board.is_done():
             board.stop(self.channels)
-            log.warning("reconnect: halted the move the board was still running (cancelled)")
+            log.warning("%s: halted the move the board was still running (cancelled)", why)
 
     def _reconnect_failed(self, error: SerialFault) -> None:
         """Keep trying; but a device that is not a board is said clearly, once, and becomes

@@ -9,6 +9,9 @@ meet only here. The rules:
   their log lines (INF01, INF02) and the state listeners follow outside it,
   in order (`announce`).
 - An emergency stop bumps `epoch`: a job of an older epoch is never written.
+- A write to the board from the caller's thread (the fast path, a stop, a cancel) is
+  bracketed by `begin_write` and `end_write`, so that the worker's link check can tell
+  a pulse it reads back while a write races it from a board that has reset.
 """
 
 from __future__ import annotations
@@ -30,6 +33,8 @@ from al5d.ssc32u.errors import SerialFault
 
 log = logging.getLogger("al5d")
 T = TypeVar("T")
+#: How long after a step's end (by the driver's clock) the board may still be on its way.
+SETTLE_GRACE_S = 0.25
 
 
 def tell(listeners: Iterable[Callable[[T], None]], value: T, what: str) -> None:
@@ -74,6 +79,18 @@ class Shared:
         # After a STOP inside a timed move the board answers Q with '+' until that move's
         # time is over (UG-38); until then a move's completion is judged by time alone.
         self.q_unreliable_until = 0.0
+        #: Writes from the caller's thread begun (`writes`), and those whose effect is not yet
+        #: in `pose` and `motion` (`writing`): a link check judges the pulse it reads back
+        #: only if no write began while it asked and none was under way when it began.
+        self.writes = 0
+        self.writing = 0
+        #: Per joint, when it was last written (a count of the steps written): a move after a
+        #: reset restores only its own channels, so the check reads back the stalest one.
+        self._written = dict.fromkeys(config.joints, 0)
+        self._steps_written = 0
+        #: Per joint, the degrees its recent steps went through, and until when the board may
+        #: still be on that way (see `note_written`).
+        self._ways: dict[str, tuple[float, float, float]] = {}
         self.finished = threading.Event()
         self.outcome_listeners: list[Callable[[Outcome], None]] = []
         self.state_listeners: list[Callable[[State], None]] = []
@@ -94,6 +111,47 @@ class Shared:
         self._notes.append((event, old, new))
         self.cv.notify_all()
         return new
+
+    def begin_write(self) -> None:
+        """A write to the board is about to begin in the caller's thread (lock held)."""
+        self.writes += 1
+        self.writing += 1
+
+    def end_write(self) -> None:
+        """That write is done and `pose` and `motion` say what it did (lock held)."""
+        self.writing -= 1
+
+    def note_written(self, motion: Motion, t_end: float) -> None:
+        """A step went to the board, its time over at `t_end` by the driver's clock (lock held).
+
+        Its joints are the freshest now. Their way (with the way of a step before that was
+        not over when this one began) is kept until `SETTLE_GRACE_S` after `t_end`: the
+        board's own timing lags the driver's estimate by its link and its host, and a move
+        whose end is judged by the clock alone (a step of a trajectory, or any move while
+        `Q` still counts a stopped one down) may be still on its way when the pose says it
+        is there."""
+        self._steps_written += 1
+        until = t_end + SETTLE_GRACE_S
+        for joint, target in motion.target.items():
+            self._written[joint] = self._steps_written
+            start = motion.start.get(joint, target)
+            low, high = min(start, target), max(start, target)
+            way = self._ways.get(joint)
+            if way is not None and way[2] - SETTLE_GRACE_S > motion.t0:
+                low, high = min(low, way[0]), max(high, way[1])
+            self._ways[joint] = (low, high, until)
+
+    def way(self, joint: str, t: float) -> tuple[float, float] | None:
+        """The degrees `joint` may still be passing through at `t` on its recent steps, if any
+        (lock held)."""
+        way = self._ways.get(joint)
+        return (way[0], way[1]) if way is not None and t < way[2] else None
+
+    def stalest(self) -> str | None:
+        """The joint of known pose written least recently (the first in the configuration
+        among equals), or None when no pose is known (lock held)."""
+        known = [j for j, v in self.pose.items() if v is not None]
+        return min(known, key=self._written.__getitem__, default=None)
 
     def take_pending(self) -> tuple[Job | None, list[Job]]:
         """End the epoch: the running job and the queued ones, which are never to be sent."""

@@ -26,7 +26,7 @@ from al5d.arm.validate import Limits, Step, planned
 from al5d.arm.writer import StepWriter
 from al5d.clock import Deadline, now
 from al5d.ssc32u.driver import SSC32U
-from al5d.ssc32u.errors import Interrupted, SerialFault
+from al5d.ssc32u.errors import BoardReset, Interrupted, SerialFault
 
 log = logging.getLogger("al5d")
 
@@ -72,12 +72,7 @@ class Worker:
                 elif task is Task.STARTUP:
                     self._startup_park()
                 elif task is Task.READBACK:
-                    try:
-                        self._guarded(self.link.read_back)
-                    finally:
-                        with shared.cv:
-                            shared.readback = False
-                            shared.cv.notify_all()
+                    self._read_back()
                 elif task is Task.WATCH:
                     self._guarded(self.link.check)
                 elif job is not None:
@@ -96,6 +91,22 @@ class Worker:
             work()
         except SerialFault as e:
             self.link.enter_fault(e)
+
+    def _read_back(self) -> None:
+        """The pose after a stop or a cancel, from the board. Until it is read, it is a guess
+        from the halted motion, which a link check would take for a reset: so a read that
+        stops kept interrupting is tried again (a fault reads it back on reconnecting)."""
+        shared = self.shared
+        done = False
+        try:
+            done = self.link.read_back()
+        except SerialFault as e:
+            done = True
+            self.link.enter_fault(e)
+        finally:
+            with shared.cv:
+                shared.readback = not done and shared.board is not None
+                shared.cv.notify_all()
 
     def _startup_park(self) -> None:
         """D1, VE03: park once, at half speed where the board allows it, before `ready`."""
@@ -136,7 +147,8 @@ class Worker:
         except SerialFault as e:
             job.cancel.set()
             if mode is not Mode.SHUTDOWN:  # the shutdown reports its own outcome
-                finish(job, Result.CANCELLED, f"the serial link is lost: {e}")
+                reason = str(e) if isinstance(e, BoardReset) else f"the serial link is lost: {e}"
+                finish(job, Result.CANCELLED, reason)
             raise
         finally:
             with shared.lock:
@@ -170,6 +182,8 @@ class Worker:
             written = first if k == 0 and first is not None else self.writer.write(job, step, board)
             if written is None:
                 return False  # a stop came between our check and our write: its STOP stands
+            with shared.lock:
+                shared.note_written(written.motion, written.t_end)
             # The next step goes out one wire time early, so that it takes effect as this one
             # ends (its bytes are about as many as this one's).
             until = written.t_end if k == last else written.t_end - written.wire_s
@@ -220,11 +234,17 @@ class Worker:
                     self.port, f"Q still says moving {COMPLETION_GRACE_S} s after the move's time"
                 )
 
+    def _halt_and_read_back(self) -> None:
+        board = self.shared.board
+        if board is not None:
+            self.link.halt_what_was_cancelled(board, "shutdown")
+            self.link.read_back(board)
+
     def _park_and_end(self, job: Job) -> None:
         """D2: park, wait until parked, then end (the worker returns after this)."""
         shared = self.shared
         if shared.board is not None:
-            self._guarded(self.link.read_back)  # the arm may have stopped anywhere
+            self._guarded(self._halt_and_read_back)  # the arm may be anywhere
         done = False
         if shared.board is not None:
             try:

@@ -32,7 +32,13 @@ from al5d.ssc32u.errors import (
     PortUnavailable,
     SerialFault,
 )
-from al5d.ssc32u.facts import ANSWER_DELAY_MAX_S, FACTORY_BAUD, FIRMWARE_PREFIX
+from al5d.ssc32u.facts import (
+    ANSWER_DELAY_MAX_S,
+    FACTORY_BAUD,
+    FIRMWARE_PREFIX,
+    LATENCY_TIMER_MS,
+    LOW_LATENCY_TIMER_MS,
+)
 
 log = logging.getLogger("al5d")
 
@@ -48,10 +54,6 @@ VERSION_ANSWER_BYTES = 16
 #: What a dead port raises, depending on the call: pyserial's own, the OS's, and termios's
 #: (tcflush on a pty whose master is gone raises termios.error, which is not an OSError).
 IO_ERRORS = (serial.SerialException, OSError, termios.error)
-
-
-class _Late(Exception):
-    """A query's answer did not come by its deadline (the first time)."""
 
 
 Targets = Mapping[int, int] | Sequence[p.ChannelTarget]
@@ -75,7 +77,6 @@ class SSC32U:
     ) -> None:
         self.port = port
         self.baud = baud
-        self._read_timeout_s = read_timeout_s
         self._write_lock = threading.Lock()
         self._query_lock = threading.Lock()
         self._stops = 0  # counts emergency stops, to tell a flushed query from a dead board
@@ -93,6 +94,10 @@ class SSC32U:
         except (*IO_ERRORS, ValueError) as e:
             raise PortUnavailable(port, f"cannot open: {e}; {PortUnavailable.advice}") from e
         self.low_latency = self._ask_low_latency()
+        # How long an answer may take beyond its wire time: the read timeout, and the time
+        # a short answer waits in the board's USB chip.
+        timer_ms = LOW_LATENCY_TIMER_MS if self.low_latency else LATENCY_TIMER_MS
+        self._margin_s = read_timeout_s + timer_ms / 1000.0
         self.firmware = ""
         if check:
             try:
@@ -168,9 +173,13 @@ class SSC32U:
         return self._write(data)
 
     def stop(self, channels: Iterable[int]) -> bytes:
-        """Emergency stop: drop unsent output, cancel its partial line, STOP every channel.
+        """Emergency stop: ESC, which cancels any partial line on the board, then STOP every
+        channel, in one write, without waiting for any query in progress.
 
-        One write, without waiting for any query in progress. Returns the bytes written.
+        The output is flushed first: on a plain UART that drops what has not gone yet, but
+        on the board's USB link it drops nothing already written (Linux's USB serial drivers
+        keep it), so the STOPs may queue behind the rest of a move; the ESC is what makes a
+        half-sent move harmless either way. Returns the bytes written.
         """
         data = p.CANCEL + p.encode_stop(channels)
         self._stops += 1
@@ -180,8 +189,9 @@ class SSC32U:
                 self._ser.write(data)
             except IO_ERRORS as e:
                 raise LinkLost(self.port, f"stop could not be written: {e}") from e
-            # The flush left at most the byte being sent ahead of ours.
-            self._wire_free_at = now() + self.wire_time_s(len(data) + 1)
+            # As if the flush dropped nothing (the USB link): later than the truth on a UART,
+            # which only makes a query's deadline later, never too early.
+            self._wire_free_at = max(now(), self._wire_free_at) + self.wire_time_s(data)
         return data
 
     def cancel(self) -> None:
@@ -262,47 +272,65 @@ class SSC32U:
             return self._wire_free_at
 
     def _query(self, data: bytes, n_answer: int | None, name: str) -> bytes:
-        """Write a query and read its answer; one retry before a missing answer is a fault.
+        """Write a query and read its answer; asked once more before a missing answer is a fault.
 
-        The retry covers a board (or an emulator in a busy process) that was late once;
-        a dead link fails twice.
+        The second ask covers a board (or an emulator in a busy process) that was late once,
+        or a query a stop's flush dropped on a UART. The board answers in order, so a late
+        first answer comes before the second: both are read, and the last is returned. A
+        late first answer is never left for the next query to take as its own.
         """
-        try:
-            return self._query_once(data, n_answer, name)
-        except _Late:
-            return self._query_once(data, n_answer, name, last_try=True)
-
-    def _query_once(
-        self, data: bytes, n_answer: int | None, name: str, last_try: bool = False
-    ) -> bytes:
         with self._query_lock:
             stops = self._stops
             try:
                 self._ser.reset_input_buffer()
                 t_sent = now()
-                self._write(data)
-                # The answer's deadline: our bytes on the wire (behind any before them),
-                # the answer's own bytes back, then the margin.
-                back = self.wire_time_s(n_answer if n_answer is not None else VERSION_ANSWER_BYTES)
-                deadline = Deadline(back + self._read_timeout_s, start=self._wire_free_at)
-                answer = b""
-                while True:
-                    if n_answer is None:
-                        answer += self._ser.read_until(p.CR)
-                        complete = answer.endswith(p.CR)
-                    else:
-                        answer += self._ser.read(n_answer - len(answer))
-                        complete = len(answer) == n_answer
-                    if complete or deadline.expired:
-                        break
+                deadline = self._ask(data, n_answer)
+                answer = self._read(b"", n_answer, 1, deadline)
+                if _answers(answer, n_answer) == 0:
+                    deadline = self._ask(data, n_answer)
+                    answer = self._read(answer, n_answer, 2, deadline)
+                    if _answers(answer, n_answer) == 1:
+                        # The first was lost, or the second is late: a margin more for it.
+                        answer = self._read(answer, n_answer, 2, Deadline(self._margin_s))
             except IO_ERRORS as e:
                 raise LinkLost(self.port, f"{name} failed: {e}") from e
-        if not complete:
+        if _answers(answer, n_answer) == 0:
             if self._stops != stops:
                 raise Interrupted(f"{name} was flushed by an emergency stop")
-            if not last_try:
-                raise _Late(name)
             got = f", got {answer!r}" if answer else ""
             waited = (deadline.at - t_sent) * 1000
-            raise NoAnswer(self.port, f"no answer to {name} within {waited:.0f} ms{got}", answer)
-        return answer
+            raise NoAnswer(
+                self.port, f"no answer to {name}, asked twice, within {waited:.0f} ms{got}", answer
+            )
+        return _last(answer, n_answer)
+
+    def _ask(self, data: bytes, n_answer: int | None) -> Deadline:
+        """Write the query; its answer's deadline: our bytes on the wire (behind any before
+        them), the answer's own bytes back, then the margin."""
+        self._write(data)
+        back = self.wire_time_s(n_answer if n_answer is not None else VERSION_ANSWER_BYTES)
+        return Deadline(back + self._margin_s, start=self._wire_free_at)
+
+    def _read(self, answer: bytes, n_answer: int | None, count: int, deadline: Deadline) -> bytes:
+        """Read on from `answer` until it holds `count` answers or the deadline has passed."""
+        while True:
+            if n_answer is None:
+                answer += self._ser.read_until(p.CR)
+            else:
+                answer += self._ser.read(count * n_answer - len(answer))
+            if _answers(answer, n_answer) >= count or deadline.expired:
+                return answer
+
+
+def _answers(data: bytes, n_answer: int | None) -> int:
+    """How many whole answers `data` holds: of `n_answer` bytes each, or ended by CR."""
+    return data.count(p.CR) if n_answer is None else len(data) // n_answer
+
+
+def _last(data: bytes, n_answer: int | None) -> bytes:
+    """The last whole answer in `data` (which holds one at least)."""
+    if n_answer is None:
+        end = data.rindex(p.CR) + 1
+        return data[data.rfind(p.CR, 0, end - 1) + 1 : end]
+    end = len(data) // n_answer * n_answer
+    return data[end - n_answer : end]

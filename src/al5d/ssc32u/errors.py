@@ -8,6 +8,8 @@
     |                           cable; the arm driver reconnects by itself
     +-- NoAnswer                a query got no answer in time: check the board's power
     +-- GarbageAnswer           an answer that is not the board's: check the baud rate
+    +-- BoardReset              the board restarted (a brown-out): check the servos'
+                                power supply; the arm driver locks the arm
 
 `Interrupted` is not a fault: an emergency stop flushed a query's answer.
 """

@@ -36,10 +36,11 @@ from al5d.ssc32u.emulator.board import (
     ServoJoint,
 )
 from al5d.ssc32u.emulator.pty import PtyLink
-from al5d.ssc32u.emulator.usb import LEGACY, Link, Transport
+from al5d.ssc32u.emulator.usb import UART, USB, Link, Transport
 
 __all__ = [
-    "LEGACY",
+    "UART",
+    "USB",
     "ArmDescription",
     "Emulator",
     "Fault",
@@ -58,9 +59,9 @@ class Emulator(Board):
     `port` is the path a client opens (the `link` symlink when one is given,
     so that it survives a reconnect). `baud` is the board's own setting: a
     client at another baud is heard as noise, as with the real board.
-    `usb` is the link's model: `Link()` for the board's USB port as it is
-    (an output flush drops nothing, a 16 ms latency timer), `LEGACY` (the
-    default here) for the timing our own driver and tests were written against.
+    `usb` is the link's model: the board's USB port as it is by default
+    (`USB`: an output flush drops nothing, a 16 ms latency timer), or `UART`
+    for a plain serial line to the board's TTL header.
     The other settings are the board's (see `board.Board`).
     """
 
@@ -70,7 +71,7 @@ class Emulator(Board):
         *,
         baud: int = facts.FACTORY_BAUD,
         link: str | os.PathLike[str] | None = None,
-        usb: Link = LEGACY,
+        usb: Link = USB,
         version: str = facts.FIRMWARE,
         answer_delay_s: float = DEFAULT_ANSWER_DELAY_S,
         initial_pose: Mapping[str, float] | None = None,

@@ -11,6 +11,12 @@ timer, on a plain UART they come as the board sends them.
 A client's output flush (TCOFLUSH) reaches the link through the pty's packet
 mode. On the USB link it drops nothing: Linux's USB serial drivers keep bytes
 already written. On a UART it drops the bytes whose slot has not begun.
+
+What a pty cannot do: a flush on the slave discards the bytes the link has not
+yet read from the master, before the link hears of the flush. Bytes written
+and flushed at once (within a few tens of microseconds) are lost on either
+model; the link reads as soon as it can, but no reader wins that race every
+time (see the README's "What it does not model").
 """
 
 from __future__ import annotations
@@ -234,9 +240,9 @@ class PtyLink:
     def _flush(wire: deque[_Slot], ends: deque[float], t_flush: float, line_free: float) -> float:
         """Drop the bytes whose slot had not begun at `t_flush`; return when the wire is free.
 
-        Limit: the kernel reports a flush before any data still unread in the
-        master; bytes written a few microseconds before a flush, before this
-        thread could read them, are taken as written after it and escape it.
+        Only bytes this thread has read can be kept or dropped here: those still unread
+        in the master when the client flushed never reach it, since the pty's own flush
+        discards them (on the USB model too, where the real link would keep them).
         """
         while wire and wire[-1].start > t_flush:
             if wire.pop().byte in (0x0D, 0x1B):

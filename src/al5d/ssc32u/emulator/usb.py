@@ -75,10 +75,11 @@ class Link:
         return f"usb link (an output flush drops nothing written; {timer})"
 
 
-#: The settings of the emulators our own tests and demo embed: the link as it was before
-#: the USB model (an output flush drops unsent bytes, answers at once), which our driver's
-#: timeouts were written against. `al5d emulator` defaults to `Link()`, the real board's.
-LEGACY = Link(Transport.UART)
+#: The board's USB port as it is (the default everywhere): an output flush drops nothing
+#: written, a short answer waits 16 ms in the chip.
+USB = Link()
+#: A plain serial line to the board's TTL header: a flush drops unsent bytes, no chip.
+UART = Link(Transport.UART)
 
 
 @dataclass(frozen=True, slots=True)
