@@ -1,8 +1,9 @@
 """Figures of the robot model: IK time, FK/IK round-trip error, straight-line plans.
 
-Run: .venv/bin/python bench/model_bench.py [--config FILE]. It reads only the
-joint ranges and presets from the arm's YAML (the shipped one by default) and
-uses al5d.model alone.
+Run: .venv/bin/python bench/model_bench.py [--config FILE]. It reads the joint
+ranges, presets and calibrations from the arm's YAML (the shipped one by
+default) and uses al5d.model (and the driver's pulse scale, for the lines as the
+server plans them: judged on whole microseconds).
 """
 
 from __future__ import annotations
@@ -19,12 +20,16 @@ from typing import Any
 
 import numpy as np
 
+from al5d.arm.cartesian import LINE_TOLERANCE_M, pulse_scale
 from al5d.arm.config import DEFAULT_CONFIG as SHIPPED
 from al5d.arm.config import load_config
+from al5d.arm.translate import Translator
 from al5d.model import (
     ARM_JOINTS,
     ArmModel,
+    PulseScale,
     Unreachable,
+    as_sent,
     forward,
     plan_line,
     segment_deviation,
@@ -119,7 +124,11 @@ def uniform_hops(model: ArmModel, start: Mapping[str, float], plan: Any) -> int:
     return -1
 
 
-def line_moves(model: ArmModel, presets: Mapping[str, Mapping[str, float]]) -> list[str]:
+def line_moves(
+    model: ArmModel, presets: Mapping[str, Mapping[str, float]], pulses: PulseScale
+) -> list[str]:
+    """Plans from ready at 1 mm on exact angles (against the best uniform split and a fixed
+    step), and as the server plans them (LINE_TOLERANCE_M, judged on whole microseconds)."""
     ready = {j: float(presets["ready"][j]) for j in ARM_JOINTS}
     moves: list[tuple[str, Vec3, float | None]] = [
         ("ready -> left, low", (0.20, 0.15, 0.05), -30.0),
@@ -127,10 +136,11 @@ def line_moves(model: ArmModel, presets: Mapping[str, Mapping[str, float]]) -> l
         ("ready -> up and level", (0.30, 0.00, 0.20), 0.0),
         ("ready -> down onto the table", (0.15, 0.00, 0.02), -90.0),
         ("ready -> far left, near the base", (0.05, 0.30, 0.10), -30.0),
+        ("ready -> left, far and low", (0.10, 0.25, 0.05), -30.0),
     ]
     lines = [
         f"{'move':34} {'length':>8} {'hops':>5} {'best uniform':>12} {'5 mm steps':>10} "
-        f"{'max dev':>9} {'plan time':>9}"
+        f"{'max dev':>9} {'plan time':>9} | {'server hops':>11} {'on the wire':>11}"
     ]
     for name, target, pitch in moves:
         roll = 45.0 if "roll" in name else None
@@ -142,11 +152,20 @@ def line_moves(model: ArmModel, presets: Mapping[str, Mapping[str, float]]) -> l
             segment_deviation(model.geometry, a, b, plan.start, plan.end, 2000)
             for a, b in itertools.pairwise(stops)
         )
+        served = plan_line(
+            model, ready, target, pitch, roll, tolerance_m=LINE_TOLERANCE_M, pulses=pulses
+        )
+        sent = [as_sent(q, pulses) for q in (ready, *served.waypoints)]
+        wire = max(
+            segment_deviation(model.geometry, a, b, served.start, served.end, 2000)
+            for a, b in itertools.pairwise(sent)
+        )
         length = math.dist(plan.start, plan.end) * 1000
         lines.append(
             f"{name:34} {length:6.0f}mm {len(plan.waypoints):5d} "
             f"{uniform_hops(model, ready, plan):12d} {math.ceil(length / 5):10d} "
-            f"{dev * 1000:7.4f}mm {elapsed:7.1f}ms"
+            f"{dev * 1000:7.4f}mm {elapsed:7.1f}ms | {len(served.waypoints):11d} "
+            f"{wire * 1000:9.4f}mm"
         )
     return lines
 
@@ -156,6 +175,7 @@ def main() -> None:
     parser.add_argument("--config", type=Path, default=SHIPPED)
     args = parser.parse_args()
     model, presets = load_model(args.config)
+    pulses = pulse_scale(Translator(load_config(args.config)))
 
     p50, p99 = ik_timing(model)
     print(f"IK solve, {SOLVES} random reachable targets: p50 {p50:.4f} ms, p99 {p99:.4f} ms")
@@ -166,8 +186,11 @@ def main() -> None:
         f"IK -> FK, 10 mm x 15 deg Cartesian grid: {solved} of {points} targets reachable, "
         f"max error {err:.2e} mm"
     )
-    print(f"Straight lines from ready, tolerance {TOL_M * 1000:g} mm (max dev: 2000 samples/hop):")
-    for line in line_moves(model, presets):
+    print(
+        f"Straight lines from ready, tolerance {TOL_M * 1000:g} mm (max dev: 2000 samples/hop); "
+        f"as the server plans them, {LINE_TOLERANCE_M * 1000:g} mm on whole microseconds:"
+    )
+    for line in line_moves(model, presets, pulses):
         print("  " + line)
     print(f"(CPython {platform.python_version()}, {platform.machine()})")
 

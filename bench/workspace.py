@@ -3,6 +3,8 @@
 Run: .venv/bin/python bench/workspace.py OUT.png [--config FILE] [--step-mm 4]
 One panel per gripper pitch, and one for the union over all pitches (a point is
 in it when some pitch, in 5 deg steps, reaches it), each with the ready pose drawn.
+The table (`geometry.table_height_mm`) is drawn too: what IK reaches under it,
+or with the wrist or the elbow under it, is shaded apart, as move_to refuses it.
 """
 
 from __future__ import annotations
@@ -15,22 +17,31 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.colors import ListedColormap
 from model_bench import SHIPPED, load_model
 
-from al5d.model import ARM_JOINTS, ArmModel, Unreachable, joint_positions, solve
+from al5d.model import ARM_JOINTS, ArmModel, Unreachable, below_table, joint_positions, solve
 
 PITCHES = (-90.0, -45.0, 0.0, 45.0, 90.0)
+#: What a point of the plane is: out of reach, reached only under the table, taken.
+OUT, UNDER, TAKEN = 0, 1, 2
+COLOURS = ListedColormap(["white", "#f2c6b6", "#74c476"])
 
 
-def reachable(model: ArmModel, r: float, z: float, pitches: tuple[float, ...]) -> bool:
-    """Can the tip reach (r, z) in the plane straight ahead (base 0) with any of the pitches?"""
+def reachable(model: ArmModel, r: float, z: float, pitches: tuple[float, ...]) -> int:
+    """Whether the tip reaches (r, z) in the plane straight ahead (base 0) with one of the
+    pitches: TAKEN when move_to would take it (the arm above the table), UNDER when IK
+    reaches it only with the tip, the wrist or the elbow under the table, else OUT."""
+    found = OUT
     for pitch in pitches:
         try:
-            solve(model, r, 0.0, z, pitch)
+            sol = solve(model, r, 0.0, z, pitch)
         except Unreachable:
             continue
-        return True
-    return False
+        if below_table(model, sol) is None:
+            return TAKEN
+        found = UNDER
+    return found
 
 
 def main() -> None:
@@ -56,25 +67,29 @@ def main() -> None:
             mask,
             origin="lower",
             extent=(rs[0] * 1000, rs[-1] * 1000, zs[0] * 1000, zs[-1] * 1000),
-            cmap="Greens",
-            vmin=0,
-            vmax=1.6,
+            cmap=COLOURS,
+            vmin=OUT,
+            vmax=TAKEN,
             interpolation="nearest",
         )
-        ax.axhline(0.0, color="saddlebrown", lw=1.5, label="table")
+        table_mm = g.table_height * 1000
+        ax.axhspan(zs[0] * 1000, table_mm, facecolor="none", hatch="//", edgecolor="tan", lw=0)
+        ax.axhline(table_mm, color="saddlebrown", lw=1.5)
         ax.axvline(0.0, color="grey", lw=0.5, ls=":")
         if ready is not None:
             pts = joint_positions(g, ready)
             chain = [pts[k] for k in ("base", "shoulder", "elbow", "wrist", "tool0")]
             ax.plot([p[0] * 1000 for p in chain], [p[2] * 1000 for p in chain], "o-", color="k")
-        area = mask.sum() * args.step_mm**2 / 100
+        area = (mask == TAKEN).sum() * args.step_mm**2 / 100
         ax.set_title(f"{title}: {area:.0f} cm² reachable")
         ax.set_xlabel("forward of the base axis, mm (base 0)")
-        ax.set_ylabel("height above the table, mm")
+        ax.set_ylabel("z in base_link, mm")
         ax.set_aspect("equal")
     fig.suptitle(
-        "AL5D reachable tool-tip positions in the arm's plane (from al5d.model IK, ranges "
-        "enforced); the ready pose in black"
+        "AL5D reachable tool-tip positions in the arm's plane (green; from al5d.model IK, "
+        "ranges enforced); the ready pose in black.\nThe table hatched brown, at "
+        f"z = {g.table_height * 1000:g} mm: pink is reached only with the tip, the wrist or "
+        "the elbow under it (move_to refuses it)"
     )
     fig.savefig(args.out, dpi=80)
     print(f"wrote {args.out}")

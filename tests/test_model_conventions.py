@@ -172,6 +172,8 @@ def test_a_whole_pose_round_trips_and_the_finger_mimics_are_ignored() -> None:
         ("base_height", math.inf, "geometry.base_height must be finite"),
         ("shoulder_offset", -0.001, "geometry.shoulder_offset must be >= 0"),
         ("gripper_open", "wide", "geometry.gripper_open must be a number"),
+        ("table_height", 0.07, "geometry.table_height must be below the shoulder axis"),
+        ("table_height", math.nan, "geometry.table_height must be finite"),
     ],
 )
 def test_bad_geometry_is_refused_naming_the_field(field: str, value: object, message: str) -> None:
@@ -181,6 +183,8 @@ def test_bad_geometry_is_refused_naming_the_field(field: str, value: object, mes
 
 def test_geometry_overrides_and_unknown_fields() -> None:
     assert ArmModel.from_config(RANGES, {"ulna": 0.183}).geometry.ulna == 0.183
+    assert ArmModel.from_config(RANGES, {"table_height": -0.02}).geometry.table_height == -0.02
+    assert Geometry().table_height == 0.0
     with pytest.raises(InvalidInput, match=r"unknown field.*ulnar"):
         ArmModel.from_config(RANGES, {"ulnar": 0.183})
 

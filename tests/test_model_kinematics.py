@@ -15,10 +15,13 @@ from test_model_support import GEOMETRY, MODEL, PRESETS, mid_pose
 from al5d.model import (
     ARM_JOINTS,
     ArmModel,
+    BelowTable,
+    Geometry,
     InvalidInput,
     JointOutOfRange,
     OutOfReach,
     Unreachable,
+    below_table,
     forward,
     joint_positions,
     solve,
@@ -266,3 +269,18 @@ def test_messages_use_the_documented_forms() -> None:
     with pytest.raises(OutOfReach) as info:
         solve(MODEL, 0.0, -0.45, 0.3, 0.0)
     assert pattern.match(str(info.value))
+
+
+def test_the_table_is_judged_at_the_tip_and_at_the_wrist() -> None:
+    # IK knows no table: a target under it is solved, and below_table names the point.
+    assert below_table(MODEL, solve(MODEL, 0.2, 0.0, 0.0, -90.0)) is None  # on the table
+    tip = below_table(MODEL, solve(MODEL, 0.2, 0.0, -0.1, -90.0))
+    assert isinstance(tip, BelowTable) and tip.point == "tool tip"
+    assert str(tip) == "below the table: the tool tip would be at z=-100 mm, the table is at z=0 mm"
+    # Pointing 30 deg up with the tip 30 mm over the table, the wrist is 20 mm under it.
+    wrist = below_table(MODEL, solve(MODEL, 0.32, 0.0, 0.03, 30.0))
+    assert isinstance(wrist, BelowTable) and wrist.point == "wrist"
+    assert wrist.z_m == pytest.approx(-0.02)
+    raised = ArmModel(MODEL.ranges, Geometry(table_height=0.05))
+    assert below_table(raised, solve(raised, 0.2, 0.0, 0.04, -90.0)) is not None
+    assert below_table(raised, solve(raised, 0.2, 0.0, 0.06, -90.0)) is None

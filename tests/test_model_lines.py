@@ -10,11 +10,19 @@ from collections.abc import Mapping
 import pytest
 from test_model_support import GEOMETRY, MODEL, PRESETS, mid_pose
 
+from al5d.arm.cartesian import pulse_scale
+from al5d.arm.config import load_config
+from al5d.arm.translate import Translator
 from al5d.model import (
     ARM_JOINTS,
+    ArmModel,
+    BelowTable,
+    Geometry,
     InvalidInput,
+    JointOutOfRange,
     PathUnreachable,
     Unreachable,
+    as_sent,
     forward,
     plan_line,
     segment_deviation,
@@ -26,6 +34,8 @@ from al5d.model.transforms import Vec3
 READY = {j: float(PRESETS["ready"][j]) for j in ARM_JOINTS}
 TOL = 0.001
 DENSE = 2000
+#: How the shipped arm's driver encodes degrees as pulses.
+PULSES = pulse_scale(Translator(load_config()))
 
 MOVES: list[tuple[dict[str, float], Vec3, float | None, float | None]] = [
     (READY, (0.20, 0.15, 0.05), -30.0, None),
@@ -152,14 +162,53 @@ def test_without_a_pitch_the_start_pitch_is_kept_when_reachable() -> None:
     assert plan.roll_deg == (0.0, 0.0)
 
 
-def test_a_line_through_the_unreachable_is_refused_whole_naming_where() -> None:
+@pytest.mark.parametrize(("start", "target", "pitch", "roll"), MOVES)
+def test_with_the_pulse_scale_every_hop_holds_as_the_board_runs_it(
+    start: dict[str, float], target: Vec3, pitch: float | None, roll: float | None
+) -> None:
+    # The board runs whole microseconds and interpolates them linearly: judged on the
+    # exact angles, a plan loses up to about 0.25 mm to the rounding.
+    plan = plan_line(MODEL, start, target, pitch, roll, tolerance_m=0.0009, pulses=PULSES)
+    sent = [as_sent(q, PULSES) for q in (start, *plan.waypoints)]
+    assert plan.start == pytest.approx(forward(GEOMETRY, sent[0]).position, abs=1e-12)
+    devs = [
+        segment_deviation(GEOMETRY, a, b, plan.start, target, DENSE)
+        for a, b in itertools.pairwise(sent)
+    ]
+    assert max(devs) <= 0.0009 * (1 + 1e-6)
+    assert plan.max_deviation_m == pytest.approx(max(devs), abs=1e-7)
+    # The waypoints stay exact (the driver rounds them, and keeps them in range).
+    assert forward(GEOMETRY, plan.waypoints[-1]).position == pytest.approx(target, abs=1e-8)
+
+
+def test_as_sent_rounds_each_pulse_as_the_driver_encodes_it() -> None:
+    config = load_config()
+    translator = Translator(config)
+    degrees = {"base": 10.04, "shoulder": 33.3333, "elbow": 91.87, "wrist": -7.77}
+    sent = as_sent(degrees, PULSES)
+    for joint, deg in sent.items():
+        us = config.joints[joint].to_us(deg)
+        assert us == pytest.approx(round(us), abs=1e-9)  # a whole microsecond
+        assert abs(deg - degrees[joint]) <= 0.5 / abs(config.joints[joint].us_per_deg) + 1e-12
+        assert translator.encode({joint: deg}, 10) == translator.encode({joint: degrees[joint]}, 10)
+    assert as_sent({"gripper": 1.234}, PULSES) == {"gripper": 1.234}  # no scale: as given
+    with pytest.raises(InvalidInput, match="pulses needs"):
+        plan_line(MODEL, READY, (0.2, 0.0, 0.1), 0.0, pulses={"base": (1500.0, 10.0)})
+
+
+def test_a_line_through_the_unreachable_is_refused_whole_naming_the_stretch() -> None:
     # From the ready pose out to 420 mm ahead: reach ends part of the way along.
     target = (0.42, 0.0, 0.10)
     with pytest.raises(PathUnreachable) as info:
         plan_line(MODEL, READY, target, -30.0)
     err = info.value
-    assert 0.0 < err.fraction < 1.0
-    assert re.fullmatch(r"the line fails at \d+% of the path: out of reach: .*", str(err))
+    assert 0.0 < err.fraction < 1.0 and err.until == 1.0
+    # The worst point is the target, 10 mm further than the edge of the reach.
+    assert re.fullmatch(
+        r"the line leaves the arm's reach between \d+ % and 100 % of the path: "
+        r"up to 343 mm from the shoulder, the arm reaches 333 mm",
+        str(err),
+    ), str(err)
     p0 = forward(GEOMETRY, READY).position
 
     def ok(t: float) -> bool:
@@ -173,15 +222,48 @@ def test_a_line_through_the_unreachable_is_refused_whole_naming_where() -> None:
     assert ok(err.fraction - 0.002) and not ok(err.fraction + 0.0005)
 
 
-def test_a_line_that_dips_out_of_range_midway_is_refused_even_if_both_ends_work() -> None:
+def test_a_line_that_dips_out_of_range_midway_reports_its_worst_point() -> None:
     # Across the front of the base at low height: both ends reachable, the middle
-    # passes too close to the base for the elbow's range.
+    # passes too close to the base for the elbow's range. At the edge of the stretch
+    # the elbow is a hair out of range; at its worst, 18 deg.
     start = solve(MODEL, 0.06, 0.20, 0.03, -90.0)
     target = (0.06, -0.20, 0.03)
     solve(MODEL, *target, -90.0)
     with pytest.raises(PathUnreachable) as info:
         plan_line(MODEL, start, target, -90.0)
-    assert 0.0 < info.value.fraction < 1.0
+    err = info.value
+    assert str(err) == (
+        "the line leaves the elbow's range between 25 % and 75 % of the path: "
+        "it would need up to 153 deg, its range is 0..135"
+    )
+    assert isinstance(err.cause, JointOutOfRange) and err.cause.needed_deg < 135.01
+    # Against a dense scan of the stretch.
+    p0 = forward(GEOMETRY, start).position
+    needed = []
+    for i in range(2001):
+        t = err.fraction + (err.until - err.fraction) * i / 2000
+        p = [a + t * (b - a) for a, b in zip(p0, target, strict=True)]
+        try:
+            solve(MODEL, p[0], p[1], p[2], -90.0, base_hint_deg=start["base"])
+        except JointOutOfRange as e:
+            needed += [v[1] for v in e.violations if v[0] == "elbow"]
+    assert isinstance(err.worst, JointOutOfRange)
+    worst = next(v[1] for v in err.worst.violations if v[0] == "elbow")
+    assert worst == pytest.approx(max(needed), abs=0.01)
+
+
+def test_a_line_below_the_table_is_refused_naming_how_deep() -> None:
+    with pytest.raises(PathUnreachable) as info:
+        plan_line(MODEL, READY, (0.2, 0.0, -0.05), -90.0)
+    assert re.fullmatch(
+        r"the line takes the tool tip below the table between \d+ % and 100 % of the path: "
+        r"down to z=-50 mm, the table is at z=0 mm",
+        str(info.value),
+    ), str(info.value)
+    assert isinstance(info.value.cause, BelowTable)
+    # A table of another height (the config's geometry.table_height) moves the limit.
+    low = ArmModel(MODEL.ranges, Geometry(table_height=-0.06))
+    assert plan_line(low, READY, (0.2, 0.0, -0.05), -90.0).fractions[-1] == 1.0
 
 
 def test_a_line_over_the_base_axis_keeps_the_base_where_it_is() -> None:

@@ -190,6 +190,18 @@ class Geometry(_Frozen):
     gripper_mm: FiniteFloat = Field(default=100.0, gt=0, le=1000)
     #: The gap between the fingers fully open (the gripper's range's first end).
     gripper_open_mm: FiniteFloat = Field(default=32.0, gt=0, le=500)
+    #: The table's top above base_link (0: the base stands on it; < 0 on a plate).
+    #: Cartesian moves that would take the arm below it are refused.
+    table_height_mm: FiniteFloat = Field(default=0.0, ge=-1000, le=1000)
+
+    @model_validator(mode="after")
+    def _table_below_shoulder(self) -> Geometry:
+        if self.table_height_mm >= self.base_height_mm:
+            raise ValueError(
+                f"table_height_mm {self.table_height_mm:g} must be below the shoulder axis "
+                f"(base_height_mm {self.base_height_mm:g})"
+            )
+        return self
 
     def metres(self) -> dict[str, float]:
         """The lengths in metres, named as `al5d.model.Geometry` names them."""

@@ -9,6 +9,7 @@ metres. The one table from arm degrees to URDF values is `joints.CONVENTIONS`
 from al5d.model.arm import ArmModel
 from al5d.model.chain import Chain, build_chain, joint_transforms, link_poses, tool_pose
 from al5d.model.errors import (
+    BelowTable,
     InvalidInput,
     JointOutOfRange,
     ModelError,
@@ -29,6 +30,7 @@ from al5d.model.joints import (
 )
 from al5d.model.kinematics import (
     ToolPose,
+    below_table,
     forward,
     joint_positions,
     solve,
@@ -36,7 +38,14 @@ from al5d.model.kinematics import (
     tool_position,
     tool_quaternion,
 )
-from al5d.model.lines import LinePlan, distance_to_segment, plan_line, segment_deviation
+from al5d.model.lines import (
+    LinePlan,
+    PulseScale,
+    as_sent,
+    distance_to_segment,
+    plan_line,
+    segment_deviation,
+)
 from al5d.model.moveit import controllers, joint_limits, kinematics, moveit_config, srdf
 from al5d.model.urdf import urdf, urdf_from_chain
 
@@ -45,6 +54,7 @@ __all__ = [
     "CONVENTIONS",
     "JOINTS",
     "ArmModel",
+    "BelowTable",
     "Chain",
     "Geometry",
     "GripperMap",
@@ -54,10 +64,13 @@ __all__ = [
     "ModelError",
     "OutOfReach",
     "PathUnreachable",
+    "PulseScale",
     "Range",
     "Ranges",
     "ToolPose",
     "Unreachable",
+    "as_sent",
+    "below_table",
     "build_chain",
     "controllers",
     "distance_to_segment",

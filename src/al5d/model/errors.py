@@ -45,13 +45,108 @@ class JointOutOfRange(Unreachable):
         )
 
 
-class PathUnreachable(Unreachable):
-    """A straight-line move fails somewhere along the line; `fraction` says where (0..1)."""
+class BelowTable(Unreachable):
+    """A target that would take a point of the arm (the tool tip, the wrist) below the table."""
 
-    def __init__(self, fraction: float, cause: Unreachable) -> None:
+    def __init__(self, point: str, z_m: float, table_m: float) -> None:
+        self.point = point
+        self.z_m = z_m
+        self.table_m = table_m
+        z, table = _mm_pair(z_m, table_m)
+        super().__init__(
+            f"below the table: the {point} would be at z={z} mm, the table is at z={table} mm"
+        )
+
+
+class PathUnreachable(Unreachable):
+    """A straight-line move fails somewhere along the line; `fraction` says where (0..1).
+
+    With `until` and `worst`, the failing stretch is known: it runs from `fraction` to
+    `until`, and `worst` is the failure at its worst point (of the same kind as `cause`,
+    the failure where the stretch starts), so the reason says by how much at most rather
+    than by how little at the edge.
+    """
+
+    def __init__(
+        self,
+        fraction: float,
+        cause: Unreachable,
+        *,
+        until: float | None = None,
+        worst: Unreachable | None = None,
+    ) -> None:
         self.fraction = fraction
         self.cause = cause
-        super().__init__(f"the line fails at {fraction:.0%} of the path: {cause}")
+        self.until = until
+        self.worst = worst
+        text = None if until is None or worst is None else _stretch(cause, worst)
+        if text is None:
+            super().__init__(f"the line fails at {fraction:.0%} of the path: {cause}")
+        else:
+            what, detail = text
+            assert until is not None
+            super().__init__(
+                f"the line {what} between {_pct(fraction)} and {_pct(until)} of the path: {detail}"
+            )
+
+
+def _pct(fraction: float) -> str:
+    return f"{fraction * 100:.0f} %"
+
+
+def _stretch(cause: Unreachable, worst: Unreachable) -> tuple[str, str] | None:
+    # (what the line does, how much at worst), for the kinds whose worst is a number.
+    if isinstance(cause, JointOutOfRange) and isinstance(worst, JointOutOfRange):
+        joint = cause.joint
+        hit = next((v for v in worst.violations if v[0] == joint), None)
+        if hit is None:
+            return None
+        _, needed, lo, hi = hit
+        way = "up to" if needed > hi else "down to"
+        return (
+            f"leaves the {joint}'s range",
+            f"it would need {way} {_deg(needed, lo, hi)} deg, its range is {_deg(lo)}..{_deg(hi)}",
+        )
+    if isinstance(cause, OutOfReach) and isinstance(worst, OutOfReach):
+        if cause.too_close != worst.too_close:
+            return None
+        dist, limit = _mm_pair(worst.distance_m, worst.limit_m)
+        if worst.too_close:
+            return (
+                "comes closer to the shoulder than the arm folds",
+                f"down to {dist} mm from the shoulder, the arm reaches no closer than {limit} mm",
+            )
+        return (
+            "leaves the arm's reach",
+            f"up to {dist} mm from the shoulder, the arm reaches {limit} mm",
+        )
+    if isinstance(cause, BelowTable) and isinstance(worst, BelowTable):
+        if cause.point != worst.point:
+            return None
+        z, table = _mm_pair(worst.z_m, worst.table_m)
+        return (
+            f"takes the {cause.point} below the table",
+            f"down to z={z} mm, the table is at z={table} mm",
+        )
+    return None
+
+
+def excess(err: Unreachable, like: Unreachable) -> float | None:
+    """How far `err` is beyond the limit that `like` broke (degrees or metres), or None when
+    `err` breaks another one: what a failing stretch's worst point is the largest of."""
+    if isinstance(like, JointOutOfRange) and isinstance(err, JointOutOfRange):
+        hit = next((v for v in err.violations if v[0] == like.joint), None)
+        if hit is None:
+            return None
+        _, needed, lo, hi = hit
+        return max(lo - needed, needed - hi)
+    if isinstance(like, OutOfReach) and isinstance(err, OutOfReach):
+        if like.too_close != err.too_close:
+            return None
+        return abs(err.distance_m - err.limit_m)
+    if isinstance(like, BelowTable) and isinstance(err, BelowTable):
+        return err.table_m - err.z_m if like.point == err.point else None
+    return None
 
 
 def _deg(value: float, *limits: float) -> str:
@@ -70,6 +165,6 @@ def _mm_pair(distance_m: float, limit_m: float) -> tuple[str, str]:
     for digits in range(7):
         a = f"{distance_m * 1000:.{digits}f}"
         b = f"{limit_m * 1000:.{digits}f}"
-        if a != b:
+        if float(a) != float(b):  # "-0" and "0" are the same number
             return a, b
     return a, b

@@ -27,6 +27,9 @@ class Geometry:
     gripper: float = 0.100
     #: Gap between the fingers when fully open.
     gripper_open: float = 0.032
+    #: Height of the table's top in base_link (0: the base stands on it; below 0 when
+    #: the arm stands on a plate). Cartesian moves keep the arm above it.
+    table_height: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -35,8 +38,15 @@ class Geometry:
                 raise InvalidInput(f"geometry.{f.name} must be a number, not {value!r}")
             if not math.isfinite(value):
                 raise InvalidInput(f"geometry.{f.name} must be finite, not {value}")
-            # The offset may be zero (the AL5D has none); every length must be positive.
-            if f.name == "shoulder_offset":
+            # The offset may be zero (the AL5D has none), the table anywhere below the
+            # shoulder; every length must be positive.
+            if f.name == "table_height":
+                if value >= self.base_height:
+                    raise InvalidInput(
+                        f"geometry.table_height must be below the shoulder axis "
+                        f"(base_height {self.base_height:g}), not {value}"
+                    )
+            elif f.name == "shoulder_offset":
                 if value < 0:
                     raise InvalidInput(f"geometry.{f.name} must be >= 0, not {value}")
             elif value <= 0:

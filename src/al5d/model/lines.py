@@ -9,19 +9,23 @@ stays within the tolerance of the line from start to target.
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Final
 
 from al5d.model.arm import ArmModel
-from al5d.model.errors import InvalidInput, PathUnreachable, Unreachable
+from al5d.model.errors import InvalidInput, PathUnreachable, Unreachable, excess
 from al5d.model.geometry import Geometry
 from al5d.model.joints import ARM_JOINTS
-from al5d.model.kinematics import forward, solve, solve_nearest_pitch, wrap_deg
+from al5d.model.kinematics import below_table, forward, solve, solve_nearest_pitch, wrap_deg
 from al5d.model.transforms import Vec3
 
 Joints = tuple[float, float, float, float, float]
+#: Per arm joint, the pulse width at 0 deg and the (signed) microseconds per degree: the
+#: calibration the driver encodes a move with.
+PulseScale = Mapping[str, tuple[float, float]]
 
 DEFAULT_TOLERANCE_M: Final = 0.001
 #: Waypoints are placed to this fraction of the path (bisection end).
@@ -145,6 +149,98 @@ def segment_deviation(
     return max(line.distance(_tip(geometry, _lerp(a, b, i / samples))) for i in range(samples + 1))
 
 
+def as_sent(degrees: Mapping[str, float], pulses: PulseScale) -> dict[str, float]:
+    """The degrees the board runs for `degrees`: each joint's pulse rounded to a whole
+    microsecond, as the driver encodes it (the joints without a scale are left as given)."""
+    out = dict(degrees)
+    for joint, (at_zero, per_deg) in pulses.items():
+        if joint in out:
+            out[joint] = (math.floor(at_zero + out[joint] * per_deg + 0.5) - at_zero) / per_deg
+    return out
+
+
+def _snapper(pulses: PulseScale | None) -> Callable[[Joints], Joints]:
+    """The joints as the board will hold them (identity without a pulse scale)."""
+    if pulses is None:
+        return lambda q: q
+    try:
+        scales = [(float(pulses[j][0]), float(pulses[j][1])) for j in ARM_JOINTS]
+    except (KeyError, IndexError, TypeError, ValueError):
+        raise InvalidInput(
+            f"pulses needs (us at 0 deg, us per deg) for every arm joint: {ARM_JOINTS}"
+        ) from None
+    if not all(math.isfinite(u) and math.isfinite(k) and k != 0 for u, k in scales):
+        raise InvalidInput(f"pulse scales must be finite with a slope != 0, not {scales}")
+
+    def snap(q: Joints) -> Joints:
+        return tuple(  # type: ignore[return-value]  # five by construction
+            (math.floor(u + d * k + 0.5) - u) / k for d, (u, k) in zip(q, scales, strict=True)
+        )
+
+    return snap
+
+
+def _failing_stretch(
+    ik: Callable[[float], Joints], i: int, n: int, cause: Unreachable
+) -> PathUnreachable:
+    """Where the line stops being reachable (it fails between check points i - 1 and i of
+    n), where it becomes reachable again, and how far out it is at its worst point."""
+    lo, hi = (i - 1) / n, i / n
+    for _ in range(12):  # name the edge to a fraction of the check step
+        mid = (lo + hi) / 2
+        try:
+            ik(mid)
+            lo = mid
+        except Unreachable as e:
+            hi, cause = mid, e
+    first = hi
+
+    def out_by(t: float) -> tuple[float, Unreachable | None]:
+        try:
+            ik(t)
+        except Unreachable as e:
+            x = excess(e, cause)
+            return (-math.inf, None) if x is None else (x, e)
+        return -math.inf, None
+
+    (worst_x, worst), worst_t = out_by(first), first
+    until = 1.0
+    for k in range(i, n + 1):
+        t = max(first, k / n)
+        try:
+            ik(t)
+        except Unreachable as e:
+            x = excess(e, cause)
+            if x is not None and x > worst_x:
+                worst_x, worst, worst_t = x, e, t
+            continue
+        lo, hi = max(first, (k - 1) / n), t  # failing at lo, reachable at hi
+        for _ in range(12):
+            mid = (lo + hi) / 2
+            try:
+                ik(mid)
+                hi = mid
+            except Unreachable:
+                lo = mid
+        until = lo
+        break
+    # The samples are a check step apart: a golden-section search finds the worst between.
+    a, b = max(first, worst_t - 1 / n), min(until, worst_t + 1 / n)
+    for _ in range(30):
+        if b - a < 1e-9:
+            break
+        x1, x2 = b - _GOLDEN * (b - a), a + _GOLDEN * (b - a)
+        (f1, e1), (f2, e2) = out_by(x1), out_by(x2)
+        for f, found in ((f1, e1), (f2, e2)):
+            if found is not None and f > worst_x:
+                worst_x, worst = f, found
+        if f1 > f2:
+            b = x2
+        else:
+            a = x1
+    return PathUnreachable(first, cause, until=until, worst=worst or cause)
+
+
 def plan_line(
     model: ArmModel,
     start_deg: Mapping[str, float],
@@ -154,13 +250,20 @@ def plan_line(
     *,
     tolerance_m: float = DEFAULT_TOLERANCE_M,
     check_step_m: float = 0.001,
+    pulses: PulseScale | None = None,
 ) -> LinePlan:
     """Plan a straight tool move from the arm's degrees to a target point (metres).
 
     Without a pitch, the reachable pitch nearest the start's is used; without a
     roll, the start's. Every point of the line is checked with IK at least every
-    `check_step_m` (and every 0.5 deg of pitch or roll change); if one fails, the
-    whole move is refused with PathUnreachable naming where.
+    `check_step_m` (and every 0.5 deg of pitch or roll change), and against the
+    table (`geometry.table_height`); if one fails, the whole move is refused with
+    PathUnreachable naming the failing stretch and how far out its worst point is.
+
+    With `pulses`, each hop is judged as the board will run it: from and to the
+    waypoints rounded to whole microseconds (the board interpolates the pulses
+    linearly between those), and the line starts where the rounded start puts the
+    tip; the waypoints themselves are the exact angles (the driver rounds them).
     """
     if not (math.isfinite(tolerance_m) and tolerance_m > 0):
         raise InvalidInput(f"tolerance must be finite and > 0, not {tolerance_m}")
@@ -169,7 +272,8 @@ def plan_line(
     if not all(math.isfinite(float(c)) for c in target) or len(target) != 3:
         raise InvalidInput(f"target must be three finite numbers, not {target}")
     g = model.geometry
-    q0 = _as_joints(start_deg, "start")
+    snap = _snapper(pulses)
+    q0 = snap(_as_joints(start_deg, "start"))
     pose = forward(g, dict(zip(ARM_JOINTS, q0, strict=True)))
     p0 = pose.position
     p1 = (float(target[0]), float(target[1]), float(target[2]))
@@ -191,6 +295,9 @@ def plan_line(
     def ik(t: float, base_hint: float) -> Joints:
         p = (p0[0] + t * line.d[0], p0[1] + t * line.d[1], p0[2] + t * line.d[2])
         sol = solve(model, *p, pitch0 + t * d_pitch, roll0 + t * d_roll, base_hint_deg=base_hint)
+        under = below_table(model, sol)
+        if under is not None:
+            raise under
         return (sol["base"], sol["shoulder"], sol["elbow"], sol["wrist"], sol["wrist_rotate"])
 
     # Refuse whole, before planning, if any point of the line cannot be taken.
@@ -208,15 +315,7 @@ def plan_line(
         try:
             solved[t] = ik(t, base_hint)
         except Unreachable as err:
-            lo, hi, cause = (i - 1) / n, t, err
-            for _ in range(12):  # name the place to a fraction of the check step
-                mid = (lo + hi) / 2
-                try:
-                    ik(mid, base_hint)
-                    lo = mid
-                except Unreachable as e:
-                    hi, cause = mid, e
-            raise PathUnreachable(hi, cause) from None
+            raise _failing_stretch(functools.partial(ik, base_hint=base_hint), i, n, err) from None
         # Neighbours a check step apart whose joint midpoint leaves the line: the
         # IK jumped (to the other side of the base axis), and no hop can follow.
         halfway = _tip(g, _lerp(solved.get((i - 1) / n, q0), solved[t], 0.5))
@@ -236,7 +335,8 @@ def plan_line(
     ta, qa = 0.0, q0
     while ta < 1.0:
         q1 = solved[1.0]
-        dev = _hop_deviation(g, line, qa, q1)
+        sa = snap(qa)
+        dev = _hop_deviation(g, line, sa, snap(q1))
         if dev <= tolerance_m:
             tb, qb = 1.0, q1
         else:
@@ -244,7 +344,7 @@ def plan_line(
             while hi - lo > _T_EPS:
                 mid = (lo + hi) / 2
                 qm = ik(mid, qa[0])
-                dm = _hop_deviation(g, line, qa, qm)
+                dm = _hop_deviation(g, line, sa, snap(qm))
                 if dm <= tolerance_m:
                     lo, qb_lo, dev_lo = mid, qm, dm
                 else:
