@@ -60,15 +60,33 @@ $(STDMSGS): $(VENV)/.%: $(STAMP)
 	$(BIN)/python -c "import $(CHECK)" && touch $@
 
 # The web view's browser test (tests/test_web.py) drives Debian's headless Chromium with
-# playwright, which cannot download a browser of its own here. Installed when missing,
-# pinned to the version Debian offers (bookworm-security replaces it on each security
-# release: then update the pin to what `apt-cache policy chromium` offers).
+# playwright, which cannot download a browser of its own here. Installed when missing:
+# the pinned version first; when apt no longer offers it (bookworm-security replaces it
+# on each security release), the version apt offers, with a warning naming both (then
+# update the pin to what `apt-cache policy chromium` offers). APT_GET, APT_CACHE and
+# CHROMIUM_BIN are there to try the choice without apt: e.g.
+#   make chromium CHROMIUM_BIN=none APT_GET='echo apt-get' APT_CACHE=./fake-apt-cache
 CHROMIUM_VERSION := 156.0.8078.79-1~deb12u1
+CHROMIUM_BIN ?= chromium
+APT_GET ?= apt-get
+APT_CACHE ?= apt-cache
 chromium:
-	@command -v chromium >/dev/null || { \
-	  echo "chromium: installing $(CHROMIUM_VERSION) (apt-get)"; \
-	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
-	    --no-install-recommends chromium=$(CHROMIUM_VERSION) >/dev/null; }
+	@command -v $(CHROMIUM_BIN) >/dev/null || { \
+	  $(APT_GET) update -qq || exit 1; \
+	  offered=$$($(APT_CACHE) madison chromium | awk -F'|' '{gsub(/ /, "", $$2); print $$2}'); \
+	  if printf '%s\n' "$$offered" | grep -qxF '$(CHROMIUM_VERSION)'; then \
+	    version='$(CHROMIUM_VERSION)'; \
+	  else \
+	    version=$$($(APT_CACHE) policy chromium | awk '/Candidate:/ {print $$2}'); \
+	    case "$$version" in ""|"(none)") \
+	      echo "chromium: apt offers no chromium (pinned $(CHROMIUM_VERSION))" >&2; exit 1;; \
+	    esac; \
+	    echo "WARNING: chromium $(CHROMIUM_VERSION) (the Makefile's pin) is no longer offered" \
+	      "by apt; installing $$version, the version it offers. Update CHROMIUM_VERSION." >&2; \
+	  fi; \
+	  echo "chromium: installing $$version (apt-get)"; \
+	  DEBIAN_FRONTEND=noninteractive $(APT_GET) install -y -qq \
+	    --no-install-recommends "chromium=$$version" >/dev/null; }
 
 demo: install
 	$(BIN)/al5d demo

@@ -216,6 +216,42 @@ def run(log: Any = log, trials: int = 50) -> dict[str, Any]:
     return out
 
 
+#: The issue's targets for the web view's figures.
+SOFTWARE_P99_MS = 50.0
+UPDATES_PER_S = 20.0
+
+
+def rows(r: dict[str, Any]) -> list[tuple[str, str, str, str, bool | None]]:
+    """The web view's figures as rows of bench/run.py's table (figure, ours, design doc,
+    target, held), so that they count in its tally of targets held."""
+    sw, u = r["stop"]["software"], r["updates"]
+    total = r["stop"]["click_to_all_stops"]
+    return [
+        (
+            "web: STOP click in the page -> every STOP in effect, minus wire",
+            f"p50 {sw['p50_ms']:.1f} ms, p99 {sw['p99_ms']:.1f} ms "
+            f"(with wire p99 {total['p99_ms']:.1f} ms, n={total['n']})",
+            "-",
+            f"software p99 <= {SOFTWARE_P99_MS:.0f} ms",
+            sw["p99_ms"] <= SOFTWARE_P99_MS,
+        ),
+        (
+            "web: view updates in the page during a move",
+            f"{u['page_updates_per_s']:.1f}/s ({u['ws_frames_per_s']:.1f}/s websocket frames)",
+            "-",
+            f">= {UPDATES_PER_S:.0f}/s",
+            u["page_updates_per_s"] >= UPDATES_PER_S,
+        ),
+        (
+            "web: web process CPU while idle, page open",
+            f"{r['web_idle_cpu_percent']:.1f} %",
+            "-",
+            "-",
+            None,
+        ),
+    ]
+
+
 def table(r: dict[str, Any]) -> str:
     s, sw, first = (
         r["stop"]["click_to_all_stops"],
@@ -230,9 +266,9 @@ def table(r: dict[str, Any]) -> str:
             f"(wire {s['wire_ms']:.1f} ms)",
         ),
         (
-            "  ... minus wire (software share; target p99 <= 50 ms)",
+            f"  ... minus wire (software share; target p99 <= {SOFTWARE_P99_MS:.0f} ms)",
             f"p50 {sw['p50_ms']:.1f} ms, p99 {sw['p99_ms']:.1f} ms: "
-            + ("held" if sw["p99_ms"] <= 50 else "NOT held"),
+            + ("held" if sw["p99_ms"] <= SOFTWARE_P99_MS else "NOT held"),
         ),
         (
             "STOP click -> first STOP in effect (the moving joint)",
@@ -244,7 +280,7 @@ def table(r: dict[str, Any]) -> str:
             f"{r['stop']['clock_uncertainty_ms']:.2f} ms",
         ),
         (
-            "view updates in the page during a move (target >= 20/s)",
+            f"view updates in the page during a move (target >= {UPDATES_PER_S:.0f}/s)",
             f"{u['page_updates_per_s']:.1f}/s redraws of the arm's readout, "
             f"{u['ws_frames_per_s']:.1f}/s websocket frames",
         ),

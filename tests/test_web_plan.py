@@ -122,3 +122,15 @@ def test_the_guard_lets_only_the_page_in() -> None:
     assert connection_problem("http://arm.lab:8080", "arm.lab:8080", lab) is None
     assert is_loopback("localhost") and is_loopback("127.0.0.2") and is_loopback("::1")
     assert not is_loopback("0.0.0.0") and not is_loopback("192.0.2.7")
+
+
+def test_a_trajectory_leaves_the_arm_at_its_last_point(
+    planner: Planner, ready: dict[str, float]
+) -> None:
+    points = (
+        ins.Point((("base", 10.0),), 1000.0),
+        ins.Point((("base", -30.0), ("elbow", 60.0)), 2000.0),
+    )
+    target = planner.target_of(ins.Instruction(ins.Kind.TRAJECTORY, points=points), ready)
+    assert isinstance(target, Target)
+    assert target.degrees == {**ready, "base": -30.0, "elbow": 60.0}

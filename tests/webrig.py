@@ -139,3 +139,56 @@ def wait_text(
             return str(text)
         time.sleep(0.05)
     raise AssertionError(f"{selector}: {text!r} after {timeout_s} s")
+
+
+def clickable(page: Any, locator: Any) -> bool:
+    """Whether `locator` is in the viewport and is what a click at its centre would hit
+    (not scrolled away, not under the panel's header, not hidden or unmounted)."""
+    if locator.count() != 1:
+        return False
+    box = locator.bounding_box()
+    size = page.viewport_size
+    if box is None or box["width"] < 1 or box["height"] < 1:
+        return False
+    x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    if not (0 <= x < size["width"] and 0 <= y < size["height"]):
+        return False
+    return bool(
+        locator.evaluate("(e, [x, y]) => e.contains(document.elementFromPoint(x, y))", [x, y])
+    )
+
+
+#: Every control in the side panel, by what it is and its label, and whether a user can
+#: still work it: buttons, inputs and slider thumbs shown, not disabled (attribute or
+#: aria) and that the pointer reaches (CSS pointer-events). The panel's own chrome (its
+#: header) is not ours.
+CONTROLS = r"""() => {
+  const panel = document.querySelector("#al5d-state").closest("[data-dock-group]");
+  const out = [];
+  // A slider is its root: Mantine draws no thumb on a disabled one.
+  for (const e of panel.querySelectorAll("button, input, .mantine-Slider-root")) {
+    if (e.closest("[data-dock-header]") || (e.type || "") === "hidden") continue;
+    if (!e.getClientRects().length) continue;  // not shown (another tab's)
+    const slider = e.classList.contains("mantine-Slider-root");
+    const off = e.disabled || e.getAttribute("aria-disabled") === "true"
+      || e.closest("[data-disabled]") !== null || getComputedStyle(e).pointerEvents === "none"
+      || (slider && e.querySelector("[data-disabled]") !== null);
+    let name = e.innerText || "";  // a button's own text, else the row's label
+    for (let n = e.parentElement; !/[a-z]/.test(name) && n && n !== panel; n = n.parentElement)
+      name = n.innerText || "";
+    out.push([`${slider ? "slider" : e.type || e.tagName} `
+      + name.replace(/\s+/g, " ").trim().slice(0, 30), !off]);
+  }
+  return out;
+}"""
+
+
+def controls(page: Any) -> dict[str, bool]:
+    """The side panel's controls over all its tabs (each opened in turn), each with whether
+    it works."""
+    found: dict[str, bool] = {}
+    for tab in ("Joints", "Target", "History"):
+        page.get_by_role("tab", name=tab).click()
+        for i, (name, works) in enumerate(page.evaluate(CONTROLS)):
+            found[f"{tab} {i}: {name}"] = works
+    return found

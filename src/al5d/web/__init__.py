@@ -9,7 +9,9 @@ a draggable target for the tool, presets, STOP, and what happened.
     link.py    the ROS side: subscriptions, the instruction publisher, the stop service
     plan.py    pure: targets of instructions, the outcome log, the joint history, debounce
     guard.py   who may open the page's websocket (same origin, known host names)
-    page.py    the viser page: scene, controls, banners
+    scene.py   the 3D view: the arm, its ghost, the straight path, the target gizmo
+    panel.py   the widgets: STOP in a window of its own, the side panel
+    page.py    the page: what it knows of the arm, its decisions, the user's input
     app.py     `al5d web`: the page on a port, until SIGINT/SIGTERM
 
 Imports al5d.arm, al5d.model, al5d.ros (the public names, QoS, conversions),

@@ -7,6 +7,7 @@ with --port 0 the system picks one, and a busy port makes viser take the next).
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import logging
 import os
 import queue
@@ -14,6 +15,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -50,22 +52,30 @@ class WebView:
         config = config or load_config(options.config)
         ns = config.server.namespace if options.namespace is None else options.namespace
         self.names = Names.of(ns)
-        if not guard.is_loopback(options.host):
-            log.warning(
-                "al5d web listens on %s: anyone who can reach port %d there can move the arm",
-                options.host,
-                options.port,
-            )
         # viser prints a banner of its own; stdout's first line is ours (the URL).
         with contextlib.redirect_stdout(sys.stderr):
             self.server = viser.ViserServer(host=options.host, port=options.port, verbose=False)
-        guard.install(self.server, options.host)
+        accepted = guard.install(self.server, options.host)
+        port = self.server.get_port()
+        if not guard.is_loopback(options.host):
+            # The port bound, not the one asked for (0, or a busy one viser skipped).
+            log.warning(
+                "al5d web listens on %s: anyone who can reach port %d there can move the arm",
+                options.host,
+                port,
+            )
         host = options.host if ":" not in options.host else f"[{options.host}]"
-        self.url = f"http://{host}:{self.server.get_port()}/"
+        self.url = f"http://{host}:{port}/"
         self.page = Page(self.server, config, f"al5d {self.names.namespace or ''}".strip())
         self.link = Link(self.names, self.page, config.model, tuple(config.presets))
         self.page.commands = self.link
-        self.server.on_client_connect(lambda client: print("al5d web: a page opened", flush=True))
+
+        def on_client(client: viser.ClientHandle) -> None:
+            # Only a page the guard let in counts as opened (`al5d demo --web` waits for one).
+            if accepted(client.client_id):
+                print("al5d web: a page opened", flush=True)
+
+        self.server.on_client_connect(on_client)
 
     def close(self) -> None:
         self.link.close()
@@ -96,16 +106,28 @@ def serve_web(options: WebOptions) -> int:
     return 0
 
 
+#: prctl(2): the signal a child gets when its parent ends.
+PR_SET_PDEATHSIG = 1
+
+
+def _end_with_parent() -> None:
+    """In the child, before it runs: SIGTERM when the demo ends, even killed outright (its
+    `finally` never runs then), so that no web view is left holding the port. Linux."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
 @contextlib.contextmanager
 def web_beside(port: int = DEFAULT_PORT, wait_page_s: float = 30.0) -> Iterator[str]:
     """`al5d web` in a process of its own (it must never share the server's GIL), for
     `al5d demo --web`: yields its URL once it serves, after a page opened it or
-    `wait_page_s` passed; ended with SIGINT afterwards."""
+    `wait_page_s` passed; ended with SIGINT afterwards. `port` 0: any free one."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "al5d", "web", "--port", str(port)],
         stdout=subprocess.PIPE,
         text=True,
         env=os.environ.copy(),
+        preexec_fn=_end_with_parent,
     )
     assert proc.stdout is not None
     lines: queue.SimpleQueue[str] = queue.SimpleQueue()
@@ -128,9 +150,14 @@ def web_beside(port: int = DEFAULT_PORT, wait_page_s: float = 30.0) -> Iterator[
                 f"(or in {wait_page_s:.0f} s)",
                 flush=True,
             )
-            with contextlib.suppress(queue.Empty):
-                while "page opened" not in lines.get(timeout=wait_page_s):
+            deadline = time.monotonic() + wait_page_s
+            why = f"no page opened in {wait_page_s:.0f} s"
+            with contextlib.suppress(queue.Empty, ValueError):
+                # Only a page the guard let in prints this (a refused one never starts it).
+                while "page opened" not in lines.get(timeout=deadline - time.monotonic()):
                     pass
+                why = "a page opened"
+            print(f"al5d demo: {why}; the demo starts", flush=True)
         yield url
     finally:
         proc.send_signal(signal.SIGINT)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import ipaddress
 import logging
 import socket
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -80,15 +80,19 @@ def _machine_names() -> set[str]:
     return {socket.gethostname().lower(), socket.getfqdn().lower()}
 
 
-def install(server: viser.ViserServer, listen_host: str) -> None:
+def install(server: viser.ViserServer, listen_host: str) -> Callable[[int], bool]:
     """Close every websocket that fails `connection_problem`, before its first message.
+    Returns whether a client id is one let in (and still connected): viser's own connect
+    callbacks come later (at a client's first camera message), and count a page only if
+    this says so, whatever the order of the two.
 
-    viser 1.1.1 runs its connect callbacks before it reads a connection's messages
+    viser 1.1.1 runs its infra connect callbacks before it reads a connection's messages
     (infra `ws_handler`); the connection object with the request's headers is the
     one it keeps in `_live_connections` (pinned version: tests/test_web.py checks it).
     """
     ws: Any = server._websock_server
     hosts = allowed_hosts(listen_host)
+    accepted: set[int] = set()
 
     async def check(conn: Any) -> None:
         connection = ws._live_connections.get(conn.client_id)
@@ -99,5 +103,12 @@ def install(server: viser.ViserServer, listen_host: str) -> None:
         if problem is not None:
             log.warning("web: refused a connection from %s: %s", connection.remote_address, problem)
             await connection.close(1008, "al5d web: not this page")
+        else:
+            accepted.add(conn.client_id)
+
+    async def gone(conn: Any) -> None:
+        accepted.discard(conn.client_id)
 
     ws.on_client_connect(check)
+    ws.on_client_disconnect(gone)
+    return accepted.__contains__

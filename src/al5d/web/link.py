@@ -3,9 +3,13 @@
 It reads what any client may read and sends what any client may send; the server
 does not know it is a web page. Nothing it does can hold the server up: the
 joint states come best effort (a page that falls behind loses samples, it never
-makes the server resend them), the instruction topic is read best effort too
-(to show the target of a move sent by anyone), and the server's writers of the
-state and the results keep their last samples whatever a reader does.
+makes the server resend them), the instruction and trajectory topics are read
+best effort too (to show the target of a move sent by anyone: a reliable reader
+could hold up a sender's KEEP_ALL writer), and the server's writers of the state
+and the results keep their last samples whatever a reader does.
+
+The goals of the actions (al5d's Move, FollowJointTrajectory, GripperCommand)
+are on no topic: the page shows no ghost for them, only their outcomes.
 """
 
 from __future__ import annotations
@@ -21,11 +25,17 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory
 
 from al5d.arm.instruction import Instruction, Kind, Outcome, new_id
 from al5d.arm.instruction import stop as stop_instruction
 from al5d.model import ArmModel
-from al5d.ros.convert import from_message, outcome_from_message, to_message
+from al5d.ros.convert import (
+    from_message,
+    outcome_from_message,
+    to_message,
+    trajectory_from_message,
+)
 from al5d.ros.runtime import (
     QOS_INSTRUCTIONS,
     QOS_LATCHED,
@@ -89,6 +99,7 @@ class Link:
         node.create_subscription(
             ArmInstruction, names.instruction, self._on_instruction, QOS_LATEST
         )
+        node.create_subscription(JointTrajectory, names.trajectory, self._on_trajectory, QOS_LATEST)
         by_kind = {kind: name for name, kind in names.services.items()}
         self.stop_client = node.create_client(Trigger, by_kind[Kind.STOP], qos_profile=QOS_SERVICES)
         self.release_client = node.create_client(
@@ -119,19 +130,30 @@ class Link:
         if not isinstance(instr, str):  # the server refuses it; its outcome will say why
             self.listener.on_instruction(instr)
 
+    def _on_trajectory(self, msg: JointTrajectory) -> None:
+        instr = trajectory_from_message(msg, self.model)
+        if not isinstance(instr, str):
+            self.listener.on_instruction(instr)
+
     # -- to the server ---------------------------------------------------------------
 
     def send(self, instr: Instruction) -> None:
         self.pub.publish(to_message(instr))
 
-    def stop(self) -> str:
+    def stop(self, lost: bool = False) -> str:
         """The emergency stop, by the service (it never waits behind instructions); on the
-        instruction topic when no server offers the service. Returns which way it went."""
+        instruction topic as well when no server offers the service, or when the server is
+        `lost`: a server killed outright still looks ready for as long as DDS takes to
+        notice (seconds), and a server whose states no longer reach us may still read the
+        topic. A stop twice is harmless. Returns which ways it went."""
+        ways = []
         if self.stop_client.service_is_ready():
             self.stop_client.call_async(Trigger.Request())
-            return "service"
-        self.send(stop_instruction(id=new_id()))
-        return "topic"
+            ways.append("service")
+        if lost or not ways:
+            self.send(stop_instruction(id=new_id()))
+            ways.append("topic")
+        return " and ".join(ways)
 
     def release(self) -> Any:
         if self.release_client.service_is_ready():

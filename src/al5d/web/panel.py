@@ -1,0 +1,253 @@
+"""The page's widgets: STOP in a window of its own, and the side panel (the state, the
+lost-server banner, the controls, what happened). No lock and no ROS: the page calls it
+under its own lock and wires its handlers.
+
+STOP lives outside the side panel, in a small window over the 3D view, so that
+nothing the side panel does (scrolling, another tab, being collapsed by its
+chevron) can take it out of view. Its window has no grip bar, tab strip or
+minimize button (a style rule hides them), so it cannot be minimized or dragged
+into a dock either.
+"""
+
+from __future__ import annotations
+
+import html
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import viser
+from viser import uplot
+
+from al5d.arm.config import ArmConfig
+from al5d.model import JOINTS
+from al5d.model.transforms import Vec3
+from al5d.web.plan import OutcomeLog
+
+STATE_COLOURS = {
+    "ready": "#2b8a3e",
+    "moving": "#1971c2",
+    "stopped": "#c92a2a",
+    "fault": "#e67700",
+    "initializing": "#868e96",
+    "shutting_down": "#868e96",
+}
+JOINT_COLOURS = ("#e03131", "#1971c2", "#2f9e44", "#f08c00", "#9c36b5", "#0c8599")
+#: Where the STOP window floats: this far from the 3D view's bottom-left corner (px).
+STOP_MARGIN_PX = 16
+STOP_WIDTH_PX = 260
+
+# Hooks: the window that holds #al5d-stop-style is STOP's (CSS :has), Mantine's Styles API
+# class names, and viser's dock attributes for the window's chrome. If viser renames the
+# latter, the STOP window shows its chrome again: still out of the side panel, only
+# minimizable. The icon's svg is placed absolutely after the whitespace of its HTML, a
+# space's width to the right: at STOP's size that is over the "S" unless it is put at 0.
+# viser draws no number box beside a slider as disabled: the rule greys it
+# and takes the pointer from it (the page undoes a value typed there all the same).
+PAGE_STYLE = """<style id="al5d-stop-style">
+[data-floating-window]:has(#al5d-stop-style) :is([data-dock-griphandle],[data-dock-strip],
+[data-dock-minimize]) { display: none !important; }
+[data-floating-window]:has(#al5d-stop-style) {
+  z-index: 300 !important; box-shadow: 0 0 0 3px #fff, 0 2px 14px rgba(0,0,0,.35) !important; }
+[data-floating-window]:has(#al5d-stop-style) .mantine-Button-root {
+  height: 4rem !important; font-size: 1.8rem !important; }
+[data-floating-window]:has(#al5d-stop-style) .mantine-Button-label {
+  letter-spacing: .1em; font-weight: 800 !important; }
+[data-floating-window]:has(#al5d-stop-style) .mantine-Button-section {
+  margin-inline-end: .45em !important; }
+[data-floating-window]:has(#al5d-stop-style) .mantine-Button-section svg { left: 0; }
+.mantine-Flex-root:has(> .mantine-Slider-root [data-disabled]) > .mantine-NumberInput-root {
+  opacity: .45; pointer-events: none; }
+</style>"""
+
+
+def state_html(state: str) -> str:
+    colour = STATE_COLOURS.get(state, "#495057")
+    return (
+        f'<div id="al5d-state" style="font-size:2.4em;font-weight:800;text-align:center;'
+        f'letter-spacing:0.06em;color:{colour}">{html.escape(state.upper())}</div>'
+    )
+
+
+def banner_html(text: str) -> str:
+    return (
+        '<div id="al5d-banner" style="background:#c92a2a;color:#fff;padding:0.6em 0.8em;'
+        f'font-weight:700;border-radius:4px;margin:0 0.6em">{html.escape(text)}</div>'
+    )
+
+
+def status_html(text: str, ok: bool | None) -> str:
+    colour = {True: "#2b8a3e", False: "#c92a2a", None: "#495057"}[ok]
+    return (
+        f'<div id="al5d-target-status" style="color:{colour};font-size:0.85em;'
+        f'overflow-wrap:anywhere;padding:0 0.6em">{html.escape(text)}</div>'
+    )
+
+
+def tool_html(tool_mm: Vec3, rate: int, target: str) -> str:
+    x, y, z = tool_mm
+    ghost = f'<br><span id="al5d-ghost">target: {html.escape(target)}</span>' if target else ""
+    return (
+        '<div id="al5d-tool" style="font-family:monospace;font-size:0.85em;'
+        f'padding:0 0.6em">tool (mm) x {x:.1f} y {y:.1f} z {z:.1f}<br>'
+        f"joint states {rate}/s{ghost}</div>"
+    )
+
+
+class Panel:
+    """STOP, and the side panel's widgets; every control but STOP can be turned off."""
+
+    def __init__(self, server: viser.ViserServer, config: ArmConfig, title: str) -> None:
+        self.config = config
+        self.gui = gui = server.gui
+        gui.configure_theme(show_share_button=False, show_logo=False, control_width="large")
+        gui.set_panel_label(title)
+        gui.main_panel.dock_right()
+        self.stop_window = gui.add_panel(order=-1)
+        with self.stop_window.add_tab("Emergency stop", viser.Icon.HAND_STOP):
+            gui.add_html(PAGE_STYLE)
+            self.stop = gui.add_button(
+                "STOP", color="red", icon=viser.Icon.HAND_STOP, hint="emergency stop (any state)"
+            )
+        self.stop_window.float(x=STOP_MARGIN_PX, y=-STOP_MARGIN_PX, width=STOP_WIDTH_PX)
+        self.state_html = gui.add_html(state_html("unknown"))
+        self.banner = gui.add_html(banner_html("waiting for the server..."))
+        self.release = gui.add_button("release", icon=viser.Icon.LOCK_OPEN)
+        self.tool_html = gui.add_html("")
+        self.last_html = gui.add_html("")
+        tabs = gui.add_tab_group()
+        self.joints_tab = tabs.add_tab("Joints", viser.Icon.ADJUSTMENTS)
+        with self.joints_tab:
+            self.sliders: dict[str, Any] = {}
+            for name, joint in config.joints.items():
+                lo, hi = joint.range_deg
+                self.sliders[name] = gui.add_slider(
+                    name, min=float(lo), max=float(hi), step=0.5, initial_value=min(max(0, lo), hi)
+                )
+            self.time_ms_number = gui.add_number(
+                "time (ms)",
+                initial_value=0,
+                min=0,
+                max=config.server.max_move_time_ms,
+                step=100,
+                hint="0: as fast as the servos allow",
+            )
+            self.presets = gui.add_button_group("presets", tuple(config.presets), disabled=True)
+        self.presets_disabled = True  # the handle always says False
+        self._on_preset: Callable[[Any], None] | None = None
+        with tabs.add_tab("Target", viser.Icon.TARGET):
+            self.xyz_numbers: dict[str, Any] = {
+                axis: gui.add_number(f"{axis} (mm)", initial_value=0.0, step=1.0)
+                for axis in ("x", "y", "z")
+            }
+            self.line_checkbox = gui.add_checkbox("straight line", initial_value=False)
+            self.move_to = gui.add_button("move to", icon=viser.Icon.ARROW_RIGHT)
+            self.target_status = gui.add_html(
+                status_html("drag the gizmo at the tool, or type a point", None)
+            )
+        with tabs.add_tab("History", viser.Icon.HISTORY):
+            self.plot = gui.add_uplot(
+                _empty_series(),
+                (
+                    uplot.Series(label="s"),
+                    *(
+                        uplot.Series(label=j, stroke=c, width=1.5)
+                        for j, c in zip(JOINTS, JOINT_COLOURS, strict=True)
+                    ),
+                ),
+                title="joint angles (deg), last 10 s",
+                scales={"x": {"time": False}},
+                aspect=1.4,
+            )
+            self.outcomes_html = gui.add_html("")
+        #: Every control but STOP: what a lost server turns off.
+        self.controls: list[Any] = [
+            self.release,
+            *self.sliders.values(),
+            self.time_ms_number,
+            *self.xyz_numbers.values(),
+            self.line_checkbox,
+            self.move_to,
+        ]
+        self.set_enabled(False)
+
+    # -- showing ---------------------------------------------------------------------
+
+    def show_state(self, state: str) -> None:
+        self.state_html.content = state_html(state)
+
+    def show_lost(self, text: str | None) -> None:
+        """The red banner with `text`, or none."""
+        if text is not None:
+            self.banner.content = banner_html(text)
+        self.banner.visible = text is not None
+
+    def set_enabled(self, enabled: bool) -> None:
+        for control in self.controls:
+            control.disabled = not enabled
+        if self.presets_disabled == enabled:
+            self._rebuild_presets(disabled=not enabled)
+
+    def on_preset(self, handler: Callable[[Any], None]) -> None:
+        self._on_preset = handler
+        self.presets.on_click(handler)
+
+    def _rebuild_presets(self, disabled: bool) -> None:
+        """The preset buttons again, in their place: viser 1.1.1 disables a button group
+        only when it is made (its handle refuses `disabled = True`)."""
+        order = self.presets.order
+        self.presets.remove()
+        with self.joints_tab:
+            self.presets = self.gui.add_button_group(
+                "presets", tuple(self.config.presets), disabled=disabled, order=order
+            )
+        self.presets_disabled = disabled
+        if self._on_preset is not None:
+            self.presets.on_click(self._on_preset)
+
+    def show_tool(self, tool_mm: Vec3, rate: int, target: str) -> None:
+        self.tool_html.content = tool_html(tool_mm, rate, target)
+
+    def show_outcomes(self, outcomes: OutcomeLog) -> None:
+        text = outcomes.html()
+        pad = '<div style="padding:0 0.6em">{}</div>'
+        self.outcomes_html.content = pad.format(text)
+        last = text.split("</div>", 1)[0] + "</div>"
+        self.last_html.content = pad.format(last) if outcomes.items else ""
+
+    def show_status(self, text: str, ok: bool | None) -> None:
+        self.target_status.content = status_html(text, ok)
+
+    def show_plot(self, series: tuple[npt.NDArray[np.float64], ...]) -> None:
+        self.plot.data = series
+
+    def set_slider(self, joint: str, degrees: float) -> None:
+        """The slider at `degrees` (its step, within its range) unless it is there already.
+        Programmatic: the page's own handler sees no client and sends nothing."""
+        slider = self.sliders[joint]
+        lo, hi = self.config.joints[joint].range_deg
+        value = min(max(round(degrees * 2) / 2, lo), hi)
+        if abs(slider.value - value) > 0.25:
+            slider.value = value
+
+    def set_xyz(self, xyz_mm: Sequence[float]) -> None:
+        for axis, v in zip("xyz", xyz_mm, strict=True):
+            self.xyz_numbers[axis].value = round(v, 1)
+
+    # -- reading -------------------------------------------------------------------
+
+    def xyz(self) -> tuple[float, float, float]:
+        x, y, z = (float(self.xyz_numbers[a].value) for a in "xyz")
+        return (x, y, z)
+
+    def time_ms(self) -> int | None:
+        return int(self.time_ms_number.value) or None
+
+    def line(self) -> bool:
+        return bool(self.line_checkbox.value)
+
+
+def _empty_series() -> tuple[npt.NDArray[np.float64], ...]:
+    nothing = np.array([np.nan, np.nan])
+    return (np.array([-10.0, 0.0]), *(nothing for _ in JOINTS))
