@@ -333,7 +333,7 @@ def main() -> int:
     log("the web view (a real headless browser)")
     results["web"] = webbench.run(log)
     results["elapsed_s"] = time.monotonic() - started
-    lines = rows(results)
+    lines = rows(results) + webbench.rows(results["web"])
     OUT.mkdir(exist_ok=True)
     (OUT / "results.json").write_text(json.dumps(results, indent=1))
     plot.draw(results, OUT / "bench.png")

@@ -12,7 +12,7 @@ import yourdfpy
 from proc import Proc
 
 from al5d.app.moveit import moveit_files
-from al5d.arm.config import load_config
+from al5d.arm.config import DEFAULT_CONFIG, load_config
 from al5d.ros.runtime import Names
 
 SHIPPED = Path(__file__).resolve().parent.parent / "config" / "moveit"
@@ -35,6 +35,23 @@ def test_al5d_moveit_writes_them(tmp_path: Path) -> None:
         assert (tmp_path / "out" / name).read_text(encoding="utf-8") == text
     urdf = (tmp_path / "out" / "al5d.urdf").read_text(encoding="utf-8")
     assert 'link name="left/base_link"' in urdf and 'link name="left/tool0"' in urdf
+
+
+def test_the_urdf_and_moveit_files_follow_the_configs_namespace(tmp_path: Path) -> None:
+    # A config that puts the arm in `right` (as `al5d serve --config` would) gives frames
+    # the server's /right/robot_description has, unless --namespace says otherwise.
+    data = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    data["server"]["namespace"] = "right"
+    config = tmp_path / "right.yaml"
+    config.write_text(yaml.safe_dump(data))
+    urdf = Proc("urdf", "--config", str(config))
+    assert urdf.wait(30) == 0
+    text = "\n".join(urdf.out.drain())
+    assert 'link name="right/base_link"' in text and 'link name="right/tool0"' in text
+    assert 'link name="base_link"' in moveit_files(load_config(config), "")["al5d.urdf"]
+    moveit = Proc("moveit", str(tmp_path / "out"), "--config", str(config))
+    assert moveit.wait(30) == 0
+    assert 'link name="right/base_link"' in (tmp_path / "out" / "al5d.urdf").read_text()
 
 
 def test_every_joint_and_limit_agrees_with_the_urdf_and_the_config() -> None:

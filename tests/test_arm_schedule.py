@@ -13,7 +13,7 @@ import pytest
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.arm.jobs import Job
+from al5d.arm.jobs import Job, Motion
 from al5d.arm.shared import Shared
 from al5d.arm.translate import Translator
 from al5d.arm.validate import Step
@@ -63,3 +63,30 @@ def test_a_step_never_gets_less_than_the_servos_need(config: ArmConfig) -> None:
     minimum = w.translator.minimum_ms({"base": 10.0}, {"base": 20.0})
     _, time_ms = w.plan(job, STEPS[1], lambda n_bytes: 100.5 + 0.290)
     assert time_ms >= minimum > 10
+
+
+def test_a_step_squeezed_by_its_schedule_below_the_servos_says_inf03(
+    config: ArmConfig, caplog: pytest.LogCaptureFixture
+) -> None:
+    w = writer(config)
+    w.shared.pose["base"] = 10.0
+    job = job_at_step(1, 100.5, STEPS)  # 300 ms asked, 60 ms needed, 290 ms late: 10 left
+    with caplog.at_level("WARNING", logger="al5d"):
+        w.plan(job, STEPS[1], lambda n_bytes: 100.5 + 0.290)
+    assert any("INF03" in m and "10 ms left of its schedule" in m for m in caplog.messages)
+
+
+def test_until_a_written_step_takes_effect_the_arm_is_where_the_step_before_puts_it() -> None:
+    # Step k runs 0 -> 40 deg from t=10 to 11; step k+1 (40 -> 0) is written one wire
+    # time early and takes effect at 11.
+    k = Motion({"base": 0.0, "elbow": 90.0}, {"base": 40.0}, 10.0, 1.0)
+    nxt = Motion({"base": 40.0, "elbow": 90.0}, {"base": 0.0, "elbow": 80.0}, 11.0, 1.0)
+    linked = nxt.after(k, 10.96)
+    assert linked.at(10.96)["base"] == pytest.approx(38.4)  # not already 40
+    assert linked.at(10.96)["elbow"] == 90.0
+    assert linked.at(11.5) == {"base": 20.0, "elbow": 85.0}
+    assert linked.moving(10.96) == ["base", "elbow"]  # the base, still finishing, first
+    # Written after the step before ended, it needs no link (and a chain never grows).
+    assert nxt.after(k, 11.2) is nxt
+    assert linked.after(linked, 11.1).before is not None
+    assert linked.after(linked, 11.1).before.before is None  # type: ignore[union-attr]

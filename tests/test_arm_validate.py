@@ -74,13 +74,47 @@ def test_a_trajectory_is_judged_whole_and_its_first_bad_point_named(limits: Limi
     assert check(ins.trajectory(same_time), limits) == (
         "point 1: time_from_start 500 ms is not after point 0 (500 ms)"
     )
-    at_zero = [ins.Point((("base", 0.0),), 0)]
-    assert check(ins.trajectory(at_zero), limits) == (
-        "point 0: time_from_start 0 ms is not after the start"
+    both_at_zero = [ins.Point((("base", 0.0),), 0), ins.Point((("base", 5.0),), 0)]
+    assert check(ins.trajectory(both_at_zero), limits) == (
+        "point 1: time_from_start 0 ms is not after point 0 (0 ms)"
     )
+    negative = [ins.Point((("base", 0.0),), -1)]
+    assert check(ins.trajectory(negative), limits) == ("point 0: time_from_start -1 ms is negative")
     assert check(ins.trajectory([]), limits) == "a trajectory has no points"
     too_long = [ins.Point((("base", 0.0),), 60_001)]
     assert "above the limit of 60000 ms" in str(check(ins.trajectory(too_long), limits))
+
+
+def test_a_trajectory_may_start_at_0_as_moveit_sends_it(limits: Limits) -> None:
+    # MoveIt's first point is the start state at time_from_start 0: it goes at the servos'
+    # speed (no time asked), and the next keeps its own time.
+    start = [ins.Point((("base", 0.0),), 0), ins.Point((("base", 10.0),), 400)]
+    assert check(ins.trajectory(start), limits) == (
+        Step({"base": 0.0}, None),
+        Step({"base": 10.0}, 400),
+    )
+
+
+def test_points_under_a_millisecond_apart_keep_their_order_and_the_schedule(
+    limits: Limits,
+) -> None:
+    # Judged on the exact times (0.4 ms apart is after); sent in whole ms, the steps add
+    # up to the last point's time, a step of 0 ms going at the servos' speed.
+    close = [
+        ins.Point((("base", 10.0),), 500.0),
+        ins.Point((("base", 11.0),), 500.4),
+        ins.Point((("base", 12.0),), 700.6),
+    ]
+    steps = check(ins.trajectory(close), limits)
+    assert steps == (
+        Step({"base": 10.0}, 500),
+        Step({"base": 11.0}, None),
+        Step({"base": 12.0}, 201),
+    )
+    backwards = [close[0], ins.Point((("base", 11.0),), 499.9)]
+    assert check(ins.trajectory(backwards), limits) == (
+        "point 1: time_from_start 499.9 ms is not after point 0 (500 ms)"
+    )
 
 
 def test_a_reason_never_repeats_a_huge_input(limits: Limits) -> None:

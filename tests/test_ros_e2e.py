@@ -312,13 +312,17 @@ def test_a_joint_trajectory_runs_its_points_in_order_as_one_instruction(
                 ({"base": 0, "elbow": 170}, 1.5),
                 ({"base": 0, "elbow": 80}, 2.0),
             ),
-            "point 2: elbow: 170 deg is outside the range 0..135",
+            # Said in the sender's units: 170 deg of the elbow is 2.967 rad.
+            "point 2: elbow: 2.96706 rad is outside its URDF limits 0..2.356 rad",
         ),
         (
             (({"base": 10}, 0.5), ({"base": 20}, 0.5)),
             "point 1: time_from_start 500 ms is not after",
         ),
-        ((({"base": 10}, 0.0),), "point 0: time_from_start 0 ms is not after the start"),
+        (
+            (({"base": 10}, 0.0), ({"base": 20}, 0.0)),
+            "point 1: time_from_start 0 ms is not after point 0 (0 ms)",
+        ),
         ((({"base": 10}, 1.0), ({"base": 20}, 0.8)), "point 1: time_from_start 800 ms is not"),
         ((), "a trajectory has no points"),
         ((({"finger": 10}, 1.0),), "point 0: unknown joint 'finger'"),

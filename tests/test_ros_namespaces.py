@@ -7,13 +7,21 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from control_msgs.action import FollowJointTrajectory
+import yaml
+from action_msgs.msg import GoalStatus
+from builtin_interfaces.msg import Duration
+from control_msgs.action import FollowJointTrajectory, GripperCommand
 from proc import Proc
-from rospeer import Peer, wait_until
+from rospeer import LockedActionClient, Peer, wait_future, wait_until
+from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
+from trajectory_msgs.msg import JointTrajectoryPoint
 
-from al5d.arm.config import ArmConfig
-from al5d.ros.runtime import Names
+from al5d.arm import instruction as ins
+from al5d.arm.config import DEFAULT_CONFIG, ArmConfig
+from al5d.ros.client import Client
+from al5d.ros.robot import QOS_TF_STATIC
+from al5d.ros.runtime import QOS_LATCHED, Names
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
 
@@ -34,9 +42,17 @@ def arms(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterato
     made: list[Arm] = []
     try:
         for name in ("left", "right"):
-            link = tmp_path_factory.mktemp(name) / "ssc32u"
+            folder = tmp_path_factory.mktemp(name)
+            link = folder / "ssc32u"
             emu = Emulator(config, link=link).start()
-            proc = Proc("serve", "--port", str(link), "--namespace", name, "--log-level", "INFO")
+            if name == "left":  # by the option
+                where = ["--namespace", name]
+            else:  # by the configuration's key, `server.namespace`
+                data = yaml.safe_load(DEFAULT_CONFIG.read_text())
+                data["server"]["namespace"] = name
+                (folder / "arm.yaml").write_text(yaml.safe_dump(data))
+                where = ["--config", str(folder / "arm.yaml")]
+            proc = Proc("serve", "--port", str(link), *where, "--log-level", "INFO")
             made.append(Arm(name, emu, proc, Peer(name=f"al5d_{name}_peer", namespace=name)))
         for arm in made:
             arm.proc.err.wait_for("STATE: ready", 30)
@@ -119,3 +135,94 @@ def test_the_command_line_client_takes_the_namespace(arms: list[Arm], tmp_path: 
     lost = Proc("send", "--namespace", "middle", "--wait", "1", "ready")
     assert lost.wait(30) == 2
     assert "/middle/al5d/instruction" in "\n".join(lost.err.drain())
+
+
+def test_each_arms_control_actions_move_that_arm_only(arms: list[Arm], config: ArmConfig) -> None:
+    left, right = arms
+    for arm in arms:
+        arm.emu.clear_records()
+    fjt = LockedActionClient(
+        left.peer.node, FollowJointTrajectory, left.peer.names.follow_joint_trajectory
+    )
+    gripper = LockedActionClient(right.peer.node, GripperCommand, right.peer.names.gripper_command)
+    try:
+        assert fjt.wait_for_server(timeout_sec=10) and gripper.wait_for_server(timeout_sec=10)
+        goal = FollowJointTrajectory.Goal()
+        goal.trajectory.joint_names = ["elbow"]
+        elbow = config.model.to_urdf({"elbow": 60.0})["elbow"]
+        goal.trajectory.points = [
+            JointTrajectoryPoint(positions=[elbow], time_from_start=Duration(nanosec=300_000_000))
+        ]
+        handle = wait_future(fjt.send_goal_async(goal))
+        assert wait_future(handle.get_result_async(), 10).status == GoalStatus.STATUS_SUCCEEDED
+        assert len(left.group_moves()) == 1 and right.group_moves() == []
+        close = GripperCommand.Goal()
+        close.command.position = 0.005
+        handle = wait_future(gripper.send_goal_async(close))
+        assert wait_future(handle.get_result_async(), 10).status == GoalStatus.STATUS_SUCCEEDED
+        assert len(left.group_moves()) == 1 and len(right.group_moves()) == 1
+        assert abs(left.emu.servo_degrees()["elbow"] - 60) < 0.5
+    finally:
+        fjt.destroy()
+        gripper.destroy()
+
+
+def test_the_sequence_runner_and_the_python_client_take_the_namespace(
+    arms: list[Arm], tmp_path: Path
+) -> None:
+    left, right = arms
+    for arm in arms:
+        arm.emu.clear_records()
+    seq = tmp_path / "left.seq"
+    seq.write_text("move wrist=20 time=200\nmove wrist=0 time=200\n")
+    ran = Proc("run", "--namespace", "left", str(seq))
+    assert ran.wait(30) == 0, ran.err.drain()
+    assert len(left.group_moves()) == 2 and right.group_moves() == []
+    client = Client(namespace="right")
+    try:
+        client.wait_for_server(10)
+        move = ins.move(wrist=-20, time_ms=200)
+        client.send(move)
+        outcome = client.outcome(move.id, 10)
+        assert outcome is not None and outcome.ok
+    finally:
+        client.close()
+    assert len(left.group_moves()) == 2 and len(right.group_moves()) == 1
+
+
+def test_each_arms_description_and_static_frames_carry_its_prefix(arms: list[Arm]) -> None:
+    peer = arms[0].peer  # one listener for both: late joiners of latched topics
+    urdfs: dict[str, str] = {}
+    static: set[str] = set()
+    subs = [
+        peer.node.create_subscription(
+            String,
+            arm.peer.names.robot_description,
+            lambda m, name=arm.name: urdfs.__setitem__(name, m.data),
+            QOS_LATCHED,
+        )
+        for arm in arms
+    ]
+    subs.append(
+        peer.node.create_subscription(
+            TFMessage,
+            "/tf_static",
+            lambda m: static.update(
+                f for t in m.transforms for f in (t.header.frame_id, t.child_frame_id)
+            ),
+            QOS_TF_STATIC,
+        )
+    )
+    try:
+        wait_until(lambda: len(urdfs) == 2, 5, "both robot descriptions")
+        wait_until(
+            lambda: {f.split("/")[0] for f in static} >= {"left", "right"}, 5, "static frames"
+        )
+    finally:
+        for sub in subs:
+            peer.node.destroy_subscription(sub)
+    for name, urdf in urdfs.items():
+        other = "right" if name == "left" else "left"
+        assert f'<link name="{name}/base_link"' in urdf and f'"{name}/tool0"' in urdf
+        assert f"{other}/" not in urdf
+    assert all(f.startswith(("left/", "right/")) for f in static)

@@ -102,7 +102,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
         # One domain for the demo's server and the web view's process.
         os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))
-        with web_beside():
+        with web_beside(args.web_port):
             return run_demo(baud=args.baud)
     return run_demo(baud=args.baud)
 
@@ -117,10 +117,10 @@ def _cmd_web(args: argparse.Namespace) -> int:
 
 
 def _cmd_urdf(args: argparse.Namespace) -> int:
-    from al5d.model import build_chain, urdf_from_chain
+    from al5d.app.moveit import ROBOT, arm_chain
+    from al5d.model import urdf_from_chain
 
-    config = load_config(args.config)
-    print(urdf_from_chain(build_chain(config.model, config.speeds_deg_s), "al5d"))
+    print(urdf_from_chain(arm_chain(load_config(args.config), args.namespace), ROBOT))
     return 0
 
 
@@ -254,6 +254,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     urdf = sub.add_parser("urdf", help="print the URDF of the arm, made from the configuration")
     urdf.add_argument("--config", help="arm configuration file; default: the shipped one")
+    urdf.add_argument(
+        "--namespace", type=_namespace, help=NAMESPACE_HELP + " (frames NS/...); default: config"
+    )
     urdf.set_defaults(func=_cmd_urdf)
 
     moveit = sub.add_parser(
@@ -261,13 +264,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     moveit.add_argument("out", help="directory to write the files into (made if missing)")
     moveit.add_argument("--config", help="arm configuration file; default: the shipped one")
-    moveit.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
+    moveit.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: config")
     moveit.set_defaults(func=_cmd_moveit)
 
     demo = sub.add_parser("demo", help="the DE01 demo on the embedded emulator, with a QoS table")
     demo.add_argument("--baud", type=int, choices=BAUDS, help="default: config")
     demo.add_argument("--log-level", **LOG_LEVEL)
     demo.add_argument("--web", action="store_true", help="with the web view open (al5d web)")
+    demo.add_argument(
+        "--web-port", type=int, default=8080, help="the web view's port; default 8080 (0: any)"
+    )
     demo.set_defaults(func=_cmd_demo)
 
     web = sub.add_parser("web", help="the live web view and control panel (a ROS 2 client)")

@@ -11,16 +11,23 @@ from pathlib import Path
 import yaml
 
 from al5d.arm.config import ArmConfig
-from al5d.model import build_chain, moveit_config, urdf_from_chain
+from al5d.model import Chain, build_chain, moveit_config, urdf_from_chain
 
 ROBOT = "al5d"
 
 
+def arm_chain(config: ArmConfig, namespace: str | None = None) -> Chain:
+    """The arm's links and joints, its frames prefixed `NS/` as the server's TF frames
+    are: by `namespace`, or (None) by the configuration's `server.namespace`, as
+    `al5d serve` takes it."""
+    ns = (config.server.namespace if namespace is None else namespace).strip("/")
+    return build_chain(config.model, config.speeds_deg_s, prefix=f"{ns}/" if ns else "")
+
+
 def moveit_files(config: ArmConfig, namespace: str | None = None) -> dict[str, str]:
     """File name -> text: the URDF and the four MoveIt files, for the arm in `namespace`
-    (its frames prefixed `NS/` as the server's TF frames are)."""
-    ns = (namespace or "").strip("/")
-    chain = build_chain(config.model, config.speeds_deg_s, prefix=f"{ns}/" if ns else "")
+    (by default the configuration's)."""
+    chain = arm_chain(config, namespace)
     files = {f"{ROBOT}.urdf": urdf_from_chain(chain, ROBOT) + "\n"}
     for name, content in moveit_config(
         config.model, chain, config.presets, robot_name=ROBOT

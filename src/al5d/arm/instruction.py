@@ -62,10 +62,13 @@ def quote(text: str, limit: int = MAX_QUOTE) -> str:
 
 @dataclass(frozen=True, slots=True)
 class Point:
-    """A trajectory's point: joint angles (degrees) to reach `at_ms` after the start."""
+    """A trajectory's point: joint angles (degrees) to reach `at_ms` after the start.
+
+    The time is kept as ROS gives it (to the nanosecond), so that the order of two
+    points under a millisecond apart is judged on their real times."""
 
     joints: tuple[tuple[str, float], ...]
-    at_ms: int
+    at_ms: float
 
 
 @dataclass(frozen=True, slots=True)

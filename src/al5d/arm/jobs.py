@@ -9,7 +9,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Mapping
 from concurrent.futures import Future, InvalidStateError
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
 from al5d.arm.instruction import MAX_ID, MAX_QUOTE, Instruction, Outcome, Result
@@ -60,20 +60,38 @@ class Motion:
     target: Mapping[str, float]
     t0: float
     duration_s: float
+    #: The move the board is still finishing when this one takes effect: a trajectory's
+    #: next step is written one wire time early, and until its `t0` the arm is where the
+    #: step before puts it, not already at this one's start.
+    before: Motion | None = None
 
     def progress(self, t: float) -> float:
         return 1.0 if self.duration_s <= 0 else min(1.0, max(0.0, (t - self.t0) / self.duration_s))
 
     def at(self, t: float) -> dict[str, float]:
+        if t < self.t0 and self.before is not None:
+            return {**self.start, **self.before.at(t)}
         f = self.progress(t)
         return {j: s + (self.target.get(j, s) - s) * f for j, s in self.start.items()}
 
     def moving(self, t: float) -> list[str]:
-        """The joints still moving at `t`, the fastest (deg/s) first."""
+        """The joints still moving at `t`, the fastest (deg/s) first (those of the step
+        the board is finishing, then this one's)."""
         if self.duration_s <= 0 or t >= self.t0 + self.duration_s:
             return []
         speed = {j: abs(self.target[j] - s) for j, s in self.start.items() if j in self.target}
-        return sorted((j for j, d in speed.items() if d > 0), key=lambda j: -speed[j])
+        own = sorted((j for j, d in speed.items() if d > 0), key=lambda j: -speed[j])
+        if t < self.t0 and self.before is not None:
+            first = self.before.moving(t)
+            return first + [j for j in own if j not in first]
+        return own
+
+    def after(self, previous: Motion | None, t: float) -> Motion:
+        """This motion, knowing what the board runs until it takes effect (only the step
+        just before matters: one link, so that a long trajectory makes no chain)."""
+        if previous is None or previous.t0 + previous.duration_s <= t:
+            return self
+        return replace(self, before=replace(previous, before=None))
 
 
 def stop_order(motion: Motion | None, t: float, channels: Mapping[str, int]) -> list[int]:

@@ -120,28 +120,39 @@ def _listed(problems: list[str]) -> str:
 
 
 def _trajectory(points: tuple[Point, ...], limits: Limits) -> Steps | str:
-    """Every point checked before any is run; the reason names the first bad point."""
+    """Every point checked before any is run; the reason names the first bad point.
+
+    Times must increase strictly, judged on their exact values. The first point may
+    be at 0: the start state, as MoveIt and joint_trajectory_controller clients send
+    it; it goes at the servos' speed (nothing to do when the arm is there). Points
+    are sent as whole milliseconds: a step that rounds to 0 ms (points under a
+    millisecond apart) also goes at the servos' speed."""
     if not points:
         return "a trajectory has no points"
     if len(points) > MAX_POINTS:
         return f"a trajectory of {len(points)} points is more than the {MAX_POINTS} taken"
     steps: list[Step] = []
-    before = 0
+    before = 0.0
+    sent = 0  # the time of the point before, in the whole ms the board is sent
     for i, point in enumerate(points):
         target = _target(point.joints, limits)
         if target is None:
             return f"point {i}: {_listed(_joint_problems(point.joints, limits))}"
-        if point.at_ms <= before:
-            after = "the start" if i == 0 else f"point {i - 1} ({before} ms)"
-            return f"point {i}: time_from_start {point.at_ms} ms is not after {after}"
-        step = point.at_ms - before
+        at = point.at_ms
+        if not math.isfinite(at) or at < 0:
+            return f"point {i}: time_from_start {at:g} ms is negative"
+        if i > 0 and at <= before:
+            return (
+                f"point {i}: time_from_start {at:g} ms is not after point {i - 1} ({before:g} ms)"
+            )
+        step = round(at) - sent
         if step > limits.max_time_ms:
             return (
                 f"point {i}: {step} ms after {'the start' if i == 0 else f'point {i - 1}'}, "
                 f"above the limit of {limits.max_time_ms} ms"
             )
-        steps.append(Step(target, step))
-        before = point.at_ms
+        steps.append(Step(target, step or None))
+        before, sent = at, sent + step
     return tuple(steps)
 
 
@@ -172,7 +183,7 @@ def planned(
 ) -> Steps | str:
     """A Cartesian move's steps from `pose`, checked like any move's; or why not."""
     assert limits.model is not None
-    moves = cartesian.plan(instr, pose, limits.model, translator)
+    moves = cartesian.plan(instr, pose, limits.model, translator, limits.max_time_ms)
     if isinstance(moves, str):
         return moves
     steps: list[Step] = []

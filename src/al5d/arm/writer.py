@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
+from al5d.arm.instruction import Kind
 from al5d.arm.jobs import Job, Motion, Sent, Written, stop_order
 from al5d.arm.shared import Shared, tell
 from al5d.arm.translate import Translator
@@ -58,20 +59,53 @@ class StepWriter:
         requested = step.time_ms or 0
         if requested and job.step > 0 and arrival is not None:
             due = job.t_due + requested / 1000.0
+            # Its bytes with the time asked (the time sent may have a digit more or less:
+            # a millisecond at 9600 baud, within the rounding to whole ms).
             length = len(self.translator.encode(step.target, requested))
-            requested = max(1, round((due - arrival(length + 1)) * 1000.0))
+            requested = max(1, round((due - arrival(length)) * 1000.0))
         time_ms = max(requested, min_ms)
-        if step.time_ms and step.time_ms < min_ms:
+        if self._line(job):
+            if job.step == 0:
+                self._warn_line(job)
+        elif step.time_ms and requested < min_ms:
             point = f" point {job.step}" if len(job.steps) > 1 else ""
+            # A later step may have less than it asked: what is left of its schedule.
+            left = "" if requested == step.time_ms else f" ({requested} ms left of its schedule)"
             log.warning(
-                "INF03: %s [%s]%s cannot be done in the requested %d ms; expected %d ms",
+                "INF03: %s [%s]%s cannot be done in the requested %d ms%s; expected %d ms",
                 job.instr.name,
                 job.instr.id,
                 point,
                 step.time_ms,
+                left,
                 time_ms,
             )
         return self.translator.encode(step.target, time_ms), time_ms
+
+    @staticmethod
+    def _line(job: Job) -> bool:
+        """A straight line's hops: its time is judged once, for the whole line."""
+        return job.instr.kind is Kind.MOVE_TO and len(job.steps) > 1
+
+    def _warn_line(self, job: Job) -> None:
+        """INF03 once for a line whose `time` the servos cannot hold (not once per hop)."""
+        asked = job.instr.time_ms
+        if not asked:
+            return
+        here: Mapping[str, float | None] = self.shared.pose
+        expected = 0
+        for step in job.steps:
+            need = self.translator.minimum_ms(here, step.target, job.speed_fraction)
+            expected += max(step.time_ms or 0, math.ceil(need - 1e-9))
+            here = {**here, **step.target}
+        if expected > asked:
+            log.warning(
+                "INF03: %s [%s] cannot be done in the requested %d ms; expected %d ms",
+                job.instr.name,
+                job.instr.id,
+                asked,
+                expected,
+            )
 
     def write(self, job: Job, step: Step, board: SSC32U) -> Written | None:
         """Write one step of a current job; None if a stop came first (its STOP stands).
@@ -92,6 +126,7 @@ class StepWriter:
         with shared.lock:
             raced = job.epoch != shared.epoch or job.cancel.is_set()
             if not raced:
+                motion = motion.after(shared.motion, t_write)
                 shared.motion = motion
         if raced:
             board.stop(stop_order(motion, now(), self.channel_of))

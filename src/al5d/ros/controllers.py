@@ -32,6 +32,7 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result
 from al5d.arm.jobs import Sent
+from al5d.arm.states import refusal
 from al5d.clock import now
 from al5d.model import ArmModel
 from al5d.ros.actions import GoalRunner, action_server
@@ -131,6 +132,11 @@ class FollowTrajectoryAction(GoalRunner):
         reason = self.driver.validate(instr)
         if isinstance(reason, str):
             return reason
+        # Like an inactive joint_trajectory_controller: an arm that takes no moves now
+        # (stopped, faulted, shutting down) rejects the goal rather than abort it later.
+        busy = refusal(self.driver.state, "see /al5d/state")
+        if busy:
+            return busy
         names = list(goal.trajectory.joint_names)
         path = tolerances(goal.path_tolerance, names)
         end = tolerances(goal.goal_tolerance, names)
@@ -176,6 +182,9 @@ class FollowTrajectoryAction(GoalRunner):
         if outcome.result is Result.CANCELLED and handle.is_cancel_requested:
             handle.canceled()
             return _result(FJT.SUCCESSFUL, "cancelled: the arm halted where it was")
+        if outcome.result is Result.REFUSED:  # the state changed between accept and run
+            handle.abort()
+            return _result(FJT.INVALID_GOAL, f"refused: {outcome.reason}")
         if not outcome.ok:
             handle.abort()
             # An emergency stop (or a fault) left the arm off its path.

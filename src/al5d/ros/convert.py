@@ -68,6 +68,9 @@ def tool_from_fields(
         return f"path is 0 (one group move) or 1 (a straight line), not {path:g}"
     gripper = given.get("gripper_deg")
     if "gripper" in given:
+        outside = outside_urdf_limits(model, "gripper", given["gripper"])
+        if outside:
+            return outside
         gripper = model.gripper_map.deg_from_gap(given["gripper"])
     # Degrees to a nanodegree: -30 sent as radians comes back -30, not -29.999999999999996.
     pitch, roll = given.get("pitch"), given.get("roll")
@@ -169,14 +172,41 @@ def trajectory_from_message(msg: JointTrajectory, model: ArmModel) -> Instructio
     for i, point in enumerate(msg.points):
         if len(point.positions) != len(names):
             return f"point {i}: {len(point.positions)} positions for {len(names)} joints"
+        for field in ("velocities", "accelerations"):
+            given = len(getattr(point, field))
+            if given and given != len(names):  # empty: not given, as the JTC allows
+                return f"point {i}: {given} {field} for {len(names)} joints"
+        for name, value in zip(names, point.positions, strict=True):
+            outside = outside_urdf_limits(model, name, value)
+            if outside:
+                return f"point {i}: {outside}"
         t = point.time_from_start
-        at_ms = round((t.sec + t.nanosec * 1e-9) * 1000)
+        at_ms = t.sec * 1000.0 + t.nanosec * 1e-6
         degrees = [
             (name, arm_degrees(model, name, value))
             for name, value in zip(names, point.positions, strict=True)
         ]
         points.append(Point(tuple(degrees), at_ms))
     return Instruction(Kind.TRAJECTORY, points=tuple(points), id=trajectory_id(msg))
+
+
+#: What a value may be off its URDF limit and still be taken (it is checked again, in the
+#: arm's degrees, by the driver): a limit sent back from radians is not always exact.
+URDF_SLACK = 1e-9
+
+
+def outside_urdf_limits(model: ArmModel, joint: str, value: float) -> str:
+    """Why a URDF joint value is outside its limits, in the sender's units (radians, or
+    metres for the gripper's gap); "" if it is inside, or not a URDF joint (the driver's
+    validation names those)."""
+    try:
+        lo, hi = model.urdf_limits(joint)
+    except ModelError:
+        return ""
+    if math.isfinite(value) and lo - URDF_SLACK <= value <= hi + URDF_SLACK:
+        return ""
+    unit = "m" if joint == "gripper" else "rad"
+    return f"{joint}: {value:g} {unit} is outside its URDF limits {lo:.4g}..{hi:.4g} {unit}"
 
 
 def arm_degrees(model: ArmModel, joint: str, value: float) -> float:
