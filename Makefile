@@ -94,7 +94,7 @@ demo: install
 # Two workers for most of the suite (it waits on servos, wires and DDS more than on the
 # CPU), then the load suites (marked solo) alone.
 test: install
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not solo"
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not solo" --durations=12
 	$(BIN)/python -m pytest -q -m solo
 
 bench: install

@@ -137,6 +137,25 @@ def test_the_move_action(server: Server, peer: Peer) -> None:
     assert written(server.emu.records) == n
 
 
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def test_a_goal_waiting_for_the_arm_does_not_spin_the_server(server: Server, peer: Peer) -> None:
+    # rclpy 7.1's events executor ran a coroutine that awaits a future again and again
+    # (ros2/rclpy#1405): a goal held a whole core for as long as the arm moved. A 2 s goal
+    # now costs the server what its idle ticks and the move cost: far below a core.
+    pid = server.proc.popen.pid
+    handle = peer.goal(base=30, time_ms=2000)
+    time.sleep(0.2)
+    cpu0, t0 = cpu_seconds(pid), time.monotonic()
+    result = wait_future(handle.get_result_async(), 10).result
+    busy = (cpu_seconds(pid) - cpu0) / (time.monotonic() - t0)
+    assert result.outcome == "done"
+    assert busy < 0.5, f"the server used {busy:.0%} of a core while a goal waited"
+
+
 def test_no_action_answer_is_lost_when_the_executor_thread_races_the_caller(
     server: Server, peer: Peer
 ) -> None:

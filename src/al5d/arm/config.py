@@ -145,7 +145,7 @@ class ServerSettings(_Frozen):
     instruction_backlog: int = Field(default=1000, ge=10, le=1_000_000)
     startup_speed_fraction: float = Field(default=0.5, gt=0, le=1)
     max_move_time_ms: int = Field(default=60_000, ge=1, le=65_535)
-    joint_state_rate_hz: float = Field(default=20.0, gt=0, le=1000)
+    joint_state_rate_hz: float = Field(default=25.0, gt=0, le=1000)
     reconnect_interval_s: float = Field(default=0.5, gt=0, le=60)
     #: The link (and that the board has not reset) is checked with a `QP` of one channel
     #: (4 bytes) this often while the arm is idle...

@@ -117,6 +117,8 @@ class GoalRunner:
         self.node = node
         self.driver = driver
         self.running: dict[str, Any] = {}
+        #: Called when a goal starts to run (the node's feedback timer runs only then).
+        self.started: Callable[[], object] | None = None
 
     def judge(self, goal: Any, ident: str) -> Any:
         """What the goal asks for, ready to run, or the reason to reject it (a str)."""
@@ -133,6 +135,8 @@ class GoalRunner:
     async def _run(self, ident: str, entry: Any, instr: Instruction) -> Outcome:
         """Submit the goal's instruction and await its outcome, listed as running meanwhile."""
         self.running[ident] = entry
+        if self.started is not None:
+            self.started()
         try:
             return await outcome_of(self.node, self.driver.submit(instr))
         finally:

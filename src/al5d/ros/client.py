@@ -47,6 +47,11 @@ class NoServer(Exception):
     """No `al5d serve` answers on this ROS domain."""
 
 
+#: How long the server's side of the match is given after ours: each side matches when it
+#: hears of the other, independently (a mitigation, not a proof: DDS offers none here).
+MATCH_SETTLE_S = 0.1
+
+
 class Client:
     """A ROS 2 node that publishes instructions and collects their outcomes by id, for the
     server in `namespace` (none by default)."""
@@ -60,7 +65,9 @@ class Client:
             f"al5d_client_{os.getpid()}", namespace=names.node_namespace, context=self.context
         )
         self.pub = self.node.create_publisher(ArmInstruction, names.instruction, QOS_INSTRUCTIONS)
-        self.node.create_subscription(InstructionResult, names.result, self._on_result, QOS_STREAM)
+        self.results = self.node.create_subscription(
+            InstructionResult, names.result, self._on_result, QOS_STREAM
+        )
         self._outcomes: dict[str, Outcome] = {}
         self._watchers: dict[str, Callable[[Outcome], None]] = {}
         self._cv = threading.Condition()
@@ -79,10 +86,11 @@ class Client:
         """Until our instructions reach a server and its results reach us (both directions)."""
         deadline = Deadline(timeout)
         while not deadline.expired:
-            if (
-                self.pub.get_subscription_count() > 0
-                and self.node.count_publishers(self.names.result) > 0
-            ):
+            if self.pub.get_subscription_count() > 0 and self.results.get_publisher_count() > 0:
+                # Our reader has matched the server's result writer; that writer matches our
+                # reader when the server hears of it, a moment apart, and a result published
+                # before then would not reach us (it is not kept for late readers).
+                time.sleep(MATCH_SETTLE_S)
                 return
             time.sleep(0.02)
         domain = os.environ.get("ROS_DOMAIN_ID", "0")

@@ -3,9 +3,13 @@
 A thin adapter: messages become `Instruction`s (`al5d.ros.convert`), outcomes
 become `InstructionResult`s. No callback waits for the arm. Services answer as
 soon as the driver has taken the instruction (stop and release are synchronous
-in the driver, a matter of microseconds). The move action's execute callback
-is a coroutine that awaits the driver's outcome, so that a thousand waiting
-goals hold no thread. Everything runs in one executor in one thread.
+in the driver, a matter of microseconds). Three nodes, each with its executor
+thread: `al5d` (the topics, on rclpy's C++ events executor, for throughput),
+`al5d_safety` (the stop, release and shutdown services: `al5d.ros.safety`) and
+`al5d_actions` (the move action and MoveIt's two controllers). An action's
+execute callback is a coroutine that awaits the driver's outcome, so that a
+thousand waiting goals hold no thread; those run on rclpy's Python executor,
+which waits for them without spinning (see `runtime.make_executor`).
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from al5d.ros.convert import (
 )
 from al5d.ros.robot import RobotPublisher
 from al5d.ros.runtime import (
+    ACTIONS_NODE,
     NODE,
     QOS_INSTRUCTIONS,
     QOS_LATCHED,
@@ -73,9 +78,6 @@ class ArmNode(Node):
         self.create_subscription(
             JointTrajectory, names.trajectory, self._on_trajectory, QOS_INSTRUCTIONS
         )
-        self.move_action = MoveAction(self, driver, names.move)
-        self.trajectory_action = FollowTrajectoryAction(self, driver, names.follow_joint_trajectory)
-        self.gripper_action = GripperAction(self, driver, names.gripper_command)
         self.create_timer(1.0 / driver.settings.joint_state_rate_hz, self._tick)
         driver.outcome_listeners.append(self._publish_outcome)
         driver.state_listeners.append(self._publish_state)
@@ -90,12 +92,8 @@ class ArmNode(Node):
         self.state_pub.publish(String(data=state.value))
 
     def _tick(self) -> None:
-        """/joint_states at a fixed rate (radians, REP 103), and feedback for running goals."""
-        degrees = self.driver.positions()
-        self.robot.publish(degrees)
-        self.move_action.feedback(degrees)
-        self.trajectory_action.feedback(degrees)
-        self.gripper_action.feedback()
+        """/joint_states and /tf at a fixed rate (radians, REP 103)."""
+        self.robot.publish(self.driver.positions())
 
     # -- inputs ---------------------------------------------------------------------
 
@@ -117,6 +115,37 @@ class ArmNode(Node):
         self.driver.submit(instr)
 
 
+class ActionsNode(Node):
+    """Node `al5d_actions`: the move action, FollowJointTrajectory and GripperCommand, with
+    their feedback at the joint-state rate, under the server's namespace."""
+
+    def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
+        super().__init__(ACTIONS_NODE, namespace=names.node_namespace, context=context)
+        self.driver = driver
+        self.move_action = MoveAction(self, driver, names.move)
+        self.trajectory_action = FollowTrajectoryAction(self, driver, names.follow_joint_trajectory)
+        self.gripper_action = GripperAction(self, driver, names.gripper_command)
+        # The timer runs only while a goal does: rclpy's Python executor rebuilds its wait set
+        # at every tick, which an idle server should not pay at the joint-state rate.
+        self.timer = self.create_timer(1.0 / driver.settings.joint_state_rate_hz, self._feedback)
+        self.timer.cancel()
+        for action in (self.move_action, self.trajectory_action, self.gripper_action):
+            action.started = self.timer.reset
+
+    def _feedback(self) -> None:
+        if not (
+            self.move_action.running
+            or self.trajectory_action.running
+            or self.gripper_action.running
+        ):
+            self.timer.cancel()
+            return
+        degrees = self.driver.positions()
+        self.move_action.feedback(degrees)
+        self.trajectory_action.feedback(degrees)
+        self.gripper_action.feedback()
+
+
 class RosServer:
     """The nodes with their executor threads, for `al5d serve`: `al5d` for the instructions,
     the action and the outputs, and `al5d_safety` for the stop, release and shutdown."""
@@ -133,6 +162,7 @@ class RosServer:
         self.context = start_context()
         self.node = ArmNode(driver, self.context, names)
         self.safety = SafetyNode(driver, self.context, names)
+        self.actions = ActionsNode(driver, self.context, names)
         self.trace_path = trace
         if trace is not None:
             self.node.trace = []
@@ -150,6 +180,9 @@ class RosServer:
         self.safety_spinner = (
             None if together else Spinner(self.safety, self.context, owns_context=False)
         )
+        self.actions_spinner = Spinner(
+            self.actions, self.context, owns_context=False, kind="single"
+        )
 
     def close(self) -> None:
         # Let the last results (the shutdown's) reach their readers before the node goes.
@@ -157,6 +190,7 @@ class RosServer:
         self.node.result_pub.wait_for_all_acked(rclpy.duration.Duration(seconds=1))
         if self.safety_spinner is not None:
             self.safety_spinner.close()
+        self.actions_spinner.close()
         self.spinner.close()
         self.context.try_shutdown()
         if self.trace_path is not None and self.node.trace is not None:

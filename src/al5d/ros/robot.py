@@ -18,6 +18,7 @@ The one mapping from the arm's degrees to these values is the model's
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from rclpy.node import Node
@@ -67,6 +68,11 @@ class RobotPublisher:
         self.tf_static = node.create_publisher(TFMessage, "/tf_static", QOS_TF_STATIC)
         self.tool_pose = node.create_publisher(PoseStamped, names.tool_pose, 10)
         self.names = list(self.chain.movable)
+        self._last_degrees: dict[str, float] | None = None
+        self._states_msg = JointState()
+        self._tf_msg = TFMessage()
+        self._pose_msg = PoseStamped()
+        self._headers: list[Any] = []
         self._moving = [j for j in self.chain.joints if j.type != "fixed"]
         self._fixed = [j for j in self.chain.joints if j.type == "fixed"]
         self.description.publish(String(data=urdf_from_chain(self.chain, "al5d")))
@@ -84,21 +90,24 @@ class RobotPublisher:
         """Joint states, /tf and the tool pose for the arm's degrees (NaN: unknown yet)."""
         if any(v != v for v in degrees.values()):
             return  # before the first read-back: nothing true to say
-        values = self.model.to_urdf(degrees)
         stamp = self.node.get_clock().now().to_msg()
+        if degrees != self._last_degrees:
+            self._build(degrees, stamp)
+        else:  # an arm at rest, 25 times a second: the same messages, stamped anew
+            for header in self._headers:
+                header.stamp = stamp
+        self.joint_states.publish(self._states_msg)
+        self.tf.publish(self._tf_msg)
+        self.tool_pose.publish(self._pose_msg)
+
+    def _build(self, degrees: Mapping[str, float], stamp: object) -> None:
+        values = self.model.to_urdf(degrees)
         msg = JointState()
         msg.header.stamp = stamp
         msg.name = self.names
         msg.position = [values[n] for n in self.names]
-        self.joint_states.publish(msg)
         steps = joint_transforms(self.chain, values)
-        self.tf.publish(
-            TFMessage(
-                transforms=[
-                    _transform(j.parent, j.child, steps[j.name], stamp) for j in self._moving
-                ]
-            )
-        )
+        transforms = [_transform(j.parent, j.child, steps[j.name], stamp) for j in self._moving]
         pose = tool_pose(self.chain, values)
         out = PoseStamped()
         out.header.stamp = stamp
@@ -106,4 +115,6 @@ class RobotPublisher:
         p, q = out.pose.position, out.pose.orientation
         p.x, p.y, p.z = pose.translation
         q.x, q.y, q.z, q.w = pose.rotation
-        self.tool_pose.publish(out)
+        self._states_msg, self._tf_msg, self._pose_msg = msg, TFMessage(transforms=transforms), out
+        self._headers = [msg.header, out.header, *(t.header for t in transforms)]
+        self._last_degrees = dict(degrees)

@@ -23,6 +23,7 @@ from al5d.arm.instruction import Kind
 
 NODE = "al5d"
 SAFETY_NODE = "al5d_safety"
+ACTIONS_NODE = "al5d_actions"
 
 
 @dataclass(frozen=True)
@@ -204,14 +205,18 @@ def start_context() -> Context:
     return context
 
 
-def make_executor(context: Context) -> Executor:
-    """rclpy's C++ EventsExecutor, or the Python SingleThreadedExecutor (AL5D_EXECUTOR=single).
+def make_executor(context: Context, kind: str | None = None) -> Executor:
+    """rclpy's C++ EventsExecutor, or the Python SingleThreadedExecutor (AL5D_EXECUTOR=single,
+    or `kind="single"`).
 
     The events executor takes each message without rebuilding a wait set of every
     entity in Python, which is what limits the single-threaded one (see the README's
-    Performance section for the figures of both).
+    Performance section for the figures of both). But in rclpy 7.1 it runs a task that
+    awaits a future again and again until the future is done (ros2/rclpy#1405, fixed
+    later by #1469): a coroutine that waits for the arm would hold a core. The actions,
+    whose execute callbacks are such coroutines, have the Python executor.
     """
-    if os.environ.get("AL5D_EXECUTOR", "events") == "single":
+    if (kind or os.environ.get("AL5D_EXECUTOR", "events")) == "single":
         return SingleThreadedExecutor(context=context)
     from rclpy.experimental.events_executor import EventsExecutor
 
@@ -258,12 +263,16 @@ class Spinner:
         context: Context,
         owns_context: bool = True,
         more: list[Node] | None = None,
+        kind: str | None = None,
     ) -> None:
         self.node = node
         self.context = context
         self.owns_context = owns_context
         self.more = list(more or [])
-        self.executor = make_executor(context)
+        self.executor = make_executor(context, kind)
+        # Python's executor rebuilds its wait set at every turn: an idle one should turn
+        # seldom (`close` wakes it). The events executor turns only on events anyway.
+        self.turn_s = 1.0 if isinstance(self.executor, SingleThreadedExecutor) else 0.1
         for each in (node, *self.more):
             self.executor.add_node(each)
         self._running = True
@@ -274,7 +283,7 @@ class Spinner:
 
     def _spin(self) -> None:
         while self._running and self.context.ok():
-            self.executor.spin_once(timeout_sec=0.1)
+            self.executor.spin_once(timeout_sec=self.turn_s)
 
     def close(self) -> None:
         # Join the spin thread before shutting the executor down, or the process can abort.

@@ -126,7 +126,7 @@ class Page:
             self.history.add(t, self.degrees)
             self.arrivals = [a for a in self.arrivals if a > t - 1.0] + [t]
             if changed:
-                # An idle arm's states repeat 20 times a second: nothing to redraw.
+                # An idle arm's states repeat 25 times a second: nothing to redraw.
                 self.last_change_t = t
                 with self.server.atomic():
                     self.scene.show_arm(self.degrees)
