@@ -149,3 +149,16 @@ def test_a_move_right_after_a_cancel_waits_for_the_pose_to_be_read_back(rig: Rig
         for joint in ("base", "elbow"):
             assert abs(estimate[joint] - board[joint]) < 3, (trial, joint, estimate, board)
         assert second.result(10).ok
+
+
+def test_a_move_taken_in_before_a_stop_and_submitted_after_it_is_cancelled(rig: Rig) -> None:
+    # An action accepts a goal, then runs it a little later: a stop in between cancels it,
+    # as it cancels every move that waits, even once the arm is released again.
+    taken_at = rig.driver.epoch
+    assert rig.driver.execute(ins.stop(), 5).ok
+    assert rig.driver.execute(ins.release(), 5).ok
+    n = len(rig.moves())
+    late = rig.driver.submit(ins.move(base=30), taken_at).result(5)
+    assert late.result is Result.CANCELLED and "a stop (or a fault) came after" in late.reason
+    assert len(rig.moves()) == n
+    assert rig.driver.submit(ins.move(base=30), rig.driver.epoch).result(10).ok

@@ -26,6 +26,7 @@ from typing import Any
 import pytest
 from al5d_interfaces.action import Move
 from al5d_interfaces.msg import ArmInstruction
+from boardproc import BoardProcess
 from builtin_interfaces.msg import Duration
 from fuzzcount import count, examples
 from hypothesis import HealthCheck, Phase, given, settings
@@ -38,7 +39,6 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from al5d.arm.config import ArmConfig, load_config
 from al5d.ros.runtime import QOS_INSTRUCTIONS
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.emulator import Emulator
 
 CONFIG = load_config()
 JOINTS = list(CONFIG.joints)
@@ -143,7 +143,7 @@ def goals(draw: st.DrawFn) -> Any:
 
 @dataclass
 class Target:
-    emu: Emulator
+    emu: BoardProcess
     proc: Proc
     peer: Peer
     config: ArmConfig
@@ -156,7 +156,7 @@ class Target:
 @pytest.fixture(scope="module")
 def target(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Target]:
     link = tmp_path_factory.mktemp("fuzz") / "ssc32u"
-    emu = Emulator(CONFIG, link=link).start()
+    emu = BoardProcess(link, config=CONFIG)  # its own GIL: the load here cannot starve it
     proc = Proc("serve", "--port", str(link), "--log-level", "INFO")
     peer = Peer(name="al5d_fuzz_peer")
     try:
@@ -261,7 +261,14 @@ def test_move_goals(target: Target, goal: Any) -> None:
         assert len(target.group_moves()) == moves_before
     else:
         result_future = handle.get_result_async()
-        wait_until(lambda: result_future.done(), 30, "the goal's result")
+        try:
+            wait_until(lambda: result_future.done(), 30, "the goal's result")
+        except AssertionError:
+            ident = bytes(handle.goal_id.uuid).hex()
+            tail = "\n".join(target.proc.err.drain(0.5)[-40:])  # every line so far
+            raise AssertionError(
+                f"no result for goal {ident} in 30 s; server log:\n{tail}"
+            ) from None
     check_the_wire(target)
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Iterable
-from concurrent.futures import Future
 from dataclasses import dataclass
 
 from al5d.arm.driver import ArmDriver
@@ -84,18 +83,13 @@ class QoSRecorder:
         self._order: dict[str, None] = {}
         driver.motion_listeners.append(self._on_sent)
         driver.outcome_listeners.append(self._on_outcome)
-        # The driver has no listener for instructions as they come; every client (the
-        # ROS node, the actions, Python) hands them to `submit`, so it is wrapped here.
-        submit = driver.submit
+        driver.submit_listeners.append(self._on_submit)
 
-        def recorded(instr: Instruction) -> Future[Outcome]:
-            if instr.kind not in SAFETY:
-                with self._lock:
-                    self._submitted.setdefault(instr.id, instr)
-                    self._order.setdefault(instr.id)
-            return submit(instr)
-
-        driver.submit = recorded  # type: ignore[method-assign]
+    def _on_submit(self, instr: Instruction) -> None:
+        if instr.kind not in SAFETY:
+            with self._lock:
+                self._submitted.setdefault(instr.id, instr)
+                self._order.setdefault(instr.id)
 
     def _on_sent(self, sent: Sent) -> None:
         with self._lock:

@@ -106,6 +106,8 @@ class ArmDriver:
         self.outcome_listeners: list[Callable[[Outcome], None]] = self.shared.outcome_listeners
         self.state_listeners: list[Callable[[State], None]] = self.shared.state_listeners
         self.motion_listeners: list[Callable[[Sent], None]] = self.shared.motion_listeners
+        #: Told every instruction as it is submitted, before it is judged (the demo's table).
+        self.submit_listeners: list[Callable[[Instruction], None]] = []
 
     # -- public API ---------------------------------------------------------------
 
@@ -138,10 +140,21 @@ class ArmDriver:
         """The steps of a motion instruction, or the reason to refuse it whole (D3)."""
         return check(instr, self.limits)
 
-    def submit(self, instr: Instruction) -> Future[Outcome]:
-        """Hand over an instruction; its Future resolves to its one outcome."""
+    @property
+    def epoch(self) -> int:
+        """Counts the events that drop every pending move (a stop, a fault, the shutdown)."""
+        return self.shared.epoch
+
+    def submit(self, instr: Instruction, taken_at: int | None = None) -> Future[Outcome]:
+        """Hand over an instruction; its Future resolves to its one outcome.
+
+        `taken_at` is the `epoch` when the caller took the instruction in (an action's goal
+        accepted): if a stop (or a fault) came since, the move is cancelled by it, as it
+        would have been had it waited in the queue."""
         t0 = now()
         future: Future[Outcome] = Future()
+        if self.submit_listeners:
+            tell(self.submit_listeners, instr, "submit")
         if self.outcome_listeners:
             future.add_done_callback(self._tell_outcome)
         kind = instr.kind
@@ -152,7 +165,7 @@ class ArmDriver:
         elif kind is Kind.SHUTDOWN:
             self._shutdown(instr, future, t0)
         else:
-            self._enqueue(instr, future, t0)
+            self._enqueue(instr, future, t0, taken_at)
         return future
 
     def refuse(self, ident: str, name: str, reason: str) -> Outcome:
@@ -237,7 +250,9 @@ class ArmDriver:
         self._refusals.refused(instr.name[:MAX_QUOTE], instr.id[:MAX_ID], reason)
         resolve(future, outcome(instr, Result.REFUSED, reason, t0))
 
-    def _enqueue(self, instr: Instruction, future: Future[Outcome], t0: float) -> None:
+    def _enqueue(
+        self, instr: Instruction, future: Future[Outcome], t0: float, taken_at: int | None = None
+    ) -> None:
         steps = check(instr, self.limits)
         if isinstance(steps, str):
             self._refuse(instr, future, steps, t0)
@@ -256,6 +271,14 @@ class ArmDriver:
         with shared.lock:
             if pose is not None and shared.pose != pose:
                 steps = ()  # the arm moved while we planned: plan again at its start
+            if taken_at is not None and taken_at != shared.epoch:
+                finish_now = "cancelled: a stop (or a fault) came after it was accepted"
+            else:
+                finish_now = ""
+        if finish_now:
+            resolve(future, outcome(instr, Result.CANCELLED, finish_now, t0))
+            return
+        with shared.lock:
             if shared.shutdown_job is not None:
                 reason = "the server is shutting down"
             else:

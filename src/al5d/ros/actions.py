@@ -117,6 +117,8 @@ class GoalRunner:
         self.node = node
         self.driver = driver
         self.running: dict[str, Any] = {}
+        #: The driver's epoch when each goal was accepted, until its execution starts.
+        self.accepted: dict[str, int] = {}
         #: Called when a goal starts to run (the node's feedback timer runs only then).
         self.started: Callable[[], object] | None = None
 
@@ -130,6 +132,9 @@ class GoalRunner:
         if isinstance(judged, str):
             self.driver.refuse(ident, self.name, judged)
             return GoalResponse.REJECT
+        # A stop between the accept and the start of its execution cancels the goal, as it
+        # cancels every move that waits (its execution may start a little later).
+        self.accepted[ident] = self.driver.epoch
         return GoalResponse.ACCEPT
 
     async def _run(self, ident: str, entry: Any, instr: Instruction) -> Outcome:
@@ -138,7 +143,8 @@ class GoalRunner:
         if self.started is not None:
             self.started()
         try:
-            return await outcome_of(self.node, self.driver.submit(instr))
+            taken_at = self.accepted.pop(ident, None)
+            return await outcome_of(self.node, self.driver.submit(instr, taken_at))
         finally:
             self.running.pop(ident, None)
 
