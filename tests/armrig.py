@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import math
 import re
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -13,6 +14,8 @@ import pytest
 from al5d.arm.config import ArmConfig
 from al5d.arm.driver import ArmDriver
 from al5d.arm.states import State
+from al5d.model import forward
+from al5d.model.transforms import Vec3
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator, Record
 
@@ -88,3 +91,30 @@ def state_lines(caplog: pytest.LogCaptureFixture) -> list[str]:
         for r in logged(caplog)
         if r.getMessage().startswith("STATE: ")
     ]
+
+
+def tip(rig: Rig) -> Vec3:
+    """Where the emulated servos put the tool tip now (metres, base_link)."""
+    return forward(rig.config.model.geometry, rig.emu.servo_degrees()).position
+
+
+def executed_tips(rig: Rig, moves: list[Record], t_end: float, dt: float = 0.0005) -> list[Vec3]:
+    """Where the emulated servos put the tip every `dt`, from the first move's effect to
+    `t_end`: each move's span from the servo model as that move left it (exact, after the
+    fact: no sampling thread to fall behind on a loaded machine)."""
+    pose = rig.emu.servo_degrees()  # joints no move touches stay where they are
+    tips = []
+    for i, rec in enumerate(moves):
+        t1 = moves[i + 1].t_effect if i + 1 < len(moves) else t_end
+        times = [rec.t_effect + k * dt for k in range(int((t1 - rec.t_effect) / dt) + 1)]
+        times += [t1] if i + 1 == len(moves) else []
+        span = rig.emu.trajectory(rec.t_effect, times)
+        for k in range(len(times)):
+            pose = {**pose, **{j: servo[k] for j, (_, servo) in span.items()}}
+            tips.append(forward(rig.config.model.geometry, pose).position)
+    return tips
+
+
+def settled_tip(rig: Rig) -> Vec3:
+    time.sleep(max(0.0, rig.emu.settle_time(0.01) - time.monotonic()) + 0.02)
+    return tip(rig)

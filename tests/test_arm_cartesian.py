@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 import yaml
-from armrig import Rig, group_pulses, written
+from armrig import Rig, executed_tips, group_pulses, settled_tip, tip, written
 
 from al5d.app.demo import DEMO_SEQUENCE
 from al5d.app.qos import QoSRecorder, format_table, label
@@ -27,14 +27,9 @@ from al5d.arm.validate import Limits, check
 from al5d.model import distance_to_segment, forward, solve
 from al5d.model.transforms import Vec3
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.emulator import Record
 
 CONFIG = load_config()
 TRANSLATOR = Translator(CONFIG)
-
-
-def tip(rig: Rig) -> tuple[float, float, float]:
-    return forward(rig.config.model.geometry, rig.emu.servo_degrees()).position
 
 
 def distance(a: tuple[float, ...], b: tuple[float, ...]) -> float:
@@ -89,28 +84,6 @@ def test_the_reason_says_how_far(rig: Rig) -> None:
     # The wrist point is 350 mm from the shoulder (450 - 100 of gripper); the arm reaches
     # 146.05 + 187.325 = 333.375 mm.
     assert outcome.reason == "out of reach: 350 mm from the shoulder, the arm reaches 333 mm"
-
-
-def executed_tips(rig: Rig, moves: list[Record], t_end: float, dt: float = 0.0005) -> list[Vec3]:
-    """Where the emulated servos put the tip every `dt`, from the first move's effect to
-    `t_end`: each move's span from the servo model as that move left it (exact, after the
-    fact: no sampling thread to fall behind on a loaded machine)."""
-    pose = rig.emu.servo_degrees()  # joints no move touches stay where they are
-    tips = []
-    for i, rec in enumerate(moves):
-        t1 = moves[i + 1].t_effect if i + 1 < len(moves) else t_end
-        times = [rec.t_effect + k * dt for k in range(int((t1 - rec.t_effect) / dt) + 1)]
-        times += [t1] if i + 1 == len(moves) else []
-        span = rig.emu.trajectory(rec.t_effect, times)
-        for k in range(len(times)):
-            pose = {**pose, **{j: servo[k] for j, (_, servo) in span.items()}}
-            tips.append(forward(rig.config.model.geometry, pose).position)
-    return tips
-
-
-def settled_tip(rig: Rig) -> Vec3:
-    time.sleep(max(0.0, rig.emu.settle_time(0.01) - time.monotonic()) + 0.02)
-    return tip(rig)
 
 
 #: (start: None for ready, else a point at pitch -30), target, pitch, roll. The first two

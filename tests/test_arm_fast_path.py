@@ -9,14 +9,19 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass
 
 import pytest
-from armrig import Rig
+from armrig import Rig, executed_tips
 
 from al5d.arm import instruction as ins
-from al5d.arm.instruction import Result
+from al5d.arm.instruction import Outcome, Result
 from al5d.arm.states import State
+from al5d.model import distance_to_segment
 from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Record
 
 
 def writers(rig: Rig) -> list[str]:
@@ -42,23 +47,19 @@ def test_a_move_behind_another_is_written_by_the_worker(rig: Rig) -> None:
     assert [r.raw[:7] for r in rig.moves()[-2:]] == [b"#0P1900", b"#0P1500"]
 
 
-def last_word_on(rig: Rig, channel: int) -> bytes:
-    """The last line the board received that acted on `channel` (a move or a STOP)."""
-
-    def acts(rec_commands: tuple[p.Command, ...]) -> bool:
-        for c in rec_commands:
-            if isinstance(c, p.Stop) and c.channel == channel:
-                return True
-            if isinstance(c, p.GroupMove) and any(t.channel == channel for t in c.targets):
-                return True
-        return False
-
-    return [r.raw for r in rig.emu.records if acts(r.commands)][-1]
+def acts_on(rec: Record, channel: int) -> str:
+    """ "stop" or "move" if the line acted on `channel` (a STOP, a group move), else ""."""
+    for c in rec.commands:
+        if isinstance(c, p.Stop) and c.channel == channel:
+            return "stop"
+        if isinstance(c, p.GroupMove) and any(t.channel == channel for t in c.targets):
+            return "move"
+    return ""
 
 
 def quiet(rig: Rig, for_s: float = 0.15) -> None:
-    """Until the board has received nothing for `for_s` (a re-STOP after a raced move takes
-    about 60 ms of wire at 9600 baud to arrive whole)."""
+    """Until the board has received nothing for `for_s` (a stop's six STOPs take 38.5 ms of
+    wire at 9600 baud)."""
     seen = -1
     while len(rig.emu.records) != seen:
         seen = len(rig.emu.records)
@@ -72,28 +73,44 @@ def held(rig: Rig, channel: int) -> bool:
     return rig.emu.pulse_us(channel) == before
 
 
-def stop_in_another_thread(rig: Rig, wait: bool) -> threading.Thread:
-    thread = threading.Thread(target=rig.driver.execute, args=(ins.stop(), 5))
-    thread.start()
-    if wait:
-        thread.join(5)
-    return thread
+@dataclass
+class Trial:
+    result: Result
+    #: What reached the board on the base's channel during the trial, in order.
+    base: list[str]
+    #: The threads that reached the race point: the fast path runs in the caller's.
+    at_point: list[str]
 
 
-def run_with_a_stop(rig: Rig, point: str, wait: bool) -> Result:
-    """Submit an idle arm's move; a stop comes at `point` of its fast path."""
+def run_with_a_stop(rig: Rig, point: str, wait: bool) -> Trial:
+    """Submit an idle arm's move; a stop comes from another thread at `point` of its fast
+    path, and (if `wait`) is done before the path goes on, or has at least ended the
+    epoch ("locked": it then waits for the write lock, which the move holds)."""
     threads: list[threading.Thread] = []
+    at_point: list[str] = []
     board = rig.driver.shared.board
     assert board is not None
     write = board.write_command
+    before = len(rig.emu.records)
 
     def hook(at: str) -> None:
-        if at == point:
-            threads.append(stop_in_another_thread(rig, wait))
+        if at != point or threads:
+            return
+        at_point.append(threading.current_thread().name)
+        epoch = rig.driver.epoch
+        thread = threading.Thread(target=rig.driver.execute, args=(ins.stop(), 5))
+        threads.append(thread)
+        thread.start()
+        if wait and point == "locked":
+            deadline = time.monotonic() + 5
+            while rig.driver.epoch == epoch and time.monotonic() < deadline:
+                time.sleep(0.001)
+        elif wait:
+            thread.join(5)
 
-    def writing(data: bytes) -> float:
+    def writing(data: bytes, unless: Callable[[], bool] | None = None) -> float | None:
         hook("writing")
-        return write(data)
+        return write(data, unless) if unless is not None else write(data)
 
     rig.driver.writer.race_hook = hook
     board.write_command = writing  # type: ignore[method-assign]
@@ -104,30 +121,38 @@ def run_with_a_stop(rig: Rig, point: str, wait: bool) -> Result:
         board.write_command = write  # type: ignore[method-assign]
         for th in threads:
             th.join(5)
-    return outcome.result
-
-
-def test_a_stop_before_the_check_refuses_the_move(rig: Rig) -> None:
-    assert rig.driver.execute(ins.stop(), 5).ok
-    n = len(rig.moves())
-    assert rig.driver.execute(ins.move(base=80), 5).result is Result.REFUSED
-    assert len(rig.moves()) == n
+    rig.emu.wait_for(lambda rs: any(acts_on(r, 0) == "stop" for r in rs[before:]), 2)
+    quiet(rig)
+    base = [a for r in rig.emu.records[before:] if (a := acts_on(r, 0))]
+    return Trial(outcome.result, base, at_point)
 
 
 @pytest.mark.parametrize(
-    ("point", "wait"),
+    ("point", "wait", "expected", "reached"),
     [
-        ("checked", True),  # between the check and the write: the stop is done first
-        ("writing", False),  # during the write: the two race for the wire
+        # After the move was judged, before the state and the epoch are checked: refused.
+        ("judged", True, Result.REFUSED, False),
+        # Between that check and the write: the stop is done first; the move never goes out.
+        ("checked", True, Result.CANCELLED, False),
+        # The move holds the write lock and the stop waits for it, the epoch ended: the
+        # move's last check sees that, and it never goes out.
+        ("locked", True, Result.CANCELLED, False),
+        # During the write, the two racing: either may have the wire first.
+        ("writing", False, Result.CANCELLED, None),
     ],
 )
-def test_a_stop_during_the_fast_path_has_the_last_word(rig: Rig, point: str, wait: bool) -> None:
-    for trial in range(10 if point == "writing" else 3):
-        result = run_with_a_stop(rig, point, wait)
-        assert result is Result.CANCELLED, f"trial {trial}"
-        rig.emu.wait_for(lambda rs: any(r.raw.startswith(b"STOP0") for r in rs[-8:]), 2)
-        quiet(rig)
-        assert last_word_on(rig, 0) == b"STOP0", f"trial {trial}: the move outlived the stop"
+def test_a_stop_at_any_point_of_the_fast_path_is_never_overtaken(
+    rig: Rig, point: str, wait: bool, expected: Result, reached: bool | None
+) -> None:
+    for trial in range(10 if reached is None else 3):
+        got = run_with_a_stop(rig, point, wait)
+        assert got.at_point == [threading.current_thread().name], f"trial {trial}: fast path?"
+        assert got.result is expected, f"trial {trial}"
+        assert "stop" in got.base, f"trial {trial}: no STOP on the board"
+        # Nothing of the move after the stop's STOP: it went out before it, or not at all.
+        assert "move" not in got.base[got.base.index("stop") :], f"trial {trial}: {got.base}"
+        if reached is not None:
+            assert ("move" in got.base) is reached, f"trial {trial}: {got.base}"
         assert held(rig, 0), f"trial {trial}: base still moving after the stop"
         assert rig.driver.state is State.STOPPED
         assert rig.driver.execute(ins.release(), 5).ok
@@ -162,3 +187,56 @@ def test_a_move_taken_in_before_a_stop_and_submitted_after_it_is_cancelled(rig: 
     assert late.result is Result.CANCELLED and "a stop (or a fault) came after" in late.reason
     assert len(rig.moves()) == n
     assert rig.driver.submit(ins.move(base=30), rig.driver.epoch).result(10).ok
+
+
+def test_a_stop_and_a_release_while_a_taken_move_is_judged_still_cancel_it(rig: Rig) -> None:
+    """A goal accepted before a stop, submitted as the stop and a release come: the check
+    of when it was taken and the making of its job are one step, so the stop cancels it."""
+    taken_at = rig.driver.epoch
+    n = len(rig.moves())
+
+    def hook(at: str) -> None:
+        if at == "judged" and rig.driver.epoch == taken_at:
+            assert rig.driver.execute(ins.stop(), 5).ok
+            assert rig.driver.execute(ins.release(), 5).ok
+
+    rig.driver.writer.race_hook = hook
+    try:
+        late = rig.driver.submit(ins.move(base=30), taken_at).result(5)
+    finally:
+        rig.driver.writer.race_hook = None
+    assert late.result is Result.CANCELLED, late
+    assert len(rig.moves()) == n
+
+
+def test_a_line_planned_as_another_move_gets_in_first_starts_where_that_one_ends(
+    rig: Rig,
+) -> None:
+    """A straight line is planned on an idle arm; another thread's move is written before
+    the line is queued: the line is planned again from where that move ends."""
+    assert rig.driver.execute(ins.preset("ready"), 10).ok
+    other: list[Future[Outcome]] = []
+    fired = threading.Event()
+
+    def hook(at: str) -> None:
+        if at == "judged" and not fired.is_set():
+            fired.set()  # the other move passes here too
+            other.append(rig.driver.submit(ins.move(base=30, time_ms=300)))
+
+    n = len(rig.moves())
+    target = (150.0, -200.0, 150.0)
+    rig.driver.writer.race_hook = hook
+    try:
+        line = rig.driver.submit(ins.move_to(*target, pitch=-30, line=True))
+    finally:
+        rig.driver.writer.race_hook = None
+    assert other and other[0].result(10).ok
+    assert line.result(20).ok
+    moves = rig.moves()[n:]
+    assert len(moves) > 2  # the other move, then the line's hops
+    start = rig.emu.trajectory(moves[1].t_effect, [moves[1].t_effect])  # where the line began
+    assert start["base"][1][0] == pytest.approx(30, abs=0.5)
+    tips = executed_tips(rig, moves[1:], rig.emu.settle_time(0.01))
+    end = tuple(c / 1000 for c in target)
+    worst = max(distance_to_segment(tips[0], end, q) for q in tips)
+    assert worst <= 0.001, f"the line went {worst * 1000:.1f} mm off"

@@ -180,6 +180,18 @@ class TestListeners:
         failures = [r for r in logged(caplog) if "listener" in r.getMessage()]
         assert failures and all(r.levelno == logging.ERROR for r in failures)
 
+    def test_a_slow_submit_listener_never_holds_up_the_stop(self, rig: Rig) -> None:
+        seen: list[tuple[str, State]] = []
+
+        def slow(instr: ins.Instruction) -> None:
+            seen.append((instr.name, rig.driver.state))
+            time.sleep(0.3)
+
+        rig.driver.submit_listeners.append(slow)
+        assert rig.driver.execute(ins.stop(), 5).ok
+        # The listener heard of the stop after it had stopped the arm, not before.
+        assert seen == [("stop", State.STOPPED)]
+
 
 class TestStopOrder:
     @pytest.mark.parametrize(

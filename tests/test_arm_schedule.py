@@ -23,7 +23,7 @@ from al5d.arm.writer import StepWriter
 def writer(config: ArmConfig) -> StepWriter:
     shared = Shared(config)
     shared.pose.update(dict.fromkeys(config.joints, 0.0))
-    return StepWriter(shared, Translator(config), {n: j.channel for n, j in config.joints.items()})
+    return StepWriter(shared, Translator(config))
 
 
 def job_at_step(k: int, t_due: float, steps: tuple[Step, ...]) -> Job:

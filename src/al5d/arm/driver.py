@@ -99,7 +99,7 @@ class ArmDriver:
         self._channel_of = {name: j.channel for name, j in config.joints.items()}
         self.shared = Shared(config)
         self._refusals = RefusalLog()
-        self.writer = StepWriter(self.shared, self.translator, self._channel_of)
+        self.writer = StepWriter(self.shared, self.translator)
         self._worker = Worker(config, self.shared, port, self.baud, self.writer)
         self._thread = threading.Thread(target=self._worker.run, name="al5d-worker", daemon=True)
         self.finished = self.shared.finished
@@ -153,18 +153,18 @@ class ArmDriver:
         would have been had it waited in the queue."""
         t0 = now()
         future: Future[Outcome] = Future()
+        kind = instr.kind
+        if kind is Kind.STOP:
+            self._stop(instr, future, t0)  # before any listener: a stop waits for nothing
         if self.submit_listeners:
             tell(self.submit_listeners, instr, "submit")
         if self.outcome_listeners:
             future.add_done_callback(self._tell_outcome)
-        kind = instr.kind
-        if kind is Kind.STOP:
-            self._stop(instr, future, t0)
-        elif kind is Kind.RELEASE:
+        if kind is Kind.RELEASE:
             self._release(instr, future, t0)
         elif kind is Kind.SHUTDOWN:
             self._shutdown(instr, future, t0)
-        else:
+        elif kind is not Kind.STOP:
             self._enqueue(instr, future, t0, taken_at)
         return future
 
@@ -267,23 +267,20 @@ class ArmDriver:
                 if isinstance(steps, str):
                     self._refuse(instr, future, steps, t0)
                     return
+        if self.writer.race_hook is not None:
+            self.writer.race_hook("judged")
         board = None
         with shared.lock:
-            if pose is not None and shared.pose != pose:
-                steps = ()  # the arm moved while we planned: plan again at its start
+            if pose is not None and (shared.pose != pose or not self._idle()):
+                steps = ()  # another move came first: plan again from where it ends
             if taken_at is not None and taken_at != shared.epoch:
-                finish_now = "cancelled: a stop (or a fault) came after it was accepted"
+                reason = ""
+                cancelled = "cancelled: a stop (or a fault) came after it was accepted"
+            elif shared.shutdown_job is not None:
+                reason, cancelled = "the server is shutting down", ""
             else:
-                finish_now = ""
-        if finish_now:
-            resolve(future, outcome(instr, Result.CANCELLED, finish_now, t0))
-            return
-        with shared.lock:
-            if shared.shutdown_job is not None:
-                reason = "the server is shutting down"
-            else:
-                reason = refusal(shared.state, shared.fault)
-            if not reason:
+                reason, cancelled = refusal(shared.state, shared.fault), ""
+            if not reason and not cancelled:
                 job = Job(instr, steps, future, shared.epoch, t0)
                 capacity = self.settings.queue_capacity
                 if self._idle() and len(steps) == 1:
@@ -297,10 +294,12 @@ class ArmDriver:
                     shared.queue.append(job)
                     shared.cv.notify_all()
                     return
-        if reason:
+        if cancelled:
+            resolve(future, outcome(instr, Result.CANCELLED, cancelled, t0))
+        elif reason:
             self._refuse(instr, future, reason, t0)
         elif board is not None:
-            self._write_now(job, board)
+            self.writer.write_alone(job, board)
 
     def _idle(self) -> bool:
         """An arm at rest with its board: no move runs, is being written, or waits, and its
@@ -314,35 +313,6 @@ class ArmDriver:
             and not shared.queue
             and not shared.readback
         )
-
-    def _write_now(self, job: Job, board: SSC32U) -> None:
-        """The fast path: write an idle arm's move from this thread, without the hand-over to
-        the worker (a thread wake and the GIL, most of the server's share of the latency);
-        then the worker waits for it to complete. The job is current and of this epoch
-        before the write, and the epoch is checked after it (`StepWriter.write`): a stop
-        at any moment leaves its STOP last on the wire."""
-        shared = self.shared
-        try:
-            written = self.writer.write(job, job.steps[0], board)
-        except SerialFault as e:
-            with shared.cv:
-                shared.end_write()
-                if shared.current is job:
-                    shared.current = None
-                shared.fault = shared.fault or e  # the worker enters the fault
-                shared.cv.notify_all()
-            job.cancel.set()
-            finish(job, Result.CANCELLED, f"the serial link is lost: {e}")
-            return
-        with shared.cv:
-            shared.end_write()
-            if written is None or job.epoch != shared.epoch:
-                if shared.current is job:  # a stop took it: its outcome is set
-                    shared.current = None
-            else:
-                shared.handed = (job, written)
-            shared.cv.notify_all()
-        shared.announce()
 
     def _stop(self, instr: Instruction, future: Future[Outcome], t0: float) -> None:
         """VE01/D4: halt at once, drop the queue, lock. Never waits for the worker."""

@@ -2,10 +2,12 @@
 
 Used by the worker for every step, and by the caller's thread for the first
 (only) step of a move given to an idle arm (the fast path, `driver.ArmDriver`),
-so that both follow one rule: a job is current and of the current epoch before
-its bytes are written, and the epoch is checked again after the write; if a
-stop came in between, its STOP may have gone out before our move, so the STOP
-is written again. A move that predates a stop never stays in effect after it.
+so that both follow one rule. A stop ends the epoch (under the shared lock)
+before it writes its STOP, and the STOP takes the board's write lock; a step is
+written only if its job's epoch still holds when the step has the write lock
+(`SSC32U.write_command`'s `unless`). So either the step goes out before the STOP,
+which then halts it, or it does not go out at all: no byte of a move that
+predates a stop ever reaches the board after that stop's STOP.
 """
 
 from __future__ import annotations
@@ -14,13 +16,14 @@ import logging
 import math
 from collections.abc import Callable, Mapping
 
-from al5d.arm.instruction import Kind
-from al5d.arm.jobs import Job, Motion, Sent, Written, stop_order
+from al5d.arm.instruction import Kind, Result
+from al5d.arm.jobs import Job, Motion, Sent, Written, finish
 from al5d.arm.shared import Shared, tell
 from al5d.arm.translate import Translator
 from al5d.arm.validate import Step
 from al5d.clock import now
 from al5d.ssc32u.driver import SSC32U
+from al5d.ssc32u.errors import SerialFault
 
 log = logging.getLogger("al5d")
 
@@ -28,12 +31,12 @@ log = logging.getLogger("al5d")
 class StepWriter:
     """Plans and writes the steps of jobs for one arm."""
 
-    def __init__(self, shared: Shared, translator: Translator, channels: dict[str, int]) -> None:
+    def __init__(self, shared: Shared, translator: Translator) -> None:
         self.shared = shared
         self.translator = translator
-        self.channel_of = channels
-        #: A test's seam: called with "checked" before a step is written, and from inside
-        #: the write (see tests/test_arm_fast_path.py); None in use.
+        #: A test's seam: called with "checked" before a step is written, and with "locked"
+        #: when it holds the board's write lock, just before the epoch's last check (see
+        #: tests/test_arm_fast_path.py); None in use.
         self.race_hook: Callable[[str], None] | None = None
 
     def plan(
@@ -108,7 +111,7 @@ class StepWriter:
             )
 
     def write(self, job: Job, step: Step, board: SSC32U) -> Written | None:
-        """Write one step of a current job; None if a stop came first (its STOP stands).
+        """Write one step of a current job; None if a stop (or a cancel) came first.
 
         Raises SerialFault when the write fails; the caller hands that to the worker.
         """
@@ -116,24 +119,63 @@ class StepWriter:
         data, time_ms = self.plan(job, step, board.arrival)
         job.expected_ms += time_ms
         start = {j: v for j, v in shared.pose.items() if v is not None}
-        if self.race_hook is not None:
-            self.race_hook("checked")
+        hook = self.race_hook
+        if hook is not None:
+            hook("checked")
+
+        def overtaken() -> bool:
+            # Read without the shared lock, which is never taken inside the write lock:
+            # a stop has ended the epoch (or set the cancel) before it asks for the write
+            # lock, so if it is waiting for it, or has had it, we see that here.
+            if hook is not None:
+                hook("locked")
+            return job.epoch != shared.epoch or job.cancel.is_set()
+
         t_write = now()
         # The move starts when its CR reaches the board: after whatever was still on the
         # wire (a stop's STOPs, a query) and its own wire time.
-        t_sent = board.write_command(data)
+        t_sent = board.write_command(data, unless=overtaken)
+        if t_sent is None:
+            return None  # the stop's STOP stands; nothing of this step went out
         motion = Motion(start, step.target, t_sent, time_ms / 1000.0)
         with shared.lock:
-            raced = job.epoch != shared.epoch or job.cancel.is_set()
-            if not raced:
-                motion = motion.after(shared.motion, t_write)
-                shared.motion = motion
-        if raced:
-            board.stop(stop_order(motion, now(), self.channel_of))
-            return None
+            # A stop that came after the write lock was ours writes its STOP after our
+            # bytes: it has halted (or will halt) this step, and set the pose.
+            if job.epoch != shared.epoch or job.cancel.is_set():
+                return None
+            motion = motion.after(shared.motion, t_write)
+            shared.motion = motion
         t_end = t_sent + time_ms / 1000.0
         job.t_due = max(t_end, job.t_due + (step.time_ms or 0) / 1000.0) if job.step else t_end
         if shared.motion_listeners:
             sent = Sent(job.instr, data, job.t_submit, t_write, motion)
             tell(shared.motion_listeners, sent, "motion")
         return Written(motion, t_end, board.wire_time_s(data))
+
+    def write_alone(self, job: Job, board: SSC32U) -> None:
+        """The fast path: the caller's thread writes an idle arm's move (its only step),
+        without the hand-over to the worker (a thread wake and the GIL, most of the server's
+        share of the latency), then hands the waiting for completion to the worker. The
+        caller has made the job current, of this epoch, inside `begin_write`."""
+        shared = self.shared
+        try:
+            written = self.write(job, job.steps[0], board)
+        except SerialFault as e:
+            with shared.cv:
+                shared.end_write()
+                if shared.current is job:
+                    shared.current = None
+                shared.fault = shared.fault or e  # the worker enters the fault
+                shared.cv.notify_all()
+            job.cancel.set()
+            finish(job, Result.CANCELLED, f"the serial link is lost: {e}")
+            return
+        with shared.cv:
+            shared.end_write()
+            if written is None or job.epoch != shared.epoch:
+                if shared.current is job:  # a stop took it: its outcome is set
+                    shared.current = None
+            else:
+                shared.handed = (job, written)
+            shared.cv.notify_all()
+        shared.announce()

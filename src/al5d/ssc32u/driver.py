@@ -16,7 +16,7 @@ import contextlib
 import logging
 import termios
 import threading
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from types import TracebackType
 
 import serial
@@ -164,13 +164,17 @@ class SSC32U:
         self._write(data)
         return data
 
-    def write_command(self, data: bytes) -> float:
+    def write_command(self, data: bytes, unless: Callable[[], bool] | None = None) -> float | None:
         """Write bytes already encoded by `al5d.ssc32u.protocol` (a hot path skips re-encoding).
 
         Returns when their last byte will have reached the board (CLOCK_MONOTONIC): after
         the bytes before them on the wire (a stop, a query) and their own wire time.
+        `unless` is asked under the write lock, just before the write; if it says True,
+        nothing is written and None is returned. A caller whose command must never follow
+        a stop makes the stop decide before it takes this lock: then either the command
+        goes out first and the STOP after it, or the command does not go out at all.
         """
-        return self._write(data)
+        return self._write(data, unless)
 
     def stop(self, channels: Iterable[int]) -> bytes:
         """Emergency stop: ESC, which cancels any partial line on the board, then STOP every
@@ -261,8 +265,10 @@ class SSC32U:
             )
         return firmware
 
-    def _write(self, data: bytes) -> float:
+    def _write(self, data: bytes, unless: Callable[[], bool] | None = None) -> float | None:
         with self._write_lock:
+            if unless is not None and unless():
+                return None
             try:
                 self._ser.write(data)
             except IO_ERRORS as e:
