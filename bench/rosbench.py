@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+import json
 import math
 import os
 import random
@@ -167,8 +168,8 @@ class Rig:
         self.emu.close()
         trace: dict[str, dict[str, int]] = {}
         for line in self.trace.read_text().splitlines():
-            ident, what, t = line.rsplit(" ", 2)
-            trace.setdefault(ident, {})[what] = int(t)
+            ident, what, t = json.loads(line)
+            trace.setdefault(ident, {})[what] = t
         return trace
 
 

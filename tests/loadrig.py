@@ -27,6 +27,9 @@ from std_srvs.srv import Trigger
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Record
 
+#: How the board's record notes an ESC (the first byte of every stop's write).
+ESC_NOTE = "cancelled by ESC"
+
 
 class Board(Protocol):
     """What the suite reads of a board: the in-process emulator or `BoardProcess`."""
@@ -93,6 +96,10 @@ class FloodResult:
     stop_service_ms: list[float] = field(default_factory=list)
     stop_topic_ms: list[float] = field(default_factory=list)
     stops_missed: int = 0
+    #: The stops sent on the topic, and how many of them got one outcome, and more than one.
+    stop_ids: list[str] = field(default_factory=list)
+    stop_outcomes: int = 0
+    stop_duplicates: int = 0
     notes: list[str] = field(default_factory=list)
     before: dict[str, int] = field(default_factory=dict)
     after: dict[str, int] = field(default_factory=dict)
@@ -106,31 +113,54 @@ class FloodResult:
 
 
 def first_stop_after(emu: Board, t: float, timeout: float = 10.0) -> Record:
-    """The first STOP in effect on the board after `t` (raises TimeoutError)."""
+    """The first STOP of the first stop whose ESC took effect after `t` (raises TimeoutError).
+
+    Bound to the ESC that begins the stop's write: a STOP of an earlier stop still on
+    the wire at `t` (six take 38.5 ms at 9600 baud) is not this one's."""
 
     def find(records: list[Record]) -> Record | None:
-        return next((r for r in records if r.t_effect > t and r.raw.startswith(b"STOP")), None)
+        esc = next(
+            (i for i, r in enumerate(records) if r.t_effect > t and r.ignored == ESC_NOTE), None
+        )
+        if esc is None:
+            return None
+        return next((r for r in records[esc + 1 :] if r.raw.startswith(b"STOP")), None)
 
     found = find(emu.wait_for(lambda rs: find(rs) is not None, timeout))
     assert found is not None
     return found
 
 
-def stop_latency_ms(emu: Board, peer: Peer, via: str, baud: int) -> float | None:
-    """Stop by service or topic; ms until the first STOP is in effect, minus ESC and its wire."""
+def stop_latency_ms(emu: Board, peer: Peer, via: str, baud: int, ident: str = "") -> float | None:
+    """Stop by service or topic (with `ident`); ms until the first STOP is in effect, minus
+    ESC and its wire."""
     t0 = time.monotonic()
     if via == "service":
         future = peer.services["stop"].call_async(Trigger.Request())
     else:
-        peer.pub.publish(ArmInstruction(instruction="stop", id=f"stop-{t0}"))
+        peer.pub.publish(ArmInstruction(instruction="stop", id=ident or f"stop-{t0}"))
     try:
         rec = first_stop_after(emu, t0)
     except TimeoutError:
         return None
     if via == "service":
         wait_future(future, 10)
-    wire = p.wire_time_s(len(p.CANCEL + b"STOP0\r"), baud)
+    wire = p.wire_time_s(len(p.CANCEL) + len(rec.raw) + len(p.CR), baud)
     return (rec.t_effect - t0 - wire) * 1000
+
+
+def quiet_stops(emu: Board, peer: Peer, trials: int) -> dict[str, list[float]]:
+    """`trials` stops by service and as many by topic, each released, with nothing else
+    going on: the figure the stops under a flood are judged against."""
+    quiet: dict[str, list[float]] = {"service": [], "topic": []}
+    time.sleep(0.5)  # what came before (a stop, its read-back) off the wire
+    for via in ("service", "topic") * trials:
+        ms = stop_latency_ms(emu, peer, via, emu.baud)
+        assert ms is not None, f"a stop via {via} never reached the board"
+        quiet[via].append(ms)
+        peer.trigger("release")
+        time.sleep(0.1)  # the stop's six STOPs off the wire before the next stop
+    return quiet
 
 
 def flood(
@@ -172,7 +202,10 @@ def flood(
         via = "service"
         while time.monotonic() < t_end - stops_every_s:
             time.sleep(stops_every_s)
-            ms = stop_latency_ms(emu, peer, via, emu.baud)
+            ident = f"{prefix}-stop-{len(result.stop_ids)}" if via == "topic" else ""
+            if ident:
+                result.stop_ids.append(ident)
+            ms = stop_latency_ms(emu, peer, via, emu.baud, ident)
             if ms is None:
                 result.stops_missed += 1
                 result.notes.append(f"a stop via {via} never reached the board:\n{diagnose()}")
@@ -183,15 +216,17 @@ def flood(
         done = json.loads(client.stdout.readline())
         result.sent, result.failed_publishes = done["sent"], done["failed"]
         t_sent = time.monotonic()
-        # The moves still queued get their outcomes from one more stop, not a minute of moving.
-        wait_future(peer.services["stop"].call_async(Trigger.Request()), 10)
-        wait_future(peer.services["release"].call_async(Trigger.Request()), 10)
+        # The moves still queued get their outcomes from more stops, not a minute of moving:
+        # the server may not have taken the whole flood yet (the sender was slowed).
         ids = [f"{prefix}-{i}" for i in range(result.sent)]
         deadline = time.monotonic() + 120
         while counter.count(ids)[0] < len(ids) and time.monotonic() < deadline:
-            time.sleep(0.1)
+            wait_future(peer.services["stop"].call_async(Trigger.Request()), 10)
+            wait_future(peer.services["release"].call_async(Trigger.Request()), 10)
+            time.sleep(0.5)
         result.drained_s = time.monotonic() - t_sent
         result.outcomes, result.duplicates = counter.count(ids)
+        result.stop_outcomes, result.stop_duplicates = counter.count(result.stop_ids)
         time.sleep(0.5)
         result.after = proc_status(server_pid)
     finally:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 from boardproc import BoardProcess
-from loadrig import Counter, FloodResult, flood, stop_latency_ms
+from loadrig import Counter, FloodResult, flood, quiet_stops
 from proc import Proc
 from rospeer import Peer
 
@@ -25,6 +25,10 @@ pytestmark = pytest.mark.solo  # load suites: alone (see pyproject.toml)
 OUT = Path(__file__).resolve().parents[1] / "build" / "reliability"
 RATES = (2000, 5000, 10000)
 SECONDS = 3.0
+#: A bound that only a stop queued behind instruction traffic breaks (the defect: seconds;
+#: 0.2 to 3 s by topic at 10,000/s before the stop watcher), far above what is measured
+#: (`make soak` prints the figures).
+BOUND_MS = 250
 
 
 @pytest.fixture(scope="module")
@@ -51,12 +55,10 @@ RESULTS: dict[str, object] = {}
 
 def test_quiet_stops(loaded: tuple[BoardProcess, Proc, Peer]) -> None:
     board, _, peer = loaded
-    quiet = {"service": [], "topic": []}
-    for via in ("service", "topic") * 10:
-        ms = stop_latency_ms(board, peer, via, board.baud)
-        assert ms is not None, f"a stop via {via} never reached the board"
-        quiet[via].append(ms)
-        peer.trigger("release")
+    quiet = quiet_stops(board, peer, 10)
+    # The software's share: after the request, never before (a STOP of an earlier stop
+    # still on the wire once passed for this one's), and not behind anything.
+    assert all(0 < ms < BOUND_MS for ms in quiet["service"] + quiet["topic"]), quiet
     RESULTS["quiet"] = quiet
 
 
@@ -83,6 +85,9 @@ def test_a_flood_loses_nothing_and_the_stop_gets_through(
     assert result.lost == 0 and result.duplicates == 0
     assert result.stops_missed == 0, result.notes
     assert len(result.stop_service_ms) + len(result.stop_topic_ms) >= 2
+    assert max(result.stop_service_ms, default=0) < BOUND_MS, result.stop_service_ms
+    assert max(result.stop_topic_ms, default=0) < BOUND_MS, result.stop_topic_ms
+    assert (result.stop_outcomes, result.stop_duplicates) == (len(result.stop_ids), 0)
     assert result.after["Threads"] == result.before["Threads"]
     assert result.after["VmRSS"] - result.before["VmRSS"] < 30_000  # kB: flat, not growing
     assert server.popen.poll() is None

@@ -20,7 +20,7 @@ import pytest
 from al5d_interfaces.msg import ArmInstruction
 from armrig import written
 from builtin_interfaces.msg import Duration
-from loadrig import proc_status
+from loadrig import Counter, proc_status
 from proc import Proc
 from rospeer import Peer, wait_future, wait_until
 from std_msgs.msg import String
@@ -183,6 +183,32 @@ def test_the_services(server: Server, peer: Peer) -> None:
     assert server.proc.wait(30) == 0
     server.proc.err.drain()
     assert any("shutdown: parked" in line for line in server.proc.err.all)
+
+
+def test_stops_on_the_topic_are_obeyed_and_answered_once_each(server: Server, peer: Peer) -> None:
+    """Two readers in the server see a stop on the topic (the node `al5d`, in order, and the
+    stop watcher, at once). Each instruction is answered once; each release, sent after
+    a stop, finds the arm stopped; and a stop is never undone by a release sent before
+    it: after the last stop the arm stays locked. Unique ids, then one id for all."""
+    counter = Counter(peer)
+    peer.send("warm", "release")  # refused (not stopped): the counter has matched
+    wait_until(lambda: counter.count(["warm"])[0] == 1, 10, "the counter")
+    stops, releases = [], []
+    for i in range(40):
+        stops.append(f"s{i}" if i < 20 else "same")
+        releases.append(f"r{i}" if i < 20 else "same-r")
+        peer.send(stops[-1], "stop")
+        peer.send(releases[-1], "release")
+    peer.send("s-last", "stop")
+    peer.send("after", "move", base=10)
+    wait_until(lambda: counter.count(["after"])[0] == 1, 20, "the last outcome")
+    with counter.lock:
+        seen, reasons = dict(counter.seen), dict(counter.reasons)
+    once = stops[:20] + releases[:20] + ["s-last", "after"]
+    assert {i: seen.get(i, 0) for i in once} == dict.fromkeys(once, 1)
+    assert (seen.get("same"), seen.get("same-r")) == (20, 20)
+    assert [reasons[r] for r in [*releases[:20], "same-r"]] == ["done: "] * 21
+    assert reasons["after"].startswith("refused: ") and "stopped" in reasons["after"], reasons
 
 
 def test_stop_during_a_move_with_queued_moves_and_goals(server: Server, peer: Peer) -> None:

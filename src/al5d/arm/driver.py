@@ -145,20 +145,23 @@ class ArmDriver:
         """Counts the events that drop every pending move (a stop, a fault, the shutdown)."""
         return self.shared.epoch
 
-    def submit(self, instr: Instruction, taken_at: int | None = None) -> Future[Outcome]:
+    def submit(
+        self, instr: Instruction, taken_at: int | None = None, *, listeners: bool = True
+    ) -> Future[Outcome]:
         """Hand over an instruction; its Future resolves to its one outcome.
 
         `taken_at` is the `epoch` when the caller took the instruction in (an action's goal
         accepted): if a stop (or a fault) came since, the move is cancelled by it, as it
-        would have been had it waited in the queue."""
+        would have been had it waited in the queue. With `listeners=False` no listener
+        hears of it (an instruction obeyed a second time, whose outcome was told)."""
         t0 = now()
         future: Future[Outcome] = Future()
         kind = instr.kind
         if kind is Kind.STOP:
             self._stop(instr, future, t0)  # before any listener: a stop waits for nothing
-        if self.submit_listeners:
+        if self.submit_listeners and listeners:
             tell(self.submit_listeners, instr, "submit")
-        if self.outcome_listeners:
+        if self.outcome_listeners and listeners:
             future.add_done_callback(self._tell_outcome)
         if kind is Kind.RELEASE:
             self._release(instr, future, t0)

@@ -14,6 +14,7 @@ which waits for them without spinning (see `runtime.make_executor`).
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import time
@@ -26,7 +27,7 @@ from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
 from al5d.arm.driver import ArmDriver
-from al5d.arm.instruction import Outcome, new_id
+from al5d.arm.instruction import Kind, Outcome, new_id
 from al5d.arm.states import State
 from al5d.ros.actions import MoveAction
 from al5d.ros.controllers import FollowTrajectoryAction, GripperAction
@@ -49,7 +50,7 @@ from al5d.ros.runtime import (
     bound_backlog,
     start_context,
 )
-from al5d.ros.safety import SafetyNode
+from al5d.ros.safety import FirstTaker, SafetyNode
 
 log = logging.getLogger("al5d")
 
@@ -57,10 +58,13 @@ log = logging.getLogger("al5d")
 class ArmNode(Node):
     """Node `al5d`: every topic and action of the design, on one driver, under `names`."""
 
-    def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
+    def __init__(
+        self, driver: ArmDriver, context: Context, names: Names, stops: FirstTaker
+    ) -> None:
         super().__init__(NODE, namespace=names.node_namespace, context=context)
         self.driver = driver
         self.names = names
+        self.stops = stops
         self.presets = tuple(driver.config.presets)
         self.joint_names = list(driver.config.joints)
         # (id, monotonic ns) of each instruction message as its callback starts, when tracing
@@ -104,7 +108,14 @@ class ArmNode(Node):
         if isinstance(instr, str):
             self.driver.refuse(msg.id or new_id(), msg.instruction, instr)
             return
-        self.driver.submit(instr)
+        submit = self.driver.submit
+        if instr.kind is Kind.STOP:  # unless the stop watcher saw it first and obeyed it
+            again = lambda: submit(instr, listeners=False)  # noqa: E731
+            self.stops.node_saw(msg.id, lambda: submit(instr), again)
+        elif instr.kind is Kind.RELEASE:
+            self.stops.node_released(lambda: submit(instr))
+        else:
+            submit(instr)
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:
         """A trajectory is one instruction: every point checked, then all run or none."""
@@ -160,8 +171,9 @@ class RosServer:
         if theirs:
             log.warning("Fast DDS profiles from %s: the instruction backlog is theirs", theirs)
         self.context = start_context()
-        self.node = ArmNode(driver, self.context, names)
-        self.safety = SafetyNode(driver, self.context, names)
+        stops = FirstTaker()
+        self.node = ArmNode(driver, self.context, names, stops)
+        self.safety = SafetyNode(driver, self.context, names, stops)
         self.actions = ActionsNode(driver, self.context, names)
         self.trace_path = trace
         if trace is not None:
@@ -195,4 +207,5 @@ class RosServer:
         self.context.try_shutdown()
         if self.trace_path is not None and self.node.trace is not None:
             with open(self.trace_path, "w", encoding="utf-8") as f:
-                f.writelines(f"{ident} {what} {t}\n" for ident, what, t in self.node.trace)
+                # One JSON array a line: an id may hold any character.
+                f.writelines(json.dumps(event) + "\n" for event in self.node.trace)

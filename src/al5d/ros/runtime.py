@@ -125,6 +125,14 @@ QOS_INSTRUCTIONS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
+#: The stop watcher's reader of the instruction topic: it never slows a sender (best effort)
+#: and never waits (a flood it cannot keep up with overwrites the oldest).
+QOS_WATCH = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1000,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
 #: Results: reliable and deep; a reader more than 10,000 results behind loses the oldest,
 #: and never slows the server (KEEP_ALL here would let a stuck reader block it).
 QOS_STREAM = QoSProfile(
