@@ -251,9 +251,12 @@ def test_a_cancel_halts_the_arm_where_it_is_without_the_lock(rig: Rig) -> None:
     handle = rig.send(rig.fjt, goal)
     assert handle.accepted
     time.sleep(0.6)
+    t_cancel = time.monotonic()
     wait_future(handle.cancel_goal_async())
     answer = wait_future(handle.get_result_async(), 10)
     assert answer.status == GoalStatus.STATUS_CANCELED
+    # The answer may come before the base's STOP has crossed the wire (8 ms at 9600 baud).
+    rig.emu.wait_for(lambda rs: any(r.raw == b"STOP0" and r.t_effect > t_cancel for r in rs))
     here = rig.emu.servo_degrees()
     time.sleep(0.3)
     assert abs(rig.emu.servo_degrees()["base"] - here["base"]) < 0.5, "still moving"
@@ -279,6 +282,14 @@ def test_an_emergency_stop_aborts_the_goal_and_locks(rig: Rig) -> None:
     assert not later.accepted
     refusal = rig.peer.result(bytes(later.goal_id.uuid).hex())
     assert "send release first" in refusal.reason
+    gripper = GripperCommand.Goal()  # the gripper's controller too
+    gripper.command.position = 0.01
+    time.sleep(0.3)  # the stop's STOPs and read-back off the wire
+    rig.emu.clear_records()
+    later = rig.send(rig.gripper, gripper)
+    assert not later.accepted
+    assert "send release first" in rig.peer.result(bytes(later.goal_id.uuid).hex()).reason
+    assert only_link_checks(rig), "a rejected goal wrote to the board"
     rig.recover()
 
 
@@ -289,7 +300,9 @@ def test_a_new_goal_preempts_the_running_one(rig: Rig) -> None:
     second = rig.send(rig.fjt, rig.trajectory([(0.5, pose(base=-10, elbow=45))]))
     assert first.accepted and second.accepted
     old = wait_future(first.get_result_async(), 10)
-    assert old.status == GoalStatus.STATUS_ABORTED and "preempted" in old.result.error_string
+    # As the joint_trajectory_controller ends a preempted goal: CANCELED, INVALID_GOAL.
+    assert old.status == GoalStatus.STATUS_CANCELED and "preempted" in old.result.error_string
+    assert old.result.error_code == FJT.INVALID_GOAL
     new = wait_future(second.get_result_async(), 10)
     assert new.status == GoalStatus.STATUS_SUCCEEDED
     assert abs(rig.emu.servo_degrees()["elbow"] - 45) < 0.5
@@ -313,6 +326,18 @@ def test_tolerances_report_a_point_faster_than_the_servos(rig: Rig) -> None:
     assert answer.result.error_code == FJT.PATH_TOLERANCE_VIOLATED
     assert "off its path" in answer.result.error_string
     assert rig.states[-1] == "ready"
+
+
+def test_a_late_point_the_next_catches_up_with_is_reported(rig: Rig) -> None:
+    rig.recover()
+    # Point 1: 60 deg of base in 0.1 s (the servo needs more); point 2 has time to catch up.
+    goal = rig.trajectory([(0.5, pose(base=10)), (0.6, pose(base=70)), (3.0, pose())])
+    answer = wait_future(rig.send(rig.fjt, goal).get_result_async(), 15)
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result.error_string
+    text = answer.result.error_string
+    assert text.startswith("point 1 was reached ") and "the last point" not in text, text
+    late_ms = float(text.split()[4])
+    assert 40 < late_ms < 300, text  # 60 deg of base take about 180 ms
 
 
 def test_a_slow_enough_trajectory_with_tolerances_succeeds(rig: Rig) -> None:

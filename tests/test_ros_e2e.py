@@ -191,24 +191,24 @@ def test_stops_on_the_topic_are_obeyed_and_answered_once_each(server: Server, pe
     a stop, finds the arm stopped; and a stop is never undone by a release sent before
     it: after the last stop the arm stays locked. Unique ids, then one id for all."""
     counter = Counter(peer)
-    peer.send("warm", "release")  # refused (not stopped): the counter has matched
-    wait_until(lambda: counter.count(["warm"])[0] == 1, 10, "the counter")
+    peer.send("w-warm", "release")  # refused (not stopped): the counter has matched
+    wait_until(lambda: counter.count(["w-warm"])[0] == 1, 10, "the counter")
     stops, releases = [], []
     for i in range(40):
-        stops.append(f"s{i}" if i < 20 else "same")
-        releases.append(f"r{i}" if i < 20 else "same-r")
+        stops.append(f"w-s{i}" if i < 20 else "w-same")
+        releases.append(f"w-r{i}" if i < 20 else "w-same-r")
         peer.send(stops[-1], "stop")
         peer.send(releases[-1], "release")
-    peer.send("s-last", "stop")
-    peer.send("after", "move", base=10)
-    wait_until(lambda: counter.count(["after"])[0] == 1, 20, "the last outcome")
+    peer.send("w-s-last", "stop")
+    peer.send("w-after", "move", base=10)
+    wait_until(lambda: counter.count(["w-after"])[0] == 1, 20, "the last outcome")
     with counter.lock:
         seen, reasons = dict(counter.seen), dict(counter.reasons)
-    once = stops[:20] + releases[:20] + ["s-last", "after"]
+    once = stops[:20] + releases[:20] + ["w-s-last", "w-after"]
     assert {i: seen.get(i, 0) for i in once} == dict.fromkeys(once, 1)
-    assert (seen.get("same"), seen.get("same-r")) == (20, 20)
-    assert [reasons[r] for r in [*releases[:20], "same-r"]] == ["done: "] * 21
-    assert reasons["after"].startswith("refused: ") and "stopped" in reasons["after"], reasons
+    assert (seen.get("w-same"), seen.get("w-same-r")) == (20, 20)
+    assert [reasons[r] for r in [*releases[:20], "w-same-r"]] == ["done: "] * 21
+    assert reasons["w-after"].startswith("refused: ") and "stopped" in reasons["w-after"], reasons
 
 
 def test_stop_during_a_move_with_queued_moves_and_goals(server: Server, peer: Peer) -> None:

@@ -46,9 +46,9 @@ class Job:
     cancel: threading.Event = field(default_factory=threading.Event)
     expected_ms: float = 0.0
     step: int = 0  # the step running now
-    #: When the step written last is due to end on the board (CLOCK_MONOTONIC): the steps
-    #: after the first keep to the schedule of the first, so that a late wake-up of one
-    #: step does not make every later point late too.
+    #: When the step written last is due to end by the schedule (CLOCK_MONOTONIC): the timed
+    #: steps after the first keep to the schedule of the first, so that a late wake-up, or
+    #: a point faster than the servos, does not make every later point late too.
     t_due: float = 0.0
 
 

@@ -146,7 +146,15 @@ class StepWriter:
             motion = motion.after(shared.motion, t_write)
             shared.motion = motion
         t_end = t_sent + time_ms / 1000.0
-        job.t_due = max(t_end, job.t_due + (step.time_ms or 0) / 1000.0) if job.step else t_end
+        # The schedule: a timed step is due `time_ms` after the one before was due (the first,
+        # after it took effect), however late that one ended; a point the servos could not
+        # reach in its time leaves the next less time, which catches up where it can.
+        if not step.time_ms:
+            job.t_due = t_end
+        elif job.step:
+            job.t_due += step.time_ms / 1000.0
+        else:
+            job.t_due = t_sent + step.time_ms / 1000.0
         if shared.motion_listeners:
             sent = Sent(job.instr, data, job.t_submit, t_write, motion)
             tell(shared.motion_listeners, sent, "motion")

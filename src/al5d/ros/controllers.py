@@ -9,7 +9,7 @@ do where it matters to a client:
 - the goal callback judges the whole goal and rejects a bad one before it is
   accepted (nothing is written for it; the reason is also published on the
   result topic, with the goal's UUID in hex as the id);
-- a new trajectory goal preempts a running one, which is aborted and says so;
+- a new trajectory goal preempts a running one, which ends CANCELED and says so;
 - a cancel halts the arm where it is, without the emergency lock: CANCELED;
 - an emergency stop aborts the goal, and the arm is locked as always.
 
@@ -21,11 +21,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from control_msgs.action import FollowJointTrajectory, GripperCommand
-from rclpy.action.server import ServerGoalHandle
+from rclpy.action.server import GoalEvent, ServerGoalHandle
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectoryPoint
 
@@ -68,6 +68,24 @@ def tolerances(given: Sequence[Any], joints: Sequence[str]) -> list[Tolerance] |
     return out
 
 
+def preempted(handle: ServerGoalHandle) -> None:
+    """End a goal that a newer one preempted as CANCELED, as the joint_trajectory_controller
+    does (MoveIt then reports it preempted, not failed).
+
+    rclpy marks a goal CANCELED only from CANCELING, where a client's cancel request puts
+    it; no public call does that for a preemption, so this takes the step rclpy's own
+    cancel handling takes (`ActionServer._execute_cancel_request`)."""
+    if not handle.is_cancel_requested:
+        handle._update_state(GoalEvent.CANCEL_GOAL)
+    handle.canceled()
+
+
+def inactive(driver: ArmDriver) -> str:
+    """Why the arm takes no moves now (stopped, faulted, shutting down), or "". Like an
+    inactive ros2_controllers controller, the goal is then rejected, not aborted later."""
+    return refusal(driver.state, "see /al5d/state")
+
+
 @dataclass
 class Running:
     """A trajectory goal while it runs: its points in URDF values, and when it started."""
@@ -81,6 +99,9 @@ class Running:
     t0: float | None = None  # when its first move reached the board
     violated: str = ""  # a path tolerance broken: why
     preempted_by: str = ""
+    written: int = 0  # its points written so far
+    #: Per point written: how late the board will reach it after its time_from_start (s).
+    late: list[float] = field(default_factory=list)
 
     def desired(self, t: float) -> list[float]:
         """Where the trajectory says the joints are at `t` (linear between points, as the
@@ -132,9 +153,7 @@ class FollowTrajectoryAction(GoalRunner):
         reason = self.driver.validate(instr)
         if isinstance(reason, str):
             return reason
-        # Like an inactive joint_trajectory_controller: an arm that takes no moves now
-        # (stopped, faulted, shutting down) rejects the goal rather than abort it later.
-        busy = refusal(self.driver.state, "see /al5d/state")
+        busy = inactive(self.driver)
         if busy:
             return busy
         names = list(goal.trajectory.joint_names)
@@ -174,8 +193,12 @@ class FollowTrajectoryAction(GoalRunner):
     def _finish(self, run: Running, outcome: Outcome, end: list[Tolerance], goal: Any) -> Any:
         handle = run.handle
         if outcome.result is Result.CANCELLED and run.preempted_by:
-            handle.abort()
-            return _result(FJT.INVALID_GOAL, f"preempted by goal {run.preempted_by}")
+            preempted(handle)
+            return _result(
+                FJT.INVALID_GOAL,
+                f"preempted by goal {run.preempted_by}: "
+                "current goal cancelled due to new incoming action",
+            )
         if outcome.result is Result.CANCELLED and run.violated:
             handle.abort()
             return _result(FJT.PATH_TOLERANCE_VIOLATED, run.violated)
@@ -191,12 +214,7 @@ class FollowTrajectoryAction(GoalRunner):
             return _result(FJT.PATH_TOLERANCE_VIOLATED, f"{outcome.result.value}: {outcome.reason}")
         last = run.times[-1] * 1000.0
         late = outcome.expected_ms - last
-        note = (
-            f"the last point was reached {late:.0f} ms after its time_from_start: "
-            "faster than the servos can move (INF03)"
-            if late >= 1.0
-            else ""
-        )
+        note = lateness(run, late)
         allowed = _seconds(goal.goal_time_tolerance)
         if note and allowed > 0 and late / 1000.0 > allowed:
             handle.abort()
@@ -219,12 +237,20 @@ class FollowTrajectoryAction(GoalRunner):
     def _on_motion(self, sent: Sent) -> None:
         """The first move of a running goal on the board: its clock starts (any thread)."""
         run = self.running.get(sent.instr.id)
-        if run is not None and run.t0 is None:
+        if run is None:
+            return
+        if run.t0 is None:
             # The path starts where the board starts it, which a read-back after a halt
             # may have corrected since the goal was accepted.
             start = self.model.to_urdf(sent.motion.start)
             run.first = [start.get(n, v) for n, v in zip(run.names, run.first, strict=True)]
             run.t0 = sent.motion.t0
+        k, run.written = run.written, run.written + 1
+        if k < len(run.times):
+            end = sent.motion.t0 + sent.motion.duration_s
+            # A first point at 0 is the start state: it has no time to be late for.
+            late = 0.0 if k == 0 and run.times[0] == 0 else end - (run.t0 + run.times[k])
+            run.late.append(late)
 
     def _actual(self, names: Sequence[str]) -> list[float]:
         values = self.model.to_urdf(self.driver.positions())
@@ -262,6 +288,19 @@ class FollowTrajectoryAction(GoalRunner):
                     self.driver.cancel(ident, run.violated)
 
 
+def lateness(run: Running, last_ms: float) -> str:
+    """What the result says of points reached after their time_from_start (a millisecond or
+    more): the last one, and the latest of those before it (a later point may catch up)."""
+    parts = []
+    before = run.late[:-1]
+    if before and max(before) * 1000.0 >= 1.0:
+        k = max(range(len(before)), key=before.__getitem__)
+        parts.append(f"point {k} was reached {before[k] * 1000.0:.0f} ms after its time_from_start")
+    if last_ms >= 1.0:
+        parts.append(f"the last point was reached {last_ms:.0f} ms after its time_from_start")
+    return "; ".join(parts) + ": faster than the servos can move (INF03)" if parts else ""
+
+
 def _result(code: int, text: str) -> Any:
     result = FollowJointTrajectory.Result()
     result.error_code = code
@@ -296,7 +335,9 @@ class GripperAction(GoalRunner):
         degrees = self.model.from_urdf({self.JOINT: gap})[self.JOINT]
         instr = Instruction(Kind.MOVE, joints=((self.JOINT, degrees),), id=ident)
         reason = self.driver.validate(instr)
-        return reason if isinstance(reason, str) else instr
+        if isinstance(reason, str):
+            return reason
+        return inactive(self.driver) or instr
 
     async def _execute(self, handle: ServerGoalHandle) -> Any:
         ident = bytes(handle.goal_id.uuid).hex()
