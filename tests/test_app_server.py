@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import signal
+import subprocess
+import sys
 from pathlib import Path
 
 from proc import Proc
@@ -88,3 +90,17 @@ def test_a_log_level_in_any_case() -> None:
     finally:
         proc.popen.send_signal(signal.SIGTERM)
         proc.wait()
+
+
+def test_a_server_on_a_real_port_and_the_clients_never_load_the_emulator() -> None:
+    """The emulator is imported only where an emulated board is wanted (issue 8)."""
+    code = (
+        "import sys\n"
+        "import al5d.app.cli, al5d.app.server, al5d.ros.node, al5d.ros.client, al5d.web.app\n"
+        "parser = al5d.app.cli.build_parser()\n"
+        "for argv in (['serve', '--port', '/dev/ttyUSB0'], ['send', 'ready'], ['web']):\n"
+        "    parser.parse_args(argv)\n"
+        "print(sorted(m for m in sys.modules if m.startswith('al5d.ssc32u.emulator')))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout

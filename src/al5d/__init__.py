@@ -2,11 +2,15 @@
 
 The layers, each importing only those below it:
 
-    al5d.app      the applications: `al5d` command line, server process, demo
-    al5d.ros      ROS 2: node `al5d`, message mapping, the client
+    al5d.app      the applications: `al5d` command line, server process, demo, MoveIt files
+    al5d.web      `al5d web`: the live view, a ROS 2 client serving one page
+    al5d.ros      ROS 2: the nodes, message mapping, the control actions, the client
     al5d.arm      the arm: config, instructions, validation, state machine, driver
+    al5d.model    the robot model: geometry, kinematics, URDF, straight lines (pure)
     al5d.ssc32u   the board: facts, protocol bytes, low-level driver, emulator
     al5d.clock    one clock and deadlines, for all of them
+
+The model and the board do not know each other: the arm joins them.
 """
 
 __version__ = "0.1.0"

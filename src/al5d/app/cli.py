@@ -7,11 +7,11 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from al5d.arm.config import ConfigError, load_config
-from al5d.ssc32u.facts import BAUDS, FACTORY_BAUD
+from al5d.ssc32u.facts import BAUDS, FACTORY_BAUD, LATENCY_TIMER_MS
 
 #: `--log-level`, in any case (ROS users type `--log-level debug`).
 LOG_LEVEL: dict[str, Any] = {
@@ -32,6 +32,19 @@ def _until_signal() -> threading.Event:
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
     return done
+
+
+def _emulator_setting(name: str) -> Callable[[str], Any]:
+    """`al5d.ssc32u.emulator.settings.<name>`, imported when a value is first read: only
+    `al5d emulator` loads the emulator, not `al5d serve --port` nor the clients."""
+
+    def convert(text: str) -> Any:
+        from al5d.ssc32u.emulator import settings
+
+        return getattr(settings, name)(text)
+
+    convert.__name__ = name  # argparse names the type in its errors
+    return convert
 
 
 NAMESPACE_HELP = "ROS namespace of the arm (several arms: one each), e.g. left"
@@ -175,8 +188,6 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="write every line the board receives as JSON (time of effect, bytes); - = stdout",
     )
-    from al5d.ssc32u.emulator import settings
-
     emu.add_argument(
         "--transport",
         choices=("usb", "uart"),
@@ -188,8 +199,8 @@ def build_parser() -> argparse.ArgumentParser:
     emu.add_argument(
         "--latency-timer",
         metavar="MS",
-        type=settings.latency_ms,
-        default=settings.LATENCY_TIMER_MS,
+        type=_emulator_setting("latency_ms"),
+        default=LATENCY_TIMER_MS,
         help="the USB chip's latency timer, 1..255 ms (default %(default)s)",
     )
     emu.add_argument(
@@ -202,7 +213,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="PIN=LEVEL",
         action="append",
         default=[],
-        type=settings.input_setting,
+        type=_emulator_setting("input_setting"),
         help="an input pin: A..H=0|1|open, VA..VH=0..255|open (repeat; default all open)",
     )
     emu.add_argument(
@@ -210,7 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N=VALUE",
         action="append",
         default=[],
-        type=settings.register_setting,
+        type=_emulator_setting("register_setting"),
         help="a register at power-up, e.g. 0=8 (repeat); R4 is the baud / 10",
     )
     emu.add_argument(
@@ -224,7 +235,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="CH=US",
         action="append",
         default=[],
-        type=settings.pulse_setting,
+        type=_emulator_setting("pulse_setting"),
         help="a channel's pulse at power-up (the initial pulse width registers; repeat)",
     )
     emu.add_argument(

@@ -13,6 +13,6 @@
 - `shared`, `jobs`: what the two sides share, behind one lock.
 
 The emergency stop's path is `driver.ArmDriver._stop` -> `ssc32u.driver.SSC32U.stop`.
-This layer imports `al5d.ssc32u` (never its emulator) and `al5d.clock`; nothing
-here knows ROS.
+This layer imports `al5d.model`, `al5d.ssc32u` (never its emulator) and `al5d.clock`;
+nothing here knows ROS.
 """
