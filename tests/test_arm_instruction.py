@@ -128,6 +128,20 @@ class TestSequenceFiles:
         ):
             ins.parse_sequence(b"park\nmove \xff\n", "x.seq")
 
+    @pytest.mark.parametrize(
+        ("line", "error"),
+        [
+            ("wait", "s.seq:1: word 1 'wait': wait takes one number of ms"),
+            ("wait 10 20", "s.seq:1: word 3 '20': wait takes one number of ms"),
+            ("wait 10 &", "s.seq:1: word 1 'wait': wait cannot run in the background"),
+            ("  &", "s.seq:1: word 1 '&': nothing before it to run in the background"),
+        ],
+    )
+    def test_every_error_names_the_word(self, line: str, error: str) -> None:
+        with pytest.raises(GrammarError) as caught:
+            ins.parse_sequence(f"{line}\n".encode(), "s.seq")
+        assert str(caught.value).startswith(error), caught.value
+
     def test_a_time_a_message_cannot_carry_is_refused_before_packing(self) -> None:
         with pytest.raises(GrammarError, match="4294967301 ms is above the limit of 4294967295"):
             ins.parse_instruction("move base=30 time=4294967301")

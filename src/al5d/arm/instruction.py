@@ -292,7 +292,7 @@ def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Ins
     """Read one instruction. Range checks are the driver's: this only reads the words."""
     words = text.split()
     if not words:
-        raise GrammarError("empty instruction")
+        raise GrammarError("empty instruction: expected a word such as move, ready or stop")
     head = words[0].lower()
     time_ms: int | None = None
     joints: list[tuple[str, float]] = []
@@ -347,12 +347,15 @@ def parse_sequence_step(
     background = text.endswith("&")
     if background:
         text = text[:-1].rstrip()
+        if not text:
+            raise GrammarError("word 1 '&': nothing before it to run in the background")
     words = text.split()
     if words and words[0].lower() == "wait":
         if len(words) != 2:
-            raise GrammarError("wait takes one number of ms: wait <ms>")
+            at = _where(words, 2) if len(words) > 2 else _where(words, 0)
+            raise GrammarError(f"{at}: wait takes one number of ms: wait <ms>")
         if background:
-            raise GrammarError("wait cannot run in the background")
+            raise GrammarError(f"{_where(words, 0)}: wait cannot run in the background (&)")
         return Wait(_parse_ms(words, 1, words[1], WAIT_MAX_MS)), False
     return parse_instruction(text, presets), background
 

@@ -119,6 +119,17 @@ def _listed(problems: list[str]) -> str:
     return "; ".join(shown) + (f"; and {more} more" if more else "")
 
 
+def time_problem(i: int, at_ms: float, before_ms: float) -> str:
+    """Why point `i` cannot be at `at_ms` after the start, the point before it being at
+    `before_ms` (times must increase strictly), or ""."""
+    if not math.isfinite(at_ms) or at_ms < 0:
+        return f"point {i}: time_from_start {at_ms:g} ms is negative"
+    if i > 0 and at_ms <= before_ms:
+        before = f"point {i - 1} ({before_ms:g} ms)"
+        return f"point {i}: time_from_start {at_ms:g} ms is not after {before}"
+    return ""
+
+
 def _trajectory(points: tuple[Point, ...], limits: Limits) -> Steps | str:
     """Every point checked before any is run; the reason names the first bad point.
 
@@ -139,12 +150,9 @@ def _trajectory(points: tuple[Point, ...], limits: Limits) -> Steps | str:
         if target is None:
             return f"point {i}: {_listed(_joint_problems(point.joints, limits))}"
         at = point.at_ms
-        if not math.isfinite(at) or at < 0:
-            return f"point {i}: time_from_start {at:g} ms is negative"
-        if i > 0 and at <= before:
-            return (
-                f"point {i}: time_from_start {at:g} ms is not after point {i - 1} ({before:g} ms)"
-            )
+        late = time_problem(i, at, before)
+        if late:
+            return late
         step = round(at) - sent
         if step > limits.max_time_ms:
             return (

@@ -20,6 +20,7 @@ from al5d.arm.instruction import (
     new_id,
     quote,
 )
+from al5d.arm.validate import time_problem
 from al5d.model import ArmModel, ModelError
 
 #: A `move_to` over ROS names its values in `joints` and gives them in `degrees`, in
@@ -169,6 +170,7 @@ def trajectory_from_message(msg: JointTrajectory, model: ArmModel) -> Instructio
     validation, whole; a name the URDF does not have is kept for it to name."""
     names = list(msg.joint_names)
     points: list[Point] = []
+    before = 0.0
     for i, point in enumerate(msg.points):
         if len(point.positions) != len(names):
             return f"point {i}: {len(point.positions)} positions for {len(names)} joints"
@@ -176,12 +178,17 @@ def trajectory_from_message(msg: JointTrajectory, model: ArmModel) -> Instructio
             given = len(getattr(point, field))
             if given and given != len(names):  # empty: not given, as the JTC allows
                 return f"point {i}: {given} {field} for {len(names)} joints"
+        t = point.time_from_start
+        at_ms = t.sec * 1000.0 + t.nanosec * 1e-6
+        # Here too, so that the reason names the first bad point whatever is wrong with it.
+        late = time_problem(i, at_ms, before)
+        if late:
+            return late
+        before = at_ms
         for name, value in zip(names, point.positions, strict=True):
             outside = outside_urdf_limits(model, name, value)
             if outside:
                 return f"point {i}: {outside}"
-        t = point.time_from_start
-        at_ms = t.sec * 1000.0 + t.nanosec * 1e-6
         degrees = [
             (name, arm_degrees(model, name, value))
             for name, value in zip(names, point.positions, strict=True)

@@ -1,0 +1,41 @@
+"""Messages to instructions (`al5d.ros.convert`), pure: a refusal names the first bad point."""
+
+from __future__ import annotations
+
+import pytest
+from builtin_interfaces.msg import Duration
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from al5d.arm.config import load_config
+from al5d.ros.convert import trajectory_from_message
+
+MODEL = load_config().model
+
+
+def trajectory(points: list[tuple[int, float]]) -> JointTrajectory:
+    """Elbow-only points: (time_from_start in ms, elbow in URDF radians)."""
+    msg = JointTrajectory(joint_names=["elbow"])
+    for ms, elbow in points:
+        msg.points.append(
+            JointTrajectoryPoint(
+                positions=[elbow],
+                time_from_start=Duration(sec=ms // 1000, nanosec=ms % 1000 * 10**6),
+            )
+        )
+    return msg
+
+
+@pytest.mark.parametrize(
+    ("points", "first"),
+    [
+        # A time that does not increase at point 1, a position out of range at point 3.
+        ([(100, 1.0), (100, 1.1), (300, 1.2), (400, 9.0)], "point 1: time_from_start 100 ms"),
+        # The other way round.
+        ([(100, 1.0), (200, 9.0), (300, 1.2), (300, 1.3)], "point 1: elbow: 9 rad is outside"),
+    ],
+)
+def test_a_refused_trajectory_names_its_first_bad_point(
+    points: list[tuple[int, float]], first: str
+) -> None:
+    reason = trajectory_from_message(trajectory(points), MODEL)
+    assert isinstance(reason, str) and reason.startswith(first), reason
