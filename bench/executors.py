@@ -7,7 +7,8 @@ running and 1000 moves queued, then a stop by service: until its last STOP is
 in effect on the board, minus the wire time. Arrangements: the safety services
 on their own node and executor thread (the default), on the main executor
 (AL5D_SAFETY=shared, as before issue 9), and both with rclpy's Python
-SingleThreadedExecutor instead of the C++ EventsExecutor (AL5D_EXECUTOR=single).
+SingleThreadedExecutor (AL5D_EXECUTOR=single) or its MultiThreadedExecutor
+(AL5D_EXECUTOR=multi) instead of the C++ EventsExecutor.
 """
 
 from __future__ import annotations
@@ -38,6 +39,11 @@ ARRANGEMENTS = {
         "AL5D_EXECUTOR": "single",
         "AL5D_SAFETY": "shared",
     },
+    "multi-threaded (2 threads), safety on the main executor": {
+        "AL5D_EXECUTOR": "multi",
+        "AL5D_SAFETY": "shared",
+    },
+    "multi-threaded (2 threads), safety on its own thread": {"AL5D_EXECUTOR": "multi"},
 }
 
 

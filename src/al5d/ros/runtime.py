@@ -12,7 +12,7 @@ from typing import Any, Generic, TypeVar
 
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import Executor, SingleThreadedExecutor
+from rclpy.executors import Executor, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -215,7 +215,7 @@ def start_context() -> Context:
 
 def make_executor(context: Context, kind: str | None = None) -> Executor:
     """rclpy's C++ EventsExecutor, or the Python SingleThreadedExecutor (AL5D_EXECUTOR=single,
-    or `kind="single"`).
+    or `kind="single"`), or its MultiThreadedExecutor with two threads (`multi`).
 
     The events executor takes each message without rebuilding a wait set of every
     entity in Python, which is what limits the single-threaded one (see the README's
@@ -224,8 +224,11 @@ def make_executor(context: Context, kind: str | None = None) -> Executor:
     later by #1469): a coroutine that waits for the arm would hold a core. The actions,
     whose execute callbacks are such coroutines, have the Python executor.
     """
-    if (kind or os.environ.get("AL5D_EXECUTOR", "events")) == "single":
+    chosen = kind or os.environ.get("AL5D_EXECUTOR", "events")
+    if chosen == "single":
         return SingleThreadedExecutor(context=context)
+    if chosen == "multi":  # measured against the others (bench/executors.py), not used
+        return MultiThreadedExecutor(num_threads=2, context=context)
     from rclpy.experimental.events_executor import EventsExecutor
 
     return EventsExecutor(context=context)
