@@ -137,7 +137,7 @@ def run_with_a_stop(rig: Rig, point: str, wait: bool) -> Trial:
         # The move holds the write lock and the stop waits for it, the epoch ended: the
         # move's last check sees that, and it never goes out.
         ("locked", True, Result.CANCELLED, False),
-        # During the write, the two racing: either may have the wire first.
+        # As the write begins (before its lock), the two racing: either may have it first.
         ("writing", False, Result.CANCELLED, None),
     ],
 )
@@ -190,8 +190,9 @@ def test_a_move_taken_in_before_a_stop_and_submitted_after_it_is_cancelled(rig: 
 
 
 def test_a_stop_and_a_release_while_a_taken_move_is_judged_still_cancel_it(rig: Rig) -> None:
-    """A goal accepted before a stop, submitted as the stop and a release come: the check
-    of when it was taken and the making of its job are one step, so the stop cancels it."""
+    """A goal accepted before a stop, submitted as the stop and a release come in before its
+    state and epoch are checked: it is cancelled, not run (the check of when it was taken
+    and the making of its job are one step now, under one lock)."""
     taken_at = rig.driver.epoch
     n = len(rig.moves())
 

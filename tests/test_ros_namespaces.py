@@ -154,6 +154,7 @@ def test_each_arms_control_actions_move_that_arm_only(arms: list[Arm], config: A
             JointTrajectoryPoint(positions=[elbow], time_from_start=Duration(nanosec=300_000_000))
         ]
         handle = wait_future(fjt.send_goal_async(goal))
+        assert handle.accepted, left.peer.result(bytes(handle.goal_id.uuid).hex()).reason
         assert wait_future(handle.get_result_async(), 10).status == GoalStatus.STATUS_SUCCEEDED
         assert len(left.group_moves()) == 1 and right.group_moves() == []
         close = GripperCommand.Goal()

@@ -3,6 +3,8 @@ two readers obeys each stop on the topic (`al5d.ros.safety`)."""
 
 from __future__ import annotations
 
+import time
+
 from al5d_interfaces.msg import ArmInstruction
 from rclpy.serialization import serialize_message
 
@@ -13,12 +15,13 @@ def raw(word: str, **fields: object) -> bytes:
     return bytes(serialize_message(ArmInstruction(instruction=word, **fields)))
 
 
-def test_the_first_word_is_read_from_the_serialized_message() -> None:
-    assert first_word(raw("stop", id="x" * 300)) == b"stop"
-    assert first_word(raw(" STOP\t")) == b"stop"
-    assert first_word(raw("move", joints=["base"], degrees=[1.0])) == b"move"
-    assert first_word(raw("")) == b""
-    assert first_word(raw("s" * 100)) is None  # longer than any word a stop could be
+def test_the_first_word_is_read_from_the_serialized_message_as_the_node_reads_it() -> None:
+    assert first_word(raw("stop", id="x" * 300)) == "stop"
+    assert first_word(raw(" STOP\t")) == "stop"
+    assert first_word(raw("\u00a0stop\x1f")) == "stop"  # str.strip's blanks, not only ASCII
+    assert first_word(raw("move", joints=["base"], degrees=[1.0])) == "move"
+    assert first_word(raw("")) == ""
+    assert first_word(raw("s" * 300)) is None  # longer than any word a stop could be
     assert first_word(b"\x00\x01") is None
     assert first_word(b"\x07\x07\x00\x00\x05\x00\x00\x00stop\x00") is None  # not plain CDR
     assert first_word(b"\x00\x01\x00\x00\xff\x00\x00\x00stop\x00") is None  # cut short
@@ -65,3 +68,14 @@ def test_repeated_ids_are_counted_in_order_and_the_tables_stay_bounded() -> None
     for i in range(100):  # stops the watcher never sees
         taker.node_saw(f"id{i}", log("n"), log("again"))
     assert len(taker._late) <= 8 and len(taker._early) <= 8
+
+
+def test_a_stop_the_watcher_missed_does_not_make_it_pass_over_the_next() -> None:
+    taker, log = FirstTaker(late_s=0.05), Log()
+    taker.node_saw("", log("node: a stop the watcher missed"), log("again"))
+    time.sleep(0.1)
+    taker.watcher_saw("", log("watcher: the next stop with the same (empty) id"))
+    assert log.done == [
+        "node: a stop the watcher missed",
+        "watcher: the next stop with the same (empty) id",
+    ]

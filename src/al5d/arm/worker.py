@@ -181,7 +181,7 @@ class Worker:
             job.step = k
             written = first if k == 0 and first is not None else self.writer.write(job, step, board)
             if written is None:
-                return False  # a stop came between our check and our write: its STOP stands
+                return False  # a stop or a cancel came first: its STOP stands, its outcome set
             with shared.lock:
                 shared.note_written(written.motion, written.t_end)
             # The next step goes out one wire time early, so that it takes effect as this one

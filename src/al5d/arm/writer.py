@@ -34,9 +34,10 @@ class StepWriter:
     def __init__(self, shared: Shared, translator: Translator) -> None:
         self.shared = shared
         self.translator = translator
-        #: A test's seam: called with "checked" before a step is written, and with "locked"
-        #: when it holds the board's write lock, just before the epoch's last check (see
-        #: tests/test_arm_fast_path.py); None in use.
+        #: A test's seam (tests/test_arm_fast_path.py); None in use. Called with "judged" when
+        #: the driver has judged a move, before it checks the state and the epoch; with
+        #: "checked" before a step is written; and with "locked" when the step holds the
+        #: board's write lock, just before the epoch's last check.
         self.race_hook: Callable[[str], None] | None = None
 
     def plan(
@@ -117,7 +118,6 @@ class StepWriter:
         """
         shared = self.shared
         data, time_ms = self.plan(job, step, board.arrival)
-        job.expected_ms += time_ms
         start = {j: v for j, v in shared.pose.items() if v is not None}
         hook = self.race_hook
         if hook is not None:
@@ -137,11 +137,15 @@ class StepWriter:
         t_sent = board.write_command(data, unless=overtaken)
         if t_sent is None:
             return None  # the stop's STOP stands; nothing of this step went out
+        job.expected_ms += time_ms
         motion = Motion(start, step.target, t_sent, time_ms / 1000.0)
         with shared.lock:
-            # A stop that came after the write lock was ours writes its STOP after our
-            # bytes: it has halted (or will halt) this step, and set the pose.
             if job.epoch != shared.epoch or job.cancel.is_set():
+                # A stop that came after the write lock was ours writes its STOP after our
+                # bytes, so it halts this step, but it took the pose from the motion before
+                # (its read-back corrects that). Q answers "moving" until this step's time
+                # is over, even halted (UG-38): the next move is judged by time till then.
+                shared.distrust_q(motion)
                 return None
             motion = motion.after(shared.motion, t_write)
             shared.motion = motion

@@ -19,6 +19,7 @@ one mapping to the arm's degrees is the model's.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -38,6 +39,7 @@ from al5d.model import ArmModel
 from al5d.ros.actions import GoalRunner, action_server
 from al5d.ros.convert import trajectory_from_message
 
+log = logging.getLogger("al5d")
 FJT = FollowJointTrajectory.Result
 #: The gripper's gap counts as reached within this (metres): a quarter of a servo
 #: microsecond's worth is far below it, a visible miss far above.
@@ -75,9 +77,13 @@ def preempted(handle: ServerGoalHandle) -> None:
     rclpy marks a goal CANCELED only from CANCELING, where a client's cancel request puts
     it; no public call does that for a preemption, so this takes the step rclpy's own
     cancel handling takes (`ActionServer._execute_cancel_request`)."""
-    if not handle.is_cancel_requested:
-        handle._update_state(GoalEvent.CANCEL_GOAL)
-    handle.canceled()
+    try:
+        if not handle.is_cancel_requested:
+            handle._update_state(GoalEvent.CANCEL_GOAL)
+        handle.canceled()
+    except Exception:  # another rclpy: the goal ends all the same, ABORTED
+        log.warning("a preempted goal could not be marked CANCELED; it is ABORTED")
+        handle.abort()
 
 
 def inactive(driver: ArmDriver) -> str:
@@ -97,6 +103,9 @@ class Running:
     first: list[float]  # where the named joints were when it was accepted
     path: list[Tolerance]
     t0: float | None = None  # when its first move reached the board
+    #: When its times count from: `t0`, or, when its first point is at 0 (the start state,
+    #: reached at the servos' speed), when that point is reached (as the driver counts).
+    origin: float | None = None
     violated: str = ""  # a path tolerance broken: why
     preempted_by: str = ""
     written: int = 0  # its points written so far
@@ -106,9 +115,12 @@ class Running:
     def desired(self, t: float) -> list[float]:
         """Where the trajectory says the joints are at `t` (linear between points, as the
         board moves: its group moves interpolate pulses, which are linear in the values)."""
-        if self.t0 is None or t <= self.t0:  # not yet started on the board
+        if self.t0 is None or self.origin is None or t <= self.t0:  # not yet on the board
             return list(self.first)
-        s = t - self.t0
+        if t < self.origin:  # on the way to a start point at 0
+            f = (t - self.t0) / (self.origin - self.t0)
+            return [a + (b - a) * f for a, b in zip(self.first, self.points[0], strict=True)]
+        s = t - self.origin
         before_t, before = 0.0, self.first
         for at, point in zip(self.times, self.points, strict=True):
             if s < at:
@@ -212,11 +224,10 @@ class FollowTrajectoryAction(GoalRunner):
             handle.abort()
             # An emergency stop (or a fault) left the arm off its path.
             return _result(FJT.PATH_TOLERANCE_VIOLATED, f"{outcome.result.value}: {outcome.reason}")
-        last = run.times[-1] * 1000.0
-        late = outcome.expected_ms - last
-        note = lateness(run, late)
+        late = run.late[-1] if len(run.late) == len(run.times) else 0.0
+        note = lateness(run)
         allowed = _seconds(goal.goal_time_tolerance)
-        if note and allowed > 0 and late / 1000.0 > allowed:
+        if note and allowed > 0 and late > allowed:
             handle.abort()
             return _result(
                 FJT.GOAL_TOLERANCE_VIOLATED, f"{note}; goal_time_tolerance is {allowed:g} s"
@@ -239,18 +250,17 @@ class FollowTrajectoryAction(GoalRunner):
         run = self.running.get(sent.instr.id)
         if run is None:
             return
+        end = sent.motion.t0 + sent.motion.duration_s
         if run.t0 is None:
             # The path starts where the board starts it, which a read-back after a halt
             # may have corrected since the goal was accepted.
             start = self.model.to_urdf(sent.motion.start)
             run.first = [start.get(n, v) for n, v in zip(run.names, run.first, strict=True)]
             run.t0 = sent.motion.t0
+            run.origin = end if run.times[0] == 0 else run.t0
         k, run.written = run.written, run.written + 1
-        if k < len(run.times):
-            end = sent.motion.t0 + sent.motion.duration_s
-            # A first point at 0 is the start state: it has no time to be late for.
-            late = 0.0 if k == 0 and run.times[0] == 0 else end - (run.t0 + run.times[k])
-            run.late.append(late)
+        if k < len(run.times) and run.origin is not None:
+            run.late.append(end - (run.origin + run.times[k]))
 
     def _actual(self, names: Sequence[str]) -> list[float]:
         values = self.model.to_urdf(self.driver.positions())
@@ -288,16 +298,23 @@ class FollowTrajectoryAction(GoalRunner):
                     self.driver.cancel(ident, run.violated)
 
 
-def lateness(run: Running, last_ms: float) -> str:
-    """What the result says of points reached after their time_from_start (a millisecond or
-    more): the last one, and the latest of those before it (a later point may catch up)."""
+#: A point reached this much after its time_from_start is reported late: less is rounding
+#: (times are sent in whole ms, a time's digits change its wire time by a millisecond).
+LATE_REPORTED_S = 0.005
+
+
+def lateness(run: Running) -> str:
+    """What the result says of points reached late: the last one, and the latest of those
+    before it (a later point may catch up)."""
     parts = []
-    before = run.late[:-1]
-    if before and max(before) * 1000.0 >= 1.0:
+    before, last = run.late[:-1], run.late[-1:]
+    if before and max(before) >= LATE_REPORTED_S:
         k = max(range(len(before)), key=before.__getitem__)
         parts.append(f"point {k} was reached {before[k] * 1000.0:.0f} ms after its time_from_start")
-    if last_ms >= 1.0:
-        parts.append(f"the last point was reached {last_ms:.0f} ms after its time_from_start")
+    if last and last[0] >= LATE_REPORTED_S:
+        parts.append(
+            f"the last point was reached {last[0] * 1000.0:.0f} ms after its time_from_start"
+        )
     return "; ".join(parts) + ": faster than the servos can move (INF03)" if parts else ""
 
 

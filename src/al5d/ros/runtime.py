@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import queue
 import tempfile
@@ -20,6 +21,8 @@ from rclpy.signals import SignalHandlerOptions
 
 from al5d.arm.config import namespace_problem
 from al5d.arm.instruction import Kind
+
+log = logging.getLogger("al5d")
 
 NODE = "al5d"
 SAFETY_NODE = "al5d_safety"
@@ -293,8 +296,14 @@ class Spinner:
         self._thread.start()
 
     def _spin(self) -> None:
+        # A callback that raises must not end the thread: the safety node's serves the stop.
         while self._running and self.context.ok():
-            self.executor.spin_once(timeout_sec=self.turn_s)
+            try:
+                self.executor.spin_once(timeout_sec=self.turn_s)
+            except Exception:
+                if not (self._running and self.context.ok()):
+                    return
+                log.exception("%s: a callback failed; its executor goes on", self._thread.name)
 
     def close(self) -> None:
         # Join the spin thread before shutting the executor down, or the process can abort.

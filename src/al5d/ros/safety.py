@@ -16,15 +16,19 @@ itself, best effort and without waiting for anyone (the stop watcher), looks
 at the first field of each message in its serialized form (no message is built
 for anything but a stop), and stops the arm as soon as it sees a stop. The
 node `al5d` reads the same stop later, in order; `FirstTaker` makes sure that
-each stop is obeyed and answered once, by whichever reader saw it first.
+each stop is obeyed and answered once, by whichever reader saw it first. What
+no reader here can see is a stop still queued in its sender (a client that
+floods through the same publisher is slowed by back-pressure, stop included):
+the stop service is the way for emergencies.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
-from collections import Counter, deque
+from collections import deque
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
 from al5d_interfaces.msg import ArmInstruction
 from rclpy.context import Context
@@ -34,23 +38,31 @@ from std_srvs.srv import Trigger
 
 from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind
+from al5d.clock import now
 from al5d.ros.convert import from_message
 from al5d.ros.runtime import QOS_SERVICES, QOS_WATCH, SAFETY_NODE, Names
 
-#: The serialized word of a stop, as the watcher compares it (after strip and lower).
-_STOP = Kind.STOP.value.encode("ascii")
+log = logging.getLogger("al5d")
+#: Messages the watcher takes in one call, at most (the services share its thread).
+WATCH_BATCH = 1000
+
+#: The word of a stop, as both readers compare it (after strip and lower).
+_STOP = Kind.STOP.value
+#: Longer than this, the first field is not a stop whatever its blanks: the node judges it.
+_WORD_MAX = 256
 
 
-def first_word(raw: bytes) -> bytes | None:
+def first_word(raw: bytes) -> str | None:
     """The `instruction` field of a serialized ArmInstruction (CDR: a 4-byte header, then the
-    string's length and bytes with its NUL), stripped and lower-cased; None if it is
-    longer than a stop could be, or the bytes are not such a message."""
+    string's length and bytes with its NUL) as the node `al5d` reads it: cut at a NUL,
+    stripped and lower-cased; None if it is longer than a stop could be, or the bytes
+    are not such a message."""
     if len(raw) < 9 or raw[1] > 1:
         return None
     n = int.from_bytes(raw[4:8], "little" if raw[1] else "big")
-    if not 0 < n <= 64 or len(raw) < 8 + n:
+    if not 0 < n <= _WORD_MAX or len(raw) < 8 + n:
         return None
-    return raw[8 : 7 + n].strip().lower()
+    return raw[8 : 7 + n].split(b"\0", 1)[0].decode("utf-8", "replace").strip().lower()
 
 
 class FirstTaker:
@@ -64,40 +76,42 @@ class FirstTaker:
     in the stream, so the node obeys the stop again (without a second outcome), and a
     stop is never undone by a release sent before it. Everything happens under one
     lock, so the node goes on to the next instruction only once an early stop is
-    obeyed. Bounded: a sender that repeats one id, or stops the watcher missed (it
-    keeps the last 1000 messages), never grow it beyond `limit` ids."""
+    obeyed.
 
-    def __init__(self, limit: int = 1024) -> None:
+    The watcher may miss a stop (it reads best effort and keeps the last 1000
+    messages): a stop the node obeyed is forgotten once the watcher, normally ahead,
+    has not seen it for `late_s`, so that a later stop of the same id (clients that
+    leave the id empty) is obeyed at once all the same. A stop the watcher obeyed
+    waits `early_s` for the node, which lags behind a flood. Bounded to `limit` ids."""
+
+    def __init__(self, late_s: float = 1.0, early_s: float = 60.0, limit: int = 1024) -> None:
         self._lock = threading.Lock()
         #: Stops the watcher obeyed that the node has not reached: the node's count of
-        #: releases when each was obeyed.
-        self._early: dict[str, deque[int]] = {}
-        #: Stops the node obeyed that the watcher has not seen (or never will).
-        self._late: Counter[str] = Counter()
+        #: releases then, and when.
+        self._early: dict[str, deque[tuple[int, float]]] = {}
+        #: Stops the node obeyed that the watcher has not seen: when.
+        self._late: dict[str, deque[float]] = {}
         self._releases = 0
+        self._late_s = late_s
+        self._early_s = early_s
         self._limit = limit
 
     def watcher_saw(self, ident: str, obey: Callable[[], object]) -> None:
         with self._lock:
-            if self._late[ident] > 0:
-                self._late[ident] -= 1
+            t = now()
+            if _take(self._late, ident, lambda at: at > t - self._late_s) is not None:
                 return
-            _bound(self._early, ident, self._limit)
-            self._early.setdefault(ident, deque()).append(self._releases)
+            _put(self._early, ident, (self._releases, t), self._limit)
             obey()
 
     def node_saw(self, ident: str, obey: Callable[[], object], again: Callable[[], object]) -> None:
         with self._lock:
-            early = self._early.get(ident)
-            if not early:
-                _bound(self._late, ident, self._limit)
-                self._late[ident] += 1
+            t = now()
+            early = _take(self._early, ident, lambda e: e[1] > t - self._early_s)
+            if early is None:
+                _put(self._late, ident, t, self._limit)
                 obey()
-                return
-            releases_then = early.popleft()
-            if not early:
-                del self._early[ident]
-            if self._releases > releases_then:
+            elif self._releases > early[0]:
                 again()
 
     def node_released(self, release: Callable[[], object]) -> None:
@@ -106,10 +120,26 @@ class FirstTaker:
             release()
 
 
-def _bound(table: dict[str, Any], key: str, limit: int) -> None:
-    """Make room for `key` in `table` by forgetting its oldest key."""
+T = TypeVar("T")
+
+
+def _take(table: dict[str, deque[T]], key: str, fresh: Callable[[T], bool]) -> T | None:
+    """The oldest entry of `key` still fresh, taken out (the stale ones before it dropped)."""
+    entries = table.get(key)
+    found = None
+    while entries and found is None:
+        entry = entries.popleft()
+        found = entry if fresh(entry) else None
+    if entries is not None and not entries:
+        del table[key]
+    return found
+
+
+def _put(table: dict[str, deque[T]], key: str, entry: T, limit: int) -> None:
+    """Add an entry of `key`, forgetting the oldest key to make room."""
     if len(table) >= limit and key not in table:
         table.pop(next(iter(table)))
+    table.setdefault(key, deque()).append(entry)
 
 
 class SafetyNode(Node):
@@ -132,18 +162,23 @@ class SafetyNode(Node):
     def _watch(self, raw: bytes) -> None:
         """Every message on the instruction topic, serialized: a stop is obeyed at once.
 
-        Called for one message; takes every other one waiting too, while it holds the
-        GIL: under a flood the executor's thread gets the GIL a few thousand times a
-        second at most, and one message each time would leave the watcher behind."""
-        handle = self._watcher.handle
-        with handle:
-            while True:
-                if first_word(raw) == _STOP:
-                    self._obey(raw)
-                taken = handle.take_message(ArmInstruction, True)
-                if taken is None:
-                    return
-                raw = taken[0]
+        Called for one message; takes up to `WATCH_BATCH` more that wait, while it holds
+        the GIL: under a flood the executor's thread gets the GIL a few thousand times a
+        second at most, and one message each time would leave the watcher behind. It
+        shares its thread with the stop service, so nothing here may end that thread:
+        a failure is logged, and the node `al5d` still obeys every stop, in order."""
+        try:
+            handle = self._watcher.handle
+            with handle:
+                for _ in range(WATCH_BATCH):
+                    if first_word(raw) == _STOP:
+                        self._obey(raw)
+                    taken = handle.take_message(ArmInstruction, True)
+                    if taken is None:
+                        return
+                    raw = taken[0]
+        except Exception:
+            log.exception("the stop watcher failed on a message; the node still obeys stops")
 
     def _obey(self, raw: bytes) -> None:
         msg = deserialize_message(raw, ArmInstruction)
