@@ -3,9 +3,10 @@
 A thin adapter: messages become `Instruction`s (`al5d.ros.convert`), outcomes
 become `InstructionResult`s. No callback waits for the arm. Services answer as
 soon as the driver has taken the instruction (stop and release are synchronous
-in the driver, a matter of microseconds). Three nodes, each with its executor
+in the driver, a matter of microseconds). Four nodes, each with its executor
 thread: `al5d` (the topics, on rclpy's C++ events executor, for throughput),
-`al5d_safety` (the stop, release and shutdown services: `al5d.ros.safety`) and
+`al5d_safety` (the stop, release and shutdown services: `al5d.ros.safety`),
+`al5d_stop_watcher` (a stop on the instruction topic, obeyed at once) and
 `al5d_actions` (the move action and MoveIt's two controllers). An action's
 execute callback is a coroutine that awaits the driver's outcome, so that a
 thousand waiting goals hold no thread; those run on rclpy's Python executor,
@@ -50,7 +51,7 @@ from al5d.ros.runtime import (
     bound_backlog,
     start_context,
 )
-from al5d.ros.safety import FirstTaker, SafetyNode
+from al5d.ros.safety import FirstTaker, SafetyNode, StopWatcher
 
 log = logging.getLogger("al5d")
 
@@ -158,8 +159,9 @@ class ActionsNode(Node):
 
 
 class RosServer:
-    """The nodes with their executor threads, for `al5d serve`: `al5d` for the instructions,
-    the action and the outputs, and `al5d_safety` for the stop, release and shutdown."""
+    """The nodes with their executor threads, for `al5d serve`: `al5d` for the instructions
+    and the outputs, `al5d_safety` for the stop, release and shutdown, `al5d_stop_watcher`
+    for stops on the topic, `al5d_actions` for the actions."""
 
     def __init__(
         self, driver: ArmDriver, trace: str | None = None, namespace: str | None = None
@@ -173,7 +175,8 @@ class RosServer:
         self.context = start_context()
         stops = FirstTaker()
         self.node = ArmNode(driver, self.context, names, stops)
-        self.safety = SafetyNode(driver, self.context, names, stops)
+        self.safety = SafetyNode(driver, self.context, names)
+        self.watcher = StopWatcher(driver, self.context, names, stops)
         self.actions = ActionsNode(driver, self.context, names)
         self.trace_path = trace
         if trace is not None:
@@ -195,11 +198,13 @@ class RosServer:
         self.actions_spinner = Spinner(
             self.actions, self.context, owns_context=False, kind="single"
         )
+        self.watcher_spinner = Spinner(self.watcher, self.context, owns_context=False)
 
     def close(self) -> None:
         # Let the last results (the shutdown's) reach their readers before the node goes.
         self.node.results.close()
         self.node.result_pub.wait_for_all_acked(rclpy.duration.Duration(seconds=1))
+        self.watcher_spinner.close()
         if self.safety_spinner is not None:
             self.safety_spinner.close()
         self.actions_spinner.close()

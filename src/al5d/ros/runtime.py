@@ -26,6 +26,7 @@ log = logging.getLogger("al5d")
 
 NODE = "al5d"
 SAFETY_NODE = "al5d_safety"
+WATCHER_NODE = "al5d_stop_watcher"
 ACTIONS_NODE = "al5d_actions"
 
 
