@@ -20,6 +20,8 @@ from __future__ import annotations
 import json
 import math
 import signal
+import subprocess
+import sys
 import time
 import uuid
 from collections.abc import Iterator
@@ -246,7 +248,17 @@ def test_trajectory_messages(target: Target, traj: JointTrajectory) -> None:
     traj.header.frame_id = uuid.uuid4().hex
     moves_before = len(target.group_moves())
     pub.publish(traj)
-    result = peer.result(traj.header.frame_id, 30)
+    try:
+        result = peer.result(traj.header.frame_id, 30)
+    except AssertionError:
+        tail = "\n".join(target.proc.err.drain(0.5)[-40:])
+        spy = str(Path(sys.executable).with_name("py-spy"))
+        stacks = subprocess.run(
+            [spy, "dump", "--pid", str(target.proc.popen.pid)], capture_output=True, text=True
+        ).stdout
+        raise AssertionError(
+            f"no result for trajectory {traj}; server log:\n{tail}\nserver threads:\n{stacks}"
+        ) from None
     if result.outcome == "refused":
         assert len(target.group_moves()) == moves_before  # refused whole: nothing written
     elif result.outcome == "done":
@@ -307,3 +319,5 @@ def test_nothing_refused_reached_the_board(target: Target) -> None:
     assert not refused, f"refused, yet written: {refused[:5]}"
     assert len(written & set(results)) >= 10  # the invariant was put to the test
     count("moves traced to a done or cancelled instruction", len(written & set(results)))
+    late = [line for line in target.proc.err.drain(0.5) if "the executor was not told of" in line]
+    count("inputs taken by the catch-up (an executor's lost notice)", len(late))
