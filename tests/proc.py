@@ -2,16 +2,37 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import queue
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
 from typing import IO
 
+import yaml
+
+from al5d.arm.config import DEFAULT_CONFIG
+
 AL5D = str(Path(sys.executable).with_name("al5d"))
+
+
+@functools.cache
+def patient_config() -> str:
+    """The packaged configuration with `server.answer_timeout_s` at 0.5 s, for a server
+    whose emulated board is a thread of the busy test process.
+
+    The board answers within 5 ms; this emulator, on two loaded cores, once missed the
+    0.15 s of two asks during a CI run, and the server rightly took it for a lost link
+    (the test's move ended `cancelled`). Tests that are about faults keep the default."""
+    data = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    data["server"]["answer_timeout_s"] = 0.5
+    path = Path(tempfile.mkdtemp(prefix="al5d-test-")) / "al5d.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return str(path)
 
 
 class Lines:

@@ -233,3 +233,29 @@ def test_stop_is_answered_while_listeners_are_slow(rig: Rig) -> None:
     rig.emu.wait_for(lambda rs: any(r.raw.startswith(b"STOP") for r in rs), 2)
     assert time.monotonic() - t0 < 0.1
     gate.set()
+
+
+@pytest.mark.parametrize("answer_timeout_s", [None, 0.5])
+def test_a_slow_link_is_a_fault_unless_its_answers_are_given_the_time(
+    config: ArmConfig, tmp_path: object, answer_timeout_s: float | None
+) -> None:
+    # A board behind a radio link that answers 0.2 s late: within the default 0.05 s it
+    # is no board; with `server.answer_timeout_s` raised it is, and runs moves.
+    if answer_timeout_s is not None:
+        server = config.server.model_copy(update={"answer_timeout_s": answer_timeout_s})
+        config = config.model_copy(update={"server": server})
+    link = f"{tmp_path}/ssc32u"
+    with Emulator(config, link=link, answer_delay_s=0.2):
+        driver = ArmDriver(config, link)
+        driver.start()
+        try:
+            if answer_timeout_s is None:
+                assert time_to_state(driver, State.FAULT, 10) < 10
+                assert not driver.execute(ins.move(base=10), 5).ok
+            else:
+                driver.wait_for_state(State.READY, 10)
+                assert driver.execute(ins.move(base=10, time_ms=300), 10).ok
+                time.sleep(2 * config.server.idle_check_interval_s)
+                assert driver.state is State.READY
+        finally:
+            driver.close()

@@ -38,7 +38,7 @@ from fuzzcount import count, examples
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 from loadrig import Counter, proc_status
-from proc import Proc
+from proc import Proc, patient_config
 from rospeer import Peer, wait_until
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -166,7 +166,17 @@ def target(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Target]:
     work = tmp_path_factory.mktemp("fuzz")
     link, trace = work / "ssc32u", work / "trace.txt"
     emu = BoardProcess(link, config=CONFIG)  # its own GIL: the load here cannot starve it
-    proc = Proc("serve", "--port", str(link), "--log-level", "INFO", "--trace", str(trace))
+    proc = Proc(
+        "serve",
+        "--port",
+        str(link),
+        "--config",
+        patient_config(),
+        "--log-level",
+        "INFO",
+        "--trace",
+        str(trace),
+    )
     peer = Peer(name="al5d_fuzz_peer")
     try:
         proc.err.wait_for("ROS 2 node", 30)

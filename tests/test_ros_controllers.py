@@ -18,7 +18,7 @@ from armrig import LINK_CHECK
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from control_msgs.msg import JointTolerance
-from proc import Proc
+from proc import Proc, patient_config
 from rospeer import LockedActionClient, Peer, wait_future, wait_until
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectoryPoint
@@ -92,7 +92,7 @@ def pose(**degrees: float) -> dict[str, float]:
 def rig(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
     link = tmp_path_factory.mktemp("controllers") / "ssc32u"
     emu = Emulator(config, link=link).start()
-    proc = Proc("serve", "--port", str(link), "--log-level", "INFO")
+    proc = Proc("serve", "--port", str(link), "--config", patient_config(), "--log-level", "INFO")
     peer = Peer(name="al5d_moveit_peer")
     fjt = LockedActionClient(
         peer.node, FollowJointTrajectory, "/arm_controller/follow_joint_trajectory"

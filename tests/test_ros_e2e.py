@@ -21,7 +21,7 @@ from al5d_interfaces.msg import ArmInstruction
 from armrig import written
 from builtin_interfaces.msg import Duration
 from loadrig import Counter, proc_status
-from proc import Proc
+from proc import Proc, patient_config
 from rospeer import Peer, wait_future, wait_until
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -59,14 +59,17 @@ def peer() -> Iterator[Peer]:
 def server(config: ArmConfig, tmp_path: Path, peer: Peer) -> Iterator[Server]:
     link = tmp_path / "ssc32u"
     emu = Emulator(config, link=link).start()
-    proc = Proc("serve", "--port", str(link), "--log-level", "DEBUG")
+    proc = Proc("serve", "--port", str(link), "--config", patient_config(), "--log-level", "DEBUG")
     try:
         proc.err.wait_for("STATE: ready", 30)
         peer.wait_for_server()
         yield Server(proc, emu, config)
         if proc.popen.poll() is None:
             peer.trigger("shutdown")
-            assert proc.wait(30) == 0
+            code = proc.wait(30)
+            assert code == 0, f"exit {code}; the server said:\n" + "\n".join(
+                proc.err.drain(0)[-40:]
+            )
     finally:
         proc.kill()
         emu.close()

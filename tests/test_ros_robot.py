@@ -16,7 +16,7 @@ import yourdfpy
 from al5d_interfaces.action import Move
 from al5d_interfaces.msg import ArmInstruction
 from geometry_msgs.msg import PoseStamped
-from proc import Proc
+from proc import Proc, patient_config
 from rospeer import Peer, wait_future, wait_until
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
@@ -33,7 +33,7 @@ from al5d.ssc32u.emulator import Emulator
 def served(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
     link = tmp_path_factory.mktemp("robot") / "ssc32u"
     emu = Emulator(config, link=link).start()
-    proc = Proc("serve", "--port", str(link), "--log-level", "INFO")
+    proc = Proc("serve", "--port", str(link), "--config", patient_config(), "--log-level", "INFO")
     peer = Peer(name="al5d_robot_peer")
     try:
         proc.err.wait_for("STATE: ready", 30)

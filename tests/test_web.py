@@ -22,7 +22,7 @@ from typing import Any
 import pytest
 import viser
 from playwright.sync_api import sync_playwright
-from proc import Proc
+from proc import Proc, patient_config
 from rospeer import Peer, wait_until
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from webrig import (
@@ -114,7 +114,9 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
 
 def serve(link: Path) -> Proc:
     """`al5d serve` on the emulated board's link, once it is ready."""
-    server = Proc("serve", "--port", str(link), "--log-level", "DEBUG")
+    server = Proc(
+        "serve", "--port", str(link), "--config", patient_config(), "--log-level", "DEBUG"
+    )
     server.err.wait_for("STATE: ready", 30)
     return server
 
@@ -402,7 +404,12 @@ def test_a_lost_server_leaves_the_gizmo_nothing_to_grab(config: ArmConfig) -> No
         target = page.scene.target
         assert not page.lost and not target.disable_axes and target.opacity == 1.0
         wait_until(lambda: page.lost, 5, "the server lost")
-        assert target.disable_axes and target.disable_sliders and target.disable_rotations
+        # `lost` is set first (a drag is refused from then on), the controls just after it.
+        wait_until(
+            lambda: target.disable_axes and target.disable_sliders and target.disable_rotations,
+            5,
+            "the gizmo's handles off",
+        )
         assert target.opacity < 0.5 and target.visible
         tool = tuple(target.position)
         target.position = (0.3, 0.0, 0.1)  # where a drag would have left it

@@ -23,6 +23,7 @@ from al5d.arm.instruction import PRESET_NAMES
 from al5d.arm.servos import SERVOS
 from al5d.model import JOINTS as AL5D_JOINTS
 from al5d.model import ArmModel
+from al5d.ssc32u.driver import DEFAULT_READ_TIMEOUT_S
 from al5d.ssc32u.facts import BAUDS, CHANNELS, FACTORY_BAUD, PULSE_MAX_US, PULSE_MIN_US
 
 #: Every arm has these presets (PO01..PO03); a config may add more.
@@ -152,6 +153,10 @@ class ServerSettings(_Frozen):
     idle_check_interval_s: float = Field(default=0.5, gt=0, le=60)
     #: ...and this often while a move runs: a dead link is a fault within about 0.3 s.
     moving_check_interval_s: float = Field(default=0.15, gt=0, le=60)
+    #: How late an answer may be beyond its wire time (and the USB chip's latency timer)
+    #: before it is asked once more and then is a fault: a Bluetooth or radio serial link
+    #: takes tens of milliseconds each way, and needs more than the board's 5 ms.
+    answer_timeout_s: float = Field(default=DEFAULT_READ_TIMEOUT_S, gt=0, le=5)
     baud: int = Field(default=FACTORY_BAUD)
     #: The ROS namespace of this arm's names ("" none; `left` gives /left/al5d/...).
     namespace: str = ""

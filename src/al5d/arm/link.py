@@ -62,7 +62,7 @@ class Link:
 
     def connect(self) -> None:
         try:
-            board = SSC32U(self.port, self.baud)
+            board = SSC32U(self.port, self.baud, read_timeout_s=self.settings.answer_timeout_s)
         except SerialFault as e:
             self.enter_fault(e)
             return
@@ -215,7 +215,7 @@ class Link:
                 if shared.shutdown_job is not None:
                     return
             try:
-                board = SSC32U(self.port, self.baud)
+                board = SSC32U(self.port, self.baud, read_timeout_s=self.settings.answer_timeout_s)
             except SerialFault as e:
                 self._reconnect_failed(e)
                 continue
