@@ -35,6 +35,8 @@ class Trial:
     fault: str
     to_fault_s: float = float("nan")
     to_back_s: float = float("nan")
+    #: Of `to_back_s`, the start-up park that runs again (the servos' travel, not the link's).
+    park_s: float = 0.0
     pending: int = 0
     outcomes: int = 0
     replayed: int = 0
@@ -123,6 +125,9 @@ def run_trial(
                 trial.to_back_s = _await(driver, (State.READY, State.STOPPED), 10)
             except TimeoutError as e:
                 trial.notes.append(f"not back: {e}")
+            parks = [r.t_effect for r in emu.records if r.t_effect > t_back and r.raw[:1] == b"#"]
+            if moment == "startup-park" and parks and trial.to_back_s == trial.to_back_s:
+                trial.park_s = t_back + trial.to_back_s - parks[0]
             time.sleep(0.3)  # anything the driver would replay, it would have written by now
             written = _moves(emu, t_back)
             expected = (
