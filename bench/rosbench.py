@@ -701,7 +701,7 @@ def run(config: ArmConfig, log: Any) -> dict[str, Any]:
         out["c2b_9600"] = command_to_board(rig)
         # The profile has a run of its own: py-spy reads the server 500 times a second, a
         # load that must not be inside the figures above (2 cores: it takes the board's).
-        log("the same, 200 moves more, py-spy on the server (not in the figures)")
+        log("the same, 2 x 200 moves more, py-spy on the server (not in the figures)")
         raw = OUT / "command-path-9600.txt"
         with profiled(rig.proc.popen.pid, raw):
             command_to_board(rig, 200)

@@ -69,7 +69,8 @@ class Counter:
         self.lock = threading.Lock()
         self.seen: dict[str, int] = {}
         self.reasons: dict[str, str] = {}
-        peer.node.create_subscription(InstructionResult, "/al5d/result", self._on, QOS_ALL)
+        # Through the peer's catch-up: a result its executor was not told of is still counted.
+        peer.catch_up.subscribe(peer.node, InstructionResult, "/al5d/result", self._on, QOS_ALL)
 
     def _on(self, msg: InstructionResult) -> None:
         with self.lock:

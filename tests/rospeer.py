@@ -17,6 +17,7 @@ from al5d.ros.runtime import (
     QOS_INSTRUCTIONS,
     QOS_SERVICES,
     QOS_STREAM,
+    CatchUp,
     Names,
     Spinner,
     start_context,
@@ -96,6 +97,7 @@ class Peer:
         self.results: dict[str, InstructionResult] = {}
         self.joint_states: list[JointState] = []
         self._result_sub: Any = None
+        self.catch_up = CatchUp()
         if results:  # a benchmark may not want a thousand results arriving as it measures
             self.listen_results()
         self.node.create_subscription(JointState, names.joint_states, self.joint_states.append, 10)
@@ -104,7 +106,7 @@ class Peer:
             for n in names.services
         }
         self.move = LockedActionClient(self.node, Move, names.move)
-        #: Results taken by `_catch_up`, not by the executor's own notice.
+        #: Results taken by the catch-up, not by the executor's own notice.
         self.caught_up = 0
         self.node.create_timer(0.1, self._catch_up)
         self.spinner = Spinner(self.node, self.context)
@@ -112,10 +114,11 @@ class Peer:
     def listen_results(self, on: bool = True) -> None:
         """Take /al5d/result, or stop (a benchmark's burst of results loads this process)."""
         if on and self._result_sub is None:
-            self._result_sub = self.node.create_subscription(
-                InstructionResult, self.names.result, self._on_result, QOS_STREAM
+            self._result_sub = self.catch_up.subscribe(
+                self.node, InstructionResult, self.names.result, self._on_result, QOS_STREAM
             )
         elif not on and self._result_sub is not None:
+            self.catch_up.forget(self._result_sub)
             self.node.destroy_subscription(self._result_sub)
             self._result_sub = None
 
@@ -123,18 +126,10 @@ class Peer:
         self.results[msg.id] = msg
 
     def _catch_up(self) -> None:
-        """Take results that wait unannounced. rclpy 7.1's events executor is now and then
-        told of one message too few (the server's `ArmNode._catch_up` says more): the last
-        result then waits for the next one, and a test that sends one input and waits for
-        its result waits for ever (seen once in `make soak`: a valid trajectory's result
-        not taken in 30 s, the server idle and its own catch-up with nothing to take)."""
-        sub = self._result_sub
-        if sub is None:
-            return
-        with sub.handle:
-            while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
-                self.caught_up += 1
-                self._on_result(taken[0])
+        # The server's `CatchUp`, for the same executor's lost notices: a test that sends
+        # one input and waits for its result would otherwise wait for ever (seen once in
+        # `make soak`: a trajectory's result not taken in 30 s, the server idle).
+        self.caught_up += sum(self.catch_up.run().values())
 
     def results_now(self) -> dict[str, InstructionResult]:
         """A copy of the results so far, safe to iterate while the spin thread adds more

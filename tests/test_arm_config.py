@@ -101,6 +101,10 @@ def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
             r"presets\.ready\.finger: no such joint",
         ),
         (
+            lambda d: d["presets"].update(Stop=d["presets"]["park"]),
+            r"presets\.Stop: the name of an instruction, not a preset",
+        ),
+        (
             lambda d: d["presets"].pop("straight_up"),
             r"presets\.straight_up: this preset is required",
         ),

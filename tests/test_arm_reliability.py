@@ -12,6 +12,7 @@ import itertools
 import logging
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from armrig import Rig, group_pulses, logged, min_ms, pulses, state_lines
@@ -237,7 +238,7 @@ def test_stop_is_answered_while_listeners_are_slow(rig: Rig) -> None:
 
 @pytest.mark.parametrize("answer_timeout_s", [None, 0.5])
 def test_a_slow_link_is_a_fault_unless_its_answers_are_given_the_time(
-    config: ArmConfig, tmp_path: object, answer_timeout_s: float | None
+    config: ArmConfig, tmp_path: Path, answer_timeout_s: float | None
 ) -> None:
     # A board behind a radio link that answers 0.2 s late: within the default 0.05 s it
     # is no board; with `server.answer_timeout_s` raised it is, and runs moves.

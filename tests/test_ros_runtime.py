@@ -5,11 +5,12 @@ from __future__ import annotations
 import time
 
 import pytest
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rospeer import wait_until
 from std_msgs.msg import String
 
-from al5d.ros.runtime import Spinner, start_context
+from al5d.ros.runtime import CatchUp, Spinner, start_context
 
 
 @pytest.mark.parametrize("kind", ["events", "single"])
@@ -38,3 +39,33 @@ def test_a_callback_that_raises_does_not_end_the_executor_thread(
         assert "a callback failed" in caplog.text
     finally:
         spinner.close()
+
+
+def test_the_catch_up_takes_what_waits_in_a_quiet_input_and_leaves_a_busy_one() -> None:
+    context = start_context()
+    node = Node("al5d_catch_up_test", context=context)
+    heard: list[str] = []
+    catch_up = CatchUp(limit=2)
+    catch_up.subscribe(node, String, "/al5d_catch_up_test", lambda m: heard.append(m.data), 100)
+    pub = node.create_publisher(String, "/al5d_catch_up_test", 100)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        wait_until(lambda: pub.get_subscription_count() > 0, 10, "the match")
+
+        def send(*words: str) -> None:
+            for w in words:
+                pub.publish(String(data=w))
+            time.sleep(0.3)  # on loopback
+
+        send("a")
+        executor.spin_once(timeout_sec=5)  # the executor's own notice: the input is busy
+        send("b", "c", "d")
+        assert catch_up.run() == {} and heard == ["a"]  # busy: left to the executor
+        taken = catch_up.run()  # quiet since: taken here, `limit` at a time
+        assert taken == {"/al5d_catch_up_test": 2} and heard == ["a", "b", "c"]
+        assert catch_up.run() == {"/al5d_catch_up_test": 1} and heard[-1] == "d"
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        context.try_shutdown()

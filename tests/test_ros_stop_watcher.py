@@ -1,14 +1,21 @@
-"""The stop watcher's pure parts: the first word of a serialized instruction, and which of the
-two readers obeys each stop on the topic (`al5d.ros.safety`)."""
+"""The stop watcher (`al5d.ros.safety`): the first word of a serialized instruction, which of
+the two readers obeys each stop on the topic, and every message of a batch judged."""
 
 from __future__ import annotations
 
 import time
 
+import pytest
 from al5d_interfaces.msg import ArmInstruction
+from armrig import Rig
+from rclpy.node import Node
 from rclpy.serialization import serialize_message
+from rospeer import wait_until
 
-from al5d.ros.safety import FirstTaker, first_word
+from al5d.arm.states import State
+from al5d.ros import safety
+from al5d.ros.runtime import QOS_INSTRUCTIONS, Names, start_context
+from al5d.ros.safety import FirstTaker, StopWatcher, first_word
 
 
 def raw(word: str, **fields: object) -> bytes:
@@ -79,3 +86,34 @@ def test_a_stop_the_watcher_missed_does_not_make_it_pass_over_the_next() -> None
         "node: a stop the watcher missed",
         "watcher: the next stop with the same (empty) id",
     ]
+
+
+def test_the_last_message_of_a_batch_is_judged_too(
+    rig: Rig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The watcher takes what waits after the message it was called with, a batch at most;
+    # a stop that was the last one taken went by unseen (the node obeyed it later, behind
+    # the flood). A batch of 3 here: three moves, then the stop, fourth.
+    monkeypatch.setattr(safety, "WATCH_BATCH", 3)
+    context = start_context()
+    try:
+        watcher = StopWatcher(rig.driver, context, Names(), FirstTaker())
+        sender = Node("al5d_watch_test", context=context)
+        pub = sender.create_publisher(ArmInstruction, Names().instruction, QOS_INSTRUCTIONS)
+        wait_until(lambda: pub.get_subscription_count() > 0, 10, "the watcher's reader")
+        for deg in (1.0, 2.0, 3.0):
+            pub.publish(ArmInstruction(instruction="move", joints=["base"], degrees=[deg]))
+        pub.publish(ArmInstruction(instruction="stop", id="last"))
+        handle = watcher._watcher.handle
+        with handle:
+            first = None
+            deadline = time.monotonic() + 10
+            while first is None and time.monotonic() < deadline:
+                first = handle.take_message(ArmInstruction, True)
+                time.sleep(0.01)
+        assert first is not None
+        time.sleep(0.5)  # the other three on loopback
+        watcher._watch(first[0])
+        assert rig.driver.state is State.STOPPED
+    finally:
+        context.try_shutdown()

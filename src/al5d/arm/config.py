@@ -19,7 +19,7 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from al5d.arm.instruction import PRESET_NAMES
+from al5d.arm.instruction import PRESET_NAMES, Kind
 from al5d.arm.servos import SERVOS
 from al5d.model import JOINTS as AL5D_JOINTS
 from al5d.model import ArmModel
@@ -255,7 +255,11 @@ class ArmConfig(_Frozen):
         for preset in REQUIRED_PRESETS:
             if preset not in self.presets:
                 raise ValueError(f"presets.{preset}: this preset is required")
+        words = {k.value for k in Kind}
         for preset, pose in self.presets.items():
+            if preset.strip().lower() in words:
+                # `stop` as a preset would be a move to the arm and a stop to whoever reads it.
+                raise ValueError(f"presets.{preset}: the name of an instruction, not a preset")
             missing = [j for j in self.joints if j not in pose]
             if missing:
                 raise ValueError(f"presets.{preset}: no angle for {', '.join(missing)}")

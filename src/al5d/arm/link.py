@@ -60,9 +60,12 @@ class Link:
         self.translator = Translator(config)
         self.channels = config.channels
 
+    def _open(self) -> SSC32U:
+        return SSC32U(self.port, self.baud, read_timeout_s=self.settings.answer_timeout_s)
+
     def connect(self) -> None:
         try:
-            board = SSC32U(self.port, self.baud, read_timeout_s=self.settings.answer_timeout_s)
+            board = self._open()
         except SerialFault as e:
             self.enter_fault(e)
             return
@@ -215,7 +218,7 @@ class Link:
                 if shared.shutdown_job is not None:
                     return
             try:
-                board = SSC32U(self.port, self.baud, read_timeout_s=self.settings.answer_timeout_s)
+                board = self._open()
             except SerialFault as e:
                 self._reconnect_failed(e)
                 continue

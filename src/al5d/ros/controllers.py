@@ -246,7 +246,8 @@ class FollowTrajectoryAction(GoalRunner):
         return _result(FJT.SUCCESSFUL, note)
 
     def _on_motion(self, sent: Sent) -> None:
-        """The first move of a running goal on the board: its clock starts (any thread)."""
+        """Each move of a running goal on the board (any thread): the first starts the goal's
+        clock, and each records how late its point comes against its time_from_start."""
         run = self.running.get(sent.instr.id)
         if run is None:
             return

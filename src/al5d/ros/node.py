@@ -24,7 +24,6 @@ import rclpy
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rclpy.context import Context
 from rclpy.node import Node
-from rclpy.subscription import Subscription
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
@@ -46,6 +45,7 @@ from al5d.ros.runtime import (
     QOS_INSTRUCTIONS,
     QOS_LATCHED,
     QOS_STREAM,
+    CatchUp,
     Names,
     PublishThread,
     Spinner,
@@ -78,14 +78,13 @@ class ArmNode(Node):
         )
         self.state_pub = self.create_publisher(String, names.state, QOS_LATCHED)
         self.robot = RobotPublisher(self, driver.config, names)
-        self._inputs: list[Subscription] = [
-            self.create_subscription(
-                ArmInstruction, names.instruction, self._on_instruction, QOS_INSTRUCTIONS
-            ),
-            self.create_subscription(
-                JointTrajectory, names.trajectory, self._on_trajectory, QOS_INSTRUCTIONS
-            ),
-        ]
+        self.catch_up = CatchUp()
+        self.catch_up.subscribe(
+            self, ArmInstruction, names.instruction, self._on_instruction, QOS_INSTRUCTIONS
+        )
+        self.catch_up.subscribe(
+            self, JointTrajectory, names.trajectory, self._on_trajectory, QOS_INSTRUCTIONS
+        )
         self.create_timer(1.0 / driver.settings.joint_state_rate_hz, self._tick)
         driver.outcome_listeners.append(self._publish_outcome)
         driver.state_listeners.append(self._publish_state)
@@ -102,23 +101,8 @@ class ArmNode(Node):
     def _tick(self) -> None:
         """/joint_states and /tf at a fixed rate (radians, REP 103); and the catch-up."""
         self.robot.publish(self.driver.positions())
-        self._catch_up()
-
-    def _catch_up(self) -> None:
-        """Take what waits in the inputs unannounced. rclpy 7.1's events executor takes as many
-        messages as it was told of, and now and then it is told of one too few: the last
-        message then waits until the next one comes (seen in the fuzz suite: a trajectory
-        unanswered for 30 s, its server idle, 2 runs in 2 of 600 cases each; none with
-        rclpy's Python executor). Here, at the joint-state rate, any such message is taken;
-        its late notification then finds nothing."""
-        for sub in self._inputs:
-            caught = 0
-            with sub.handle:
-                while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
-                    caught += 1
-                    sub.callback(taken[0])
-            if caught:
-                log.info("%s: took %d message(s) the executor was not told of", sub.topic, caught)
+        for topic, n in self.catch_up.run().items():
+            log.info("%s: took %d message(s) the executor was not told of", topic, n)
 
     # -- inputs ---------------------------------------------------------------------
 
@@ -213,7 +197,7 @@ class RosServer:
             self.node, self.context, owns_context=False, more=[self.safety] if together else []
         )
         # The safety services on rclpy's Python executor: the events executor now and then
-        # is told of one message too few (see ArmNode._catch_up), and a stop request must
+        # is told of one message too few (see runtime.CatchUp), and a stop request must
         # never wait for the next one. Three services need no throughput.
         self.safety_spinner = (
             None
