@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 
 import pytest
@@ -69,3 +71,25 @@ def test_the_catch_up_takes_what_waits_in_a_quiet_input_and_leaves_a_busy_one() 
         executor.shutdown()
         node.destroy_node()
         context.try_shutdown()
+
+
+SERVER_PROFILE_CHECK = """
+import os
+os.environ.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
+from al5d.ros.runtime import server_dds_profile, start_context
+assert server_dds_profile("/al5d/instruction", 1000) is None
+from rclpy.node import Node
+Node("al5d_profile_check", context=start_context())
+print("started")
+"""
+
+
+def test_fast_dds_takes_the_servers_profile_whole() -> None:
+    # Fast DDS says nothing but an XMLPARSER error for a profile it cannot
+    # read, and goes on with its defaults: the backlog bound and the deeper port lost.
+    done = subprocess.run(
+        [sys.executable, "-c", SERVER_PROFILE_CHECK], capture_output=True, text=True, timeout=60
+    )
+    said = done.stdout + done.stderr  # Fast DDS logs its errors on stdout
+    assert done.returncode == 0 and "started" in done.stdout, said
+    assert "XMLPARSER" not in said and "Error" not in said, said

@@ -49,7 +49,7 @@ from al5d.ros.runtime import (
     Names,
     PublishThread,
     Spinner,
-    bound_backlog,
+    server_dds_profile,
     start_context,
 )
 from al5d.ros.safety import FirstTaker, SafetyNode, StopWatcher
@@ -173,9 +173,12 @@ class RosServer:
         names = Names.of(driver.settings.namespace if namespace is None else namespace)
         self.names = names
         backlog = driver.settings.instruction_backlog
-        theirs = bound_backlog(names.instruction, backlog)
+        theirs = server_dds_profile(names.instruction, backlog)
         if theirs:
-            log.warning("Fast DDS profiles from %s: the instruction backlog is theirs", theirs)
+            log.warning(
+                "Fast DDS profiles from %s: the instruction backlog and the transports are theirs",
+                theirs,
+            )
         self.context = start_context()
         stops = FirstTaker()
         self.node = ArmNode(driver, self.context, names, stops)
