@@ -229,8 +229,8 @@ def server_dds_profile(topic: str, limit: int) -> str | None:
     and then. What it dropped was lost to the stop watcher (best effort), and a stop
     request, a stop on the topic or an outcome came 1 to 3 s late, when DDS repaired
     the loss (6 stops in 4 floods of 30 s, and once an outcome lost for good, its
-    reader 10,000 results behind by then); with 8192, none in 8 floods. The transports
-    are otherwise Fast DDS's defaults, so a remote client reaches the server as before.
+    reader 10,000 results behind by then); with 8192, none in 5 floods. Otherwise the
+    transports are Fast DDS's built-in ones (shared memory and UDPv4), as before.
 
     Must run before the ROS context starts. A user's own profiles file
     (FASTRTPS_DEFAULT_PROFILES_FILE) is kept: then both are theirs to set; the return
