@@ -369,8 +369,8 @@ class CatchUp:
 
     rclpy 7.1's events executor takes as many messages as it was told of, and now and
     then it is told of one too few: the last message then waits until the next one comes
-    (seen in the fuzz suites: a trajectory unanswered for 30 s with its server idle, and
-    in the test's own peer, 3 results in one run; none with rclpy's Python executor).
+    (seen in the fuzz suite: a trajectory unanswered for 30 s with its server idle; none
+    with rclpy's Python executor).
     `run`, called at a fixed rate on the executor's thread, takes what waits in an input
     whose callback has not run since the last call. A busy input is left alone: what
     waits there comes with the next notice, and a flood is never read here, in a timer
