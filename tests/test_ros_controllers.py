@@ -340,15 +340,16 @@ def test_a_late_point_the_next_catches_up_with_is_reported(rig: Rig) -> None:
     assert 40 < late_ms < 300, text  # 60 deg of base take about 180 ms
 
 
+@pytest.mark.parametrize("first_s", [0.0, 0.0003])  # 0.3 ms goes to the board as 0 ms
 def test_a_start_point_away_from_the_arm_is_reached_first_and_the_times_count_from_it(
-    rig: Rig,
+    rig: Rig, first_s: float
 ) -> None:
     rig.recover()
     home = wait_future(rig.send(rig.fjt, rig.trajectory([(0.5, pose())])).get_result_async(), 10)
     assert home.status == GoalStatus.STATUS_SUCCEEDED
     # Point 0 at time 0 is 50 deg of base away: reached at the servos' speed, then the
     # others keep their times from there, none of them late.
-    goal = rig.trajectory([(0.0, pose(base=50)), (0.5, pose(base=40)), (1.0, pose(base=30))])
+    goal = rig.trajectory([(first_s, pose(base=50)), (0.5, pose(base=40)), (1.0, pose(base=30))])
     answer = wait_future(rig.send(rig.fjt, goal).get_result_async(), 15)
     assert answer.status == GoalStatus.STATUS_SUCCEEDED
     assert answer.result.error_string == "", answer.result.error_string

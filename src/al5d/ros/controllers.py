@@ -258,7 +258,9 @@ class FollowTrajectoryAction(GoalRunner):
             start = self.model.to_urdf(sent.motion.start)
             run.first = [start.get(n, v) for n, v in zip(run.names, run.first, strict=True)]
             run.t0 = sent.motion.t0
-            run.origin = end if run.times[0] == 0 else run.t0
+            # A first point the board is sent as 0 ms (under 0.5 ms, in whole ms) goes at
+            # the servos' speed: the times count from its end, as the driver's do.
+            run.origin = end if round(run.times[0] * 1000.0) == 0 else run.t0
         k, run.written = run.written, run.written + 1
         if k < len(run.times) and run.origin is not None:
             run.late.append(end - (run.origin + run.times[k]))
