@@ -7,7 +7,7 @@ import os
 import queue
 import tempfile
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -406,16 +406,23 @@ class CatchUp:
             if entry.heard == entry.seen:
                 n = 0
                 try:
-                    with entry.sub.handle:
-                        while n < self.limit:
-                            taken = entry.sub.handle.take_message(entry.sub.msg_type, entry.sub.raw)
-                            if taken is None:
-                                break
-                            n += 1
-                            entry.sub.callback(taken[0])
+                    for msg in waiting(entry.sub, self.limit):
+                        n += 1
+                        entry.sub.callback(msg)
                 except InvalidHandle:  # destroyed meanwhile (a client that stops listening)
                     continue
                 if n:
                     caught[entry.sub.topic_name] = n
             entry.seen = entry.heard
         return caught
+
+
+def waiting(sub: Any, limit: int) -> Iterator[Any]:
+    """Up to `limit` messages that wait in the subscription `sub`, taken one at a time
+    without the executor (serialized if it was created with `raw=True`)."""
+    with sub.handle:
+        for _ in range(limit):
+            taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            if taken is None:
+                return
+            yield taken[0]

@@ -24,6 +24,7 @@ the stop service is the way for emergencies.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import threading
 from collections import deque
@@ -40,7 +41,14 @@ from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind
 from al5d.clock import now
 from al5d.ros.convert import from_message
-from al5d.ros.runtime import QOS_SERVICES, QOS_WATCH, SAFETY_NODE, WATCHER_NODE, Names
+from al5d.ros.runtime import (
+    QOS_SERVICES,
+    QOS_WATCH,
+    SAFETY_NODE,
+    WATCHER_NODE,
+    Names,
+    waiting,
+)
 
 log = logging.getLogger("al5d")
 #: Messages the watcher takes in one call, at most.
@@ -198,17 +206,9 @@ class StopWatcher(Node):
         failure is logged and the watcher goes on; the node `al5d` still obeys every
         stop, in order."""
         try:
-            handle = self._watcher.handle
-            with handle:
-                for _ in range(WATCH_BATCH):
-                    if first_word(raw) == _STOP:
-                        self._obey(raw)
-                    taken = handle.take_message(ArmInstruction, True)
-                    if taken is None:
-                        return
-                    raw = taken[0]
-                if first_word(raw) == _STOP:  # the last one taken, judged like the rest
-                    self._obey(raw)
+            for each in itertools.chain((raw,), waiting(self._watcher, WATCH_BATCH)):
+                if first_word(each) == _STOP:
+                    self._obey(each)
         except Exception:
             log.exception("the stop watcher failed on a message; the node still obeys stops")
 
