@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from proc import Proc
+from proc import Proc, patient_config
 
 from al5d.app.server import EXIT_NOT_PARKED
 from al5d.arm.config import load_config
@@ -64,7 +64,8 @@ def test_a_shutdown_that_cannot_park_exits_non_zero_and_says_so(tmp_path: Path) 
     # Issue 9: the board lost during the shutdown's park was `done` and exit 0.
     link = tmp_path / "ssc32u"
     with Emulator(load_config(), link=link) as emu:
-        proc = Proc("serve", "--port", str(link), "--stdin", stdin=True)
+        config = patient_config()  # only the disconnect below may fail the link
+        proc = Proc("serve", "--port", str(link), "--config", config, "--stdin", stdin=True)
         try:
             proc.err.wait_for("STATE: ready")
             proc.send("straight_up")

@@ -11,14 +11,14 @@ import yaml
 from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory, GripperCommand
-from proc import Proc
+from proc import Proc, patient_config
 from rospeer import LockedActionClient, Peer, wait_future, wait_until
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 from al5d.arm import instruction as ins
-from al5d.arm.config import DEFAULT_CONFIG, ArmConfig
+from al5d.arm.config import ArmConfig
 from al5d.ros.client import Client
 from al5d.ros.robot import QOS_TF_STATIC
 from al5d.ros.runtime import QOS_LATCHED, Names
@@ -45,10 +45,11 @@ def arms(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterato
             folder = tmp_path_factory.mktemp(name)
             link = folder / "ssc32u"
             emu = Emulator(config, link=link).start()
+            # The emulators are threads of this busy process: the patient answer timeout.
             if name == "left":  # by the option
-                where = ["--namespace", name]
+                where = ["--namespace", name, "--config", patient_config()]
             else:  # by the configuration's key, `server.namespace`
-                data = yaml.safe_load(DEFAULT_CONFIG.read_text())
+                data = yaml.safe_load(Path(patient_config()).read_text())
                 data["server"]["namespace"] = name
                 (folder / "arm.yaml").write_text(yaml.safe_dump(data))
                 where = ["--config", str(folder / "arm.yaml")]
@@ -82,22 +83,28 @@ def test_names_follow_ros_conventions() -> None:
             Names.of(bad)
 
 
+def done(arm: Arm, ident: str) -> bool:
+    result = arm.peer.result(ident)
+    assert result.outcome == "done", (arm.name, result.reason, arm.proc.err.drain(0.5)[-20:])
+    return True
+
+
 def test_each_server_moves_its_own_arm_only(arms: list[Arm]) -> None:
     left, right = arms
     for arm in arms:
         arm.emu.clear_records()
     left.peer.send("l-1", "move", time_ms=300, base=40)
-    assert left.peer.result("l-1").outcome == "done"
+    assert done(left, "l-1")
     assert len(left.group_moves()) == 1 and right.group_moves() == []
     right.peer.send("r-1", "move", time_ms=300, base=-40)
-    assert right.peer.result("r-1").outcome == "done"
+    assert done(right, "r-1")
     assert len(left.group_moves()) == 1 and len(right.group_moves()) == 1
     assert abs(left.emu.servo_degrees()["base"] - 40) < 0.5
     assert abs(right.emu.servo_degrees()["base"] + 40) < 0.5
     # A stop for one arm leaves the other free.
     assert left.peer.trigger("stop").success
     right.peer.send("r-2", "move", time_ms=200, base=0)
-    assert right.peer.result("r-2").outcome == "done"
+    assert done(right, "r-2")
     assert left.peer.trigger("release").success
 
 
