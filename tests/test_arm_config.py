@@ -110,6 +110,10 @@ def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
         ),
         (lambda d: d["server"].update(baud=12345), r"server\.baud: .*baud 12345"),
         (
+            lambda d: d["server"].update(idle_joint_state_rate_hz=30),
+            r"server: idle_joint_state_rate_hz 30 must not exceed joint_state_rate_hz 25",
+        ),
+        (
             lambda d: d["joints"]["elbow"].update(servo="HS-9999"),
             r"joints\.elbow: servo 'HS-9999' is not in the table; known: HS-485HB",
         ),

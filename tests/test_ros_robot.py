@@ -6,7 +6,10 @@ Over real DDS against `al5d serve` in its own process, the emulated board here.
 from __future__ import annotations
 
 import io
+import itertools
 import math
+import statistics
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -75,6 +78,38 @@ def test_joint_states_carry_the_urdfs_joint_names(served: Any) -> None:
     peer.joint_states.clear()
     wait_until(lambda: peer.joint_states, 5, "joint_states")
     assert sorted(peer.joint_states[-1].name) == sorted(actuated)
+
+
+def median_period_ms(peer: Peer, seconds: float) -> float:
+    """The median time between the joint states' stamps that come in the next `seconds`."""
+    peer.joint_states.clear()
+    time.sleep(seconds)
+    stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in peer.joint_states]
+    assert len(stamps) >= 3, f"{len(stamps)} joint states in {seconds} s"
+    return statistics.median(b - a for a, b in itertools.pairwise(stamps)) * 1000
+
+
+def test_joint_states_at_the_moving_rate_while_moving_and_the_idle_rate_at_rest(
+    served: Any, config: ArmConfig
+) -> None:
+    emu, peer = served
+    moving_ms = 1000 / config.server.joint_state_rate_hz
+    idle_ms = 1000 / config.server.idle_joint_state_rate_hz
+    split = (moving_ms + idle_ms) / 2
+    time.sleep(1.5)  # more than the second at rest after which the idle rate comes
+    at_rest = median_period_ms(peer, 1.5)
+    base = -40.0 if emu.servo_degrees()["base"] > 0 else 40.0
+    peer.send("rate-move", "move", 2500, base=base)
+    time.sleep(0.3)
+    moving = median_period_ms(peer, 1.5)
+    assert peer.result("rate-move").outcome == "done"
+    time.sleep(1.5)
+    at_rest_again = median_period_ms(peer, 1.5)
+    assert at_rest > split and moving < split and at_rest_again > split, (
+        at_rest,
+        moving,
+        at_rest_again,
+    )
 
 
 def test_the_tf_tree_reaches_tool0_where_the_emulated_arm_puts_it(

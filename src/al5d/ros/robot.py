@@ -86,19 +86,22 @@ class RobotPublisher:
             )
         )
 
-    def publish(self, degrees: Mapping[str, float]) -> None:
-        """Joint states, /tf and the tool pose for the arm's degrees (NaN: unknown yet)."""
+    def publish(self, degrees: Mapping[str, float]) -> bool:
+        """Joint states, /tf and the tool pose for the arm's degrees (NaN: unknown yet);
+        whether the degrees differ from the last published."""
         if any(v != v for v in degrees.values()):
-            return  # before the first read-back: nothing true to say
+            return False  # before the first read-back: nothing true to say
         stamp = self.node.get_clock().now().to_msg()
-        if degrees != self._last_degrees:
+        changed = degrees != self._last_degrees
+        if changed:
             self._build(degrees, stamp)
-        else:  # an arm at rest, 25 times a second: the same messages, stamped anew
+        else:  # an arm at rest: the same messages, stamped anew
             for header in self._headers:
                 header.stamp = stamp
         self.joint_states.publish(self._states_msg)
         self.tf.publish(self._tf_msg)
         self.tool_pose.publish(self._pose_msg)
+        return changed
 
     def _build(self, degrees: Mapping[str, float], stamp: object) -> None:
         values = self.model.to_urdf(degrees)
