@@ -20,8 +20,6 @@ import logging
 import os
 import threading
 import time
-from collections.abc import Callable
-from typing import TypeVar
 
 import rclpy
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
@@ -59,12 +57,6 @@ from al5d.ros.runtime import (
 from al5d.ros.safety import FirstTaker, SafetyNode, StopWatcher
 
 log = logging.getLogger("al5d")
-T = TypeVar("T")
-
-
-def _forget(listeners: list[Callable[[T], None]], listener: Callable[[T], None]) -> None:
-    if listener in listeners:
-        listeners.remove(listener)
 
 
 class ArmNode(Node):
@@ -114,10 +106,10 @@ class ArmNode(Node):
         self._publish_state(driver.state)
 
     def detach(self) -> None:
-        """Hear the driver no more (before the node is destroyed; the driver lives on)."""
-        _forget(self.driver.outcome_listeners, self._publish_outcome)
-        _forget(self.driver.state_listeners, self._publish_state)
-        _forget(self.driver.motion_listeners, self._on_motion)
+        """Hear the driver no more (once, before the node is destroyed; the driver lives on)."""
+        self.driver.outcome_listeners.remove(self._publish_outcome)
+        self.driver.state_listeners.remove(self._publish_state)
+        self.driver.motion_listeners.remove(self._on_motion)
 
     # -- outputs -------------------------------------------------------------------
 
