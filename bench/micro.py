@@ -26,7 +26,6 @@ def translation(config: ArmConfig, n: int = 20000) -> dict[str, Any]:
     """Instruction -> bytes: validation, the time model and the encoding of a 6-joint move."""
     driver = ArmDriver(config, "unused")  # not started: only its pure parts are timed
     pose = dict(config.presets["park"])
-    driver.shared.pose.update(pose)  # a pose to plan from, as after the start-up park
     instrs = [
         ins.move(
             base=(i % 170) - 85,
@@ -43,9 +42,9 @@ def translation(config: ArmConfig, n: int = 20000) -> dict[str, Any]:
     for i in range(n + WARMUP):
         instr = instrs[i % 64]
         t0 = clock()
-        steps = driver.validate(instr)
-        assert not isinstance(steps, str)
-        target = steps[0].target
+        ticket = driver.judge(instr)
+        assert not isinstance(ticket, str)
+        target = ticket.steps[0].target
         minimum = driver.translator.minimum_ms(pose, target)
         data = driver.translator.encode(target, max(instr.time_ms or 0, math.ceil(minimum)))
         t1 = clock()

@@ -55,7 +55,7 @@ def _moves(emu: Emulator, after: float) -> list[bytes]:
 def _await(driver: ArmDriver, states: tuple[State, ...], timeout: float) -> float:
     """Seconds until one of `states` is announced (raises TimeoutError after `timeout`)."""
     t0 = time.monotonic()
-    while driver.shared.announced not in states:
+    while driver.core.announced not in states:
         if time.monotonic() - t0 > timeout:
             raise TimeoutError(f"none of {[s.value for s in states]} in {timeout} s")
         time.sleep(0.002)

@@ -11,7 +11,7 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import pytest
 from armrig import Rig, executed_tips
@@ -19,6 +19,7 @@ from armrig import Rig, executed_tips
 from al5d.arm import instruction as ins
 from al5d.arm.instruction import Outcome, Result
 from al5d.arm.states import State
+from al5d.clock import wall_ns
 from al5d.model import distance_to_segment
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Record
@@ -88,7 +89,7 @@ def run_with_a_stop(rig: Rig, point: str, wait: bool) -> Trial:
     epoch ("locked": it then waits for the write lock, which the move holds)."""
     threads: list[threading.Thread] = []
     at_point: list[str] = []
-    board = rig.driver.shared.board
+    board = rig.driver.core.board
     assert board is not None
     write = board.write_command
     before = len(rig.emu.records)
@@ -130,8 +131,9 @@ def run_with_a_stop(rig: Rig, point: str, wait: bool) -> Trial:
 @pytest.mark.parametrize(
     ("point", "wait", "expected", "reached"),
     [
-        # After the move was judged, before the state and the epoch are checked: refused.
-        ("judged", True, Result.REFUSED, False),
+        # After the move was judged, before its admission: the move was sent (submitted)
+        # before the stop, which cancels it, as it would had it waited in the queue.
+        ("judged", True, Result.CANCELLED, False),
         # Between that check and the write: the stop is done first; the move never goes out.
         ("checked", True, Result.CANCELLED, False),
         # The move holds the write lock and the stop waits for it, the epoch ended: the
@@ -176,34 +178,49 @@ def test_a_move_right_after_a_cancel_waits_for_the_pose_to_be_read_back(rig: Rig
         assert second.result(10).ok
 
 
-def test_a_move_taken_in_before_a_stop_and_submitted_after_it_is_cancelled(rig: Rig) -> None:
-    # An action accepts a goal, then runs it a little later: a stop in between cancels it,
-    # as it cancels every move that waits, even once the arm is released again.
-    taken_at = rig.driver.epoch
+def test_a_move_sent_before_a_stop_and_submitted_after_it_is_cancelled(rig: Rig) -> None:
+    # An action accepts a goal, then runs it a little later (or a move waits on a topic
+    # behind a flood): a stop in between cancels it, as it cancels every move that waits,
+    # even once the arm is released again.
+    sent = wall_ns()
     assert rig.driver.execute(ins.stop(), 5).ok
     assert rig.driver.execute(ins.release(), 5).ok
     n = len(rig.moves())
-    late = rig.driver.submit(ins.move(base=30), taken_at).result(5)
-    assert late.result is Result.CANCELLED and "a stop (or a fault) came after" in late.reason
+    late = rig.driver.submit(replace(ins.move(base=30), sent_ns=sent)).result(5)
+    assert late.result is Result.CANCELLED and "cancelled by stop (it was sent before)" in (
+        late.reason
+    )
     assert len(rig.moves()) == n
-    assert rig.driver.submit(ins.move(base=30), rig.driver.epoch).result(10).ok
+    assert rig.driver.submit(replace(ins.move(base=30), sent_ns=wall_ns())).result(10).ok
 
 
-def test_a_stop_and_a_release_while_a_taken_move_is_judged_still_cancel_it(rig: Rig) -> None:
-    """A goal accepted before a stop, submitted as the stop and a release come in before its
-    state and epoch are checked: it is cancelled, not run (the check of when it was taken
-    and the making of its job are one step now, under one lock)."""
-    taken_at = rig.driver.epoch
+def test_a_move_sent_while_the_arm_was_locked_and_taken_after_the_release_is_refused(
+    rig: Rig,
+) -> None:
+    assert rig.driver.execute(ins.stop(), 5).ok
+    sent = wall_ns()
+    assert rig.driver.execute(ins.release(), 5).ok
     n = len(rig.moves())
+    late = rig.driver.submit(replace(ins.move(base=30), sent_ns=sent)).result(5)
+    assert late.result is Result.REFUSED and "sent while the arm was locked" in late.reason
+    assert len(rig.moves()) == n
+
+
+def test_a_stop_and_a_release_while_a_sent_move_is_judged_still_cancel_it(rig: Rig) -> None:
+    """A goal accepted before a stop, submitted as the stop and a release come in before its
+    admission: it is cancelled, not run (it was sent before the stop)."""
+    n = len(rig.moves())
+    sent = wall_ns()
 
     def hook(at: str) -> None:
-        if at == "judged" and rig.driver.epoch == taken_at:
+        if at == "judged":
+            rig.driver.writer.race_hook = None
             assert rig.driver.execute(ins.stop(), 5).ok
             assert rig.driver.execute(ins.release(), 5).ok
 
     rig.driver.writer.race_hook = hook
     try:
-        late = rig.driver.submit(ins.move(base=30), taken_at).result(5)
+        late = rig.driver.submit(replace(ins.move(base=30), sent_ns=sent)).result(5)
     finally:
         rig.driver.writer.race_hook = None
     assert late.result is Result.CANCELLED, late

@@ -13,17 +13,20 @@ import pytest
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
+from al5d.arm.core import Core
 from al5d.arm.jobs import Job, Motion
-from al5d.arm.shared import Shared
 from al5d.arm.translate import Translator
-from al5d.arm.validate import Step
+from al5d.arm.validate import Limits, Step
 from al5d.arm.writer import StepWriter
 
 
 def writer(config: ArmConfig) -> StepWriter:
-    shared = Shared(config)
-    shared.pose.update(dict.fromkeys(config.joints, 0.0))
-    return StepWriter(shared, Translator(config))
+    return StepWriter(Core(config, []), Translator(config), Limits.of(config))
+
+
+def at(config: ArmConfig, **where: float) -> dict[str, float | None]:
+    """A pose of every joint at 0 but those given."""
+    return {**dict.fromkeys(config.joints, 0.0), **where}
 
 
 def job_at_step(k: int, t_due: float, steps: tuple[Step, ...]) -> Job:
@@ -43,7 +46,7 @@ def test_a_later_step_ends_when_the_schedule_says_however_late_it_arrives(
     # Step 0 was due to end at t=100.5; step 1 (300 ms) is due at 100.8. Its bytes would
     # arrive `late_ms` after step 0's end.
     job = job_at_step(1, 100.5, STEPS)
-    data, time_ms = w.plan(job, STEPS[1], lambda n_bytes: 100.5 + late_ms / 1000)
+    data, time_ms = w.plan(job, STEPS[1], at(config), lambda n_bytes: 100.5 + late_ms / 1000)
     assert time_ms == round(300 - late_ms)
     assert data.endswith(f"T{time_ms}\r".encode())
 
@@ -51,17 +54,17 @@ def test_a_later_step_ends_when_the_schedule_says_however_late_it_arrives(
 def test_the_first_step_and_a_lone_move_take_their_time_as_asked(config: ArmConfig) -> None:
     w = writer(config)
     job = job_at_step(0, 0.0, STEPS)
-    assert w.plan(job, STEPS[0], lambda n_bytes: 55.0)[1] == 500
-    assert w.plan(job, STEPS[0])[1] == 500
+    assert w.plan(job, STEPS[0], at(config), lambda n_bytes: 55.0)[1] == 500
+    assert w.plan(job, STEPS[0], at(config))[1] == 500
 
 
 def test_a_step_never_gets_less_than_the_servos_need(config: ArmConfig) -> None:
     w = writer(config)
-    w.shared.pose["base"] = 10.0  # where step 0 left it
-    # 10 degrees of base take about 30 ms; arriving 290 ms late leaves 10 ms: raised.
+    # 10 degrees of base (from where step 0 left it) take about 30 ms; arriving 290 ms late
+    # leaves 10 ms: raised.
     job = job_at_step(1, 100.5, STEPS)
     minimum = w.translator.minimum_ms({"base": 10.0}, {"base": 20.0})
-    _, time_ms = w.plan(job, STEPS[1], lambda n_bytes: 100.5 + 0.290)
+    _, time_ms = w.plan(job, STEPS[1], at(config, base=10.0), lambda n_bytes: 100.5 + 0.290)
     assert time_ms >= minimum > 10
 
 
@@ -69,10 +72,9 @@ def test_a_step_squeezed_by_its_schedule_below_the_servos_says_inf03(
     config: ArmConfig, caplog: pytest.LogCaptureFixture
 ) -> None:
     w = writer(config)
-    w.shared.pose["base"] = 10.0
     job = job_at_step(1, 100.5, STEPS)  # 300 ms asked, 60 ms needed, 290 ms late: 10 left
     with caplog.at_level("WARNING", logger="al5d"):
-        w.plan(job, STEPS[1], lambda n_bytes: 100.5 + 0.290)
+        w.plan(job, STEPS[1], at(config, base=10.0), lambda n_bytes: 100.5 + 0.290)
     assert any("INF03" in m and "10 ms left of its schedule" in m for m in caplog.messages)
 
 

@@ -25,6 +25,9 @@ def test_the_table_holds_the_design_transitions_and_no_others() -> None:
     # the table chose the states): the same set, transition for transition.
     d6 = {
         (S.INITIALIZING, E.MOVE_DONE, S.READY),
+        # The start-up park is done with moves waiting that came meanwhile: `moving` is the
+        # state while moves run or wait (D6).
+        (S.INITIALIZING, E.MOVE_DONE, S.MOVING),
         (S.READY, E.MOVE, S.MOVING),
         (S.MOVING, E.MOVE, S.MOVING),
         (S.MOVING, E.MOVE_DONE, S.MOVING),

@@ -18,13 +18,11 @@ from armrig import LINK_CHECK
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from control_msgs.msg import JointTolerance
-from proc import Proc, patient_config
 from rospeer import LockedActionClient, Peer, wait_future, wait_until
-from std_msgs.msg import String
+from served import served
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 from al5d.arm.config import ArmConfig
-from al5d.ros.runtime import QOS_LATCHED
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
 
@@ -90,30 +88,18 @@ def pose(**degrees: float) -> dict[str, float]:
 
 @pytest.fixture(scope="module")
 def rig(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
-    link = tmp_path_factory.mktemp("controllers") / "ssc32u"
-    emu = Emulator(config, link=link).start()
-    proc = Proc("serve", "--port", str(link), "--config", patient_config(), "--log-level", "INFO")
-    peer = Peer(name="al5d_moveit_peer")
-    fjt = LockedActionClient(
-        peer.node, FollowJointTrajectory, "/arm_controller/follow_joint_trajectory"
-    )
-    gripper = LockedActionClient(peer.node, GripperCommand, "/gripper_controller/gripper_cmd")
-    states: list[str] = []
-    peer.node.create_subscription(
-        String, "/al5d/state", lambda m: states.append(m.data), QOS_LATCHED
-    )
-    try:
-        proc.err.wait_for("STATE: ready", 30)
-        peer.wait_for_server()
-        assert fjt.wait_for_server(timeout_sec=10) and gripper.wait_for_server(timeout_sec=10)
-        wait_until(lambda: states, 5, "the state")
-        yield Rig(emu, peer, config, fjt, gripper, states)
-    finally:
-        fjt.destroy()
-        gripper.destroy()
-        peer.close()
-        proc.kill()
-        emu.close()
+    workdir = tmp_path_factory.mktemp("controllers")
+    with served(config, workdir, "al5d_moveit_peer") as s:
+        fjt = LockedActionClient(
+            s.peer.node, FollowJointTrajectory, "/arm_controller/follow_joint_trajectory"
+        )
+        gripper = LockedActionClient(s.peer.node, GripperCommand, "/gripper_controller/gripper_cmd")
+        try:
+            assert fjt.wait_for_server(timeout_sec=10) and gripper.wait_for_server(timeout_sec=10)
+            yield Rig(s.emu, s.peer, config, fjt, gripper, s.states)
+        finally:
+            fjt.destroy()
+            gripper.destroy()
 
 
 def test_a_trajectory_runs_one_group_move_per_point_in_order_at_its_times(rig: Rig) -> None:
@@ -216,6 +202,9 @@ def test_joints_not_named_keep_their_place(rig: Rig) -> None:
     ("change", "reason"),
     [
         ("unknown joint", "unknown joint"),
+        # Issue 22, defect 3: a finger of our own URDF raised KeyError in the goal callback,
+        # and the goal was never answered.
+        ("a finger", "gripper_left is a finger of the URDF's gripper"),
         ("decreasing time", "not after point 0"),
         ("out of range", "point 1"),
         ("sizes", "positions for 5 joints"),
@@ -229,6 +218,8 @@ def test_a_bad_trajectory_is_rejected_whole_and_writes_nothing(
     pts = goal.trajectory.points
     if change == "unknown joint":
         goal.trajectory.joint_names = ["base", "shoulder", "elbow", "wrist", "thumb"]
+    elif change == "a finger":
+        goal.trajectory.joint_names = ["base", "shoulder", "elbow", "wrist", "gripper_left"]
     elif change == "decreasing time":
         pts[1].time_from_start = Duration(sec=0, nanosec=200_000_000)
     elif change == "out of range":

@@ -39,3 +39,15 @@ def test_a_refused_trajectory_names_its_first_bad_point(
 ) -> None:
     reason = trajectory_from_message(trajectory(points), MODEL)
     assert isinstance(reason, str) and reason.startswith(first), reason
+
+
+@pytest.mark.parametrize("finger", ["gripper_left", "gripper_right"])
+def test_a_finger_of_the_urdf_is_refused_with_what_to_command_instead(finger: str) -> None:
+    # Issue 22, defect 3: the URDF's fingers (mimics of `gripper`) raised KeyError here.
+    msg = JointTrajectory(joint_names=["elbow", finger])
+    msg.points.append(JointTrajectoryPoint(positions=[1.0, 0.01], time_from_start=Duration(sec=1)))
+    reason = trajectory_from_message(msg, MODEL)
+    assert isinstance(reason, str), reason
+    assert reason.startswith(f"{finger} is a finger of the URDF's gripper") and (
+        "command gripper, the gap between the fingers in metres" in reason
+    )

@@ -190,9 +190,10 @@ def test_the_services(server: Server, peer: Peer) -> None:
 
 def test_stops_on_the_topic_are_obeyed_and_answered_once_each(server: Server, peer: Peer) -> None:
     """Two readers in the server see a stop on the topic (the node `al5d`, in order, and the
-    stop watcher, at once). Each instruction is answered once; each release, sent after
-    a stop, finds the arm stopped; and a stop is never undone by a release sent before
-    it: after the last stop the arm stays locked. Unique ids, then one id for all."""
+    stop watcher, at once). Each instruction is answered once; each release unlocks, or is
+    refused because a stop sent after it had been obeyed already (the watcher runs ahead
+    of the node); and a stop is never undone by a release sent before it: after the last
+    stop the arm stays locked. Unique ids, then one id for all."""
     counter = Counter(peer)
     peer.send("w-warm", "release")  # refused (not stopped): the counter has matched
     wait_until(lambda: counter.count(["w-warm"])[0] == 1, 10, "the counter")
@@ -210,7 +211,9 @@ def test_stops_on_the_topic_are_obeyed_and_answered_once_each(server: Server, pe
     once = stops[:20] + releases[:20] + ["w-s-last", "w-after"]
     assert {i: seen.get(i, 0) for i in once} == dict.fromkeys(once, 1)
     assert (seen.get("w-same"), seen.get("w-same-r")) == (20, 20)
-    assert [reasons[r] for r in [*releases[:20], "w-same-r"]] == ["done: "] * 21
+    later_stop = "refused: this release was sent before the stop that locked the arm"
+    for r in [*releases[:20], "w-same-r"]:
+        assert reasons[r] == "done: " or reasons[r].startswith(later_stop), (r, reasons[r])
     assert reasons["w-after"].startswith("refused: ") and "stopped" in reasons["w-after"], reasons
 
 

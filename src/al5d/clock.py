@@ -26,3 +26,10 @@ class Deadline:
     @property
     def expired(self) -> bool:
         return now() >= self.at
+
+
+def wall_ns() -> int:
+    """CLOCK_REALTIME in ns: the clock DDS stamps a message with when it is sent, which every
+    process on the machine shares. Only the order of a message's sending and the driver's
+    events is judged on it (`al5d.arm.core`); every duration is `now`'s."""
+    return time.time_ns()

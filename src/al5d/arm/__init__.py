@@ -5,14 +5,19 @@
 - `instruction`: instructions and outcomes as data, and their text grammar.
 - `validate`: whether an instruction can run, judged whole (pure).
 - `translate`: degrees to pulse widths, move times and the bytes of a group move.
+- `cartesian`: `move_to`'s target checked, and planned into group moves by the model.
 - `states`: the state machine as a table (state, event) -> next state.
+- `core`: the protocol: the one owner of the arm's state, its events and their rules
+  (the lanes, the order across channels); read this first.
+- `pose`: what the driver believes the board holds (the pose, the motion), the core's.
+- `jobs`: a move on its way (its steps, its outcome) and the motion it makes.
 - `driver`: `ArmDriver`, the caller's side: submit, stop, release, cancel, shutdown.
 - `worker`: the thread that parks, runs each move until done, and parks at the end.
 - `writer`: one step of a move onto the wire, by the same rule from either thread.
 - `link`: the worker's hold on the board: connect, watch the idle link, fault, reconnect.
-- `shared`, `jobs`: what the two sides share, behind one lock.
 
-The emergency stop's path is `driver.ArmDriver._stop` -> `ssc32u.driver.SSC32U.stop`.
+The emergency stop's path is `driver.ArmDriver._stop` -> `core.Core.stop` (the decision)
+-> `ssc32u.driver.SSC32U.stop` (the bytes).
 This layer imports `al5d.model`, `al5d.ssc32u` (never its emulator) and `al5d.clock`;
 nothing here knows ROS.
 """

@@ -37,6 +37,8 @@ from al5d.model.kinematics import TABLE_SLACK_M
 Move = tuple[dict[str, float], int | None]
 Ranges = Mapping[str, tuple[float, float]]
 
+#: The largest pitch or roll taken, either way: one turn.
+ONE_TURN_DEG = 360.0
 #: Without a pitch, and before the arm's pitch is known, the reachable pitch nearest this.
 LEVEL_DEG = 0.0
 #: `path=line` promises 1 mm from the line on the arm. The plan judges each hop as the
@@ -69,6 +71,12 @@ def precheck(instr: Instruction, ranges: Ranges, max_time_ms: int, model: ArmMod
     for name, v in values.items():
         if v is not None and not math.isfinite(v):
             return f"{name}: {v} is not a finite number"
+    for name in ("pitch", "roll"):
+        angle = values[name]
+        if angle is not None and abs(angle) > ONE_TURN_DEG:
+            # Beyond a turn an angle is a mistake, never a pose: the trigonometry would
+            # quietly wrap 1e300 degrees round to some angle between -180 and 180.
+            return f"{name}: {angle:g} deg is beyond one turn ({ONE_TURN_DEG:g} deg)"
     time_ms = instr.time_ms
     if time_ms is not None and not 0 <= time_ms <= max_time_ms:
         return f"time {time_ms} ms is outside 0..{max_time_ms} ms"

@@ -106,6 +106,10 @@ class Instruction:
     id: str = field(default_factory=new_id)
     points: tuple[Point, ...] = ()
     tool: ToolTarget | None = None
+    #: When it was sent (CLOCK_REALTIME ns, `al5d.clock.wall_ns`), where its channel says
+    #: (a DDS message's source timestamp); None: when the driver takes it. The order of
+    #: a stop, a release and a move from different channels is judged on it (`arm.core`).
+    sent_ns: int | None = field(default=None, compare=False)
 
     @property
     def name(self) -> str:

@@ -1,7 +1,9 @@
 """Moves on their way through the driver: the job, the motion it makes, and its one outcome.
 
-Data shared by the caller's side (`driver`) and the worker (`worker`), and
-the two helpers that make and set an outcome exactly once.
+Data handed between the caller's side (`driver`), the protocol (`core`) and the
+worker (`worker`), and the two helpers that make and set an outcome exactly once.
+A job belongs to the thread the protocol gives it to (the caller writing an idle
+arm's first step, then the worker): only that thread writes its running fields.
 """
 
 from __future__ import annotations
@@ -34,7 +36,8 @@ class Mode(Enum):
 class Job:
     """A motion instruction on its way: its validated steps, its future, its epoch.
 
-    A move or a preset is one step (one group move); a trajectory one per point.
+    A move or a preset is one step (one group move); a trajectory one per point; a
+    Cartesian move has none until it is planned, from where the arm is when it starts.
     """
 
     instr: Instruction
@@ -43,9 +46,14 @@ class Job:
     epoch: int
     t_submit: float
     speed_fraction: float = 1.0
+    mode: Mode = Mode.QUEUE
+    #: When it was sent (CLOCK_REALTIME ns): the instruction's, or when the driver took it.
+    sent_ns: int = 0
     cancel: threading.Event = field(default_factory=threading.Event)
     expected_ms: float = 0.0
     step: int = 0  # the step running now
+    #: The step written last: the worker waits for its end (a step the caller wrote, too).
+    written: Written | None = None
     #: When the step written last is due to end by the schedule (CLOCK_MONOTONIC): the timed
     #: steps after the first keep to the schedule of the first, so that a late wake-up, or
     #: a point faster than the servos, does not make every later point late too.
@@ -104,13 +112,15 @@ def stop_order(motion: Motion | None, t: float, channels: Mapping[str, int]) -> 
 
 @dataclass(frozen=True, slots=True)
 class Written:
-    """A step on its way: the motion it makes on the board, and when its time is over."""
+    """A step on its way: its bytes, the motion it makes on the board, when its time is over."""
 
     motion: Motion
     t_end: float
     #: Its bytes' time on the wire: the next step is written this much before `t_end`, so
     #: that it takes effect as this one ends (the steps of a trajectory run back to back).
     wire_s: float
+    data: bytes = b""
+    t_write: float = 0.0  # when its bytes were written
 
 
 @dataclass(frozen=True, slots=True)

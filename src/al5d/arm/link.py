@@ -1,10 +1,11 @@
 """The board's connection, kept by the worker: connect, watch the idle link, fault, reconnect.
 
 Everything here runs in the worker's thread (`al5d.arm.worker`) and does board
-I/O without holding the shared lock. A lost link, a silent or babbling board, or
-a board that has reset becomes the `fault` state: every pending move gets its
-outcome, and the link is tried again every `reconnect_interval_s` until the
-board answers; then the pose is read back and no cancelled move is replayed.
+I/O; what it learns it reports to the protocol (`al5d.arm.core`), which owns
+the state. A lost link, a silent or babbling board, or a board that has reset
+becomes the `fault` state: every pending move gets its outcome, and the link is
+tried again every `reconnect_interval_s` until the board answers; then the pose
+is read back and no cancelled move is replayed.
 """
 
 from __future__ import annotations
@@ -14,12 +15,8 @@ import logging
 from dataclasses import dataclass
 
 from al5d.arm.config import ArmConfig
-from al5d.arm.instruction import Result
-from al5d.arm.jobs import finish
-from al5d.arm.shared import Shared
-from al5d.arm.states import Event, State
+from al5d.arm.core import Core, LinkView
 from al5d.arm.translate import Translator
-from al5d.clock import now
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.errors import BoardReset, Interrupted, NotAnSSC32U, SerialFault
 from al5d.ssc32u.facts import QP_RESOLUTION_US
@@ -43,17 +40,17 @@ class Probe:
     channel: int
     low_us: float
     high_us: float
-    #: `Shared.writes` when the check began, None if a write was under way: the answer is
-    #: judged only if no write began until it came.
-    writes: int | None
+    #: The core's token when the check began: the answer is judged only if no caller's
+    #: write began until it came (`Core.untouched`).
+    token: int | None
 
 
 class Link:
     """The worker's hold on the board: open it, check it, lose it, get it back."""
 
-    def __init__(self, config: ArmConfig, shared: Shared, port: str, baud: int) -> None:
+    def __init__(self, config: ArmConfig, core: Core, port: str, baud: int) -> None:
         self.config = config
-        self.shared = shared
+        self.core = core
         self.port = port
         self.baud = baud
         self.settings = config.server
@@ -67,18 +64,19 @@ class Link:
         try:
             board = self._open()
         except SerialFault as e:
-            self.enter_fault(e)
+            log.error("serial fault: %s", e)
+            self.core.unreachable(e)
+            self.core.announce()
             return
         log.info("connected to %s on %s at %d baud", board.firmware, self.port, self.baud)
-        with self.shared.lock:
-            self.shared.board = board
+        self.core.connected(board)
 
     def check(self) -> None:
         """An idle arm's link is checked too (`QP` of one channel and its answer are 5 bytes:
         every 0.5 s is 1 % of the wire at 9600 baud), so that a pulled cable, a silent board
         or a reset is a fault at once, not at the next move. A stop never waits for it (the
         query lock is not the stop's)."""
-        board = self.shared.board
+        board = self.core.board
         if board is not None:
             with contextlib.suppress(Interrupted):  # a stop flushed the answer: the link lives
                 self.watch(board)
@@ -91,44 +89,33 @@ class Link:
         pulses those), or something else has moved the servo: either way the board no
         longer holds what the driver believes, and its next move would run at full speed.
 
-        A write from the caller's thread (the fast path, a stop, a cancel) that races the
+        A write from a caller's thread (the fast path, a stop, a cancel) that races the
         query changes the pulse under it: such a check is a link check only."""
-        shared = self.shared
-        with shared.lock:
-            probe = self._probe()
-        if probe is None:  # nothing known to have been lost: the link alone
+        view = self.core.link_view()
+        if view is None:  # nothing known to have been lost: the link alone
             board.is_done()
             return
+        probe = self._probe(view)
         pulse = board.read_pulses([probe.channel])[probe.channel]
-        with shared.lock:
-            judged = probe.writes is not None and shared.writes == probe.writes
-        if judged and not probe.low_us <= pulse <= probe.high_us:
+        if self.core.untouched(probe.token) and not probe.low_us <= pulse <= probe.high_us:
             raise self._reset(board, probe.joint, pulse, probe)
 
-    def _probe(self) -> Probe | None:
-        """What the next check reads back, and the pulses the driver expects there (lock held):
-        at rest the known pose's pulse, during a motion (or just after one) anything on its
-        way, with margins."""
-        shared = self.shared
-        joint = shared.stalest()
-        if joint is None:
-            return None
+    def _probe(self, view: LinkView) -> Probe:
+        """The pulses the driver expects on the joint's channel: at rest the known pose's
+        pulse, during a motion (or just after one) anything on its way, with margins."""
+        joint = view.joint
         config = self.config.joints[joint]
-        pose = shared.pose[joint]
-        assert pose is not None
-        ends = [pose]
+        ends = [view.pose]
         margin = float(REST_MARGIN_US)
-        motion = shared.motion
+        motion = view.motion
         if motion is not None and joint in motion.target:
-            ends += [motion.start.get(joint, pose), motion.target[joint]]
-        way = shared.way(joint, now())
-        if way is not None:
-            ends += way
+            ends += [motion.start.get(joint, view.pose), motion.target[joint]]
+        if view.way is not None:
+            ends += view.way
         if len(ends) > 1:
             margin += MOTION_SLACK_S * config.speed_us_s
         pulses = [config.to_us(deg) for deg in ends]
-        writes = None if shared.writing else shared.writes
-        return Probe(joint, config.channel, min(pulses) - margin, max(pulses) + margin, writes)
+        return Probe(joint, config.channel, min(pulses) - margin, max(pulses) + margin, view.token)
 
     def _reset(
         self, board: SSC32U, joint: str, pulse: int = 0, probe: Probe | None = None
@@ -146,12 +133,9 @@ class Link:
             f"forgotten where every servo was; {BoardReset.advice}",
         )
 
-    def read_back(self, board: SSC32U | None = None) -> bool:
-        """Learn where the servos are from the board (after a stop, at start, after a
-        reconnect); False if stops kept interrupting it (the pose is then still a guess)."""
-        board = board or self.shared.board
-        if board is None:
-            return False
+    def read_pose(self, board: SSC32U) -> dict[str, float | None] | None:
+        """Where the servos are, from the board; None if stops kept interrupting the read.
+        A joint of known pose with no pulse now is a reset (BoardReset)."""
         for _ in range(3):
             try:
                 pulses = board.read_pulses(self.channels)
@@ -159,88 +143,63 @@ class Link:
             except Interrupted:
                 continue  # another stop flushed the query: ask again
         else:
-            return False
+            return None
         pose = self.translator.degrees(pulses)
-        lost = [j for j, v in pose.items() if v is None and self.shared.pose.get(j) is not None]
+        known = self.core.pose()
+        lost = [j for j, v in pose.items() if v is None and known.get(j) is not None]
         if lost:  # a reset between the last check and this read (during a stop, say)
             raise self._reset(board, lost[0])
-        with self.shared.lock:
-            self.shared.pose.update(pose)
-            self.shared.motion = None
         log.debug(
             "read back: %s", {j: (None if v is None else round(v, 1)) for j, v in pose.items()}
         )
-        return True
+        return pose
 
-    def _forget_pose(self) -> None:
-        """After a reset, a safety event: nothing moves again until a person has looked at
-        the arm and released it, and no move is sent believing the board remembers the
-        last one (the pose is unknown: read back as such on reconnecting). The caller
-        holds the shared lock."""
-        self.shared.locked = True
-        self.shared.pose.update(dict.fromkeys(self.shared.pose))
+    def read_back(self, board: SSC32U | None = None) -> bool:
+        """Learn where the servos are (after a stop, at start); False if a stop came while
+        reading (the pose is then still a guess: read it again)."""
+        board = board or self.core.board
+        if board is None:
+            return False
+        token = self.core.read_token()
+        pose = self.read_pose(board)
+        return pose is not None and self.core.read_back(pose, token)
 
     def enter_fault(self, error: SerialFault) -> None:
-        shared = self.shared
+        """A serial fault (any thread may have seen it): everything pending ends."""
         log.error("serial fault: %s", error)
-        reset = isinstance(error, BoardReset)
-        with shared.lock:
-            shared.fault = error
-            if reset:
-                self._forget_pose()
-            board, shared.board = shared.board, None
-            current, dropped = shared.take_pending()
-            if shared.motion is not None:  # Q counts it down still, if the board goes on with it
-                shared.distrust_q(shared.motion)
-            shared.motion = None
-            if shared.state is not State.FAULT:
-                shared.fire(Event.SERIAL_FAULT)
-        shared.announce()
-        if board is not None:
-            board.close()
-        reason = str(error) if reset else f"the serial link is lost: {error}"
-        if reset:
+        ended = self.core.lose(error)
+        self.core.announce()
+        if isinstance(error, BoardReset):
             log.warning(RESET_LOCKED)
-        for job in ([current] if current is not None else []) + dropped:
-            if job is not shared.shutdown_job:
-                job.cancel.set()
-                finish(job, Result.CANCELLED, reason)
+        ended.settle()
 
     def recover(self) -> None:
         """Reconnect every few tenths of a second; re-learn the positions; no stale move replays."""
-        shared = self.shared
         interval = self.settings.reconnect_interval_s
-        while True:
-            with shared.cv:
-                if shared.shutdown_job is not None:
-                    return
-                shared.cv.wait(interval)
-                if shared.shutdown_job is not None:
-                    return
+        while self.core.wait_unless_shutdown(interval):
             try:
                 board = self._open()
             except SerialFault as e:
                 self._reconnect_failed(e)
                 continue
+            reset = False
             try:
                 self.halt_what_was_cancelled(board, "reconnect")
                 try:
-                    self.read_back(board)
+                    pose = self.read_pose(board)
                 except BoardReset as e:  # it restarted while the link was down
                     log.error("serial fault: %s", e)
                     log.warning(RESET_LOCKED)
-                    with shared.lock:
-                        self._forget_pose()
-                    self.read_back(board)
+                    reset = True
+                    pose = self.translator.degrees(board.read_pulses(self.channels))
+                if pose is None:
+                    raise Interrupted("the read-back was interrupted")
             except (SerialFault, Interrupted) as e:
                 log.debug("reconnect failed: %s", e)
                 board.close()  # it holds the port exclusively: the next try must open it
                 continue
-            with shared.lock:
-                shared.board = board
-                shared.fault = None
-                shared.fire(Event.RECONNECTED)  # to `initializing` if never parked: see run()
-            shared.announce()
+            self.core.reconnected(board, pose, reset)
+            self.core.announce()
             log.info("reconnected to %s on %s", board.firmware, self.port)
             return
 
@@ -248,15 +207,14 @@ class Link:
         """A board may still be running a move that was cancelled without a halt (when the
         link went, or by a shutdown), and its client told so: it is halted here, and the pose
         read back is where the arm stopped, not a snapshot of it on its way."""
-        if now() < self.shared.q_unreliable_until or not board.is_done():
+        if not self.core.q_believed() or not board.is_done():
             board.stop(self.channels)
             log.warning("%s: halted the move the board was still running (cancelled)", why)
 
     def _reconnect_failed(self, error: SerialFault) -> None:
         """Keep trying; but a device that is not a board is said clearly, once, and becomes
         the fault's reason (a missing port is the usual unplugged cable: quiet)."""
-        shared = self.shared
-        known = shared.fault
+        known = self.core.fault
         if not isinstance(error, NotAnSSC32U):
             log.debug("reconnect failed: %s", error)
             return
@@ -264,5 +222,4 @@ class Link:
             log.debug("reconnect failed: %s", error)
             return
         log.warning("reconnect: %s", error)
-        with shared.lock:
-            shared.fault = error
+        self.core.unreachable(error)

@@ -35,7 +35,7 @@ class Event(Enum):
 
 
 class Task(Enum):
-    """What the move worker does next, in this order of precedence."""
+    """What the move worker does next, in this order of precedence (`core.Core.next_task`)."""
 
     SHUTDOWN = "park and end"
     RECOVER = "reconnect"
@@ -50,7 +50,7 @@ class Task(Enum):
 class Guards:
     """The facts a transition may depend on."""
 
-    queue_empty: bool = True  # no move waits behind the one that ends
+    queue_empty: bool = True  # no move runs or waits (besides the one that ends)
     locked: bool = False  # an emergency stop has not been released
     parked: bool = True  # the start-up park has been done (D1, VE03)
 
@@ -79,7 +79,8 @@ _ALIVE = (S.INITIALIZING, S.READY, S.MOVING, S.STOPPED, S.FAULT)
 
 #: The protocol state machine (D6), plus the fault state. Nothing else may happen.
 TABLE: dict[tuple[State, Event], Rule] = {
-    (S.INITIALIZING, E.MOVE_DONE): S.READY,  # the start-up park is done
+    # The start-up park is done: moves that came meanwhile wait.
+    (S.INITIALIZING, E.MOVE_DONE): more_moves_or_ready,
     (S.READY, E.MOVE): S.MOVING,
     (S.MOVING, E.MOVE): S.MOVING,
     (S.MOVING, E.MOVE_DONE): more_moves_or_ready,

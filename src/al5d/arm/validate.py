@@ -56,6 +56,22 @@ class Step:
 Steps = tuple[Step, ...]
 
 
+@dataclass(frozen=True, slots=True)
+class Ticket:
+    """A motion instruction judged whole, ready to be submitted without a second judgement:
+    its steps (none for a Cartesian move, which is planned when it starts)."""
+
+    instr: Instruction
+    steps: Steps
+
+
+def judge(instr: Instruction, limits: Limits) -> Ticket | str:
+    """The one judgement of a motion instruction, whatever its channel (a message, a goal,
+    a trajectory, a Cartesian target, a Python call): its ticket, or why it is refused."""
+    steps = check(instr, limits)
+    return steps if isinstance(steps, str) else Ticket(instr, steps)
+
+
 def check(instr: Instruction, limits: Limits) -> Steps | str:
     """The steps of a motion instruction, or the reason to refuse it whole.
 

@@ -1,13 +1,12 @@
-"""One step of a move onto the wire: plan its time, write its bytes, and check for a stop.
+"""One step of a move onto the wire: plan its time, write its bytes unless a stop came first.
 
-Used by the worker for every step, and by the caller's thread for the first
-(only) step of a move given to an idle arm (the fast path, `driver.ArmDriver`),
-so that both follow one rule. A stop ends the epoch (under the shared lock)
-before it writes its STOP, and the STOP takes the board's write lock; a step is
-written only if its job's epoch still holds when the step has the write lock
-(`SSC32U.write_command`'s `unless`). So either the step goes out before the STOP,
-which then halts it, or it does not go out at all: no byte of a move that
-predates a stop ever reaches the board after that stop's STOP.
+Used by whichever thread the protocol (`core`) gives a job to: the caller's for
+an idle arm's first step, the worker's for the rest. It never changes the arm's
+state; it reads the pose from the core and reports what it wrote to it. A step is
+written only if its job's epoch still holds, and its cancel is not set, when the
+step has the board's write lock (`SSC32U.write_command`'s `unless`); a stop ends
+the epoch before it asks for that lock, so no byte of a move that predates a
+stop ever reaches the board after that stop's STOP.
 """
 
 from __future__ import annotations
@@ -16,14 +15,13 @@ import logging
 import math
 from collections.abc import Callable, Mapping
 
-from al5d.arm.instruction import Kind, Result
-from al5d.arm.jobs import Job, Motion, Sent, Written, finish
-from al5d.arm.shared import Shared, tell
+from al5d.arm.core import Core
+from al5d.arm.instruction import Kind
+from al5d.arm.jobs import Job, Motion, Written
 from al5d.arm.translate import Translator
-from al5d.arm.validate import Step
+from al5d.arm.validate import Limits, Step, planned
 from al5d.clock import now
 from al5d.ssc32u.driver import SSC32U
-from al5d.ssc32u.errors import SerialFault
 
 log = logging.getLogger("al5d")
 
@@ -31,24 +29,40 @@ log = logging.getLogger("al5d")
 class StepWriter:
     """Plans and writes the steps of jobs for one arm."""
 
-    def __init__(self, shared: Shared, translator: Translator) -> None:
-        self.shared = shared
+    def __init__(self, core: Core, translator: Translator, limits: Limits) -> None:
+        self.core = core
         self.translator = translator
-        #: A test's seam (tests/test_arm_fast_path.py); None in use. Called with "judged" when
-        #: the driver has judged a move, before it checks the state and the epoch; with
-        #: "checked" before a step is written; and with "locked" when the step holds the
-        #: board's write lock, just before the epoch's last check.
+        self.limits = limits
+        #: A test's seam (tests/test_arm_fast_path.py); None in use. Called with "judged"
+        #: when the driver has judged a move, before its admission; with "checked" before
+        #: a step is written; and with "locked" when the step holds the board's write lock,
+        #: just before the epoch's last check.
         self.race_hook: Callable[[str], None] | None = None
 
+    def prepare(self, job: Job) -> str:
+        """A Cartesian move is planned when it starts, from where the arm is then (the
+        current job's pose cannot change under it but by an event that ends it): its
+        steps, or the reason to refuse it whole ("")."""
+        if job.steps:
+            return ""
+        steps = planned(job.instr, self.core.pose(), self.limits, self.translator)
+        if isinstance(steps, str):
+            return steps
+        job.steps = steps
+        return ""
+
     def plan(
-        self, job: Job, step: Step, arrival: Callable[[int], float] | None = None
+        self,
+        job: Job,
+        step: Step,
+        pose: Mapping[str, float | None],
+        arrival: Callable[[int], float] | None = None,
     ) -> tuple[bytes, int]:
-        """The bytes and the time to send (ms), from where the arm is.
+        """The bytes and the time to send (ms), from `pose`.
 
         A step after the first (given `arrival`, when bytes written now reach the board)
         is timed to end when the schedule says, `step.time_ms` after the one before was
         due to end, however early or late it takes effect."""
-        pose = self.shared.pose
         unknown = [j for j in step.target if pose.get(j) is None]
         if unknown:
             log.warning(
@@ -70,7 +84,7 @@ class StepWriter:
         time_ms = max(requested, min_ms)
         if self._line(job):
             if job.step == 0:
-                self._warn_line(job)
+                self._warn_line(job, pose)
         elif step.time_ms and requested < min_ms:
             point = f" point {job.step}" if len(job.steps) > 1 else ""
             # A later step may have less than it asked: what is left of its schedule.
@@ -91,12 +105,12 @@ class StepWriter:
         """A straight line's hops: its time is judged once, for the whole line."""
         return job.instr.kind is Kind.MOVE_TO and len(job.steps) > 1
 
-    def _warn_line(self, job: Job) -> None:
+    def _warn_line(self, job: Job, pose: Mapping[str, float | None]) -> None:
         """INF03 once for a line whose `time` the servos cannot hold (not once per hop)."""
         asked = job.instr.time_ms
         if not asked:
             return
-        here: Mapping[str, float | None] = self.shared.pose
+        here: Mapping[str, float | None] = pose
         expected = 0
         for step in job.steps:
             need = self.translator.minimum_ms(here, step.target, job.speed_fraction)
@@ -112,24 +126,25 @@ class StepWriter:
             )
 
     def write(self, job: Job, step: Step, board: SSC32U) -> Written | None:
-        """Write one step of a current job; None if a stop (or a cancel) came first.
+        """Write one step of the current job; None if a stop (or a cancel) came first.
 
-        Raises SerialFault when the write fails; the caller hands that to the worker.
+        Raises SerialFault when the write fails; the caller reports it to the core.
         """
-        shared = self.shared
-        data, time_ms = self.plan(job, step, board.arrival)
-        start = {j: v for j, v in shared.pose.items() if v is not None}
+        core = self.core
+        pose = core.pose()
+        data, time_ms = self.plan(job, step, pose, board.arrival)
+        start = {j: v for j, v in pose.items() if v is not None}
         hook = self.race_hook
         if hook is not None:
             hook("checked")
 
         def overtaken() -> bool:
-            # Read without the shared lock, which is never taken inside the write lock:
-            # a stop has ended the epoch (or set the cancel) before it asks for the write
-            # lock, so if it is waiting for it, or has had it, we see that here.
+            # Read without the core's lock, which is never taken inside the write lock: a
+            # stop has ended the epoch (or a cancel set the flag) before it asks for the
+            # write lock, so if it is waiting for it, or has had it, we see that here.
             if hook is not None:
                 hook("locked")
-            return job.epoch != shared.epoch or job.cancel.is_set()
+            return job.epoch != core.epoch or job.cancel.is_set()
 
         t_write = now()
         # The move starts when its CR reaches the board: after whatever was still on the
@@ -138,17 +153,6 @@ class StepWriter:
         if t_sent is None:
             return None  # the stop's STOP stands; nothing of this step went out
         job.expected_ms += time_ms
-        motion = Motion(start, step.target, t_sent, time_ms / 1000.0)
-        with shared.lock:
-            if job.epoch != shared.epoch or job.cancel.is_set():
-                # A stop that came after the write lock was ours writes its STOP after our
-                # bytes, so it halts this step, but it took the pose from the motion before
-                # (its read-back corrects that). Q answers "moving" until this step's time
-                # is over, even halted (UG-38): the next move is judged by time till then.
-                shared.distrust_q(motion)
-                return None
-            motion = motion.after(shared.motion, t_write)
-            shared.motion = motion
         t_end = t_sent + time_ms / 1000.0
         # The schedule: a timed step is due `time_ms` after the one before was due (the first,
         # after it took effect), however late that one ended; a point the servos could not
@@ -159,35 +163,5 @@ class StepWriter:
             job.t_due += step.time_ms / 1000.0
         else:
             job.t_due = t_sent + step.time_ms / 1000.0
-        if shared.motion_listeners:
-            sent = Sent(job.instr, data, job.t_submit, t_write, motion)
-            tell(shared.motion_listeners, sent, "motion")
-        return Written(motion, t_end, board.wire_time_s(data))
-
-    def write_alone(self, job: Job, board: SSC32U) -> None:
-        """The fast path: the caller's thread writes an idle arm's move (its only step),
-        without the hand-over to the worker (a thread wake and the GIL, most of the server's
-        share of the latency), then hands the waiting for completion to the worker. The
-        caller has made the job current, of this epoch, inside `begin_write`."""
-        shared = self.shared
-        try:
-            written = self.write(job, job.steps[0], board)
-        except SerialFault as e:
-            with shared.cv:
-                shared.end_write()
-                if shared.current is job:
-                    shared.current = None
-                shared.fault = shared.fault or e  # the worker enters the fault
-                shared.cv.notify_all()
-            job.cancel.set()
-            finish(job, Result.CANCELLED, f"the serial link is lost: {e}")
-            return
-        with shared.cv:
-            shared.end_write()
-            if written is None or job.epoch != shared.epoch:
-                if shared.current is job:  # a stop took it: its outcome is set
-                    shared.current = None
-            else:
-                shared.handed = (job, written)
-            shared.cv.notify_all()
-        shared.announce()
+        motion = Motion(start, step.target, t_sent, time_ms / 1000.0)
+        return Written(motion, t_end, board.wire_time_s(data), data, t_write)

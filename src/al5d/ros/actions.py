@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import Future
+from dataclasses import replace
 from typing import Any
 
 from al5d_interfaces.action import Move
@@ -19,6 +20,8 @@ from rclpy.task import Future as RosFuture
 
 from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind, Outcome
+from al5d.arm.validate import Ticket
+from al5d.clock import wall_ns
 from al5d.model import ArmModel
 from al5d.ros.convert import move_from_fields, tool_from_fields
 from al5d.ros.runtime import QOS_SERVICES
@@ -83,12 +86,17 @@ async def outcome_of(node: Node, future: Future[Outcome]) -> Outcome:
     return outcome
 
 
-def goal_instruction(goal: Any, ident: str, model: ArmModel) -> Instruction | str:
+def goal_instruction(goal: Any, ident: str, model: ArmModel, sent: int) -> Instruction | str:
     """The instruction of a Move goal, or why it is not one (a preset and joints: ambiguous).
 
     Joints named x, y and z make a Cartesian goal (`move_to`, in ROS units: see
-    `al5d.ros.convert.TOOL_FIELDS`).
+    `al5d.ros.convert.TOOL_FIELDS`). `sent`: when the goal was accepted.
     """
+    instr = _goal_instruction(goal, ident, model)
+    return instr if isinstance(instr, str) else replace(instr, sent_ns=sent)
+
+
+def _goal_instruction(goal: Any, ident: str, model: ArmModel) -> Instruction | str:
     time_ms = goal.time_ms or None
     if goal.preset and (len(goal.joints) or len(goal.degrees)):
         return (
@@ -117,34 +125,38 @@ class GoalRunner:
         self.node = node
         self.driver = driver
         self.running: dict[str, Any] = {}
-        #: The driver's epoch when each goal was accepted, until its execution starts.
-        self.accepted: dict[str, int] = {}
+        #: Each accepted goal's judgement, until its execution takes it: a goal is converted
+        #: and judged once, in its goal callback. Its instruction counts as sent when it was
+        #: accepted, so that a stop between the accept and the execution cancels it.
+        self.judged: dict[str, Any] = {}
         #: Called when a goal starts to run (the node's feedback timer runs only then).
         self.started: Callable[[], object] | None = None
 
-    def judge(self, goal: Any, ident: str) -> Any:
+    def judge(self, goal: Any, ident: str, sent: int) -> Any:
         """What the goal asks for, ready to run, or the reason to reject it (a str)."""
         raise NotImplementedError
 
     def _goal(self, goal: Any) -> GoalResponse:
         ident = self.server.goal_id_now
-        judged = self.judge(goal, ident)
+        judged = self.judge(goal, ident, wall_ns())
         if isinstance(judged, str):
             self.driver.refuse(ident, self.name, judged)
             return GoalResponse.REJECT
-        # A stop between the accept and the start of its execution cancels the goal, as it
-        # cancels every move that waits (its execution may start a little later).
-        self.accepted[ident] = self.driver.epoch
+        self.judged[ident] = judged
         return GoalResponse.ACCEPT
 
-    async def _run(self, ident: str, entry: Any, instr: Instruction) -> Outcome:
-        """Submit the goal's instruction and await its outcome, listed as running meanwhile."""
+    def _take_judged(self, handle: ServerGoalHandle) -> tuple[str, Any]:
+        """The goal's id and the judgement its goal callback made (None if it made none)."""
+        ident = bytes(handle.goal_id.uuid).hex()
+        return ident, self.judged.pop(ident, None)
+
+    async def _run(self, ident: str, entry: Any, ticket: Ticket) -> Outcome:
+        """Submit the goal's ticket and await its outcome, listed as running meanwhile."""
         self.running[ident] = entry
         if self.started is not None:
             self.started()
         try:
-            taken_at = self.accepted.pop(ident, None)
-            return await outcome_of(self.node, self.driver.submit(instr, taken_at))
+            return await outcome_of(self.node, self.driver.submit(ticket))
         finally:
             self.running.pop(ident, None)
 
@@ -165,17 +177,18 @@ class MoveAction(GoalRunner):
 
     name = "move"
 
-    def judge(self, goal: Any, ident: str) -> Instruction | str:
-        instr = goal_instruction(goal, ident, self.driver.config.model)
-        reason = instr if isinstance(instr, str) else self.driver.validate(instr)
-        return reason if isinstance(reason, str) else instr
+    def judge(self, goal: Any, ident: str, sent: int) -> Ticket | str:
+        instr = goal_instruction(goal, ident, self.driver.config.model, sent)
+        return instr if isinstance(instr, str) else self.driver.judge(instr)
 
     async def _execute(self, handle: ServerGoalHandle) -> Move.Result:
-        ident = bytes(handle.goal_id.uuid).hex()
-        instr = goal_instruction(handle.request, ident, self.driver.config.model)
-        assert not isinstance(instr, str)  # the goal callback refused those
-        outcome = await self._run(ident, handle, instr)
+        ident, ticket = self._take_judged(handle)
         result = Move.Result()
+        if ticket is None:  # rclpy executes only what the goal callback accepted
+            result.outcome, result.reason = "refused", "the goal was never judged"
+            handle.abort()
+            return result
+        outcome = await self._run(ident, handle, ticket)
         result.outcome = outcome.result.value
         result.reason = outcome.reason
         result.expected_ms = float(outcome.expected_ms)

@@ -34,6 +34,7 @@ from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result
 from al5d.arm.jobs import Sent
 from al5d.arm.states import refusal
+from al5d.arm.validate import Ticket
 from al5d.clock import now
 from al5d.model import ArmModel
 from al5d.ros.actions import GoalRunner, action_server
@@ -132,9 +133,9 @@ class Running:
 
 @dataclass(frozen=True)
 class Judged:
-    """An accepted trajectory goal: its instruction and its tolerances."""
+    """An accepted trajectory goal: its ticket and its tolerances."""
 
-    instr: Instruction
+    ticket: Ticket
     path: list[Tolerance]
     end: list[Tolerance]
 
@@ -155,16 +156,16 @@ class FollowTrajectoryAction(GoalRunner):
 
     name = "follow_joint_trajectory"
 
-    def judge(self, goal: Any, ident: str) -> Judged | str:
+    def judge(self, goal: Any, ident: str, sent: int) -> Judged | str:
         if len(goal.multi_dof_trajectory.points):
             return "multi-DOF trajectories are not supported: the AL5D has single-DOF joints"
         instr = trajectory_from_message(goal.trajectory, self.model)
         if isinstance(instr, str):
             return instr
-        instr = Instruction(Kind.TRAJECTORY, points=instr.points, id=ident)
-        reason = self.driver.validate(instr)
-        if isinstance(reason, str):
-            return reason
+        instr = Instruction(Kind.TRAJECTORY, points=instr.points, id=ident, sent_ns=sent)
+        ticket = self.driver.judge(instr)
+        if isinstance(ticket, str):
+            return ticket
         busy = inactive(self.driver)
         if busy:
             return busy
@@ -175,17 +176,16 @@ class FollowTrajectoryAction(GoalRunner):
             if isinstance(t, str):
                 return t
         assert not isinstance(path, str) and not isinstance(end, str)
-        return Judged(instr, path, end)
+        return Judged(ticket, path, end)
 
     # -- running it -------------------------------------------------------------------
 
     async def _execute(self, handle: ServerGoalHandle) -> Any:
-        ident = bytes(handle.goal_id.uuid).hex()
+        ident, judged = self._take_judged(handle)
         goal = handle.request
-        judged = self.judge(goal, ident)
-        if isinstance(judged, str):  # the arm's limits cannot change, but be sure
+        if judged is None:  # rclpy executes only what the goal callback accepted
             handle.abort()
-            return _result(FJT.INVALID_GOAL, judged)
+            return _result(FJT.INVALID_GOAL, "the goal was never judged")
         for other, run in list(self.running.items()):  # the newest goal wins, as in the JTC
             run.preempted_by = ident
             self.driver.cancel(other, f"preempted by trajectory goal {ident}")
@@ -199,7 +199,7 @@ class FollowTrajectoryAction(GoalRunner):
             here,
             judged.path,
         )
-        outcome = await self._run(ident, run, judged.instr)
+        outcome = await self._run(ident, run, judged.ticket)
         return self._finish(run, outcome, judged.end, goal)
 
     def _finish(self, run: Running, outcome: Outcome, end: list[Tolerance], goal: Any) -> Any:
@@ -345,7 +345,7 @@ class GripperAction(GoalRunner):
 
     name = "gripper_cmd"
 
-    def judge(self, goal: Any, ident: str) -> Instruction | str:
+    def judge(self, goal: Any, ident: str, sent: int) -> Ticket | str:
         gap = goal.command.position
         if not math.isfinite(gap):
             return f"gripper position {gap} is not a number of metres"
@@ -353,19 +353,18 @@ class GripperAction(GoalRunner):
         if not lo <= gap <= hi:
             return f"gripper gap {gap:.4g} m is outside {lo:g}..{hi:.4g} m"
         degrees = self.model.from_urdf({self.JOINT: gap})[self.JOINT]
-        instr = Instruction(Kind.MOVE, joints=((self.JOINT, degrees),), id=ident)
-        reason = self.driver.validate(instr)
-        if isinstance(reason, str):
-            return reason
-        return inactive(self.driver) or instr
+        instr = Instruction(Kind.MOVE, joints=((self.JOINT, degrees),), id=ident, sent_ns=sent)
+        ticket = self.driver.judge(instr)
+        if isinstance(ticket, str):
+            return ticket
+        return inactive(self.driver) or ticket
 
     async def _execute(self, handle: ServerGoalHandle) -> Any:
-        ident = bytes(handle.goal_id.uuid).hex()
-        instr = self.judge(handle.request, ident)
-        if isinstance(instr, str):
+        ident, ticket = self._take_judged(handle)
+        if ticket is None:  # rclpy executes only what the goal callback accepted
             handle.abort()
             return GripperCommand.Result()
-        outcome = await self._run(ident, handle, instr)
+        outcome = await self._run(ident, handle, ticket)
         result = GripperCommand.Result()
         result.position = self._gap()
         result.effort = 0.0

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from trajectory_msgs.msg import JointTrajectory
@@ -22,6 +23,7 @@ from al5d.arm.instruction import (
 )
 from al5d.arm.validate import time_problem
 from al5d.model import ArmModel, ModelError
+from al5d.model.joints import GRIPPER_FINGERS
 
 #: A `move_to` over ROS names its values in `joints` and gives them in `degrees`, in
 #: ROS units: x, y, z in metres (base_link), pitch and roll in radians, gripper the gap
@@ -115,10 +117,21 @@ def move_from_fields(
     return Instruction(Kind.MOVE, joints=pairs, time_ms=time_ms, id=ident)
 
 
+def sent_ns(info: Mapping[str, int | None]) -> int | None:
+    """When a message was sent (CLOCK_REALTIME ns), from the info rclpy hands a callback."""
+    return info.get("source_timestamp")
+
+
+def stop_key(info: Mapping[str, int | None]) -> tuple[int | None, int | None]:
+    """What one message is known by to every reader of its topic (the node and the stop
+    watcher both see a stop): its source timestamp and its publication sequence number."""
+    return info.get("source_timestamp"), info.get("publication_sequence_number")
+
+
 def from_message(
-    msg: ArmInstruction, presets: tuple[str, ...], model: ArmModel
+    msg: ArmInstruction, presets: tuple[str, ...], model: ArmModel, sent: int | None = None
 ) -> Instruction | str:
-    """The instruction in a message, or why it is not one."""
+    """The instruction in a message (sent at `sent`, CLOCK_REALTIME ns), or why it is not one."""
     word = msg.instruction.strip().lower()
     ident = msg.id or new_id()
     time_ms = msg.time_ms or None
@@ -126,16 +139,17 @@ def from_message(
         tool = tool_from_fields(msg.joints, msg.degrees, model)
         if isinstance(tool, str):
             return tool
-        return Instruction(Kind.MOVE_TO, tool=tool, time_ms=time_ms, id=ident)
+        return Instruction(Kind.MOVE_TO, tool=tool, time_ms=time_ms, id=ident, sent_ns=sent)
     if word in presets:
         if len(msg.joints) or len(msg.degrees):
             return f"{word} is a preset: it takes no joints (ambiguous); send a move instead"
-        return Instruction(Kind.PRESET, preset=word, time_ms=time_ms, id=ident)
+        return Instruction(Kind.PRESET, preset=word, time_ms=time_ms, id=ident, sent_ns=sent)
     if word == Kind.MOVE.value:
-        return move_from_fields(msg.joints, msg.degrees, time_ms, ident)
+        move = move_from_fields(msg.joints, msg.degrees, time_ms, ident)
+        return move if isinstance(move, str) else replace(move, sent_ns=sent)
     for kind in SAFETY:
         if word == kind.value:
-            return Instruction(kind, id=ident)
+            return Instruction(kind, id=ident, sent_ns=sent)
     known = " | ".join((*presets, "move", "move_to", *(k.value for k in SAFETY)))
     return f"unknown instruction {quote(msg.instruction)}; expected {known}"
 
@@ -164,11 +178,19 @@ def trajectory_id(msg: JointTrajectory) -> str:
     return f"{stamp.sec}.{stamp.nanosec:09d}"
 
 
-def trajectory_from_message(msg: JointTrajectory, model: ArmModel) -> Instruction | str:
+def trajectory_from_message(
+    msg: JointTrajectory, model: ArmModel, sent: int | None = None
+) -> Instruction | str:
     """The trajectory of a message (the URDF's joint values to the arm's degrees, times to
     ms), or why it is not one. The points' joints and times are judged by the driver's
     validation, whole; a name the URDF does not have is kept for it to name."""
     names = list(msg.joint_names)
+    for name in names:
+        if name in GRIPPER_FINGERS:
+            return (
+                f"{name} is a finger of the URDF's gripper, which follows the joint gripper "
+                "(a mimic): command gripper, the gap between the fingers in metres"
+            )
     points: list[Point] = []
     before = 0.0
     for i, point in enumerate(msg.points):
@@ -194,7 +216,7 @@ def trajectory_from_message(msg: JointTrajectory, model: ArmModel) -> Instructio
             for name, value in zip(names, point.positions, strict=True)
         ]
         points.append(Point(tuple(degrees), at_ms))
-    return Instruction(Kind.TRAJECTORY, points=tuple(points), id=trajectory_id(msg))
+    return Instruction(Kind.TRAJECTORY, points=tuple(points), id=trajectory_id(msg), sent_ns=sent)
 
 
 #: What a value may be off its URDF limit and still be taken (it is checked again, in the

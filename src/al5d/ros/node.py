@@ -1,23 +1,27 @@
-"""The ROS 2 node `al5d`: topics, services and the move action, mapped onto the arm driver.
+"""The server's ROS 2 nodes: topics, services and actions, mapped onto the arm driver.
 
-A thin adapter: messages become `Instruction`s (`al5d.ros.convert`), outcomes
-become `InstructionResult`s. No callback waits for the arm. Services answer as
-soon as the driver has taken the instruction (stop and release are synchronous
-in the driver, a matter of microseconds). Four nodes, each with its executor
-thread: `al5d` (the topics, on rclpy's C++ events executor, for throughput),
-`al5d_safety` (the stop, release and shutdown services: `al5d.ros.safety`),
-`al5d_stop_watcher` (a stop on the instruction topic, obeyed at once) and
-`al5d_actions` (the move action and MoveIt's two controllers). An action's
-execute callback is a coroutine that awaits the driver's outcome, so that a
-thousand waiting goals hold no thread; those run on rclpy's Python executor,
-which waits for them without spinning (see `runtime.make_executor`).
+A thin adapter: messages become `Instruction`s (`al5d.ros.convert`), stamped
+with when they were sent (the DDS sample's source timestamp, so that the
+driver can order what comes by different channels: `al5d.arm.core`), and
+outcomes become `InstructionResult`s. No callback waits for the arm. Services
+answer as soon as the driver has taken the instruction (stop and release are
+synchronous in the driver, a matter of microseconds). Five nodes, each with a
+thread of its own: `al5d` (the instruction and trajectory topics, read with
+each message's info by a `workarounds.Reader`; the results and the state),
+`al5d_stop_watcher` (a stop on the instruction topic, obeyed at once; a
+`Reader` too), `al5d_safety` (the stop, release and shutdown services:
+`al5d.ros.safety`, on rclpy's Python executor), `al5d_actions` (the move action
+and MoveIt's two controllers, likewise: an action's execute callback is a
+coroutine that awaits the driver's outcome, so that a thousand waiting goals
+hold no thread) and `al5d_robot` (the robot's description, joint states and
+transforms, from timers on rclpy's events executor, whose idle tick is the
+cheaper).
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import os
 import threading
 import time
 
@@ -37,6 +41,8 @@ from al5d.ros.controllers import FollowTrajectoryAction, GripperAction
 from al5d.ros.convert import (
     from_message,
     outcome_message,
+    sent_ns,
+    stop_key,
     trajectory_from_message,
     trajectory_id,
 )
@@ -47,14 +53,15 @@ from al5d.ros.runtime import (
     QOS_INSTRUCTIONS,
     QOS_LATCHED,
     QOS_STREAM,
-    CatchUp,
+    ROBOT_NODE,
     Names,
     PublishThread,
     Spinner,
     server_dds_profile,
     start_context,
 )
-from al5d.ros.safety import FirstTaker, SafetyNode, StopWatcher
+from al5d.ros.safety import SafetyNode, StopWatcher
+from al5d.ros.workarounds import Reader
 
 log = logging.getLogger("al5d")
 
@@ -62,13 +69,10 @@ log = logging.getLogger("al5d")
 class ArmNode(Node):
     """Node `al5d`: every topic and action of the design, on one driver, under `names`."""
 
-    def __init__(
-        self, driver: ArmDriver, context: Context, names: Names, stops: FirstTaker
-    ) -> None:
+    def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
         super().__init__(NODE, namespace=names.node_namespace, context=context)
         self.driver = driver
         self.names = names
-        self.stops = stops
         self.presets = tuple(driver.config.presets)
         self.joint_names = list(driver.config.joints)
         # (id, monotonic ns) of each instruction message as its callback starts, when tracing
@@ -79,17 +83,74 @@ class ArmNode(Node):
             self.result_pub, outcome_message, "al5d-results"
         )
         self.state_pub = self.create_publisher(String, names.state, QOS_LATCHED)
+        # Read by a thread of their own, with each message's info (see `workarounds.Reader`).
+        unused = self._never_called
+        instructions = self.create_subscription(
+            ArmInstruction, names.instruction, unused, QOS_INSTRUCTIONS
+        )
+        trajectories = self.create_subscription(
+            JointTrajectory, names.trajectory, unused, QOS_INSTRUCTIONS
+        )
+        self.reader = Reader(
+            self,
+            [(instructions, self._on_instruction), (trajectories, self._on_trajectory)],
+            "al5d-inputs",
+        )
+        driver.outcome_listeners.append(self._publish_outcome)
+        driver.state_listeners.append(self._publish_state)
+        self._publish_state(driver.state)
+
+    def detach(self) -> None:
+        """Hear the driver no more (once, before the node is destroyed; the driver lives on)."""
+        self.driver.outcome_listeners.remove(self._publish_outcome)
+        self.driver.state_listeners.remove(self._publish_state)
+
+    # -- outputs -------------------------------------------------------------------
+
+    def _publish_outcome(self, outcome: Outcome) -> None:
+        self.results.put(outcome)
+
+    def _publish_state(self, state: State) -> None:
+        self.state_pub.publish(String(data=state.value))
+
+    # -- inputs ---------------------------------------------------------------------
+
+    @staticmethod
+    def _never_called(msg: object) -> None:
+        raise AssertionError("the node's inputs are taken by its reader, not an executor")
+
+    def _on_instruction(self, msg: ArmInstruction, info: dict[str, int]) -> None:
+        if self.trace is not None:
+            self.trace.append((msg.id, "recv", time.monotonic_ns()))
+        instr = from_message(msg, self.presets, self.driver.config.model, sent_ns(info))
+        if isinstance(instr, str):
+            self.driver.refuse(msg.id or new_id(), msg.instruction, instr)
+            return
+        # A stop the stop watcher has obeyed already is the same message: obeyed once.
+        key = stop_key(info) if instr.kind is Kind.STOP else None
+        self.driver.submit(instr, key=key)
+
+    def _on_trajectory(self, msg: JointTrajectory, info: dict[str, int]) -> None:
+        """A trajectory is one instruction: every point checked, then all run or none."""
+        instr = trajectory_from_message(msg, self.driver.config.model, sent_ns(info))
+        if isinstance(instr, str):
+            self.driver.refuse(trajectory_id(msg), "trajectory", instr)
+            return
+        self.driver.submit(instr)
+
+
+class RobotNode(Node):
+    """Node `al5d_robot`: the arm as a robot (`/robot_description`, `/joint_states`, `/tf`, the
+    tool pose), as robot_state_publisher would be beside a driver. It publishes from timers
+    on rclpy's events executor, whose idle tick costs a quarter of the Python executor's
+    (the idle server's CPU is mostly these ticks)."""
+
+    def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
+        super().__init__(ROBOT_NODE, namespace=names.node_namespace, context=context)
+        self.driver = driver
         self.robot = RobotPublisher(self, driver.config, names)
-        self.catch_up = CatchUp()
-        self.catch_up.subscribe(
-            self, ArmInstruction, names.instruction, self._on_instruction, QOS_INSTRUCTIONS
-        )
-        self.catch_up.subscribe(
-            self, JointTrajectory, names.trajectory, self._on_trajectory, QOS_INSTRUCTIONS
-        )
         # Two timers, one running at a time: the moving rate's while the arm moves (a written
-        # move starts it, a second at rest ends it), the idle rate's otherwise. An idle
-        # server's CPU was mostly these ticks (bench: 1.8 % of its 2.3 % at 25 Hz).
+        # move starts it, a second at rest ends it), the idle rate's otherwise.
         settings = driver.settings
         self._rate_lock = threading.Lock()
         self._moving = False
@@ -100,24 +161,11 @@ class ArmNode(Node):
         self.idle_timer = self.create_timer(
             1.0 / settings.idle_joint_state_rate_hz, self._idle_tick
         )
-        driver.outcome_listeners.append(self._publish_outcome)
-        driver.state_listeners.append(self._publish_state)
         driver.motion_listeners.append(self._on_motion)
-        self._publish_state(driver.state)
 
     def detach(self) -> None:
         """Hear the driver no more (once, before the node is destroyed; the driver lives on)."""
-        self.driver.outcome_listeners.remove(self._publish_outcome)
-        self.driver.state_listeners.remove(self._publish_state)
         self.driver.motion_listeners.remove(self._on_motion)
-
-    # -- outputs -------------------------------------------------------------------
-
-    def _publish_outcome(self, outcome: Outcome) -> None:
-        self.results.put(outcome)
-
-    def _publish_state(self, state: State) -> None:
-        self.state_pub.publish(String(data=state.value))
 
     def _on_motion(self, _sent: Sent) -> None:
         self._speed_up()
@@ -131,8 +179,7 @@ class ArmNode(Node):
                 self.moving_timer.reset()
 
     def _tick(self) -> None:
-        """/joint_states and /tf (radians, REP 103) at the moving rate, until a second at rest;
-        and the catch-up."""
+        """/joint_states and /tf (radians, REP 103) at the moving rate, until a second at rest."""
         changed = self.robot.publish(self.driver.positions())
         with self._rate_lock:
             self._quiet = 0 if changed else self._quiet + 1
@@ -140,7 +187,6 @@ class ArmNode(Node):
                 self._moving = False
                 self.moving_timer.cancel()
                 self.idle_timer.reset()
-        self._catch_up()
 
     def _idle_tick(self) -> None:
         """The same at the idle rate."""
@@ -148,37 +194,6 @@ class ArmNode(Node):
         # brings the moving rate back too.
         if self.robot.publish(self.driver.positions()):
             self._speed_up()
-        self._catch_up()
-
-    def _catch_up(self) -> None:
-        for topic, n in self.catch_up.run().items():
-            log.info("%s: took %d message(s) the executor was not told of", topic, n)
-
-    # -- inputs ---------------------------------------------------------------------
-
-    def _on_instruction(self, msg: ArmInstruction) -> None:
-        if self.trace is not None:
-            self.trace.append((msg.id, "recv", time.monotonic_ns()))
-        instr = from_message(msg, self.presets, self.driver.config.model)
-        if isinstance(instr, str):
-            self.driver.refuse(msg.id or new_id(), msg.instruction, instr)
-            return
-        submit = self.driver.submit
-        if instr.kind is Kind.STOP:  # unless the stop watcher saw it first and obeyed it
-            again = lambda: submit(instr, listeners=False)  # noqa: E731
-            self.stops.node_saw(msg.id, lambda: submit(instr), again)
-        elif instr.kind is Kind.RELEASE:
-            self.stops.node_released(lambda: submit(instr))
-        else:
-            submit(instr)
-
-    def _on_trajectory(self, msg: JointTrajectory) -> None:
-        """A trajectory is one instruction: every point checked, then all run or none."""
-        instr = trajectory_from_message(msg, self.driver.config.model)
-        if isinstance(instr, str):
-            self.driver.refuse(trajectory_id(msg), "trajectory", instr)
-            return
-        self.driver.submit(instr)
 
 
 class ActionsNode(Node):
@@ -230,10 +245,10 @@ class RosServer:
                 theirs,
             )
         self.context = start_context()
-        stops = FirstTaker()
-        self.node = ArmNode(driver, self.context, names, stops)
+        self.node = ArmNode(driver, self.context, names)
+        self.robot = RobotNode(driver, self.context, names)
         self.safety = SafetyNode(driver, self.context, names)
-        self.watcher = StopWatcher(driver, self.context, names, stops)
+        self.watcher = StopWatcher(driver, self.context, names)
         self.actions = ActionsNode(driver, self.context, names)
         self.trace_path = trace
         if trace is not None:
@@ -243,41 +258,28 @@ class RosServer:
             driver.motion_listeners.append(
                 lambda sent: events.append((sent.instr.id, "write", int(sent.t_write * 1e9)))
             )
-        # AL5D_SAFETY=shared puts the safety services on the main executor thread: the
-        # arrangement before issue 9, kept to measure against (bench/executors.py).
-        together = os.environ.get("AL5D_SAFETY", "own") == "shared"
-        self.spinner = Spinner(
-            self.node, self.context, owns_context=False, more=[self.safety] if together else []
-        )
-        # The safety services on rclpy's Python executor: the events executor now and then
-        # is told of one message too few (see runtime.CatchUp), and a stop request must
-        # never wait for the next one. Three services need no throughput.
-        self.safety_spinner = (
-            None
-            if together
-            else Spinner(self.safety, self.context, owns_context=False, kind="single")
-        )
+        # The nodes `al5d` and `al5d_stop_watcher` are read by their own threads (their
+        # `Reader`s); the others have an executor and a thread each. The safety services'
+        # own: a stop request never waits behind instruction traffic.
+        self.robot_spinner = Spinner(self.robot, self.context, owns_context=False)
+        self.safety_spinner = Spinner(self.safety, self.context, owns_context=False, kind="single")
         self.actions_spinner = Spinner(
             self.actions, self.context, owns_context=False, kind="single"
-        )
-        # rclpy's Python executor for the watcher: it wakes once for a burst and the watcher
-        # takes the burst in one go. The events executor dispatches every message alone,
-        # taking the GIL a thousand times for a thousand queued moves: a stop right after
-        # them took 5.6 ms at p99 instead of 2.0 (bench/executors.py's scenario, n=100).
-        self.watcher_spinner = Spinner(
-            self.watcher, self.context, owns_context=False, kind="single"
         )
 
     def close(self) -> None:
         # Let the last results (the shutdown's) reach their readers before the node goes.
         self.node.results.close()
         self.node.detach()
+        self.robot.detach()
         self.node.result_pub.wait_for_all_acked(rclpy.duration.Duration(seconds=1))
-        self.watcher_spinner.close()
-        if self.safety_spinner is not None:
-            self.safety_spinner.close()
+        self.watcher.reader.close()
+        self.node.reader.close()
+        self.safety_spinner.close()
         self.actions_spinner.close()
-        self.spinner.close()
+        self.robot_spinner.close()
+        self.watcher.destroy_node()
+        self.node.destroy_node()
         self.context.try_shutdown()
         if self.trace_path is not None and self.node.trace is not None:
             with open(self.trace_path, "w", encoding="utf-8") as f:

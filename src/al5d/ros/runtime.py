@@ -14,7 +14,7 @@ from typing import Any, Generic, TypeVar
 import rclpy
 from rclpy.context import Context
 from rclpy.exceptions import InvalidHandle
-from rclpy.executors import Executor, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -22,6 +22,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from al5d.arm.config import namespace_problem
 from al5d.arm.instruction import Kind
+from al5d.ros.workarounds import StampedExecutor
 
 log = logging.getLogger("al5d")
 
@@ -29,6 +30,7 @@ NODE = "al5d"
 SAFETY_NODE = "al5d_safety"
 WATCHER_NODE = "al5d_stop_watcher"
 ACTIONS_NODE = "al5d_actions"
+ROBOT_NODE = "al5d_robot"
 
 
 @dataclass(frozen=True)
@@ -257,8 +259,8 @@ def start_context() -> Context:
 
 
 def make_executor(context: Context, kind: str | None = None) -> Executor:
-    """rclpy's C++ EventsExecutor, or the Python SingleThreadedExecutor (AL5D_EXECUTOR=single,
-    or `kind="single"`), or its MultiThreadedExecutor with two threads (`multi`).
+    """rclpy's C++ EventsExecutor, or with `kind="single"` its Python SingleThreadedExecutor
+    (which tells a stamped service when its request was sent: `workarounds.StampedExecutor`).
 
     The events executor takes each message without rebuilding a wait set of every
     entity in Python, which is what limits the single-threaded one (see the README's
@@ -267,11 +269,8 @@ def make_executor(context: Context, kind: str | None = None) -> Executor:
     later by #1469): a coroutine that waits for the arm would hold a core. The actions,
     whose execute callbacks are such coroutines, have the Python executor.
     """
-    chosen = kind or os.environ.get("AL5D_EXECUTOR", "events")
-    if chosen == "single":
-        return SingleThreadedExecutor(context=context)
-    if chosen == "multi":  # measured against the others (bench/executors.py), not used
-        return MultiThreadedExecutor(num_threads=2, context=context)
+    if kind == "single":
+        return StampedExecutor(context=context)
     from rclpy.experimental.events_executor import EventsExecutor
 
     return EventsExecutor(context=context)

@@ -54,6 +54,9 @@ VERSION_ANSWER_BYTES = 16
 #: What a dead port raises, depending on the call: pyserial's own, the OS's, and termios's
 #: (tcflush on a pty whose master is gone raises termios.error, which is not an OSError).
 IO_ERRORS = (serial.SerialException, OSError, termios.error)
+#: What pyserial raises when another thread closes the port under a read or a write (its
+#: file descriptor is gone mid-call): a lost link too, once the port is closed.
+CLOSED_UNDER = (TypeError, AttributeError)
 
 
 Targets = Mapping[int, int] | Sequence[p.ChannelTarget]
@@ -191,8 +194,8 @@ class SSC32U:
             try:
                 self._ser.reset_output_buffer()
                 self._ser.write(data)
-            except IO_ERRORS as e:
-                raise LinkLost(self.port, f"stop could not be written: {e}") from e
+            except (*IO_ERRORS, *CLOSED_UNDER) as e:
+                raise self._lost(e, "stop could not be written") from e
             # As if the flush dropped nothing (the USB link): later than the truth on a UART,
             # which only makes a query's deadline later, never too early.
             self._wire_free_at = max(now(), self._wire_free_at) + self.wire_time_s(data)
@@ -246,6 +249,14 @@ class SSC32U:
 
     # -- inside ----------------------------------------------------------------------
 
+    def _lost(self, error: Exception, what: str) -> LinkLost:
+        """The I/O error as a lost link; a programming error (not one of a port closed under
+        the call) goes on as it is."""
+        if isinstance(error, CLOSED_UNDER) and self._ser.is_open:
+            raise error
+        reason = error if isinstance(error, IO_ERRORS) else "the port was closed"
+        return LinkLost(self.port, f"{what}: {reason}")
+
     def _check_version(self) -> str:
         try:
             firmware = self.version()
@@ -271,8 +282,8 @@ class SSC32U:
                 return None
             try:
                 self._ser.write(data)
-            except IO_ERRORS as e:
-                raise LinkLost(self.port, f"write failed: {e}") from e
+            except (*IO_ERRORS, *CLOSED_UNDER) as e:
+                raise self._lost(e, "write failed") from e
             start = max(now(), self._wire_free_at)
             self._wire_free_at = start + self.wire_time_s(data)
             return self._wire_free_at
@@ -298,8 +309,8 @@ class SSC32U:
                     if _answers(answer, n_answer) == 1:
                         # The first was lost, or the second is late: a margin more for it.
                         answer = self._read(answer, n_answer, 2, Deadline(self._margin_s))
-            except IO_ERRORS as e:
-                raise LinkLost(self.port, f"{name} failed: {e}") from e
+            except (*IO_ERRORS, *CLOSED_UNDER) as e:
+                raise self._lost(e, f"{name} failed") from e
         if _answers(answer, n_answer) == 0:
             if self._stops != stops:
                 raise Interrupted(f"{name} was flushed by an emergency stop")

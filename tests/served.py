@@ -1,0 +1,50 @@
+"""`al5d serve` in its own process on an emulated board in this one, with a ROS peer that
+follows the arm's state: the rig of the tests that talk to a server over real DDS."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+from proc import Proc, patient_config
+from rospeer import Peer, wait_until
+from std_msgs.msg import String
+
+from al5d.arm.config import ArmConfig
+from al5d.ros.runtime import QOS_LATCHED
+from al5d.ssc32u.emulator import Emulator
+
+
+@dataclass
+class Served:
+    proc: Proc
+    emu: Emulator
+    config: ArmConfig
+    peer: Peer
+    #: Every state `/al5d/state` said, the last one last.
+    states: list[str]
+
+
+@contextmanager
+def served(config: ArmConfig, workdir: Path, name: str) -> Iterator[Served]:
+    """A server on a board behind a link in `workdir`, ready, and a peer named `name` that
+    has matched it."""
+    link = workdir / "ssc32u"
+    emu = Emulator(config, link=link).start()
+    proc = Proc("serve", "--port", str(link), "--config", patient_config(), "--log-level", "INFO")
+    peer = Peer(name=name)
+    states: list[str] = []
+    peer.node.create_subscription(
+        String, "/al5d/state", lambda m: states.append(m.data), QOS_LATCHED
+    )
+    try:
+        proc.err.wait_for("STATE: ready", 30)
+        peer.wait_for_server()
+        wait_until(lambda: states, 10, "the state")
+        yield Served(proc, emu, config, peer, states)
+    finally:
+        peer.close()
+        proc.kill()
+        emu.close()

@@ -1,0 +1,508 @@
+"""The arm's protocol against a model (issue 22): random sequences and interleavings, checked
+after every step.
+
+`hypothesis.stateful` drives the real driver on the emulator (a pty, at 115200 baud so
+that the wire is quick) with random sequences of moves, stops (some seen twice, as the
+node and the stop watcher both see a stop on the topic), releases (some sent before the
+last stop and arriving after it, as a release queued on the topic behind a flood does),
+cancels, a board pulled and plugged back, waits and a shutdown; a rule runs several of
+them at once from threads of their own. The model is small: what was asked, when, and
+what each outcome must be. After every step:
+
+- every request has exactly one outcome (each told once to the listeners), a stop and
+  a release at once;
+- a release sent before the stop that holds the lock is refused (a stop is never undone
+  by an earlier release);
+- the state is `ready` only while no move runs or waits: a move pending across a whole
+  look at a `ready` arm is a lie (the wedged queue of issue 22);
+
+and at the end of each example:
+
+- no move took effect on the board after a stop's STOP and before a release was asked;
+- nothing waits for ever: every outcome comes within a bound, and a probe move after
+  stop and release is done.
+
+`make test` runs a bounded number of examples; `make soak` (AL5D_FUZZ_SCALE=10) more.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import random
+import sys
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fuzzcount import SCALE, count
+from hypothesis import HealthCheck, settings
+from hypothesis import strategies as st
+from hypothesis.stateful import (
+    RuleBasedStateMachine,
+    invariant,
+    precondition,
+    rule,
+)
+
+from al5d.arm import instruction as ins
+from al5d.arm.config import ArmConfig, load_config
+from al5d.arm.driver import ArmDriver
+from al5d.arm.instruction import Instruction, Outcome
+from al5d.arm.states import State
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Emulator, Fault
+
+#: The identities of stop messages: each a new one (the driver remembers those it obeyed).
+KEYS = itertools.count()
+#: Examples run so far in this process, for the failure messages: how many it took.
+EXAMPLES = itertools.count(1)
+#: How long any outcome may take once nothing more is asked (the longest queue here is a
+#: few dozen moves of a few ms each; a reconnect takes a few tenths of a second).
+OUTCOME_BOUND_S = 15.0
+JOINTS = ("base", "shoulder", "elbow", "wrist")
+#: Instructions carry when they were sent where the driver knows of it (`sent_ns`).
+SENT = "sent_ns" in {f.name for f in dataclasses.fields(Instruction)}
+
+
+def sent_at(instr: Instruction, t_ns: int) -> Instruction:
+    """`instr` as sent at `t_ns` (CLOCK_REALTIME): arriving late, behind others."""
+    return dataclasses.replace(instr, sent_ns=t_ns) if SENT else instr
+
+
+@dataclass
+class Asked:
+    """One request and what became of it."""
+
+    kind: str
+    instr: Instruction
+    future: Future[Outcome]
+    t_call: float  # CLOCK_MONOTONIC, as the emulator's records
+    wall_ns: int  # CLOCK_REALTIME, as instructions are stamped: no later than its sending
+    t_done: float = 0.0  # when the submit returned
+    late: bool = False  # a release sent before the last stop, arriving after it
+
+
+@dataclass
+class Rig:
+    """A driver on an emulated board, kept across examples (a new one after a shutdown)."""
+
+    config: ArmConfig
+    workdir: Path
+    emu: Emulator | None = None
+    driver: ArmDriver | None = None
+    told: Counter[str] = field(default_factory=Counter)
+    pulled: bool = False
+    #: An example failed: the next one starts on a new driver (what went wrong there must
+    #: not be found again by every example after it).
+    dirty: bool = False
+
+    def fresh(self) -> None:
+        self.close()
+        pose = dict(self.config.presets["park"])
+        link = self.workdir / "ssc32u-model"
+        self.emu = Emulator(self.config, baud=115200, link=link, initial_pose=pose).start()
+        self.driver = ArmDriver(self.config, str(link), 115200)
+        self.driver.outcome_listeners.append(lambda o: self.told.update([o.id]))
+        self.driver.start()
+        self.driver.wait_for_state(State.READY, 20)
+        self.pulled = False
+
+    def close(self) -> None:
+        if self.driver is not None:
+            self.driver.close(10)
+        if self.emu is not None:
+            self.emu.close()
+        self.driver = self.emu = None
+
+
+def _config() -> ArmConfig:
+    config = load_config()
+    # The emulated board is a thread of this busy process: a late answer is not a lost link
+    # here (the fault suites test those); reconnecting quickly keeps the examples short.
+    server = config.server.model_copy(
+        update={"answer_timeout_s": 0.5, "reconnect_interval_s": 0.05}
+    )
+    return config.model_copy(update={"server": server})
+
+
+_RIG: Rig | None = None
+
+
+@pytest.fixture(scope="module")
+def model_rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    global _RIG
+    _RIG = Rig(_config(), tmp_path_factory.mktemp("model"))
+    _RIG.fresh()
+    try:
+        yield _RIG
+    finally:
+        _RIG.close()
+        _RIG = None
+
+
+def _shutdown_asked(driver: ArmDriver) -> bool:
+    core = getattr(driver, "core", None) or driver.shared  # type: ignore[attr-defined]
+    return core.shutdown_job is not None
+
+
+def small_move(rng: random.Random, ready: dict[str, float]) -> Instruction:
+    joints = rng.sample(JOINTS, rng.randint(1, 3))
+    time_ms = rng.choice([0, 0, 20, 60])
+    return ins.move(time_ms=time_ms, **{j: ready[j] + rng.uniform(-4, 4) for j in joints})
+
+
+class ArmProtocol(RuleBasedStateMachine):
+    """The rules a client (or several) can play on the arm, and the model's checks."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        assert _RIG is not None
+        self.rig = _RIG
+        self._settle()
+        self.example = next(EXAMPLES)
+        self.steps: list[str] = []
+        count("arm protocol: sequences against the model")
+        self.asked: list[Asked] = []
+        self.lock = threading.Lock()
+        self.ready = dict(self.rig.config.presets["ready"])
+        self.ended = False
+        self.n_records = len(self.emu.records)
+        self.problems: list[str] = []
+
+    # -- the rig ---------------------------------------------------------------------
+
+    @property
+    def driver(self) -> ArmDriver:
+        assert self.rig.driver is not None
+        return self.rig.driver
+
+    @property
+    def emu(self) -> Emulator:
+        assert self.rig.emu is not None
+        return self.rig.emu
+
+    def _settle(self) -> None:
+        """Back to a connected, released arm at rest, whatever the last example left."""
+        rig = self.rig
+        if rig.dirty and rig.driver is not None:
+            rig.driver.execute(ins.stop(), 5)  # whatever it was doing, a stop before closing
+            rig.close()
+            rig.dirty = False
+        if rig.driver is None or _shutdown_asked(rig.driver):
+            if rig.driver is not None:
+                assert rig.driver.finished.wait(20), "the shutdown did not end the driver"
+            rig.fresh()
+            return
+        if rig.pulled:
+            assert rig.emu is not None
+            rig.emu.reconnect()
+            rig.pulled = False
+        deadline = time.monotonic() + 20
+        while rig.driver.state not in (State.READY, State.STOPPED):
+            assert time.monotonic() < deadline, f"stuck in {rig.driver.state.value}"
+            time.sleep(0.01)
+        if rig.driver.locked:
+            assert rig.driver.execute(ins.release(), 5).ok
+
+    # -- asking ------------------------------------------------------------------------
+
+    def _submit(self, kind: str, instr: Instruction, late: bool = False, **kw: Any) -> Asked:
+        count("arm protocol: requests")
+        t, wall = time.monotonic(), time.time_ns()
+        future = self.driver.submit(instr, **kw)
+        asked = Asked(kind, instr, future, t, wall, time.monotonic(), late)
+        with self.lock:
+            self.asked.append(asked)
+        return asked
+
+    def _moves(self, n: int, seed: int) -> None:
+        rng = random.Random(seed)
+        for _ in range(n):
+            self._submit("move", small_move(rng, self.ready))
+
+    def _stop(self, twice: bool) -> None:
+        if not twice:
+            self._submit("stop", ins.stop())
+            return
+        # The node and the stop watcher both see one stop on the topic: one message, one key.
+        if not SENT:  # a driver that does not know a stop by its message obeys each submit
+            self._submit("stop", ins.stop())
+            return
+        instr, key = ins.stop(), ("model", next(KEYS))
+        first = self._submit("stop", instr, key=key)
+        again = self.driver.submit(instr, key=key)
+        assert again is first.future, "a stop seen twice was obeyed twice"
+
+    def _release(self, late: bool) -> None:
+        if late:
+            # Sent before the last stop (as a release queued behind a flood on the topic),
+            # arriving now.
+            stops = [a for a in self.asked if a.kind == "stop"]
+            if not stops:
+                return
+            sent = stops[-1].wall_ns - 1_000_000
+            self._submit("release", sent_at(ins.release(), sent), late=True)
+            return
+        self._submit("release", ins.release())
+
+    def _cancel(self, pick: int) -> None:
+        moves = [a for a in self.asked if a.kind == "move" and not a.future.done()]
+        if moves:
+            self.driver.cancel(moves[pick % len(moves)].instr.id)
+
+    # -- rules -------------------------------------------------------------------------
+
+    @precondition(lambda self: not self.ended)
+    @rule(n=st.integers(1, 8), seed=st.integers(0, 2**16))
+    def moves(self, n: int, seed: int) -> None:
+        self.check_step(f"moves({n})")
+        self._moves(n, seed)
+
+    @precondition(lambda self: not self.ended)
+    @rule(twice=st.booleans())
+    def stop(self, twice: bool) -> None:
+        self.check_step(f"stop(twice={twice})")
+        self._stop(twice)
+
+    @precondition(lambda self: not self.ended)
+    @rule(late=st.booleans())
+    def release(self, late: bool) -> None:
+        self.check_step(f"release(late={late})")
+        # A late release is sent with a time: it stands for one that a stop overtook.
+        stops = [a for a in self.asked if a.kind == "stop"]
+        stopped_before = self.driver.state is State.STOPPED and bool(stops)
+        self._release(late)
+        if late and stopped_before and stops:
+            last = self.asked[-1]
+            outcome = last.future.result(5)
+            if outcome.ok:
+                self.problems.append(
+                    f"a release sent before the stop {stops[-1].instr.id} undid it: {outcome}"
+                )
+
+    @precondition(lambda self: not self.ended)
+    @rule(pick=st.integers(0, 100))
+    def cancel(self, pick: int) -> None:
+        self.check_step("cancel")
+        self._cancel(pick)
+
+    @precondition(lambda self: not self.ended)
+    @rule(
+        actions=st.lists(
+            st.sampled_from(["moves", "stop", "stop twice", "release", "cancel"]),
+            min_size=2,
+            max_size=4,
+        ),
+        seed=st.integers(0, 2**16),
+    )
+    def at_once(self, actions: list[str], seed: int) -> None:
+        """Several clients at the same moment, each in a thread of its own."""
+        self.check_step(f"at_once({actions})")
+        go = threading.Barrier(len(actions))
+        runs: dict[str, Callable[[], None]] = {
+            "moves": lambda: self._moves(4, seed),
+            "stop": lambda: self._stop(False),
+            "stop twice": lambda: self._stop(True),
+            "release": lambda: self._release(False),
+            "cancel": lambda: self._cancel(seed),
+        }
+        errors: list[BaseException] = []
+
+        def run(what: str) -> None:
+            try:
+                go.wait(5)
+                runs[what]()
+            except BaseException as e:
+                errors.append(e)
+
+        threads = [threading.Thread(target=run, args=(a,)) for a in actions]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(10)
+        assert not errors, errors
+
+    @rule(ms=st.integers(0, 60))
+    def wait(self, ms: int) -> None:
+        self.check_step(f"wait({ms})")
+        time.sleep(ms / 1000)
+
+    @precondition(lambda self: not self.ended and not self.rig.pulled)
+    @rule()
+    def pull(self) -> None:
+        self.check_step("pull")
+        self.emu.inject(Fault.DISCONNECT)
+        self.rig.pulled = True
+
+    @precondition(lambda self: not self.ended and self.rig.pulled)
+    @rule()
+    def plug(self) -> None:
+        self.check_step("plug")
+        self.emu.reconnect()
+        self.rig.pulled = False
+
+    @precondition(lambda self: not self.ended)
+    @rule(dice=st.integers(0, 9))
+    def shutdown(self, dice: int) -> None:
+        if dice:  # one time in ten: a shutdown ends the example's driver
+            return
+        self.check_step("shutdown")
+        if self.rig.pulled:
+            self.emu.reconnect()
+            self.rig.pulled = False
+        self._submit("shutdown", ins.shutdown())
+        self.ended = True
+
+    # -- the model's checks --------------------------------------------------------------
+
+    @invariant()
+    def answered_at_once(self) -> None:
+        """Stops and releases are answered at once; nothing is answered twice."""
+        try:
+            self._answered_at_once()
+        except AssertionError as e:
+            raise self.failed(e) from e
+
+    def _answered_at_once(self) -> None:
+        for a in list(self.asked):
+            if a.kind in ("stop", "release"):
+                assert a.future.done(), f"{a.kind} {a.instr.id} not answered at once"
+        for ident, n in list(self.rig.told.items()):
+            assert n <= 1, f"{ident} was told {n} outcomes"
+        assert not self.problems, self.problems
+
+    @invariant()
+    def ready_only_when_nothing_waits(self) -> None:
+        try:
+            self._ready_only_when_nothing_waits()
+        except AssertionError as e:
+            raise self.failed(e) from e
+
+    def _ready_only_when_nothing_waits(self) -> None:
+        if self.ended:
+            return
+        before = {id(a) for a in self.asked if a.kind == "move" and not a.future.done()}
+        if not before or self.driver.state is not State.READY:
+            return
+        time.sleep(0.03)
+        still = [
+            a
+            for a in self.asked
+            if id(a) in before and not a.future.done() and a.t_call < time.monotonic() - 0.03
+        ]
+        if still and self.driver.state is State.READY:
+            ids = ", ".join(a.instr.id for a in still[:5])
+            raise AssertionError(f"state ready while {len(still)} move(s) wait: {ids}")
+
+    def teardown(self) -> None:
+        try:
+            self._teardown()
+        except BaseException as e:
+            raise self.failed(e) from e
+
+    def check_step(self, what: str) -> None:
+        self.steps.append(what)
+
+    def failed(self, e: BaseException) -> AssertionError:
+        """The failure, with the example's number and steps; the next example gets a new
+        driver. Said at once on the real stderr too (how many examples it took to find a
+        defect; hypothesis reports the shrunk example only)."""
+        self.rig.dirty = True
+        text = f"example {self.example}, steps {self.steps}: {e}"
+        print(f"\narm model: {text[:300]}", file=sys.__stderr__, flush=True)
+        return AssertionError(text)
+
+    def _teardown(self) -> None:
+        if self.rig.pulled and not self.ended:
+            self.emu.reconnect()
+            self.rig.pulled = False
+        deadline = time.monotonic() + OUTCOME_BOUND_S
+        for a in self.asked:
+            try:
+                a.future.result(max(0.0, deadline - time.monotonic()))
+            except TimeoutError:
+                raise AssertionError(
+                    f"{a.kind} {a.instr.id} got no outcome in {OUTCOME_BOUND_S} s "
+                    f"(state {self.driver.state.value})"
+                ) from None
+        self._no_move_while_stopped()
+        if not self.ended:
+            self._probe()
+        for ident, n in self.rig.told.items():
+            assert n == 1 or not any(a.instr.id == ident for a in self.asked), (ident, n)
+        self.rig.told.clear()
+
+    def _probe(self) -> None:
+        """The wedge: after stop and release, a move is done. A board plugged back just now
+        may not have been found lost yet (its old port fails at the next write): the move
+        is then cancelled with that reason, and tried again once the link is back."""
+        for _ in range(3):
+            self._settle()
+            probe = self.driver.submit(ins.move(base=self.ready["base"] + 1))
+            try:
+                outcome = probe.result(10)
+            except TimeoutError:
+                raise AssertionError(
+                    f"a move after stop and release got no outcome in 10 s "
+                    f"(state {self.driver.state.value})"
+                ) from None
+            if outcome.ok:
+                return
+            assert "the serial link is lost" in outcome.reason, outcome
+            time.sleep(0.1)
+        raise AssertionError(f"a move after stop and release: {outcome}")
+
+    def _no_move_while_stopped(self) -> None:
+        """No move took effect on the board after a stop's STOP and before a release was
+        asked (the park of a shutdown aside)."""
+        records = self.emu.records[self.n_records :]
+        shutdown = min((a.t_call for a in self.asked if a.kind == "shutdown"), default=1e18)
+        releases = sorted(
+            a.t_call
+            for a in self.asked
+            if a.kind == "release" and a.future.done() and a.future.result().ok
+        )
+        stops_at = [
+            i for i, r in enumerate(records) if any(isinstance(c, p.Stop) for c in r.commands)
+        ]
+        for stop in (a for a in self.asked if a.kind == "stop"):
+            # The STOP this stop wrote, written before its submit returned and on the board a
+            # wire time later: the last STOP by then (a cancel's racing it may be later, which
+            # only checks less).
+            window = [
+                i for i in stops_at if stop.t_call <= records[i].t_effect <= stop.t_done + 0.01
+            ]
+            if not window:
+                continue  # no board then (pulled): nothing went out either
+            first = window[-1]
+            until = min([t for t in releases if t > stop.t_call] + [shutdown])
+            # Skip the rest of this burst of STOPs: a move written before the stop is halted
+            # by it, and a move cannot get between the STOPs of one write.
+            for r in records[first:]:
+                if r.t_effect >= until:
+                    break
+                if any(isinstance(c, p.GroupMove) for c in r.commands):
+                    raise AssertionError(
+                        f"a move took effect {1000 * (r.t_effect - records[first].t_effect):.1f} "
+                        f"ms after the STOP of stop {stop.instr.id}, before any release: {r.raw!r}"
+                    )
+
+
+ArmProtocol.TestCase.settings = settings(
+    max_examples=150 * SCALE,
+    stateful_step_count=12,
+    deadline=None,
+    suppress_health_check=list(HealthCheck),
+    derandomize=SCALE == 1,
+)
+
+
+def test_the_arm_protocol_holds_against_the_model(model_rig: Rig) -> None:
+    ArmProtocol.TestCase().runTest()
