@@ -101,11 +101,12 @@ bench: install
 	$(BIN)/python bench/run.py
 
 # The reliability suites, longer than in `make test`, with their figures (about 10 minutes):
-# faults and floods, then the fuzz suites with ten times the cases.
+# faults and floods, then the fuzz suites, the arm's model-based test and issue 22's
+# sequences over DDS with ten times the cases.
 soak: install
 	$(BIN)/python bench/soak.py
 	AL5D_FUZZ_SCALE=10 $(BIN)/python -m pytest -q -p no:cacheprovider -o timeout=1800 \
-	  tests/test_fuzz_text.py tests/test_fuzz_ros.py
+	  tests/test_fuzz_text.py tests/test_fuzz_ros.py tests/test_arm_model.py tests/test_ros_sequences.py
 
 lint: install
 	$(BIN)/ruff check src tests bench

@@ -1,5 +1,5 @@
 """The stop watcher (`al5d.ros.safety`): the first word of a serialized instruction, and every
-message of a batch judged. (Which of the two readers obeys a stop: `test_arm_core.py`.)"""
+message of a batch judged. (A stop both readers see, obeyed once: `test_arm_sequences.py`.)"""
 
 from __future__ import annotations
 

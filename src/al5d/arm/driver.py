@@ -27,7 +27,7 @@ from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
 from al5d.arm.core import Core, Halt, Verdict, tell
 from al5d.arm.instruction import MAX_ID, MAX_QUOTE, Instruction, Kind, Outcome, Result
-from al5d.arm.jobs import Job, Mode, Sent, finish, outcome, resolve
+from al5d.arm.jobs import Job, Mode, Sent, Written, finish, outcome, resolve
 from al5d.arm.states import Event, State
 from al5d.arm.translate import Translator
 from al5d.arm.validate import Limits, Step, Ticket, judge
@@ -282,17 +282,25 @@ class ArmDriver:
         hand-over to the worker (a thread wake and the GIL, most of the server's share of
         the latency); the worker then sees it through."""
         core = self.core
-        reason = self.writer.prepare(job)
+        reason = ""
+        written: Written | None = None
+        error: SerialFault | None = None
+        try:
+            reason = self.writer.prepare(job)
+            if not reason:
+                written = self.writer.write(job, job.steps[0], board)
+        except SerialFault as e:
+            error = e
+        except Exception as e:  # a bug: the core must still hear that the write is over
+            core.first_written(job, None)
+            core.announce()
+            finish(job, Result.CANCELLED, f"the driver failed: {e!r}")
+            raise
         if reason:
             core.first_written(job, None)
             core.announce()
             self._refuse_job(job, reason)
             return
-        error: SerialFault | None = None
-        try:
-            written = self.writer.write(job, job.steps[0], board)
-        except SerialFault as e:
-            written, error = None, e
         motion, lost = core.first_written(job, written, error)
         core.announce()
         if error is not None:
@@ -307,11 +315,16 @@ class ArmDriver:
         if halt.board is None:
             self.core.halt_written(None)
             return LinkLost(self.port, "no board connected")
-        error = None
+        error: SerialFault | None = None
         try:
             halt.board.stop(halt.channels)
         except SerialFault as e:
             error = e
+        except BaseException as e:  # a bug: the core must still hear that the write is over
+            bug = LinkLost(self.port, f"stop could not be written: {e!r}")
+            self.core.halt_written(bug).settle()
+            self.core.announce()
+            raise
         lost = self.core.halt_written(error)
         if lost.jobs or lost.board is not None:
             log.error("serial fault: %s", error)

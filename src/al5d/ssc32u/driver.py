@@ -83,6 +83,7 @@ class SSC32U:
         self._write_lock = threading.Lock()
         self._query_lock = threading.Lock()
         self._stops = 0  # counts emergency stops, to tell a flushed query from a dead board
+        self._closed = False
         # When the wire will have carried every byte written so far: a query's answer
         # cannot come before its own bytes, and those queue behind the earlier ones.
         self._wire_free_at = 0.0
@@ -133,6 +134,9 @@ class SSC32U:
     # -- life cycle ------------------------------------------------------------
 
     def close(self) -> None:
+        # Said before the port goes: another thread's read or write under way may then fail
+        # on a half-closed port with what pyserial raises for it (see `_lost`).
+        self._closed = True
         with contextlib.suppress(*IO_ERRORS):  # closing a dead port must not raise
             self._ser.close()
 
@@ -252,7 +256,7 @@ class SSC32U:
     def _lost(self, error: Exception, what: str) -> LinkLost:
         """The I/O error as a lost link; a programming error (not one of a port closed under
         the call) goes on as it is."""
-        if isinstance(error, CLOSED_UNDER) and self._ser.is_open:
+        if isinstance(error, CLOSED_UNDER) and not self._closed:
             raise error
         reason = error if isinstance(error, IO_ERRORS) else "the port was closed"
         return LinkLost(self.port, f"{what}: {reason}")
