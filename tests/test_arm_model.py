@@ -28,6 +28,7 @@ and at the end of each example:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import random
 import sys
@@ -156,6 +157,19 @@ def small_move(rng: random.Random, ready: dict[str, float]) -> Instruction:
     joints = rng.sample(JOINTS, rng.randint(1, 3))
     time_ms = rng.choice([0, 0, 20, 60])
     return ins.move(time_ms=time_ms, **{j: ready[j] + rng.uniform(-4, 4) for j in joints})
+
+
+def reported(check: Callable[[ArmProtocol], None]) -> Callable[[ArmProtocol], None]:
+    """An invariant whose failure says the example's number and steps (`ArmProtocol.failed`)."""
+
+    @functools.wraps(check)
+    def run(machine: ArmProtocol) -> None:
+        try:
+            check(machine)
+        except AssertionError as e:
+            raise machine.failed(e) from e
+
+    return run
 
 
 class ArmProtocol(RuleBasedStateMachine):
@@ -363,14 +377,9 @@ class ArmProtocol(RuleBasedStateMachine):
     # -- the model's checks --------------------------------------------------------------
 
     @invariant()
+    @reported
     def answered_at_once(self) -> None:
         """Stops and releases are answered at once; nothing is answered twice."""
-        try:
-            self._answered_at_once()
-        except AssertionError as e:
-            raise self.failed(e) from e
-
-    def _answered_at_once(self) -> None:
         for a in list(self.asked):
             if a.kind in ("stop", "release"):
                 assert a.future.done(), f"{a.kind} {a.instr.id} not answered at once"
@@ -379,13 +388,8 @@ class ArmProtocol(RuleBasedStateMachine):
         assert not self.problems, self.problems
 
     @invariant()
+    @reported
     def ready_only_when_nothing_waits(self) -> None:
-        try:
-            self._ready_only_when_nothing_waits()
-        except AssertionError as e:
-            raise self.failed(e) from e
-
-    def _ready_only_when_nothing_waits(self) -> None:
         if self.ended:
             return
         before = {id(a) for a in self.asked if a.kind == "move" and not a.future.done()}

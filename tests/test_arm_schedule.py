@@ -21,7 +21,7 @@ from al5d.arm.writer import StepWriter
 
 
 def writer(config: ArmConfig) -> StepWriter:
-    return StepWriter(Core(config, []), Translator(config), Limits.of(config))
+    return StepWriter(Core(config, []), Translator(config), Limits.of(config), [])
 
 
 def at(config: ArmConfig, **where: float) -> dict[str, float | None]:

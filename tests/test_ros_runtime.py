@@ -1,4 +1,5 @@
-"""The executor threads of the server (`al5d.ros.runtime.Spinner`)."""
+"""The executor threads of the server (`al5d.ros.runtime.Spinner`), and the test peer's
+catch-up of messages its executor was not told of (`rospeer.CatchUp`)."""
 
 from __future__ import annotations
 
@@ -9,10 +10,10 @@ import time
 import pytest
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rospeer import wait_until
+from rospeer import CatchUp, wait_until
 from std_msgs.msg import String
 
-from al5d.ros.runtime import CatchUp, Spinner, start_context
+from al5d.ros.runtime import Spinner, start_context
 
 
 @pytest.mark.parametrize("kind", ["events", "single"])

@@ -9,6 +9,9 @@
 - `states`: the state machine as a table (state, event) -> next state.
 - `core`: the protocol: the one owner of the arm's state, its events and their rules
   (the lanes, the order across channels); read this first.
+- `corestate`: the core's fields and the steps its events share.
+- `effects`: what the core's events hand back to do outside its lock; the announcements.
+- `order`: the sending times the order across channels is judged by.
 - `pose`: what the driver believes the board holds (the pose, the motion), the core's.
 - `jobs`: a move on its way (its steps, its outcome) and the motion it makes.
 - `driver`: `ArmDriver`, the caller's side: submit, stop, release, cancel, shutdown.

@@ -25,7 +25,8 @@ from concurrent.futures import Future
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.arm.core import Core, Halt, Verdict, tell
+from al5d.arm.core import Core
+from al5d.arm.effects import Halt, Verdict, tell
 from al5d.arm.instruction import MAX_ID, MAX_QUOTE, Instruction, Kind, Outcome, Result
 from al5d.arm.jobs import Job, Mode, Sent, Written, finish, outcome, resolve
 from al5d.arm.states import Event, State
@@ -104,7 +105,7 @@ class ArmDriver:
         self.submit_listeners: list[Callable[[Instruction], None]] = []
         self.core = Core(config, self.state_listeners)
         self._refusals = RefusalLog()
-        self.writer = StepWriter(self.core, self.translator, self.limits)
+        self.writer = StepWriter(self.core, self.translator, self.limits, self.motion_listeners)
         self._worker = Worker(
             config,
             self.core,
@@ -112,7 +113,6 @@ class ArmDriver:
             self.baud,
             self.writer,
             self._refuse_job,
-            self.motion_listeners,
         )
         self._thread = threading.Thread(target=self._worker.run, name="al5d-worker", daemon=True)
         self.finished = self.core.finished
@@ -306,9 +306,8 @@ class ArmDriver:
         if error is not None:
             log.error("serial fault: %s", error)
             lost.settle()
-        elif motion is not None and written is not None and self.motion_listeners:
-            sent = Sent(job.instr, written.data, job.t_submit, written.t_write, motion)
-            tell(self.motion_listeners, sent, "motion")
+        elif motion is not None and written is not None:
+            self.writer.told(job, written, motion)
 
     def _write_halt(self, halt: Halt) -> SerialFault | None:
         """Write a STOP the core decided (a stop's or a cancel's); the error if it failed."""

@@ -15,7 +15,8 @@ import logging
 from dataclasses import dataclass
 
 from al5d.arm.config import ArmConfig
-from al5d.arm.core import Core, LinkView
+from al5d.arm.core import Core
+from al5d.arm.effects import LinkView
 from al5d.arm.translate import Translator
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.errors import BoardReset, Interrupted, NotAnSSC32U, SerialFault
@@ -160,7 +161,7 @@ class Link:
         board = board or self.core.board
         if board is None:
             return False
-        token = self.core.read_token()
+        token = self.core.write_token()
         pose = self.read_pose(board)
         return pose is not None and self.core.read_back(pose, token)
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
+from al5d.arm.effects import LinkView
 from al5d.arm.jobs import Motion
 from al5d.clock import now
 
@@ -47,9 +48,6 @@ class PoseBook:
     def motion(self) -> Motion | None:
         return self._motion
 
-    def known(self, joint: str) -> float | None:
-        return self._pose[joint]
-
     def positions(self, t: float | None = None) -> dict[str, float]:
         """Estimated joint angles (degrees; NaN where unknown since power-up)."""
         pose, motion = self._pose, self._motion
@@ -66,6 +64,16 @@ class PoseBook:
         """The degrees `joint` may still be passing through at `t` on its recent steps."""
         way = self._ways.get(joint)
         return (way[0], way[1]) if way is not None and t < way[2] else None
+
+    def link_view(self, t: float, token: int | None) -> LinkView | None:
+        """What a link check at `t` reads back and judges: the stalest joint, where it is
+        believed to be, on what way (None: no pose is known)."""
+        joint = self.stalest()
+        if joint is None:
+            return None
+        pose = self._pose[joint]
+        assert pose is not None
+        return LinkView(joint, pose, self._motion, self.way(joint, t), token)
 
     def stalest(self) -> str | None:
         """The joint of known pose written least recently (the first in the configuration

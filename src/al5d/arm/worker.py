@@ -16,9 +16,9 @@ from concurrent.futures import Future
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.arm.core import Core, tell
+from al5d.arm.core import Core
 from al5d.arm.instruction import Result
-from al5d.arm.jobs import Job, Mode, Sent, finish
+from al5d.arm.jobs import Job, Mode, finish
 from al5d.arm.link import Link
 from al5d.arm.states import Task
 from al5d.arm.validate import Step
@@ -46,7 +46,6 @@ class Worker:
         baud: int,
         writer: StepWriter,
         refuse: Callable[[Job, str], None],
-        motion_listeners: list[Callable[[Sent], None]],
     ) -> None:
         self.config = config
         self.core = core
@@ -55,7 +54,6 @@ class Worker:
         self.link = Link(config, core, port, baud)
         self.writer = writer
         self._refuse = refuse
-        self._motion_listeners = motion_listeners
 
     def run(self) -> None:
         core = self.core
@@ -167,9 +165,7 @@ class Worker:
                 motion = core.step_written(job, written)
                 if motion is None:
                     return False
-                if self._motion_listeners:
-                    sent = Sent(job.instr, written.data, job.t_submit, written.t_write, motion)
-                    tell(self._motion_listeners, sent, "motion")
+                self.writer.told(job, written, motion)
             written = job.written
             assert written is not None
             # The next step goes out one wire time early, so that it takes effect as this one

@@ -16,8 +16,9 @@ import math
 from collections.abc import Callable, Mapping
 
 from al5d.arm.core import Core
+from al5d.arm.effects import tell
 from al5d.arm.instruction import Kind
-from al5d.arm.jobs import Job, Motion, Written
+from al5d.arm.jobs import Job, Motion, Sent, Written
 from al5d.arm.translate import Translator
 from al5d.arm.validate import Limits, Step, planned
 from al5d.clock import now
@@ -29,10 +30,17 @@ log = logging.getLogger("al5d")
 class StepWriter:
     """Plans and writes the steps of jobs for one arm."""
 
-    def __init__(self, core: Core, translator: Translator, limits: Limits) -> None:
+    def __init__(
+        self,
+        core: Core,
+        translator: Translator,
+        limits: Limits,
+        motion_listeners: list[Callable[[Sent], None]],
+    ) -> None:
         self.core = core
         self.translator = translator
         self.limits = limits
+        self.motion_listeners = motion_listeners
         #: A test's seam (tests/test_arm_fast_path.py); None in use. Called with "judged"
         #: when the driver has judged a move, before its admission; with "checked" before
         #: a step is written; and with "locked" when the step holds the board's write lock,
@@ -165,3 +173,9 @@ class StepWriter:
             job.t_due = t_sent + step.time_ms / 1000.0
         motion = Motion(start, step.target, t_sent, time_ms / 1000.0)
         return Written(motion, t_end, board.wire_time_s(data), data, t_write)
+
+    def told(self, job: Job, written: Written, motion: Motion) -> None:
+        """The motion listeners hear of a step the core took as written (whoever wrote it)."""
+        if self.motion_listeners:
+            sent = Sent(job.instr, written.data, job.t_submit, written.t_write, motion)
+            tell(self.motion_listeners, sent, "motion")

@@ -61,7 +61,7 @@ from al5d.ros.runtime import (
     start_context,
 )
 from al5d.ros.safety import SafetyNode, StopWatcher
-from al5d.ros.workarounds import Reader
+from al5d.ros.workarounds import Reader, taken_by_reader
 
 log = logging.getLogger("al5d")
 
@@ -84,12 +84,11 @@ class ArmNode(Node):
         )
         self.state_pub = self.create_publisher(String, names.state, QOS_LATCHED)
         # Read by a thread of their own, with each message's info (see `workarounds.Reader`).
-        unused = self._never_called
         instructions = self.create_subscription(
-            ArmInstruction, names.instruction, unused, QOS_INSTRUCTIONS
+            ArmInstruction, names.instruction, taken_by_reader, QOS_INSTRUCTIONS
         )
         trajectories = self.create_subscription(
-            JointTrajectory, names.trajectory, unused, QOS_INSTRUCTIONS
+            JointTrajectory, names.trajectory, taken_by_reader, QOS_INSTRUCTIONS
         )
         self.reader = Reader(
             self,
@@ -114,10 +113,6 @@ class ArmNode(Node):
         self.state_pub.publish(String(data=state.value))
 
     # -- inputs ---------------------------------------------------------------------
-
-    @staticmethod
-    def _never_called(msg: object) -> None:
-        raise AssertionError("the node's inputs are taken by its reader, not an executor")
 
     def _on_instruction(self, msg: ArmInstruction, info: dict[str, int]) -> None:
         if self.trace is not None:

@@ -46,7 +46,7 @@ from al5d.ros.runtime import (
     WATCHER_NODE,
     Names,
 )
-from al5d.ros.workarounds import Reader, stamped_service
+from al5d.ros.workarounds import Reader, stamped_service, taken_by_reader
 
 log = logging.getLogger("al5d")
 #: Messages the watcher takes in one call, at most.
@@ -69,10 +69,6 @@ def first_word(raw: bytes) -> str | None:
     if not 0 < n <= _WORD_MAX or len(raw) < 8 + n:
         return None
     return raw[8 : 7 + n].split(b"\0", 1)[0].decode("utf-8", "replace").strip().lower()
-
-
-def _never_called(msg: object) -> None:
-    raise AssertionError("the watcher's input is taken by its reader, not an executor")
 
 
 class SafetyNode(Node):
@@ -113,7 +109,7 @@ class StopWatcher(Node):
         self.driver = driver
         self.presets = tuple(driver.config.presets)
         watched = self.create_subscription(
-            ArmInstruction, names.instruction, _never_called, QOS_WATCH, raw=True
+            ArmInstruction, names.instruction, taken_by_reader, QOS_WATCH, raw=True
         )
         # A thread of its own takes what waits, up to `WATCH_BATCH` at a time, in one go:
         # under a flood, one GIL hand-over a message would leave the watcher behind.

@@ -66,6 +66,11 @@ class StampedExecutor(SingleThreadedExecutor):
         return _execute
 
 
+def taken_by_reader(msg: object) -> None:
+    """The callback of a subscription a `Reader` takes from: an executor never calls it."""
+    raise AssertionError("this input is taken by its reader, not an executor")
+
+
 #: What a `Reader` hands each message to: the message (or its bytes) and its info.
 Handler = Callable[[Any, dict[str, int]], None]
 

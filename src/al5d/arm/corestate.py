@@ -1,0 +1,262 @@
+"""The fields of the arm's protocol, what may be read of them, and the steps its events are
+made of: the state behind `core.Core`, whose events (`core`) are the only writers.
+
+Everything with a leading underscore here is called by an event, under the core's lock.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from collections.abc import Callable
+from enum import Enum
+
+from al5d.arm.config import ArmConfig
+from al5d.arm.effects import Announcer, Ended, Halt, LinkView
+from al5d.arm.jobs import Job, Mode, Motion, Written, stop_order
+from al5d.arm.order import ChannelOrder
+from al5d.arm.pose import PoseBook
+from al5d.arm.states import (
+    Event,
+    Guards,
+    State,
+    TransitionError,
+    next_state,
+)
+from al5d.clock import now, wall_ns
+from al5d.ssc32u.driver import SSC32U
+from al5d.ssc32u.errors import BoardReset, SerialFault
+
+
+class Runner(Enum):
+    """Who runs the current job."""
+
+    CALLER = "its caller writes its first step"
+    HANDED = "written by its caller, for the worker to see through"
+    WORKER = "the worker"
+
+
+class CoreState:
+    """Every field of one arm's driver (`core.Core` adds the events that change them).
+
+    What it owns besides its own fields, each written only under its lock: the pose
+    (`pose.PoseBook`), the sending times the order across channels is judged by
+    (`order.ChannelOrder`), and the transitions still to announce (`effects.Announcer`).
+    """
+
+    def __init__(self, config: ArmConfig, state_listeners: list[Callable[[State], None]]) -> None:
+        self._lock = threading.Lock()
+        self._cv = threading.Condition(self._lock)
+        self._channels = {name: j.channel for name, j in config.joints.items()}
+        self._capacity = config.server.queue_capacity
+        self._state = State.INITIALIZING
+        self._announcer = Announcer(state_listeners, self._state)
+        self._locked = False  # a stop (or a board's reset) and no release since
+        self._epoch = 0  # counts the events that dropped every pending move
+        self._queue: deque[Job] = deque()
+        self._current: Job | None = None
+        self._runner: Runner | None = None
+        self._board: SSC32U | None = None
+        self._fault: SerialFault | None = None
+        #: The pose is to be read back from the board (after a halt): nothing is written
+        #: until it has been, or the pose read would be a snapshot of a motion.
+        self._readback = False
+        self._shutdown: Job | None = None
+        self._shutdown_taken = False  # the worker has begun the shutdown
+        self._parked = False  # the start-up park has been done
+        self._book = PoseBook(config.joints)
+        self._order = ChannelOrder()
+        #: Writes from a caller's thread (a fast-path step, a STOP) begun, and under way: a
+        #: link check or a read-back judges what it reads only if none began meanwhile.
+        self._writes = 0
+        self._writing = 0
+        #: Set when the worker has ended (after the shutdown, or if it failed).
+        self.finished = threading.Event()
+
+    # -- reading (a snapshot each) -----------------------------------------------------
+
+    @property
+    def state(self) -> State:
+        return self._state
+
+    @property
+    def locked(self) -> bool:
+        return self._locked
+
+    @property
+    def epoch(self) -> int:
+        """Read without the lock (one int) by a step's last check under the write lock."""
+        return self._epoch
+
+    @property
+    def board(self) -> SSC32U | None:
+        return self._board
+
+    @property
+    def fault(self) -> SerialFault | None:
+        return self._fault
+
+    @property
+    def shutdown_job(self) -> Job | None:
+        return self._shutdown
+
+    def positions(self, t: float | None = None) -> dict[str, float]:
+        """Estimated joint angles (degrees; NaN where unknown since power-up)."""
+        with self._lock:
+            return self._book.positions(t)
+
+    def pose(self) -> dict[str, float | None]:
+        """The pose at rest, as a step is planned from it."""
+        with self._lock:
+            return self._book.pose
+
+    def progress(self, ident: str) -> float | None:
+        """0..1 of the running job `ident` (by its steps), or None if it is not running."""
+        with self._lock:
+            job, motion = self._current, self._book.motion
+            if job is None or motion is None or job.instr.id != ident or not job.steps:
+                return None
+            return (job.step + motion.progress(now())) / len(job.steps)
+
+    def q_believed(self) -> bool:
+        with self._lock:
+            return self._book.q_believed(now())
+
+    def link_view(self) -> LinkView | None:
+        """What the next link check reads back and judges (None: no pose is known)."""
+        with self._lock:
+            return self._book.link_view(now(), self._token())
+
+    def write_token(self) -> int | None:
+        """A token of the callers' writes so far, for `untouched` (None: one is under way)."""
+        with self._lock:
+            return self._token()
+
+    def untouched(self, token: int | None) -> bool:
+        """No caller's write began since `token` was taken (and none was under way then)."""
+        with self._lock:
+            return self._untouched(token)
+
+    # -- the state machine and its announcements -------------------------------------------
+
+    def _guards(self) -> Guards:
+        running = self._current is not None and self._current.mode is Mode.QUEUE
+        return Guards(
+            queue_empty=not self._queue and not running, locked=self._locked, parked=self._parked
+        )
+
+    def _fire(self, event: Event) -> State:
+        old = self._state
+        new = next_state(old, event, self._guards())
+        if new is None:
+            raise TransitionError(f"no transition from {old.value} on {event.value}")
+        self._state = new
+        self._announcer.note(event, old, new)
+        self._cv.notify_all()
+        return new
+
+    def announce(self) -> None:
+        """Log the transitions made so far (INF01, INF02) and tell the listeners, in order."""
+        self._announcer.announce()
+
+    def wait_announced(self, state: State, timeout: float) -> None:
+        self._announcer.wait(state, timeout, lambda: self._state)
+
+    @property
+    def announced(self) -> State:
+        return self._announcer.announced
+
+    # -- helpers (lock held) -----------------------------------------------------------
+
+    def _token(self) -> int | None:
+        return None if self._writing else self._writes
+
+    def _untouched(self, token: int | None) -> bool:
+        return token is not None and token == self._writes and not self._writing
+
+    def _holds(self, job: Job) -> bool:
+        """The job is still the current one, of this epoch, not cancelled."""
+        return job is self._current and job.epoch == self._epoch and not job.cancel.is_set()
+
+    def _idle(self) -> bool:
+        """At rest on a board: nothing runs, is written, waits or is to be read back."""
+        return (
+            self._state is State.READY
+            and self._board is not None
+            and self._current is None
+            and not self._queue
+            and not self._readback
+            and not self._writing
+        )
+
+    def _drop(self, why: str, sent_ns: int) -> Ended:
+        """End the epoch: the current job and every waiting one are never to be written. The
+        shutdown's park is left to the worker, which reports it. `sent_ns`: when the event
+        that drops them was sent."""
+        self._epoch += 1
+        self._order.dropped(why, sent_ns)
+        jobs = list(self._queue)
+        self._queue.clear()
+        current, self._current, self._runner = self._current, None, None
+        if current is not None:
+            current.cancel.set()
+            if current is not self._shutdown:
+                jobs.insert(0, current)
+        return Ended(tuple(jobs), why)
+
+    def _halt(self, ended: Ended) -> Halt:
+        """A STOP of every channel, the moving joints first (lock held; written outside)."""
+        t = now()
+        channels = tuple(stop_order(self._book.motion, t, self._channels))
+        self._book.halted(t)
+        self._writes += 1
+        self._writing += 1
+        self._readback = True
+        return Halt(self._board, channels, ended)
+
+    def _lock_arm(self, by: str, sent_ns: int) -> None:
+        """Lock (or keep locked), by an event sent at `sent_ns`: a release must be sent later."""
+        self._order.locked(by, sent_ns, self._locked)
+        self._locked = True
+
+    def _lose(self, error: SerialFault) -> Ended:
+        """The fault: the link is gone (or the board reset); everything pending ends."""
+        reset = isinstance(error, BoardReset)
+        self._fault = error
+        t = wall_ns()
+        if reset:
+            # A safety event: nothing moves again until a person has looked at the arm.
+            self._lock_arm("the board's reset", t)
+            self._book.forget()
+        board, self._board = self._board, None
+        why = str(error) if reset else f"the serial link is lost: {error}"
+        ended = self._drop(why, t)
+        self._book.lost()
+        self._readback = False  # reconnecting reads the pose back
+        if self._state is not State.FAULT:
+            self._fire(Event.SERIAL_FAULT)
+        return Ended(ended.jobs, why, board)
+
+    def _end_current(self, job: Job, completed: bool = False) -> bool:
+        """The current job ends (completed: its last step is done); False if it was not
+        current (an event ended it before)."""
+        if job is not self._current:
+            return False
+        self._current, self._runner = None, None
+        if job.mode is Mode.STARTUP and completed:
+            self._parked = True
+            self._fire(Event.MOVE_DONE)
+        elif job.mode is Mode.QUEUE and self._state is State.MOVING:
+            self._fire(Event.MOVE_DONE)
+        self._cv.notify_all()
+        return True
+
+    def _written(self, job: Job, written: Written) -> Motion | None:
+        if not self._holds(job):
+            # Q answers "moving" until this step's time is over, even halted (UG-38).
+            self._book.distrust_q(written.motion)
+            return None
+        motion = self._book.moving(written.motion, written.t_write)
+        self._book.written(motion, written.t_end)
+        job.written = written
+        return motion
