@@ -100,11 +100,14 @@ test: install
 bench: install
 	$(BIN)/python bench/run.py
 
-# The reliability suites, longer than in `make test`, with their figures (about 10 minutes):
-# faults and floods, then the fuzz suites, the arm's model-based test and issue 22's
-# sequences over DDS with ten times the cases.
+# The reliability suites, longer than in `make test`, with their figures (about 25 minutes):
+# faults and floods, the contention suite (several flooded servers beside busy loops, a
+# goal flood at 9600 baud, ten minutes of false link faults at load 6), then the fuzz
+# suites, the arm's model-based test and issue 22's sequences over DDS with ten times the
+# cases.
 soak: install
 	$(BIN)/python bench/soak.py
+	$(BIN)/python bench/contention.py
 	AL5D_FUZZ_SCALE=10 $(BIN)/python -m pytest -q -p no:cacheprovider -o timeout=1800 \
 	  tests/test_fuzz_text.py tests/test_fuzz_ros.py tests/test_arm_model.py tests/test_ros_sequences.py
 

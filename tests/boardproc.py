@@ -3,7 +3,6 @@ share the GIL of the process that measures it (the tests' floods, the benchmarks
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
 import subprocess
@@ -17,14 +16,6 @@ from al5d.arm.config import ArmConfig
 from al5d.clock import Deadline
 from al5d.ssc32u.emulator import Record
 from al5d.ssc32u.emulator.board import RESET, Board
-
-
-def _before_the_board() -> None:
-    """A real board answers in its own time whatever the computer does; the emulated one
-    runs ahead of the load the tests make (where the OS lets us), so that a flood on 2
-    cores does not starve it into answering late, which the driver rightly calls a fault."""
-    with contextlib.suppress(OSError):
-        os.nice(-10)
 
 
 class BoardProcess:
@@ -47,7 +38,6 @@ class BoardProcess:
             stdout=subprocess.PIPE,
             text=True,
             env=os.environ.copy(),
-            preexec_fn=_before_the_board,
         )
         assert self.popen.stdout is not None
         first = self.popen.stdout.readline().strip()  # the device path comes first

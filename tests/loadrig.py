@@ -209,7 +209,10 @@ def flood(
             ms = stop_latency_ms(emu, peer, via, emu.baud, ident)
             if ms is None:
                 result.stops_missed += 1
-                result.notes.append(f"a stop via {via} never reached the board:\n{diagnose()}")
+                sent = time.strftime("%H:%M:%S", time.localtime(time.time() - 10))
+                result.notes.append(
+                    f"a stop via {via} sent at {sent} never reached the board:\n{diagnose()}"
+                )
             else:
                 (result.stop_service_ms if via == "service" else result.stop_topic_ms).append(ms)
             wait_future(peer.services["release"].call_async(Trigger.Request()), 10)

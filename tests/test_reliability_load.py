@@ -11,6 +11,7 @@ target, checked in `make soak`: within 50 ms of the quiet figure at p99).
 from __future__ import annotations
 
 import json
+import statistics
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -25,10 +26,12 @@ pytestmark = pytest.mark.solo  # load suites: alone (see pyproject.toml)
 OUT = Path(__file__).resolve().parents[1] / "build" / "reliability"
 RATES = (2000, 5000, 10000)
 SECONDS = 3.0
-#: A bound that only a stop queued behind instruction traffic breaks (the defect: seconds;
-#: 0.2 to 3 s by topic at 10,000/s before the stop watcher), far above what is measured
-#: (`make soak` prints the figures).
-BOUND_MS = 250
+#: Bounds that only a stop queued behind instruction traffic breaks, far above what is
+#: measured (`make soak` prints the figures): the defect moved the median (1.13 s by
+#: service, 2.35 s by topic at 10,000/s before the safety node and the stop watcher); a
+#: busy machine moves the tail alone (one stop of 12 took 985 ms beside two busy loops).
+MEDIAN_BOUND_MS = 250
+BOUND_MS = 5000
 
 
 @pytest.fixture(scope="module")
@@ -84,9 +87,9 @@ def test_a_flood_loses_nothing_and_the_stop_gets_through(
     assert result.failed_publishes == 0
     assert result.lost == 0 and result.duplicates == 0
     assert result.stops_missed == 0, result.notes
-    assert len(result.stop_service_ms) + len(result.stop_topic_ms) >= 2
-    assert max(result.stop_service_ms, default=0) < BOUND_MS, result.stop_service_ms
-    assert max(result.stop_topic_ms, default=0) < BOUND_MS, result.stop_topic_ms
+    assert result.stop_service_ms and result.stop_topic_ms
+    for stops in (result.stop_service_ms, result.stop_topic_ms):
+        assert statistics.median(stops) < MEDIAN_BOUND_MS and max(stops) < BOUND_MS, stops
     assert (result.stop_outcomes, result.stop_duplicates) == (len(result.stop_ids), 0)
     assert result.after["Threads"] == result.before["Threads"]
     assert result.after["VmRSS"] - result.before["VmRSS"] < 30_000  # kB: flat, not growing

@@ -3,16 +3,22 @@ catch-up of messages its executor was not told of (`rospeer.CatchUp`)."""
 
 from __future__ import annotations
 
+import contextlib
+import ipaddress
+import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
+from proc import Proc
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rospeer import CatchUp, wait_until
+from rospeer import CatchUp, Peer, wait_until
 from std_msgs.msg import String
 
+from al5d.priority import URGENT_NICE
 from al5d.ros.runtime import Spinner, start_context
 
 
@@ -77,8 +83,8 @@ def test_the_catch_up_takes_what_waits_in_a_quiet_input_and_leaves_a_busy_one() 
 SERVER_PROFILE_CHECK = """
 import os
 os.environ.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
-from al5d.ros.runtime import server_dds_profile, start_context
-assert server_dds_profile("/al5d/instruction", 1000) is None
+from al5d.ros.runtime import dds_profile, start_context
+assert dds_profile(("/al5d/instruction", 1000)) is None
 from rclpy.node import Node
 Node("al5d_profile_check", context=start_context())
 print("started")
@@ -94,3 +100,83 @@ def test_fast_dds_takes_the_servers_profile_whole() -> None:
     said = done.stdout + done.stderr  # Fast DDS logs its errors on stdout
     assert done.returncode == 0 and "started" in done.stdout, said
     assert "XMLPARSER" not in said and "Error" not in said, said
+
+
+def udp_sockets(pid: int) -> list[ipaddress.IPv4Address]:
+    """The local address of every UDP socket process `pid` holds (what `ss -uanp` shows),
+    read where `ss` reads it: the socket inodes among its file descriptors, and
+    /proc/net/udp."""
+    inodes = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        with contextlib.suppress(OSError):
+            link = os.readlink(fd)
+            if link.startswith("socket:["):
+                inodes.add(link[8:-1])
+    found = []
+    for line in Path(f"/proc/{pid}/net/udp").read_text().splitlines()[1:]:
+        fields = line.split()
+        if fields[9] in inodes:
+            # Little-endian hex on x86 and arm64 alike, as the kernel prints a __be32 raw.
+            found.append(ipaddress.IPv4Address(bytes.fromhex(fields[1].split(":")[0])[::-1]))
+    return found
+
+
+def closed_to_the_network(addresses: list[ipaddress.IPv4Address]) -> bool:
+    """Every socket on loopback, or on a multicast group (joined on loopback alone: a group
+    address takes no unicast, and the group is joined where the profile allows)."""
+    return all(a.is_loopback or a.is_multicast for a in addresses)
+
+
+def sockets_of_a_server(tmp_path: Path, env: dict[str, str]) -> list[ipaddress.IPv4Address]:
+    server = Proc("serve", "--log-level", "INFO", env=env)
+    try:
+        server.err.wait_for("ROS 2 node", 60)  # every participant made
+        return udp_sockets(server.popen.pid)
+    finally:
+        server.kill()
+
+
+def test_the_server_and_clients_listen_on_loopback_alone_by_default(tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if k != "ROS_AUTOMATIC_DISCOVERY_RANGE"}
+    server = sockets_of_a_server(tmp_path, env)
+    assert len(server) >= 4 and closed_to_the_network(server), server
+    # This process is a client (the test peers, `al5d send`, the web view start alike).
+    peer = Peer(name="al5d_loopback_peer")
+    try:
+        mine = udp_sockets(os.getpid())
+        assert mine and closed_to_the_network(mine), mine
+    finally:
+        peer.close()
+
+
+def test_the_network_is_opened_on_purpose(tmp_path: Path) -> None:
+    env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"}
+    server = sockets_of_a_server(tmp_path, env)
+    assert any(a.is_unspecified for a in server), server
+
+
+def thread_nices(pid: int) -> list[int]:
+    """The nice value of every thread of process `pid` (/proc/PID/task/TID/stat, field 19)."""
+    nices = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):
+            stat = (task / "stat").read_text()
+            nices.append(int(stat.rsplit(")", 1)[1].split()[16]))
+    return nices
+
+
+def test_the_stop_path_runs_ahead_of_the_rest_or_says_why_not() -> None:
+    server = Proc("serve", "--log-level", "INFO")
+    try:
+        server.err.wait_for("ROS 2 node", 60)
+        nices = thread_nices(server.popen.pid)
+        refused = [line for line in server.err.drain(0.5) if "refused a higher scheduling" in line]
+    finally:
+        server.kill()
+    if refused:  # an OS that allows no lower nice: said once, and nothing is raised
+        assert len(refused) == 1 and URGENT_NICE not in nices, (refused, nices)
+        return
+    # The stop path (the safety services' executor, the stop watcher's reader and the threads
+    # of their own DDS participant) ahead; the rest, the flood's reader among them, not.
+    urgent = nices.count(URGENT_NICE)
+    assert urgent >= 4 and nices.count(0) >= 4, nices

@@ -8,7 +8,7 @@ import time
 import pytest
 
 from al5d.arm.config import ArmConfig
-from al5d.ssc32u.driver import DEFAULT_READ_TIMEOUT_S, SSC32U
+from al5d.ssc32u.driver import DEFAULT_READ_TIMEOUT_S, SSC32U, WIRE_HORIZON_S
 from al5d.ssc32u.emulator import UART, Emulator, Fault, Link
 from al5d.ssc32u.errors import (
     GarbageAnswer,
@@ -72,10 +72,34 @@ def test_stop_is_one_write_that_first_cancels_any_partial_line(
     assert board.stop(range(6)) == b"\x1bSTOP0\rSTOP1\rSTOP2\rSTOP3\rSTOP4\rSTOP5\r"
 
 
+def stack(board: SSC32U, lines: list[bytes]) -> None:
+    """Bytes in the port that the driver would never stack itself (it paces its moves: the
+    test below), as another writer of the port leaves them."""
+    board._ser.write(b"".join(lines))
+
+
+def test_moves_wait_for_the_wire_so_a_stop_finds_little_ahead(
+    emulator: Emulator, board: SSC32U
+) -> None:
+    line = len(b"#0P1000\r")
+    t0 = time.monotonic()
+    for i in range(30):
+        board.move({0: 1000 + 10 * i})  # 240 bytes: 250 ms of wire at 9600
+        # What a stop written now would find ahead of it: the horizon and one move at most.
+        assert board.arrival(0) - time.monotonic() <= WIRE_HORIZON_S + board.wire_time_s(line)
+    # The writer waited for the wire (a busy host only makes it longer), not the port.
+    assert time.monotonic() - t0 >= 29 * board.wire_time_s(line) - WIRE_HORIZON_S
+    board.stop([0])
+    raws = [r.raw for r in emulator.wait_for(lambda rs: any(r.raw == b"STOP0" for r in rs))]
+    # Every move in order; the last may be cut by the stop's ESC, as a half-sent line is.
+    moves = [r for r in raws if r.startswith(b"#0P")]
+    assert moves == [f"#0P{1000 + 10 * i}".encode() for i in range(len(moves))]
+    assert len(moves) >= 29
+
+
 def test_stop_on_a_uart_drops_output_still_waiting(config: ArmConfig) -> None:
     with Emulator(config, usb=UART) as emu, SSC32U(emu.port) as board:
-        for i in range(30):
-            board.move({0: 1000 + 10 * i})  # 240 bytes: 250 ms of wire at 9600
+        stack(board, [f"#0P{1000 + 10 * i}\r".encode() for i in range(30)])  # 250 ms of wire
         # The first has arrived: the link holds the rest, not yet on the wire.
         emu.wait_for(lambda rs: any(r.raw == b"#0P1000" for r in rs))
         board.stop([0])
@@ -88,8 +112,7 @@ def test_stop_on_a_uart_drops_output_still_waiting(config: ArmConfig) -> None:
 def test_stop_on_the_usb_link_drops_nothing_and_comes_last(
     emulator: Emulator, board: SSC32U
 ) -> None:
-    for i in range(30):
-        board.move({0: 1000 + 10 * i})
+    stack(board, [f"#0P{1000 + 10 * i}\r".encode() for i in range(30)])
     emulator.wait_for(lambda rs: any(r.raw == b"#0P1000" for r in rs))
     board.stop([0])
     raws = [r.raw for r in emulator.wait_for(lambda rs: any(r.raw == b"STOP0" for r in rs))]

@@ -184,7 +184,7 @@ class Core(CoreState):
             if job is None or job.instr.id != ident or job.mode is not Mode.QUEUE:
                 return None
             job.cancel.set()
-            halt = self._halt(Ended((job,)))
+            halt = self._halt(Ended((job,)), urgent=False)
             self._end_current(job)
             return halt
 

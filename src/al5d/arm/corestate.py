@@ -204,15 +204,16 @@ class CoreState:
                 jobs.insert(0, current)
         return Ended(tuple(jobs), why)
 
-    def _halt(self, ended: Ended) -> Halt:
-        """A STOP of every channel, the moving joints first (lock held; written outside)."""
+    def _halt(self, ended: Ended, urgent: bool = True) -> Halt:
+        """A STOP of every channel, the moving joints first (lock held; written outside);
+        `urgent` but for a cancelled move's."""
         t = now()
         channels = tuple(stop_order(self._book.motion, t, self._channels))
         self._book.halted(t)
         self._writes += 1
         self._writing += 1
         self._readback = True
-        return Halt(self._board, channels, ended)
+        return Halt(self._board, channels, ended, urgent)
 
     def _lock_arm(self, by: str, sent_ns: int) -> None:
         """Lock (or keep locked), by an event sent at `sent_ns`: a release must be sent later."""

@@ -316,7 +316,7 @@ class ArmDriver:
             return LinkLost(self.port, "no board connected")
         error: SerialFault | None = None
         try:
-            halt.board.stop(halt.channels)
+            halt.board.stop(halt.channels, paced=not halt.urgent)
         except SerialFault as e:
             error = e
         except BaseException as e:  # a bug: the core must still hear that the write is over

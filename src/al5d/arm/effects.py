@@ -78,6 +78,8 @@ class Halt:
     board: SSC32U | None
     channels: tuple[int, ...]
     ended: Ended
+    #: An emergency stop's (written at once); a cancelled move's waits for the wire's turn.
+    urgent: bool = True
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,29 +1,43 @@
 """The client application: sends instructions to the server over ROS 2 and reports their outcomes.
 
-`al5d send` sends one instruction and waits for its outcome. `al5d run`
-runs a sequence file: each instruction waits for its outcome before the next
-line, unless the line ends with `&` (then the client goes on at once, so that,
-say, a `stop` can land in the middle of a move); `wait <ms>` pauses.
+`al5d send` sends one instruction and waits for its outcome (a stop or a release
+goes by the server's service). `al5d run` runs a sequence file: each instruction
+waits for its outcome before the next line, unless the line ends with `&` (then
+the client goes on at once, so that, say, a `stop` can land in the middle of a
+move); `wait <ms>` pauses.
 Exit codes: 0 done, 1 refused or cancelled (or not an instruction), 2 no server.
+
+From Python, `Client` is a context manager:
+
+    with Client() as arm:
+        print(arm.execute("move base=30 time=800"))   # an Outcome
+        print(arm.stop())                             # an Answer, by /al5d/stop
 """
 
 from __future__ import annotations
 
+import atexit
 import functools
+import logging
 import os
 import sys
 import threading
 import time
+import weakref
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TextIO
+from types import TracebackType
+from typing import Any, TextIO
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
+from std_srvs.srv import Trigger
 
 from al5d.arm.instruction import (
     PRESET_NAMES,
     GrammarError,
     Instruction,
+    Kind,
     Outcome,
     Result,
     Wait,
@@ -33,12 +47,16 @@ from al5d.arm.instruction import (
 from al5d.clock import Deadline
 from al5d.ros.convert import outcome_from_message, to_message
 from al5d.ros.runtime import (
+    NODE,
     QOS_INSTRUCTIONS,
+    QOS_SERVICES,
     QOS_STREAM,
     Names,
     Spinner,
     start_context,
 )
+
+log = logging.getLogger("al5d")
 
 EXIT_DONE, EXIT_NOT_DONE, EXIT_NO_SERVER = 0, 1, 2
 
@@ -47,59 +65,183 @@ class NoServer(Exception):
     """No `al5d serve` answers on this ROS domain."""
 
 
+class NoOutcome(TimeoutError):
+    """The server took too long to report an instruction's outcome, or to answer a service
+    call: what became of the instruction is unknown."""
+
+
 #: How long the server's side of the match is given after ours: each side matches when it
 #: hears of the other, independently (a mitigation, not a proof: DDS offers none here).
 MATCH_SETTLE_S = 0.1
+#: How long the server's services may stay undiscovered once its topics are: after that a
+#: stop, a release or a shutdown goes on the instruction topic instead (and says so). A
+#: server announces both at once, so a longer lag means its services are not there.
+SERVICE_GRACE_S = 2.0
+#: A stop's service call unanswered this long is made again. rmw_fastrtps drops an answer
+#: whose client it has not matched 100 ms after the request (ros2/rmw_fastrtps#390), which
+#: on a loaded machine can befall a new client's first call. A second stop is harmless; a
+#: second release could undo a stop sent in between, so a release is never sent twice.
+STOP_RETRY_S = 1.0
+#: A release or a shutdown waits this long after its service is found: see `STOP_RETRY_S`.
+SERVICE_SETTLE_S = 0.5
+#: The defaults of `al5d send` and `al5d run`: finding the server, and an outcome.
+WAIT_S = 10.0
+OUTCOME_S = 120.0
+#: A stop, a release or a shutdown is answered at once.
+ANSWER_S = 10.0
+
+
+@dataclass(frozen=True)
+class Answer:
+    """The server's answer to a stop, a release or a shutdown: whether it was obeyed and the
+    server's message, and `via` the service (or, as a fallback, the topic) that took it."""
+
+    instruction: str
+    success: bool
+    message: str
+    via: str
+    by_service: bool = True
+
+    @property
+    def ok(self) -> bool:
+        return self.success
+
+    def __str__(self) -> str:
+        text = f"{self.instruction}: {'done' if self.success else 'refused'}"
+        if self.message and self.message != text:
+            text += f": {self.message}"
+        return f"{text} (by {self.via})"
+
+
+#: Every client not yet closed, closed at interpreter exit (`_close_open_clients`).
+_open: weakref.WeakSet[Client] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open_clients() -> None:
+    """Close what a script left open. rclpy's executor thread and context still alive when
+    the interpreter finalizes abort the process ("terminate called without an active
+    exception", exit 134) and hide the script's own exit code and traceback."""
+    for client in list(_open):
+        client.close()
 
 
 class Client:
     """A ROS 2 node that publishes instructions and collects their outcomes by id, for the
-    server in `namespace` (none by default)."""
+    server in `namespace` (none by default); `wait_s`: how long its first use waits for the
+    server.
 
-    def __init__(self, namespace: str | None = None) -> None:
+    A context manager: leaving the `with` block closes it, and nothing else: the arm is
+    never stopped by it, whatever the block raised. A client left open is closed when
+    the interpreter exits.
+    """
+
+    def __init__(self, namespace: str | None = None, *, wait_s: float = WAIT_S) -> None:
         from rclpy.node import Node
 
         self.names = names = Names.of(namespace)
+        self.wait_s = wait_s
         self.context = start_context()
-        self.node = Node(
-            f"al5d_client_{os.getpid()}", namespace=names.node_namespace, context=self.context
-        )
+        try:
+            self.node = Node(
+                f"al5d_client_{os.getpid()}", namespace=names.node_namespace, context=self.context
+            )
+        except BaseException:
+            self.context.try_shutdown()
+            raise
         self.pub = self.node.create_publisher(ArmInstruction, names.instruction, QOS_INSTRUCTIONS)
         self.results = self.node.create_subscription(
             InstructionResult, names.result, self._on_result, QOS_STREAM
         )
+        self._services: dict[Kind, tuple[str, Any]] = {
+            kind: (name, self.node.create_client(Trigger, name, qos_profile=QOS_SERVICES))
+            for name, kind in names.services.items()
+        }
+        #: Only the outcomes of what this client sent are kept: every client's come by.
+        self._sent: set[str] = set()
         self._outcomes: dict[str, Outcome] = {}
         self._watchers: dict[str, Callable[[Outcome], None]] = {}
         self._cv = threading.Condition()
-        self.spinner = Spinner(self.node, self.context)
+        self._matched = False
+        #: Each service once found, and when its first call may go (`SERVICE_SETTLE_S`).
+        self._settled: dict[Kind, Deadline] = {}
+        self._closing = threading.Lock()
+        self._closed = False
+        # rclpy's Python executor: its events executor is now and then told of one message
+        # too few, and the last one waits for the next (tests/rospeer.py, `CatchUp`); here
+        # that would be an outcome, or a service's answer, waited for until the timeout.
+        self.spinner = Spinner(self.node, self.context, kind="single")
+        _open.add(self)
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
 
     def _on_result(self, msg: InstructionResult) -> None:
-        outcome = outcome_from_message(msg)
         with self._cv:
+            if msg.id not in self._sent and msg.id not in self._watchers:
+                return
+            outcome = outcome_from_message(msg)
             self._outcomes[msg.id] = outcome
             watcher = self._watchers.pop(msg.id, None)
             self._cv.notify_all()
         if watcher is not None:
             watcher(outcome)
 
+    def _server_seen(self) -> bool:
+        """Our writer of instructions has matched every reader of them that discovery lists,
+        the node `al5d`'s among them, and our reader of results a writer of them.
+
+        A server has more than one reader of instructions (its stop watcher's, best effort):
+        one matched is not enough. An instruction published before our writer has matched
+        the node `al5d`'s reader never reaches it (seen: 2 `al5d run`s in 30 on a loaded
+        machine waited for ever for their first outcome, the server never told of it)."""
+        readers = self.node.get_subscriptions_info_by_topic(self.names.instruction)
+        ours = self.names.node_namespace
+        return (
+            any(r.node_name == NODE and r.node_namespace == ours for r in readers)
+            and self.pub.get_subscription_count() >= len(readers)
+            and self.results.get_publisher_count() > 0
+        )
+
+    def _no_server(self, name: str, timeout: float) -> NoServer:
+        domain = os.environ.get("ROS_DOMAIN_ID", "0")
+        return NoServer(
+            f"no al5d server answers on {name} (ROS_DOMAIN_ID={domain}) "
+            f"within {timeout:g} s: is 'al5d serve' running?"
+        )
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError("this al5d client is closed")
+
     def wait_for_server(self, timeout: float) -> None:
         """Until our instructions reach a server and its results reach us (both directions)."""
+        self._check_open()
         deadline = Deadline(timeout)
         while not deadline.expired:
-            if self.pub.get_subscription_count() > 0 and self.results.get_publisher_count() > 0:
+            if self._server_seen():
                 # Our reader has matched the server's result writer; that writer matches our
                 # reader when the server hears of it, a moment apart, and a result published
                 # before then would not reach us (it is not kept for late readers).
                 time.sleep(MATCH_SETTLE_S)
+                self._matched = True
                 return
             time.sleep(0.02)
-        domain = os.environ.get("ROS_DOMAIN_ID", "0")
-        raise NoServer(
-            f"no al5d server answers on {self.names.instruction} (ROS_DOMAIN_ID={domain}) "
-            f"within {timeout:g} s: is 'al5d serve' running?"
-        )
+        raise self._no_server(self.names.instruction, timeout)
 
     def send(self, instr: Instruction) -> None:
+        """Publish `instr` on the instruction topic; its outcome is kept for `outcome`."""
+        self._check_open()
+        with self._cv:
+            self._sent.add(instr.id)
         self.pub.publish(to_message(instr))
 
     def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None:
@@ -120,8 +262,120 @@ class Client:
                 self._cv.wait(deadline.left())
             return self._outcomes[ident]
 
+    def execute(self, instr: Instruction | str, timeout: float = OUTCOME_S) -> Outcome:
+        """Send an instruction (or its text, in `al5d send`'s grammar) on the instruction topic
+        and return its outcome: done, refused or cancelled.
+
+        Raises `GrammarError` for text that is not an instruction, `NoServer` if no server
+        is found within `wait_s` (on first use), `NoOutcome` if no outcome comes within
+        `timeout` seconds.
+        """
+        if isinstance(instr, str):
+            instr = parse_instruction(instr, PRESET_NAMES)
+        self._check_open()
+        if not self._matched:
+            self.wait_for_server(self.wait_s)
+        self.send(instr)
+        outcome = self.outcome(instr.id, timeout)
+        with self._cv:
+            self._sent.discard(instr.id)
+            self._outcomes.pop(instr.id, None)
+        if outcome is None:
+            raise NoOutcome(f"{instr.name} [{instr.id}]: no outcome within {timeout:g} s")
+        return outcome
+
+    def stop(self, timeout: float = ANSWER_S) -> Answer:
+        """The emergency stop, by the server's stop service: the arm halts and stays locked
+        (refusing moves) until a release."""
+        return self._trigger(Kind.STOP, timeout)
+
+    def release(self, timeout: float = ANSWER_S) -> Answer:
+        """Unlock the arm after a stop, by the server's release service."""
+        return self._trigger(Kind.RELEASE, timeout)
+
+    def shutdown(self, timeout: float = ANSWER_S) -> Answer:
+        """Park the arm and end the server, by its shutdown service (answered before the
+        parking is done)."""
+        return self._trigger(Kind.SHUTDOWN, timeout)
+
+    def _trigger(self, kind: Kind, timeout: float) -> Answer:
+        """Call the server's service for `kind`; the instruction topic instead if the server
+        is there but its service is not (`SERVICE_GRACE_S`)."""
+        self._check_open()
+        name, service = self._services[kind]
+        if not self._find_service(kind, name, service):
+            log.warning(
+                "%s: the service %s is not available; sent on the topic %s instead",
+                kind.value,
+                name,
+                self.names.instruction,
+            )
+            outcome = self.execute(Instruction(kind), timeout)
+            message = outcome.reason or f"{kind.value}: {outcome.result.value}"
+            return Answer(kind.value, outcome.ok, message, self.names.instruction, False)
+        if kind is not Kind.STOP:
+            # The server matches our reader of its answers a moment after we match its
+            # service; an answer it cannot deliver 100 ms on is dropped (`STOP_RETRY_S`).
+            time.sleep(self._settled[kind].left())
+        again = STOP_RETRY_S if kind is Kind.STOP else None
+        response = self._call(service, timeout, again)
+        if response is None:
+            raise NoOutcome(
+                f"{kind.value}: no answer from {name} within {timeout:g} s "
+                "(whether the server obeyed is unknown)"
+            )
+        return Answer(kind.value, bool(response.success), str(response.message), name)
+
+    def _find_service(self, kind: Kind, name: str, service: Any) -> bool:
+        """True once `service` is available; False if the server's topics are there and it is
+        not, `SERVICE_GRACE_S` on. `NoServer` if neither comes within `wait_s`."""
+        if service.service_is_ready():
+            self._settled.setdefault(kind, Deadline(SERVICE_SETTLE_S))
+            return True
+        deadline = Deadline(self.wait_s)
+        grace: Deadline | None = None
+        while not service.service_is_ready():
+            if grace is None and self._server_seen():
+                grace = Deadline(SERVICE_GRACE_S)
+            if grace is not None and grace.expired:
+                return False
+            if deadline.expired:
+                raise self._no_server(name, self.wait_s)
+            time.sleep(0.02)
+        self._settled[kind] = Deadline(SERVICE_SETTLE_S)
+        return True
+
+    def _call(self, service: Any, timeout: float, again: float | None) -> Any:
+        """The service's response, or None if none came within `timeout`; the request is
+        made anew every `again` seconds until one is answered."""
+        answered = threading.Event()
+        futures: list[Any] = []
+        deadline = Deadline(timeout)
+        try:
+            while True:
+                future = service.call_async(Trigger.Request())
+                futures.append(future)
+                future.add_done_callback(lambda _: answered.set())
+                wait = deadline.left() if again is None else min(again, deadline.left())
+                if answered.wait(wait) or deadline.expired:
+                    break
+            for future in futures:
+                if future.done() and future.result() is not None:
+                    return future.result()
+            return None
+        finally:
+            for future in futures:
+                if not future.done():
+                    service.remove_pending_request(future)
+
     def close(self) -> None:
-        self.spinner.close()
+        """End the client's node and ROS context; again, or at exit, it does nothing."""
+        with self._closing:
+            if self._closed:
+                return
+            self._closed = True
+            _open.discard(self)
+            self.spinner.close()
 
 
 class Report:
@@ -154,18 +408,30 @@ def send(
     out: TextIO = sys.stdout,
     namespace: str | None = None,
 ) -> int:
+    """Send one instruction and print its outcome; a stop or a release by the server's
+    service (the topic only if the service is not there), printed with what carried it."""
     try:
         instr = parse_instruction(text, PRESET_NAMES)
     except GrammarError as e:
         print(f"al5d send: {e}", file=sys.stderr)
         return EXIT_NOT_DONE
-    client = Client(namespace)
+    client = Client(namespace, wait_s=wait_s)
     report = Report(out)
     try:
-        client.wait_for_server(wait_s)
-        client.send(instr)
-        report.outcome(client.outcome(instr.id, timeout), instr=instr)
+        if instr.kind in (Kind.STOP, Kind.RELEASE):
+            call = client.stop if instr.kind is Kind.STOP else client.release
+            answer = call(timeout)
+            report.line(str(answer))
+            return EXIT_DONE if answer.success else EXIT_NOT_DONE
+        try:
+            outcome: Outcome | None = client.execute(instr, timeout)
+        except NoOutcome:
+            outcome = None
+        report.outcome(outcome, instr=instr)
         return EXIT_DONE if report.all_done else EXIT_NOT_DONE
+    except NoOutcome as e:
+        report.line(str(e))
+        return EXIT_NOT_DONE
     except NoServer as e:
         print(f"al5d send: {e}", file=sys.stderr)
         return EXIT_NO_SERVER

@@ -57,10 +57,10 @@ from al5d.ros.runtime import (
     Names,
     PublishThread,
     Spinner,
-    server_dds_profile,
+    dds_profile,
     start_context,
 )
-from al5d.ros.safety import SafetyNode, StopWatcher
+from al5d.ros.safety import SafetyPath
 from al5d.ros.workarounds import Reader, taken_by_reader
 
 log = logging.getLogger("al5d")
@@ -233,7 +233,7 @@ class RosServer:
         names = Names.of(driver.settings.namespace if namespace is None else namespace)
         self.names = names
         backlog = driver.settings.instruction_backlog
-        theirs = server_dds_profile(names.instruction, backlog)
+        theirs = dds_profile((names.instruction, backlog))
         if theirs:
             log.warning(
                 "Fast DDS profiles from %s: the instruction backlog and the transports are theirs",
@@ -242,8 +242,7 @@ class RosServer:
         self.context = start_context()
         self.node = ArmNode(driver, self.context, names)
         self.robot = RobotNode(driver, self.context, names)
-        self.safety = SafetyNode(driver, self.context, names)
-        self.watcher = StopWatcher(driver, self.context, names)
+        self.safety = SafetyPath(driver, names)
         self.actions = ActionsNode(driver, self.context, names)
         self.trace_path = trace
         if trace is not None:
@@ -253,11 +252,9 @@ class RosServer:
             driver.motion_listeners.append(
                 lambda sent: events.append((sent.instr.id, "write", int(sent.t_write * 1e9)))
             )
-        # The nodes `al5d` and `al5d_stop_watcher` are read by their own threads (their
-        # `Reader`s); the others have an executor and a thread each. The safety services'
-        # own: a stop request never waits behind instruction traffic.
+        # The node `al5d` is read by its own thread (its `Reader`); the others have an
+        # executor and a thread each. The stop path has a participant of its own.
         self.robot_spinner = Spinner(self.robot, self.context, owns_context=False)
-        self.safety_spinner = Spinner(self.safety, self.context, owns_context=False, kind="single")
         self.actions_spinner = Spinner(
             self.actions, self.context, owns_context=False, kind="single"
         )
@@ -268,12 +265,10 @@ class RosServer:
         self.node.detach()
         self.robot.detach()
         self.node.result_pub.wait_for_all_acked(rclpy.duration.Duration(seconds=1))
-        self.watcher.reader.close()
+        self.safety.close()
         self.node.reader.close()
-        self.safety_spinner.close()
         self.actions_spinner.close()
         self.robot_spinner.close()
-        self.watcher.destroy_node()
         self.node.destroy_node()
         self.context.try_shutdown()
         if self.trace_path is not None and self.node.trace is not None:

@@ -21,7 +21,8 @@ from rclpy.signals import SignalHandlerOptions
 
 from al5d.arm.config import namespace_problem
 from al5d.arm.instruction import Kind
-from al5d.ros.workarounds import StampedExecutor
+from al5d.priority import make_urgent
+from al5d.ros.workarounds import StampedExecutor, discovery_on_our_transports
 
 log = logging.getLogger("al5d")
 
@@ -173,26 +174,28 @@ def ros_environment() -> None:
 
 #: Fast DDS reads its XML profiles from this file, named at its start.
 PROFILES_VAR = "FASTRTPS_DEFAULT_PROFILES_FILE"
-#: Messages the server's shared-memory port holds before Fast DDS drops what comes next
-#: (its default is 512: about 50 ms of a 10,000/s flood).
+#: The profiles file this project wrote (a child process may write its own over it); any
+#: other file in PROFILES_VAR is the user's, and kept.
+OURS_VAR = "AL5D_DDS_PROFILES_FILE"
+#: Messages a process's shared-memory port holds before Fast DDS drops what comes next (its
+#: default is 512: about 50 ms of a 10,000/s flood, or half of the outcomes one stop gives
+#: a full queue).
 SHM_PORT_QUEUE = 8192
-_SERVER_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
+_PROFILES = """<?xml version="1.0" encoding="UTF-8"?>
 <dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
   <profiles>
-    <!-- al5d serve: Fast DDS's own transports (shared memory, UDPv4), with a deeper
-         shared-memory port than its default. -->
+    <!-- al5d: Fast DDS's own transports (shared memory, UDPv4){udp_note}. -->
     <transport_descriptors>
       <transport_descriptor>
         <transport_id>al5d_shm</transport_id>
-        <type>SHM</type>
-        <port_queue_capacity>{port_queue}</port_queue_capacity>
+        <type>SHM</type>{port_queue}
       </transport_descriptor>
       <transport_descriptor>
         <transport_id>al5d_udp</transport_id>
-        <type>UDPv4</type>
+        <type>UDPv4</type>{loopback}
       </transport_descriptor>
     </transport_descriptors>
-    <participant profile_name="al5d_serve" is_default_profile="true">
+    <participant profile_name="al5d" is_default_profile="true">
       <rtps>
         <userTransports>
           <transport_id>al5d_shm</transport_id>
@@ -200,7 +203,17 @@ _SERVER_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
         </userTransports>
         <useBuiltinTransports>false</useBuiltinTransports>
       </rtps>
-    </participant>
+    </participant>{reader}
+  </profiles>
+</dds>
+"""
+_LOOPBACK = """
+        <interfaceWhiteList>
+          <address>127.0.0.1</address>
+        </interfaceWhiteList>"""
+_PORT_QUEUE = """
+        <port_queue_capacity>{n}</port_queue_capacity>"""
+_READER = """
     <!-- al5d serve: at most {limit} instructions wait in DDS for the server to take them. -->
     <data_reader profile_name="{topic}">
       <topic>
@@ -211,15 +224,27 @@ _SERVER_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
           <allocated_samples>{allocated}</allocated_samples>
         </resourceLimitsQos>
       </topic>
-    </data_reader>
-  </profiles>
-</dds>
-"""
+    </data_reader>"""
 
 
-def server_dds_profile(topic: str, limit: int) -> str | None:
-    """The server's Fast DDS profile: at most `limit` samples of `topic` in its reader, and
-    a shared-memory port of `SHM_PORT_QUEUE` messages.
+def local_only() -> bool:
+    """Is DDS kept to this machine? Yes unless the user opened discovery to the network
+    (`ROS_AUTOMATIC_DISCOVERY_RANGE` SUBNET or SYSTEM_DEFAULT; README, "Reaching the node
+    from another machine")."""
+    ros_environment()
+    return os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"].strip().upper() in ("LOCALHOST", "OFF")
+
+
+def dds_profile(instructions: tuple[str, int] | None = None) -> str | None:
+    """Write this process's Fast DDS profile and name it in FASTRTPS_DEFAULT_PROFILES_FILE;
+    the user's own file, if one is named there (then it applies, not ours).
+
+    Every process of the project (the server, the clients, the web view) binds its UDP
+    sockets to the loopback interface unless the user opened DDS to the network
+    (`local_only`): discovery kept to this machine is not enough, since a participant
+    still listens on every interface for anyone who knows its port. Every process's
+    shared-memory port is deeper than Fast DDS's default (below). The server's
+    (`instructions`: the topic and its backlog) also bounds that topic's reader:
 
     With KEEP_ALL and no bound, a flood faster than the server piles up in its reader,
     and a stop sent on the topic waits behind the pile (seconds). With the bound, the
@@ -230,30 +255,45 @@ def server_dds_profile(topic: str, limit: int) -> str | None:
     and then. What it dropped was lost to the stop watcher (best effort), and a stop
     request, a stop on the topic or an outcome came 1 to 3 s late, when DDS repaired
     the loss (6 stops in 4 floods of 30 s, and once an outcome lost for good, its
-    reader 10,000 results behind by then); with 8192, none in 5 floods. Otherwise the
-    transports are Fast DDS's built-in ones (shared memory and UDPv4), as before.
+    reader 10,000 results behind by then); with 8192, none in 5 floods. A client's port
+    overflows as well: a stop that cancels a full queue sends 1,025 outcomes at once,
+    and three servers flooded beside busy loops lost 19 to 12,839 outcomes a flood on
+    their way to their readers, whose ports held 512.
 
-    Must run before the ROS context starts. A user's own profiles file
-    (FASTRTPS_DEFAULT_PROFILES_FILE) is kept: then both are theirs to set; the return
-    value says which file applies.
+    Must run before the process's first ROS context starts (Fast DDS reads the file
+    once).
     """
-    if os.environ.get(PROFILES_VAR):
-        return os.environ[PROFILES_VAR]
-    fd, path = tempfile.mkstemp(prefix="al5d-dds-", suffix=".xml")
-    profile = _SERVER_PROFILE.format(
-        topic=topic, limit=limit, allocated=min(limit, 100), port_queue=SHM_PORT_QUEUE
+    named = os.environ.get(PROFILES_VAR)
+    if named and named != os.environ.get(OURS_VAR):
+        return named
+    local = local_only()
+    reader = ""
+    if instructions is not None:
+        topic, limit = instructions
+        reader = _READER.format(topic=topic, limit=limit, allocated=min(limit, 100))
+    profile = _PROFILES.format(
+        udp_note=", UDP on the loopback interface only" if local else "",
+        port_queue=_PORT_QUEUE.format(n=SHM_PORT_QUEUE),
+        loopback=_LOOPBACK if local else "",
+        reader=reader,
     )
+    fd, path = tempfile.mkstemp(prefix="al5d-dds-", suffix=".xml")
     with os.fdopen(fd, "w", encoding="utf-8") as f:
         f.write(profile)
-    os.environ[PROFILES_VAR] = path
+    os.environ[PROFILES_VAR] = os.environ[OURS_VAR] = path
     return None
 
 
 def start_context() -> Context:
+    """A ROS context (a DDS participant); the process's DDS profile first, if none is named."""
     ros_environment()
+    if not os.environ.get(PROFILES_VAR):
+        dds_profile()
     context = Context()
-    # Our own SIGINT/SIGTERM handling parks the arm first; rclpy's would just stop.
-    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    ours = os.environ.get(PROFILES_VAR) == os.environ.get(OURS_VAR)
+    with discovery_on_our_transports(ours and local_only()):
+        # Our own SIGINT/SIGTERM handling parks the arm first; rclpy's would just stop.
+        rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     return context
 
 
@@ -306,7 +346,8 @@ class Spinner:
     """An executor spinning in its own thread, stopped in the order rclpy needs.
 
     With `owns_context`, closing it also ends the ROS context (a process with one node);
-    `more` nodes share the executor and its thread.
+    `more` nodes share the executor and its thread. An `urgent` spinner (the safety
+    services') runs at the stop path's priority (`al5d.priority`).
     """
 
     def __init__(
@@ -316,8 +357,10 @@ class Spinner:
         owns_context: bool = True,
         more: list[Node] | None = None,
         kind: str | None = None,
+        urgent: bool = False,
     ) -> None:
         self.node = node
+        self.urgent = urgent
         self.context = context
         self.owns_context = owns_context
         self.more = list(more or [])
@@ -334,6 +377,8 @@ class Spinner:
         self._thread.start()
 
     def _spin(self) -> None:
+        if self.urgent:
+            make_urgent(self._thread.name)
         # A callback that raises must not end the thread: the safety node's serves the stop.
         while self._running and self.context.ok():
             try:

@@ -22,6 +22,13 @@ message's identity, and the driver obeys and answers it once (rule 3). What no
 reader here can see is a stop still queued in its sender (a client that floods
 through the same publisher is slowed by back-pressure, stop included): the
 stop service is the way for emergencies.
+
+Both are the stop path (`SafetyPath`): a DDS participant of their own (an
+rclpy context: its own shared-memory port, sockets and receive threads), so
+that the flood the node `al5d` takes, its results and the actions' traffic
+never stand in the same queues as a stop request; and their threads, the
+participant's included, at a higher scheduling priority where the OS allows
+(`al5d.priority`).
 """
 
 from __future__ import annotations
@@ -38,6 +45,7 @@ from std_srvs.srv import Trigger
 
 from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind
+from al5d.priority import built_urgently
 from al5d.ros.convert import from_message, sent_ns, stop_key
 from al5d.ros.runtime import (
     QOS_SERVICES,
@@ -45,6 +53,8 @@ from al5d.ros.runtime import (
     SAFETY_NODE,
     WATCHER_NODE,
     Names,
+    Spinner,
+    start_context,
 )
 from al5d.ros.workarounds import Reader, stamped_service, taken_by_reader
 
@@ -113,7 +123,9 @@ class StopWatcher(Node):
         )
         # A thread of its own takes what waits, up to `WATCH_BATCH` at a time, in one go:
         # under a flood, one GIL hand-over a message would leave the watcher behind.
-        self.reader = Reader(self, [(watched, self._watch)], "al5d-stop-watcher", WATCH_BATCH)
+        self.reader = Reader(
+            self, [(watched, self._watch)], "al5d-stop-watcher", WATCH_BATCH, urgent=True
+        )
 
     def _watch(self, raw: bytes, info: dict[str, int]) -> None:
         """A message on the instruction topic, serialized: a stop is obeyed at once. A failure
@@ -127,3 +139,28 @@ class StopWatcher(Node):
         # What the node `al5d` would refuse, it refuses (and answers) itself.
         if isinstance(instr, Instruction) and instr.kind is Kind.STOP:
             self.driver.submit(instr, key=stop_key(info))
+
+
+class SafetyPath:
+    """The stop path of one server: `SafetyNode` and `StopWatcher` on a DDS participant (an
+    rclpy context) of their own, every thread of it at the stop path's priority."""
+
+    def __init__(self, driver: ArmDriver, names: Names) -> None:
+        def build() -> tuple[Context, SafetyNode, StopWatcher, Spinner]:
+            # Made here, in a thread at the stop path's priority: the threads the participant
+            # starts with its first node (its receive threads) inherit it.
+            context = start_context()
+            safety = SafetyNode(driver, context, names)
+            watcher = StopWatcher(driver, context, names)
+            spinner = Spinner(safety, context, owns_context=False, kind="single", urgent=True)
+            return context, safety, watcher, spinner
+
+        self.context, self.safety, self.watcher, self.spinner = built_urgently(
+            "al5d-stop-path", build
+        )
+
+    def close(self) -> None:
+        self.watcher.reader.close()
+        self.spinner.close()  # destroys the safety node
+        self.watcher.destroy_node()
+        self.context.try_shutdown()

@@ -5,9 +5,11 @@ Each workaround names what it works around and how to tell when it can go.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 import threading
-from collections.abc import Callable, Coroutine
+from collections.abc import Callable, Coroutine, Iterator
 from typing import Any
 
 from rclpy.exceptions import InvalidHandle
@@ -16,6 +18,8 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.service import Service
+
+from al5d.priority import make_urgent
 
 log = logging.getLogger("al5d")
 
@@ -92,12 +96,19 @@ class Reader:
     executor offers both the info and the speed.
 
     The node must not be spun by an executor (its subscriptions' callbacks are never
-    called); its publishers need none."""
+    called); its publishers need none. An `urgent` reader (the stop watcher's) runs at the
+    stop path's priority (`al5d.priority`)."""
 
     def __init__(
-        self, node: Node, inputs: list[tuple[Any, Handler]], name: str, batch: int = 200
+        self,
+        node: Node,
+        inputs: list[tuple[Any, Handler]],
+        name: str,
+        batch: int = 200,
+        urgent: bool = False,
     ) -> None:
         self._node = node
+        self._urgent = urgent
         self._inputs = inputs
         self._batch = batch
         self._wake = node.create_guard_condition(lambda: None)
@@ -106,6 +117,8 @@ class Reader:
         self._thread.start()
 
     def _run(self) -> None:
+        if self._urgent:
+            make_urgent(self._thread.name)
         context = self._node.context
         wait_set = _rclpy.WaitSet(len(self._inputs), 1, 0, 0, 0, 0, context.handle)
         while self._running and context.ok():
@@ -142,3 +155,34 @@ class Reader:
         self._running = False
         self._wake.trigger()
         self._thread.join(5)
+
+
+_RANGE = "ROS_AUTOMATIC_DISCOVERY_RANGE"
+
+
+@contextlib.contextmanager
+def discovery_on_our_transports(local: bool) -> Iterator[None]:
+    """While a context starts (`rclpy.init`): with `local`, rmw_fastrtps is told the SUBNET
+    discovery range, so that the transports of our Fast DDS profile, every socket on the
+    loopback interface (`runtime.dds_profile`), are the only ones.
+
+    With the LOCALHOST range, rmw_fastrtps (Jazzy) adds a UDP transport of its own, whose
+    sockets are bound to every interface (`ss -uanp`: 0.0.0.0 and the host's address,
+    beside our 127.0.0.1 ones): discovery stays on this machine, but the participant is
+    open to the network. On loopback-only transports the SUBNET range reaches this
+    machine alone, and discovery with LOCALHOST and SUBNET peers on it works both ways
+    (tests/test_ros_runtime.py). rcl reads the range once, at init, so the environment is
+    changed for that call only. It can go when rmw_fastrtps keeps to the transports a
+    profile gives it under the LOCALHOST range."""
+    if not local:
+        yield
+        return
+    before = os.environ.get(_RANGE)
+    os.environ[_RANGE] = "SUBNET"
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ[_RANGE]
+        else:
+            os.environ[_RANGE] = before

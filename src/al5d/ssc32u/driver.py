@@ -8,14 +8,27 @@ subclass (see `al5d.ssc32u.errors`) with the port and what happened.
 Threads: a query (write then read) holds a query lock; `stop()` does not take
 it, so an emergency stop never waits behind a read. Writes are serialised by a
 short write lock so that the bytes of two commands never interleave.
+
+The wire is not a queue. At 9600 baud a group move takes 40 ms on the wire, and
+the port takes bytes as fast as they come: a client writing faster than that
+would stack seconds of moves in the port, and an emergency stop's bytes would
+queue behind them (the port sends in order; on the USB link nothing already
+written can be taken back). So a move is written only when at most
+`WIRE_HORIZON_S` of earlier bytes are still on their way (the driver's own
+account of the wire, `arrival`), and a writer that comes sooner waits its turn
+here, outside the write lock; a stop never waits, and finds at most that
+horizon and one command ahead of it.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import os
+import select
 import termios
 import threading
+import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from types import TracebackType
 
@@ -48,7 +61,15 @@ log = logging.getLogger("al5d")
 DEFAULT_READ_TIMEOUT_S = 10 * ANSWER_DELAY_MAX_S
 #: Reads wake this often while they wait for an answer's deadline.
 READ_SLICE_S = 0.01
+#: A read that comes back this much later than its slice: the thread was not running.
+SCHEDULING_SLACK_S = 0.005
+#: At most this much is excused to one ask of a query (`SSC32U._read`): a silent board on a
+#: busy host is found that much later, at worst; on an idle one, not later at all.
+EXCUSE_MAX_S = 0.1
 DEFAULT_WRITE_TIMEOUT_S = 0.5
+#: How much of earlier bytes' wire time a move may find still to go when it is written (the
+#: horizon a stop can find ahead of it, with the one command written last).
+WIRE_HORIZON_S = 0.02
 #: A VER answer's length, for its deadline (`SSC32-V2.50USB\r` is 15 bytes).
 VERSION_ANSWER_BYTES = 16
 #: What a dead port raises, depending on the call: pyserial's own, the OS's, and termios's
@@ -81,12 +102,15 @@ class SSC32U:
         self.port = port
         self.baud = baud
         self._write_lock = threading.Lock()
+        # Paced writers (moves, a cancel's STOPs) wait for the wire one at a time, in turn.
+        self._pace_lock = threading.Lock()
         self._query_lock = threading.Lock()
         self._stops = 0  # counts emergency stops, to tell a flushed query from a dead board
         self._closed = False
         # When the wire will have carried every byte written so far: a query's answer
         # cannot come before its own bytes, and those queue behind the earlier ones.
         self._wire_free_at = 0.0
+        self._write_timeout_s = write_timeout_s
         try:
             self._ser = serial.serial_for_url(
                 port,
@@ -168,7 +192,7 @@ class SSC32U:
         else:
             seq = list(targets)
         data = p.encode_group_move(seq, time_ms)
-        self._write(data)
+        self._write(data, paced=True)
         return data
 
     def write_command(self, data: bytes, unless: Callable[[], bool] | None = None) -> float | None:
@@ -180,12 +204,16 @@ class SSC32U:
         nothing is written and None is returned. A caller whose command must never follow
         a stop makes the stop decide before it takes this lock: then either the command
         goes out first and the STOP after it, or the command does not go out at all.
+        The write waits until the wire's horizon allows it (`WIRE_HORIZON_S`).
         """
-        return self._write(data, unless)
+        return self._write(data, unless, paced=True)
 
-    def stop(self, channels: Iterable[int]) -> bytes:
+    def stop(self, channels: Iterable[int], paced: bool = False) -> bytes:
         """Emergency stop: ESC, which cancels any partial line on the board, then STOP every
-        channel, in one write, without waiting for any query in progress.
+        channel, in one write, without waiting for any query in progress or for the wire.
+        `paced`: a STOP that is no emergency (a cancelled move's) waits for the wire as a
+        move does, so that a client cancelling a hundred moves a second does not queue
+        STOPs ahead of the next emergency stop.
 
         The output is flushed first: on a plain UART that drops what has not gone yet, but
         on the board's USB link it drops nothing already written (Linux's USB serial drivers
@@ -194,15 +222,7 @@ class SSC32U:
         """
         data = p.CANCEL + p.encode_stop(channels)
         self._stops += 1
-        with self._write_lock:
-            try:
-                self._ser.reset_output_buffer()
-                self._ser.write(data)
-            except (*IO_ERRORS, *CLOSED_UNDER) as e:
-                raise self._lost(e, "stop could not be written") from e
-            # As if the flush dropped nothing (the USB link): later than the truth on a UART,
-            # which only makes a query's deadline later, never too early.
-            self._wire_free_at = max(now(), self._wire_free_at) + self.wire_time_s(data)
+        self._write(data, paced=paced, flush=True)
         return data
 
     def cancel(self) -> None:
@@ -236,11 +256,11 @@ class SSC32U:
 
     def set_offsets(self, offsets: Mapping[int, int]) -> None:
         """PO: volatile pulse trims, -100..100 us."""
-        self._write(p.encode_pulse_offset(offsets))
+        self._write(p.encode_pulse_offset(offsets), paced=True)
 
     def set_outputs(self, levels: Mapping[int, bool]) -> None:
         """H/L: use channels as digital outputs."""
-        self._write(p.encode_digital_output(levels))
+        self._write(p.encode_digital_output(levels), paced=True)
 
     def arrival(self, n_bytes: int) -> float:
         """When a command of `n_bytes` written now would have reached the board."""
@@ -280,17 +300,65 @@ class SSC32U:
             )
         return firmware
 
-    def _write(self, data: bytes, unless: Callable[[], bool] | None = None) -> float | None:
+    def _write(
+        self,
+        data: bytes,
+        unless: Callable[[], bool] | None = None,
+        *,
+        paced: bool = False,
+        flush: bool = False,
+    ) -> float | None:
+        """Write `data` (after `WIRE_HORIZON_S` allows it, if `paced`; after an output flush,
+        with `flush`); when its last byte reaches the board, or None if `unless` said so."""
+        if not paced:
+            return self._write_now(data, unless, flush)
+        with self._pace_lock:
+            while (wait := self._wire_free_at - WIRE_HORIZON_S - now()) > 0:
+                time.sleep(wait)
+            return self._write_now(data, unless, flush)
+
+    def _write_now(
+        self, data: bytes, unless: Callable[[], bool] | None, flush: bool
+    ) -> float | None:
         with self._write_lock:
             if unless is not None and unless():
                 return None
             try:
-                self._ser.write(data)
+                if flush:
+                    self._ser.reset_output_buffer()
+                self._send(data)
             except (*IO_ERRORS, *CLOSED_UNDER) as e:
-                raise self._lost(e, "write failed") from e
+                what = "stop could not be written" if flush else "write failed"
+                raise self._lost(e, what) from e
+            # After a flush, as if it dropped nothing (the USB link): later than the truth on
+            # a UART, which only makes a query's deadline later, never too early.
             start = max(now(), self._wire_free_at)
             self._wire_free_at = start + self.wire_time_s(data)
             return self._wire_free_at
+
+    def _send(self, data: bytes) -> None:
+        """All of `data` into the port; a port that takes no byte for the write timeout is
+        a fault (`SerialTimeoutException`), and the time this thread was not running is not.
+
+        pyserial's own `write` raises "Write timeout" when its timeout has passed after an
+        `os.write` that took every byte, so a stop written whole, by a thread that waited for
+        a core on a busy host, was reported as failed and the link taken for lost (seen under
+        three flooded servers beside busy loops). This writes to the port's file descriptor
+        (pyserial opens it non-blocking) and waits only while the port is full. A port with no
+        file descriptor (a pyserial URL such as loop://) is written by pyserial."""
+        try:
+            fd = self._ser.fileno()
+        except (AttributeError, NotImplementedError, *IO_ERRORS):
+            self._ser.write(data)
+            return
+        view = memoryview(data)
+        while view:
+            with contextlib.suppress(BlockingIOError):  # the port is full: wait below
+                view = view[os.write(fd, view) :]
+            if view:
+                _, ready, _ = select.select([], [fd], [], self._write_timeout_s)
+                if not ready:
+                    raise serial.SerialTimeoutException("Write timeout")
 
     def _query(self, data: bytes, n_answer: int | None, name: str) -> bytes:
         """Write a query and read its answer; asked once more before a missing answer is a fault.
@@ -333,14 +401,38 @@ class SSC32U:
         return Deadline(back + self._margin_s, start=self._wire_free_at)
 
     def _read(self, answer: bytes, n_answer: int | None, count: int, deadline: Deadline) -> bytes:
-        """Read on from `answer` until it holds `count` answers or the deadline has passed."""
+        """Read on from `answer` until it holds `count` answers or the deadline has passed.
+
+        The deadline is the board's: it moves on by the time this thread was not running
+        (a read that came back a scheduling delay after its slice) and by the time our query
+        still waited in the port (its bytes had not left), up to `EXCUSE_MAX_S` in all. An
+        answer that came meanwhile is read at once; one that did not may be late for the
+        same reason (a busy host delays the emulator, the USB stack and us alike), and a
+        board that is really gone is still found: a pulled port fails at once, a silent
+        one after at most the excuse more."""
+        start = deadline.at
+        t_last = now()
         while True:
             if n_answer is None:
                 answer += self._ser.read_until(p.CR)
             else:
                 answer += self._ser.read(count * n_answer - len(answer))
-            if _answers(answer, n_answer) >= count or deadline.expired:
+            if _answers(answer, n_answer) >= count:
                 return answer
+            t = now()
+            late = t - t_last - READ_SLICE_S
+            if late > SCHEDULING_SLACK_S or self._unsent():
+                deadline.at = min(start + EXCUSE_MAX_S, deadline.at + max(late, t - t_last))
+            t_last = t
+            if t >= deadline.at:
+                return answer
+
+    def _unsent(self) -> bool:
+        """Do bytes we wrote still wait in the port (a pty's other end has not read them)?"""
+        try:
+            return bool(self._ser.out_waiting)
+        except (*IO_ERRORS, *CLOSED_UNDER, NotImplementedError):
+            return False  # a port that cannot tell: its bytes are taken to have left
 
 
 def _answers(data: bytes, n_answer: int | None) -> int:

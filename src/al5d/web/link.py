@@ -140,19 +140,20 @@ class Link:
     def send(self, instr: Instruction) -> None:
         self.pub.publish(to_message(instr))
 
-    def stop(self, lost: bool = False) -> str:
-        """The emergency stop, by the service (it never waits behind instructions); on the
-        instruction topic as well when no server offers the service, or when the server is
-        `lost`: a server killed outright still looks ready for as long as DDS takes to
-        notice (seconds), and a server whose states no longer reach us may still read the
-        topic. A stop twice is harmless. Returns which ways it went."""
+    def stop(self) -> str:
+        """The emergency stop, by the service (it never waits behind instructions) and on the
+        instruction topic as well (the server's stop watcher obeys it at once). The topic
+        reaches a server whose service this process has not matched yet: the server's stop
+        path is a DDS participant of its own, discovered apart from the node whose state the
+        page shows (a server just restarted beside a page that saw it go), and a server
+        killed outright still looks ready for as long as DDS takes to notice (seconds). A
+        stop twice is harmless. Returns which ways it went."""
         ways = []
         if self.stop_client.service_is_ready():
             self.stop_client.call_async(Trigger.Request())
             ways.append("service")
-        if lost or not ways:
-            self.send(stop_instruction(id=new_id()))
-            ways.append("topic")
+        self.send(stop_instruction(id=new_id()))
+        ways.append("topic")
         return " and ".join(ways)
 
     def release(self) -> Any:

@@ -250,7 +250,7 @@ class Page:
         # click's message is read, whatever else the pool is busy with.
         self.debouncer.drop()
         if self.commands is not None:
-            way = self.commands.stop(self.lost)
+            way = self.commands.stop()
             log.info("web: STOP clicked (sent by %s)", way)
 
     def _slider_handler(self, joint: str) -> Any:

@@ -1,0 +1,79 @@
+"""Threads that must not wait their turn, ahead of the rest with the kernel's scheduler.
+
+On a robot's computer MoveIt, RViz, a browser and a flood of instructions
+share the cores with the server; a thread that serves the stop must not wait
+its turn behind them, and an emulated board, which stands for a board with a
+processor of its own, must not answer late because the host is busy. Linux
+gives each thread its own nice value (`setpriority(PRIO_PROCESS, tid)`), and a
+thread a thread starts inherits it: so the stop path's threads (the safety
+services' executor, the stop watcher's reader) and the DDS participant they use
+(whose receive threads Fast DDS starts when its first node is made) are made
+from a thread at `URGENT_NICE`, and so is every thread of `al5d emulator`.
+Going below nice 0 needs CAP_SYS_NICE (root) or an RLIMIT_NICE that allows it;
+where it is refused, one log line says so and the threads run at the default
+priority.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+from collections.abc import Callable
+from typing import TypeVar
+
+log = logging.getLogger("al5d")
+
+#: The urgent threads' nice value: a runnable thread at -10 weighs about nine times one at 0
+#: with Linux's scheduler, and wakes ahead of it.
+URGENT_NICE = -10
+
+_refused = threading.Event()  # said once per process
+
+T = TypeVar("T")
+
+
+def make_urgent(what: str) -> bool:
+    """Give the calling thread (and those it starts) the urgent priority; False, said once,
+    where the OS refuses it."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), URGENT_NICE)
+    except (OSError, AttributeError) as e:
+        if not _refused.is_set():
+            _refused.set()
+            log.warning(
+                "%s: the OS refused a higher scheduling priority (nice %d: %s); it runs at "
+                "the default priority, and waits its turn on a busy host (grant CAP_SYS_NICE, "
+                "or raise RLIMIT_NICE with `ulimit -e`, to have it)",
+                what,
+                URGENT_NICE,
+                e,
+            )
+        return False
+    return True
+
+
+def is_urgent() -> bool:
+    """Does the calling thread run at the urgent priority (or higher)?"""
+    return os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) <= URGENT_NICE
+
+
+def built_urgently(what: str, build: Callable[[], T]) -> T:
+    """`build()` run in a thread at the urgent priority, so that every thread it starts
+    (a DDS participant's among them) inherits it; its result, or its exception."""
+    out: list[T] = []
+    failed: list[BaseException] = []
+
+    def run() -> None:
+        make_urgent(what)
+        try:
+            out.append(build())
+        except BaseException as e:  # handed to the caller's thread as is
+            failed.append(e)
+
+    thread = threading.Thread(target=run, name=f"{what}-build")
+    thread.start()
+    thread.join()
+    if failed:
+        raise failed[0]
+    return out[0]
