@@ -270,9 +270,9 @@ def test_every_move_on_a_topic_has_its_ghost(rig: Rig) -> None:
     trajectory, is shown (the ghost, named under the tool's position) until it ends."""
     page = rig.page
     rig.peer.send("web-ghost", "move", time_ms=1500, base=30)
-    wait_text(page, "#al5d-tool", lambda t: "target: move [web-ghost]" in t, 5)
+    wait_text(page, "#al5d-tool", lambda t: "target: move [web-ghost]" in t, 15)
     assert rig.peer.result("web-ghost").outcome == "done"
-    wait_text(page, "#al5d-tool", lambda t: "target:" not in t, 5)
+    wait_text(page, "#al5d-tool", lambda t: "target:" not in t, 15)
     pub = rig.peer.node.create_publisher(JointTrajectory, Names().trajectory, QOS_INSTRUCTIONS)
     try:
         wait_until(lambda: pub.get_subscription_count() >= 2, 10, "the server and the page")
@@ -284,14 +284,15 @@ def test_every_move_on_a_topic_has_its_ghost(rig: Rig) -> None:
             for b in (0.0, -30.0)
         ]
         for i, point in enumerate(msg.points):
-            point.time_from_start.sec = 1 + i
+            # 4 s in all: long enough to be seen by a page that lags on a busy machine.
+            point.time_from_start.sec = 2 + 2 * i
         pub.publish(msg)
-        wait_text(page, "#al5d-tool", lambda t: "target: trajectory [web-trajectory]" in t, 5)
+        wait_text(page, "#al5d-tool", lambda t: "target: trajectory [web-trajectory]" in t, 15)
         assert rig.peer.result("web-trajectory").outcome == "done"
-        wait_text(page, "#al5d-tool", lambda t: "target:" not in t, 5)
+        wait_text(page, "#al5d-tool", lambda t: "target:" not in t, 15)
     finally:
         rig.peer.node.destroy_publisher(pub)
-    rig.state.wait_for("ready", 5)
+    rig.state.wait_for("ready", 15)
 
 
 def test_the_page_says_when_it_lost_the_server(rig: Rig) -> None:
