@@ -167,6 +167,11 @@ def table(trials: list[dict[str, Any]], load: dict[str, Any]) -> str:
                 held(a["Threads"] == b["Threads"] and a["VmRSS"] - b["VmRSS"] < 20_000),
             )
         )
+    return render(rows)
+
+
+def render(rows: list[tuple[str, str, str, str]]) -> str:
+    """The rows as a plain-text table, the first row its heading."""
     w = [max(len(row[i]) for row in rows) for i in range(4)]
     lines = [" | ".join(row[i].ljust(w[i]) for i in range(4)) for row in rows]
     lines.insert(1, "-+-".join("-" * n for n in w))

@@ -6,7 +6,7 @@ loaded host. What is checked here is behaviour (every stop reaches the board,
 every goal is answered once, no false fault, the server lives on); the latencies
 are `make soak`'s to print against their targets (README, Reliability). Three
 servers flooded at once beside busy loops are `make soak`'s alone
-(`bench/contention.py`): there a stop now and then still misses the board within
+(`bench/busy_host.py`): there a stop now and then still misses the board within
 10 s, which a test here would turn into a flaky suite (README, Reliability).
 """
 

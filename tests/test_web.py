@@ -385,7 +385,7 @@ class Recorder:
     def send(self, instr: Any) -> None:
         self.sent.append(instr)
 
-    def stop(self, lost: bool = False) -> str:
+    def stop(self) -> str:
         return "test"
 
     def release(self) -> None:

@@ -25,7 +25,7 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 from contention import goals, run  # noqa: E402
 from falsefaults import run as false_faults  # noqa: E402
-from soak import log, p99  # noqa: E402
+from soak import log, p99, render  # noqa: E402
 
 OUT = HERE / "out"
 SECONDS = float(os.environ.get("CONTENTION_SECONDS", "40"))
@@ -91,10 +91,7 @@ def table(servers: dict[str, Any], flood: dict[str, Any], faults: dict[str, Any]
             "yes" if faults["false_faults"] == 0 and faults["load1_median"] >= 6 else "NO",
         )
     )
-    w = [max(len(row[i]) for row in rows) for i in range(4)]
-    lines = [" | ".join(row[i].ljust(w[i]) for i in range(4)) for row in rows]
-    lines.insert(1, "-+-".join("-" * n for n in w))
-    return "\n".join(lines)
+    return render(rows)
 
 
 def main() -> int:
