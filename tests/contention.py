@@ -35,6 +35,19 @@ HERE = Path(__file__).resolve().parent
 BUSY_LOOP = "while True: pass"
 
 
+def busy_loops(n: int) -> list[subprocess.Popen[bytes]]:
+    """`n` processes that take a core each, as long as they are let (`ended` ends them)."""
+    return [subprocess.Popen([sys.executable, "-c", BUSY_LOOP]) for _ in range(n)]
+
+
+def ended(procs: list[subprocess.Popen[Any]]) -> None:
+    """Kill what still runs of `procs`, and reap them."""
+    for p in procs:
+        if p.poll() is None:
+            p.kill()
+            p.wait(10)
+
+
 def arm(index: int, seconds: float, rate: float, stops_every_s: float) -> dict[str, Any]:
     """One server under its flood, measured by this process (in the server's ROS domain)."""
     sys.path.insert(0, str(HERE))
@@ -124,7 +137,7 @@ def goals(seconds: float, rate: float, busy: int, stops_every_s: float = 0.5) ->
         for name in ("stop", "release"):
             peer.trigger(name)
         assert json.loads(client.stdout.readline()).get("ready")
-        loops = [subprocess.Popen([sys.executable, "-c", BUSY_LOOP]) for _ in range(busy)]
+        loops = busy_loops(busy)
         client.stdin.write("go\n")
         client.stdin.flush()
         t_end = time.monotonic() + seconds
@@ -150,10 +163,7 @@ def goals(seconds: float, rate: float, busy: int, stops_every_s: float = 0.5) ->
         out["load1"] = os.getloadavg()[0]
         return out
     finally:
-        for p in (client, *loops):
-            if p.poll() is None:
-                p.kill()
-                p.wait(10)
+        ended([client, *loops])
         peer.close()
         server.kill()
         board.close()
@@ -175,7 +185,7 @@ def run(
 ) -> dict[str, Any]:
     """The whole rig: `servers` arms each in a domain of its own, `busy` busy loops."""
     base = random.randint(20, 80) * 2
-    loops = [subprocess.Popen([sys.executable, "-c", BUSY_LOOP]) for _ in range(busy)]
+    loops = busy_loops(busy)
     arms: list[subprocess.Popen[str]] = []
     try:
         for i in range(servers):
@@ -206,10 +216,7 @@ def run(
         load = os.getloadavg()[0]
         return {"servers": results, "seconds": time.monotonic() - t0, "load1": load}
     finally:
-        for p in (*arms, *loops):
-            if p.poll() is None:
-                p.kill()
-                p.wait(10)
+        ended([*arms, *loops])
 
 
 def main() -> int:

@@ -25,7 +25,7 @@ from typing import Any
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from contention import BUSY_LOOP  # noqa: E402
+from contention import busy_loops, ended  # noqa: E402
 from proc import AL5D, Proc  # noqa: E402
 from rospeer import Peer  # noqa: E402
 
@@ -48,7 +48,7 @@ def run(seconds: float, busy: int) -> dict[str, Any]:
     try:
         server.err.wait_for("STATE: ready", 60)
         peer.wait_for_server()
-        loops = [subprocess.Popen([sys.executable, "-c", BUSY_LOOP]) for _ in range(busy)]
+        loops = busy_loops(busy)
         rng = random.Random(23)
         t_end = time.monotonic() + seconds
         while time.monotonic() < t_end:
@@ -71,9 +71,7 @@ def run(seconds: float, busy: int) -> dict[str, Any]:
             "tail": lines[-5:],
         }
     finally:
-        for p in loops:
-            p.kill()
-            p.wait(10)
+        ended(loops)
         peer.close()
         server.kill()
         emulator.kill()

@@ -53,11 +53,6 @@ def make_urgent(what: str) -> bool:
     return True
 
 
-def is_urgent() -> bool:
-    """Does the calling thread run at the urgent priority (or higher)?"""
-    return os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) <= URGENT_NICE
-
-
 def built_urgently(what: str, build: Callable[[], T]) -> T:
     """`build()` run in a thread at the urgent priority, so that every thread it starts
     (a DDS participant's among them) inherits it; its result, or its exception."""
