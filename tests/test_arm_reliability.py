@@ -18,7 +18,7 @@ import pytest
 from armrig import Rig, group_pulses, logged, min_ms, pulses, state_lines
 
 from al5d.arm import instruction as ins
-from al5d.arm.config import ArmConfig
+from al5d.arm.config import ArmConfig, load_config
 from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Result
 from al5d.arm.jobs import Sent
@@ -26,6 +26,13 @@ from al5d.arm.states import State
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator, Fault
+
+
+def slow_to_give_up(answer_timeout_s: float) -> ArmConfig:
+    """The shipped configuration with queries that wait `answer_timeout_s` for an answer."""
+    config = load_config()
+    server = config.server.model_copy(update={"answer_timeout_s": answer_timeout_s})
+    return config.model_copy(update={"server": server})
 
 
 def time_to_state(driver: ArmDriver, state: State, timeout: float = 5.0) -> float:
@@ -59,6 +66,9 @@ class TestIdleLink:
         assert not any(r.raw.startswith(b"#") for r in emu.records)  # nothing replayed
         assert driver.execute(ins.move(base=5), 10).ok
 
+    # A check waits 1 s for each of its two asks here, so that "the stop did not wait for it"
+    # is told apart from a busy machine's scheduling by seconds, not by milliseconds.
+    @pytest.mark.parametrize("config", [slow_to_give_up(1.0)])
     def test_the_idle_check_is_one_qp_and_a_stop_is_not_held_by_it(
         self, config: ArmConfig, linked: tuple[Emulator, ArmDriver]
     ) -> None:
@@ -69,10 +79,10 @@ class TestIdleLink:
         # Only the 4-byte check of one channel's pulse, about every 0.5 s.
         assert raws and set(raws) == {f"QP{config.joints['base'].channel}".encode()}
         emu.inject(Fault.NO_ANSWER)  # a check now waits for an answer that never comes...
-        time.sleep(config.server.idle_check_interval_s + 0.01)
+        time.sleep(config.server.idle_check_interval_s + 0.1)
         t0 = time.monotonic()
         assert driver.execute(ins.stop(), 5).ok  # ...and the stop does not wait for it
-        assert time.monotonic() - t0 < 0.02
+        assert time.monotonic() - t0 < 1.0
 
 
 def test_cancelling_the_running_move_ends_moving(rig: Rig) -> None:
@@ -223,17 +233,20 @@ class TestStopOrder:
 
 def test_stop_is_answered_while_listeners_are_slow(rig: Rig) -> None:
     # A state listener that takes its time (a ROS publish on a loaded machine) delays
-    # the news, not the STOP on the board.
+    # the news, not the STOP on the board. The listener holds on for 5 s; the STOP comes
+    # long before (how long before is bench/'s, not a test's, on a busy machine).
     gate = threading.Event()
-    rig.driver.state_listeners.append(lambda _: gate.wait(0.5))
+    rig.driver.state_listeners.append(lambda _: gate.wait(5))
     rig.driver.submit(ins.move(base=80, time_ms=3000))
     rig.wait_move_count(2)
     rig.emu.clear_records()
     t0 = time.monotonic()
     threading.Thread(target=rig.driver.execute, args=(ins.stop(), 5)).start()
-    rig.emu.wait_for(lambda rs: any(r.raw.startswith(b"STOP") for r in rs), 2)
-    assert time.monotonic() - t0 < 0.1
-    gate.set()
+    try:
+        rig.emu.wait_for(lambda rs: any(r.raw.startswith(b"STOP") for r in rs), 4)
+        assert time.monotonic() - t0 < 2.5
+    finally:
+        gate.set()
 
 
 @pytest.mark.parametrize("answer_timeout_s", [None, 0.5])

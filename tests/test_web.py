@@ -74,6 +74,16 @@ class Rig:
     def stops(self, since: int) -> list[p.Stop]:
         return [c for r in self.emu.records[since:] for c in r.commands if isinstance(c, p.Stop)]
 
+    def every_channel_stopped(self, since: int) -> None:
+        """A STOP for every channel on the board since record `since`. The page stops by
+        the service and on the topic: the server may obey both, twelve STOPs."""
+        channels = {joint.channel for joint in self.config.joints.values()}
+        wait_until(
+            lambda: {s.channel for s in self.stops(since)} == channels,
+            15,
+            "a STOP for every channel on the board",
+        )
+
 
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
@@ -173,7 +183,7 @@ def test_stop_and_release_from_the_page(rig: Rig) -> None:
     n0 = len(rig.emu.records)
     page.get_by_role("button", name="STOP").click()
     rig.state.wait_for("stopped", 5)
-    wait_until(lambda: len(rig.stops(n0)) == 6, 5, "a STOP for every channel on the board")
+    rig.every_channel_stopped(n0)
     assert rig.peer.result("web-slow").outcome == "cancelled"
     wait_text(page, "#al5d-state", lambda t: t == "STOPPED")
     page.get_by_role("button", name="release").click()
@@ -255,7 +265,7 @@ def test_stop_stays_in_view_whatever_the_panel_does(rig: Rig) -> None:
         n0 = len(rig.emu.records)
         stop.click()
         rig.state.wait_for("stopped", 5)
-        wait_until(lambda: len(rig.stops(n0)) == 6, 5, "a STOP for every channel on the board")
+        rig.every_channel_stopped(n0)
     finally:
         if page.get_by_label("Expand column").count():
             page.get_by_label("Expand column").click()
@@ -269,7 +279,8 @@ def test_every_move_on_a_topic_has_its_ghost(rig: Rig) -> None:
     """The target of a move sent by another client, on the instruction topic or as a
     trajectory, is shown (the ghost, named under the tool's position) until it ends."""
     page = rig.page
-    rig.peer.send("web-ghost", "move", time_ms=1500, base=30)
+    # 4 s, as the trajectory below: long enough to be seen by a page that lags on a busy machine.
+    rig.peer.send("web-ghost", "move", time_ms=4000, base=30)
     wait_text(page, "#al5d-tool", lambda t: "target: move [web-ghost]" in t, 15)
     assert rig.peer.result("web-ghost").outcome == "done"
     wait_text(page, "#al5d-tool", lambda t: "target:" not in t, 15)

@@ -8,7 +8,8 @@ gives each thread its own nice value (`setpriority(PRIO_PROCESS, tid)`), and a
 thread a thread starts inherits it: so the stop path's threads (the safety
 services' executor, the stop watcher's reader) and the DDS participant they use
 (whose receive threads Fast DDS starts when its first node is made) are made
-from a thread at `URGENT_NICE`, and so is every thread of `al5d emulator`.
+from a thread at `URGENT_NICE`, and so is every thread of `al5d emulator` and an
+emulated board's link wherever it runs.
 Going below nice 0 needs CAP_SYS_NICE (root) or an RLIMIT_NICE that allows it;
 where it is refused, one log line says so and the threads run at the default
 priority.

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import logging
 import os
 import queue
@@ -280,8 +282,16 @@ def dds_profile(instructions: tuple[str, int] | None = None) -> str | None:
     fd, path = tempfile.mkstemp(prefix="al5d-dds-", suffix=".xml")
     with os.fdopen(fd, "w", encoding="utf-8") as f:
         f.write(profile)
+    # Fast DDS has read it by the time the process ends; a process this one starts that
+    # uses DDS writes a file of its own (above: ours is not the user's).
+    atexit.register(_remove, path)
     os.environ[PROFILES_VAR] = os.environ[OURS_VAR] = path
     return None
+
+
+def _remove(path: str) -> None:
+    with contextlib.suppress(OSError):
+        os.unlink(path)
 
 
 def start_context() -> Context:

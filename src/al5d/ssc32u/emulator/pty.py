@@ -32,10 +32,12 @@ import threading
 import time
 import tty
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
 
 from al5d.clock import now
+from al5d.priority import make_urgent
 from al5d.ssc32u import facts
 from al5d.ssc32u.emulator.board import Answer, Board, Record
 from al5d.ssc32u.emulator.usb import FtdiChip, Link, Packet, byte_arrivals
@@ -96,8 +98,8 @@ class PtyLink:
         self._open_pty()
         self._running.set()
         self._threads = [
-            threading.Thread(target=self._read_loop, name="ssc32u-rx", daemon=True),
-            threading.Thread(target=self._answer_loop, name="ssc32u-tx", daemon=True),
+            threading.Thread(target=_urgently(self._read_loop), name="ssc32u-rx", daemon=True),
+            threading.Thread(target=_urgently(self._answer_loop), name="ssc32u-tx", daemon=True),
         ]
         for th in self._threads:
             th.start()
@@ -274,6 +276,18 @@ class PtyLink:
             for packet in chip.feed(byte_arrivals(due, len(data), self.board.baud), data):
                 if not _write(master, packet):
                     return
+
+
+def _urgently(loop: Callable[[], None]) -> Callable[[], None]:
+    """`loop` at the urgent priority: the emulated board stands for a processor of its own,
+    which hears and answers in its time whatever the host does, also when it runs in the
+    same process as a busy client (a test, `al5d serve --emulate`)."""
+
+    def run() -> None:
+        make_urgent("the emulated board")
+        loop()
+
+    return run
 
 
 def _write(master: int, packet: Packet) -> bool:
