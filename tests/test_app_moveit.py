@@ -13,6 +13,7 @@ from proc import Proc
 
 from al5d.app.moveit import moveit_files
 from al5d.arm.config import DEFAULT_CONFIG, load_config
+from al5d.model import forward
 from al5d.ros.runtime import Names
 
 SHIPPED = Path(__file__).resolve().parent.parent / "config" / "moveit"
@@ -84,3 +85,31 @@ def test_every_joint_and_limit_agrees_with_the_urdf_and_the_config() -> None:
     for controller in manager["controller_names"]:
         action = f"/{controller}/{manager[controller]['action_ns']}"
         assert action in (names.follow_joint_trajectory, names.gripper_command)
+
+
+def test_a_mounted_arm_plans_in_its_mounts_frame(tmp_path: Path) -> None:
+    """With `server.mount`, MoveIt's URDF has the mount's parent as its root and a fixed
+    joint to base_link: a fixed virtual joint in the SRDF has no origin, so only the URDF
+    can put the arm anywhere but the parent's origin."""
+    data = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    data["server"]["namespace"] = "left"
+    data["server"]["mount"] = {"parent": "world", "xyz": [0.4, -0.3, 0.02], "rpy": [0, 0, 1.2]}
+    config_file = tmp_path / "left.yaml"
+    config_file.write_text(yaml.safe_dump(data))
+    config = load_config(config_file)
+    made = moveit_files(config)
+    robot = yourdfpy.URDF.load(io.StringIO(made["al5d.urdf"]), load_meshes=False)
+    assert robot.base_link == "world" and robot.validate()
+    assert "virtual_joint" not in made["al5d.srdf"]
+    mount = config.server.mount
+    assert mount is not None
+    degrees = dict(config.presets["ready"])
+    robot.update_cfg(config.model.to_urdf(degrees))
+    theirs = robot.get_transform("left/tool0", "world")[:3, 3]
+    ours = mount.frame().transform.apply(forward(config.model.geometry, degrees).position)
+    assert max(abs(a - b) for a, b in zip(theirs, ours, strict=True)) < 1e-9
+    # Without a mount, the URDF is the server's /robot_description, as before.
+    assert 'link name="world"' not in moveit_files(CONFIG)["al5d.urdf"]
+    moveit = Proc("moveit", str(tmp_path / "out"), "--config", str(config_file))
+    assert moveit.wait(30) == 0
+    assert (tmp_path / "out" / "al5d.urdf").read_text() == made["al5d.urdf"]

@@ -10,7 +10,13 @@ from typing import Any
 import pytest
 import yaml
 
-from al5d.arm.config import DEFAULT_CONFIG, ConfigError, load_config, parse_config
+from al5d.arm.config import (
+    DEFAULT_CONFIG,
+    ConfigError,
+    load_config,
+    parse_config,
+    with_changes,
+)
 
 REPO_CONFIG = Path(__file__).resolve().parents[1] / "config" / "al5d.yaml"
 
@@ -131,6 +137,26 @@ def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
             lambda d: d["joints"].update(finger=d["joints"].pop("gripper")),
             r"joints: an AL5D has base, .*; missing: gripper; not an AL5D joint: finger",
         ),
+        (
+            lambda d: d["server"].update(mount={"parent": "/world"}),
+            r"server\.mount\.parent: frame '/world': parts separated by '/' \(none leading\)",
+        ),
+        (
+            lambda d: d["server"].update(mount={"xyz": [0.5, 0, 250]}),
+            r"server\.mount\.xyz\.2: Input should be less than or equal to 100 \(value: 250\)",
+        ),
+        (
+            lambda d: d["server"].update(mount={"rpy": [0, float("nan"), 0]}),
+            r"server\.mount\.rpy\.1: Input should be a finite number",
+        ),
+        (
+            lambda d: d["server"].update(mount={"xyz": [1, 2]}),
+            r"server\.mount\.xyz\.2: Field required",
+        ),
+        (
+            lambda d: d["server"].update(namespace="left", mount={"parent": "left/base_link"}),
+            r"server: mount\.parent 'left/base_link' is a frame of this arm itself",
+        ),
     ],
 )
 def test_a_bad_config_is_refused_naming_the_key(
@@ -159,3 +185,27 @@ def test_the_geometry_makes_the_robot_model(data: dict[str, Any]) -> None:
     assert model.geometry.ulna == pytest.approx(0.183)
     assert model.geometry.humerus == pytest.approx(0.14605)
     assert model.urdf_limits("elbow") == pytest.approx((0.0, math.radians(135)))
+
+
+def test_a_mount_is_optional_and_defaults_to_the_world_frame(data: dict[str, Any]) -> None:
+    assert parse_config(data).server.mount is None  # as before: base_link is a root
+    data["server"]["mount"] = {"xyz": [0.5, -0.25, 0.0], "rpy": [0, 0, math.pi / 2]}
+    mount = parse_config(data).server.mount
+    assert mount is not None and mount.parent == "world"
+    frame = mount.frame()
+    assert frame.transform.apply((1.0, 0.0, 0.0)) == pytest.approx((0.5, 0.75, 0.0))
+
+
+def test_changes_by_dotted_name_are_validated_like_the_file(data: dict[str, Any]) -> None:
+    config = parse_config(data)
+    changed = with_changes(config, {"server.joint_state_rate_hz": 50, "geometry.ulna_mm": 183})
+    assert changed.server.joint_state_rate_hz == 50 and changed.geometry.ulna_mm == 183
+    assert changed.joints == config.joints and changed.presets == config.presets
+    with pytest.raises(ConfigError) as bad:
+        with_changes(config, {"server.baud": 1234}, "ROS parameters", {"server.baud": "baud"})
+    data["server"]["baud"] = 1234
+    with pytest.raises(ConfigError) as in_file:
+        parse_config(data, "arm.yaml")
+    # The same message, but for where it comes from and the name it is known by there.
+    expected = str(in_file.value).replace("arm.yaml: server.baud", "ROS parameters: baud")
+    assert str(bad.value) == expected

@@ -104,6 +104,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         ros=not args.no_ros,
         trace=args.trace,
         namespace=args.namespace,
+        ros_args=args.ros_args,
     )
     return serve(options)
 
@@ -173,7 +174,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True)
 
-    srv = sub.add_parser("serve", help="the arm server (embedded emulator without --port)")
+    srv = sub.add_parser(
+        "serve",
+        help="the arm server (embedded emulator without --port)",
+        epilog="ROS arguments follow --ros-args, as for any ROS node: -p NAME:=VALUE (the "
+        "parameters: README, ROS parameters), --params-file FILE, -r __ns:=/NS, "
+        "-r __node:=NAME. These flags win over parameters, which win over the config file.",
+    )
     srv.add_argument("--port", help="serial device of the SSC-32U; default: embedded emulator")
     srv.add_argument("--baud", type=int, choices=BAUDS, help="default: config")
     srv.add_argument("--config", help="arm configuration file; default: the shipped one")
@@ -304,9 +311,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _split_ros_args(argv: list[str]) -> tuple[list[str], list[str] | None]:
+    """The command line without its `--ros-args` (for argparse), and the whole of it for
+    rclpy (None when it has none), as rcl reads them: `--ros-args ... [--]`, anywhere."""
+    if "--ros-args" not in argv:
+        return argv, None
+    from rclpy.utilities import remove_ros_args
+
+    whole = ["al5d", *argv]
+    return remove_ros_args(whole)[1:], whole
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        rest, ros_args = _split_ros_args(list(sys.argv[1:] if argv is None else argv))
+    except Exception as e:  # rcl's own words for what it cannot parse
+        print(f"al5d: ROS arguments: {e}", file=sys.stderr)
+        return 2
+    args = parser.parse_args(rest)
+    args.ros_args = ros_args
+    if ros_args is not None and args.command != "serve":
+        parser.error("--ros-args: `al5d serve` is the ROS node that takes them")
     try:
         code: int = args.func(args)
     except ConfigError as e:

@@ -26,9 +26,13 @@ def arm_chain(config: ArmConfig, namespace: str | None = None) -> Chain:
 
 def moveit_files(config: ArmConfig, namespace: str | None = None) -> dict[str, str]:
     """File name -> text: the URDF and the four MoveIt files, for the arm in `namespace`
-    (by default the configuration's)."""
+    (by default the configuration's). With a mount (`server.mount`) the URDF's root is the
+    mount's parent frame, which MoveIt then plans in."""
     chain = arm_chain(config, namespace)
-    files = {f"{ROBOT}.urdf": urdf_from_chain(chain, ROBOT) + "\n"}
+    mount = config.server.mount
+    files = {
+        f"{ROBOT}.urdf": urdf_from_chain(chain, ROBOT, mount.frame() if mount else None) + "\n"
+    }
     for name, content in moveit_config(
         config.model, chain, config.presets, robot_name=ROBOT
     ).items():

@@ -17,7 +17,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, TextIO
 
 from al5d.arm.config import ArmConfig, load_config
@@ -25,6 +25,7 @@ from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import GrammarError, Instruction, Outcome, parse_instruction, shutdown
 
 if TYPE_CHECKING:
+    from al5d.ros.node import RosStart
     from al5d.ssc32u.emulator import Emulator
 
 log = logging.getLogger("al5d")
@@ -59,6 +60,9 @@ class ServerOptions:
     trace: str | None = None
     #: The ROS namespace; None: the config's (server.namespace).
     namespace: str | None = None
+    #: The command line for rclpy (the program's name first), whose `--ros-args` give the
+    #: node `al5d` its parameters and remaps; None: none.
+    ros_args: list[str] | None = None
 
 
 @contextmanager
@@ -123,12 +127,39 @@ def serve(options: ServerOptions) -> int:
     # embedded board) while others may be busy (handing out a thousand outcomes): hand
     # the GIL over every 0.5 ms, not every 5 ms, so that a busy one cannot hold up the rest.
     sys.setswitchinterval(SWITCH_INTERVAL_S)
-    with arm(options) as (driver, _):
+    # The parameters (and remaps) come before the arm: they may name its port and config.
+    start = _ros_start(options) if options.ros else None
+    config = None
+    if start is not None:
+        config = start.settings.config
+        options = replace(options, port=start.settings.port)
+    try:
+        return _serve(options, config, start, stop_requested)
+    finally:
+        if start is not None and start.context.ok():  # the server never took it over
+            start.close()
+
+
+def _ros_start(options: ServerOptions) -> RosStart:
+    from al5d.ros.node import RosStart
+    from al5d.ros.params import Flags
+
+    flags = Flags(options.config, options.port, options.baud, options.namespace)
+    return RosStart(options.ros_args, flags)
+
+
+def _serve(
+    options: ServerOptions,
+    config: ArmConfig | None,
+    start: RosStart | None,
+    stop_requested: threading.Event,
+) -> int:
+    with arm(options, config) as (driver, _):
         ros_server = None
-        if options.ros:
+        if start is not None:
             from al5d.ros.node import RosServer
 
-            ros_server = RosServer(driver, trace=options.trace, namespace=options.namespace)
+            ros_server = RosServer(driver, trace=options.trace, start=start)
             log.info(
                 "ROS 2 node %s up (ROS_DOMAIN_ID=%s)",
                 ros_server.node.get_fully_qualified_name(),

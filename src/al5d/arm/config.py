@@ -11,6 +11,7 @@ the driver expects of them come from one place.
 from __future__ import annotations
 
 import functools
+import math
 import re
 from collections.abc import Mapping
 from pathlib import Path
@@ -23,6 +24,8 @@ from al5d.arm.instruction import PRESET_NAMES, Kind
 from al5d.arm.servos import SERVOS
 from al5d.model import JOINTS as AL5D_JOINTS
 from al5d.model import ArmModel
+from al5d.model.chain import BASE_LINK, LINK_OF_JOINT, TOOL_LINK
+from al5d.model.transforms import Mount as ModelMount
 from al5d.ssc32u.driver import DEFAULT_READ_TIMEOUT_S
 from al5d.ssc32u.facts import BAUDS, CHANNELS, FACTORY_BAUD, PULSE_MAX_US, PULSE_MIN_US
 
@@ -137,6 +140,49 @@ def namespace_problem(namespace: str) -> str | None:
     return None
 
 
+def frame_problem(frame: str) -> str | None:
+    """Why `frame` (`world`, `lab/table`) is no TF frame name, or None."""
+    if (
+        not frame
+        or frame.startswith("/")
+        or not all(_NAME_SEGMENT.fullmatch(seg) for seg in frame.split("/"))
+    ):
+        return (
+            f"frame {frame[:40]!r}: parts separated by '/' (none leading), each starting with a "
+            "letter and holding only letters, digits and underscores"
+        )
+    return None
+
+
+#: A mount's offset, metres: a lab's size, not a typo's (an x of 5e3 is a unit mistaken).
+MOUNT_REACH_M = 100.0
+Metres = Annotated[float, Field(allow_inf_nan=False, ge=-MOUNT_REACH_M, le=MOUNT_REACH_M)]
+Radians = Annotated[float, Field(allow_inf_nan=False, ge=-math.tau, le=math.tau)]
+
+
+class Mount(_Frozen):
+    """`server.mount`: where the arm's base_link stands in a frame it shares with other arms
+    (and the room): published as a static transform from `parent`, so that several arms
+    are one TF tree. `xyz` in metres, `rpy` fixed-axis roll, pitch, yaw in radians, as a
+    URDF joint's origin."""
+
+    parent: str = "world"
+    xyz: tuple[Metres, Metres, Metres] = (0.0, 0.0, 0.0)
+    rpy: tuple[Radians, Radians, Radians] = (0.0, 0.0, 0.0)
+
+    @field_validator("parent")
+    @classmethod
+    def _frame(cls, v: str) -> str:
+        problem = frame_problem(v)
+        if problem:
+            raise ValueError(problem)
+        return v
+
+    def frame(self) -> ModelMount:
+        """The mount as the robot model takes it."""
+        return ModelMount(self.parent, self.xyz, self.rpy)
+
+
 class ServerSettings(_Frozen):
     """How the high-level driver behaves, independent of the arm's geometry."""
 
@@ -166,6 +212,8 @@ class ServerSettings(_Frozen):
     baud: int = Field(default=FACTORY_BAUD)
     #: The ROS namespace of this arm's names ("" none; `left` gives /left/al5d/...).
     namespace: str = ""
+    #: Where the arm stands in a shared frame (None: nowhere said; base_link is a root).
+    mount: Mount | None = None
 
     @model_validator(mode="after")
     def _idle_rate_not_above_moving(self) -> ServerSettings:
@@ -173,6 +221,20 @@ class ServerSettings(_Frozen):
             raise ValueError(
                 f"idle_joint_state_rate_hz {self.idle_joint_state_rate_hz:g} must not exceed "
                 f"joint_state_rate_hz {self.joint_state_rate_hz:g}"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _mount_outside_the_arm(self) -> ServerSettings:
+        if self.mount is None:
+            return self
+        ns = self.namespace.strip("/")
+        prefix = f"{ns}/" if ns else ""
+        own = {prefix + link for link in (BASE_LINK, TOOL_LINK, *LINK_OF_JOINT.values())}
+        if self.mount.parent in own:
+            raise ValueError(
+                f"mount.parent {self.mount.parent!r} is a frame of this arm itself; the mount "
+                "hangs the arm from a frame outside it (e.g. world)"
             )
         return self
 
@@ -304,10 +366,11 @@ class ArmConfig(_Frozen):
         return {name: j.speed_deg_s for name, j in self.joints.items()}
 
 
-def _describe(err: ValidationError, source: str) -> str:
+def _describe(err: ValidationError, source: str, names: Mapping[str, str]) -> str:
     lines = []
     for e in err.errors():
         loc = ".".join(str(x) for x in e["loc"]) or "(top level)"
+        loc = names.get(loc, loc)
         msg = e["msg"].removeprefix("Value error, ")
         shown = e.get("input")
         value = "" if isinstance(shown, Mapping) else f" (value: {shown!r})"
@@ -315,14 +378,37 @@ def _describe(err: ValidationError, source: str) -> str:
     return "\n".join(lines)
 
 
-def parse_config(data: Any, source: str = "<config>") -> ArmConfig:
-    """Validate already-loaded YAML data; raise ConfigError naming the key on failure."""
+def parse_config(
+    data: Any, source: str = "<config>", names: Mapping[str, str] | None = None
+) -> ArmConfig:
+    """Validate already-loaded YAML data; raise ConfigError naming the key on failure (by
+    `names`, where a key is known to the user by another name: a ROS parameter's)."""
     if not isinstance(data, Mapping):
         raise ConfigError(f"{source}: the file must hold a mapping with joints and presets")
     try:
         return ArmConfig.model_validate(data)
     except ValidationError as e:
-        raise ConfigError(_describe(e, source)) from None
+        raise ConfigError(_describe(e, source, names or {})) from None
+
+
+def with_changes(
+    config: ArmConfig,
+    changes: Mapping[str, Any],
+    source: str = "<config>",
+    names: Mapping[str, str] | None = None,
+) -> ArmConfig:
+    """`config` with keys changed by their dotted names (`server.joint_state_rate_hz`),
+    validated whole by the same code as a file; ConfigError names the key, from `source`."""
+    data: dict[str, Any] = config.model_dump()
+    for dotted, value in changes.items():
+        *path, last = dotted.split(".")
+        here = data
+        for key in path:
+            if not isinstance(here.get(key), dict):
+                here[key] = {}
+            here = here[key]
+        here[last] = value
+    return parse_config(data, source, names)
 
 
 def load_config(path: str | Path | None = None) -> ArmConfig:

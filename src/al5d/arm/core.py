@@ -31,6 +31,12 @@ The lanes
   job is the current one from the moment it is taken until it ends. Only the
   current job's steps are written; whoever ends it (done, stop, cancel, fault,
   shutdown) makes it not current, in one event.
+- **Set-points** (a stream such as ros2_control's joint commands) are moves
+  whose latest wins: a new one replaces the one of its stream that waits (it
+  ends cancelled, never written), and one where the arm is heading already
+  (within half a pulse microsecond) is done at once with nothing written. One
+  that finds the arm idle is written at once, like any move; the one running
+  is not cut short (a stream as fast as the wire is issue 25's streaming mode).
 - **The worker's own work** (`next_task`, in this order): the shutdown, the
   recovery from a fault, the start-up park, a job the caller wrote, the
   read-back of the pose after a halt, the next queued move, and a check of
@@ -84,7 +90,9 @@ class Core(CoreState):
     # -- callers' events ----------------------------------------------------------------
 
     def admit(self, job: Job) -> Admission:
-        """A validated move comes: it is cancelled, refused, queued, or written now."""
+        """A validated move comes: it is cancelled, refused, queued, or written now. A
+        set-point of a stream (`Job.stream`) replaces the one of its stream that waits, and
+        is not written at all where the arm is heading already (the lane of set-points)."""
         with self._lock:
             cancelled = self._order.cancelled(job.sent_ns)
             if cancelled:
@@ -96,23 +104,35 @@ class Core(CoreState):
             ) or self._order.sent_while_locked(job.sent_ns)
             if reason:
                 return Admission(Verdict.REFUSED, reason)
+            replaced = None
+            if job.stream:
+                # The latest set-point wins: one that waits is replaced, never queued behind.
+                replaced = next((j for j in self._queue if j.stream == job.stream), None)
+                if replaced is not None:
+                    self._queue.remove(replaced)
+                if self._unchanged(job):
+                    if self._current is None and not self._queue and self._state is State.MOVING:
+                        self._fire(Event.MOVE_DONE)
+                    return Admission(Verdict.UNCHANGED, replaced=replaced)
             job.epoch = self._epoch
             if self._idle():
                 self._current, self._runner = job, Runner.CALLER
                 self._writes += 1
                 self._writing += 1
                 self._fire(Event.MOVE)
-                return Admission(Verdict.WRITE, board=self._board)
+                return Admission(Verdict.WRITE, board=self._board, replaced=replaced)
             if len(self._queue) >= self._capacity:
                 return Admission(
-                    Verdict.REFUSED, f"the queue is full ({self._capacity} moves wait)"
+                    Verdict.REFUSED,
+                    f"the queue is full ({self._capacity} moves wait)",
+                    replaced=replaced,
                 )
             self._queue.append(job)
             if self._state is State.READY:
                 self._fire(Event.MOVE)
             if len(self._queue) == 1:  # the worker may wait for one; it takes the rest in turn
                 self._cv.notify_all()
-            return Admission(Verdict.QUEUED)
+            return Admission(Verdict.QUEUED, replaced=replaced)
 
     def first_written(
         self, job: Job, written: Written | None, error: SerialFault | None = None

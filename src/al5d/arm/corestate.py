@@ -48,6 +48,9 @@ class CoreState:
         self._lock = threading.Lock()
         self._cv = threading.Condition(self._lock)
         self._channels = {name: j.channel for name, j in config.joints.items()}
+        #: Half a pulse microsecond per joint, in degrees: a set-point closer than this to
+        #: where a joint is going writes the same pulse, so it changes nothing.
+        self._same_deg = {name: 0.5 / abs(j.us_per_deg) for name, j in config.joints.items()}
         self._capacity = config.server.queue_capacity
         self._state = State.INITIALIZING
         self._announcer = Announcer(state_listeners, self._state)
@@ -188,6 +191,31 @@ class CoreState:
             and not self._readback
             and not self._writing
         )
+
+    def _heading(self) -> dict[str, float | None] | None:
+        """Where the arm rests once the current job is done (the pose at rest when none
+        runs); None when that is not known yet: moves wait (a Cartesian one is planned
+        from where the arm is when it starts), or the pose is to be read back."""
+        if self._queue or self._readback:
+            return None
+        pose = self._book.pose
+        job = self._current
+        if job is not None:
+            if job.mode is not Mode.QUEUE or not job.steps:
+                return None
+            pose.update(job.steps[-1].target)
+        return pose
+
+    def _unchanged(self, job: Job) -> bool:
+        """A one-step job whose target is where the arm is heading already."""
+        heading = self._heading()
+        if heading is None or len(job.steps) != 1:
+            return False
+        for name, deg in job.steps[0].target.items():
+            there = heading.get(name)
+            if there is None or abs(deg - there) > self._same_deg[name]:
+                return False
+        return True
 
     def _drop(self, why: str, sent_ns: int) -> Ended:
         """End the epoch: the current job and every waiting one are never to be written. The

@@ -157,13 +157,15 @@ class ArmDriver:
         *,
         key: Hashable | None = None,
         listeners: bool = True,
+        stream: str = "",
     ) -> Future[Outcome]:
         """Hand over an instruction (or a ticket of `judge`); its Future resolves to its one
         outcome.
 
         `key` identifies a stop message that two readers may both see (`core`, rule 3):
         the second gets the first's future, and no listener hears of it again. With
-        `listeners=False` no listener hears of it at all."""
+        `listeners=False` no listener hears of it at all. A move given a `stream` is a
+        set-point of it: the latest wins (`core`, the lane of set-points)."""
         t0 = now()
         instr = what.instr if isinstance(what, Ticket) else what
         # When it was sent: where its channel does not say, now, as the driver takes it.
@@ -183,7 +185,7 @@ class ArmDriver:
         elif kind is Kind.SHUTDOWN:
             self._shutdown(instr, future, t0, sent)
         elif kind is not Kind.STOP:
-            self._enqueue(what, future, t0, sent)
+            self._enqueue(what, future, t0, sent, stream)
         return future
 
     def refuse(self, ident: str, name: str, reason: str) -> Outcome:
@@ -256,7 +258,12 @@ class ArmDriver:
         self._refuse(job.instr, job.future, reason, job.t_submit)
 
     def _enqueue(
-        self, what: Instruction | Ticket, future: Future[Outcome], t0: float, sent: int
+        self,
+        what: Instruction | Ticket,
+        future: Future[Outcome],
+        t0: float,
+        sent: int,
+        stream: str = "",
     ) -> None:
         ticket = what if isinstance(what, Ticket) else judge(what, self.limits)
         instr = what.instr if isinstance(what, Ticket) else what
@@ -265,9 +272,19 @@ class ArmDriver:
             return
         if self.writer.race_hook is not None:
             self.writer.race_hook("judged")
-        job = Job(instr, ticket.steps, future, 0, t0, sent_ns=sent)
+        job = Job(instr, ticket.steps, future, 0, t0, sent_ns=sent, stream=stream)
         admission = self.core.admit(job)
-        if admission.verdict is Verdict.QUEUED:
+        if admission.replaced is not None:
+            finish(admission.replaced, Result.CANCELLED, f"replaced by set-point {instr.id}")
+        if admission.verdict is Verdict.UNCHANGED:
+            self.core.announce()
+            resolve(
+                future,
+                outcome(
+                    instr, Result.DONE, "at this set-point, or on its way: nothing written", t0
+                ),
+            )
+        elif admission.verdict is Verdict.QUEUED:
             self.core.announce()
         elif admission.verdict is Verdict.REFUSED:
             self._refuse(instr, future, admission.reason, t0)

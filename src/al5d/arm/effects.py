@@ -45,6 +45,7 @@ class Verdict(Enum):
     WRITE = "the caller writes its first step now (an idle arm)"
     REFUSED = "refused"
     CANCELLED = "cancelled by an event after it was sent"
+    UNCHANGED = "a set-point where the arm is, or is going already: nothing to write"
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,6 +53,9 @@ class Admission:
     verdict: Verdict
     reason: str = ""
     board: SSC32U | None = None  # with WRITE
+    #: A set-point of the same stream that waited, replaced by this one (its outcome is
+    #: the caller's to set).
+    replaced: Job | None = None
 
 
 @dataclass(frozen=True, slots=True)

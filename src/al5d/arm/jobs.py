@@ -50,6 +50,9 @@ class Job:
     #: When it was sent (CLOCK_REALTIME ns): the instruction's, or when the driver took it.
     sent_ns: int = 0
     cancel: threading.Event = field(default_factory=threading.Event)
+    #: A set-point of this stream (`joint_commands`): a newer one of the same stream
+    #: replaces it while it waits ("" for every other move).
+    stream: str = ""
     expected_ms: float = 0.0
     step: int = 0  # the step running now
     #: The step written last: the worker waits for its end (a step the caller wrote, too).

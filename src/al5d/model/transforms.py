@@ -107,3 +107,19 @@ class Transform:
             (*r[2], t[2]),
             (0.0, 0.0, 0.0, 1.0),
         )
+
+
+@dataclass(frozen=True)
+class Mount:
+    """Where an arm's root frame stands in a parent frame it shares with other arms (REP
+    105's `world`): the root's origin (metres) and fixed-axis roll, pitch, yaw (radians) in
+    the parent, as a URDF fixed joint gives them."""
+
+    parent: str
+    xyz: Vec3 = (0.0, 0.0, 0.0)
+    rpy: Vec3 = (0.0, 0.0, 0.0)
+
+    @property
+    def transform(self) -> Transform:
+        """The root frame in the parent frame."""
+        return Transform(self.xyz, quat_from_rpy(*self.rpy))

@@ -8,6 +8,7 @@ from typing import Final
 
 from al5d.model.arm import ArmModel
 from al5d.model.chain import DEFAULT_EFFORT, Chain, Shape, build_chain
+from al5d.model.transforms import Mount
 
 #: RGBA of the two materials the shapes use.
 MATERIALS: Final[Mapping[str, tuple[float, float, float, float]]] = {
@@ -42,12 +43,21 @@ def _geometry(parent: ET.Element, shape: Shape) -> None:
         )
 
 
-def urdf_from_chain(chain: Chain, robot_name: str = "al5d") -> str:
-    """The URDF XML (a string, with declaration) of a chain."""
+#: The fixed joint that hangs the chain's root from a mount's parent frame.
+MOUNT_JOINT: Final = "mount"
+
+
+def urdf_from_chain(chain: Chain, robot_name: str = "al5d", mount: Mount | None = None) -> str:
+    """The URDF XML (a string, with declaration) of a chain; with a `mount`, the mount's
+    parent is the root link and a fixed joint `mount` holds the chain's root in it (what
+    MoveIt needs to plan in a frame shared by several arms: an SRDF's fixed virtual joint
+    has no origin, so it could only put the arm at the parent's origin)."""
     robot = ET.Element("robot", name=robot_name)
     for name, rgba in MATERIALS.items():
         material = ET.SubElement(robot, "material", name=name)
         ET.SubElement(material, "color", rgba=_vec(rgba))
+    if mount is not None:
+        ET.SubElement(robot, "link", name=mount.parent)
     for link in chain.links:
         element = ET.SubElement(robot, "link", name=link.name)
         if link.shape is None:
@@ -56,6 +66,11 @@ def urdf_from_chain(chain: Chain, robot_name: str = "al5d") -> str:
         _geometry(visual, link.shape)
         ET.SubElement(visual, "material", name=link.shape.material)
         _geometry(ET.SubElement(element, "collision"), link.shape)
+    if mount is not None:
+        element = ET.SubElement(robot, "joint", name=MOUNT_JOINT, type="fixed")
+        ET.SubElement(element, "parent", link=mount.parent)
+        ET.SubElement(element, "child", link=chain.root)
+        ET.SubElement(element, "origin", xyz=_vec(mount.xyz), rpy=_vec(mount.rpy))
     for joint in chain.joints:
         element = ET.SubElement(robot, "joint", name=joint.name, type=joint.type)
         ET.SubElement(element, "parent", link=joint.parent)

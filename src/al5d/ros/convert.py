@@ -7,6 +7,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import replace
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory
 
 from al5d.arm.instruction import (
@@ -168,14 +170,48 @@ def outcome_from_message(msg: InstructionResult) -> Outcome:
     return Outcome(msg.id, msg.instruction, Result(msg.outcome), msg.reason, msg.elapsed_ms)
 
 
-def trajectory_id(msg: JointTrajectory) -> str:
-    """The id a trajectory's outcome carries: `header.frame_id` when the sender set it (a
-    JointTrajectory has no id field, and its frame is unused), else the header's stamp,
-    `<sec>.<nanosec>`, which a sender that stamps its messages knows."""
-    if msg.header.frame_id:
-        return str(msg.header.frame_id)
-    stamp = msg.header.stamp
+def trajectory_id(msg: JointTrajectory | JointState) -> str:
+    """The id a trajectory's (or a joint command's) outcome carries: `header.frame_id` when
+    the sender set it (neither message has an id field, and the frame is unused), else the
+    header's stamp, `<sec>.<nanosec>`, which a sender that stamps its messages knows."""
+    header: Header = msg.header
+    if header.frame_id:
+        return str(header.frame_id)
+    stamp = header.stamp
     return f"{stamp.sec}.{stamp.nanosec:09d}"
+
+
+def joint_command_from_message(
+    msg: JointState, model: ArmModel, sent: int | None = None
+) -> Instruction | str:
+    """The move a joint command asks for (sensor_msgs/JointState, as ros2_control's
+    topic-based hardware publishes its position commands: the URDF's names and values), or
+    why it is not one. Judged whole: a name the URDF does not have, a value that is not a
+    number or is outside its limits, refuses it all. The fingers, mimics of `gripper`,
+    are left out: their commands are the hardware's own (NaN until something sets them)."""
+    names = list(msg.name)
+    positions = list(msg.position)
+    if len(msg.velocity) or len(msg.effort):
+        return (
+            "a joint command gives velocity or effort: the AL5D's servos take positions only "
+            "(give its joints position command interfaces only)"
+        )
+    if len(positions) != len(names):
+        return (
+            f"{len(positions)} positions for {len(names)} joints: every joint named needs a "
+            "position (in ros2_control, a position command interface)"
+        )
+    joints: list[tuple[str, float]] = []
+    for name, value in zip(names, positions, strict=True):
+        if name in GRIPPER_FINGERS:
+            continue
+        outside = outside_urdf_limits(model, name, value)
+        if outside:
+            return outside
+        joints.append((name, arm_degrees(model, name, value)))
+    if not joints:
+        return "a joint command names no joint of the arm"
+    return Instruction(Kind.MOVE, joints=tuple(joints), id=trajectory_id(msg), sent_ns=sent)
 
 
 def trajectory_from_message(

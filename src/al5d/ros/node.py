@@ -6,8 +6,10 @@ driver can order what comes by different channels: `al5d.arm.core`), and
 outcomes become `InstructionResult`s. No callback waits for the arm. Services
 answer as soon as the driver has taken the instruction (stop and release are
 synchronous in the driver, a matter of microseconds). Five nodes, each with a
-thread of its own: `al5d` (the instruction and trajectory topics, read with
-each message's info by a `workarounds.Reader`; the results and the state),
+thread of its own: `al5d` (the instruction, trajectory and joint-command topics,
+read with each message's info by a `workarounds.Reader`; the results and the
+state; the server's settings as ROS parameters, `al5d.ros.params`, whose
+services an executor of its own answers),
 `al5d_stop_watcher` (a stop on the instruction topic, obeyed at once; a
 `Reader` too), `al5d_safety` (the stop, release and shutdown services:
 `al5d.ros.safety`, on rclpy's Python executor), `al5d_actions` (the move action
@@ -24,28 +26,38 @@ import json
 import logging
 import threading
 import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future
 
 import rclpy
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.context import Context
 from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
+from al5d.arm.config import ArmConfig, ConfigError, ServerSettings
 from al5d.arm.driver import ArmDriver
-from al5d.arm.instruction import Kind, Outcome, new_id
+from al5d.arm.instruction import Kind, Outcome, Result, new_id
 from al5d.arm.jobs import Sent
 from al5d.arm.states import State
+from al5d.ros import params
 from al5d.ros.actions import MoveAction
 from al5d.ros.controllers import FollowTrajectoryAction, GripperAction
 from al5d.ros.convert import (
     from_message,
+    joint_command_from_message,
     outcome_message,
     sent_ns,
     stop_key,
     trajectory_from_message,
     trajectory_id,
 )
+from al5d.ros.params import Flags, Settings
 from al5d.ros.robot import RobotPublisher
 from al5d.ros.runtime import (
     ACTIONS_NODE,
@@ -58,42 +70,122 @@ from al5d.ros.runtime import (
     PublishThread,
     Spinner,
     dds_profile,
+    pinned,
     start_context,
 )
 from al5d.ros.safety import SafetyPath
-from al5d.ros.workarounds import Reader, taken_by_reader
+from al5d.ros.workarounds import Reader, ReaderOnly, parameter_overrides, taken_by_reader
 
 log = logging.getLogger("al5d")
 
 
-class ArmNode(Node):
-    """Node `al5d`: every topic and action of the design, on one driver, under `names`."""
+#: Joint commands: the newest is all that matters (the hardware's own writer keeps one too).
+QOS_COMMANDS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+#: The stream of set-points the joint commands are (`ArmDriver.submit`'s `stream`).
+JOINT_COMMANDS = "joint_commands"
 
-    def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
+
+class ArmNode(Node):
+    """Node `al5d`: the server's settings as parameters (`declare`), then every topic of the
+    design on one driver, under `names` (`attach`)."""
+
+    def __init__(self, context: Context, names: Names) -> None:
         super().__init__(NODE, namespace=names.node_namespace, context=context)
-        self.driver = driver
         self.names = names
-        self.presets = tuple(driver.config.presets)
-        self.joint_names = list(driver.config.joints)
+        # The inputs a `Reader` takes: the executor that answers the parameter services
+        # must leave them alone.
+        self.reader_group = ReaderOnly()
+        self.settings: Settings | None = None
+        #: Told the server's settings when a parameter changes them at run time.
+        self.appliers: list[Callable[[ServerSettings], None]] = []
         # (id, monotonic ns) of each instruction message as its callback starts, when tracing
         # (`al5d serve --trace FILE`, used by the benchmarks): an append, nothing more.
         self.trace: list[tuple[str, str, int]] | None = None
+
+    # -- parameters -----------------------------------------------------------------
+
+    def declare(self, settings: Settings) -> None:
+        """Every parameter at its value in `settings` (what the server runs with, overrides
+        and flags applied already), and the check of changes at run time."""
+        self.settings = settings
+        for name, value in settings.values().items():
+            descriptor = ParameterDescriptor(
+                description=params.description(name),
+                read_only=name not in params.RUNTIME,
+                # Validated by the config's code, which takes 50 for 50.0 as a file does.
+                dynamic_typing=True,
+            )
+            self.declare_parameter(name, value, descriptor, ignore_override=True)
+        self.add_on_set_parameters_callback(self._check)
+        self.add_post_set_parameters_callback(self._apply)
+
+    def _check(self, changed: list[Parameter]) -> SetParametersResult:
+        assert self.settings is not None
+        got = params.with_changes(self.settings, {p.name: p.value for p in changed})
+        if isinstance(got, str):
+            return SetParametersResult(successful=False, reason=got)
+        return SetParametersResult(successful=True)
+
+    def _apply(self, changed: list[Parameter]) -> None:
+        assert self.settings is not None
+        got = params.with_changes(self.settings, {p.name: p.value for p in changed})
+        if isinstance(got, str):  # `_check` has passed it: nothing changed meanwhile
+            log.error("parameters %s not applied: %s", [p.name for p in changed], got)
+            return
+        self.settings = got
+        log.info("parameters set: %s", ", ".join(f"{p.name}={p.value!r}" for p in changed))
+        for apply in self.appliers:
+            apply(got.config.server)
+
+    # -- the arm --------------------------------------------------------------------
+
+    def attach(self, driver: ArmDriver) -> None:
+        """The topics, on the driver (once, after `declare`)."""
+        names = self.names
+        self.driver = driver
+        self.presets = tuple(driver.config.presets)
         self.result_pub = self.create_publisher(InstructionResult, names.result, QOS_STREAM)
         self.results: PublishThread[Outcome] = PublishThread(
             self.result_pub, outcome_message, "al5d-results"
         )
         self.state_pub = self.create_publisher(String, names.state, QOS_LATCHED)
         # Read by a thread of their own, with each message's info (see `workarounds.Reader`).
+        group = self.reader_group
         instructions = self.create_subscription(
-            ArmInstruction, names.instruction, taken_by_reader, QOS_INSTRUCTIONS
+            ArmInstruction,
+            names.instruction,
+            taken_by_reader,
+            QOS_INSTRUCTIONS,
+            callback_group=group,
         )
         trajectories = self.create_subscription(
-            JointTrajectory, names.trajectory, taken_by_reader, QOS_INSTRUCTIONS
+            JointTrajectory,
+            names.trajectory,
+            taken_by_reader,
+            QOS_INSTRUCTIONS,
+            callback_group=group,
+        )
+        commands = self.create_subscription(
+            JointState,
+            names.joint_commands,
+            taken_by_reader,
+            QOS_COMMANDS,
+            callback_group=group,
         )
         self.reader = Reader(
             self,
-            [(instructions, self._on_instruction), (trajectories, self._on_trajectory)],
+            [
+                (instructions, self._on_instruction),
+                (trajectories, self._on_trajectory),
+                (commands, self._on_joint_command),
+            ],
             "al5d-inputs",
+            group=group,
         )
         driver.outcome_listeners.append(self._publish_outcome)
         driver.state_listeners.append(self._publish_state)
@@ -133,6 +225,22 @@ class ArmNode(Node):
             return
         self.driver.submit(instr)
 
+    def _on_joint_command(self, msg: JointState, info: dict[str, int]) -> None:
+        """A set-point of ros2_control's topic-based hardware: judged whole like any move, the
+        latest wins. Only refusals are published: a stream of a hundred a second has a
+        hundred outcomes a second, which would drown everyone else's on the result topic."""
+        instr = joint_command_from_message(msg, self.driver.config.model, sent_ns(info))
+        if isinstance(instr, str):
+            self.driver.refuse(trajectory_id(msg), JOINT_COMMANDS, instr)
+            return
+        future = self.driver.submit(instr, listeners=False, stream=JOINT_COMMANDS)
+        future.add_done_callback(self._publish_refusal)
+
+    def _publish_refusal(self, future: Future[Outcome]) -> None:
+        outcome = future.result()
+        if outcome.result is Result.REFUSED:
+            self.results.put(outcome)
+
 
 class RobotNode(Node):
     """Node `al5d_robot`: the arm as a robot (`/robot_description`, `/joint_states`, `/tf`, the
@@ -141,7 +249,9 @@ class RobotNode(Node):
     (the idle server's CPU is mostly these ticks)."""
 
     def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
-        super().__init__(ROBOT_NODE, namespace=names.node_namespace, context=context)
+        super().__init__(
+            ROBOT_NODE, namespace=names.node_namespace, context=context, cli_args=pinned(ROBOT_NODE)
+        )
         self.driver = driver
         self.robot = RobotPublisher(self, driver.config, names)
         # Two timers, one running at a time: the moving rate's while the arm moves (a written
@@ -157,6 +267,15 @@ class RobotNode(Node):
             1.0 / settings.idle_joint_state_rate_hz, self._idle_tick
         )
         driver.motion_listeners.append(self._on_motion)
+
+    def set_rates(self, settings: ServerSettings) -> None:
+        """The joint-state rates changed (a parameter, at run time): the timer running now
+        starts its new period at once."""
+        with self._rate_lock:
+            self._quiet_ticks = max(1, round(settings.joint_state_rate_hz))
+            self.moving_timer.timer_period_ns = round(1e9 / settings.joint_state_rate_hz)
+            self.idle_timer.timer_period_ns = round(1e9 / settings.idle_joint_state_rate_hz)
+            (self.moving_timer if self._moving else self.idle_timer).reset()
 
     def detach(self) -> None:
         """Hear the driver no more (once, before the node is destroyed; the driver lives on)."""
@@ -196,7 +315,12 @@ class ActionsNode(Node):
     their feedback at the joint-state rate, under the server's namespace."""
 
     def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
-        super().__init__(ACTIONS_NODE, namespace=names.node_namespace, context=context)
+        super().__init__(
+            ACTIONS_NODE,
+            namespace=names.node_namespace,
+            context=context,
+            cli_args=pinned(ACTIONS_NODE),
+        )
         self.driver = driver
         self.move_action = MoveAction(self, driver, names.move)
         self.trajectory_action = FollowTrajectoryAction(self, driver, names.follow_joint_trajectory)
@@ -207,6 +331,10 @@ class ActionsNode(Node):
         self.timer.cancel()
         for action in (self.move_action, self.trajectory_action, self.gripper_action):
             action.started = self.timer.reset
+
+    def set_rate(self, settings: ServerSettings) -> None:
+        """The feedback's rate is the joint states' (a parameter changed it at run time)."""
+        self.timer.timer_period_ns = round(1e9 / settings.joint_state_rate_hz)
 
     def _feedback(self) -> None:
         if not (
@@ -222,28 +350,96 @@ class ActionsNode(Node):
         self.gripper_action.feedback()
 
 
-class RosServer:
-    """The nodes with their executor threads, for `al5d serve`: `al5d` for the instructions
-    and the outputs, `al5d_safety` for the stop, release and shutdown, `al5d_stop_watcher`
-    for stops on the topic, `al5d_actions` for the actions."""
+class RosStart:
+    """The server's ROS side before the arm: the DDS profile, the context and the node `al5d`
+    with its parameters, from a command line's `--ros-args` (`args`, rclpy's argv: the
+    program's name first), `al5d serve`'s flags, and the config file (or `base`, a config
+    loaded already). `settings` is what the server then runs with; ConfigError with the
+    config's message when a parameter cannot be taken (nothing is left running then)."""
 
     def __init__(
-        self, driver: ArmDriver, trace: str | None = None, namespace: str | None = None
+        self,
+        args: Sequence[str] | None = None,
+        flags: Flags | None = None,
+        base: ArmConfig | None = None,
     ) -> None:
-        names = Names.of(driver.settings.namespace if namespace is None else namespace)
-        self.names = names
-        backlog = driver.settings.instruction_backlog
+        flags = flags or Flags()
+        self.args = list(args) if args else None
+        given, remap = params.early_arguments(self.args, NODE)
+        try:
+            early = params.resolve(given, flags, remap, base)
+        except ConfigError:
+            # What rcl makes of the parameters is the word that counts: its refusal is
+            # given below, once the node has them; the profile is then the file's.
+            early = params.resolve({}, flags, remap, base)
+        names = Names.of(early.namespace)
+        backlog = early.config.server.instruction_backlog
         theirs = dds_profile((names.instruction, backlog))
         if theirs:
             log.warning(
                 "Fast DDS profiles from %s: the instruction backlog and the transports are theirs",
                 theirs,
             )
-        self.context = start_context()
-        self.node = ArmNode(driver, self.context, names)
+        self.context = start_context(self.args or [NODE])
+        try:
+            self.node = ArmNode(self.context, names)
+            settings = params.resolve(parameter_overrides(self.node), flags, remap, base)
+            self._same(early, settings)
+            self.node.declare(settings)
+        except BaseException:
+            if hasattr(self, "node"):
+                self.node.destroy_node()
+            self.context.try_shutdown()
+            raise
+        self.settings = settings
+        self.names = names
+
+    def _same(self, early: Settings, settings: Settings) -> None:
+        """What rcl made of the arguments is what `early_arguments` read of them, where the
+        DDS profile depends on it (see `al5d.ros.params`)."""
+        rcl = (self.node.get_namespace().strip("/"), settings.namespace.strip("/"))
+        sized = (early.namespace.strip("/"), early.config.server.instruction_backlog)
+        now = (settings.namespace.strip("/"), settings.config.server.instruction_backlog)
+        if rcl[0] != rcl[1] or sized != now:
+            raise ConfigError(
+                f"{params.SOURCE}: the namespace and server.instruction_backlog were read as "
+                f"{sized[0] or '/'!r} and {sized[1]} before DDS started (which sizes the "
+                f"instruction reader then), but the node is in {rcl[0] or '/'!r} with "
+                f"{now[1]}: give them as -r __ns:=/NS and -p NAME:=VALUE (or a params file's "
+                "/** or al5d section), or in the config file"
+            )
+
+    def close(self) -> None:
+        """When the server does not start after all (its board cannot be opened)."""
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+class RosServer:
+    """The nodes with their executor threads, for `al5d serve`: `al5d` for the instructions,
+    the outputs and the parameters, `al5d_safety` for the stop, release and shutdown,
+    `al5d_stop_watcher` for stops on the topic, `al5d_actions` for the actions. `start`:
+    the node `al5d` made already with the command line's parameters (`RosStart`); without
+    it, one for the driver's config, in `namespace` (None: the config's)."""
+
+    def __init__(
+        self,
+        driver: ArmDriver,
+        trace: str | None = None,
+        namespace: str | None = None,
+        start: RosStart | None = None,
+    ) -> None:
+        if start is None:
+            start = RosStart(flags=Flags(namespace=namespace), base=driver.config)
+        names = self.names = start.names
+        self.context = start.context
+        self.node = start.node
+        self.node.attach(driver)
         self.robot = RobotNode(driver, self.context, names)
-        self.safety = SafetyPath(driver, names)
+        # The stop path's participant takes the same arguments: remaps, and the namespace.
+        self.safety = SafetyPath(driver, names, start.args)
         self.actions = ActionsNode(driver, self.context, names)
+        self.node.appliers += [self.robot.set_rates, self.actions.set_rate]
         self.trace_path = trace
         if trace is not None:
             self.node.trace = []
@@ -252,8 +448,10 @@ class RosServer:
             driver.motion_listeners.append(
                 lambda sent: events.append((sent.instr.id, "write", int(sent.t_write * 1e9)))
             )
-        # The node `al5d` is read by its own thread (its `Reader`); the others have an
-        # executor and a thread each. The stop path has a participant of its own.
+        # The node `al5d` is read by its own thread (its `Reader`), and its parameter
+        # services answered by an executor of its own; the others have an executor and a
+        # thread each. The stop path has a participant of its own.
+        self.node_spinner = Spinner(self.node, self.context, owns_context=False, kind="single")
         self.robot_spinner = Spinner(self.robot, self.context, owns_context=False)
         self.actions_spinner = Spinner(
             self.actions, self.context, owns_context=False, kind="single"
@@ -269,7 +467,7 @@ class RosServer:
         self.node.reader.close()
         self.actions_spinner.close()
         self.robot_spinner.close()
-        self.node.destroy_node()
+        self.node_spinner.close()  # destroys the node `al5d`
         self.context.try_shutdown()
         if self.trace_path is not None and self.node.trace is not None:
             with open(self.trace_path, "w", encoding="utf-8") as f:

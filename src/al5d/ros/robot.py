@@ -4,7 +4,9 @@
   URDF generated from the configuration, as robot_state_publisher offers it.
 - `/joint_states`: the URDF's joint names, REP 103 values (radians, the gap in
   metres for `gripper`), at the joint-state rate.
-- `/tf` at the same rate and `/tf_static` once (latched), base_link to tool0.
+- `/tf` at the same rate and `/tf_static` once (latched), base_link to tool0; with a
+  mount (`server.mount`), `/tf_static` also holds base_link in the mount's parent frame
+  (`world`), so that several arms are one tree.
 - `~/tool_pose` (`/al5d/tool_pose`, geometry_msgs/PoseStamped): tool0 in base_link.
 
 Names are relative (`robot_description`, `joint_states`) or private, so that a
@@ -78,13 +80,12 @@ class RobotPublisher:
         self.description.publish(String(data=urdf_from_chain(self.chain, "al5d")))
         stamp = node.get_clock().now().to_msg()
         steps = joint_transforms(self.chain, dict.fromkeys(self.names, 0.0))
-        self.tf_static.publish(
-            TFMessage(
-                transforms=[
-                    _transform(j.parent, j.child, steps[j.name], stamp) for j in self._fixed
-                ]
-            )
-        )
+        static = [_transform(j.parent, j.child, steps[j.name], stamp) for j in self._fixed]
+        mount = config.server.mount
+        if mount is not None:
+            frame = mount.frame()
+            static.insert(0, _transform(frame.parent, self.chain.root, frame.transform, stamp))
+        self.tf_static.publish(TFMessage(transforms=static))
 
     def publish(self, degrees: Mapping[str, float]) -> bool:
         """Joint states, /tf and the tool pose for the arm's degrees (NaN: unknown yet);

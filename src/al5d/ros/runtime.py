@@ -9,7 +9,7 @@ import os
 import queue
 import tempfile
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -98,6 +98,12 @@ class Names:
     @property
     def joint_states(self) -> str:
         return self.shared("joint_states")
+
+    @property
+    def joint_commands(self) -> str:
+        """Set-points (sensor_msgs/JointState, the URDF's names and values), as ros2_control's
+        topic-based hardware (`JointStateTopicSystem`) publishes its commands."""
+        return self.shared("joint_commands")
 
     @property
     def robot_description(self) -> str:
@@ -294,8 +300,9 @@ def _remove(path: str) -> None:
         os.unlink(path)
 
 
-def start_context() -> Context:
-    """A ROS context (a DDS participant); the process's DDS profile first, if none is named."""
+def start_context(args: Sequence[str] | None = None) -> Context:
+    """A ROS context (a DDS participant); the process's DDS profile first, if none is named.
+    `args`: a command line whose `--ros-args` (remaps, parameters) apply to its nodes."""
     ros_environment()
     if not os.environ.get(PROFILES_VAR):
         dds_profile()
@@ -303,8 +310,19 @@ def start_context() -> Context:
     ours = os.environ.get(PROFILES_VAR) == os.environ.get(OURS_VAR)
     with discovery_on_our_transports(ours and local_only()):
         # Our own SIGINT/SIGTERM handling parks the arm first; rclpy's would just stop.
-        rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+        rclpy.init(
+            args=list(args) if args else None,
+            context=context,
+            signal_handler_options=SignalHandlerOptions.NO,
+        )
     return context
+
+
+def pinned(name: str) -> list[str]:
+    """A node's own arguments that keep its name whatever the command line's `-r __node:=`
+    (which renames every node of a context; a node's own rules come first): the server's
+    nodes but `al5d` keep theirs, so that each has one name, as the design gives them."""
+    return ["--ros-args", "-r", f"__node:={name}"]
 
 
 def make_executor(context: Context, kind: str | None = None) -> Executor:

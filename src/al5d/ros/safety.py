@@ -34,7 +34,7 @@ participant's included, at a higher scheduling priority where the OS allows
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from al5d_interfaces.msg import ArmInstruction
@@ -54,6 +54,7 @@ from al5d.ros.runtime import (
     WATCHER_NODE,
     Names,
     Spinner,
+    pinned,
     start_context,
 )
 from al5d.ros.workarounds import Reader, stamped_service, taken_by_reader
@@ -86,7 +87,12 @@ class SafetyNode(Node):
     under the server's namespace."""
 
     def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
-        super().__init__(SAFETY_NODE, namespace=names.node_namespace, context=context)
+        super().__init__(
+            SAFETY_NODE,
+            namespace=names.node_namespace,
+            context=context,
+            cli_args=pinned(SAFETY_NODE),
+        )
         self.driver = driver
         for name, kind in names.services.items():
             stamped_service(self, Trigger, name, self._trigger(kind), QOS_SERVICES)
@@ -115,7 +121,12 @@ class StopWatcher(Node):
     the two on one thread, a stop service call behind 1000 queued moves took 10 ms)."""
 
     def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
-        super().__init__(WATCHER_NODE, namespace=names.node_namespace, context=context)
+        super().__init__(
+            WATCHER_NODE,
+            namespace=names.node_namespace,
+            context=context,
+            cli_args=pinned(WATCHER_NODE),
+        )
         self.driver = driver
         self.presets = tuple(driver.config.presets)
         watched = self.create_subscription(
@@ -143,13 +154,14 @@ class StopWatcher(Node):
 
 class SafetyPath:
     """The stop path of one server: `SafetyNode` and `StopWatcher` on a DDS participant (an
-    rclpy context) of their own, every thread of it at the stop path's priority."""
+    rclpy context) of their own, every thread of it at the stop path's priority. `args`:
+    the server's command line, whose `--ros-args` (remaps: the namespace) apply here too."""
 
-    def __init__(self, driver: ArmDriver, names: Names) -> None:
+    def __init__(self, driver: ArmDriver, names: Names, args: Sequence[str] | None = None) -> None:
         def build() -> tuple[Context, SafetyNode, StopWatcher, Spinner]:
             # Made here, in a thread at the stop path's priority: the threads the participant
             # starts with its first node (its receive threads) inherit it.
-            context = start_context()
+            context = start_context(args or [SAFETY_NODE])
             safety = SafetyNode(driver, context, names)
             watcher = StopWatcher(driver, context, names)
             spinner = Spinner(safety, context, owns_context=False, kind="single", urgent=True)

@@ -12,6 +12,7 @@ import threading
 from collections.abc import Callable, Coroutine, Iterator
 from typing import Any
 
+from rclpy.callback_groups import CallbackGroup
 from rclpy.exceptions import InvalidHandle
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -70,6 +71,33 @@ class StampedExecutor(SingleThreadedExecutor):
         return _execute
 
 
+def parameter_overrides(node: Node) -> dict[str, Any]:
+    """The parameter values a node's command line gives it (`-p`, `--params-file`, global and
+    its own), name -> value, as rcl resolved them for its name and namespace. rclpy 7.1
+    keeps them in `Node._parameter_overrides` and offers no getter; a node that declares its
+    parameters from them reads them there (it can go when rclpy offers one)."""
+    overrides: dict[str, Any] = getattr(node, "_parameter_overrides", {})
+    return {name: p.value for name, p in overrides.items()}
+
+
+class ReaderOnly(CallbackGroup):
+    """The callback group of what a `Reader` takes from (its subscriptions and its guard
+    condition), whose node an executor spins all the same (the node `al5d`, for its
+    parameter services): rclpy's executors wait only on entities whose group can execute
+    (`Executor._wait_for_ready_callbacks`), so they never take the Reader's messages nor
+    its wake-up. Checked by tests/test_ros_params.py (instructions taken while the
+    parameter services answer)."""
+
+    def can_execute(self, entity: Any) -> bool:
+        return False
+
+    def beginning_execution(self, entity: Any) -> bool:
+        return False
+
+    def ending_execution(self, entity: Any) -> None:
+        return None
+
+
 def taken_by_reader(msg: object) -> None:
     """The callback of a subscription a `Reader` takes from: an executor never calls it."""
     raise AssertionError("this input is taken by its reader, not an executor")
@@ -95,9 +123,10 @@ class Reader:
     rclpy's wait set as `rclpy.wait_for_message` does (`rclpy.impl`); it can go when an
     executor offers both the info and the speed.
 
-    The node must not be spun by an executor (its subscriptions' callbacks are never
-    called); its publishers need none. An `urgent` reader (the stop watcher's) runs at the
-    stop path's priority (`al5d.priority`)."""
+    The node must not be spun by an executor, or its subscriptions must be in a
+    `ReaderOnly` group (their callbacks are never called); its publishers need none. An
+    `urgent` reader (the stop watcher's) runs at the stop path's priority
+    (`al5d.priority`)."""
 
     def __init__(
         self,
@@ -106,12 +135,13 @@ class Reader:
         name: str,
         batch: int = 200,
         urgent: bool = False,
+        group: ReaderOnly | None = None,
     ) -> None:
         self._node = node
         self._urgent = urgent
         self._inputs = inputs
         self._batch = batch
-        self._wake = node.create_guard_condition(lambda: None)
+        self._wake = node.create_guard_condition(lambda: None, callback_group=group or ReaderOnly())
         self._running = True
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()

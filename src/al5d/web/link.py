@@ -25,17 +25,21 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory
 
 from al5d.arm.instruction import Instruction, Kind, Outcome, new_id
 from al5d.arm.instruction import stop as stop_instruction
 from al5d.model import ArmModel
+from al5d.model.chain import BASE_LINK
+from al5d.model.transforms import Transform
 from al5d.ros.convert import (
     from_message,
     outcome_from_message,
     to_message,
     trajectory_from_message,
 )
+from al5d.ros.robot import QOS_TF_STATIC
 from al5d.ros.runtime import (
     QOS_INSTRUCTIONS,
     QOS_LATCHED,
@@ -75,6 +79,8 @@ class Listener(Protocol):
 
     def on_instruction(self, instr: Instruction) -> None: ...
 
+    def on_mount(self, parent: str, mount: Transform) -> None: ...
+
 
 class Link:
     """The web process's node: subscriptions to the server's outputs, the instruction topic,
@@ -100,6 +106,7 @@ class Link:
             ArmInstruction, names.instruction, self._on_instruction, QOS_LATEST
         )
         node.create_subscription(JointTrajectory, names.trajectory, self._on_trajectory, QOS_LATEST)
+        node.create_subscription(TFMessage, "/tf_static", self._on_static, QOS_TF_STATIC)
         by_kind = {kind: name for name, kind in names.services.items()}
         self.stop_client = node.create_client(Trigger, by_kind[Kind.STOP], qos_profile=QOS_SERVICES)
         self.release_client = node.create_client(
@@ -129,6 +136,15 @@ class Link:
         instr = from_message(msg, self.presets, self.model)
         if not isinstance(instr, str):  # the server refuses it; its outcome will say why
             self.listener.on_instruction(instr)
+
+    def _on_static(self, msg: TFMessage) -> None:
+        """The arm's mount: base_link in a frame shared with other arms (`server.mount`)."""
+        base = self.names.frame_prefix + BASE_LINK
+        for t in msg.transforms:
+            if t.child_frame_id == base:
+                p, q = t.transform.translation, t.transform.rotation
+                mount = Transform((p.x, p.y, p.z), (q.x, q.y, q.z, q.w))
+                self.listener.on_mount(str(t.header.frame_id), mount)
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:
         instr = trajectory_from_message(msg, self.model)

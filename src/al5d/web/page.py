@@ -23,7 +23,7 @@ import viser
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result, move_to, preset
 from al5d.model import JOINTS, ModelError
-from al5d.model.transforms import Vec3
+from al5d.model.transforms import Transform, Vec3
 from al5d.web.panel import Panel
 from al5d.web.plan import Debouncer, JointHistory, OutcomeLog, Planner, Target
 from al5d.web.scene import ArmScene
@@ -167,6 +167,12 @@ class Page:
             if isinstance(target, Target):
                 self.pending[instr.id] = (f"{instr.name} [{instr.id}]", target)
                 self._show_ghost()
+
+    def on_mount(self, parent: str, mount: Transform) -> None:
+        """Where the arm's base_link stands in `parent` (its mount, on /tf_static)."""
+        with self._lock:
+            self.scene.place_arm(mount)
+        log.info("web: the arm is mounted in %s at %s", parent, mount.translation)
 
     # -- showing (under the lock) ----------------------------------------------------
 

@@ -1,5 +1,6 @@
 """The page's 3D view: the arm from its URDF, the ghost of its target, the tool's straight
-path, and the gizmo at the tool. No lock and no ROS: the page calls it under its own lock.
+path, and the gizmo at the tool, all in the arm's base_link, which stands where its mount
+puts it in the world (the grid). No lock and no ROS: the page calls it under its own lock.
 """
 
 from __future__ import annotations
@@ -16,12 +17,17 @@ import yourdfpy
 from viser.extras import ViserUrdf
 
 from al5d.model import ArmModel
-from al5d.model.transforms import Vec3
+from al5d.model.transforms import Transform, Vec3
 from al5d.web.plan import Target
 
 log = logging.getLogger("al5d.web")
 
 GHOST_RGBA = (0.25, 0.55, 1.0, 0.35)
+#: The camera a new page starts with, in base_link.
+CAMERA: Vec3 = (0.42, -0.36, 0.34)
+LOOK_AT: Vec3 = (0.04, 0.0, 0.15)
+#: The node everything of the arm hangs from: base_link, at its mount's pose.
+ROOT = "/base_link"
 #: The gizmo while the server is lost: faint, and with nothing left to grab.
 TARGET_OFF_OPACITY = 0.25
 
@@ -36,16 +42,17 @@ class ArmScene:
         self.robot: ViserUrdf | None = None
         self.ghost: ViserUrdf | None = None
         scene = server.scene
-        server.initial_camera.position = (0.42, -0.36, 0.34)
-        server.initial_camera.look_at = (0.04, 0.0, 0.15)
+        server.initial_camera.position = CAMERA
+        server.initial_camera.look_at = LOOK_AT
         scene.add_grid("/grid", width=0.8, height=0.8, cell_size=0.05, section_size=0.2)
-        self.robot_root = scene.add_frame("/arm", show_axes=False)
-        self.ghost_root = scene.add_frame("/ghost", show_axes=False, visible=False)
+        self.mount = scene.add_frame(ROOT, show_axes=False)
+        self.robot_root = scene.add_frame(f"{ROOT}/arm", show_axes=False)
+        self.ghost_root = scene.add_frame(f"{ROOT}/ghost", show_axes=False, visible=False)
         self.path = scene.add_line_segments(
-            "/path", np.zeros((1, 2, 3)), (230, 120, 0), thickness=0.004, visible=False
+            f"{ROOT}/path", np.zeros((1, 2, 3)), (230, 120, 0), thickness=0.004, visible=False
         )
         self.target = scene.add_transform_controls(
-            "/target", scale=0.09, disable_rotations=True, depth_test=False, visible=False
+            f"{ROOT}/target", scale=0.09, disable_rotations=True, depth_test=False, visible=False
         )
         self.target_enabled = True
 
@@ -60,11 +67,24 @@ class ArmScene:
         if self.robot is not None and self.ghost is not None:
             self.robot.remove()
             self.ghost.remove()
-        self.robot = ViserUrdf(self.server, _load_urdf(urdf), root_node_name="/arm")
+        self.robot = ViserUrdf(self.server, _load_urdf(urdf), root_node_name=f"{ROOT}/arm")
         self.ghost = ViserUrdf(
-            self.server, _load_urdf(urdf), root_node_name="/ghost", mesh_color_override=GHOST_RGBA
+            self.server,
+            _load_urdf(urdf),
+            root_node_name=f"{ROOT}/ghost",
+            mesh_color_override=GHOST_RGBA,
         )
         return True
+
+    def place_arm(self, mount: Transform) -> None:
+        """base_link where its mount puts it in the world (the grid's frame); a new page's
+        camera looks at the arm there."""
+        x, y, z, w = mount.rotation
+        with self.server.atomic():
+            self.mount.position = mount.translation
+            self.mount.wxyz = (w, x, y, z)
+        self.server.initial_camera.position = mount.apply(CAMERA)
+        self.server.initial_camera.look_at = mount.apply(LOOK_AT)
 
     def _cfg(self, urdf: ViserUrdf, degrees: Mapping[str, float]) -> npt.NDArray[np.float64]:
         values = self.model.to_urdf(degrees)

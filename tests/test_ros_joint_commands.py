@@ -1,0 +1,182 @@
+"""ros2_control without C++ (issue 24, item 4): the server takes the commands of ros-controls'
+topic-based hardware (`JointStateTopicSystem`) on `<ns>/joint_commands` and publishes the
+joint states it reads on `<ns>/joint_states`.
+
+The peer here publishes as that hardware does: sensor_msgs/JointState with the URDF's
+joint names and position commands in radians (metres for the gripper's gap), header
+stamped, on a reliable writer that keeps the last one. Over real DDS against
+`al5d serve` in its own process, the emulated board in this one.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import pytest
+from armrig import group_pulses, pulses
+from proc import Proc, patient_config
+from rclpy.qos import QoSProfile
+from rospeer import Peer, wait_until
+from sensor_msgs.msg import JointState
+
+from al5d.arm.config import ArmConfig
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Emulator
+
+NAMESPACE = "cell"
+#: The joints of the AL5D's ros2_control tag, in its order (the README's xacro).
+COMMANDED = ("base", "shoulder", "elbow", "wrist", "wrist_rotate", "gripper")
+
+
+@dataclass
+class Served:
+    emu: Emulator
+    proc: Proc
+    peer: Peer
+    config: ArmConfig
+    commands: object  # the peer's publisher of joint commands
+
+    def group_moves(self, since: int = 0) -> list[p.GroupMove]:
+        return [
+            c for r in self.emu.records[since:] for c in r.commands if isinstance(c, p.GroupMove)
+        ]
+
+    def command(
+        self, degrees: Mapping[str, float], ident: str = "", **raw: list[Any]
+    ) -> JointState:
+        """Publish a command for `degrees` (the arm's), as the hardware would: URDF values."""
+        values = self.config.model.to_urdf(dict(degrees))
+        msg = JointState()
+        msg.header.stamp = self.peer.node.get_clock().now().to_msg()
+        msg.header.frame_id = ident
+        msg.name = list(values)
+        msg.position = [float(v) for v in values.values()]
+        for field, value in raw.items():
+            setattr(msg, field, value)
+        self.commands.publish(msg)  # type: ignore[attr-defined]
+        return msg
+
+
+@pytest.fixture(scope="module")
+def served(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    link = tmp_path_factory.mktemp("commands") / "ssc32u"
+    emu = Emulator(config, link=link).start()
+    proc = Proc(
+        "serve",
+        "--port",
+        str(link),
+        "--config",
+        patient_config(),
+        "--log-level",
+        "INFO",
+        "--ros-args",
+        "-r",
+        f"__ns:=/{NAMESPACE}",
+    )
+    peer = Peer(name="al5d_hardware_peer", namespace=NAMESPACE)
+    # JointStateTopicSystem's publisher: rclcpp::QoS(1), reliable, volatile.
+    commands = peer.node.create_publisher(
+        JointState, peer.names.joint_commands, QoSProfile(depth=1)
+    )
+    try:
+        proc.err.wait_for("STATE: ready", 30)
+        peer.wait_for_server()
+        wait_until(lambda: commands.get_subscription_count() > 0, 20, "the server's reader")
+        yield Served(emu, proc, peer, config, commands)
+    finally:
+        peer.close()
+        proc.kill()
+        emu.close()
+
+
+def settled(s: Served, degrees: Mapping[str, float], timeout: float = 20.0) -> None:
+    """Until the emulated servos stand at `degrees` and the joint states say so."""
+    urdf = s.config.model.to_urdf(dict(degrees))
+
+    def there() -> bool:
+        if not all(abs(s.emu.servo_degrees()[j] - d) < 0.2 for j, d in degrees.items()):
+            return False
+        last = s.peer.joint_states[-1:]
+        return bool(last) and all(
+            abs(v - urdf[n]) < 1e-3 for n, v in zip(last[0].name, last[0].position, strict=True)
+        )
+
+    wait_until(there, timeout, f"the arm at {dict(degrees)}")
+
+
+def test_a_joint_command_moves_the_arm_and_the_joint_states_say_where(served: Served) -> None:
+    target = {"base": 20.0, "shoulder": 35.0, "elbow": 80.0, "wrist": -15.0}
+    target |= {"wrist_rotate": 30.0, "gripper": 40.0}
+    since = len(served.emu.records)
+    served.command(target)
+    settled(served, target)
+    moves = served.group_moves(since)
+    assert len(moves) == 1
+    assert group_pulses(moves[0]) == pulses(served.config, target)
+    # Where the hardware reads the state back: the same names, the same units.
+    urdf = served.config.model.to_urdf(target)
+    served.peer.joint_states.clear()
+    wait_until(lambda: served.peer.joint_states, 10, "joint states")
+    state = served.peer.joint_states[-1]
+    assert set(state.name) == set(COMMANDED)
+    for name, value in zip(state.name, state.position, strict=True):
+        assert math.isclose(value, urdf[name], abs_tol=1e-6), name
+
+
+def test_a_bad_joint_command_is_refused_whole_and_writes_nothing(served: Served) -> None:
+    here = dict(served.emu.servo_degrees())
+    good = {"base": -30.0, "elbow": 60.0}
+    since = len(served.emu.records)
+    named = {"name": list(COMMANDED)}
+    cases: dict[str, tuple[dict[str, list[Any]], str]] = {
+        "unknown": ({"name": [*COMMANDED[:5], "finger"]}, "unknown joint 'finger'"),
+        "nan": (named | {"position": [math.nan, *[0.0] * 5]}, "base: nan rad is outside"),
+        "far": (named | {"position": [2.0, *[0.0] * 5]}, "base: 2 rad is outside"),
+        "short": ({"position": [0.1, 0.2]}, "2 positions for 6 joints"),
+        "velocity": ({"velocity": [0.1] * 6}, "positions only"),
+    }
+    for ident, (raw, reason) in cases.items():
+        served.command({**here, **good}, f"bad-{ident}", **raw)
+        result = served.peer.result(f"bad-{ident}", 20)
+        assert result.outcome == "refused", (ident, result.reason)
+        assert reason in result.reason, (ident, result.reason)
+    time.sleep(0.5)  # anything it wrongly wrote would be on the board by now
+    assert served.group_moves(since) == []
+
+
+def test_a_command_the_arm_is_at_or_going_to_writes_nothing_more(served: Served) -> None:
+    target = dict(served.emu.servo_degrees()) | {"base": 45.0, "wrist": 20.0}
+    since = len(served.emu.records)
+    # A controller at 100 Hz holding one set-point (its hardware publishes while the state
+    # is off the command: all the way there).
+    for _ in range(100):
+        served.command(target)
+        time.sleep(0.01)
+    settled(served, target)
+    for _ in range(50):
+        served.command(target)
+        time.sleep(0.01)
+    time.sleep(0.5)
+    moves = served.group_moves(since)
+    assert len(moves) == 1, [m.targets for m in moves]
+    assert group_pulses(moves[0]) == pulses(served.config, target)
+
+
+def test_the_latest_command_wins(served: Served) -> None:
+    start = dict(served.emu.servo_degrees())
+    since = len(served.emu.records)
+    # 60 set-points of a sweep, faster than the wire carries them (a line at 9600 baud
+    # takes 40 ms): those that find the arm busy replace each other.
+    last = start
+    for k in range(1, 61):
+        last = start | {"base": -60.0 + k, "elbow": 60.0 + k / 2}
+        served.command(last)
+        time.sleep(0.002)
+    settled(served, last)
+    moves = served.group_moves(since)
+    assert 1 <= len(moves) < 20, len(moves)
+    assert group_pulses(moves[-1]) == pulses(served.config, last)

@@ -1,0 +1,254 @@
+"""`al5d serve` as a ROS node takes `--ros-args` (issue 24, item 2): parameters named after the
+config's keys, remaps of its namespace and name, refusals with the config's messages.
+
+Over real DDS against `al5d serve` in its own process, the emulated board in this one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from proc import Proc, patient_config
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import GetParameters, SetParameters
+from rclpy.action import get_action_names_and_types
+from rospeer import Peer, wait_future, wait_until
+from tf2_msgs.msg import TFMessage
+
+from al5d.arm.config import DEFAULT_CONFIG, ArmConfig
+from al5d.ros.robot import QOS_TF_STATIC
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Emulator
+
+#: The node `al5d`, renamed by `-r __node:=`: the others keep their names.
+RENAMED = "left_arm"
+OTHERS = ("al5d_robot", "al5d_actions", "al5d_safety", "al5d_stop_watcher")
+
+
+@dataclass
+class Served:
+    emu: Emulator
+    proc: Proc
+    peer: Peer
+    link: Path
+
+
+@pytest.fixture(scope="module")
+def served(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    link = tmp_path_factory.mktemp("params") / "ssc32u"
+    emu = Emulator(config, link=link).start()
+    # The flags win over the parameters (the board is at 9600), which win over the file.
+    proc = Proc(
+        "serve",
+        "--log-level",
+        "INFO",
+        "--baud",
+        "9600",
+        "--ros-args",
+        "-p",
+        "baud:=115200",
+        "-p",
+        f"port:={link}",
+        "-p",
+        f"config_file:={patient_config()}",
+        "-p",
+        "server.joint_state_rate_hz:=30",
+        "-r",
+        "__ns:=/left",
+        "-r",
+        f"__node:={RENAMED}",
+    )
+    peer = Peer(name="al5d_params_peer", namespace="left")
+    try:
+        proc.err.wait_for("STATE: ready", 30)
+        peer.wait_for_server()
+        yield Served(emu, proc, peer, link)
+    finally:
+        peer.close()
+        proc.kill()
+        emu.close()
+
+
+def _value(v: ParameterValue) -> Any:
+    return {
+        ParameterType.PARAMETER_STRING: v.string_value,
+        ParameterType.PARAMETER_INTEGER: v.integer_value,
+        ParameterType.PARAMETER_DOUBLE: v.double_value,
+        ParameterType.PARAMETER_DOUBLE_ARRAY: list(v.double_array_value),
+    }.get(v.type)
+
+
+def get(peer: Peer, *names: str) -> dict[str, Any]:
+    client = peer.node.create_client(GetParameters, f"/left/{RENAMED}/get_parameters")
+    try:
+        assert client.wait_for_service(timeout_sec=20)
+        answer = wait_future(client.call_async(GetParameters.Request(names=list(names))), 20)
+        return {n: _value(v) for n, v in zip(names, answer.values, strict=True)}
+    finally:
+        peer.node.destroy_client(client)
+
+
+def set_one(peer: Peer, name: str, value: ParameterValue) -> Any:
+    client = peer.node.create_client(SetParameters, f"/left/{RENAMED}/set_parameters")
+    try:
+        assert client.wait_for_service(timeout_sec=20)
+        request = SetParameters.Request(parameters=[Parameter(name=name, value=value)])
+        return wait_future(client.call_async(request), 20).results[0]
+    finally:
+        peer.node.destroy_client(client)
+
+
+def double(x: float) -> ParameterValue:
+    return ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=x)
+
+
+def test_a_namespace_remap_moves_every_node_name_and_frame(served: Served) -> None:
+    node = served.peer.node
+    expected = {(RENAMED, "/left"), *((name, "/left") for name in OTHERS)}
+    wait_until(
+        lambda: expected <= set(node.get_node_names_and_namespaces()), 20, "the server's nodes"
+    )
+    assert not {
+        n for n, ns in node.get_node_names_and_namespaces() if n in OTHERS and ns != "/left"
+    }
+    topics = {name for name, _ in node.get_topic_names_and_types()}
+    assert {
+        "/left/al5d/instruction",
+        "/left/al5d/result",
+        "/left/al5d/state",
+        "/left/joint_states",
+        "/left/joint_commands",
+        "/left/robot_description",
+    } <= topics
+    assert not {t for t in topics if t.startswith("/al5d/") or t == "/joint_states"}
+    services = {name for name, _ in node.get_service_names_and_types()}
+    assert {"/left/al5d/stop", "/left/al5d/release", "/left/al5d/shutdown"} <= services
+    assert f"/left/{RENAMED}/set_parameters" in services
+    actions = {name for name, _ in get_action_names_and_types(node)}
+    assert {
+        "/left/al5d/move",
+        "/left/arm_controller/follow_joint_trajectory",
+        "/left/gripper_controller/gripper_cmd",
+    } <= actions
+    frames: set[str] = set()
+    sub = node.create_subscription(
+        TFMessage,
+        "/tf_static",
+        lambda m: frames.update(t.child_frame_id for t in m.transforms),
+        QOS_TF_STATIC,
+    )
+    try:
+        wait_until(lambda: frames, 20, "the static frames")
+    finally:
+        node.destroy_subscription(sub)
+    assert all(f.startswith("left/") for f in frames), frames
+    # The port parameter named the board: a move reaches it.
+    before = len(served.emu.records)
+    served.peer.send("p-1", "move", time_ms=200, base=25)
+    assert served.peer.result("p-1").outcome == "done"
+    assert any(isinstance(c, p.GroupMove) for r in served.emu.records[before:] for c in r.commands)
+
+
+def test_the_parameters_read_back_what_the_server_runs_with(served: Served) -> None:
+    got = get(
+        served.peer,
+        "port",
+        "config_file",
+        "baud",
+        "server.namespace",
+        "server.joint_state_rate_hz",
+        "server.queue_capacity",
+        "server.mount.parent",
+        "geometry.ulna_mm",
+    )
+    assert got == {
+        "port": str(served.link),
+        "config_file": patient_config(),
+        "baud": 9600,
+        "server.namespace": "left",
+        "server.joint_state_rate_hz": 30.0,
+        "server.queue_capacity": 1024,
+        "server.mount.parent": "",
+        "geometry.ulna_mm": 187.325,
+    }
+
+
+def test_a_change_the_server_cannot_take_is_refused_with_the_reason(served: Served) -> None:
+    peer = served.peer
+    text = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value="/dev/ttyUSB9")
+    port = set_one(peer, "port", text)
+    assert not port.successful and "read-only" in port.reason and "port" in port.reason
+    bad = set_one(peer, "server.joint_state_rate_hz", double(-3.0))
+    assert not bad.successful
+    assert bad.reason == (
+        "ROS parameters: server.joint_state_rate_hz: Input should be greater than 0 (value: -3.0)"
+    )
+    above = set_one(peer, "server.idle_joint_state_rate_hz", double(45.0))
+    assert not above.successful
+    assert "idle_joint_state_rate_hz 45 must not exceed joint_state_rate_hz 30" in above.reason
+    assert get(peer, "port", "server.joint_state_rate_hz") == {
+        "port": str(served.link),
+        "server.joint_state_rate_hz": 30.0,
+    }
+
+
+def test_a_change_the_server_can_take_is_applied(served: Served) -> None:
+    peer = served.peer
+    done = set_one(peer, "server.joint_state_rate_hz", double(40.0))
+    assert done.successful, done.reason
+    served.proc.err.wait_for("parameters set: server.joint_state_rate_hz=40.0", 20)
+    assert get(peer, "server.joint_state_rate_hz") == {"server.joint_state_rate_hz": 40.0}
+    # Now 45 is below it.
+    assert set_one(peer, "server.idle_joint_state_rate_hz", double(35.0)).successful
+    # The joint states come on, at the new rates, and moves go on as before.
+    peer.joint_states.clear()
+    peer.send("p-2", "move", time_ms=300, base=-25)
+    assert peer.result("p-2").outcome == "done"
+    wait_until(lambda: len(peer.joint_states) > 5, 10, "joint states")
+
+
+def serve_refused(*args: str, config: str | None = None) -> str:
+    """`al5d serve` that must not start: its exit code is 2 and its error, the config's."""
+    where = ["--config", config] if config else []
+    proc = Proc("serve", *where, *args)
+    assert proc.wait(60) == 2, proc.err.drain()
+    lines = proc.err.drain()
+    assert not any("STATE:" in line for line in lines), lines  # no arm was started
+    return "\n".join(lines)
+
+
+def test_a_bad_parameter_gets_the_configs_message_and_exit_2(tmp_path: Path) -> None:
+    data = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    data["server"]["joint_state_rate_hz"] = -5
+    in_file = tmp_path / "bad.yaml"
+    in_file.write_text(yaml.safe_dump(data))
+    message = "server.joint_state_rate_hz: Input should be greater than 0 (value: -5)"
+    assert f"{in_file}: {message}" in serve_refused(config=str(in_file))
+    as_parameter = serve_refused("--ros-args", "-p", "server.joint_state_rate_hz:=-5")
+    assert f"ROS parameters: {message}" in as_parameter
+    # As a launch file gives parameters: a params file, for every node.
+    params = tmp_path / "params.yaml"
+    params.write_text(
+        yaml.safe_dump({"/**": {"ros__parameters": {"server": {"joint_state_rate_hz": -5}}}})
+    )
+    assert f"ROS parameters: {message}" in serve_refused("--ros-args", "--params-file", str(params))
+    assert "ROS parameters: baud: baud 1234: the SSC-32U runs at" in serve_refused(
+        "--ros-args", "-p", "baud:=1234"
+    )
+    assert "ROS parameters: server.joint_state_rate: not a parameter of al5d" in serve_refused(
+        "--ros-args", "-p", "server.joint_state_rate:=50"
+    )
+    assert "joints and presets are set in the config file only" in serve_refused(
+        "--ros-args", "-p", "joints.base.channel:=3"
+    )
+    assert "the remap __ns:=/left and server.namespace 'right' disagree" in serve_refused(
+        "--ros-args", "-r", "__ns:=/left", "-p", "server.namespace:=right"
+    )
+    assert "ROS arguments: Failed to parse ROS arguments" in serve_refused(
+        "--ros-args", "-r", "not-a-rule"
+    )
