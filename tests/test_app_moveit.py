@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import math
+import random
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import yaml
 import yourdfpy
 from proc import Proc
 
-from al5d.app.moveit import moveit_files, write_moveit_config
+from al5d.app.moveit import arm_chain, moveit_files, write_moveit_config
 from al5d.arm.config import DEFAULT_CONFIG, load_config
 from al5d.ros.runtime import Names
 
@@ -209,3 +210,39 @@ def test_without_a_namespace_the_hardware_uses_the_root_topics(tmp_path: Path) -
         "joint_trajectory_controller",
         "gripper_action_controller",
     }
+
+
+def test_the_hardware_stays_quiet_at_a_state_the_board_rounded_to_microseconds() -> None:
+    # A command the board could only place to the nearest microsecond comes back as a
+    # state that far off: the topic hardware must not repeat it (its threshold), while a
+    # command a step of a microsecond on every joint away still goes out.
+    from al5d.model import moveit as mv
+
+    model = CONFIG.model
+    threshold = mv.command_threshold(
+        model, {name: joint.us_per_deg for name, joint in CONFIG.joints.items()}
+    )
+    rng = random.Random(24)
+    for _ in range(200):
+        wanted = {j: rng.uniform(*CONFIG.joints[j].range_deg) for j in CONFIG.joints}
+        rounded = {
+            j: CONFIG.joints[j].to_deg(round(CONFIG.joints[j].to_us(v))) for j, v in wanted.items()
+        }
+        command, state = model.to_urdf(wanted), model.to_urdf(rounded)
+        assert sum(abs(command[j] - state[j]) for j in command) <= threshold
+        stepped = {
+            j: CONFIG.joints[j].to_deg(CONFIG.joints[j].to_us(v) + 1) for j, v in rounded.items()
+        }
+        moved = model.to_urdf(stepped)
+        assert sum(abs(moved[j] - state[j]) for j in moved) > threshold
+
+
+def test_without_a_park_preset_ros2_control_starts_mid_range() -> None:
+    from al5d.model import moveit as mv
+
+    presets = {k: v for k, v in CONFIG.presets.items() if k != "park"}
+    chain = arm_chain(CONFIG, "")
+    start = mv.initial_positions(CONFIG.model, chain, presets)["initial_positions"]
+    for joint in chain.movable:
+        lo, hi = CONFIG.model.urdf_limits(joint)
+        assert math.isclose(start[joint], (lo + hi) / 2, abs_tol=1e-12), joint
