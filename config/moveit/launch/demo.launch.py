@@ -8,9 +8,9 @@ Written by `al5d moveit` for the package al5d_moveit_config.
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, GroupAction, IncludeLaunchDescription
-from launch.conditions import IfCondition, LaunchConfigurationEquals
+from launch.conditions import IfCondition
 from launch.launch_description_sources import PythonLaunchDescriptionSource
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch.substitutions import EqualsSubstitution, LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node, PushRosNamespace
 from launch_ros.substitutions import FindPackageShare
 
@@ -38,7 +38,7 @@ def _include(name, condition=None, **arguments):
 
 def generate_launch_description():
     controllers = LaunchConfiguration("controllers")
-    ros2_control = LaunchConfigurationEquals("controllers", "ros2_control")
+    ros2_control = IfCondition(EqualsSubstitution(controllers, "ros2_control"))
     moveit = [PushRosNamespace(NAMESPACE)] if NAMESPACE else []
     moveit += [
         _include("move_group.launch.py", controllers=controllers),

@@ -200,9 +200,9 @@ def _launch(doc: str, body: str, *, robot: str, package: str, namespace: str) ->
 _DEMO = """
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, GroupAction, IncludeLaunchDescription
-from launch.conditions import IfCondition, LaunchConfigurationEquals
+from launch.conditions import IfCondition
 from launch.launch_description_sources import PythonLaunchDescriptionSource
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch.substitutions import EqualsSubstitution, LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node, PushRosNamespace
 from launch_ros.substitutions import FindPackageShare
 #CONSTANTS#
@@ -219,7 +219,7 @@ def _include(name, condition=None, **arguments):
 
 def generate_launch_description():
     controllers = LaunchConfiguration("controllers")
-    ros2_control = LaunchConfigurationEquals("controllers", "ros2_control")
+    ros2_control = IfCondition(EqualsSubstitution(controllers, "ros2_control"))
     moveit = [PushRosNamespace(NAMESPACE)] if NAMESPACE else []
     moveit += [
         _include("move_group.launch.py", controllers=controllers),
