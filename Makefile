@@ -13,14 +13,14 @@ STDMSGS := $(VENV)/.control_msgs $(VENV)/.tf2_msgs
 
 .PHONY: install chromium demo test bench soak lint clean
 
-install: $(STAMP) $(IFACES) $(STDMSGS) chromium
+install: $(STAMP) $(IFACES) $(STDMSGS) build/COLCON_IGNORE chromium
 
 # Every version is pinned: pyproject.toml pins what we use, constraints.txt
 # pins everything those bring along.
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(PIP) install --quiet --upgrade pip==26.3
-	$(PIP) install --quiet -c constraints.txt -e '.[dev,ros,rosbuild,bench,web]'
+	$(PIP) install --quiet -c constraints.txt -e '.[dev,ros,rosbuild,colcon,bench,web]'
 	touch $(STAMP)
 
 # The ROS messages and action, built with rosidl into the venv's prefix so that
@@ -35,6 +35,11 @@ $(IFACES): $(STAMP) $(IFSRC)
 	cmake --install build/al5d_interfaces > build/install.log 2>&1 || (tail -20 build/install.log; exit 1)
 	$(BIN)/python -c "import al5d_interfaces.msg, al5d_interfaces.action"
 	touch $(IFACES)
+
+# The cmake builds above are no packages: a colcon workspace that holds this repository
+# (src/al5d) must not take their generated setup.py and CMakeLists.txt for some.
+build/COLCON_IGNORE:
+	mkdir -p build && echo "cmake builds of the Makefile, not packages" > $@
 
 # control_msgs and tf2_msgs, built the same way, but only when the import fails:
 # a user with a real ROS install keeps their own packages. A package we built

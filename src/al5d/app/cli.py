@@ -143,10 +143,21 @@ def _cmd_urdf(args: argparse.Namespace) -> int:
     return 0
 
 
+def _package_name(text: str) -> str:
+    """A ROS package name (REP 144), or argparse's error naming why not."""
+    from al5d.app.moveit_package import package_name_problem
+
+    problem = package_name_problem(text)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
+    return text
+
+
 def _cmd_moveit(args: argparse.Namespace) -> int:
     from al5d.app.moveit import write_moveit_config
 
-    for path in write_moveit_config(args.out, load_config(args.config), args.namespace):
+    config = load_config(args.config)
+    for path in write_moveit_config(args.out, config, args.namespace, args.name):
         print(path)
     return 0
 
@@ -283,11 +294,19 @@ def build_parser() -> argparse.ArgumentParser:
     urdf.set_defaults(func=_cmd_urdf)
 
     moveit = sub.add_parser(
-        "moveit", help="write a MoveIt configuration (URDF, SRDF, limits, controllers)"
+        "moveit", help="write a MoveIt 2 config package (URDF, SRDF, controllers, launch files)"
     )
-    moveit.add_argument("out", help="directory to write the files into (made if missing)")
+    moveit.add_argument(
+        "out", help="directory of the package, e.g. ~/ws/src/al5d_moveit_config (made if missing)"
+    )
     moveit.add_argument("--config", help="arm configuration file; default: the shipped one")
     moveit.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: config")
+    moveit.add_argument(
+        "--name",
+        type=_package_name,
+        default="al5d_moveit_config",
+        help="the package's name; default: %(default)s",
+    )
     moveit.set_defaults(func=_cmd_moveit)
 
     demo = sub.add_parser("demo", help="the DE01 demo on the embedded emulator, with a QoS table")

@@ -170,3 +170,182 @@ def moveit_config(
         "kinematics.yaml": kinematics(),
         "moveit_controllers.yaml": controllers(),
     }
+
+
+# --- ros2_control: the topic-based hardware between the controllers and the server ---
+
+#: ros2_control's controllers take names of their own: the server keeps serving its
+#: `arm_controller` and `gripper_controller` actions in both set-ups, and two action
+#: servers under one name would each take some of MoveIt's goals.
+ROS2_ARM_CONTROLLER: Final = "joint_trajectory_controller"
+ROS2_GRIPPER_CONTROLLER: Final = "gripper_action_controller"
+#: ros-controls' topic_based_hardware_interfaces: publishes the controllers' commands as
+#: sensor_msgs/JointState and reads the state from another JointState topic.
+TOPIC_HARDWARE: Final = "joint_state_topic_hardware_interface/JointStateTopicSystem"
+JOINT_COMMANDS_TOPIC: Final = "joint_commands"
+JOINT_STATES_TOPIC: Final = "joint_states"
+#: Cartesian limits for MoveIt's Pilz planner, well inside what a desk arm's servos do;
+#: a request's scaling factors scale them further.
+PILZ_LIMITS: Final = {
+    "max_trans_vel": 0.2,
+    "max_trans_acc": 0.5,
+    "max_trans_dec": -0.5,
+    "max_rot_vel": 1.0,
+}
+
+
+def topic(namespace: str, name: str) -> str:
+    """The absolute name of the server's topic `name` in `namespace` ("" none)."""
+    ns = namespace.strip("/")
+    return f"/{ns}/{name}" if ns else f"/{name}"
+
+
+def initial_positions(
+    model: ArmModel, chain: Chain, presets: Mapping[str, Mapping[str, float]]
+) -> dict[str, Any]:
+    """initial_positions.yaml: ros2_control's state until the first joint state arrives.
+
+    The `park` preset where there is one, since the server parks the arm when it starts;
+    otherwise the middle of each joint's range."""
+    if "park" in presets:
+        values = _preset_state(model, "park", presets["park"], (*ARM_JOINTS, "gripper"))
+    else:
+        middle = {j: (model.ranges.of(j).lo + model.ranges.of(j).hi) / 2 for j in chain.movable}
+        values = model.to_urdf(middle)
+    # + 0.0: no negative zero in the file
+    return {"initial_positions": {j: float(values[j]) + 0.0 for j in chain.movable}}
+
+
+def command_threshold(model: ArmModel, us_per_deg: Mapping[str, float]) -> float:
+    """The topic hardware's `trigger_joint_command_threshold`: half a microsecond of pulse
+    on every joint, summed, in URDF units (radians, the gripper's metres).
+
+    The hardware sends a command only when it differs from the state by more than this
+    (summed over the joints). The board places a servo in whole microseconds, so a
+    state read back from it may sit up to half of one away from the command that put
+    it there: with a smaller threshold the hardware would repeat the last command to
+    the arm at every update while it stands still."""
+    total = 0.0
+    for joint, scale in us_per_deg.items():
+        half_us_deg = 0.5 / abs(scale)
+        if joint == "gripper":
+            total += model.gripper_map.metres_per_deg * half_us_deg
+        else:
+            total += math.radians(half_us_deg)
+    return total
+
+
+def ros2_controllers(chain: Chain, *, update_rate_hz: int, namespace: str = "") -> dict[str, Any]:
+    """ros2_controllers.yaml: the controller manager, a joint trajectory controller for the
+    arm's joints and a gripper action controller for the gap.
+
+    No joint_state_broadcaster: the server publishes /joint_states itself, and the
+    topic hardware reads its state from there; a broadcaster would put a second,
+    echoed copy on the topic the hardware reads. The parameter sections name each node
+    with its namespace, so that they apply to the nodes of an arm in one."""
+    prefix = f"/{namespace.strip('/')}/" if namespace.strip("/") else ""
+    arm = [j for j in chain.movable if j != "gripper"]
+    return {
+        f"{prefix}controller_manager": {
+            "ros__parameters": {
+                "update_rate": update_rate_hz,
+                ROS2_ARM_CONTROLLER: {
+                    "type": "joint_trajectory_controller/JointTrajectoryController"
+                },
+                ROS2_GRIPPER_CONTROLLER: {"type": "position_controllers/GripperActionController"},
+            }
+        },
+        f"{prefix}{ROS2_ARM_CONTROLLER}": {
+            "ros__parameters": {
+                "joints": arm,
+                "command_interfaces": ["position"],
+                "state_interfaces": ["position"],
+            }
+        },
+        f"{prefix}{ROS2_GRIPPER_CONTROLLER}": {"ros__parameters": {"joint": "gripper"}},
+    }
+
+
+def ros2_control_controllers() -> dict[str, Any]:
+    """MoveIt's controllers when ros2_control drives the arm: its two controllers' actions,
+    through the same simple controller manager."""
+    config = controllers()
+    manager = config["moveit_simple_controller_manager"]
+    manager["controller_names"] = [ROS2_ARM_CONTROLLER, ROS2_GRIPPER_CONTROLLER]
+    manager[ROS2_ARM_CONTROLLER] = manager.pop(ARM_CONTROLLER)
+    manager[ROS2_GRIPPER_CONTROLLER] = manager.pop(GRIPPER_CONTROLLER)
+    return config
+
+
+def pilz_cartesian_limits() -> dict[str, Any]:
+    """pilz_cartesian_limits.yaml (floats throughout, as MoveIt reads doubles)."""
+    return {"cartesian_limits": {k: float(v) for k, v in PILZ_LIMITS.items()}}
+
+
+def ros2_control_xacro(chain: Chain, *, robot_name: str = "al5d") -> str:
+    """`<robot>.ros2_control.xacro`: a macro for the `<ros2_control>` tag with the topic
+    hardware, every joint that /joint_states carries commanded by position.
+
+    The hardware's topics and threshold are the macro's parameters, so that the including
+    xacro (and a user's xacro arguments) choose them."""
+    xacro_ns = "http://www.ros.org/wiki/xacro"
+    ET.register_namespace("xacro", xacro_ns)
+    robot = ET.Element("robot")
+    macro = ET.SubElement(
+        robot,
+        f"{{{xacro_ns}}}macro",
+        name=f"{robot_name}_ros2_control",
+        params="name initial_positions_file joint_commands_topic joint_states_topic "
+        "trigger_joint_command_threshold",
+    )
+    ET.SubElement(
+        macro,
+        f"{{{xacro_ns}}}property",
+        name="initial_positions",
+        value="${xacro.load_yaml(initial_positions_file)['initial_positions']}",
+    )
+    control = ET.SubElement(macro, "ros2_control", name="${name}", type="system")
+    hardware = ET.SubElement(control, "hardware")
+    ET.SubElement(hardware, "plugin").text = TOPIC_HARDWARE
+    for param in ("joint_commands_topic", "joint_states_topic", "trigger_joint_command_threshold"):
+        ET.SubElement(hardware, "param", name=param).text = f"${{{param}}}"
+    for name in chain.movable:
+        joint = ET.SubElement(control, "joint", name=name)
+        ET.SubElement(joint, "command_interface", name="position")
+        state = ET.SubElement(joint, "state_interface", name="position")
+        ET.SubElement(
+            state, "param", name="initial_value"
+        ).text = f"${{initial_positions['{name}']}}"
+    ET.indent(robot, space="  ")
+    return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
+
+
+def robot_xacro(
+    *,
+    robot_name: str,
+    namespace: str,
+    threshold: float,
+) -> str:
+    """`<robot>.urdf.xacro`: the URDF with the ros2_control tag, as the Setup Assistant's
+    modified URDF is made: the plain URDF and the control macro included beside it, its
+    topics those of the server in `namespace`, each overridable as a xacro argument."""
+    xacro_ns = "http://www.ros.org/wiki/xacro"
+    ET.register_namespace("xacro", xacro_ns)
+    robot = ET.Element("robot", name=robot_name)
+    args = {
+        "initial_positions_file": "initial_positions.yaml",
+        "joint_commands_topic": topic(namespace, JOINT_COMMANDS_TOPIC),
+        "joint_states_topic": topic(namespace, JOINT_STATES_TOPIC),
+        "trigger_joint_command_threshold": num(threshold),
+    }
+    for name, default in args.items():
+        ET.SubElement(robot, f"{{{xacro_ns}}}arg", name=name, default=default)
+    ET.SubElement(robot, f"{{{xacro_ns}}}include", filename=f"{robot_name}.urdf")
+    ET.SubElement(robot, f"{{{xacro_ns}}}include", filename=f"{robot_name}.ros2_control.xacro")
+    ET.SubElement(
+        robot,
+        f"{{{xacro_ns}}}{robot_name}_ros2_control",
+        {"name": "TopicBasedSystem", **{name: f"$(arg {name})" for name in args}},
+    )
+    ET.indent(robot, space="  ")
+    return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
