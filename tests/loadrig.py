@@ -132,6 +132,19 @@ def first_stop_after(emu: Board, t: float, timeout: float = 10.0) -> Record:
     return found
 
 
+#: What the board received around each stop that `stop_latency_ms` did not find.
+MISSED: list[str] = []
+
+
+def board_after(emu: Board, t: float) -> str:
+    """The lines the board received from just before `t` on, as the note of a missed stop."""
+    records = emu.records
+    late = [i for i, r in enumerate(records) if r.t_effect > t - 0.05]
+    first = late[0] if late else len(records)
+    shown = records[max(0, first - 3) : first + 40]
+    return "\n".join(f"{r.t_effect - t:+.4f} {r.raw!r} {r.ignored or ''}" for r in shown)
+
+
 def stop_latency_ms(emu: Board, peer: Peer, via: str, baud: int, ident: str = "") -> float | None:
     """Stop by service or topic (with `ident`); ms until the first STOP is in effect, minus
     ESC and its wire."""
@@ -143,6 +156,7 @@ def stop_latency_ms(emu: Board, peer: Peer, via: str, baud: int, ident: str = ""
     try:
         rec = first_stop_after(emu, t0)
     except TimeoutError:
+        MISSED.append(board_after(emu, t0))
         return None
     if via == "service":
         wait_future(future, 10)
@@ -216,6 +230,7 @@ def flood(
                 sent = time.strftime("%H:%M:%S", time.localtime(time.time() - 10))
                 result.notes.append(
                     f"a stop via {via} sent at {sent} never reached the board:\n{diagnose()}"
+                    f"\nthe board from 50 ms before it:\n{MISSED[-1]}"
                 )
             else:
                 (result.stop_service_ms if via == "service" else result.stop_topic_ms).append(ms)
