@@ -4,6 +4,7 @@ set-point where the arm is heading writes nothing. In the driver, on an emulated
 from __future__ import annotations
 
 from armrig import Rig, group_pulses, pulses
+from rospeer import wait_until
 
 from al5d.arm import instruction as ins
 from al5d.arm.instruction import Result
@@ -53,7 +54,7 @@ def test_a_set_point_where_the_arm_is_or_goes_writes_nothing(rig: Rig) -> None:
     assert "nothing written" in same.reason
     assert len(rig.moves()) == before
     # On its way to a set-point: the same one again writes nothing either.
-    going = driver.submit(ins.move(base=40, time_ms=600), stream=STREAM)
+    going = driver.submit(ins.move(base=40, time_ms=3000), stream=STREAM)
     again = driver.submit(ins.move(base=40), stream=STREAM).result(5)
     assert again.ok and "nothing written" in again.reason and not going.done()
     assert going.result(10).ok
@@ -74,3 +75,36 @@ def test_set_points_are_judged_and_refused_like_any_move(rig: Rig) -> None:
     assert locked.result is Result.REFUSED and driver.state is State.STOPPED
     assert driver.submit(ins.release()).result(5).ok
     assert len(rig.moves()) == before
+
+
+def test_a_stop_holds_the_stream_until_a_set_point_where_the_arm_is(rig: Rig) -> None:
+    """ros2_control's hardware sends its last target again and again while the arm is off
+    it: after a stop and a release that target is not driven to; a set-point where the arm
+    stands (a controller that let go of the old target) resumes the stream."""
+    driver = rig.driver
+    target = {"base": 70.0, "elbow": 100.0}
+    moved = len(rig.moves())
+    going = driver.submit(ins.move(**target, time_ms=4000, id="old"), stream=STREAM)
+    rig.wait_move_count(moved + 1)
+    assert driver.execute(ins.stop(), 10).ok
+    assert going.result(10).result is Result.CANCELLED
+    assert driver.execute(ins.release(), 10).ok
+    driver.wait_for_state(State.READY, 10)
+    before = len(rig.moves())
+    for _ in range(20):  # the hardware at its rate, still on the old target
+        again = driver.submit(ins.move(**target), stream=STREAM).result(5)
+        assert again.result is Result.REFUSED and "stream of set-points is held" in again.reason
+    assert len(rig.moves()) == before
+
+    def hold_here() -> bool:
+        """A controller re-activated: it holds where the joint states say the arm is (once
+        the pose after the stop is read back)."""
+        here = driver.submit(ins.move(**driver.positions()), stream=STREAM).result(10)
+        assert here.ok or "stream of set-points is held" in here.reason, here.reason
+        return here.ok and "nothing written" in here.reason
+
+    wait_until(hold_here, 10, "the stream resumed")
+    assert driver.submit(ins.move(**target), stream=STREAM).result(10).ok
+    moves = rig.moves()[before:]
+    assert len(moves) == 1
+    assert group_pulses(moves[0].commands[0]) == pulses(rig.config, target)

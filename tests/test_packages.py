@@ -22,6 +22,7 @@ import yaml
 
 from al5d.app.moveit import write_moveit_config
 from al5d.arm.config import DEFAULT_CONFIG, load_config
+from al5d.ros import params
 
 REPO = Path(__file__).resolve().parent.parent
 BIN = Path(sys.executable).parent
@@ -254,6 +255,24 @@ def test_every_launch_file_compiles_and_names_what_is_installed(install: Path) -
                 assert exe.is_file(), f"{path.name} runs {exe.name}, which is not installed"
 
 
+def passed_parameters(tree: ast.Module) -> set[str]:
+    """The names bringup puts in its `parameters` dict: the keys it sets one by one and the
+    names its comprehension takes over."""
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if (
+            isinstance(node, ast.Subscript)
+            and getattr(node.value, "id", None) == "parameters"
+            and isinstance(node.slice, ast.Constant)
+        ):
+            names.add(node.slice.value)
+        if isinstance(node, ast.DictComp):
+            for generator in node.generators:
+                if isinstance(generator.iter, ast.Tuple):
+                    names |= {e.value for e in generator.iter.elts if isinstance(e, ast.Constant)}
+    return names
+
+
 def test_bringup_takes_the_servers_settings_as_parameters(install: Path) -> None:
     tree = ast.parse((share(install, "al5d") / "launch" / "bringup.launch.py").read_text())
     arguments = next(
@@ -264,10 +283,9 @@ def test_bringup_takes_the_servers_settings_as_parameters(install: Path) -> None
     assert isinstance(arguments, ast.Dict)
     declared = {k.value for k in arguments.keys if isinstance(k, ast.Constant)}
     assert {"config_file", "port", "baud", "namespace", "web"} <= declared
-    # port, baud and config_file go to the node as ROS parameters of those names, the
-    # namespace as the node's namespace.
-    strings = _strings(tree)
-    assert {"port", "baud", "config_file"} <= strings
+    # port, baud and config_file go to the node as ROS parameters of the names the server
+    # declares, the namespace as the node's namespace.
+    assert passed_parameters(tree) == set(params.TOP)
     (server,) = [c for c in _calls(tree, "Node") if c.get("executable") == "server"]
     assert "name" not in server
     node_call = next(

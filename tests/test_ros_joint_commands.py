@@ -24,6 +24,7 @@ from rospeer import Peer, wait_until
 from sensor_msgs.msg import JointState
 
 from al5d.arm.config import ArmConfig
+from al5d.ros.node import COMMAND_REFUSALS_EVERY_S
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
 
@@ -102,7 +103,9 @@ def settled(s: Served, degrees: Mapping[str, float], timeout: float = 20.0) -> N
             return False
         last = s.peer.joint_states[-1:]
         return bool(last) and all(
-            abs(v - urdf[n]) < 1e-3 for n, v in zip(last[0].name, last[0].position, strict=True)
+            abs(v - urdf[n]) < 1e-3
+            for n, v in zip(last[0].name, last[0].position, strict=True)
+            if n in urdf
         )
 
     wait_until(there, timeout, f"the arm at {dict(degrees)}")
@@ -127,6 +130,22 @@ def test_a_joint_command_moves_the_arm_and_the_joint_states_say_where(served: Se
         assert math.isclose(value, urdf[name], abs_tol=1e-6), name
 
 
+def test_nan_is_no_command_for_that_joint(served: Served) -> None:
+    """ros2_control's command interfaces are NaN until a controller sets them (the gripper's,
+    while only the arm's controller runs): the other joints move, that one stays."""
+    target = dict(served.emu.servo_degrees()) | {"base": -25.0, "wrist": 10.0}
+    values = served.config.model.to_urdf(target)
+    positions = [math.nan if name == "gripper" else float(v) for name, v in values.items()]
+    since = len(served.emu.records)
+    served.command(target, "nan-gripper", position=positions)
+    settled(served, {"base": -25.0, "wrist": 10.0})
+    moves = served.group_moves(since)
+    assert len(moves) == 1
+    channels = {t.channel for t in moves[0].targets}
+    assert served.config.joints["gripper"].channel not in channels
+    assert served.config.joints["base"].channel in channels
+
+
 def test_a_bad_joint_command_is_refused_whole_and_writes_nothing(served: Served) -> None:
     here = dict(served.emu.servo_degrees())
     good = {"base": -30.0, "elbow": 60.0}
@@ -134,7 +153,8 @@ def test_a_bad_joint_command_is_refused_whole_and_writes_nothing(served: Served)
     named = {"name": list(COMMANDED)}
     cases: dict[str, tuple[dict[str, list[Any]], str]] = {
         "unknown": ({"name": [*COMMANDED[:5], "finger"]}, "unknown joint 'finger'"),
-        "nan": (named | {"position": [math.nan, *[0.0] * 5]}, "base: nan rad is outside"),
+        "inf": (named | {"position": [math.inf, *[0.0] * 5]}, "base: inf rad is outside"),
+        "no command": (named | {"position": [math.nan] * 6}, "NaN is ros2_control's"),
         "far": (named | {"position": [2.0, *[0.0] * 5]}, "base: 2 rad is outside"),
         "short": ({"position": [0.1, 0.2]}, "2 positions for 6 joints"),
         "velocity": ({"velocity": [0.1] * 6}, "positions only"),
@@ -169,14 +189,33 @@ def test_a_command_the_arm_is_at_or_going_to_writes_nothing_more(served: Served)
 def test_the_latest_command_wins(served: Served) -> None:
     start = dict(served.emu.servo_degrees())
     since = len(served.emu.records)
-    # 60 set-points of a sweep, faster than the wire carries them (a line at 9600 baud
-    # takes 40 ms): those that find the arm busy replace each other.
+    # A long move holds the arm; 60 set-points of a sweep meanwhile replace each other.
+    served.peer.send("hold", "move", time_ms=5000, **(start | {"wrist": start["wrist"] + 20}))
+    wait_until(lambda: served.group_moves(since), 20, "the long move on the board")
     last = start
     for k in range(1, 61):
         last = start | {"base": -60.0 + k, "elbow": 60.0 + k / 2}
         served.command(last)
-        time.sleep(0.002)
+    assert served.peer.result("hold", 30).outcome == "done"
     settled(served, last)
     moves = served.group_moves(since)
-    assert 1 <= len(moves) < 20, len(moves)
+    assert len(moves) == 2, len(moves)  # the long move, then the last set-point only
     assert group_pulses(moves[-1]) == pulses(served.config, last)
+
+
+def test_a_refusal_sent_again_and_again_is_published_once_a_second(served: Served) -> None:
+    """A controller sends its refused command again at its rate: the result topic hears the
+    reason again only after a second, not at the controller's rate."""
+    here = dict(served.emu.servo_degrees())
+    named = {"name": list(COMMANDED), "position": [3.0, *[0.0] * 5]}
+    t0 = time.monotonic()
+    for i in range(40):
+        served.command(here, f"again-{i}", **named)
+        time.sleep(0.005)
+    served.command(here, "sentinel", **(named | {"position": [0.0] * 5 + [9.0]}))
+    assert served.peer.result("sentinel", 20).outcome == "refused"  # another reason: told
+    told = [i for i in range(40) if f"again-{i}" in served.peer.results]
+    assert told and told[0] == 0, told
+    # At most one a second of the 40 (sent within `took` seconds).
+    took = time.monotonic() - t0
+    assert len(told) <= 1 + took / COMMAND_REFUSALS_EVERY_S, (told, took)

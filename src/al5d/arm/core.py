@@ -37,6 +37,10 @@ The lanes
   (within half a pulse microsecond) is done at once with nothing written. One
   that finds the arm idle is written at once, like any move; the one running
   is not cut short (a stream as fast as the wire is issue 25's streaming mode).
+  A stop, a fault or a shutdown holds the streams: their set-points are refused
+  until one comes that is where the arm is (its source has let go of the target
+  it had before), so a target sent again and again is not driven to after a
+  release.
 - **The worker's own work** (`next_task`, in this order): the shutdown, the
   recovery from a fault, the start-up park, a job the caller wrote, the
   read-back of the pose after a halt, the next queued move, and a check of
@@ -77,7 +81,15 @@ from al5d.arm.corestate import CoreState, Runner
 from al5d.arm.effects import Admission, Ended, Halt, Verdict, Work
 from al5d.arm.instruction import Outcome
 from al5d.arm.jobs import Job, Mode, Motion, Written
-from al5d.arm.states import Event, State, Task, next_state, refusal, release_refusal
+from al5d.arm.states import (
+    Event,
+    State,
+    Task,
+    next_state,
+    refusal,
+    release_refusal,
+    stream_held,
+)
 from al5d.clock import Deadline, wall_ns
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.errors import BoardReset, SerialFault
@@ -106,11 +118,16 @@ class Core(CoreState):
                 return Admission(Verdict.REFUSED, reason)
             replaced = None
             if job.stream:
+                unchanged = self._unchanged(job)
+                if self._streams_held:
+                    if not unchanged:
+                        return Admission(Verdict.REFUSED, stream_held(self._streams_held))
+                    self._streams_held = ""  # the source holds where the arm is: it resumes
                 # The latest set-point wins: one that waits is replaced, never queued behind.
                 replaced = next((j for j in self._queue if j.stream == job.stream), None)
                 if replaced is not None:
                     self._queue.remove(replaced)
-                if self._unchanged(job):
+                if unchanged:
                     if self._current is None and not self._queue and self._state is State.MOVING:
                         self._fire(Event.MOVE_DONE)
                     return Admission(Verdict.UNCHANGED, replaced=replaced)

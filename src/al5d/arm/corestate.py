@@ -56,6 +56,10 @@ class CoreState:
         self._announcer = Announcer(state_listeners, self._state)
         self._locked = False  # a stop (or a board's reset) and no release since
         self._epoch = 0  # counts the events that dropped every pending move
+        # Why the streams of set-points are held (empty: they are not). A stream's source
+        # (ros2_control's hardware) sends its last target again and again while the arm is
+        # off it: after a stop, that target must not drive the arm once it is released.
+        self._streams_held = ""
         self._queue: deque[Job] = deque()
         self._current: Job | None = None
         self._runner: Runner | None = None
@@ -223,6 +227,7 @@ class CoreState:
         that drops them was sent."""
         self._epoch += 1
         self._order.dropped(why, sent_ns)
+        self._streams_held = why
         jobs = list(self._queue)
         self._queue.clear()
         current, self._current, self._runner = self._current, None, None

@@ -148,3 +148,12 @@ def refusal(state: State, fault: object = None) -> str:
 
 def release_refusal(state: State) -> str:
     return f"the arm is not stopped (state {state.value}): nothing to release"
+
+
+def stream_held(why: str) -> str:
+    """Why a set-point of a stream is refused after a stop, a fault or a shutdown (`why`)."""
+    return (
+        f"the stream of set-points is held since a stop, fault or shutdown ({why}): a "
+        "set-point where the arm is now resumes it (with ros2_control: re-activate the "
+        "controllers, or start a new trajectory from where the arm stands)"
+    )

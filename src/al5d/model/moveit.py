@@ -218,21 +218,19 @@ def initial_positions(
 
 def command_threshold(model: ArmModel, us_per_deg: Mapping[str, float]) -> float:
     """The topic hardware's `trigger_joint_command_threshold`: half a microsecond of pulse
-    on every joint, summed, in URDF units (radians, the gripper's metres).
+    of the finest joint, in URDF units (radians, the gripper's metres).
 
     The hardware sends a command only when it differs from the state by more than this
-    (summed over the joints). The board places a servo in whole microseconds, so a
-    state read back from it may sit up to half of one away from the command that put
-    it there: with a smaller threshold the hardware would repeat the last command to
-    the arm at every update while it stands still."""
-    total = 0.0
-    for joint, scale in us_per_deg.items():
-        half_us_deg = 0.5 / abs(scale)
-        if joint == "gripper":
-            total += model.gripper_map.metres_per_deg * half_us_deg
-        else:
-            total += math.radians(half_us_deg)
-    return total
+    (summed over the joints): a command that moves one joint by a single microsecond of
+    pulse must go. The board places a servo in whole microseconds, so at rest the state
+    may sit a fraction of one off the command and the hardware sends the command again at
+    every update; the server writes nothing for it (where the arm is already)."""
+    return min(
+        model.gripper_map.metres_per_deg * 0.5 / abs(scale)
+        if joint == "gripper"
+        else math.radians(0.5 / abs(scale))
+        for joint, scale in us_per_deg.items()
+    )
 
 
 def ros2_controllers(chain: Chain, *, update_rate_hz: int, namespace: str = "") -> dict[str, Any]:

@@ -187,8 +187,10 @@ def joint_command_from_message(
     """The move a joint command asks for (sensor_msgs/JointState, as ros2_control's
     topic-based hardware publishes its position commands: the URDF's names and values), or
     why it is not one. Judged whole: a name the URDF does not have, a value that is not a
-    number or is outside its limits, refuses it all. The fingers, mimics of `gripper`,
-    are left out: their commands are the hardware's own (NaN until something sets them)."""
+    number or is outside its limits, refuses it all. NaN is ros2_control's "no command"
+    (a command interface no controller has set yet, such as the gripper's while only the
+    arm's controller runs): that joint is left where it is. The fingers, mimics of
+    `gripper`, are left out: their commands are the hardware's own."""
     names = list(msg.name)
     positions = list(msg.position)
     if len(msg.velocity) or len(msg.effort):
@@ -203,14 +205,17 @@ def joint_command_from_message(
         )
     joints: list[tuple[str, float]] = []
     for name, value in zip(names, positions, strict=True):
-        if name in GRIPPER_FINGERS:
+        if name in GRIPPER_FINGERS or (math.isnan(value) and _in_urdf(model, name)):
             continue
         outside = outside_urdf_limits(model, name, value)
         if outside:
             return outside
         joints.append((name, arm_degrees(model, name, value)))
     if not joints:
-        return "a joint command names no joint of the arm"
+        return (
+            "a joint command with no joint of the arm to move (NaN is ros2_control's "
+            "'no command yet': no controller has set one)"
+        )
     return Instruction(Kind.MOVE, joints=tuple(joints), id=trajectory_id(msg), sent_ns=sent)
 
 
@@ -258,6 +263,14 @@ def trajectory_from_message(
 #: What a value may be off its URDF limit and still be taken (it is checked again, in the
 #: arm's degrees, by the driver): a limit sent back from radians is not always exact.
 URDF_SLACK = 1e-9
+
+
+def _in_urdf(model: ArmModel, joint: str) -> bool:
+    try:
+        model.urdf_limits(joint)
+    except ModelError:
+        return False
+    return True
 
 
 def outside_urdf_limits(model: ArmModel, joint: str, value: float) -> str:

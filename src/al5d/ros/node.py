@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -88,6 +89,29 @@ QOS_COMMANDS = QoSProfile(
 )
 #: The stream of set-points the joint commands are (`ArmDriver.submit`'s `stream`).
 JOINT_COMMANDS = "joint_commands"
+
+
+#: How often a joint command's refusal is published again when its reason has not changed.
+COMMAND_REFUSALS_EVERY_S = 1.0
+
+
+class Repeats:
+    """Tells a reason that is news: another than the last one told, or the same once
+    `every_s` has passed since it was told."""
+
+    def __init__(self, every_s: float) -> None:
+        self._every_s = every_s
+        self._lock = threading.Lock()  # done callbacks and the reader's thread both ask
+        self._last = ""
+        self._told_at = -math.inf
+
+    def news(self, reason: str) -> bool:
+        t = time.monotonic()
+        with self._lock:
+            if reason == self._last and t - self._told_at < self._every_s:
+                return False
+            self._last, self._told_at = reason, t
+            return True
 
 
 class ArmNode(Node):
@@ -187,6 +211,9 @@ class ArmNode(Node):
             "al5d-inputs",
             group=group,
         )
+        # A controller sends a refused set-point again at its rate (held after a stop, or
+        # out of range): the result topic hears each reason once a second, not 25 times.
+        self._command_refusals = Repeats(COMMAND_REFUSALS_EVERY_S)
         driver.outcome_listeners.append(self._publish_outcome)
         driver.state_listeners.append(self._publish_state)
         self._publish_state(driver.state)
@@ -231,14 +258,15 @@ class ArmNode(Node):
         hundred outcomes a second, which would drown everyone else's on the result topic."""
         instr = joint_command_from_message(msg, self.driver.config.model, sent_ns(info))
         if isinstance(instr, str):
-            self.driver.refuse(trajectory_id(msg), JOINT_COMMANDS, instr)
+            if self._command_refusals.news(instr):
+                self.driver.refuse(trajectory_id(msg), JOINT_COMMANDS, instr)
             return
         future = self.driver.submit(instr, listeners=False, stream=JOINT_COMMANDS)
         future.add_done_callback(self._publish_refusal)
 
     def _publish_refusal(self, future: Future[Outcome]) -> None:
         outcome = future.result()
-        if outcome.result is Result.REFUSED:
+        if outcome.result is Result.REFUSED and self._command_refusals.news(outcome.reason):
             self.results.put(outcome)
 
 
