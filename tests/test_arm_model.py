@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import itertools
+import math
 import random
 import sys
 import threading
@@ -70,6 +71,10 @@ OUTCOME_BOUND_S = 15.0
 JOINTS = ("base", "shoulder", "elbow", "wrist")
 #: Instructions carry when they were sent where the driver knows of it (`sent_ns`).
 SENT = "sent_ns" in {f.name for f in dataclasses.fields(Instruction)}
+
+
+#: The stream of the set-points (as the server names ros2_control's joint commands).
+STREAM = "joint_commands"
 
 
 def sent_at(instr: Instruction, t_ns: int) -> Instruction:
@@ -266,6 +271,20 @@ class ArmProtocol(RuleBasedStateMachine):
             return
         self._submit("release", ins.release())
 
+    def _set_points(self, n: int, seed: int, here: bool) -> None:
+        """A stream of set-points (ros2_control's joint commands): near the ready pose, or,
+        `here`, where the arm stands (a controller re-activated, holding the arm's pose)."""
+        if here:
+            pose = self.driver.positions()
+            if not any(math.isnan(v) for v in pose.values()):
+                self._submit("set-point", ins.move(**pose), stream=STREAM)
+            return
+        rng = random.Random(seed)
+        for _ in range(n):
+            joints = rng.sample(JOINTS, rng.randint(1, 3))
+            target = {j: self.ready[j] + rng.uniform(-4, 4) for j in joints}
+            self._submit("set-point", ins.move(**target), stream=STREAM)
+
     def _cancel(self, pick: int) -> None:
         moves = [a for a in self.asked if a.kind == "move" and not a.future.done()]
         if moves:
@@ -302,6 +321,12 @@ class ArmProtocol(RuleBasedStateMachine):
                 )
 
     @precondition(lambda self: not self.ended)
+    @rule(n=st.integers(1, 6), seed=st.integers(0, 2**16), here=st.booleans())
+    def set_points(self, n: int, seed: int, here: bool) -> None:
+        self.check_step(f"set_points({n}, here={here})")
+        self._set_points(n, seed, here)
+
+    @precondition(lambda self: not self.ended)
     @rule(pick=st.integers(0, 100))
     def cancel(self, pick: int) -> None:
         self.check_step("cancel")
@@ -310,7 +335,7 @@ class ArmProtocol(RuleBasedStateMachine):
     @precondition(lambda self: not self.ended)
     @rule(
         actions=st.lists(
-            st.sampled_from(["moves", "stop", "stop twice", "release", "cancel"]),
+            st.sampled_from(["moves", "stop", "stop twice", "release", "cancel", "set-points"]),
             min_size=2,
             max_size=4,
         ),
@@ -326,6 +351,7 @@ class ArmProtocol(RuleBasedStateMachine):
             "stop twice": lambda: self._stop(True),
             "release": lambda: self._release(False),
             "cancel": lambda: self._cancel(seed),
+            "set-points": lambda: self._set_points(3, seed, False),
         }
         errors: list[BaseException] = []
 
@@ -437,6 +463,7 @@ class ArmProtocol(RuleBasedStateMachine):
                     f"(state {self.driver.state.value})"
                 ) from None
         self._no_move_while_stopped()
+        self._stream_held_after_a_stop()
         if not self.ended:
             self._probe()
         for ident, n in self.rig.told.items():
@@ -462,6 +489,28 @@ class ArmProtocol(RuleBasedStateMachine):
             assert "the serial link is lost" in outcome.reason, outcome
             time.sleep(0.1)
         raise AssertionError(f"a move after stop and release: {outcome}")
+
+    def _stream_held_after_a_stop(self) -> None:
+        """After a stop, no set-point of the stream moved the arm before one where the arm
+        stood was taken (a target sent again and again is not driven to after a release)."""
+        stops = sorted(a.t_done for a in self.asked if a.kind == "stop" and a.future.result().ok)
+        points = sorted((a for a in self.asked if a.kind == "set-point"), key=lambda a: a.t_call)
+        for i, stopped in enumerate(stops):
+            until = stops[i + 1] if i + 1 < len(stops) else math.inf
+            resumed = False
+            for a in points:
+                if not stopped < a.t_call < until:
+                    continue
+                outcome = a.future.result()
+                if not outcome.ok:
+                    continue
+                if "nothing written" in outcome.reason:
+                    resumed = True
+                elif not resumed:
+                    raise AssertionError(
+                        f"set-point {a.instr.id} moved the arm after a stop before the stream "
+                        f"was resumed: {outcome}"
+                    )
 
     def _no_move_while_stopped(self) -> None:
         """No move took effect on the board after a stop's STOP and before a release was
