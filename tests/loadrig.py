@@ -189,6 +189,7 @@ def flood(
     stops_every_s: float = 0.5,
     client_flags: tuple[str, ...] = (),
     diagnose: Callable[[], str] = lambda: "",
+    drain_s: float = 120.0,
 ) -> FloodResult:
     """Flood at `rate` for `seconds`; meanwhile stop (service and topic in turn) and release
     every `stops_every_s`, measuring each stop on the board."""
@@ -242,7 +243,7 @@ def flood(
         # The moves still queued get their outcomes from more stops, not a minute of moving:
         # the server may not have taken the whole flood yet (the sender was slowed).
         ids = [f"{prefix}-{i}" for i in range(result.sent)]
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + drain_s
         while counter.count(ids)[0] < len(ids) and time.monotonic() < deadline:
             wait_future(peer.services["stop"].call_async(Trigger.Request()), 10)
             wait_future(peer.services["release"].call_async(Trigger.Request()), 10)
