@@ -18,7 +18,7 @@ DEMO_SEQUENCE = Path(__file__).resolve().parent.parent / "data" / "demo.seq"
 
 def run_demo(sequence: Path = DEMO_SEQUENCE, baud: int | None = None) -> int:
     """Run the sequence through `al5d run` against this process's server; 0 if SA03 held."""
-    from al5d.ros.node import RosServer
+    from al5d.ros.server import RosServer
 
     # A domain of our own unless the user chose one: two demos on one host never meet.
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))

@@ -25,7 +25,7 @@ from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import GrammarError, Instruction, Outcome, parse_instruction, shutdown
 
 if TYPE_CHECKING:
-    from al5d.ros.node import RosStart
+    from al5d.ros.server import RosStart
     from al5d.ssc32u.emulator import Emulator
 
 log = logging.getLogger("al5d")
@@ -141,8 +141,8 @@ def serve(options: ServerOptions) -> int:
 
 
 def _ros_start(options: ServerOptions) -> RosStart:
-    from al5d.ros.node import RosStart
     from al5d.ros.params import Flags
+    from al5d.ros.server import RosStart
 
     flags = Flags(options.config, options.port, options.baud, options.namespace)
     return RosStart(options.ros_args, flags)
@@ -157,7 +157,7 @@ def _serve(
     with arm(options, config) as (driver, _):
         ros_server = None
         if start is not None:
-            from al5d.ros.node import RosServer
+            from al5d.ros.server import RosServer
 
             ros_server = RosServer(driver, trace=options.trace, start=start)
             log.info(

@@ -205,7 +205,7 @@ def joint_command_from_message(
         )
     joints: list[tuple[str, float]] = []
     for name, value in zip(names, positions, strict=True):
-        if name in GRIPPER_FINGERS or (math.isnan(value) and _in_urdf(model, name)):
+        if name in GRIPPER_FINGERS or (math.isnan(value) and _urdf_limits(model, name) is not None):
             continue
         outside = outside_urdf_limits(model, name, value)
         if outside:
@@ -265,22 +265,22 @@ def trajectory_from_message(
 URDF_SLACK = 1e-9
 
 
-def _in_urdf(model: ArmModel, joint: str) -> bool:
+def _urdf_limits(model: ArmModel, joint: str) -> tuple[float, float] | None:
+    """The URDF joint's limits; None if the URDF has no such joint."""
     try:
-        model.urdf_limits(joint)
+        return model.urdf_limits(joint)
     except ModelError:
-        return False
-    return True
+        return None
 
 
 def outside_urdf_limits(model: ArmModel, joint: str, value: float) -> str:
     """Why a URDF joint value is outside its limits, in the sender's units (radians, or
     metres for the gripper's gap); "" if it is inside, or not a URDF joint (the driver's
     validation names those)."""
-    try:
-        lo, hi = model.urdf_limits(joint)
-    except ModelError:
+    limits = _urdf_limits(model, joint)
+    if limits is None:
         return ""
+    lo, hi = limits
     if math.isfinite(value) and lo - URDF_SLACK <= value <= hi + URDF_SLACK:
         return ""
     unit = "m" if joint == "gripper" else "rad"
