@@ -3,18 +3,20 @@
     python tests/flood_client.py RATE SECONDS PREFIX [--mix] [--keep-last]
 
 Publishes RATE moves a second for SECONDS, with ids PREFIX-0, PREFIX-1, ...,
-once a line comes on stdin; with --mix, every 500th message is a stop and the
-next a release (a clumsy user among a hostile client's traffic). The writer
-keeps all it has not delivered (KEEP_ALL, as `al5d send` does), or with
---keep-last the last 10,000 only (as clients before issue 9 did). Prints one
-line of JSON when ready, and one when done: how many it sent, in how long,
-and how many publishes raised.
+once a line comes on stdin (meanwhile it sends instructions PREFIX-probe-K, which
+the server refuses, so that the rig can wait for one's outcome); with --mix, every
+500th message is a stop and the next a release (a clumsy user among a hostile
+client's traffic). The writer keeps all it has not delivered (KEEP_ALL, as `al5d
+send` does), or with --keep-last the last 10,000 only (as clients before issue 9
+did). Prints one line of JSON when ready, and one when done: how many it sent, in
+how long, and how many publishes raised.
 """
 
 from __future__ import annotations
 
 import json
 import sys
+import threading
 import time
 
 from al5d_interfaces.msg import ArmInstruction
@@ -38,7 +40,17 @@ def main() -> int:
     while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
         time.sleep(0.01)
     print(json.dumps({"ready": True}), flush=True)
-    sys.stdin.readline()  # go
+    # The writer matching a reader is not the reader matching the writer: a flood begun
+    # before the server's reader knows this writer loses its first instructions for good
+    # (a volatile reader starts at the writer's sequence number when it matches; seen on a
+    # busy machine: up to 6,918 of a flood's first instructions never reached the server).
+    # Probes until told to go: the rig says go once a probe's outcome came back.
+    go = threading.Event()
+    threading.Thread(target=lambda: (sys.stdin.readline(), go.set()), daemon=True).start()
+    probe = 0
+    while not go.wait(0 if probe == 0 else 0.2):
+        pub.publish(ArmInstruction(instruction="probe", id=f"{prefix}-probe-{probe}"))
+        probe += 1
     n = int(rate * seconds)
     failed = 0
     t0 = time.monotonic()

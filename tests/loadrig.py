@@ -21,7 +21,7 @@ from typing import Any, Protocol
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rospeer import Peer, wait_future
+from rospeer import Peer, wait_future, wait_until
 from std_srvs.srv import Trigger
 
 from al5d.ssc32u import protocol as p
@@ -76,6 +76,11 @@ class Counter:
         with self.lock:
             self.seen[msg.id] = self.seen.get(msg.id, 0) + 1
             self.reasons[msg.id] = f"{msg.outcome}: {msg.reason}"
+
+    def heard(self, prefix: str) -> bool:
+        """Has an outcome come for an id that begins with `prefix`?"""
+        with self.lock:
+            return any(i.startswith(prefix) for i in self.seen)
 
     def count(self, ids: list[str]) -> tuple[int, int]:
         """(ids with an outcome, ids with more than one)."""
@@ -211,7 +216,9 @@ def flood(
     assert client.stdin is not None and client.stdout is not None
     try:
         assert json.loads(client.stdout.readline()).get("ready")
-        time.sleep(0.3)  # both directions matched
+        # Both directions matched: the server answered one of the client's probes.
+        probe = f"{prefix}-probe-"
+        wait_until(lambda: counter.heard(probe), 60, "a probe of the flood client answered")
         client.stdin.write("go\n")
         client.stdin.flush()
         t_end = time.monotonic() + seconds
