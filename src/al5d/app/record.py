@@ -312,11 +312,12 @@ class RecordFile:
         try:
             with self._lock:
                 self._writer.finish()  # type: ignore[no-untyped-call]
+            self._file.close()
         except Exception as e:
             self.failed = self.failed or f"{type(e).__name__}: {e}"
             log.error("recording %s: its end could not be written (%s)", self.path, e)
-        finally:
-            self._file.close()
+            with contextlib.suppress(OSError):
+                self._file.close()  # what is left in its buffer cannot be written either
         if self.dropped:
             log.warning("recording %s: %d messages were not recorded", self.path, self.dropped)
 
@@ -414,7 +415,10 @@ class ServerRecording:
     def close(self) -> None:
         self.close_ros()
         self.file.close()
-        log.info("recorded %s", self.file.summary())
+        if self.file.failed:
+            log.error("recording %s failed: %s", self.file.path, self.file.failed)
+        else:
+            log.info("recorded %s", self.file.summary())
 
 
 def record(path: str, namespace: str | None, duration: float | None) -> int:
