@@ -240,6 +240,10 @@ def test_bad_files_are_clear_errors(tmp_path: Path) -> None:
     server = Proc("serve", "--no-ros", "--record", str(tmp_path / "no" / "dir.mcap"))
     assert server.wait(30) == 2
     assert "cannot write the recording" in server.err.wait_for("ERROR", 10)
+    # The same file as the node's parameter `record`.
+    param = Proc("serve", "--ros-args", "-p", f"record:={tmp_path / 'no' / 'param.mcap'}")
+    assert param.wait(30) == 2
+    assert "param.mcap: No such file" in param.err.wait_for("ERROR", 10)
 
 
 def test_a_recording_cut_short_replays_what_it_holds(tmp_path: Path) -> None:

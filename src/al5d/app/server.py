@@ -143,7 +143,7 @@ def serve(options: ServerOptions) -> int:
     config = None
     if start is not None:
         config = start.settings.config
-        options = replace(options, port=start.settings.port)
+        options = replace(options, port=start.settings.port, record=start.settings.record)
     recording = None
     try:
         if options.record is not None:
@@ -173,7 +173,7 @@ def _ros_start(options: ServerOptions) -> RosStart:
     from al5d.ros.params import Flags
     from al5d.ros.server import RosStart
 
-    flags = Flags(options.config, options.port, options.baud, options.namespace)
+    flags = Flags(options.config, options.port, options.baud, options.namespace, options.record)
     return RosStart(options.ros_args, flags)
 
 
