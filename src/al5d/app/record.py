@@ -399,10 +399,14 @@ class ServerRecording:
     def follow(self, names: Names, instruction_depth: int) -> None:
         from al5d.ros.runtime import start_context
 
-        self._context = start_context()
-        self._recorder = Recorder(
-            self._context, self.file, topics(names, instruction_depth), names.node_namespace
-        )
+        try:
+            self._context = start_context()
+            self._recorder = Recorder(
+                self._context, self.file, topics(names, instruction_depth), names.node_namespace
+            )
+        except Exception as e:  # the arm goes on; its board's bytes are still recorded
+            log.error("recording %s: the topics cannot be recorded (%s)", self.file.path, e)
+            self.close_ros()
 
     def close_ros(self) -> None:
         if self._recorder is not None:
