@@ -1,4 +1,4 @@
-"""The `al5d` command line: serve, emulator, send, run, demo, web."""
+"""The `al5d` command line: serve, emulator, send, run, demo, web, record, replay."""
 
 from __future__ import annotations
 
@@ -105,6 +105,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         trace=args.trace,
         namespace=args.namespace,
         ros_args=args.ros_args,
+        record=args.record,
     )
     return serve(options)
 
@@ -200,6 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument("--no-ros", action="store_true", help="no ROS node (use with --stdin)")
     srv.add_argument("--trace", help="write when each instruction message arrived (benchmarks)")
     srv.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: config")
+    srv.add_argument(
+        "--record", metavar="FILE.mcap", help="record what happens, the board's bytes too (MCAP)"
+    )
     srv.set_defaults(func=_cmd_serve)
 
     emu = sub.add_parser("emulator", help="a standalone emulated SSC-32U on a pseudo terminal")
@@ -327,7 +331,53 @@ def build_parser() -> argparse.ArgumentParser:
     web.add_argument("--config", help="arm configuration file; default: the shipped one")
     web.add_argument("--log-level", **LOG_LEVEL)
     web.set_defaults(func=_cmd_web)
+    _add_recordings(sub)
     return parser
+
+
+def _cmd_record(args: argparse.Namespace) -> int:
+    from al5d.app.record import record
+
+    return record(args.file, args.namespace, args.duration)
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from al5d.app.replay import replay
+
+    return replay(
+        args.file,
+        rate=args.rate,
+        wait_s=args.wait,
+        timeout=args.timeout,
+        namespace=args.namespace,
+        config=args.config,
+    )
+
+
+def _add_recordings(sub: Any) -> None:
+    """`al5d record` and `al5d replay` (README, Recordings)."""
+    rec = sub.add_parser(
+        "record", help="record the arm's topics in an MCAP file (rosbag2's format) until Ctrl-C"
+    )
+    rec.add_argument("file", help="the MCAP file to write, e.g. run.mcap (replaced if there)")
+    rec.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
+    rec.add_argument("--duration", type=float, help="seconds to record; default: until Ctrl-C")
+    rec.set_defaults(func=_cmd_record)
+
+    rep = sub.add_parser("replay", help="send a recording's instructions again")
+    rep.add_argument("file", help="an MCAP file of al5d record or al5d serve --record")
+    rep.add_argument(
+        "--rate",
+        choices=("recorded", "fast"),
+        default="recorded",
+        help="recorded (default): each at its recorded time after the first; fast: each as "
+        "soon as the one before has its outcome",
+    )
+    rep.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
+    rep.add_argument("--config", help="arm configuration (presets, geometry); default: shipped")
+    rep.add_argument("--wait", type=float, default=10.0, help="seconds to find the server")
+    rep.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for an outcome")
+    rep.set_defaults(func=_cmd_replay)
 
 
 def _split_ros_args(argv: list[str]) -> tuple[list[str], list[str] | None]:

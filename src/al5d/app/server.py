@@ -25,7 +25,9 @@ from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import GrammarError, Instruction, Outcome, parse_instruction, shutdown
 
 if TYPE_CHECKING:
+    from al5d.app.record import ServerRecording
     from al5d.ros.server import RosStart
+    from al5d.ssc32u.driver import WriteTap
     from al5d.ssc32u.emulator import Emulator
 
 log = logging.getLogger("al5d")
@@ -63,13 +65,16 @@ class ServerOptions:
     #: The command line for rclpy (the program's name first), whose `--ros-args` give the
     #: node `al5d` its parameters and remaps; None: none.
     ros_args: list[str] | None = None
+    #: An MCAP file to record what happened in, the board's bytes too; None: none.
+    record: str | None = None
 
 
 @contextmanager
 def arm(
-    options: ServerOptions, config: ArmConfig | None = None
+    options: ServerOptions, config: ArmConfig | None = None, tap: WriteTap | None = None
 ) -> Iterator[tuple[ArmDriver, Emulator | None]]:
-    """The driver on the given port, or on an embedded emulator; closed (parked) on exit."""
+    """The driver on the given port, or on an embedded emulator; closed (parked) on exit.
+    `tap`: told of every write to the board (`al5d.ssc32u.driver.tap_writes`)."""
     config = config or load_config(options.config)
     baud = options.baud or config.server.baud
     emulator: Emulator | None = None
@@ -81,6 +86,10 @@ def arm(
         port = emulator.port
         link = emulator.usb.describe()
         log.info("no --port: using the embedded SSC-32U emulator on %s, %s", port, link)
+    if tap is not None:
+        from al5d.ssc32u.driver import tap_writes
+
+        tap_writes(port, tap)
     driver = ArmDriver(config, port, baud)
     try:
         driver.start()
@@ -89,6 +98,8 @@ def arm(
         driver.close()
         if emulator is not None:
             emulator.close()
+        if tap is not None:
+            tap_writes(port, None)
 
 
 def _read_instructions(driver: ArmDriver, stream: TextIO, out: TextIO) -> None:
@@ -132,19 +143,37 @@ def serve(options: ServerOptions) -> int:
     config = None
     if start is not None:
         config = start.settings.config
-        options = replace(options, port=start.settings.port)
+        options = replace(options, port=start.settings.port, record=start.settings.record)
+    recording = None
     try:
-        return _serve(options, config, start, stop_requested)
+        if options.record is not None:
+            recording = _recording(options.record)
+            if recording is None:
+                return 2
+        return _serve(options, config, start, stop_requested, recording)
     finally:
         if start is not None and start.context.ok():  # the server never took it over
             start.close()
+        if recording is not None:
+            recording.close()
+
+
+def _recording(path: str) -> ServerRecording | None:
+    """The recording `--record` asks for; None (said at ERROR) when its file cannot be made."""
+    from al5d.app.record import RecordingError, ServerRecording
+
+    try:
+        return ServerRecording(path)
+    except RecordingError as e:
+        log.error("%s", e)
+        return None
 
 
 def _ros_start(options: ServerOptions) -> RosStart:
     from al5d.ros.params import Flags
     from al5d.ros.server import RosStart
 
-    flags = Flags(options.config, options.port, options.baud, options.namespace)
+    flags = Flags(options.config, options.port, options.baud, options.namespace, options.record)
     return RosStart(options.ros_args, flags)
 
 
@@ -153,13 +182,18 @@ def _serve(
     config: ArmConfig | None,
     start: RosStart | None,
     stop_requested: threading.Event,
+    recording: ServerRecording | None = None,
 ) -> int:
-    with arm(options, config) as (driver, _):
+    namespace = start.names.namespace if start is not None else options.namespace
+    tap = recording.tap(namespace) if recording is not None else None
+    with arm(options, config, tap) as (driver, _):
         ros_server = None
         if start is not None:
             from al5d.ros.server import RosServer
 
             ros_server = RosServer(driver, trace=options.trace, start=start)
+            if recording is not None:
+                recording.follow(start.names, driver.config.server.instruction_backlog)
             log.info(
                 "ROS 2 node %s up (ROS_DOMAIN_ID=%s)",
                 ros_server.node.get_fully_qualified_name(),
@@ -179,6 +213,8 @@ def _serve(
         finally:
             if ros_server is not None:
                 ros_server.close()
+            if recording is not None:
+                recording.close_ros()  # after the server's last messages reached it
     if driver.parked_at_end is False:
         log.error("the arm was not parked: exit %d", EXIT_NOT_PARKED)
         return EXIT_NOT_PARKED

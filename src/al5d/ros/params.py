@@ -1,8 +1,8 @@
 """`al5d serve`'s settings as ROS parameters of the node `al5d`, named after the config file's
 keys and validated by the config's own code.
 
-- `config_file`, `port`, `baud`: what `al5d serve`'s `--config`, `--port` and `--baud`
-  give (`baud` is the config's `server.baud`).
+- `config_file`, `port`, `baud`, `record`: what `al5d serve`'s `--config`, `--port`,
+  `--baud` and `--record` give (`baud` is the config's `server.baud`).
 - `server.<key>` for every key of the config's `server` section, `server.mount.parent`,
   `server.mount.xyz` and `server.mount.rpy` for its mount, `geometry.<key>` for the arm's
   lengths. Joints and presets (calibration pairs, poses) stay in the file.
@@ -42,7 +42,7 @@ from al5d.arm.config import with_changes as config_with
 SOURCE = "ROS parameters"
 #: The parameters a running server applies; every other one is read-only.
 RUNTIME = ("server.joint_state_rate_hz", "server.idle_joint_state_rate_hz")
-TOP = ("config_file", "port", "baud")
+TOP = ("config_file", "port", "baud", "record")
 MOUNT = ("server.mount.parent", "server.mount.xyz", "server.mount.rpy")
 #: Config keys that are not parameters of their own (`baud` gives `server.baud`; the
 #: mount is three parameters).
@@ -74,6 +74,7 @@ class Flags:
     port: str | None = None
     baud: int | None = None
     namespace: str | None = None
+    record: str | None = None
 
 
 @dataclass(frozen=True)
@@ -85,6 +86,8 @@ class Settings:
     port: str | None
     #: The config file read ("": the shipped one).
     config_file: str
+    #: The MCAP file `al5d serve --record` writes; None: no recording.
+    record: str | None = None
 
     @property
     def namespace(self) -> str:
@@ -98,6 +101,7 @@ class Settings:
             "config_file": self.config_file,
             "port": self.port or "",
             "baud": server.baud,
+            "record": self.record or "",
         }
         for key, value in server:
             if key not in _NOT_SERVER:
@@ -149,11 +153,12 @@ def resolve(
         raise ConfigError("\n".join(problems))
     config_file = flags.config or _text("config_file", given.get("config_file", "")) or ""
     port = flags.port or _text("port", given.get("port", "")) or None
+    record = flags.record or _text("record", given.get("record", "")) or None
     if base is None:
         base = load_config(config_file or None)  # the file's own errors name the file
     changes: dict[str, Any] = {}
     for name, value in given.items():
-        if name in ("config_file", "port") or name in MOUNT:
+        if name in ("config_file", "port", "record") or name in MOUNT:
             continue
         changes["server.baud" if name == "baud" else name] = value
     mount = {k.rsplit(".", 1)[1]: v for k, v in given.items() if k in MOUNT}
@@ -167,7 +172,7 @@ def resolve(
     if flags.baud is not None:
         changes["server.baud"] = flags.baud
     config = config_with(base, changes, SOURCE, RENAMED) if changes else base
-    return Settings(config, port, config_file)
+    return Settings(config, port, config_file, record)
 
 
 def _namespace(param: Any, flag: str | None, remap: str | None) -> str | None:
@@ -263,13 +268,14 @@ def with_changes(settings: Settings, changes: Mapping[str, Any]) -> Settings | s
         config = config_with(settings.config, changes, SOURCE, RENAMED)
     except ConfigError as e:
         return str(e)
-    return Settings(config, settings.port, settings.config_file)
+    return Settings(config, settings.port, settings.config_file, settings.record)
 
 
 DESCRIPTIONS = {
     "config_file": "the arm's configuration file ('': the shipped one)",
     "port": "the SSC-32U's serial device ('': the embedded emulator)",
     "baud": "the serial link's baud rate (the config's server.baud)",
+    "record": "the MCAP file to record in, the board's bytes too ('': none)",
     "server.mount.parent": "the frame the arm's base_link is mounted in ('': no mount)",
     "server.mount.xyz": "base_link's origin in the mount's parent frame, metres",
     "server.mount.rpy": "base_link's roll, pitch, yaw in the mount's parent frame, radians",

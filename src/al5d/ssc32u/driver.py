@@ -18,6 +18,10 @@ written can be taken back). So a move is written only when at most
 account of the wire, `arrival`), and a writer that comes sooner waits its turn
 here, outside the write lock; a stop never waits, and finds at most that
 horizon and one command ahead of it.
+
+A recording (`al5d serve --record`) taps the writes of a port (`tap_writes`): each write,
+stop included, hands its bytes and times to the tap, which must only hand them over (a
+queue's put) and never wait.
 """
 
 from __future__ import annotations
@@ -81,6 +85,21 @@ CLOSED_UNDER = (TypeError, AttributeError)
 
 
 Targets = Mapping[int, int] | Sequence[p.ChannelTarget]
+#: Told of every write to a port once its bytes are in it: the bytes, when the write
+#: returned and when their last byte reaches the board (CLOCK_MONOTONIC, `al5d.clock.now`).
+WriteTap = Callable[[bytes, float, float], None]
+#: The taps by port, taken by each `SSC32U` opened on that port (a reconnect's too).
+_taps: dict[str, WriteTap] = {}
+
+
+def tap_writes(port: str, tap: WriteTap | None) -> None:
+    """Tell `tap` of every write to the boards opened on `port` from now on (None: no more).
+    It runs under the write lock, in the writer's thread (the stop's too): it must not
+    wait or raise; what it raises is dropped, never the write's failure."""
+    if tap is None:
+        _taps.pop(port, None)
+    else:
+        _taps[port] = tap
 
 
 class SSC32U:
@@ -111,6 +130,7 @@ class SSC32U:
         # cannot come before its own bytes, and those queue behind the earlier ones.
         self._wire_free_at = 0.0
         self._write_timeout_s = write_timeout_s
+        self._tap = _taps.get(port)
         try:
             self._ser = serial.serial_for_url(
                 port,
@@ -332,8 +352,11 @@ class SSC32U:
                 raise self._lost(e, what) from e
             # After a flush, as if it dropped nothing (the USB link): later than the truth on
             # a UART, which only makes a query's deadline later, never too early.
-            start = max(now(), self._wire_free_at)
-            self._wire_free_at = start + self.wire_time_s(data)
+            t = now()
+            self._wire_free_at = max(t, self._wire_free_at) + self.wire_time_s(data)
+            if self._tap is not None:
+                with contextlib.suppress(Exception):  # a recording never fails a write
+                    self._tap(data, t, self._wire_free_at)
             return self._wire_free_at
 
     def _send(self, data: bytes) -> None:

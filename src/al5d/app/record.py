@@ -1,0 +1,459 @@
+"""Recordings: what happened around an arm, written as rosbag2's MCAP (`al5d record`,
+`al5d serve --record`).
+
+A recording is an MCAP file of the `ros2` profile, as `ros2 bag record -s mcap` writes one:
+each topic a channel of CDR messages, each message's type a schema of encoding `ros2msg`
+(its `.msg` text with every type it uses after it), so that `ros2 bag info`, Foxglove and
+the `mcap` tools open it without this package. Messages are recorded as DDS delivered
+them (their serialized bytes, never decoded and encoded again), with the time they were
+received (log time) and sent (publish time), as rosbag2 does.
+
+What is recorded: the instructions, their results, the state, the joint states, the
+trajectories and set-points, and the status of each action's goals (`/_action/status`).
+Not the actions' feedback: its types (`Move_FeedbackMessage`) have names that
+mcap-ros2-support's reader refuses, and one such message would stop it reading the
+whole file. A server's own recording also has the bytes it wrote to the board, each
+write with its times (`BOARD_WRITES`, an `al5d_interfaces/msg/BoardWrite`).
+
+The file is written by a thread of its own: whoever hands a message over (the DDS reader,
+the board's write, the emergency stop's among them) only puts it in a queue. A recording
+that fails (a full disk) is logged and given up; the arm goes on.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import logging
+import queue
+import re
+import struct
+import sys
+import threading
+import time
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, TYPE_CHECKING, Any
+
+from mcap.well_known import MessageEncoding, SchemaEncoding
+from mcap.writer import Writer
+
+if TYPE_CHECKING:
+    from al5d.ros.runtime import Names
+
+log = logging.getLogger("al5d")
+
+#: The topic of the bytes written to the board, in a server's recording (no DDS topic).
+BOARD_WRITES = "board_writes"
+BOARD_WRITE_TYPE = "al5d_interfaces/msg/BoardWrite"
+#: The type's definition, as interfaces/al5d_interfaces/msg/BoardWrite.msg has it (a test
+#: checks that they are the same): it is written into every server's recording.
+BOARD_WRITE_MSG = """\
+# Bytes that al5d serve wrote to the SSC-32U, one write each (its recordings:
+# al5d serve --record, on the topic /al5d/board_writes).
+# When the write returned (CLOCK_REALTIME, as a header's stamp).
+builtin_interfaces/Time stamp
+# When its last byte reaches the board, by the driver's account of the wire (same clock).
+builtin_interfaces/Time arrival
+# The bytes, as written: group moves, stops (ESC first), queries.
+uint8[] data
+"""
+#: Little-endian CDR: its encapsulation header, then two Times (sec, nanosec) and the
+#: length of `data` (every field 4-byte aligned, so no padding).
+_CDR_HEADER = b"\x00\x01\x00\x00"
+_BOARD_WRITE_HEAD = struct.Struct("<iIiII")
+#: At most this many messages wait for the file: a disk slower than the messages for long
+#: loses the newest (counted), not the server's memory.
+BACKLOG = 100_000
+_SEPARATOR = "=" * 80
+_PRIMITIVES = frozenset(
+    [
+        "bool",
+        "byte",
+        "char",
+        "float32",
+        "float64",
+        "int8",
+        "uint8",
+        "int16",
+        "uint16",
+        "int32",
+        "uint32",
+        "int64",
+        "uint64",
+        "string",
+        "wstring",
+    ]
+)
+
+
+class RecordingError(Exception):
+    """A recording cannot be made: choose a file that can be written."""
+
+
+@dataclass(frozen=True)
+class Topic:
+    """A recorded topic: its full name, its type (`pkg/msg/Type`) and how it is read."""
+
+    name: str
+    type: str
+    qos: Any  # rclpy QoSProfile
+
+
+def topics(names: Names, instruction_depth: int = 1000) -> list[Topic]:
+    """What a recording of the arm named by `names` subscribes to. `instruction_depth`: the
+    instruction reader's history (within a server, its DDS profile bounds every reader
+    of that topic to `server.instruction_backlog`)."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    from al5d.ros.runtime import QOS_LATCHED
+
+    def reliable(depth: int) -> QoSProfile:
+        return QoSProfile(  # type: ignore[no-untyped-call]
+            history=HistoryPolicy.KEEP_LAST,
+            depth=depth,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.VOLATILE,
+        )
+
+    status = "action_msgs/msg/GoalStatusArray"
+    return [
+        Topic(names.instruction, "al5d_interfaces/msg/ArmInstruction", reliable(instruction_depth)),
+        Topic(names.result, "al5d_interfaces/msg/InstructionResult", reliable(10_000)),
+        Topic(names.state, "std_msgs/msg/String", QOS_LATCHED),
+        Topic(names.joint_states, "sensor_msgs/msg/JointState", reliable(100)),
+        Topic(names.trajectory, "trajectory_msgs/msg/JointTrajectory", reliable(1000)),
+        Topic(names.joint_commands, "sensor_msgs/msg/JointState", reliable(1000)),
+        Topic(f"{names.move}/_action/status", status, reliable(100)),
+        Topic(f"{names.follow_joint_trajectory}/_action/status", status, reliable(100)),
+        Topic(f"{names.gripper_command}/_action/status", status, reliable(100)),
+    ]
+
+
+def _share_dir(package: str) -> Path:
+    """Where a message package's `.msg` files are: the ament index's word (a ROS install's
+    `AMENT_PREFIX_PATH`), else beside its Python package (the venv's prefix, where the
+    wheels and the Makefile put them)."""
+    with contextlib.suppress(Exception):
+        from ament_index_python.packages import get_package_share_directory
+
+        return Path(get_package_share_directory(package))
+    module = importlib.import_module(package)
+    # <prefix>/lib/pythonX.Y/site-packages/<package>/__init__.py
+    return Path(str(module.__file__)).parents[4] / "share" / package
+
+
+def _msg_text(type_name: str) -> str:
+    if type_name == BOARD_WRITE_TYPE:
+        return BOARD_WRITE_MSG
+    package, name = type_name.split("/")[0], type_name.split("/")[-1]
+    path = _share_dir(package) / "msg" / f"{name}.msg"
+    try:
+        return path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise RecordingError(f"the definition of {type_name} is not at {path}: {e}") from e
+
+
+def _used_types(package: str, text: str) -> list[str]:
+    """The message types (`pkg/Type`) the fields of a `.msg` text use, in order."""
+    used = []
+    for line in text.splitlines():
+        words = line.split("#", 1)[0].split()
+        if len(words) < 2:
+            continue  # blank
+        base = re.sub(r"\[.*\]$", "", words[0]).split("<=")[0]
+        if base in _PRIMITIVES:
+            continue  # constants too: theirs are primitive
+        parts = base.split("/")
+        used.append(f"{parts[0]}/{parts[-1]}" if len(parts) > 1 else f"{package}/{base}")
+    return used
+
+
+def message_definition(type_name: str) -> str:
+    """The `ros2msg` schema of a type (`pkg/msg/Type`), as rosbag2 writes it: its `.msg`
+    text, then each type it uses, once, after a line of `=` and `MSG: pkg/Type`."""
+    package = type_name.split("/")[0]
+    main = _msg_text(type_name)
+    parts = [main.rstrip("\n")]
+    seen = {f"{package}/{type_name.split('/')[-1]}"}
+    todo = _used_types(package, main)
+    while todo:
+        dep = todo.pop(0)
+        if dep in seen:
+            continue
+        seen.add(dep)
+        text = _msg_text(dep)
+        parts.append(f"{_SEPARATOR}\nMSG: {dep}\n{text.rstrip(chr(10))}")
+        todo += _used_types(dep.split("/")[0], text)
+    return "\n".join(parts) + "\n"
+
+
+def board_write_cdr(data: bytes, stamp_ns: int, arrival_ns: int) -> bytes:
+    """A BoardWrite message, serialized as DDS would (little-endian CDR)."""
+    stamp = divmod(stamp_ns, 1_000_000_000)
+    arrival = divmod(arrival_ns, 1_000_000_000)
+    head = _BOARD_WRITE_HEAD.pack(stamp[0], stamp[1], arrival[0], arrival[1], len(data))
+    return _CDR_HEADER + head + data
+
+
+#: What the file's thread is handed: a message (channel, bytes, log ns, publish ns,
+#: sequence), a board write (bytes, written and arrival, CLOCK_MONOTONIC s), or None: the end.
+_Message = tuple[int, bytes, int, int, int]
+_BoardWrite = tuple[bytes, float, float]
+
+
+class RecordFile:
+    """An MCAP file being written by a thread of its own; `put` and `board_tap` hand it
+    messages and never wait. RecordingError when the file cannot be made."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        try:
+            self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 (closed by close)
+        except OSError as e:
+            raise RecordingError(f"cannot write the recording {self.path}: {e.strerror}") from e
+        self._writer = Writer(self._file)
+        self._writer.start(profile="ros2", library="al5d")
+        self._lock = threading.Lock()  # the writer: its channels (any thread), its messages
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._topic_of: dict[int, str] = {}
+        self._items: queue.SimpleQueue[_Message | _BoardWrite | None] = queue.SimpleQueue()
+        # CLOCK_MONOTONIC -> CLOCK_REALTIME for the board's times (DDS stamps are realtime).
+        self._wall_offset_ns = time.time_ns() - time.monotonic_ns()
+        self._board_channel: int | None = None
+        self._board_seq = 0
+        self.counts: Counter[str] = Counter()
+        self.dropped = 0
+        self.failed: str | None = None
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name="al5d-record", daemon=True)
+        self._thread.start()
+
+    def channel(self, topic: str, type_name: str) -> int:
+        """The channel of `topic` (registered with its type's schema the first time)."""
+        with self._lock:
+            if topic in self._channels:
+                return self._channels[topic]
+            schema = self._schemas.get(type_name)
+            if schema is None:
+                data = message_definition(type_name).encode()
+                schema = self._writer.register_schema(type_name, SchemaEncoding.ROS2, data)
+                self._schemas[type_name] = schema
+            channel = self._writer.register_channel(topic, MessageEncoding.CDR, schema)
+            self._channels[topic] = channel
+            self._topic_of[channel] = topic
+            return channel
+
+    def record_board(self, topic: str) -> None:
+        """Record the bytes `board_tap` is told of on `topic`."""
+        self._board_channel = self.channel(topic, BOARD_WRITE_TYPE)
+
+    def put(self, channel: int, data: bytes, log_ns: int, publish_ns: int, seq: int = 0) -> None:
+        """Hand a serialized message over (times: CLOCK_REALTIME ns)."""
+        if self._items.qsize() >= BACKLOG or self.failed:
+            self.dropped += 1
+            return
+        self._items.put((channel, data, log_ns, publish_ns, seq))
+
+    def board_tap(self, data: bytes, written: float, arrival: float) -> None:
+        """A `al5d.ssc32u.driver.WriteTap`: one write to the board (only a queue's put)."""
+        if self._items.qsize() >= BACKLOG or self.failed:
+            self.dropped += 1
+            return
+        self._items.put((data, written, arrival))
+
+    def _run(self) -> None:
+        while (item := self._items.get()) is not None:
+            if self.failed:
+                continue
+            try:
+                self._write(item)
+            except Exception as e:  # a full disk, a removed file: the arm goes on
+                self.failed = f"{type(e).__name__}: {e}"
+                log.error(
+                    "recording %s failed (%s): nothing more is recorded; the arm goes on",
+                    self.path,
+                    self.failed,
+                )
+
+    def _write(self, item: _Message | _BoardWrite) -> None:
+        if len(item) == 3:
+            data, written, arrival = item
+            channel = self._board_channel
+            if channel is None:
+                return
+            stamp = int(written * 1e9) + self._wall_offset_ns
+            cdr = board_write_cdr(data, stamp, int(arrival * 1e9) + self._wall_offset_ns)
+            self._board_seq += 1
+            message: _Message = (channel, cdr, stamp, stamp, self._board_seq)
+        else:
+            message = item
+        channel, cdr, log_ns, publish_ns, seq = message
+        with self._lock:
+            self._writer.add_message(
+                channel_id=channel,
+                log_time=log_ns,
+                data=cdr,
+                publish_time=publish_ns,
+                sequence=seq & 0xFFFFFFFF,
+            )
+        self.counts[self._topic_of[channel]] += 1
+
+    def close(self) -> None:
+        """Write what was handed over, the summary, and close the file (again: nothing)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._items.put(None)
+        self._thread.join()
+        try:
+            with self._lock:
+                self._writer.finish()  # type: ignore[no-untyped-call]
+            self._file.close()
+        except Exception as e:
+            self.failed = self.failed or f"{type(e).__name__}: {e}"
+            log.error("recording %s: its end could not be written (%s)", self.path, e)
+            with contextlib.suppress(OSError):
+                self._file.close()  # what is left in its buffer cannot be written either
+        if self.dropped:
+            log.warning("recording %s: %d messages were not recorded", self.path, self.dropped)
+
+    def summary(self) -> str:
+        """One line: how many messages of which topic are in the file."""
+        each = ", ".join(f"{topic} {n}" for topic, n in sorted(self.counts.items()))
+        total = sum(self.counts.values())
+        return f"{self.path}: {total} messages ({each or 'none'})"
+
+
+class Recorder:
+    """Subscribes to `topics` on a node of its own in `context` and hands every message, as
+    DDS delivered it, to `file`; one thread takes them (`al5d.ros.workarounds.Reader`, which
+    has each message's info: when it was sent and its sequence number)."""
+
+    def __init__(
+        self, context: Any, file: RecordFile, recorded: Iterable[Topic], namespace: str = "/"
+    ) -> None:
+        from rclpy.node import Node
+
+        from al5d.ros.workarounds import Reader, ReaderOnly, taken_by_reader
+
+        self.file = file
+        self.node = Node("al5d_recorder", namespace=namespace, context=context)
+        group = ReaderOnly()
+        inputs: list[tuple[Any, Any]] = []
+        for topic in recorded:
+            channel = file.channel(topic.name, topic.type)
+            package, kind, name = topic.type.split("/")
+            msg_type = getattr(importlib.import_module(f"{package}.{kind}"), name)
+            sub = self.node.create_subscription(
+                msg_type, topic.name, taken_by_reader, topic.qos, callback_group=group, raw=True
+            )
+            inputs.append((sub, self._handler(channel)))
+        self.inputs = inputs
+        self.reader = Reader(self.node, inputs, "al5d-record-reader", group=group)
+
+    def _handler(self, channel: int) -> Any:
+        put = self.file.put
+
+        def handle(data: bytes, info: dict[str, int]) -> None:
+            received = info.get("received_timestamp") or time.time_ns()
+            sent = info.get("source_timestamp") or received
+            put(channel, data, received, sent, info.get("publication_sequence_number") or 0)
+
+        return handle
+
+    def close(self) -> None:
+        """End the reader, then record what DDS delivered meanwhile (a server's last results,
+        acknowledged to this reader before its nodes closed)."""
+        self.reader.close()
+        for sub, handle in self.inputs:
+            while True:
+                with sub.handle:
+                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                if taken is None:
+                    break
+                handle(*taken)
+        self.node.destroy_node()  # type: ignore[no-untyped-call]
+
+
+class ServerRecording:
+    """`al5d serve --record`: the file, the board's writes (`tap`), and the topics of the
+    server's arm read by a DDS participant of its own (`follow`), which outlives the
+    server's nodes so that their last messages (the shutdown's result) are recorded."""
+
+    def __init__(self, path: str) -> None:
+        self.file = RecordFile(path)
+        self._context: Any = None
+        self._recorder: Recorder | None = None
+
+    def tap(self, namespace: str | None) -> Any:
+        """The board's writes, on `<ns>/al5d/board_writes`: the driver's `WriteTap`."""
+        from al5d.ros.runtime import Names
+
+        self.file.record_board(Names.of(namespace).private(BOARD_WRITES))
+        return self.file.board_tap
+
+    def follow(self, names: Names, instruction_depth: int) -> None:
+        from al5d.ros.runtime import start_context
+
+        try:
+            self._context = start_context()
+            self._recorder = Recorder(
+                self._context, self.file, topics(names, instruction_depth), names.node_namespace
+            )
+        except Exception as e:  # the arm goes on; its board's bytes are still recorded
+            log.error("recording %s: the topics cannot be recorded (%s)", self.file.path, e)
+            self.close_ros()
+
+    def close_ros(self) -> None:
+        if self._recorder is not None:
+            self._recorder.close()
+            self._recorder = None
+        if self._context is not None:
+            self._context.try_shutdown()
+            self._context = None
+
+    def close(self) -> None:
+        self.close_ros()
+        self.file.close()
+        if self.file.failed:
+            log.error("recording %s failed: %s", self.file.path, self.file.failed)
+        else:
+            log.info("recorded %s", self.file.summary())
+
+
+def record(path: str, namespace: str | None, duration: float | None) -> int:
+    """`al5d record`: record until SIGINT or SIGTERM (or `duration` seconds); 0, or 2 when
+    the file cannot be written."""
+    import signal
+
+    from al5d.ros.runtime import start_context
+
+    done = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, frame: done.set())
+    from al5d.ros.runtime import Names
+
+    names = Names.of(namespace)
+    try:
+        file = RecordFile(path)
+    except RecordingError as e:
+        print(f"al5d record: {e}", file=sys.stderr)
+        return 2
+    context = start_context()
+    recorder = Recorder(context, file, topics(names), names.node_namespace)
+    print(f"al5d record: recording to {path} (Ctrl-C ends it)", flush=True)
+    try:
+        done.wait(duration)
+    finally:
+        recorder.close()
+        context.try_shutdown()
+        file.close()
+    print(f"al5d record: {file.summary()}", flush=True)
+    if file.failed:
+        print(f"al5d record: the recording failed: {file.failed}", flush=True)
+        return 1
+    return 0

@@ -1,0 +1,295 @@
+"""Recordings: `al5d serve --record` and `al5d record` write rosbag2's MCAP, read back here with
+the `mcap` reader and mcap-ros2-support's decoder; `al5d replay` sends the instructions to a
+fresh server on a fresh board, which then receives the same bytes."""
+
+from __future__ import annotations
+
+import signal
+import time
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+from al5d_interfaces.msg import ArmInstruction
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from proc import Proc, patient_config
+from rclpy.serialization import serialize_message
+from rospeer import Peer, wait_future, wait_until
+
+from al5d.app.record import (
+    BOARD_WRITE_MSG,
+    BOARD_WRITE_TYPE,
+    RecordFile,
+    board_write_cdr,
+)
+from al5d.app.replay import read_instructions
+from al5d.arm.config import load_config
+from al5d.ssc32u.emulator import Emulator
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: The sequence the client runs while the recordings are made: a refused move (nothing
+#: written), a stop and a release on the topic, moves before and after. It waits first:
+#: the client waits until its writer has matched the server's readers, and the recorders'
+#: a moment later (a recorder, as rosbag2's, misses what was sent before it matched).
+SEQUENCE = """\
+wait 1500
+ready
+move base=30 time=300
+move elbow=200
+stop
+release
+move shoulder=60 elbow=60 wrist=30 time=400
+park
+"""
+SENT = [
+    ("ready", [], []),
+    ("move", ["base"], [30.0]),
+    ("move", ["elbow"], [200.0]),
+    ("stop", [], []),
+    ("release", [], []),
+    ("move", ["shoulder", "elbow", "wrist"], [60.0, 60.0, 30.0]),
+    ("park", [], []),
+]
+OUTCOMES = ["done", "done", "refused", "done", "done", "done", "done"]
+STATUS_SUCCEEDED = 4
+TYPES = {
+    "/al5d/instruction": "al5d_interfaces/msg/ArmInstruction",
+    "/al5d/result": "al5d_interfaces/msg/InstructionResult",
+    "/al5d/state": "std_msgs/msg/String",
+    "/joint_states": "sensor_msgs/msg/JointState",
+    "/al5d/joint_trajectory": "trajectory_msgs/msg/JointTrajectory",
+    "/joint_commands": "sensor_msgs/msg/JointState",
+    "/al5d/move/_action/status": "action_msgs/msg/GoalStatusArray",
+    "/arm_controller/follow_joint_trajectory/_action/status": "action_msgs/msg/GoalStatusArray",
+    "/gripper_controller/gripper_cmd/_action/status": "action_msgs/msg/GoalStatusArray",
+}
+
+
+def motion_lines(chunks: list[bytes]) -> list[bytes]:
+    """The group moves and STOPs among bytes written or received (ESC and queries left out:
+    the link checks come when a timer says, not when an instruction does)."""
+    lines = []
+    for chunk in chunks:
+        for line in chunk.replace(b"\x1b", b"").split(b"\r"):
+            if line.startswith((b"#", b"STOP")):
+                lines.append(line)
+    return lines
+
+
+def read_back(path: Path) -> tuple[Any, dict[str, list[tuple[Any, Any]]]]:
+    """The file's summary and its decoded messages by topic, in the file's order."""
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        assert reader.get_header().profile == "ros2"
+        summary = reader.get_summary()
+        by_topic: dict[str, list[tuple[Any, Any]]] = defaultdict(list)
+        for schema, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
+            assert schema is not None
+            assert schema.encoding == "ros2msg" and channel.message_encoding == "cdr"
+            expected = BOARD_WRITE_TYPE if channel.topic.endswith("board_writes") else None
+            assert schema.name == (expected or TYPES[channel.topic]), channel.topic
+            by_topic[channel.topic].append((message, decoded))
+    assert summary is not None
+    total = sum(len(v) for v in by_topic.values())
+    assert summary.statistics.message_count == total
+    for topic, messages in by_topic.items():
+        times = [m.log_time for m, _ in messages]
+        assert times == sorted(times), f"{topic}: not in the order received"
+    return summary, by_topic
+
+
+def check_topics(by_topic: dict[str, list[tuple[Any, Any]]], goal_uuid: bytes) -> None:
+    """Every instruction of the sequence, in order, each with one result; the states; the
+    joint states; the goal's status."""
+    instructions = [d for _, d in by_topic["/al5d/instruction"]]
+    assert [(d.instruction, list(d.joints), list(d.degrees)) for d in instructions] == SENT
+    results: dict[str, list[str]] = defaultdict(list)
+    for _, d in by_topic["/al5d/result"]:
+        results[d.id].append(d.outcome)
+    assert [results[d.id] for d in instructions] == [[o] for o in OUTCOMES]
+    states = [d.data for _, d in by_topic["/al5d/state"]]
+    assert {"ready", "moving", "stopped"} <= set(states)
+    assert len(by_topic["/joint_states"]) > 10
+    finished = [
+        s
+        for _, d in by_topic["/al5d/move/_action/status"]
+        for s in d.status_list
+        if bytes(s.goal_info.goal_id.uuid) == goal_uuid
+    ]
+    assert finished and finished[-1].status == STATUS_SUCCEEDED
+
+
+def wait_for_recorders(peer: Peer, n: int) -> None:
+    """Until the graph shows `n` recorders reading the instructions and the results, and a
+    moment more for the server's writers to match them."""
+    for topic in ("/al5d/instruction", "/al5d/result", "/al5d/state"):
+        wait_until(
+            lambda topic=topic: (
+                sum(
+                    i.node_name == "al5d_recorder"
+                    for i in peer.node.get_subscriptions_info_by_topic(topic)
+                )
+                >= n
+            ),
+            20,
+            f"{n} recorders of {topic}",
+        )
+    time.sleep(1.0)
+
+
+def test_record_then_replay_reproduces_the_boards_bytes(tmp_path: Path) -> None:
+    config = load_config()
+    served, recorded = tmp_path / "served.mcap", tmp_path / "recorded.mcap"
+    sequence = tmp_path / "run.seq"
+    sequence.write_text(SEQUENCE)
+    link_a = tmp_path / "board-a"
+    emu_a = Emulator(config, link=link_a).start()
+    server = Proc(
+        "serve", "--port", str(link_a), "--config", patient_config(), "--record", str(served)
+    )
+    recorder = Proc("record", str(recorded))
+    peer = Peer(name="record_test_peer")
+    try:
+        server.err.wait_for("STATE: ready", 30)
+        recorder.out.wait_for("recording to", 30)
+        peer.wait_for_server()
+        wait_for_recorders(peer, 2)
+        run = Proc("run", str(sequence))
+        assert run.wait(60) == 1  # the refused move
+        goal_sent = time.monotonic()
+        handle = peer.goal(preset="ready")
+        assert wait_future(handle.get_result_async(), 20).status == STATUS_SUCCEEDED
+        goal_uuid = bytes(handle.goal_id.uuid)
+        time.sleep(0.5)  # its last status reaches the recorders
+        recorder.popen.send_signal(signal.SIGINT)
+        assert recorder.wait(20) == 0
+        assert "recorded.mcap: " in recorder.out.wait_for("al5d record: ", 5)
+        server.popen.send_signal(signal.SIGTERM)
+        assert server.wait(30) == 0
+    finally:
+        peer.close()
+        recorder.kill()
+        server.kill()
+        emu_a.close()
+
+    # The server's recording: every topic, and the board's bytes as the board received them.
+    _, by_topic = read_back(served)
+    check_topics(by_topic, goal_uuid)
+    writes = [d for _, d in by_topic["/al5d/board_writes"]]
+    assert [m.sequence for m, _ in by_topic["/al5d/board_writes"]] == list(
+        range(1, len(writes) + 1)
+    )
+    received = [r.raw for r in emu_a.records]
+    assert motion_lines([bytes(w.data) for w in writes]) == motion_lines(received)
+    assert all((w.arrival.sec, w.arrival.nanosec) >= (w.stamp.sec, w.stamp.nanosec) for w in writes)
+    # The client's recording: the same messages, and no bytes of the board.
+    _, client_topics = read_back(recorded)
+    check_topics(client_topics, goal_uuid)
+    assert "/al5d/board_writes" not in client_topics
+
+    # The replay, on a fresh server and board: the same bytes as the board received before
+    # the goal (which the replay does not send: goals are no instructions).
+    before_goal = motion_lines([r.raw for r in emu_a.records if r.t_effect < goal_sent])
+    link_b = tmp_path / "board-b"
+    emu_b = Emulator(config, link=link_b).start()
+    server_b = Proc("serve", "--port", str(link_b), "--config", patient_config())
+    try:
+        server_b.err.wait_for("STATE: ready", 30)
+        fast = Proc("replay", str(served), "--rate", "fast")
+        assert fast.wait(60) == 1  # the refused move, refused again
+        outcomes = [line.split("]: ")[1].split()[0] for line in fast.out.drain() if "]: " in line]
+        assert [o.rstrip(":") for o in outcomes] == OUTCOMES
+        time.sleep(0.5)  # the last move's bytes are in effect
+        assert motion_lines([r.raw for r in emu_b.records]) == before_goal
+        # As recorded: the same outcomes, each sent at its recorded time.
+        slow = Proc("replay", str(recorded))
+        assert slow.wait(60) == 1
+        outcomes = [line.split("]: ")[1].split()[0] for line in slow.out.drain() if "]: " in line]
+        assert sorted(o.rstrip(":") for o in outcomes) == sorted(OUTCOMES)
+    finally:
+        server_b.kill()
+        emu_b.close()
+
+
+def test_bad_files_are_clear_errors(tmp_path: Path) -> None:
+    missing = Proc("replay", str(tmp_path / "none.mcap"))
+    assert missing.wait(30) == 1
+    assert "cannot read" in missing.err.wait_for("al5d replay:", 5)
+
+    text = tmp_path / "notes.mcap"
+    text.write_text("not a recording\n")
+    bad = Proc("replay", str(text))
+    assert bad.wait(30) == 1
+    assert "is not a readable MCAP recording" in bad.err.wait_for("al5d replay:", 5)
+
+    # A recording without instructions (only a state, say).
+    empty = tmp_path / "empty.mcap"
+    file = RecordFile(empty)
+    channel = file.channel("/al5d/state", "std_msgs/msg/String")
+    file.put(channel, b"\x00\x01\x00\x00\x06\x00\x00\x00ready\x00", 1, 1)
+    file.close()
+    none = Proc("replay", str(empty))
+    assert none.wait(30) == 1
+    assert "holds no instructions" in none.err.wait_for("al5d replay:", 5)
+
+    unwritable = Proc("record", str(tmp_path / "no" / "such" / "dir.mcap"), "--duration", "1")
+    assert unwritable.wait(30) == 2
+    assert "cannot write the recording" in unwritable.err.wait_for("al5d record:", 5)
+    server = Proc("serve", "--no-ros", "--record", str(tmp_path / "no" / "dir.mcap"))
+    assert server.wait(30) == 2
+    assert "cannot write the recording" in server.err.wait_for("ERROR", 10)
+    # The same file as the node's parameter `record`.
+    param = Proc("serve", "--ros-args", "-p", f"record:={tmp_path / 'no' / 'param.mcap'}")
+    assert param.wait(30) == 2
+    assert "param.mcap: No such file" in param.err.wait_for("ERROR", 10)
+
+
+def test_a_recording_cut_short_replays_what_it_holds(tmp_path: Path) -> None:
+    """A recorder killed before it closed its file: the instructions before the cut."""
+    whole = tmp_path / "whole.mcap"
+    file = RecordFile(whole)
+    channel = file.channel("/al5d/instruction", "al5d_interfaces/msg/ArmInstruction")
+    for i in range(200):
+        msg = ArmInstruction(instruction="move", joints=["base"], degrees=[float(i % 60)])
+        msg.id = f"m{i}"
+        file.put(channel, serialize_message(msg), 1000 + i, 1000 + i, i)
+    file.close()
+    found, warning = read_instructions(whole)
+    assert [r.msg.id for r in found] == [f"m{i}" for i in range(200)] and not warning
+    cut = tmp_path / "cut.mcap"
+    data = whole.read_bytes()
+    cut.write_bytes(data[: len(data) - 200])  # the summary and footer gone
+    found, warning = read_instructions(cut)
+    assert "damaged or cut short" in warning
+    assert [r.msg.id for r in found] == [f"m{i}" for i in range(len(found))]
+
+
+def test_a_recording_that_fails_never_stops_the_arm(tmp_path: Path) -> None:
+    """/dev/full takes the file but no byte of it: the arm works, the failure is logged."""
+    server = Proc("serve", "--stdin", "--no-ros", "--record", "/dev/full", stdin=True)
+    try:
+        server.err.wait_for("STATE: ready", 30)
+        server.send("move base=30 time=300")
+        assert "done" in server.out.wait_for("move [", 20)
+        server.send("shutdown")
+        assert server.wait(30) == 0
+        server.err.drain()
+        assert any("recording /dev/full" in line and "ERROR" in line for line in server.err.all)
+    finally:
+        server.kill()
+
+
+def test_the_board_write_type_is_the_interface_and_its_bytes_are_rosidls() -> None:
+    """The schema written into recordings is al5d_interfaces/msg/BoardWrite as built, and a
+    BoardWrite serialized by rclpy is the bytes the recording writes."""
+    from al5d_interfaces.msg import BoardWrite
+
+    source = ROOT / "interfaces" / "al5d_interfaces" / "msg" / "BoardWrite.msg"
+    assert source.read_text() == BOARD_WRITE_MSG
+    msg = BoardWrite(data=list(b"\x1bSTOP0\rSTOP1\r"))
+    msg.stamp.sec, msg.stamp.nanosec = 1_790_000_000, 123_456_789
+    msg.arrival.sec, msg.arrival.nanosec = 1_790_000_001, 5
+    stamp, arrival = 1_790_000_000_123_456_789, 1_790_000_001_000_000_005
+    assert serialize_message(msg) == board_write_cdr(b"\x1bSTOP0\rSTOP1\r", stamp, arrival)
