@@ -126,8 +126,10 @@ def _group(gid: int) -> str:
         return str(gid)
 
 
-def _permission_todo(st: os.stat_result) -> str:
+def _permission_todo(path: str, st: os.stat_result) -> str:
     """What to do when the port may not be opened: the group to join, or a rule to write."""
+    if st.st_uid == os.getuid():
+        return f"it is yours, but its mode forbids you: chmod u+rw {path}"
     group_rw = st.st_mode & (stat.S_IRGRP | stat.S_IWGRP) == stat.S_IRGRP | stat.S_IWGRP
     if not group_rw or st.st_gid == 0:
         return f"only its owner may open it: give it a group with a udev rule: {UDEV_RULE}"
@@ -181,7 +183,7 @@ def check_port(path: str) -> list[Check]:
                 "permission",
                 False,
                 f"{path}: you may not read and write it ({_mode(st)})",
-                _permission_todo(st),
+                _permission_todo(path, st),
             )
         ]
     except OSError as e:

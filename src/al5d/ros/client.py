@@ -18,6 +18,7 @@ From Python, `Client` is a context manager:
 from __future__ import annotations
 
 import atexit
+import contextlib
 import functools
 import logging
 import os
@@ -481,16 +482,12 @@ def send(
     report = Report(out)
     try:
         if instr.kind in (Kind.STOP, Kind.RELEASE):
-            try:
-                answer = _by_service(client, instr, timeout)
-            finally:
-                timing.discovered(client)
+            answer = _by_service(client, instr, timeout)
+            timing.discovered(client)
             report.line(str(answer))
             return exits.DONE if answer.success else exits.NOT_DONE
-        try:
-            client.wait_for_server(wait_s)
-        finally:
-            timing.discovered(client)
+        client.wait_for_server(wait_s)
+        timing.discovered(client)
         try:
             outcome: Outcome | None = client.execute(instr, timeout)
         except NoOutcome:
@@ -537,10 +534,8 @@ def run(
     timing.ros_started()
     report = Report(out)
     try:
-        try:
-            client.wait_for_server(wait_s)
-        finally:
-            timing.discovered(client)
+        client.wait_for_server(wait_s)
+        timing.discovered(client)
         background: list[Instruction] = []
         for item, in_background in steps:
             _step(client, report, item, in_background, timeout, background)
@@ -598,7 +593,9 @@ def _lines(inp: TextIO, interactive: bool) -> Iterator[str]:
     """The shell's input, a line at a time; at a terminal with a prompt and line editing,
     and Ctrl-C there drops the line typed, as a shell does."""
     if not interactive:
-        yield from inp
+        # Ctrl-C with no instruction running: the end of the input, quietly.
+        with contextlib.suppress(KeyboardInterrupt):
+            yield from inp
         return
     import readline  # noqa: F401  (imported for its effect: input() gets editing and history)
 
@@ -638,10 +635,8 @@ def shell(
     bad = False
     background: list[Instruction] = []
     try:
-        try:
-            client.wait_for_server(wait_s)
-        finally:
-            timing.discovered(client)
+        client.wait_for_server(wait_s)
+        timing.discovered(client)
         if interactive:
             report.line(
                 "al5d shell: one instruction a line (as in a sequence file); Ctrl-C while "
