@@ -659,6 +659,9 @@ def shell(
                 answer = client.stop()
                 report.line(f"Ctrl-C: {answer}")
                 report.all_done = False
+                item, in_background = step
+                if isinstance(item, Instruction) and not in_background:
+                    report.outcome(client.outcome(item.id, timeout), instr=item)
             except NoOutcome as e:
                 report.line(str(e))
                 report.all_done = False
