@@ -17,6 +17,7 @@ from proc import Proc, patient_config
 from rclpy.serialization import serialize_message
 from rospeer import Peer, wait_future, wait_until
 
+from al5d import exits
 from al5d.app.record import (
     BOARD_WRITE_MSG,
     BOARD_WRITE_TYPE,
@@ -215,13 +216,13 @@ def test_record_then_replay_reproduces_the_boards_bytes(tmp_path: Path) -> None:
 
 def test_bad_files_are_clear_errors(tmp_path: Path) -> None:
     missing = Proc("replay", str(tmp_path / "none.mcap"))
-    assert missing.wait(30) == 1
+    assert missing.wait(30) == exits.BAD_INPUT
     assert "cannot read" in missing.err.wait_for("al5d replay:", 5)
 
     text = tmp_path / "notes.mcap"
     text.write_text("not a recording\n")
     bad = Proc("replay", str(text))
-    assert bad.wait(30) == 1
+    assert bad.wait(30) == exits.BAD_INPUT
     assert "is not a readable MCAP recording" in bad.err.wait_for("al5d replay:", 5)
 
     # A recording without instructions (only a state, say).
@@ -231,7 +232,7 @@ def test_bad_files_are_clear_errors(tmp_path: Path) -> None:
     file.put(channel, b"\x00\x01\x00\x00\x06\x00\x00\x00ready\x00", 1, 1)
     file.close()
     none = Proc("replay", str(empty))
-    assert none.wait(30) == 1
+    assert none.wait(30) == exits.BAD_INPUT
     assert "holds no instructions" in none.err.wait_for("al5d replay:", 5)
 
     unwritable = Proc("record", str(tmp_path / "no" / "such" / "dir.mcap"), "--duration", "1")

@@ -24,6 +24,7 @@ from proc import Proc
 from rospeer import wait_until
 from served import Served, served
 
+from al5d import exits
 from al5d.arm.config import ArmConfig
 from al5d.ros.runtime import QOS_STREAM, Names
 from al5d.ssc32u import protocol as p
@@ -231,9 +232,9 @@ def test_without_a_server_the_client_says_so(
         assert "Traceback (most recent call last)" in done.stderr
 
 
-def test_al5d_send_stop_without_a_server_is_exit_2() -> None:
+def test_al5d_send_stop_without_a_server_is_the_no_server_exit() -> None:
     lost = Proc("send", "--wait", "1", "stop", env=alone())
-    assert lost.wait(SCRIPT_S) == 2
+    assert lost.wait(SCRIPT_S) == exits.NO_SERVER
     assert any("no al5d server answers on /al5d/stop" in line for line in lost.err.drain())
 
 

@@ -26,6 +26,7 @@ from rospeer import Peer, wait_future, wait_until
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from al5d import exits
 from al5d.arm.config import ArmConfig, load_config
 from al5d.ros.runtime import QOS_INSTRUCTIONS, QOS_LATCHED
 from al5d.ssc32u import protocol as p
@@ -421,7 +422,7 @@ def test_the_client_application(server: Server, peer: Peer, tmp_path: Path) -> N
     assert any(line.startswith("move [") and line.endswith("ms)") for line in out)
 
 
-def test_no_server_is_exit_2() -> None:
+def test_no_server_is_its_own_exit_code() -> None:
     alone = Proc(
         "send",
         "park",
@@ -429,7 +430,7 @@ def test_no_server_is_exit_2() -> None:
         "1",
         env={"ROS_DOMAIN_ID": str(int(os.environ["ROS_DOMAIN_ID"]) + 1)},
     )
-    assert alone.wait(30) == 2
+    assert alone.wait(30) == exits.NO_SERVER
     assert any("no al5d server answers" in line for line in alone.err.drain())
 
 

@@ -9,6 +9,7 @@ The layers, each importing only those below it:
     al5d.model    the robot model: geometry, kinematics, URDF, straight lines (pure)
     al5d.ssc32u   the board: facts, protocol bytes, low-level driver, emulator
     al5d.clock    one clock and deadlines, for all of them
+    al5d.exits    the command line's exit codes, one table, for all of them
 
 The model and the board do not know each other: the arm joins them.
 """

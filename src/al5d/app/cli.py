@@ -1,4 +1,5 @@
-"""The `al5d` command line: serve, emulator, send, run, demo, web, record, replay."""
+"""The `al5d` command line: serve, emulator, send, run, shell, doctor, demo, web, record,
+replay."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from al5d import exits
 from al5d.arm.config import ConfigError, load_config
 from al5d.ssc32u.facts import BAUDS, FACTORY_BAUD, LATENCY_TIMER_MS
 
@@ -89,7 +91,7 @@ def _cmd_emulator(args: argparse.Namespace) -> int:
     else:
         with open(args.record, "w", encoding="utf-8") as record:
             serve_forever(emulator, _until_signal(), record)
-    return 0
+    return exits.DONE
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
@@ -141,7 +143,7 @@ def _cmd_urdf(args: argparse.Namespace) -> int:
     from al5d.model import urdf_from_chain
 
     print(urdf_from_chain(arm_chain(load_config(args.config), args.namespace), ROBOT))
-    return 0
+    return exits.DONE
 
 
 def _package_name(text: str) -> str:
@@ -160,7 +162,7 @@ def _cmd_moveit(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     for path in write_moveit_config(args.out, config, args.namespace, args.name):
         print(path)
-    return 0
+    return exits.DONE
 
 
 def _cmd_send(args: argparse.Namespace) -> int:
@@ -171,18 +173,42 @@ def _cmd_send(args: argparse.Namespace) -> int:
         wait_s=args.wait,
         timeout=args.timeout,
         namespace=args.namespace,
+        verbose=args.verbose,
     )
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from al5d.ros.client import run
 
-    return run(args.file, wait_s=args.wait, timeout=args.timeout, namespace=args.namespace)
+    return run(
+        args.file,
+        wait_s=args.wait,
+        timeout=args.timeout,
+        namespace=args.namespace,
+        verbose=args.verbose,
+    )
+
+
+def _cmd_shell(args: argparse.Namespace) -> int:
+    from al5d.ros.client import shell
+
+    return shell(
+        wait_s=args.wait, timeout=args.timeout, namespace=args.namespace, verbose=args.verbose
+    )
+
+
+def _cmd_doctor(args: argparse.Namespace) -> int:
+    from al5d.app.doctor import doctor
+
+    return doctor(args.port, args.config)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="al5d", description="Lynxmotion AL5D arm on an SSC-32U: server, client and emulator."
+        prog="al5d",
+        description="Lynxmotion AL5D arm on an SSC-32U: server, client and emulator.",
+        epilog=exits.describe(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -275,11 +301,22 @@ def build_parser() -> argparse.ArgumentParser:
     for name, func, what in (
         ("send", _cmd_send, "send one instruction and print its outcome"),
         ("run", _cmd_run, "run a sequence file (the client application)"),
+        (
+            "shell",
+            _cmd_shell,
+            "instructions a line at a time over one connection (discovery paid once); "
+            "Ctrl-C while one runs stops the arm",
+        ),
     ):
-        cmd = sub.add_parser(name, help=what)
+        cmd = sub.add_parser(
+            name,
+            help=what,
+            epilog=exits.describe(),
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
         if name == "send":
             cmd.add_argument("instruction", nargs="+", help="e.g. move base=30 elbow=90 time=800")
-        else:
+        elif name == "run":
             cmd.add_argument(
                 "file", help="one instruction a line; wait <ms>; # comments; & = go on"
             )
@@ -288,7 +325,23 @@ def build_parser() -> argparse.ArgumentParser:
         cmd.add_argument(
             "--timeout", type=float, default=120.0, help="seconds to wait for an outcome"
         )
+        cmd.add_argument(
+            "--verbose",
+            action="store_true",
+            help="say where the time went: ROS's start, the server's discovery (said anyway "
+            "when over 1 s), in all",
+        )
         cmd.set_defaults(func=func)
+
+    doc = sub.add_parser(
+        "doctor",
+        help="check the way to the SSC-32U: USB, permission, latency timer, baud, channels",
+        epilog=exits.describe(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    doc.add_argument("--port", help="the board's serial device; default: every SSC-32U on USB")
+    doc.add_argument("--config", help="arm configuration file; default: the shipped one")
+    doc.set_defaults(func=_cmd_doctor)
 
     urdf = sub.add_parser("urdf", help="print the URDF of the arm, made from the configuration")
     urdf.add_argument("--config", help="arm configuration file; default: the shipped one")
@@ -397,7 +450,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rest, ros_args = _split_ros_args(list(sys.argv[1:] if argv is None else argv))
     except Exception as e:  # rcl's own words for what it cannot parse
         print(f"al5d: ROS arguments: {e}", file=sys.stderr)
-        return 2
+        return exits.USAGE
     args = parser.parse_args(rest)
     args.ros_args = ros_args
     if ros_args is not None and args.command != "serve":
@@ -406,10 +459,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         code: int = args.func(args)
     except ConfigError as e:
         print(f"al5d: configuration error:\n{e}", file=sys.stderr)
-        return 2
+        return exits.USAGE
     except BrokenPipeError:  # `al5d urdf | head`: the reader has had enough
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
+        return exits.DONE
     return code
 
 

@@ -430,6 +430,7 @@ def record(path: str, namespace: str | None, duration: float | None) -> int:
     the file cannot be written."""
     import signal
 
+    from al5d import exits
     from al5d.ros.runtime import start_context
 
     done = threading.Event()
@@ -442,7 +443,7 @@ def record(path: str, namespace: str | None, duration: float | None) -> int:
         file = RecordFile(path)
     except RecordingError as e:
         print(f"al5d record: {e}", file=sys.stderr)
-        return 2
+        return exits.USAGE
     context = start_context()
     recorder = Recorder(context, file, topics(names), names.node_namespace)
     print(f"al5d record: recording to {path} (Ctrl-C ends it)", flush=True)
@@ -455,5 +456,5 @@ def record(path: str, namespace: str | None, duration: float | None) -> int:
     print(f"al5d record: {file.summary()}", flush=True)
     if file.failed:
         print(f"al5d record: the recording failed: {file.failed}", flush=True)
-        return 1
-    return 0
+        return exits.NOT_DONE
+    return exits.DONE

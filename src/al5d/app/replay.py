@@ -115,30 +115,25 @@ def replay(
     out: TextIO = sys.stdout,
     err: IO[str] = sys.stderr,
 ) -> int:
-    """Send a recording's instructions again; 0 if every one was done, 1 if any was not (or
-    the file cannot be replayed), 2 if no server answered."""
+    """Send a recording's instructions again; the exit code (`al5d.exits`): done, not done
+    (any one refused, cancelled or unanswered), bad input (a file that cannot be replayed:
+    nothing sent) or no server."""
+    from al5d import exits
     from al5d.arm.config import load_config
     from al5d.arm.instruction import Instruction
-    from al5d.ros.client import (
-        EXIT_DONE,
-        EXIT_NO_SERVER,
-        EXIT_NOT_DONE,
-        Client,
-        NoServer,
-        Report,
-    )
+    from al5d.ros.client import Client, NoServer, Report
     from al5d.ros.convert import from_message
 
     try:
         recorded, warning = read_instructions(path)
     except BadRecording as e:
         print(f"al5d replay: {e}", file=err)
-        return EXIT_NOT_DONE
+        return exits.BAD_INPUT
     if warning:
         print(f"al5d replay: warning: {warning}", file=err)
     if not recorded:
         print(f"al5d replay: {path} holds no instructions ({INSTRUCTION_TYPE})", file=err)
-        return EXIT_NOT_DONE
+        return exits.BAD_INPUT
     arm = load_config(config)
     presets = tuple(arm.presets)
     client = Client(namespace)
@@ -166,9 +161,9 @@ def replay(
         for instr in sent:
             if client.outcome(instr.id, timeout) is None:
                 report.outcome(None, instr=instr)
-        return EXIT_DONE if report.all_done else EXIT_NOT_DONE
+        return exits.DONE if report.all_done else exits.NOT_DONE
     except NoServer as e:
         print(f"al5d replay: {e}", file=err)
-        return EXIT_NO_SERVER
+        return exits.NO_SERVER
     finally:
         client.close()

@@ -20,6 +20,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, TextIO
 
+from al5d import exits
 from al5d.arm.config import ArmConfig, load_config
 from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import GrammarError, Instruction, Outcome, parse_instruction, shutdown
@@ -34,7 +35,7 @@ log = logging.getLogger("al5d")
 
 SWITCH_INTERVAL_S = 0.0005
 #: `al5d serve`'s exit code when the server ended without the arm in park.
-EXIT_NOT_PARKED = 3
+EXIT_NOT_PARKED = exits.NOT_PARKED
 LOG_FORMAT = "%(asctime)s.%(msecs)03d %(levelname)s %(message)s"
 
 

@@ -259,6 +259,10 @@ def _parse_ms(words: list[str], i: int, text: str, limit: int = TIME_FIELD_MAX_M
 
 #: The words of `move_to`: the point in mm, then what it may add.
 TOOL_WORDS = ("x", "y", "z", "pitch", "roll", "gripper", "path")
+#: A `move_to` point with every coordinate this close to 0 mm (not all 0) is metres mistaken
+#: for millimetres: it lies inside the base, where no arm reaches, and the AL5D's reach in
+#: metres is well below 1.
+METRES_HINT_MM = 1.0
 
 
 def _number(words: list[str], i: int, value: str, unit: str) -> float:
@@ -275,7 +279,17 @@ def _tool(words: list[str], values: dict[str, tuple[int, str]]) -> ToolTarget:
     missing = [k for k in ("x", "y", "z") if k not in values]
     if missing:
         raise GrammarError(f"word 1 'move_to': name {', '.join(f'{k}=<mm>' for k in missing)}")
-    mm = {k: _number(words, *values[k], "mm") / 1000 for k in ("x", "y", "z")}
+    given = {k: _number(words, *values[k], "mm") for k in ("x", "y", "z")}
+    if any(given.values()) and all(abs(v) < METRES_HINT_MM for v in given.values()):
+        # Such a point lies inside the arm's base: no arm reaches it, and it is what
+        # metres typed for millimetres look like (x=0.25 y=0 z=0.12).
+        typed = " ".join(f"{k}={_fmt_number(v)}" for k, v in given.items())
+        meant = " ".join(f"{k}={_fmt_number(round(v * 1000, 6))}" for k, v in given.items())
+        raise GrammarError(
+            f"{_where(words, values['x'][0])}: {typed} look like metres; move_to takes "
+            f"millimetres: {meant}"
+        )
+    mm = {k: v / 1000 for k, v in given.items()}
     deg = {
         k: _number(words, *values[k], "degrees")
         for k in ("pitch", "roll", "gripper")
@@ -367,27 +381,54 @@ def parse_sequence_step(
 Step = tuple[Instruction | Wait, bool]
 
 
+#: The most errors of a sequence file that are told one by one (then how many more).
+MAX_SEQUENCE_ERRORS = 100
+
+
+class SequenceErrors(GrammarError):
+    """A sequence file with bad lines: every one of them (`errors`, in order), each naming
+    the file, the line and the word; its text is one line each."""
+
+    def __init__(self, errors: list[str], more: int = 0) -> None:
+        self.errors = tuple(errors)
+        self.more = more
+        text = "\n".join(errors)
+        if more:
+            text += f"\n... and {more} more bad lines"
+        super().__init__(text)
+
+
 def parse_sequence(
     data: bytes, name: str = "<sequence>", presets: tuple[str, ...] = PRESET_NAMES
 ) -> list[Step]:
     """Every step of a sequence file, checked whole before anything is sent.
 
-    The first error stops it, naming the file, the line and the word:
-    `demo.seq:3: word 2 'base=x': 'x' is not a number of degrees`.
+    Every bad line is an error, all of them in one `SequenceErrors`, each naming the file,
+    the line and the word: `demo.seq:3: word 2 'base=x': 'x' is not a number of degrees`.
     """
     steps: list[Step] = []
+    errors: list[str] = []
+    more = 0
     for number, raw in enumerate(data.splitlines(), start=1):
         try:
-            line = raw.decode("utf-8")
-        except UnicodeDecodeError as e:
-            byte = raw[e.start : e.start + 1].hex()
-            raise GrammarError(
-                f"{name}:{number}: not UTF-8 text (byte 0x{byte} at column {e.start + 1})"
-            ) from None
-        try:
-            step = parse_sequence_step(line, presets)
+            step = _sequence_line(raw, presets)
         except GrammarError as e:
-            raise GrammarError(f"{name}:{number}: {e}") from None
+            if len(errors) < MAX_SEQUENCE_ERRORS:
+                errors.append(f"{name}:{number}: {e}")
+            else:
+                more += 1
+            continue
         if step is not None:
             steps.append(step)
+    if errors:
+        raise SequenceErrors(errors, more)
     return steps
+
+
+def _sequence_line(raw: bytes, presets: tuple[str, ...]) -> Step | None:
+    try:
+        line = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        byte = raw[e.start : e.start + 1].hex()
+        raise GrammarError(f"not UTF-8 text (byte 0x{byte} at column {e.start + 1})") from None
+    return parse_sequence_step(line, presets)

@@ -1,0 +1,225 @@
+"""The terminal's errors and time (issue 27): an exit code of its own for refused, bad
+input, usage and no server, listed in `--help`; a sequence file's errors all at once,
+before anything is sent; a hint for metres typed as millimetres; where the time of a
+command went (the server's discovery); `al5d shell`, one connection for many lines.
+
+Every command is an `al5d` process of its own, against a real server over real DDS
+(`served`), or with none.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+import signal
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from proc import Proc, patient_config
+from rospeer import wait_until
+from served import Served, served
+from test_ros_client import alone
+
+from al5d import exits
+from al5d.arm.config import ArmConfig
+from al5d.ros.client import SLOW_DISCOVERY_S, Client, NoServer, Timing
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Emulator
+
+#: Generous bounds: rclpy's start, discovery and a move on a loaded machine.
+CMD_S = 90.0
+STATE_S = 30.0
+
+
+@pytest.fixture(scope="module")
+def server(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    with served(config, tmp_path_factory.mktemp("cli"), "al5d_cli_peer") as s:
+        yield s
+
+
+@pytest.fixture
+def arm(server: Served) -> Served:
+    """The server, its arm released and at rest, whatever the last test left."""
+    wait_until(lambda: server.states[-1] in ("ready", "stopped"), STATE_S, "the arm at rest")
+    if server.states[-1] == "stopped":
+        assert server.peer.trigger("release").success
+    wait_until(lambda: server.states[-1] == "ready", STATE_S, "ready")
+    return server
+
+
+def group_moves(server: Served) -> list[p.GroupMove]:
+    return [c for r in server.emu.records for c in r.commands if isinstance(c, p.GroupMove)]
+
+
+def ended(proc: Proc) -> tuple[int, list[str], list[str]]:
+    code = proc.wait(CMD_S)
+    return code, proc.out.drain(), proc.err.drain()
+
+
+@pytest.mark.parametrize("args", [(), ("send",), ("run",), ("shell",), ("doctor",)])
+def test_help_lists_the_exit_codes(args: tuple[str, ...]) -> None:
+    code, out, _ = ended(Proc(*args, "--help"))
+    assert code == exits.DONE
+    text = "\n".join(out)
+    assert "exit codes:" in text
+    for number, what in exits.TABLE:
+        assert f"  {number}  {what}" in text
+    assert len({number for number, _ in exits.TABLE}) == len(exits.TABLE)
+
+
+@pytest.mark.parametrize(
+    "args", [("send",), ("run", "--frobnicate", "x.seq"), ("send", "--wait", "soon", "ready")]
+)
+def test_a_usage_error_is_argparses_own_code(args: tuple[str, ...]) -> None:
+    code, _, err = ended(Proc(*args, env=alone()))
+    assert code == exits.USAGE == 2, err
+    assert err[0].startswith("usage: al5d")
+
+
+@pytest.mark.parametrize(
+    ("words", "error"),
+    [
+        (("move", "base=x"), "al5d send: word 2 'base=x': 'x' is not a number of degrees"),
+        (("dance",), "al5d send: word 1 'dance': unknown instruction"),
+        (
+            ("move_to", "x=0.25", "y=0", "z=0.12"),
+            "al5d send: word 2 'x=0.25': x=0.25 y=0 z=0.12 look like metres; move_to takes "
+            "millimetres: x=250 y=0 z=120",
+        ),
+    ],
+)
+def test_bad_input_is_its_own_code_and_needs_no_server(words: tuple[str, ...], error: str) -> None:
+    code, out, err = ended(Proc("send", "--wait", "1", *words, env=alone()))
+    assert code == exits.BAD_INPUT, err
+    assert out == [] and err[0].startswith(error), err
+
+
+def test_no_server_is_its_own_code_for_run_too(tmp_path: Path) -> None:
+    seq = tmp_path / "ok.seq"
+    seq.write_text("ready\n")
+    code, _, err = ended(Proc("run", "--wait", "1", str(seq), env=alone()))
+    assert code == exits.NO_SERVER, err
+    assert any("no al5d server answers" in line for line in err)
+
+
+def test_a_sequence_files_errors_are_said_all_at_once_and_nothing_is_sent(
+    arm: Served, tmp_path: Path
+) -> None:
+    seq = tmp_path / "bad.seq"
+    seq.write_bytes(
+        b"ready\nmove base=x\nmove base=10 time=300\nwait\n# fine\nmove_to x=0.2 y=0 z=0.1\n"
+        b"park \xff\nstop\n"
+    )
+    moves = len(group_moves(arm))
+    code, out, err = ended(Proc("run", str(seq)))
+    assert code == exits.BAD_INPUT, err
+    assert out == []
+    assert err == [
+        f"al5d run: nothing sent: {seq}:2: word 2 'base=x': 'x' is not a number of degrees",
+        f"al5d run: {seq}:4: word 1 'wait': wait takes one number of ms: wait <ms>",
+        f"al5d run: {seq}:6: word 2 'x=0.2': x=0.2 y=0 z=0.1 look like metres; move_to takes "
+        "millimetres: x=200 y=0 z=100",
+        f"al5d run: {seq}:7: not UTF-8 text (byte 0xff at column 6)",
+    ]
+    assert len(group_moves(arm)) == moves
+    assert arm.states[-1] == "ready"
+
+
+def test_a_file_that_cannot_be_read_is_bad_input(tmp_path: Path) -> None:
+    code, _, err = ended(Proc("run", str(tmp_path / "missing.seq"), env=alone()))
+    assert code == exits.BAD_INPUT
+    assert err == [f"al5d run: cannot read {tmp_path / 'missing.seq'}: No such file or directory"]
+
+
+def test_refused_is_not_done_and_verbose_says_where_the_time_went(arm: Served) -> None:
+    code, out, err = ended(Proc("send", "--verbose", "move", "base=200"))
+    assert code == exits.NOT_DONE, err
+    assert any("refused: base: 200 deg is outside the range" in line for line in out)
+    said = "\n".join(err)
+    assert re.search(r"^al5d send: ROS started in \d+\.\d\d s$", said, re.M), said
+    found = re.search(
+        r"^al5d send: waited (\d+\.\d\d) s for the server to be discovered$", said, re.M
+    )
+    assert found is not None, said
+    assert re.search(r"^al5d send: \d+\.\d\d s in all$", said, re.M), said
+
+
+def test_a_slow_discovery_is_said_without_verbose(arm: Served) -> None:
+    """The measure is the client's own (its wait for a server under a namespace that has
+    none, 1.5 s); what is said of it is what `al5d send` says."""
+    client = Client(namespace="nobody_here")
+    try:
+        with pytest.raises(NoServer):
+            client.wait_for_server(1.5)
+        assert client.discovery_s >= 1.5 > SLOW_DISCOVERY_S
+        err = io.StringIO()
+        Timing("al5d send", False, err).discovered(client)
+        assert re.fullmatch(
+            r"al5d send: waited 1\.\d s for the server to be discovered \(ROS 2 discovery, "
+            r"which each new client pays: `al5d shell` pays it once for many instructions\)\n",
+            err.getvalue(),
+        ), err.getvalue()
+    finally:
+        client.close()
+
+
+def test_a_client_started_before_its_server_says_how_long_it_waited(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    link = tmp_path / "ssc32u"
+    client = Proc("send", "--wait", "60", "ready", env=alone())
+    with Emulator(config, link=link):
+        # The client waits; the server comes a while later (its own start is seconds more).
+        wait_until(lambda: client.popen.poll() is None, 5, "the client running")
+        time.sleep(1.5)
+        serve = Proc("serve", "--port", str(link), "--config", patient_config(), env=alone())
+        try:
+            code, _, err = ended(client)
+            assert code == exits.DONE, err
+            found = [line for line in err if "s for the server to be discovered" in line]
+            assert len(found) == 1, err
+            waited = float(re.findall(r"waited (\d+\.\d) s", found[0])[0])
+            assert waited > SLOW_DISCOVERY_S
+        finally:
+            serve.kill()
+
+
+def test_the_shell_runs_each_line_over_one_connection(arm: Served) -> None:
+    moves = len(group_moves(arm))
+    shell = Proc("shell", "--verbose", stdin=True)
+    try:
+        for line in ("ready", "move base=x", "move base=10 time=200", "move base=0 &", "exit"):
+            shell.send(line)
+        code, out, err = ended(shell)
+    finally:
+        shell.kill()
+    assert code == exits.BAD_INPUT, err  # a line was bad; the others ran
+    assert out[0] == "> ready" and re.fullmatch(r"ready \[.*\]: done.*", out[1]), out
+    assert "> move base=10 time=200" in out
+    assert sum(": done" in line for line in out) == 3, out
+    assert "al5d shell: word 2 'base=x': 'x' is not a number of degrees" in err
+    # One discovery for all of them.
+    assert sum("s for the server to be discovered" in line for line in err) == 1, err
+    assert len(group_moves(arm)) - moves >= 2
+
+
+def test_ctrl_c_in_the_shell_stops_the_arm(arm: Served) -> None:
+    shell = Proc("shell", stdin=True)
+    try:
+        shell.send("move base=80 time=5000")
+        shell.out.wait_for("> move base=80 time=5000", CMD_S)
+        wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+        shell.popen.send_signal(signal.SIGINT)
+        assert shell.out.wait_for("Ctrl-C: stop: ", CMD_S) == "Ctrl-C: stop: done (by /al5d/stop)"
+        assert "cancelled" in shell.out.wait_for("move [", CMD_S)
+        wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
+        assert abs(arm.emu.servo_degrees()["base"] - 80) > 5  # halted on its way
+        shell.send("release")
+        assert shell.out.wait_for("release: ", CMD_S) == "release: done (by /al5d/release)"
+        shell.send("exit")
+        code, _, err = ended(shell)
+    finally:
+        shell.kill()
+    assert code == exits.NOT_DONE, err  # the move was cancelled
