@@ -116,6 +116,14 @@ def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
         ),
         (lambda d: d["server"].update(baud=12345), r"server\.baud: .*baud 12345"),
         (
+            lambda d: d["server"].update(trajectory_path_tolerance_deg=0),
+            r"server\.trajectory_path_tolerance_deg: Input should be greater than 0",
+        ),
+        (
+            lambda d: d["server"].update(trajectory_path_tolerance_deg=float("inf")),
+            r"server\.trajectory_path_tolerance_deg: Input should be a finite number",
+        ),
+        (
             lambda d: d["server"].update(idle_joint_state_rate_hz=30),
             r"server: idle_joint_state_rate_hz 30 must not exceed joint_state_rate_hz 25",
         ),

@@ -4,6 +4,8 @@
 - `servos`: the servo models an AL5D is built with, as a table.
 - `instruction`: instructions and outcomes as data, and their text grammar.
 - `validate`: whether an instruction can run, judged whole (pure).
+- `resample`: a trajectory at the link's budget: the points thinned to what the wire
+  carries within the path tolerance, or the limit it meets (pure).
 - `translate`: degrees to pulse widths, move times and the bytes of a group move.
 - `cartesian`: `move_to`'s target checked, and planned into group moves by the model.
 - `states`: the state machine as a table (state, event) -> next state.

@@ -210,6 +210,10 @@ class ServerSettings(_Frozen):
     #: takes tens of milliseconds each way, and needs more than the board's 5 ms.
     answer_timeout_s: float = Field(default=DEFAULT_READ_TIMEOUT_S, gt=0, le=5)
     baud: int = Field(default=FACTORY_BAUD)
+    #: How far (degrees) a joint may be off a trajectory's path when the trajectory is denser
+    #: than the wire carries and is thinned (`arm.resample`), where its sender gives no
+    #: tolerance (a FollowJointTrajectory goal's path_tolerance does).
+    trajectory_path_tolerance_deg: FiniteFloat = Field(default=1.0, gt=0, le=45)
     #: The ROS namespace of this arm's names ("" none; `left` gives /left/al5d/...).
     namespace: str = ""
     #: Where the arm stands in a shared frame (None: nowhere said; base_link is a root).

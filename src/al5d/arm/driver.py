@@ -29,6 +29,7 @@ from al5d.arm.core import Core
 from al5d.arm.effects import Halt, Verdict, tell
 from al5d.arm.instruction import MAX_ID, MAX_QUOTE, Instruction, Kind, Outcome, Result
 from al5d.arm.jobs import Job, Mode, Sent, Written, finish, outcome, resolve
+from al5d.arm.resample import Follow
 from al5d.arm.states import Event, State
 from al5d.arm.translate import Translator
 from al5d.arm.validate import Limits, Step, Ticket, judge
@@ -96,7 +97,7 @@ class ArmDriver:
         self.baud = baud or config.server.baud
         self.settings = config.server
         self.translator = Translator(config)
-        self.limits = Limits.of(config)
+        self.limits = Limits.of(config, self.baud)
         self.channels = config.channels
         self.outcome_listeners: list[Callable[[Outcome], None]] = []
         self.state_listeners: list[Callable[[State], None]] = []
@@ -141,10 +142,11 @@ class ArmDriver:
         """0..1 of the instruction `instr_id` if it is the one running (by its steps)."""
         return self.core.progress(instr_id)
 
-    def judge(self, instr: Instruction) -> Ticket | str:
+    def judge(self, instr: Instruction, follow: Follow | None = None) -> Ticket | str:
         """The one judgement of a motion instruction (D3): its ticket, to submit as it is,
-        or the reason to refuse it whole."""
-        return judge(instr, self.limits)
+        or the reason to refuse it whole. `follow`: a trajectory's tolerances, where its
+        sender gives them (a FollowJointTrajectory goal)."""
+        return judge(instr, self.limits, follow)
 
     @property
     def epoch(self) -> int:

@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from al5d.arm import cartesian
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import MAX_ID, Instruction, Kind, Point, quote
+from al5d.arm.resample import LINE_MARGIN_S, Budget, Follow, line_bytes, resample
 from al5d.arm.translate import Translator
 from al5d.model import ArmModel
+from al5d.ssc32u.protocol import wire_time_s
 
 #: A reason lists this many problems at most, then says how many more there were.
 MAX_PROBLEMS = 5
@@ -34,14 +36,26 @@ class Limits:
     max_time_ms: int
     #: The robot model, for Cartesian moves.
     model: ArmModel | None = None
+    #: The link's baud: a trajectory is judged at its budget (`resample`); 0: not judged.
+    baud: int = 0
+    channels: Mapping[str, int] = field(default_factory=dict)
+    #: Each joint's servo speed (deg/s).
+    speeds: Mapping[str, float] = field(default_factory=dict)
+    #: A trajectory's path tolerance where its sender gives none (degrees).
+    path_tolerance_deg: float = 1.0
 
     @classmethod
-    def of(cls, config: ArmConfig) -> Limits:
+    def of(cls, config: ArmConfig, baud: int = 0) -> Limits:
+        """The arm's limits; with `baud`, trajectories are judged at that link's budget."""
         return cls(
             ranges={n: j.range_deg for n, j in config.joints.items()},
             presets=config.presets,
             max_time_ms=config.server.max_move_time_ms,
             model=config.model,
+            baud=baud,
+            channels={n: j.channel for n, j in config.joints.items()},
+            speeds={n: j.speed_deg_s for n, j in config.joints.items()},
+            path_tolerance_deg=config.server.trajectory_path_tolerance_deg,
         )
 
 
@@ -51,6 +65,8 @@ class Step:
 
     target: dict[str, float]
     time_ms: int | None
+    #: A trajectory's step: the index of its point (a thinned trajectory skips some).
+    point: int = field(default=-1, compare=False)
 
 
 Steps = tuple[Step, ...]
@@ -65,14 +81,15 @@ class Ticket:
     steps: Steps
 
 
-def judge(instr: Instruction, limits: Limits) -> Ticket | str:
+def judge(instr: Instruction, limits: Limits, follow: Follow | None = None) -> Ticket | str:
     """The one judgement of a motion instruction, whatever its channel (a message, a goal,
-    a trajectory, a Cartesian target, a Python call): its ticket, or why it is refused."""
-    steps = check(instr, limits)
+    a trajectory, a Cartesian target, a Python call): its ticket, or why it is refused.
+    `follow`: what a trajectory's sender asks beyond its points (its tolerances)."""
+    steps = check(instr, limits, follow)
     return steps if isinstance(steps, str) else Ticket(instr, steps)
 
 
-def check(instr: Instruction, limits: Limits) -> Steps | str:
+def check(instr: Instruction, limits: Limits, follow: Follow | None = None) -> Steps | str:
     """The steps of a motion instruction, or the reason to refuse it whole.
 
     A Cartesian move's steps depend on where the arm is when it starts: what can be
@@ -81,7 +98,7 @@ def check(instr: Instruction, limits: Limits) -> Steps | str:
     if len(instr.id) > MAX_ID:
         return f"the id is {len(instr.id)} characters long; at most {MAX_ID}"
     if instr.kind is Kind.TRAJECTORY:
-        return _trajectory(instr.points, limits)
+        return _trajectory(instr.points, limits, follow)
     if instr.kind is Kind.MOVE_TO:
         if limits.model is None:
             return "move_to needs the arm's robot model"
@@ -146,19 +163,25 @@ def time_problem(i: int, at_ms: float, before_ms: float) -> str:
     return ""
 
 
-def _trajectory(points: tuple[Point, ...], limits: Limits) -> Steps | str:
+def _trajectory(
+    points: tuple[Point, ...], limits: Limits, follow: Follow | None = None
+) -> Steps | str:
     """Every point checked before any is run; the reason names the first bad point.
 
     Times must increase strictly, judged on their exact values. The first point may
     be at 0: the start state, as MoveIt and joint_trajectory_controller clients send
     it; it goes at the servos' speed (nothing to do when the arm is there). Points
     are sent as whole milliseconds: a step that rounds to 0 ms (points under a
-    millisecond apart) also goes at the servos' speed."""
+    millisecond apart) also goes at the servos' speed.
+
+    With the link's baud, the points are then judged at its budget (`resample`): a
+    trajectory denser than the wire carries is thinned to the points that keep its
+    path within tolerance, or refused with the limit it meets."""
     if not points:
         return "a trajectory has no points"
     if len(points) > MAX_POINTS:
         return f"a trajectory of {len(points)} points is more than the {MAX_POINTS} taken"
-    steps: list[Step] = []
+    targets: list[dict[str, float]] = []
     before = 0.0
     sent = 0  # the time of the point before, in the whole ms the board is sent
     for i, point in enumerate(points):
@@ -175,9 +198,42 @@ def _trajectory(points: tuple[Point, ...], limits: Limits) -> Steps | str:
                 f"point {i}: {step} ms after {'the start' if i == 0 else f'point {i - 1}'}, "
                 f"above the limit of {limits.max_time_ms} ms"
             )
-        steps.append(Step(target, step or None))
+        targets.append(target)
         before, sent = at, sent + step
+    knots: tuple[int, ...] = tuple(range(len(points)))
+    if limits.baud:
+        plan = resample(points, budget(points, limits, follow))
+        if isinstance(plan, str):
+            return plan
+        knots = plan.knots
+    steps: list[Step] = []
+    sent = 0
+    for k in knots:
+        step = round(points[k].at_ms) - sent
+        steps.append(Step(targets[k], step or None, k))
+        sent += step
     return tuple(steps)
+
+
+def budget(points: tuple[Point, ...], limits: Limits, follow: Follow | None = None) -> Budget:
+    """What a trajectory's points must keep to on this arm's link (`limits.baud`)."""
+    follow = follow or Follow()
+    longest = max(
+        line_bytes([limits.channels[j] for j, _ in p.joints if j in limits.channels])
+        for p in points
+    )
+    names = {j for p in points for j, _ in p.joints}
+    line_ms = (wire_time_s(longest, limits.baud) + LINE_MARGIN_S) * 1000.0
+    return Budget(
+        line_ms=line_ms,
+        tolerance={j: follow.tolerance.get(j, limits.path_tolerance_deg) for j in names},
+        speeds=limits.speeds,
+        max_step_ms=float(limits.max_time_ms),
+        late_ms=follow.late_ms,
+        start=follow.start,
+        baud=limits.baud,
+        line_bytes=longest,
+    )
 
 
 def explain(instr: Instruction, limits: Limits) -> str:

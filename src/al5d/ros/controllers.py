@@ -13,6 +13,12 @@ do where it matters to a client:
 - a cancel halts the arm where it is, without the emergency lock: CANCELED;
 - an emergency stop aborts the goal, and the arm is locked as always.
 
+A trajectory denser than the serial link carries is thinned by the driver's
+judgement (`al5d.arm.resample`) within the goal's `path_tolerance` (the
+configured default for a joint it does not name), and a goal with a
+`goal_time_tolerance` whose points the servos cannot reach in time is rejected
+then, with the limit it meets.
+
 Values are the URDF's (REP 103 radians, the gripper's gap in metres); the
 one mapping to the arm's degrees is the model's.
 """
@@ -33,10 +39,11 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result
 from al5d.arm.jobs import Sent
-from al5d.arm.states import refusal
+from al5d.arm.resample import Follow
+from al5d.arm.states import State, refusal
 from al5d.arm.validate import Ticket
 from al5d.clock import now
-from al5d.model import ArmModel
+from al5d.model import ArmModel, ModelError
 from al5d.ros.actions import GoalRunner, action_server
 from al5d.ros.convert import trajectory_from_message
 
@@ -103,6 +110,9 @@ class Running:
     points: list[list[float]]  # each point's positions, URDF values
     first: list[float]  # where the named joints were when it was accepted
     path: list[Tolerance]
+    #: The points sent to the board, by index (a trajectory denser than the wire carries
+    #: is thinned: `al5d.arm.resample`); its first and last points always.
+    knots: list[int] = field(default_factory=list)
     t0: float | None = None  # when its first move reached the board
     #: When its times count from: `t0`, or, when its first point is at 0 (the start state,
     #: reached at the servos' speed), when that point is reached (as the driver counts).
@@ -112,6 +122,10 @@ class Running:
     written: int = 0  # its points written so far
     #: Per point written: how late the board will reach it after its time_from_start (s).
     late: list[float] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if not self.knots:
+            self.knots = list(range(len(self.times)))
 
     def desired(self, t: float) -> list[float]:
         """Where the trajectory says the joints are at `t` (linear between points, as the
@@ -163,12 +177,6 @@ class FollowTrajectoryAction(GoalRunner):
         if isinstance(instr, str):
             return instr
         instr = Instruction(Kind.TRAJECTORY, points=instr.points, id=ident, sent_ns=sent)
-        ticket = self.driver.judge(instr)
-        if isinstance(ticket, str):
-            return ticket
-        busy = inactive(self.driver)
-        if busy:
-            return busy
         names = list(goal.trajectory.joint_names)
         path = tolerances(goal.path_tolerance, names)
         end = tolerances(goal.goal_tolerance, names)
@@ -176,7 +184,45 @@ class FollowTrajectoryAction(GoalRunner):
             if isinstance(t, str):
                 return t
         assert not isinstance(path, str) and not isinstance(end, str)
+        ticket = self.driver.judge(instr, self._follow(path, _seconds(goal.goal_time_tolerance)))
+        if isinstance(ticket, str):
+            return ticket
+        busy = inactive(self.driver)
+        if busy:
+            return busy
         return Judged(ticket, path, end)
+
+    def _follow(self, path: list[Tolerance], late_s: float) -> Follow:
+        """The goal's tolerances in the arm's degrees, and where the arm is (when it is at
+        rest: a moving arm's first step starts elsewhere), for the driver's judgement."""
+        degrees = {t.joint: self._degrees(t.joint, t.position) for t in path if t.position}
+        here = self.driver.positions()
+        start = (
+            {j: v for j, v in here.items() if not math.isnan(v)}
+            if self.driver.state is State.READY
+            else None
+        )
+        return Follow(
+            {j: d for j, d in degrees.items() if d is not None},
+            late_s * 1000.0 if late_s > 0 else None,
+            start,
+        )
+
+    def _degrees(self, joint: str, tolerance: float) -> float | None:
+        """A URDF tolerance (radians, or metres for the gripper) in the joint's degrees: the
+        least it is anywhere in the joint's range (the gripper's gap is not linear in its
+        servo's angle). None: not a joint of the model (validation names it)."""
+        try:
+            lo, hi = self.model.urdf_limits(joint)
+        except ModelError:
+            return None
+        least = math.inf
+        for k in range(9):
+            x = lo + (hi - lo) * k / 8
+            y = x + tolerance if x + tolerance <= hi else x - tolerance
+            a, b = self.model.from_urdf({joint: x})[joint], self.model.from_urdf({joint: y})[joint]
+            least = min(least, abs(b - a))
+        return least if math.isfinite(least) and least > 0 else None
 
     # -- running it -------------------------------------------------------------------
 
@@ -198,6 +244,7 @@ class FollowTrajectoryAction(GoalRunner):
             [list(p.positions) for p in goal.trajectory.points],
             here,
             judged.path,
+            [s.point for s in judged.ticket.steps],
         )
         outcome = await self._run(ident, run, judged.ticket)
         return self._finish(run, outcome, judged.end, goal)
@@ -224,7 +271,7 @@ class FollowTrajectoryAction(GoalRunner):
             handle.abort()
             # An emergency stop (or a fault) left the arm off its path.
             return _result(FJT.PATH_TOLERANCE_VIOLATED, f"{outcome.result.value}: {outcome.reason}")
-        late = run.late[-1] if len(run.late) == len(run.times) else 0.0
+        late = run.late[-1] if len(run.late) == len(run.knots) else 0.0
         note = lateness(run)
         allowed = _seconds(goal.goal_time_tolerance)
         if note and allowed > 0 and late > allowed:
@@ -262,8 +309,8 @@ class FollowTrajectoryAction(GoalRunner):
             # the servos' speed: the times count from its end, as the driver's do.
             run.origin = end if round(run.times[0] * 1000.0) == 0 else run.t0
         k, run.written = run.written, run.written + 1
-        if k < len(run.times) and run.origin is not None:
-            run.late.append(end - (run.origin + run.times[k]))
+        if k < len(run.knots) and run.origin is not None:
+            run.late.append(end - (run.origin + run.times[run.knots[k]]))
 
     def _actual(self, names: Sequence[str]) -> list[float]:
         values = self.model.to_urdf(self.driver.positions())
@@ -313,7 +360,10 @@ def lateness(run: Running) -> str:
     before, last = run.late[:-1], run.late[-1:]
     if before and max(before) >= LATE_REPORTED_S:
         k = max(range(len(before)), key=before.__getitem__)
-        parts.append(f"point {k} was reached {before[k] * 1000.0:.0f} ms after its time_from_start")
+        parts.append(
+            f"point {run.knots[k]} was reached {before[k] * 1000.0:.0f} ms after its "
+            "time_from_start"
+        )
     if last and last[0] >= LATE_REPORTED_S:
         parts.append(
             f"the last point was reached {last[0] * 1000.0:.0f} ms after its time_from_start"
