@@ -10,6 +10,9 @@ services' executor, the stop watcher's reader) and the DDS participant they use
 (whose receive threads Fast DDS starts when its first node is made) are made
 from a thread at `URGENT_NICE`, and so is every thread of `al5d emulator` and an
 emulated board's link wherever it runs.
+What no priority buys is told apart by `cpu_waited_s`: the time runnable tasks
+waited for a core, which is what makes a board's answer late on a busy host
+(the kernel's work that carries a pty's or a USB port's bytes waits its turn too).
 Going below nice 0 needs CAP_SYS_NICE (root) or an RLIMIT_NICE that allows it;
 where it is refused, one log line says so and the threads run at the default
 priority.
@@ -73,3 +76,23 @@ def built_urgently(what: str, build: Callable[[], T]) -> T:
     if failed:
         raise failed[0]
     return out[0]
+
+
+#: The kernel's CPU pressure (Linux 4.20 on, where PSI is enabled): its first line is
+#: `some avg10=.. avg60=.. avg300=.. total=<us>`.
+CPU_PRESSURE = "/proc/pressure/cpu"
+
+
+def cpu_waited_s(path: str = CPU_PRESSURE) -> float | None:
+    """How long, since boot, at least one runnable task of this host waited for a core (the
+    kernel's CPU pressure, "some"), in seconds; None where the kernel does not say.
+
+    The difference over an interval is the part of it the host was short of cores: a
+    board's answer that came late for that long was late because of the host, not the
+    board. Reading it costs a few microseconds."""
+    try:
+        with open(path, "rb") as f:
+            first = f.readline()
+        return int(first.rsplit(b"total=", 1)[1]) / 1e6
+    except (OSError, IndexError, ValueError):
+        return None

@@ -39,6 +39,7 @@ from types import TracebackType
 import serial
 
 from al5d.clock import Deadline, now
+from al5d.priority import cpu_waited_s
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.errors import (
     GarbageAnswer,
@@ -68,8 +69,12 @@ READ_SLICE_S = 0.01
 #: A read that comes back this much later than its slice: the thread was not running.
 SCHEDULING_SLACK_S = 0.005
 #: At most this much is excused to one ask of a query (`SSC32U._read`): a silent board on a
-#: busy host is found that much later, at worst; on an idle one, not later at all.
-EXCUSE_MAX_S = 0.1
+#: busy host is found that much later, at worst; on an idle one, not later at all. Beside
+#: two busy loops and a flood, a board's answer (an emulator at nice -10 in its own
+#: process) came 75 ms late twice in a row, both asks' bytes reaching it 2 ms apart: the
+#: kernel's work that carries a pty's bytes waited for a core; with 0.1 s excused to our
+#: own thread only, that was a lost link and a missed stop, once in about 9 floods.
+EXCUSE_MAX_S = 0.35
 DEFAULT_WRITE_TIMEOUT_S = 0.5
 #: How much of earlier bytes' wire time a move may find still to go when it is written (the
 #: horizon a stop can find ahead of it, with the one command written last).
@@ -427,14 +432,18 @@ class SSC32U:
         """Read on from `answer` until it holds `count` answers or the deadline has passed.
 
         The deadline is the board's: it moves on by the time this thread was not running
-        (a read that came back a scheduling delay after its slice) and by the time our query
-        still waited in the port (its bytes had not left), up to `EXCUSE_MAX_S` in all. An
-        answer that came meanwhile is read at once; one that did not may be late for the
-        same reason (a busy host delays the emulator, the USB stack and us alike), and a
-        board that is really gone is still found: a pulled port fails at once, a silent
-        one after at most the excuse more."""
+        (a read that came back a scheduling delay after its slice), by the time our query
+        still waited in the port (its bytes had not left), and by the time the host was
+        short of cores meanwhile (`al5d.priority.cpu_waited_s`: the kernel's work that
+        carries the port's bytes, and a board emulated on this host, wait their turn too),
+        up to `EXCUSE_MAX_S` in all. An answer that came meanwhile is read at once; one that
+        did not may be late for those reasons, and a board that is really gone is still
+        found: a pulled port fails at once, a silent one after at most the excuse more (on
+        an idle host, no later than without it)."""
         start = deadline.at
         t_last = now()
+        waited = cpu_waited_s()
+        ours = 0.0  # excused to this thread (and to bytes still in the port)
         while True:
             if n_answer is None:
                 answer += self._ser.read_until(p.CR)
@@ -445,8 +454,12 @@ class SSC32U:
             t = now()
             late = t - t_last - READ_SLICE_S
             if late > SCHEDULING_SLACK_S or self._unsent():
-                deadline.at = min(start + EXCUSE_MAX_S, deadline.at + max(late, t - t_last))
+                ours += max(late, t - t_last)
             t_last = t
+            deadline.at = start + min(EXCUSE_MAX_S, ours)
+            if t >= deadline.at and waited is not None:  # the host's share, once it counts
+                host = (cpu_waited_s() or waited) - waited
+                deadline.at = start + min(EXCUSE_MAX_S, ours + host)
             if t >= deadline.at:
                 return answer
 
