@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import random
 import sys
@@ -26,6 +27,7 @@ import micro  # noqa: E402
 import model_bench  # noqa: E402
 import plot  # noqa: E402
 import rosbench  # noqa: E402
+import trajectory_budget  # noqa: E402
 import webbench  # noqa: E402
 
 from al5d.arm.config import load_config  # noqa: E402
@@ -330,10 +332,18 @@ def main() -> int:
     log("robot model: IK time, FK/IK round trips")
     results["model"] = model_figures()
     results.update(rosbench.run(config, log))
+    log("dense trajectories at the link's budget (9600 and 115200 baud)")
+    results["trajectory_budget"] = trajectory_budget.run(config, log)
     log("the web view (a real headless browser)")
     results["web"] = webbench.run(log)
     results["elapsed_s"] = time.monotonic() - started
-    lines = rows(results) + webbench.rows(results["web"])
+    tolerance = math.radians(config.server.trajectory_path_tolerance_deg)
+    budget = trajectory_budget.rows(results["trajectory_budget"], tolerance)
+    lines = (
+        rows(results)
+        + [(f"trajectory {case}", ours, "", target, held) for case, ours, target, held in budget]
+        + webbench.rows(results["web"])
+    )
     OUT.mkdir(exist_ok=True)
     (OUT / "results.json").write_text(json.dumps(results, indent=1))
     plot.draw(results, OUT / "bench.png")

@@ -3,6 +3,12 @@ message of a batch judged. (A stop both readers see, obeyed once: `test_arm_sequ
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import pytest
 from al5d_interfaces.msg import ArmInstruction
 from armrig import Rig
@@ -53,3 +59,22 @@ def test_a_stop_behind_a_full_batch_is_obeyed(rig: Rig, monkeypatch: pytest.Monk
         if watcher is not None:
             watcher.reader.close()
         context.try_shutdown()
+
+
+def test_a_flood_that_outruns_the_watcher_loses_its_oldest_not_the_stop_sent_last() -> None:
+    # Best effort and bounded, the watcher must drop the oldest of what it could not read,
+    # never the newest: the stop that came last. A reader deeper than the bound Fast DDS
+    # gives the topic (the server's instruction backlog) refuses the newest once full.
+    backlog = 50
+    script = Path(__file__).with_name("watch_backlog.py")
+    done = subprocess.run(
+        [sys.executable, str(script), str(backlog)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=os.environ.copy(),
+    )
+    assert done.returncode == 0, done.stderr
+    held = json.loads(done.stdout)
+    assert held and held[-1] == "stop", held[-5:]
+    assert len(held) <= backlog  # what did not fit was dropped: the oldest

@@ -140,14 +140,25 @@ QOS_INSTRUCTIONS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
-#: The stop watcher's reader of the instruction topic: it never slows a sender (best effort)
-#: and never waits (a flood it cannot keep up with overwrites the oldest).
-QOS_WATCH = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1000,
-    reliability=ReliabilityPolicy.BEST_EFFORT,
-    durability=DurabilityPolicy.VOLATILE,
-)
+
+
+def qos_watch(backlog: int) -> QoSProfile:
+    """The stop watcher's reader of the instruction topic: it never slows a sender (best
+    effort) and never waits: a flood it cannot keep up with overwrites the oldest.
+
+    As deep as the server's instruction backlog, and no deeper: Fast DDS gives the
+    backlog's bound (`dds_profile`) to every reader of the topic in the process, the
+    watcher's too, and a KEEP_LAST reader deeper than its bound, once full, refuses the
+    newest message instead of dropping the oldest (measured: 5,000 sent to a reader 10,000
+    deep bounded at 1,000 kept the first 1,000): a stop that came last would be lost."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=backlog,
+        reliability=ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
 #: Results: reliable and deep; a reader more than 10,000 results behind loses the oldest,
 #: and never slows the server (KEEP_ALL here would let a stuck reader block it).
 QOS_STREAM = QoSProfile(

@@ -49,12 +49,12 @@ from al5d.priority import built_urgently
 from al5d.ros.convert import from_message, sent_ns, stop_key
 from al5d.ros.runtime import (
     QOS_SERVICES,
-    QOS_WATCH,
     SAFETY_NODE,
     WATCHER_NODE,
     Names,
     Spinner,
     pinned,
+    qos_watch,
     start_context,
 )
 from al5d.ros.workarounds import Reader, stamped_service, taken_by_reader
@@ -130,7 +130,11 @@ class StopWatcher(Node):
         self.driver = driver
         self.presets = tuple(driver.config.presets)
         watched = self.create_subscription(
-            ArmInstruction, names.instruction, taken_by_reader, QOS_WATCH, raw=True
+            ArmInstruction,
+            names.instruction,
+            taken_by_reader,
+            qos_watch(driver.config.server.instruction_backlog),
+            raw=True,
         )
         # A thread of its own takes what waits, up to `WATCH_BATCH` at a time, in one go:
         # under a flood, one GIL hand-over a message would leave the watcher behind.
