@@ -24,7 +24,7 @@ from al5d.arm.instruction import Result
 from al5d.arm.jobs import Sent
 from al5d.arm.states import State
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.driver import SSC32U
+from al5d.ssc32u.driver import EXCUSE_MAX_S, SSC32U
 from al5d.ssc32u.emulator import Emulator, Fault
 
 
@@ -49,7 +49,8 @@ class TestIdleLink:
         emu, driver = linked
         time.sleep(0.2)
         emu.inject(fault)
-        assert time_to_state(driver, State.FAULT, 5) <= 1.0
+        # Within a second; on a host short of cores, the excuse more for each of two asks.
+        assert time_to_state(driver, State.FAULT, 5) <= 1.0 + 2 * EXCUSE_MAX_S
         refused = driver.execute(ins.move(base=10), 5)
         assert refused.result is Result.REFUSED and "serial link is lost" in refused.reason
 

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 
 import pytest
 
 from al5d.arm.config import ArmConfig
-from al5d.ssc32u.driver import DEFAULT_READ_TIMEOUT_S, SSC32U, WIRE_HORIZON_S
+from al5d.ssc32u.driver import DEFAULT_READ_TIMEOUT_S, EXCUSE_MAX_S, SSC32U, WIRE_HORIZON_S
 from al5d.ssc32u.emulator import UART, Emulator, Fault, Link
 from al5d.ssc32u.errors import (
     GarbageAnswer,
@@ -166,7 +167,9 @@ def test_a_late_first_answer_is_never_left_for_the_next_query(config: ArmConfig)
         for _ in range(3):
             assert board.is_done()  # the '.' of Q, not the QP's 150
             assert board.read_pulses([0]) == {0: 1500}
-    assert [r.raw for r in emu.records].count(b"QP0") == 5
+    # Asked again, unless the host was short of cores for the 80 ms (then the first ask
+    # waited for its answer: `al5d.priority.cpu_waited_s`); either way, no answer left over.
+    assert [r.raw for r in emu.records].count(b"QP0") in (4, 5)
 
 
 def test_stop_does_not_wait_behind_a_query(emulator: Emulator) -> None:
@@ -200,11 +203,13 @@ class TestFaults:
     def test_no_answer(self, emulator: Emulator, board: SSC32U) -> None:
         emulator.inject(Fault.NO_ANSWER)
         # Twice the wire (4 bytes: 4 ms at 9600, 1 back) and the margin (50 ms, and 16 ms
-        # in the USB chip), and the margin once more for the first of the two answers.
-        with pytest.raises(NoAnswer, match=r"no answer to Q, asked twice, within 1[3-6]\d ms"):
-            board.is_done()
-        with pytest.raises(SerialFault, match=r"no answer to QP, asked twice, within 1[3-6]\d ms"):
-            board.read_pulses([0])
+        # in the USB chip), and the margin once more for the first of the two answers; on
+        # a host short of cores, up to the excuse more an ask.
+        for query, name in ((board.is_done, "Q"), (lambda: board.read_pulses([0]), "QP")):
+            with pytest.raises(NoAnswer, match=rf"no answer to {name}, asked twice") as e:
+                query()
+            within = re.search(r"within (\d+) ms", str(e.value))
+            assert within is not None and 130 <= float(within.group(1)) <= 170 + 2000 * EXCUSE_MAX_S
 
     def test_one_late_answer_is_asked_again_not_a_fault(
         self, emulator: Emulator, board: SSC32U

@@ -20,6 +20,7 @@ ARGUMENTS = {
     "port": ("", "the SSC-32U's serial device, e.g. /dev/ttyUSB0; empty: the embedded emulator"),
     "baud": ("", "the board's baud rate; empty: the configuration's"),
     "namespace": ("", "the arm's ROS namespace, e.g. left; empty: the configuration's"),
+    "record": ("", "an MCAP file to record what happens in, the board's bytes too; empty: none"),
     "log_level": ("info", "debug, info, warning or error"),
     "web": ("false", "true: also the web view (al5d web)"),
     "web_port": ("8080", "the web view's HTTP port"),
@@ -28,7 +29,7 @@ ARGUMENTS = {
 
 def _actions(context):
     given = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
-    parameters = {name: given[name] for name in ("config_file", "port") if given[name]}
+    parameters = {name: given[name] for name in ("config_file", "port", "record") if given[name]}
     if given["baud"]:
         parameters["baud"] = int(given["baud"])
     actions = [

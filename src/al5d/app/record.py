@@ -108,7 +108,13 @@ def topics(names: Names, instruction_depth: int = 1000) -> list[Topic]:
     of that topic to `server.instruction_backlog`)."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    from al5d.ros.runtime import QOS_LATCHED
+    def latched(depth: int) -> QoSProfile:
+        return QoSProfile(  # type: ignore[no-untyped-call]
+            history=HistoryPolicy.KEEP_LAST,
+            depth=depth,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
 
     def reliable(depth: int) -> QoSProfile:
         return QoSProfile(  # type: ignore[no-untyped-call]
@@ -122,7 +128,9 @@ def topics(names: Names, instruction_depth: int = 1000) -> list[Topic]:
     return [
         Topic(names.instruction, "al5d_interfaces/msg/ArmInstruction", reliable(instruction_depth)),
         Topic(names.result, "al5d_interfaces/msg/InstructionResult", reliable(10_000)),
-        Topic(names.state, "std_msgs/msg/String", QOS_LATCHED),
+        # The state's writer keeps the last only (latched): a reader a state behind would
+        # miss one (a stop's "stopped" and a release's "ready" a millisecond apart).
+        Topic(names.state, "std_msgs/msg/String", latched(100)),
         Topic(names.joint_states, "sensor_msgs/msg/JointState", reliable(100)),
         Topic(names.trajectory, "trajectory_msgs/msg/JointTrajectory", reliable(1000)),
         Topic(names.joint_commands, "sensor_msgs/msg/JointState", reliable(1000)),
