@@ -66,7 +66,7 @@ def test_without_a_pitch_the_current_one_is_kept_where_it_can_be(rig: Rig) -> No
             "below the table: the tool tip would be at z=-100 mm, the table is at z=0 mm",
         ),
         (ins.move_to(200, 0, -100), "below the table: the tool tip would be at z=-100 mm"),
-        (ins.move_to(320, 0, 30, pitch=30), "below the table: the wrist would be at z=-20 mm"),
+        (ins.move_to(320, 0, 30, pitch=30), "below the table: the wrist would be at z=-23 mm"),
         # Issue 22, defect 4: these wrapped round to pitches of 7.4, -25.5 and 15.1 deg.
         (ins.move_to(250, 0, 120, pitch=1e300), "pitch: 1e+300 deg is beyond one turn (360 deg)"),
         (ins.move_to(250, 0, 120, pitch=-1e300), "pitch: -1e+300 deg is beyond one turn"),

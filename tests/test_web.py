@@ -176,6 +176,34 @@ def test_a_slider_drag_is_one_move(rig: Rig) -> None:
     rig.state.wait_for("ready", 10)
 
 
+def test_sliders_into_the_table_show_why_and_send_nothing(rig: Rig) -> None:
+    rig.peer.send("web-ready-2", "ready")  # shoulder 30, elbow 90, wrist 0: hand level
+    assert rig.peer.result("web-ready-2").outcome == "done"
+    rig.state.wait_for("ready", 10)
+    page = rig.page
+    page.get_by_role("tab", name="Joints").click()
+    thumb = page.get_by_role("slider").nth(1)  # shoulder: forward takes the hand down
+    wait_text(page, "#al5d-joints-status", lambda t: t != "")
+    box = thumb.bounding_box()
+    x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    n0 = len(rig.emu.records)
+    page.mouse.move(x, y)
+    page.mouse.down()
+    for i in range(1, 16):
+        page.mouse.move(x + 6 * i, y)
+    # Still held: the page has judged the move it would send, as the server would.
+    held = wait_text(page, "#al5d-joints-status", lambda t: "below the table" in t)
+    assert held.startswith("will not be sent: "), held
+    degrees = float(thumb.get_attribute("aria-valuenow") or "nan")
+    page.mouse.up()
+    assert degrees >= 50, degrees  # from ready, shoulder 50 puts a finger 65 mm under
+    text = wait_text(page, "#al5d-joints-status", lambda t: t.startswith("not sent: "))
+    assert "finger" in text and "mm under it" in text, text
+    time.sleep(QUIET_S + 1.0)  # the move, were it sent, would be on the board by now
+    assert rig.group_moves(n0) == []
+    rig.state.wait_for("ready", 2)
+
+
 def test_stop_and_release_from_the_page(rig: Rig) -> None:
     page = rig.page
     rig.peer.send("web-slow", "move", time_ms=5000, base=-60)

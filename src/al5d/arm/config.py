@@ -215,6 +215,10 @@ class ServerSettings(_Frozen):
     #: than the wire carries and is thinned (`arm.resample`), where its sender gives no
     #: tolerance (a FollowJointTrajectory goal's path_tolerance does).
     trajectory_path_tolerance_deg: FiniteFloat = Field(default=1.0, gt=0, le=45)
+    #: Every move (joint or Cartesian, a trajectory's every point and the path between, a
+    #: set-point) is refused whole if its path would take a body of the arm under the table
+    #: (`geometry.table_height_mm`); false: only the joints' ranges hold it.
+    table_check: bool = Field(default=True, strict=True)
     #: The ROS namespace of this arm's names ("" none; `left` gives /left/al5d/...).
     namespace: str = ""
     #: Where the arm stands in a shared frame (None: nowhere said; base_link is a root).

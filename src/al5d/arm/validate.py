@@ -18,7 +18,8 @@ from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import MAX_ID, Instruction, Kind, Point, quote
 from al5d.arm.resample import LINE_MARGIN_S, Budget, Follow, line_bytes, resample
 from al5d.arm.translate import Translator
-from al5d.model import ArmModel
+from al5d.model import ArmModel, as_sent, below_table
+from al5d.model.table import HEIGHT_JOINTS, path_below
 from al5d.ssc32u.protocol import wire_time_s
 
 #: A reason lists this many problems at most, then says how many more there were.
@@ -43,6 +44,10 @@ class Limits:
     speeds: Mapping[str, float] = field(default_factory=dict)
     #: A trajectory's path tolerance where its sender gives none (degrees).
     path_tolerance_deg: float = 1.0
+    #: Whether every move's path is kept above the table (`server.table_check`).
+    table: bool = True
+    #: Per joint, (us at 0 deg, us per deg): the pulses the board interpolates between.
+    pulses: Mapping[str, tuple[float, float]] = field(default_factory=dict)
 
     @classmethod
     def of(cls, config: ArmConfig, baud: int = 0) -> Limits:
@@ -56,6 +61,8 @@ class Limits:
             channels={n: j.channel for n, j in config.joints.items()},
             speeds={n: j.speed_deg_s for n, j in config.joints.items()},
             path_tolerance_deg=config.server.trajectory_path_tolerance_deg,
+            table=config.server.table_check,
+            pulses={n: (j.to_us(0.0), j.us_per_deg) for n, j in config.joints.items()},
         )
 
 
@@ -98,7 +105,10 @@ def check(instr: Instruction, limits: Limits, follow: Follow | None = None) -> S
     if len(instr.id) > MAX_ID:
         return f"the id is {len(instr.id)} characters long; at most {MAX_ID}"
     if instr.kind is Kind.TRAJECTORY:
-        return _trajectory(instr.points, limits, follow)
+        points = _trajectory(instr.points, limits, follow)
+        if isinstance(points, str):
+            return points
+        return table_problem(points, follow.start if follow else None, limits, instr) or points
     if instr.kind is Kind.MOVE_TO:
         if limits.model is None:
             return "move_to needs the arm's robot model"
@@ -108,9 +118,92 @@ def check(instr: Instruction, limits: Limits, follow: Follow | None = None) -> S
         return explain(instr, limits)
     if instr.kind is Kind.PRESET:
         pose = limits.presets.get(instr.preset)
-        return (Step(dict(pose), time_ms),) if pose is not None else explain(instr, limits)
-    target = _target(instr.joints, limits)
-    return (Step(target, time_ms),) if target is not None else explain(instr, limits)
+        if pose is None:
+            return explain(instr, limits)
+        steps: Steps = (Step(dict(pose), time_ms),)
+    else:
+        target = _target(instr.joints, limits)
+        if target is None:
+            return explain(instr, limits)
+        steps = (Step(target, time_ms),)
+    # Where the arm starts is known when the move starts (`from_start`); a target that
+    # names every joint the heights depend on is judged now.
+    return table_problem(steps, None, limits) or steps
+
+
+def table_problem(
+    steps: Steps,
+    start: Mapping[str, float | None] | None,
+    limits: Limits,
+    instr: Instruction | None = None,
+) -> str:
+    """Why the board's path through `steps` from `start` (degrees; None or a joint None:
+    not known) would take a body of the arm under the table, or "" (`model.table`).
+
+    The path is the board's: each step's pulses, rounded to whole microseconds as the
+    driver encodes them, reached linearly from the step before. What is not known is not
+    judged: without a start, the path from the first target on, and only from where
+    the targets name every joint the heights depend on. A trajectory's requested path
+    (through every point) is judged as well as the board's (through the points kept).
+    """
+    model = limits.model
+    if not limits.table or model is None or not steps:
+        return ""
+    known = {j: v for j, v in (start or {}).items() if v is not None}
+    paths = [steps]
+    points = instr.points if instr is not None and instr.kind is Kind.TRAJECTORY else ()
+    if len(points) > len(steps):  # thinned: the points dropped count too
+        paths.append(tuple(Step(dict(p.joints), None, i) for i, p in enumerate(points)))
+    for path in paths:
+        problem = _path_problem(path, known, limits, model, bool(points))
+        if problem:
+            return problem
+    return ""
+
+
+def _path_problem(
+    steps: Steps, known: dict[str, float], limits: Limits, model: ArmModel, points: bool
+) -> str:
+    poses: list[dict[str, float]] = []
+    labels: list[str] = []
+    pose = dict(known)
+    complete = all(j in pose for j in HEIGHT_JOINTS[:4])
+    if complete:
+        poses.append(as_sent(pose, limits.pulses))
+    for i, step in enumerate(steps):
+        pose.update(step.target)
+        complete = complete or all(j in pose for j in HEIGHT_JOINTS[:4])
+        if not complete:
+            continue
+        if poses:
+            labels.append(_end(step, i, len(steps), points))
+        poses.append(as_sent(pose, limits.pulses))
+    if not poses:
+        return ""
+    if len(poses) == 1:  # no start: the first target alone
+        under = below_table(model, poses[0])
+        where = f"{_end(steps[-1], 0, 1, points)}: " if points else ""
+        return "" if under is None else where + str(under)
+    problem = path_below(model, poses, labels)
+    return "" if problem is None else str(problem)
+
+
+def _end(step: Step, i: int, n: int, points: bool) -> str:
+    """What the end of a step is called in a reason."""
+    if points:
+        return f"point {step.point}"
+    return "the target" if n == 1 else f"waypoint {i + 1} of {n}"
+
+
+def from_start(
+    instr: Instruction, steps: Steps, pose: Mapping[str, float | None], limits: Limits
+) -> str:
+    """When a move starts, where the arm is (`pose`) is known: its whole path is judged
+    against the table (`table_problem`), or "" when nothing is wrong. A Cartesian move's
+    steps are judged in `planned`."""
+    if instr.kind is Kind.MOVE_TO:
+        return ""
+    return table_problem(steps, pose, limits, instr)
 
 
 def _target(joints: tuple[tuple[str, float], ...], limits: Limits) -> dict[str, float] | None:
@@ -273,4 +366,4 @@ def planned(
             where = f"point {i}: " if len(moves) > 1 else ""
             return where + _listed(problems)
         steps.append(Step(target, time_ms))
-    return tuple(steps)
+    return table_problem(tuple(steps), pose, limits) or tuple(steps)

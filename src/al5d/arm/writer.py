@@ -18,9 +18,9 @@ from collections.abc import Callable, Mapping
 from al5d.arm.core import Core
 from al5d.arm.effects import tell
 from al5d.arm.instruction import Kind
-from al5d.arm.jobs import Job, Motion, Sent, Written
+from al5d.arm.jobs import Job, Mode, Motion, Sent, Written
 from al5d.arm.translate import Translator
-from al5d.arm.validate import Limits, Step, planned
+from al5d.arm.validate import Limits, Step, from_start, planned
 from al5d.clock import now
 from al5d.ssc32u.driver import SSC32U
 
@@ -50,9 +50,13 @@ class StepWriter:
     def prepare(self, job: Job) -> str:
         """A Cartesian move is planned when it starts, from where the arm is then (the
         current job's pose cannot change under it but by an event that ends it): its
-        steps, or the reason to refuse it whole ("")."""
+        steps, or the reason to refuse it whole (""). Any other move's path is judged
+        against the table from there (the worker's own parks are not: they are how the
+        server makes the arm safe)."""
         if job.steps:
-            return ""
+            if job.mode is not Mode.QUEUE:
+                return ""
+            return from_start(job.instr, job.steps, self.core.pose(), self.limits)
         steps = planned(job.instr, self.core.pose(), self.limits, self.translator)
         if isinstance(steps, str):
             return steps

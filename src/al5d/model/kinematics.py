@@ -13,8 +13,8 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Final
 
+from al5d.model import table
 from al5d.model.arm import ArmModel
 from al5d.model.errors import (
     BelowTable,
@@ -114,22 +114,18 @@ def joint_positions(geometry: Geometry, degrees: Mapping[str, float]) -> dict[st
 
 
 #: A point this little under the table is rounding (a target on the table's top), not under it.
-TABLE_SLACK_M = 1e-9
-#: The points of the arm that can reach the table, and how a reason names them. The
-#: shoulder is fixed above it; the wrist goes below the tip when the gripper points up.
-_TABLE_POINTS: Final = (("tool0", "tool tip"), ("wrist", "wrist"), ("elbow", "elbow"))
+TABLE_SLACK_M = table.TABLE_SLACK_M
 
 
 def below_table(model: ArmModel, degrees: Mapping[str, float]) -> BelowTable | None:
-    """The deepest point of the arm under the table for these degrees, or None.
+    """The deepest body of the arm under the table for these degrees, or None: the tool
+    tip, the wrist, the elbow, and the bodies the 3D view draws (`table`: the fingers,
+    the hand, the forearm...; without a gripper in `degrees`, open, its widest).
 
     The table (`geometry.table_height`) is not part of IK: a target under it is a
     target the arm could take were the table not there, and the caller decides.
     """
-    table = model.geometry.table_height
-    points = joint_positions(model.geometry, degrees)
-    z, name = min((points[key][2], name) for key, name in _TABLE_POINTS)
-    return BelowTable(name, z, table) if z < table - TABLE_SLACK_M else None
+    return table.below(model, degrees)
 
 
 def tool_quaternion(base_deg: float, pitch_deg: float, roll_deg: float) -> Quat:

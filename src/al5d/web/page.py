@@ -272,6 +272,13 @@ class Page:
                     return
                 self.touched = time.monotonic()
                 self.debouncer.put(joint, float(event.target.value))
+                move = self._slider_move(self.debouncer.peek())
+            # Judged while dragging, as the server will judge it: a refusal shows at once.
+            reason = self._precheck(move)
+            with self._lock:
+                self.panel.show_joints_status(
+                    f"will not be sent: {reason}" if reason else "release to move", not reason
+                )
 
         return handler
 
@@ -279,6 +286,9 @@ class Page:
         if self.commands is None or self.lost:
             return
         self.commands.send(instr)
+
+    def _slider_move(self, values: dict[str, float]) -> Instruction:
+        return Instruction(Kind.MOVE, joints=tuple(values.items()), time_ms=self.panel.time_ms())
 
     def _on_preset(self, event: Any) -> None:
         self._send(preset(str(event.target.value), time_ms=self.panel.time_ms()))
@@ -375,7 +385,15 @@ class Page:
                         self._show_tool()
                     last_readout = now
             if batch:
-                self._send(Instruction(Kind.MOVE, joints=tuple(batch.items()), time_ms=time_ms))
+                move = Instruction(Kind.MOVE, joints=tuple(batch.items()), time_ms=time_ms)
+                # A move the server would refuse is not sent: the sliders go back to the arm.
+                reason = self._precheck(move)
+                if reason:
+                    with self._lock:
+                        self.panel.show_joints_status(f"not sent: {reason}", False)
+                        self.touched = -math.inf
+                else:
+                    self._send(move)
             # While the arm is still the plot is flat lines already: redraws would only
             # slide the time axis, at a window of samples each.
             recent = now - self.last_change_t < self.history.seconds + PLOT_EVERY_S

@@ -77,10 +77,14 @@ def banner_html(text: str) -> str:
     )
 
 
-def status_html(text: str, ok: bool | None) -> str:
+#: The element of the sliders' status (tests find it by this id).
+JOINTS_STATUS = "al5d-joints-status"
+
+
+def status_html(text: str, ok: bool | None, ident: str = "al5d-target-status") -> str:
     colour = {True: "#2b8a3e", False: "#c92a2a", None: "#495057"}[ok]
     return (
-        f'<div id="al5d-target-status" style="color:{colour};font-size:0.85em;'
+        f'<div id="{ident}" style="color:{colour};font-size:0.85em;'
         f'overflow-wrap:anywhere;padding:0 0.6em">{html.escape(text)}</div>'
     )
 
@@ -134,6 +138,10 @@ class Panel:
                 hint="0: as fast as the servos allow",
             )
             self.presets = gui.add_button_group("presets", tuple(config.presets), disabled=True)
+            # The sliders' move judged as the server will judge it, while they are dragged.
+            self.joints_status = gui.add_html(
+                status_html("drag a slider to move", None, JOINTS_STATUS)
+            )
         self.presets_disabled = True  # the handle always says False
         self._on_preset: Callable[[Any], None] | None = None
         with tabs.add_tab("Target", viser.Icon.TARGET):
@@ -218,6 +226,9 @@ class Panel:
 
     def show_status(self, text: str, ok: bool | None) -> None:
         self.target_status.content = status_html(text, ok)
+
+    def show_joints_status(self, text: str, ok: bool | None) -> None:
+        self.joints_status.content = status_html(text, ok, JOINTS_STATUS)
 
     def show_plot(self, series: tuple[npt.NDArray[np.float64], ...]) -> None:
         self.plot.data = series

@@ -63,6 +63,11 @@ class Planner:
             steps = validate.planned(instr, start, self.limits, self.translator)
             if isinstance(steps, str):
                 return steps
+        else:
+            # Its path from there against the table, as the server judges it when it starts.
+            problem = validate.from_start(instr, steps, start, self.limits)
+            if problem:
+                return problem
         pose = dict(start)
         poses = [dict(pose)]
         for step in steps:
@@ -169,6 +174,10 @@ class Debouncer:
             return {}
         values, self._values = self._values, {}
         return values
+
+    def peek(self) -> dict[str, float]:
+        """The values that wait (what `poll` will hand over), without taking them."""
+        return dict(self._values)
 
     def drop(self) -> None:
         """Forget the waiting values (a stop came: nothing dragged before it may move the arm)."""
