@@ -90,7 +90,7 @@ from al5d.arm.states import (
     release_refusal,
     stream_held,
 )
-from al5d.clock import Deadline, wall_ns
+from al5d.clock import Deadline, now, wall_ns
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.errors import BoardReset, SerialFault
 
@@ -118,6 +118,7 @@ class Core(CoreState):
                 return Admission(Verdict.REFUSED, reason)
             replaced = None
             if job.stream:
+                self._stream_seen[job.stream] = now()
                 unchanged = self._unchanged(job)
                 if self._streams_held:
                     if not unchanged:
@@ -132,6 +133,9 @@ class Core(CoreState):
                         self._fire(Event.MOVE_DONE)
                     return Admission(Verdict.UNCHANGED, replaced=replaced)
             job.epoch = self._epoch
+            superseded = self._supersede(job)
+            if superseded is not None:
+                return Admission(Verdict.SUPERSEDES, replaced=replaced, superseded=superseded)
             if self._idle():
                 self._current, self._runner = job, Runner.CALLER
                 self._writes += 1
@@ -162,10 +166,11 @@ class Core(CoreState):
             if error is not None:
                 return None, self._lose(error)
             motion = self._written(job, written) if written is not None else None
-            if motion is not None:
-                self._runner = Runner.HANDED
-            elif job is self._current:  # nothing of it went out, and nothing ended it: it ends
-                self._end_current(job)
+            if job is self._current:
+                if motion is not None:
+                    self._runner = Runner.HANDED
+                else:  # nothing of it went out, and nothing ended it: it ends
+                    self._end_current(job)
             return motion, Ended()
 
     def stop(
@@ -260,6 +265,9 @@ class Core(CoreState):
         if self._writing:
             return None  # a caller writes: what it did decides what comes next
         if self._current is not None:
+            if self._runner is Runner.NEXT:  # a set-point that took a running one's place
+                self._runner = Runner.WORKER
+                return Work(Task.MOVE, self._current)
             if self._runner is not Runner.HANDED:
                 return None
             self._runner = Runner.WORKER
@@ -287,6 +295,18 @@ class Core(CoreState):
                 return None
             self._current, self._runner = job, Runner.WORKER
             return board
+
+    def watchdog(self, job: Job, timeout: float, reason: str) -> Halt | None:
+        """No set-point of the running job's stream has come for `timeout` s: the arm is held
+        where it is, as a cancelled move is (its STOP comes back; no lock), and the job ends
+        with `reason`. None if it has ended, or a set-point came meanwhile."""
+        with self._lock:
+            if not job.stream or not self._holds(job) or self._quiet(job) < timeout:
+                return None
+            job.cancel.set()
+            halt = self._halt(Ended((job,), reason), urgent=False)
+            self._end_current(job)
+            return halt
 
     def board_for(self, job: Job) -> SSC32U | None:
         """The board to write the job's next step on; None if the job has been ended."""

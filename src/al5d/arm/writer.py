@@ -139,7 +139,13 @@ class StepWriter:
         Raises SerialFault when the write fails; the caller reports it to the core.
         """
         core = self.core
-        pose = core.pose()
+        if job.stream and job.step == 0:
+            # A set-point may retarget the one it superseded mid-move: planned from where
+            # that one has the arm when these bytes take effect.
+            length = len(self.translator.encode(step.target, 0))
+            pose = core.start_pose(job, board.arrival(length))
+        else:
+            pose = core.pose()
         data, time_ms = self.plan(job, step, pose, board.arrival)
         start = {j: v for j, v in pose.items() if v is not None}
         hook = self.race_hook
