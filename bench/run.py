@@ -26,6 +26,7 @@ import micro  # noqa: E402
 import model_bench  # noqa: E402
 import plot  # noqa: E402
 import rosbench  # noqa: E402
+import stream_budget  # noqa: E402
 import webbench  # noqa: E402
 
 from al5d.arm.config import load_config  # noqa: E402
@@ -330,10 +331,11 @@ def main() -> int:
     log("robot model: IK time, FK/IK round trips")
     results["model"] = model_figures()
     results.update(rosbench.run(config, log))
+    results["stream"] = stream_budget.run(config, log)
     log("the web view (a real headless browser)")
     results["web"] = webbench.run(log)
     results["elapsed_s"] = time.monotonic() - started
-    lines = rows(results) + webbench.rows(results["web"])
+    lines = rows(results) + stream_budget.rows(results["stream"]) + webbench.rows(results["web"])
     OUT.mkdir(exist_ok=True)
     (OUT / "results.json").write_text(json.dumps(results, indent=1))
     plot.draw(results, OUT / "bench.png")

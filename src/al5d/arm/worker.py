@@ -57,6 +57,8 @@ class Worker:
         self.writer = writer
         self._refuse = refuse
         self._write_halt = write_halt
+        #: When the link was last checked at the end of a set-point (CLOCK_MONOTONIC).
+        self._watched = 0.0
 
     def run(self) -> None:
         core = self.core
@@ -203,6 +205,8 @@ class Worker:
                     self.link.watch(board)
                 except Interrupted:
                     return False
+        if job.stream:
+            return self._set_point_over(board)
         if not confirm or not self.core.q_believed():
             return True  # Q still counts down a stopped move: its '+' says nothing of this one
         deadline = Deadline(COMPLETION_GRACE_S, start=t_end)
@@ -218,6 +222,21 @@ class Worker:
                 raise SerialFault(
                     self.port, f"Q still says moving {COMPLETION_GRACE_S} s after the move's time"
                 )
+
+    def _set_point_over(self, board: SSC32U) -> bool:
+        """A set-point is done when its time is over, without `Q`: its stream's next one,
+        due any moment, must not wait for a query's answer (up to the USB link's 16 ms
+        latency timer) in this thread. The link is still checked every
+        `moving_check_interval_s` of a stream (a reset or a pulled cable is a fault then, as
+        during any move). False if a stop interrupted the check."""
+        if now() - self._watched < self.settings.moving_check_interval_s:
+            return True
+        self._watched = now()
+        try:
+            self.link.watch(board)
+        except Interrupted:
+            return False
+        return True
 
     def _hold(self, job: Job) -> None:
         """The watchdog: the stream of the running set-point has gone quiet mid-move (its
