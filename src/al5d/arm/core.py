@@ -31,16 +31,26 @@ The lanes
   job is the current one from the moment it is taken until it ends. Only the
   current job's steps are written; whoever ends it (done, stop, cancel, fault,
   shutdown) makes it not current, in one event.
-- **Set-points** (a stream such as ros2_control's joint commands) are moves
-  whose latest wins: a new one replaces the one of its stream that waits (it
-  ends cancelled, never written), and one where the arm is heading already
-  (within half a pulse microsecond) is done at once with nothing written. One
-  that finds the arm idle is written at once, like any move; the one running
-  is not cut short (a stream as fast as the wire is issue 25's streaming mode).
-  A stop, a fault or a shutdown holds the streams: their set-points are refused
-  until one comes that is where the arm is (its source has let go of the target
-  it had before), so a target sent again and again is not driven to after a
-  release.
+- **Set-points** (a stream such as ros2_control's joint commands, or the web
+  view's jog) are moves whose latest wins: a new one replaces the one of its
+  stream that waits (it ends cancelled, never written), and one where the arm
+  is heading already (within half a pulse microsecond) is done at once with
+  nothing written. One that finds the arm idle is written at once, like any
+  move. One that comes while a set-point of its stream runs, and nothing waits,
+  supersedes it (`_supersede`): in the same event the running one is cancelled
+  (none of its bytes still to go is written: its `cancel` is checked under the
+  write lock) and the new one becomes the current job, for the worker to write
+  (`Runner.NEXT`) once no caller's write is under way, so that what the
+  superseded one wrote is in the pose before the new one is planned from it.
+  The worker writes it when the wire is free (until then a newer one may still
+  take its place) and the board retargets mid-move. A set-point is done when
+  its time is over, without `Q`. The watchdog (`watchdog`, run by the worker
+  while a set-point's time runs): when no set-point of its stream has come for
+  `server.stream_timeout_s`, the arm is halted where it is as a cancelled move
+  is (no lock). A stop, a fault or a shutdown holds the streams: their
+  set-points are refused until one comes that is where the arm is (its source
+  has let go of the target it had before), so a target sent again and again is
+  not driven to after a release.
 - **The worker's own work** (`next_task`, in this order): the shutdown, the
   recovery from a fault, the start-up park, a job the caller wrote, the
   read-back of the pose after a halt, the next queued move, and a check of
