@@ -27,6 +27,7 @@ import micro  # noqa: E402
 import model_bench  # noqa: E402
 import plot  # noqa: E402
 import rosbench  # noqa: E402
+import stream_budget  # noqa: E402
 import trajectory_budget  # noqa: E402
 import webbench  # noqa: E402
 
@@ -334,6 +335,7 @@ def main() -> int:
     results.update(rosbench.run(config, log))
     log("dense trajectories at the link's budget (9600 and 115200 baud)")
     results["trajectory_budget"] = trajectory_budget.run(config, log)
+    results["stream"] = stream_budget.run(config, log)
     log("the web view (a real headless browser)")
     results["web"] = webbench.run(log)
     results["elapsed_s"] = time.monotonic() - started
@@ -342,6 +344,7 @@ def main() -> int:
     lines = (
         rows(results)
         + [(f"trajectory {case}", ours, "", target, held) for case, ours, target, held in budget]
+        + stream_budget.rows(results["stream"])
         + webbench.rows(results["web"])
     )
     OUT.mkdir(exist_ok=True)

@@ -124,6 +124,14 @@ def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
             r"server\.trajectory_path_tolerance_deg: Input should be a finite number",
         ),
         (
+            lambda d: d["server"].update(stream_timeout_s=0),
+            r"server\.stream_timeout_s: Input should be greater than 0",
+        ),
+        (
+            lambda d: d["server"].update(stream_timeout_s=600),
+            r"server\.stream_timeout_s: Input should be less than or equal to 60",
+        ),
+        (
             lambda d: d["server"].update(idle_joint_state_rate_hz=30),
             r"server: idle_joint_state_rate_hz 30 must not exceed joint_state_rate_hz 25",
         ),

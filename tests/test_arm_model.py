@@ -56,7 +56,7 @@ from hypothesis.stateful import (
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig, load_config
 from al5d.arm.driver import ArmDriver
-from al5d.arm.instruction import Instruction, Outcome
+from al5d.arm.instruction import Instruction, Outcome, Result
 from al5d.arm.states import State
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator, Fault
@@ -75,6 +75,11 @@ SENT = "sent_ns" in {f.name for f in dataclasses.fields(Instruction)}
 
 #: The stream of the set-points (as the server names ros2_control's joint commands).
 STREAM = "joint_commands"
+#: The stream's watchdog here (`server.stream_timeout_s`).
+STREAM_TIMEOUT_S = 0.15
+#: Set-points of the stream not yet ended, at most: the one running (or about to be written
+#: in its place) and one waiting behind other moves. A stream never queues.
+STREAM_PENDING_MAX = 2
 
 
 def sent_at(instr: Instruction, t_ns: int) -> Instruction:
@@ -132,8 +137,13 @@ def _config() -> ArmConfig:
     config = load_config()
     # The emulated board is a thread of this busy process: a late answer is not a lost link
     # here (the fault suites test those); reconnecting quickly keeps the examples short.
+    # The stream's watchdog is short, so that a quiet stream is held within an example.
     server = config.server.model_copy(
-        update={"answer_timeout_s": 0.5, "reconnect_interval_s": 0.05}
+        update={
+            "answer_timeout_s": 0.5,
+            "reconnect_interval_s": 0.05,
+            "stream_timeout_s": STREAM_TIMEOUT_S,
+        }
     )
     return config.model_copy(update={"server": server})
 
@@ -285,6 +295,36 @@ class ArmProtocol(RuleBasedStateMachine):
             target = {j: self.ready[j] + rng.uniform(-4, 4) for j in joints}
             self._submit("set-point", ins.move(**target), stream=STREAM)
 
+    def _burst(self, n: int, seed: int) -> None:
+        """Set-points as fast as a caller can submit them (a teleoperation stream at full
+        tilt): each supersedes the last; the newest is where the arm goes."""
+        rng = random.Random(seed)
+        for k in range(n):
+            target = {j: self.ready[j] + 4 * math.sin(k / 7 + rng.random()) for j in JOINTS}
+            self._submit("set-point", ins.move(**target), stream=STREAM)
+
+    def _stream_then_stop(self, seed: int) -> None:
+        """A stop in the middle of a stream: the stream goes on in its own thread, before,
+        during and after the stop (its source does not know of it)."""
+        rng = random.Random(seed)
+        done = threading.Event()
+
+        def stream() -> None:
+            k = 0
+            while not done.is_set() or k < 10:
+                target = {j: self.ready[j] + 3 * math.sin(k / 5) for j in JOINTS[:2]}
+                self._submit("set-point", ins.move(**target), stream=STREAM)
+                k += 1
+                time.sleep(rng.choice([0, 0.001, 0.003]))
+
+        sender = threading.Thread(target=stream)
+        sender.start()
+        time.sleep(rng.uniform(0, 0.05))
+        self._stop(rng.random() < 0.3)
+        time.sleep(rng.uniform(0, 0.02))
+        done.set()
+        sender.join(10)
+
     def _cancel(self, pick: int) -> None:
         moves = [a for a in self.asked if a.kind == "move" and not a.future.done()]
         if moves:
@@ -327,6 +367,44 @@ class ArmProtocol(RuleBasedStateMachine):
         self._set_points(n, seed, here)
 
     @precondition(lambda self: not self.ended)
+    @rule(n=st.integers(20, 300), seed=st.integers(0, 2**16))
+    def burst(self, n: int, seed: int) -> None:
+        self.check_step(f"burst({n})")
+        self._burst(n, seed)
+
+    @precondition(lambda self: not self.ended)
+    @rule(seed=st.integers(0, 2**16))
+    def stream_then_stop(self, seed: int) -> None:
+        self.check_step("stream_then_stop")
+        self._stream_then_stop(seed)
+
+    @precondition(lambda self: not self.ended)
+    @rule(seed=st.integers(0, 2**16))
+    def quiet_stream(self, seed: int) -> None:
+        """A set-point of a long move, and then nothing: the watchdog holds the arm."""
+        self.check_step("quiet_stream")
+        rng = random.Random(seed)
+        joint = rng.choice(JOINTS)
+        target = {joint: self.ready[joint] + rng.choice([-12, 12])}
+        asked = self._submit("set-point", ins.move(time_ms=1500, **target), stream=STREAM)
+        try:
+            outcome = asked.future.result(OUTCOME_BOUND_S)
+        except TimeoutError:
+            self.problems.append(f"set-point {asked.instr.id} of a quiet stream never ended")
+            return
+        # Written, it may not complete its 1.5 s with no set-point after it; refused (held
+        # or stopped), cancelled by a stop or a fault, or where the arm is: all fine.
+        if outcome.result is Result.DONE and "nothing written" not in outcome.reason:
+            self.problems.append(
+                f"set-point {asked.instr.id} of a quiet stream ran its 1.5 s: {outcome}"
+            )
+        if "went quiet" in outcome.reason and self.driver.locked and not self._stopped_since(asked):
+            self.problems.append("the watchdog locked the arm (it holds it, it is no stop)")
+
+    def _stopped_since(self, since: Asked) -> bool:
+        return any(a.kind == "stop" and a.t_call >= since.t_call for a in self.asked)
+
+    @precondition(lambda self: not self.ended)
     @rule(pick=st.integers(0, 100))
     def cancel(self, pick: int) -> None:
         self.check_step("cancel")
@@ -335,7 +413,9 @@ class ArmProtocol(RuleBasedStateMachine):
     @precondition(lambda self: not self.ended)
     @rule(
         actions=st.lists(
-            st.sampled_from(["moves", "stop", "stop twice", "release", "cancel", "set-points"]),
+            st.sampled_from(
+                ["moves", "stop", "stop twice", "release", "cancel", "set-points", "burst"]
+            ),
             min_size=2,
             max_size=4,
         ),
@@ -352,6 +432,7 @@ class ArmProtocol(RuleBasedStateMachine):
             "release": lambda: self._release(False),
             "cancel": lambda: self._cancel(seed),
             "set-points": lambda: self._set_points(3, seed, False),
+            "burst": lambda: self._burst(50, seed),
         }
         errors: list[BaseException] = []
 
@@ -412,6 +493,17 @@ class ArmProtocol(RuleBasedStateMachine):
         for ident, n in list(self.rig.told.items()):
             assert n <= 1, f"{ident} was told {n} outcomes"
         assert not self.problems, self.problems
+
+    @invariant()
+    @reported
+    def the_stream_never_queues(self) -> None:
+        """Every set-point but the newest has ended (superseded, replaced, done...) once its
+        submit returned, but for one running and one waiting behind other moves."""
+        pending = [a for a in self.asked if a.kind == "set-point" and not a.future.done()]
+        assert len(pending) <= STREAM_PENDING_MAX, (
+            f"{len(pending)} set-points of the stream pending: "
+            + ", ".join(a.instr.id for a in pending[:5])
+        )
 
     @invariant()
     @reported

@@ -3,12 +3,17 @@ set-point where the arm is heading writes nothing. In the driver, on an emulated
 
 from __future__ import annotations
 
-from armrig import Rig, group_pulses, pulses
+import threading
+import time
+
+import pytest
+from armrig import Rig, group_pulses, logged, pulses
 from rospeer import wait_until
 
 from al5d.arm import instruction as ins
 from al5d.arm.instruction import Result
 from al5d.arm.states import State
+from al5d.ssc32u import protocol as p
 
 STREAM = "joint_commands"
 
@@ -53,10 +58,13 @@ def test_a_set_point_where_the_arm_is_or_goes_writes_nothing(rig: Rig) -> None:
     same = driver.submit(ins.move(base=-20.04, elbow=70), stream=STREAM).result(5)
     assert "nothing written" in same.reason
     assert len(rig.moves()) == before
-    # On its way to a set-point: the same one again writes nothing either.
-    going = driver.submit(ins.move(base=40, time_ms=3000), stream=STREAM)
-    again = driver.submit(ins.move(base=40), stream=STREAM).result(5)
-    assert again.ok and "nothing written" in again.reason and not going.done()
+    # On its way to a set-point: the same one again writes nothing either (and, sent at a
+    # stream's rate, keeps the watchdog from holding the arm on its way).
+    going = driver.submit(ins.move(base=40, time_ms=2000), stream=STREAM)
+    while not going.done():
+        again = driver.submit(ins.move(base=40), stream=STREAM).result(5)
+        assert again.ok and "nothing written" in again.reason
+        time.sleep(0.05)
     assert going.result(10).ok
     # A pulse's worth away is a move.
     assert driver.submit(ins.move(base=40.1), stream=STREAM).result(10).ok
@@ -108,3 +116,111 @@ def test_a_stop_holds_the_stream_until_a_set_point_where_the_arm_is(rig: Rig) ->
     moves = rig.moves()[before:]
     assert len(moves) == 1
     assert group_pulses(moves[0].commands[0]) == pulses(rig.config, target)
+
+
+# -- the streaming mode (issue 25): the running set-point is superseded too ----------------
+
+
+def test_a_newer_set_point_retargets_the_running_one_as_soon_as_the_wire_allows(
+    rig: Rig,
+) -> None:
+    """The board takes a new group move mid-move and goes from where it is: the newest
+    set-point does not wait for the one that runs."""
+    driver = rig.driver
+    before = len(rig.moves())
+    old = driver.submit(ins.move(base=60, time_ms=3000, id="old"), stream=STREAM)
+    rig.wait_move_count(before + 1)
+    t_old = rig.moves()[-1].t_effect
+    new = driver.submit(ins.move(base=-30, id="new"), stream=STREAM)
+    outcome = old.result(5)
+    assert outcome.result is Result.CANCELLED and outcome.reason == "superseded by set-point new"
+    assert new.result(10).ok
+    moves = rig.moves()[before:]
+    assert len(moves) == 2
+    assert group_pulses(moves[1].commands[0]) == pulses(rig.config, {"base": -30})
+    assert moves[1].t_effect < t_old + 3.0  # mid-move, not after the old one's 3 s
+    assert abs(rig.emu.servo_degrees()["base"] + 30) < 0.5
+    assert not any(isinstance(c, p.Stop) for r in rig.emu.records for c in r.commands)
+
+
+def test_a_burst_of_set_points_writes_a_handful_of_lines_the_last_the_newest(rig: Rig) -> None:
+    driver = rig.driver
+    before = len(rig.moves())
+    futures = [
+        driver.submit(ins.move(base=-40 + 0.08 * k, elbow=60 + 0.02 * k), stream=STREAM)
+        for k in range(1000)
+    ]
+    outcomes = [f.result(10) for f in futures]
+    assert outcomes[-1].ok, outcomes[-1]
+    lines = rig.moves()[before:]
+    assert 1 <= len(lines) <= 20, len(lines)  # one per wire time (40 ms) at most, not 1,000
+    newest = {"base": -40 + 0.08 * 999, "elbow": 60 + 0.02 * 999}
+    assert group_pulses(lines[-1].commands[0]) == pulses(rig.config, newest)
+    superseded = [o for o in outcomes[:-1] if o.result is Result.CANCELLED]
+    assert len(superseded) >= 1000 - 1 - len(lines)
+    assert all("set-point" in o.reason for o in superseded)
+
+
+def test_the_watchdog_holds_the_arm_when_the_stream_goes_quiet_mid_move(
+    rig: Rig, caplog: pytest.LogCaptureFixture
+) -> None:
+    driver = rig.driver
+    timeout = rig.config.server.stream_timeout_s
+    before = len(rig.emu.records)
+    going = driver.submit(ins.move(base=80, time_ms=4000, id="far"), stream=STREAM)
+    outcome = going.result(4)  # held well before its 4 s
+    assert outcome.result is Result.CANCELLED
+    assert "went quiet" in outcome.reason and "server.stream_timeout_s" in outcome.reason
+    assert outcome.elapsed_ms >= timeout * 1000
+    # Its STOP, a wire time later on the board.
+    rig.emu.wait_for(
+        lambda rs: any(isinstance(c, p.Stop) for r in rs[before:] for c in r.commands), 5
+    )
+    # Held where it was, not locked: the state is ready, and the stream goes on.
+    driver.wait_for_state(State.READY, 5)
+    assert not driver.locked
+    base = rig.emu.servo_degrees()["base"]
+    assert base < 70
+    watchdog = [r for r in logged(caplog) if "watchdog" in r.getMessage()]
+    assert len(watchdog) == 1
+    assert driver.submit(ins.move(base=base - 5), stream=STREAM).result(10).ok
+
+
+def test_a_stop_during_a_stream_wins_and_holds_it(rig: Rig) -> None:
+    driver = rig.driver
+    stop_now = threading.Event()
+    futures = []
+
+    def stream() -> None:
+        k = 0
+        while not stop_now.is_set() or k < 400:
+            futures.append(
+                driver.submit(ins.move(base=-60 + 0.2 * (k % 600), id=f"s{k}"), stream=STREAM)
+            )
+            k += 1
+            time.sleep(0.002)
+
+    sender = threading.Thread(target=stream)
+    sender.start()
+    time.sleep(0.3)
+    stop = driver.submit(ins.stop())
+    t_stop = time.monotonic()
+    stop_now.set()
+    sender.join(20)
+    assert stop.result(5).ok
+    late = [f.result(10) for f in futures[-50:]]
+    assert all(o.result is Result.REFUSED and "emergency stop" in o.reason for o in late)
+    # Released, the stream's source still on its way: held until it is where the arm is.
+    assert driver.execute(ins.release(), 5).ok
+    for k in range(20):
+        held = driver.submit(ins.move(base=-60 + 0.2 * (400 + k)), stream=STREAM).result(5)
+        assert held.result is Result.REFUSED and "stream of set-points is held" in held.reason
+    # Nothing of the stream took effect after the stop's STOP.
+    stops = [
+        r
+        for r in rig.emu.records
+        if r.t_effect >= t_stop - 1 and any(isinstance(c, p.Stop) for c in r.commands)
+    ]
+    assert stops
+    after = [r for r in rig.emu.records if r.t_effect > stops[0].t_effect]
+    assert not any(isinstance(c, p.GroupMove) for r in after for c in r.commands)

@@ -8,7 +8,7 @@ A browser that cannot start fails the test with the reason: it is never skipped.
 
 from __future__ import annotations
 
-import itertools
+import math
 import os
 import shutil
 import signal
@@ -43,10 +43,11 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
 from al5d.arm.config import ArmConfig, load_config
+from al5d.model.table import below
 from al5d.ros.runtime import QOS_INSTRUCTIONS, Names
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
-from al5d.web.page import QUIET_S, Page
+from al5d.web.page import LOOP_S, QUIET_S, Page
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 #: AL5D_UPDATE_DOCS=1 copies the page's screenshot to docs/web.png (for the README);
@@ -148,7 +149,10 @@ def test_the_page_draws_the_arm(rig: Rig, tmp_path: Path) -> None:
     assert "tool (mm)" in tool and "joint states" in tool
 
 
-def test_a_slider_drag_is_one_move(rig: Rig) -> None:
+def test_a_long_slider_drag_follows_live_and_leaves_no_queue(rig: Rig) -> None:
+    """The jog is a stream of set-points (`joint_commands`): the arm follows the slider
+    while it is dragged, the newest set-point replacing any not yet written, so that two
+    seconds of dragging write a line per page tick at most and leave nothing behind."""
     page = rig.page
     page.get_by_role("tab", name="Joints").click()
     thumb = page.get_by_role("slider").nth(0)  # base, the first joint
@@ -158,22 +162,30 @@ def test_a_slider_drag_is_one_move(rig: Rig) -> None:
     n0 = len(rig.emu.records)
     page.mouse.move(x, y)
     page.mouse.down()
-    stamps = []
-    for i in range(1, 16):  # 15 steps: viser reports a value for each
-        page.mouse.move(x + 4 * i, y)
-        stamps.append(time.monotonic())
+    steps = 200
+    t0 = time.monotonic()
+    for i in range(1, steps + 1):  # two seconds back and forth: viser reports each value
+        page.mouse.move(x + 40 * math.sin(3 * math.pi * i / steps) + 30 * i / steps, y)
+        time.sleep(max(0.0, t0 + 0.01 * i - time.monotonic()))
+    t_up = time.monotonic()
     page.mouse.up()
     degrees = float(thumb.get_attribute("aria-valuenow") or "nan")
-    assert 20 <= degrees <= 90
-    wait_until(lambda: rig.group_moves(n0), 5, "the slider's move on the board")
-    time.sleep(QUIET_S + 0.5)  # a second move would have come by now
-    moves = rig.group_moves(n0)
-    # One drag, one move; a drag held still longer than QUIET_S (a slow machine) is two.
-    pauses = sum(b - a >= QUIET_S for a, b in itertools.pairwise(stamps))
-    assert 1 <= len(moves) <= 1 + pauses, moves
+    assert 5 <= degrees <= 60, degrees
     pulse = round(rig.config.joints["base"].to_us(degrees))
-    assert {(t.channel, t.pulse_us) for t in moves[-1].targets} == {(0, pulse)}
+    # The arm followed while the slider moved, not after it.
+    during = [r for r in rig.emu.records[n0:] if r.t_effect < t_up]
+    assert sum(isinstance(c, p.GroupMove) for r in during for c in r.commands) >= 3
+    # Nothing behind: the arm is at the slider's value at once, and nothing more comes.
+    wait_until(
+        lambda: abs(rig.emu.servo_degrees()["base"] - degrees) < 0.2, 5, "the arm at the slider"
+    )
     rig.state.wait_for("ready", 10)
+    moves = rig.group_moves(n0)
+    time.sleep(1.0)
+    assert len(rig.group_moves(n0)) == len(moves)
+    took = t_up - t0
+    assert len(moves) <= took / LOOP_S + 5, (len(moves), took)  # one a page tick at most
+    assert {(t.channel, t.pulse_us) for t in moves[-1].targets} == {(0, pulse)}
 
 
 def test_sliders_into_the_table_show_why_and_send_nothing(rig: Rig) -> None:
@@ -191,7 +203,7 @@ def test_sliders_into_the_table_show_why_and_send_nothing(rig: Rig) -> None:
     page.mouse.down()
     for i in range(1, 16):
         page.mouse.move(x + 6 * i, y)
-    # Still held: the page has judged the move it would send, as the server would.
+    # Still held: the page has judged the set-point it would send, as the server would.
     held = wait_text(page, "#al5d-joints-status", lambda t: "below the table" in t)
     assert held.startswith("will not be sent: "), held
     degrees = float(thumb.get_attribute("aria-valuenow") or "nan")
@@ -199,9 +211,19 @@ def test_sliders_into_the_table_show_why_and_send_nothing(rig: Rig) -> None:
     assert degrees >= 50, degrees  # from ready, shoulder 50 puts a finger 65 mm under
     text = wait_text(page, "#al5d-joints-status", lambda t: t.startswith("not sent: "))
     assert "finger" in text and "mm under it" in text, text
-    time.sleep(QUIET_S + 1.0)  # the move, were it sent, would be on the board by now
-    assert rig.group_moves(n0) == []
-    rig.state.wait_for("ready", 2)
+    time.sleep(QUIET_S + 1.0)  # a set-point, were it sent, would be on the board by now
+    # The jog followed the drag while it stayed above the table, and no further.
+    cfg = rig.config
+    by_channel = {cfg.joints[j].channel: j for j in cfg.joints}
+    pose = dict(cfg.presets["ready"])
+    for move in rig.group_moves(n0):
+        pose |= {
+            by_channel[t.channel]: cfg.joints[by_channel[t.channel]].to_deg(t.pulse_us)
+            for t in move.targets
+        }
+        assert below(cfg.model, pose) is None, (pose, move)
+        assert pose["shoulder"] < degrees, pose
+    rig.state.wait_for("ready", 5)
 
 
 def test_stop_and_release_from_the_page(rig: Rig) -> None:

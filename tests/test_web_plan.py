@@ -12,7 +12,7 @@ from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Outcome, Result
 from al5d.model import tool_position
 from al5d.web.guard import allowed_hosts, connection_problem, is_loopback
-from al5d.web.plan import Debouncer, JointHistory, OutcomeLog, Planner, Target
+from al5d.web.plan import JointHistory, OutcomeLog, Planner, Target
 
 
 @pytest.fixture
@@ -56,25 +56,6 @@ def test_a_straight_line_has_its_path_from_the_tool(
     assert tool_position(planner.geometry, target.degrees) == pytest.approx(target.line[-1])
     joint = planner.target_of(ins.move_to(230, -120, 120), ready)
     assert isinstance(joint, Target) and joint.line == ()
-
-
-def test_one_drag_is_one_move() -> None:
-    now = [0.0]
-    d = Debouncer(0.3, clock=lambda: now[0])
-    for i in range(20):  # a drag: a value every 20 ms
-        d.put("base", float(i))
-        now[0] += 0.02
-        assert d.poll() == {}
-    d.put("elbow", 40.0)
-    now[0] += 0.29
-    assert d.poll() == {} and d.busy
-    now[0] += 0.02
-    assert d.poll() == {"base": 19.0, "elbow": 40.0}
-    assert d.poll() == {}
-    d.put("base", 1.0)
-    d.drop()
-    now[0] += 1.0
-    assert d.poll() == {} and not d.busy
 
 
 def test_outcomes_are_escaped_newest_first() -> None:

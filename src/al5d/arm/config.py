@@ -214,6 +214,10 @@ class ServerSettings(_Frozen):
     #: How far (degrees) a joint may be off a trajectory's path when the trajectory is denser
     #: than the wire carries and is thinned (`arm.resample`), where its sender gives no
     #: tolerance (a FollowJointTrajectory goal's path_tolerance does).
+    #: The watchdog of a stream of set-points (`joint_commands`, the web view's jog): when
+    #: none has come for this long while the arm still moves toward the last, the arm is
+    #: held where it is (its source has stopped, or lost its link).
+    stream_timeout_s: float = Field(default=0.5, gt=0, le=60)
     trajectory_path_tolerance_deg: FiniteFloat = Field(default=1.0, gt=0, le=45)
     #: Every move (joint or Cartesian, a trajectory's every point and the path between, a
     #: set-point) is refused whole if its path would take a body of the arm under the table

@@ -31,16 +31,26 @@ The lanes
   job is the current one from the moment it is taken until it ends. Only the
   current job's steps are written; whoever ends it (done, stop, cancel, fault,
   shutdown) makes it not current, in one event.
-- **Set-points** (a stream such as ros2_control's joint commands) are moves
-  whose latest wins: a new one replaces the one of its stream that waits (it
-  ends cancelled, never written), and one where the arm is heading already
-  (within half a pulse microsecond) is done at once with nothing written. One
-  that finds the arm idle is written at once, like any move; the one running
-  is not cut short (a stream as fast as the wire is issue 25's streaming mode).
-  A stop, a fault or a shutdown holds the streams: their set-points are refused
-  until one comes that is where the arm is (its source has let go of the target
-  it had before), so a target sent again and again is not driven to after a
-  release.
+- **Set-points** (a stream such as ros2_control's joint commands, or the web
+  view's jog) are moves whose latest wins: a new one replaces the one of its
+  stream that waits (it ends cancelled, never written), and one where the arm
+  is heading already (within half a pulse microsecond) is done at once with
+  nothing written. One that finds the arm idle is written at once, like any
+  move. One that comes while a set-point of its stream runs, and nothing waits,
+  supersedes it (`_supersede`): in the same event the running one is cancelled
+  (none of its bytes still to go is written: its `cancel` is checked under the
+  write lock) and the new one becomes the current job, for the worker to write
+  (`Runner.NEXT`) once no caller's write is under way, so that what the
+  superseded one wrote is in the pose before the new one is planned from it.
+  The worker writes it when the wire is free (until then a newer one may still
+  take its place) and the board retargets mid-move. A set-point is done when
+  its time is over, without `Q`. The watchdog (`watchdog`, run by the worker
+  while a set-point's time runs): when no set-point of its stream has come for
+  `server.stream_timeout_s`, the arm is halted where it is as a cancelled move
+  is (no lock). A stop, a fault or a shutdown holds the streams: their
+  set-points are refused until one comes that is where the arm is (its source
+  has let go of the target it had before), so a target sent again and again is
+  not driven to after a release.
 - **The worker's own work** (`next_task`, in this order): the shutdown, the
   recovery from a fault, the start-up park, a job the caller wrote, the
   read-back of the pose after a halt, the next queued move, and a check of
@@ -90,7 +100,7 @@ from al5d.arm.states import (
     release_refusal,
     stream_held,
 )
-from al5d.clock import Deadline, wall_ns
+from al5d.clock import Deadline, now, wall_ns
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.errors import BoardReset, SerialFault
 
@@ -118,6 +128,7 @@ class Core(CoreState):
                 return Admission(Verdict.REFUSED, reason)
             replaced = None
             if job.stream:
+                self._stream_seen[job.stream] = now()
                 unchanged = self._unchanged(job)
                 if self._streams_held:
                     if not unchanged:
@@ -132,6 +143,9 @@ class Core(CoreState):
                         self._fire(Event.MOVE_DONE)
                     return Admission(Verdict.UNCHANGED, replaced=replaced)
             job.epoch = self._epoch
+            superseded = self._supersede(job)
+            if superseded is not None:
+                return Admission(Verdict.SUPERSEDES, replaced=replaced, superseded=superseded)
             if self._idle():
                 self._current, self._runner = job, Runner.CALLER
                 self._writes += 1
@@ -162,10 +176,11 @@ class Core(CoreState):
             if error is not None:
                 return None, self._lose(error)
             motion = self._written(job, written) if written is not None else None
-            if motion is not None:
-                self._runner = Runner.HANDED
-            elif job is self._current:  # nothing of it went out, and nothing ended it: it ends
-                self._end_current(job)
+            if job is self._current:
+                if motion is not None:
+                    self._runner = Runner.HANDED
+                else:  # nothing of it went out, and nothing ended it: it ends
+                    self._end_current(job)
             return motion, Ended()
 
     def stop(
@@ -260,6 +275,9 @@ class Core(CoreState):
         if self._writing:
             return None  # a caller writes: what it did decides what comes next
         if self._current is not None:
+            if self._runner is Runner.NEXT:  # a set-point that took a running one's place
+                self._runner = Runner.WORKER
+                return Work(Task.MOVE, self._current)
             if self._runner is not Runner.HANDED:
                 return None
             self._runner = Runner.WORKER
@@ -287,6 +305,18 @@ class Core(CoreState):
                 return None
             self._current, self._runner = job, Runner.WORKER
             return board
+
+    def watchdog(self, job: Job, timeout: float, reason: str) -> Halt | None:
+        """No set-point of the running job's stream has come for `timeout` s: the arm is held
+        where it is, as a cancelled move is (its STOP comes back; no lock), and the job ends
+        with `reason`. None if it has ended, or a set-point came meanwhile."""
+        with self._lock:
+            if not job.stream or not self._holds(job) or self._quiet(job) < timeout:
+                return None
+            job.cancel.set()
+            halt = self._halt(Ended((job,), reason), urgent=False)
+            self._end_current(job)
+            return halt
 
     def board_for(self, job: Job) -> SSC32U | None:
         """The board to write the job's next step on; None if the job has been ended."""

@@ -6,6 +6,7 @@ Everything with a leading underscore here is called by an event, under the core'
 
 from __future__ import annotations
 
+import math
 import threading
 from collections import deque
 from collections.abc import Callable
@@ -34,6 +35,7 @@ class Runner(Enum):
     CALLER = "its caller writes its first step"
     HANDED = "written by its caller, for the worker to see through"
     WORKER = "the worker"
+    NEXT = "took a running set-point's place: the worker writes it as soon as the wire allows"
 
 
 class CoreState:
@@ -60,6 +62,9 @@ class CoreState:
         # (ros2_control's hardware) sends its last target again and again while the arm is
         # off it: after a stop, that target must not drive the arm once it is released.
         self._streams_held = ""
+        #: When a set-point of each stream last came (CLOCK_MONOTONIC): the watchdog holds
+        #: the arm where it is once none has come for `server.stream_timeout_s`.
+        self._stream_seen: dict[str, float] = {}
         self._queue: deque[Job] = deque()
         self._current: Job | None = None
         self._runner: Runner | None = None
@@ -116,6 +121,24 @@ class CoreState:
         """The pose at rest, as a step is planned from it."""
         with self._lock:
             return self._book.pose
+
+    def start_pose(self, job: Job, t: float) -> dict[str, float | None]:
+        """The pose a job's step is planned from: the pose at rest, but for a set-point that
+        retargets a motion under way (the first step of a job while the board still runs
+        the set-point it superseded): where that motion has the arm at `t`, when the new
+        bytes take effect."""
+        with self._lock:
+            pose = self._book.pose
+            motion = self._book.motion
+            if job.step == 0 and job.stream and motion is not None:
+                pose.update(motion.at(t))
+            return pose
+
+    def stream_quiet(self, job: Job) -> float:
+        """Seconds since a set-point of the job's stream last came, or since the job was
+        written if that is later (one that waited behind other moves starts afresh)."""
+        with self._lock:
+            return self._quiet(job)
 
     def progress(self, ident: str) -> float | None:
         """0..1 of the running job `ident` (by its steps), or None if it is not running."""
@@ -221,6 +244,35 @@ class CoreState:
                 return False
         return True
 
+    def _quiet(self, job: Job) -> float:
+        seen = self._stream_seen.get(job.stream, -math.inf)
+        written = job.written.t_write if job.written is not None else -math.inf
+        return now() - max(seen, written)
+
+    def _supersede(self, job: Job) -> Job | None:
+        """A set-point takes the place of the running one of its stream, where nothing waits
+        before it and nothing is to be read back: that one ends (none of its bytes still to
+        go is written) and this one is the current job, for the worker to write as soon as
+        the wire allows; the board retargets a group move mid-move. The one it took the
+        place of; None where it may not (it is then admitted as any move)."""
+        running = self._current
+        if (
+            not job.stream
+            or running is None
+            or running.stream != job.stream
+            or running.mode is not Mode.QUEUE
+            or self._queue
+            or self._readback
+            or self._board is None
+            or self._state is not State.MOVING
+        ):
+            return None
+        running.superseded = True
+        running.cancel.set()
+        self._current, self._runner = job, Runner.NEXT
+        self._cv.notify_all()
+        return running
+
     def _drop(self, why: str, sent_ns: int) -> Ended:
         """End the epoch: the current job and every waiting one are never to be written. The
         shutdown's park is left to the worker, which reports it. `sent_ns`: when the event
@@ -286,10 +338,13 @@ class CoreState:
         return True
 
     def _written(self, job: Job, written: Written) -> Motion | None:
-        if not self._holds(job):
+        if not self._holds(job) and not (job.superseded and job.epoch == self._epoch):
             # Q answers "moving" until this step's time is over, even halted (UG-38).
             self._book.distrust_q(written.motion)
             return None
+        # A superseded set-point's bytes that went out are the board's motion all the same:
+        # the one that took its place is written only after this is told (the worker waits
+        # for a caller's write; its own it reports first), and retargets it.
         motion = self._book.moving(written.motion, written.t_write)
         self._book.written(motion, written.t_end)
         job.written = written

@@ -114,6 +114,7 @@ class ArmDriver:
             self.baud,
             self.writer,
             self._refuse_job,
+            self._write_halt,
         )
         self._thread = threading.Thread(target=self._worker.run, name="al5d-worker", daemon=True)
         self.finished = self.core.finished
@@ -278,6 +279,8 @@ class ArmDriver:
         admission = self.core.admit(job)
         if admission.replaced is not None:
             finish(admission.replaced, Result.CANCELLED, f"replaced by set-point {instr.id}")
+        if admission.superseded is not None:
+            finish(admission.superseded, Result.CANCELLED, f"superseded by set-point {instr.id}")
         if admission.verdict is Verdict.UNCHANGED:
             self.core.announce()
             resolve(
@@ -286,7 +289,7 @@ class ArmDriver:
                     instr, Result.DONE, "at this set-point, or on its way: nothing written", t0
                 ),
             )
-        elif admission.verdict is Verdict.QUEUED:
+        elif admission.verdict in (Verdict.QUEUED, Verdict.SUPERSEDES):
             self.core.announce()
         elif admission.verdict is Verdict.REFUSED:
             self._refuse(instr, future, admission.reason, t0)

@@ -46,6 +46,7 @@ class Verdict(Enum):
     REFUSED = "refused"
     CANCELLED = "cancelled by an event after it was sent"
     UNCHANGED = "a set-point where the arm is, or is going already: nothing to write"
+    SUPERSEDES = "a set-point takes the running one's place: the worker writes it next"
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,6 +57,9 @@ class Admission:
     #: A set-point of the same stream that waited, replaced by this one (its outcome is
     #: the caller's to set).
     replaced: Job | None = None
+    #: With SUPERSEDES: the running set-point it took the place of (its outcome is the
+    #: caller's to set, as a replaced one's).
+    superseded: Job | None = None
 
 
 @dataclass(frozen=True, slots=True)

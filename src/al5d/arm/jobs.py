@@ -53,6 +53,9 @@ class Job:
     #: A set-point of this stream (`joint_commands`): a newer one of the same stream
     #: replaces it while it waits ("" for every other move).
     stream: str = ""
+    #: A newer set-point of its stream took its place while it ran (`core`, the lane of
+    #: set-points): what it wrote stays the board's motion, which the newer one retargets.
+    superseded: bool = False
     expected_ms: float = 0.0
     step: int = 0  # the step running now
     #: The step written last: the worker waits for its end (a step the caller wrote, too).

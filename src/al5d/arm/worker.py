@@ -17,6 +17,7 @@ from concurrent.futures import Future
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
 from al5d.arm.core import Core
+from al5d.arm.effects import Halt
 from al5d.arm.instruction import Result
 from al5d.arm.jobs import Job, Mode, finish
 from al5d.arm.link import Link
@@ -46,6 +47,7 @@ class Worker:
         baud: int,
         writer: StepWriter,
         refuse: Callable[[Job, str], None],
+        write_halt: Callable[[Halt], SerialFault | None],
     ) -> None:
         self.config = config
         self.core = core
@@ -54,6 +56,9 @@ class Worker:
         self.link = Link(config, core, port, baud)
         self.writer = writer
         self._refuse = refuse
+        self._write_halt = write_halt
+        #: When the link was last checked at the end of a set-point (CLOCK_MONOTONIC).
+        self._watched = 0.0
 
     def run(self) -> None:
         core = self.core
@@ -186,13 +191,22 @@ class Worker:
         link early."""
         every = self.settings.moving_check_interval_s
         while (left := t_end - now()) > 0:
-            if job.cancel.wait(min(left, every)):
+            wait = min(left, every)
+            if job.stream:
+                quiet = self.settings.stream_timeout_s - self.core.stream_quiet(job)
+                if quiet <= 0:
+                    self._hold(job)
+                    return False
+                wait = min(wait, quiet)
+            if job.cancel.wait(wait):
                 return False
             if t_end - now() > every / 2:
                 try:
                     self.link.watch(board)
                 except Interrupted:
                     return False
+        if job.stream:
+            return self._set_point_over(board)
         if not confirm or not self.core.q_believed():
             return True  # Q still counts down a stopped move: its '+' says nothing of this one
         deadline = Deadline(COMPLETION_GRACE_S, start=t_end)
@@ -208,6 +222,38 @@ class Worker:
                 raise SerialFault(
                     self.port, f"Q still says moving {COMPLETION_GRACE_S} s after the move's time"
                 )
+
+    def _set_point_over(self, board: SSC32U) -> bool:
+        """A set-point is done when its time is over, without `Q`: its stream's next one,
+        due any moment, must not wait for a query's answer (up to the USB link's 16 ms
+        latency timer) in this thread. The link is still checked every
+        `moving_check_interval_s` of a stream (a reset or a pulled cable is a fault then, as
+        during any move). False if a stop interrupted the check."""
+        if now() - self._watched < self.settings.moving_check_interval_s:
+            return True
+        self._watched = now()
+        try:
+            self.link.watch(board)
+        except Interrupted:
+            return False
+        return True
+
+    def _hold(self, job: Job) -> None:
+        """The watchdog: the stream of the running set-point has gone quiet mid-move (its
+        source stopped, or lost its link): the arm is held where it is, once, as a cancelled
+        move is halted (no lock: the next set-point moves it again)."""
+        timeout = self.settings.stream_timeout_s
+        reason = (
+            f"the stream {job.stream} went quiet (no set-point for {timeout:g} s, "
+            "server.stream_timeout_s): the arm is held where it is"
+        )
+        halt = self.core.watchdog(job, timeout, reason)
+        if halt is None:
+            return  # a set-point came meanwhile, or an event ended the job
+        self._write_halt(halt)
+        log.warning("watchdog: %s [%s]: %s", job.instr.name, job.instr.id, reason)
+        self.core.announce()
+        finish(job, Result.CANCELLED, reason)
 
     def _park_and_end(self, job: Job) -> None:
         """D2: park, wait until parked, then end (the worker returns after this)."""

@@ -25,6 +25,10 @@ from al5d.clock import now
 from al5d.ssc32u.driver import SSC32U
 
 log = logging.getLogger("al5d")
+#: A set-point of a stream is written only once the wire is free: one written earlier, behind
+#: the line on the wire, could no longer be superseded by a newer one (at 9600 baud a
+#: line is 32 ms of wire, and a 50 Hz stream sends a newer set-point every 20 ms).
+STREAM_HORIZON_S = 0.0
 
 
 class StepWriter:
@@ -143,7 +147,13 @@ class StepWriter:
         Raises SerialFault when the write fails; the caller reports it to the core.
         """
         core = self.core
-        pose = core.pose()
+        if job.stream and job.step == 0:
+            # A set-point may retarget the one it superseded mid-move: planned from where
+            # that one has the arm when these bytes take effect.
+            length = len(self.translator.encode(step.target, 0))
+            pose = core.start_pose(job, board.arrival(length))
+        else:
+            pose = core.pose()
         data, time_ms = self.plan(job, step, pose, board.arrival)
         start = {j: v for j, v in pose.items() if v is not None}
         hook = self.race_hook
@@ -161,7 +171,10 @@ class StepWriter:
         t_write = now()
         # The move starts when its CR reaches the board: after whatever was still on the
         # wire (a stop's STOPs, a query) and its own wire time.
-        t_sent = board.write_command(data, unless=overtaken)
+        if job.stream:
+            t_sent = board.write_command(data, unless=overtaken, horizon_s=STREAM_HORIZON_S)
+        else:
+            t_sent = board.write_command(data, unless=overtaken)
         if t_sent is None:
             return None  # the stop's STOP stands; nothing of this step went out
         job.expected_ms += time_ms

@@ -34,7 +34,6 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
@@ -61,6 +60,7 @@ from al5d.ros.robot import RobotPublisher
 from al5d.ros.runtime import (
     ACTIONS_NODE,
     NODE,
+    QOS_COMMANDS,
     QOS_INSTRUCTIONS,
     QOS_LATCHED,
     QOS_STREAM,
@@ -74,13 +74,6 @@ from al5d.ros.workarounds import Reader, ReaderOnly, taken_by_reader
 log = logging.getLogger("al5d")
 
 
-#: Joint commands: the newest is all that matters (the hardware's own writer keeps one too).
-QOS_COMMANDS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
 #: The stream of set-points the joint commands are (`ArmDriver.submit`'s `stream`).
 JOINT_COMMANDS = "joint_commands"
 

@@ -174,6 +174,14 @@ QOS_SERVICES = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
+#: The stream of set-points (`joint_commands`): the newest is all that matters (ros2_control's
+#: hardware writer keeps one too, and so does the web view's jog).
+QOS_COMMANDS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
 #: The state: latched, so that a late joiner gets the current one.
 QOS_LATCHED = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,

@@ -222,7 +222,12 @@ class SSC32U:
         self._write(data, paced=True)
         return data
 
-    def write_command(self, data: bytes, unless: Callable[[], bool] | None = None) -> float | None:
+    def write_command(
+        self,
+        data: bytes,
+        unless: Callable[[], bool] | None = None,
+        horizon_s: float = WIRE_HORIZON_S,
+    ) -> float | None:
         """Write bytes already encoded by `al5d.ssc32u.protocol` (a hot path skips re-encoding).
 
         Returns when their last byte will have reached the board (CLOCK_MONOTONIC): after
@@ -231,9 +236,11 @@ class SSC32U:
         nothing is written and None is returned. A caller whose command must never follow
         a stop makes the stop decide before it takes this lock: then either the command
         goes out first and the STOP after it, or the command does not go out at all.
-        The write waits until the wire's horizon allows it (`WIRE_HORIZON_S`).
+        The write waits until the wire's horizon allows it (`WIRE_HORIZON_S`, or a shorter
+        `horizon_s`: a stream's set-point waits until the wire is free, where a newer one
+        may still take its place).
         """
-        return self._write(data, unless, paced=True)
+        return self._write(data, unless, paced=True, horizon_s=min(horizon_s, WIRE_HORIZON_S))
 
     def stop(self, channels: Iterable[int], paced: bool = False) -> bytes:
         """Emergency stop: ESC, which cancels any partial line on the board, then STOP every
@@ -334,13 +341,14 @@ class SSC32U:
         *,
         paced: bool = False,
         flush: bool = False,
+        horizon_s: float = WIRE_HORIZON_S,
     ) -> float | None:
         """Write `data` (after `WIRE_HORIZON_S` allows it, if `paced`; after an output flush,
         with `flush`); when its last byte reaches the board, or None if `unless` said so."""
         if not paced:
             return self._write_now(data, unless, flush)
         with self._pace_lock:
-            while (wait := self._wire_free_at - WIRE_HORIZON_S - now()) > 0:
+            while (wait := self._wire_free_at - horizon_s - now()) > 0:
                 time.sleep(wait)
             return self._write_now(data, unless, flush)
 

@@ -6,8 +6,8 @@ the arm. The page is built with viser: the arm in 3D from /robot_description,
 moving with /joint_states, the target of the running move as a ghost, sliders,
 a draggable target for the tool, presets, STOP, and what happened.
 
-    link.py    the ROS side: subscriptions, the instruction publisher, the stop service
-    plan.py    pure: targets of instructions, the outcome log, the joint history, debounce
+    link.py    the ROS side: subscriptions, the instruction and jog publishers, the stop service
+    plan.py    pure: targets of instructions, the outcome log, the joint history
     guard.py   who may open the page's websocket (same origin, known host names)
     scene.py   the 3D view: the arm, its ghost, the straight path, the target gizmo
     panel.py   the widgets: STOP in a window of its own, the side panel

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
@@ -41,6 +41,7 @@ from al5d.ros.convert import (
 )
 from al5d.ros.robot import QOS_TF_STATIC
 from al5d.ros.runtime import (
+    QOS_COMMANDS,
     QOS_INSTRUCTIONS,
     QOS_LATCHED,
     QOS_SERVICES,
@@ -98,6 +99,7 @@ class Link:
             f"al5d_web_{os.getpid()}", namespace=names.node_namespace, context=self.context
         )
         self.pub = node.create_publisher(ArmInstruction, names.instruction, QOS_INSTRUCTIONS)
+        self.jog_pub = node.create_publisher(JointState, names.joint_commands, QOS_COMMANDS)
         node.create_subscription(String, names.robot_description, self._on_description, QOS_LATCHED)
         node.create_subscription(JointState, names.joint_states, self._on_joints, QOS_LATEST)
         node.create_subscription(String, names.state, self._on_state, QOS_LATCHED)
@@ -155,6 +157,14 @@ class Link:
 
     def send(self, instr: Instruction) -> None:
         self.pub.publish(to_message(instr))
+
+    def jog(self, degrees: Mapping[str, float]) -> None:
+        """A set-point of the jog (the arm's degrees) on the server's stream of set-points,
+        in the URDF's values as ros2_control's hardware sends them."""
+        values = self.model.to_urdf(dict(degrees))
+        msg = JointState(name=list(values), position=[float(v) for v in values.values()])
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        self.jog_pub.publish(msg)
 
     def stop(self) -> str:
         """The emergency stop, by the service (it never waits behind instructions) and on the

@@ -3,8 +3,8 @@
 Every browser that opens the page shares it (one arm, one panel). Three kinds of
 threads touch it: the ROS executor (joint states, state, outcomes, instructions
 seen), viser (the user's clicks and drags: STOP on viser's event loop, the rest
-in its thread pool) and the page's own loop (the watchdog, the debounced slider
-moves, the plot). One lock keeps what they share consistent; the 3D view
+in its thread pool) and the page's own loop (the watchdog, the jog's set-points, the
+plot). One lock keeps what they share consistent; the 3D view
 (scene.py) and the widgets (panel.py) are only called under it.
 """
 
@@ -14,7 +14,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -25,17 +25,18 @@ from al5d.arm.instruction import Instruction, Kind, Outcome, Result, move_to, pr
 from al5d.model import JOINTS, ModelError
 from al5d.model.transforms import Transform, Vec3
 from al5d.web.panel import Panel
-from al5d.web.plan import Debouncer, JointHistory, OutcomeLog, Planner, Target
+from al5d.web.plan import JointHistory, OutcomeLog, Planner, Target
 from al5d.web.scene import ArmScene
 
 log = logging.getLogger("al5d.web")
 
 #: No joint states for this long: the server is lost (banner, controls off but STOP).
 LOST_AFTER_S = 1.0
-#: A slider still for this long has been let go: its move is sent (viser 1.1.1 tells the
-#: server no slider release, only values; one pause, one move).
+#: A slider still for this long has been let go (viser 1.1.1 tells the server no slider
+#: release, only values): until then the jog's set-point is sent again each tick.
 QUIET_S = 0.3
-#: The page's loop: the watchdog, the debounce and the sliders following the arm.
+#: The page's loop: the watchdog, the jog's set-points (20 a second at most: the server
+#: writes the newest as soon as the wire allows) and the sliders following the arm.
 LOOP_S = 0.05
 #: The plot is redrawn this often (each redraw sends the whole window of samples).
 PLOT_EVERY_S = 0.25
@@ -49,6 +50,8 @@ class Commands(Protocol):
     """What the page asks of the server (the ROS link)."""
 
     def send(self, instr: Instruction) -> None: ...
+
+    def jog(self, degrees: Mapping[str, float]) -> None: ...
 
     def stop(self) -> str: ...
 
@@ -74,7 +77,14 @@ class Page:
         self.page_move_to: str | None = None
         self.history = JointHistory(tuple(JOINTS))
         self.outcomes = OutcomeLog()
-        self.debouncer = Debouncer(QUIET_S)
+        #: The jog: the sliders' targets since the user took them (None: no jog), sent as
+        #: set-points of the server's stream (`joint_commands`), the newest replacing any
+        #: not yet written; `jog_sent` is False while its latest is still to be sent.
+        self.jog: dict[str, float] | None = None
+        self.jog_sent = True
+        #: Why the jog's latest target would be refused (the table, a limit), or "": such a
+        #: target is not sent, and once the sliders are let go they go back to the arm.
+        self.jog_refused = ""
         self.touched = -math.inf
         self.target_touched = -math.inf
         #: Where the tool was when the gizmo was last put at it (None: never).
@@ -206,7 +216,7 @@ class Page:
         if lost:
             since = "never heard from it" if age_s is None else f"no joint states for {age_s:.0f} s"
             text = f"No contact with the server ({since}). Controls are off; STOP still works."
-            self.debouncer.drop()
+            self.jog = None
         with self.server.atomic():
             self.panel.show_lost(text)
             if changed:
@@ -225,7 +235,7 @@ class Page:
         if self.degrees is None:
             return
         idle = self.state != "moving" and not self.pending
-        quiet = not self.debouncer.busy and time.monotonic() - self.touched > FOLLOW_AFTER_S
+        quiet = self.jog is None and time.monotonic() - self.touched > FOLLOW_AFTER_S
         if not force and not (idle and quiet):
             return
         for name in self.panel.sliders:
@@ -254,7 +264,7 @@ class Page:
     async def _on_stop(self, event: Any) -> None:
         # On viser's event loop itself, not its thread pool: the stop goes out as the
         # click's message is read, whatever else the pool is busy with.
-        self.debouncer.drop()
+        self.jog = None
         if self.commands is not None:
             way = self.commands.stop()
             log.info("web: STOP clicked (sent by %s)", way)
@@ -271,13 +281,18 @@ class Page:
                         self.panel.set_slider(joint, self.degrees[joint])
                     return
                 self.touched = time.monotonic()
-                self.debouncer.put(joint, float(event.target.value))
-                move = self._slider_move(self.debouncer.peek())
-            # Judged while dragging, as the server will judge it: a refusal shows at once.
+                if self.jog is None:
+                    self.jog = {}
+                self.jog[joint] = float(event.target.value)
+                self.jog_sent = False
+                move = self._slider_move(self.jog)
+            # Judged while dragging, as the server will judge it: a set-point it would refuse
+            # is not sent (the arm stays at the last one it took), and the page says why.
             reason = self._precheck(move)
             with self._lock:
+                self.jog_refused = reason
                 self.panel.show_joints_status(
-                    f"will not be sent: {reason}" if reason else "release to move", not reason
+                    f"will not be sent: {reason}" if reason else "jogging", not reason
                 )
 
         return handler
@@ -285,6 +300,8 @@ class Page:
     def _send(self, instr: Instruction) -> None:
         if self.commands is None or self.lost:
             return
+        with self._lock:
+            self.jog = None  # another instruction ends the jog: its target is not sent again
         self.commands.send(instr)
 
     def _slider_move(self, values: dict[str, float]) -> Instruction:
@@ -376,24 +393,15 @@ class Page:
                     age = now - self.last_joints_t
                     if age > LOST_AFTER_S and (not self.lost or int(age) != int(age - LOOP_S)):
                         self._set_lost(True, age)
-                batch = self.debouncer.poll() if not self.lost else {}
-                time_ms = self.panel.time_ms()
-                if not batch:
+                jog = self._jog_due(now)
+                if jog is None:
                     self._follow()
                 if self.degrees is not None and now - last_readout >= 1.0:
                     if now - self.last_change_t >= 1.0:  # moving, each state refreshes it
                         self._show_tool()
                     last_readout = now
-            if batch:
-                move = Instruction(Kind.MOVE, joints=tuple(batch.items()), time_ms=time_ms)
-                # A move the server would refuse is not sent: the sliders go back to the arm.
-                reason = self._precheck(move)
-                if reason:
-                    with self._lock:
-                        self.panel.show_joints_status(f"not sent: {reason}", False)
-                        self.touched = -math.inf
-                else:
-                    self._send(move)
+            if jog is not None and self.commands is not None:
+                self.commands.jog(jog)
             # While the arm is still the plot is flat lines already: redraws would only
             # slide the time axis, at a window of samples each.
             recent = now - self.last_change_t < self.history.seconds + PLOT_EVERY_S
@@ -401,6 +409,31 @@ class Page:
                 last_plot = now
                 with self._lock:
                     self.panel.show_plot(self.history.series(now))
+
+    def _jog_due(self, now: float) -> dict[str, float] | None:
+        """The jog's set-point to send now (under the lock), or None. A new one as soon as
+        the sliders changed; the same one again while the user is at them or the arm is on
+        its way, which writes nothing and keeps the server's watchdog from holding the arm
+        (were this page to stop, the arm would be held where it is). The jog ends once the
+        sliders are let go and the arm has arrived."""
+        jog = self.jog
+        if jog is None or self.lost:
+            return None
+        at_it = now - self.touched < QUIET_S
+        if self.jog_refused:
+            if not at_it:  # let go where the server would refuse it: nothing more is sent
+                self.panel.show_joints_status(f"not sent: {self.jog_refused}", False)
+                self.jog, self.jog_refused, self.touched = None, "", -math.inf
+            return None
+        # A set-point goes at the servos' speed: any is there well within FOLLOW_AFTER_S
+        # (a move of another client's that runs then is not the jog's to keep alive).
+        on_its_way = self.state == "moving" and now - self.touched < FOLLOW_AFTER_S
+        if self.jog_sent and not at_it and not on_its_way:
+            if now - self.touched > FOLLOW_AFTER_S:
+                self.jog = None
+            return None
+        self.jog_sent = True
+        return dict(jog)
 
     def close(self) -> None:
         self._running = False

@@ -5,16 +5,14 @@
   server's refusal reason before the server has said it.
 - `OutcomeLog`: the last outcomes, as HTML that quotes no input unescaped.
 - `JointHistory`: joint angles over the last seconds, for the plot.
-- `Debouncer`: one move per slider drag (viser reports every value along a drag).
 """
 
 from __future__ import annotations
 
 import html
 import math
-import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -141,44 +139,3 @@ class JointHistory:
         ts = np.array([t - now for t, _ in samples])
         values = np.array([v for _, v in samples]).T
         return (ts, *(values[i] for i in range(len(self.joints))))
-
-
-class Debouncer:
-    """One action per burst of changes: values are kept until none has come for `quiet_s`.
-
-    viser sends a slider's value on every step of a drag and has no "released" event,
-    so a move per value would be a flood of moves. `put` keeps the latest value per
-    key; `poll` hands them over once the input has been still for `quiet_s`: a
-    continuous drag becomes one move; a drag paused longer than `quiet_s` becomes one
-    move per pause.
-    """
-
-    def __init__(self, quiet_s: float, clock: Callable[[], float] = time.monotonic) -> None:
-        self.quiet_s = quiet_s
-        self.clock = clock
-        self._values: dict[str, float] = {}
-        self._last = -math.inf
-
-    def put(self, key: str, value: float) -> None:
-        self._values[key] = value
-        self._last = self.clock()
-
-    @property
-    def busy(self) -> bool:
-        """Whether values wait, or came within `quiet_s` (the user is at the controls)."""
-        return bool(self._values) or self.clock() - self._last < self.quiet_s
-
-    def poll(self) -> dict[str, float]:
-        """The values to act on now (empty while the input is still moving)."""
-        if not self._values or self.clock() - self._last < self.quiet_s:
-            return {}
-        values, self._values = self._values, {}
-        return values
-
-    def peek(self) -> dict[str, float]:
-        """The values that wait (what `poll` will hand over), without taking them."""
-        return dict(self._values)
-
-    def drop(self) -> None:
-        """Forget the waiting values (a stop came: nothing dragged before it may move the arm)."""
-        self._values = {}

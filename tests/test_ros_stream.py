@@ -1,0 +1,213 @@
+"""The streaming mode (issue 25, item 2) over real DDS: `<ns>/joint_commands` as a stream of
+set-points of which only the newest matters, and its watchdog.
+
+`al5d serve` runs in its own process, the emulated board (a pty) in this one, and the peer
+publishes as ros2_control's topic-based hardware or a teleoperation node does: a reliable
+writer keeping the last command. The server's watchdog is set by its ROS parameter
+(`server.stream_timeout_s`), and the elbow is slowed in its configuration so that a move
+to a far command lasts seconds: long enough to find the watchdog holding it midway on a
+busy machine.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import threading
+import time
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import yaml
+from armrig import group_pulses, pulses
+from proc import Proc, patient_config
+from rclpy.qos import QoSProfile
+from rospeer import Peer, wait_until
+from sensor_msgs.msg import JointState
+
+from al5d.arm.config import ArmConfig
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Emulator, Record
+
+NAMESPACE = "stream"
+#: The server's watchdog here (its ROS parameter).
+TIMEOUT_S = 0.3
+#: The elbow's top speed in the server's configuration: 135 degrees take 4.5 s.
+SLOW_ELBOW_DEG_S = 30.0
+
+
+@dataclass
+class Streamed:
+    emu: Emulator
+    proc: Proc
+    peer: Peer
+    config: ArmConfig
+    commands: object  # the peer's publisher of joint commands
+
+    def command(self, degrees: Mapping[str, float], ident: str = "") -> None:
+        """Publish a set-point for `degrees` (the arm's) in the URDF's values."""
+        values = self.config.model.to_urdf(dict(degrees))
+        msg = JointState()
+        msg.header.stamp = self.peer.node.get_clock().now().to_msg()
+        msg.header.frame_id = ident
+        msg.name = list(values)
+        msg.position = [float(v) for v in values.values()]
+        self.commands.publish(msg)  # type: ignore[attr-defined]
+
+    def records(self, since: int = 0) -> list[Record]:
+        return self.emu.records[since:]
+
+
+def _moves(records: list[Record]) -> list[p.GroupMove]:
+    return [c for r in records for c in r.commands if isinstance(c, p.GroupMove)]
+
+
+def _stops(records: list[Record]) -> list[Record]:
+    return [r for r in records if any(isinstance(c, p.Stop) for c in r.commands)]
+
+
+def _slow_elbow_config() -> str:
+    path = Path(patient_config())
+    data = yaml.safe_load(path.read_text())
+    data["joints"]["elbow"]["speed_deg_s"] = SLOW_ELBOW_DEG_S
+    out = Path(tempfile.mkdtemp(prefix="al5d-test-")) / "al5d.yaml"
+    out.write_text(yaml.safe_dump(data, sort_keys=False))
+    return str(out)
+
+
+@pytest.fixture(scope="module")
+def streamed(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Streamed]:
+    link = tmp_path_factory.mktemp("stream") / "ssc32u"
+    emu = Emulator(config, link=link).start()
+    proc = Proc(
+        "serve",
+        "--port",
+        str(link),
+        "--config",
+        _slow_elbow_config(),
+        "--log-level",
+        "INFO",
+        "--ros-args",
+        "-r",
+        f"__ns:=/{NAMESPACE}",
+        "-p",
+        f"server.stream_timeout_s:={TIMEOUT_S}",
+    )
+    peer = Peer(name="al5d_stream_peer", namespace=NAMESPACE)
+    commands = peer.node.create_publisher(
+        JointState, peer.names.joint_commands, QoSProfile(depth=1)
+    )
+    try:
+        proc.err.wait_for("STATE: ready", 30)
+        peer.wait_for_server()
+        wait_until(lambda: commands.get_subscription_count() > 0, 20, "the server's reader")
+        yield Streamed(emu, proc, peer, config, commands)
+    finally:
+        peer.close()
+        proc.kill()
+        emu.close()
+
+
+def settled(s: Streamed, degrees: Mapping[str, float], timeout: float = 20.0) -> None:
+    wait_until(
+        lambda: all(abs(s.emu.servo_degrees()[j] - d) < 0.2 for j, d in degrees.items()),
+        timeout,
+        f"the arm at {dict(degrees)}",
+    )
+
+
+def test_a_burst_of_1000_set_points_writes_a_handful_of_lines_the_last_the_newest(
+    streamed: Streamed,
+) -> None:
+    here = dict(streamed.emu.servo_degrees())
+    since = len(streamed.emu.records)
+    last = here
+    for k in range(1000):
+        last = here | {"base": here["base"] + 10 * math.sin(k / 50), "wrist": -10 + k / 100}
+        streamed.command(last, f"burst-{k}")
+    settled(streamed, last)
+    moves = _moves(streamed.records(since))
+    # The wire carries a group move in 40 ms at 9600 baud: the burst, published in well under
+    # a second, is a handful of lines, not a thousand, and the last is the newest.
+    assert 1 <= len(moves) <= 30, len(moves)
+    assert group_pulses(moves[-1]) == pulses(streamed.config, last)
+    assert not _stops(streamed.records(since))  # superseded mid-move, never halted
+
+
+def test_the_watchdog_holds_the_arm_when_the_stream_stops_mid_move(streamed: Streamed) -> None:
+    here = dict(streamed.emu.servo_degrees())
+    far = here | {"elbow": 130.0 if here["elbow"] < 65 else 5.0}
+    since = len(streamed.emu.records)
+    streamed.command(far, "far")  # 4 s of a move at the slowed elbow, and then nothing
+    wait_until(lambda: _stops(streamed.records(since)), 10, "the watchdog's STOP")
+    streamed.proc.err.wait_for("watchdog", 10)
+    held = streamed.emu.servo_degrees()["elbow"]
+    assert abs(held - far["elbow"]) > 10, held  # halted on its way
+    time.sleep(2 * TIMEOUT_S)
+    assert abs(streamed.emu.servo_degrees()["elbow"] - held) < 0.5  # and held there
+    # Held, not locked: the next set-point moves the arm again.
+    back = here | {"elbow": held + (-5 if far["elbow"] > held else 5)}
+    streamed.command(back, "back")
+    settled(streamed, back)
+    assert sum("watchdog" in line for line in streamed.proc.err.all) == 1
+    assert not any("STATE: stopped" in line for line in streamed.proc.err.all)
+
+
+def test_a_stop_during_a_stream_wins_and_the_stream_stays_held(streamed: Streamed) -> None:
+    here = dict(streamed.emu.servo_degrees())
+    since = len(streamed.emu.records)
+    streaming = threading.Event()
+    streaming.set()
+    sent: list[dict[str, float]] = []
+
+    def stream() -> None:  # a teleoperation node at 50 Hz, which knows nothing of the stop
+        k = 0
+        while streaming.is_set():
+            target = here | {"base": here["base"] + 20 * math.sin(k / 25)}
+            streamed.command(target, f"tele-{k}")
+            sent.append(target)
+            k += 1
+            time.sleep(0.02)
+
+    sender = threading.Thread(target=stream)
+    sender.start()
+    try:
+        wait_until(lambda: len(_moves(streamed.records(since))) >= 5, 10, "the stream moving")
+        t_stop = time.monotonic()
+        assert streamed.peer.trigger("stop").success
+        time.sleep(0.5)
+        records = streamed.records(since)
+        stops = [r for r in _stops(records) if r.t_effect >= t_stop]
+        assert stops
+        after = [r for r in records if r.t_effect > stops[0].t_effect]
+        assert not _moves(after), [r.raw for r in after]  # the stop won
+        assert streamed.peer.trigger("release").success
+        time.sleep(0.5)  # released, the stream still on its sweep: held
+        records = streamed.records(since)
+        assert not _moves([r for r in records if r.t_effect > stops[0].t_effect])
+    finally:
+        streaming.clear()
+        sender.join(5)
+    held = [r for r in streamed.peer.results_now().values() if r.id.startswith("tele-")]
+    assert any("stream of set-points is held" in r.reason for r in held), held
+    # A set-point where the arm stands resumes the stream (nothing written), then it moves.
+    resumed = False
+
+    def resume() -> bool:
+        nonlocal resumed
+        # As a controller re-activated holds the arm: where the joint states say it is.
+        state = streamed.peer.joint_states[-1]
+        msg = JointState(name=list(state.name), position=list(state.position))
+        msg.header.frame_id = "here"
+        streamed.commands.publish(msg)  # type: ignore[attr-defined]
+        time.sleep(0.2)
+        n = len(streamed.emu.records)
+        streamed.command(here, "home")
+        time.sleep(0.3)
+        resumed = bool(_moves(streamed.records(n)))
+        return resumed
+
+    wait_until(resume, 15, "the stream resumed from where the arm stands")
+    settled(streamed, here)
