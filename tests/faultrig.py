@@ -84,7 +84,9 @@ def run_trial(
             if moment == "idle":
                 time.sleep(rng.uniform(0.0, 0.6))
             elif moment == "mid-move":
-                futures.append(driver.submit(ins.move(base=80, shoulder=40, time_ms=2000)))
+                futures.append(
+                    driver.submit(ins.move(base=80, shoulder=40, elbow=60, time_ms=2000))
+                )
                 futures += [driver.submit(ins.move(base=b)) for b in (-30, 30, 0)]
                 emu.wait_for(lambda rs: any(b"T2000" in r.raw for r in rs), 5)
                 time.sleep(rng.uniform(0.05, 1.5))

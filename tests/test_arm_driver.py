@@ -238,7 +238,9 @@ class TestStop:
 
     def test_a_move_after_a_stop_does_not_wait_for_the_stopped_moves_time(self, rig: Rig) -> None:
         # UG-38: after a STOP in a timed move, Q says '+' until that move's time is over.
-        rig.driver.submit(ins.move(base=80, shoulder=60, time_ms=4000))  # the shoulder stays "busy"
+        rig.driver.submit(
+            ins.move(base=80, shoulder=60, elbow=30, time_ms=4000)
+        )  # shoulder: "busy"
         rig.wait_move_count(2)
         time.sleep(0.2)
         rig.driver.execute(ins.stop(), 5)

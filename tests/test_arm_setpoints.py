@@ -14,8 +14,19 @@ from al5d.arm import instruction as ins
 from al5d.arm.instruction import Result
 from al5d.arm.states import State
 from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Record
 
 STREAM = "joint_commands"
+
+
+def moves_since(rig: Rig, before: int, n: int) -> list[Record]:
+    """The group moves on the board after the first `before`, once `n` of them are there
+    and a moment has passed for any more: a set-point is done when its time is over,
+    without asking the board, and its line may reach the board's record a moment later on
+    a busy host."""
+    rig.emu.wait_for(lambda rs: len(rig.moves()) >= before + n, 5)
+    time.sleep(0.2)
+    return rig.moves()[before:]
 
 
 def test_a_newer_set_point_replaces_the_one_that_waits(rig: Rig) -> None:
@@ -29,7 +40,7 @@ def test_a_newer_set_point_replaces_the_one_that_waits(rig: Rig) -> None:
         assert outcome.result is Result.CANCELLED
         assert outcome.reason == f"replaced by set-point {by}"
     assert running.result(10).ok and newest.result(10).ok
-    moves = rig.moves()[before:]
+    moves = moves_since(rig, before, 2)
     assert len(moves) == 2  # the long move and the newest set-point: nothing of the others
     last = moves[-1].commands[0]
     assert group_pulses(last) == pulses(rig.config, {"base": 40, "elbow": 80})
@@ -68,7 +79,7 @@ def test_a_set_point_where_the_arm_is_or_goes_writes_nothing(rig: Rig) -> None:
     assert going.result(10).ok
     # A pulse's worth away is a move.
     assert driver.submit(ins.move(base=40.1), stream=STREAM).result(10).ok
-    moves = rig.moves()[before:]
+    moves = moves_since(rig, before, 2)
     assert len(moves) == 2
     assert group_pulses(moves[-1].commands[0]) == pulses(rig.config, {"base": 40.1})
 
@@ -113,7 +124,7 @@ def test_a_stop_holds_the_stream_until_a_set_point_where_the_arm_is(rig: Rig) ->
 
     wait_until(hold_here, 10, "the stream resumed")
     assert driver.submit(ins.move(**target), stream=STREAM).result(10).ok
-    moves = rig.moves()[before:]
+    moves = moves_since(rig, before, 1)
     assert len(moves) == 1
     assert group_pulses(moves[0].commands[0]) == pulses(rig.config, target)
 

@@ -221,7 +221,7 @@ def test_stops_on_the_topic_are_obeyed_and_answered_once_each(server: Server, pe
 
 
 def test_stop_during_a_move_with_queued_moves_and_goals(server: Server, peer: Peer) -> None:
-    running = peer.goal(base=80, shoulder=60, time_ms=3000)
+    running = peer.goal(base=80, shoulder=60, elbow=30, time_ms=3000)  # above the table
     goals = [peer.goal(base=b) for b in (-80, -40)]
     for i in range(300):
         peer.send(f"q-{i}", "move", base=(i % 90) - 45)
@@ -249,8 +249,9 @@ def test_stop_during_a_move_with_queued_moves_and_goals(server: Server, peer: Pe
         "every STOP on the board",
     )
     stops = [r.raw for r in server.emu.records if r.raw.startswith(b"STOP")]
-    # The moving joints first, the faster first (shoulder 85 deg, base 80 deg in the same time).
-    assert stops == [b"STOP1", b"STOP0", b"STOP2", b"STOP3", b"STOP4", b"STOP5"]
+    # The moving joints first, the faster first (elbow 95 deg, shoulder 85 deg, base 80 deg in
+    # the same time).
+    assert stops == [b"STOP2", b"STOP1", b"STOP0", b"STOP3", b"STOP4", b"STOP5"]
     peer.send("locked", "move", base=0)
     assert "send release first" in peer.result("locked").reason
     assert peer.trigger("release").success
