@@ -18,7 +18,7 @@ from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Result
 from al5d.arm.states import State
 from al5d.ssc32u.driver import SSC32U
-from al5d.ssc32u.emulator import Emulator, Link
+from al5d.ssc32u.emulator import Emulator, Link, Record
 from al5d.ssc32u.emulator.board import Fault
 
 
@@ -255,6 +255,10 @@ def test_a_reset_during_a_stop_is_found_by_the_read_back(
     assert all(math.isnan(v) for v in rig.driver.positions().values()), "the pose is unknown"
 
 
+def stop_count(records: list[Record]) -> int:
+    return sum(r.raw.startswith(b"STOP") for r in records)
+
+
 def test_the_driver_and_its_stop_on_the_usb_link(config: ArmConfig) -> None:
     """On the board's USB link a flush drops nothing already written, and every answer
     waits 16 ms in the chip: the driver still works, and its stop still holds the arm,
@@ -266,10 +270,15 @@ def test_the_driver_and_its_stop_on_the_usb_link(config: ArmConfig) -> None:
             driver.wait_for_state(State.READY, 15)
             assert driver.execute(ins.move(base=20), 10).ok
             for delay in (0.0, 0.002, 0.02, 0.3):  # during the move's bytes, and after
+                stops = stop_count(emu.records)
                 long = driver.submit(ins.move(base=-80, elbow=120, time_ms=3000))
                 time.sleep(delay)
                 assert driver.execute(ins.stop(), 5).ok
                 assert long.result(5).result is Result.CANCELLED
+                # Held from when its STOPs are in effect (written is not yet there: six
+                # STOPs are 45 ms of the wire at 9600 baud, and a busy host is later still).
+                want = stops + len(config.joints)
+                emu.wait_for(lambda rs, want=want: stop_count(rs) >= want)
                 held = emu.servo_degrees()
                 time.sleep(0.3)
                 after = emu.servo_degrees()
