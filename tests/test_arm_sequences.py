@@ -12,6 +12,7 @@ import threading
 import time
 from concurrent.futures import Future
 
+import pytest
 from armrig import Rig
 
 from al5d.arm import instruction as ins
@@ -22,6 +23,13 @@ from al5d.ssc32u import protocol as p
 
 REPEATS = 20
 JOINTS = ("base", "shoulder", "elbow", "wrist")
+
+
+@pytest.fixture(autouse=True)
+def at_ready(rig: Rig) -> None:
+    """The arm at ready first: a move of one to three joints near ready, from the park pose
+    (or a move stopped on its way), can put the fingers under the table, and is refused."""
+    assert rig.driver.execute(ins.preset("ready"), 15).ok
 
 
 def near_ready(rig: Rig, rng: random.Random) -> Instruction:

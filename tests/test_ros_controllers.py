@@ -122,18 +122,14 @@ def test_a_trajectory_runs_one_group_move_per_point_in_order_at_its_times(rig: R
     moves = rig.group_moves()
     assert len(moves) == len(points) == len(records)
     # Each point is reached at its time_from_start, counted from the first move's effect:
-    # the board's pulses get there when each group move's time has run.
-    # Each move's own time is the gap to the point before (the first's, from rest): the
-    # board arrives at each point's time when each line takes effect as the one before
-    # ends. How close the writes come to that is `make bench`'s figure (trajectory timing);
-    # here, generous: a loaded machine wakes late (138 ms once beside two busy loops).
+    # the board's pulses get there when each group move's time has run (a line written
+    # late has its time shortened to arrive on time). How close is `make bench`'s figure
+    # (trajectory timing); here, generous: a loaded machine wakes late (138 ms once beside
+    # two busy loops).
     start = records[0].t_effect
-    before = 0.0
     for rec, move, (at, _) in zip(records, moves, points, strict=True):
-        assert move.time_ms is not None  # whole ms, rounded where the points are not
-        assert abs(move.time_ms - (at - before) * 1000) <= 1, (move.time_ms, at, before)
+        assert move.time_ms is not None
         assert abs(rec.t_effect + move.time_ms / 1000 - start - at) < 0.5
-        before = at
     channels = {j: rig.config.joints[j].channel for j in ARM}
     for move, (_, degrees) in zip(moves, points, strict=True):
         pulses = {t.channel: t.pulse_us for t in move.targets}

@@ -60,6 +60,10 @@ class Arm(Served):
 def arm(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Arm]:
     workdir = tmp_path_factory.mktemp("sequences")
     with served(config, workdir, "al5d_sequences_peer") as s:
+        # At ready first: a move of one to three joints near ready, from the park pose, can
+        # put the fingers under the table, and is refused.
+        s.peer.send("sequences-ready", "ready")
+        assert s.peer.result("sequences-ready").outcome == "done"
         yield Arm(s.proc, s.emu, s.config, s.peer, s.states)
 
 
