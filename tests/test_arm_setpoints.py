@@ -203,11 +203,14 @@ def test_a_stop_during_a_stream_wins_and_holds_it(rig: Rig) -> None:
     futures = []
 
     def stream() -> None:
-        k = 0
-        while not stop_now.is_set() or k < 400:
-            futures.append(
-                driver.submit(ins.move(base=-60 + 0.2 * (k % 600), id=f"s{k}"), stream=STREAM)
-            )
+        # On until 50 set-points were sent after the stop was taken (counted by what this
+        # thread saw before each: on a busy host the stop may come late in the stream).
+        k = after = 0
+        while after < 50:
+            late = stop_now.is_set()
+            move = ins.move(base=-60 + 0.2 * (k % 600), id=f"s{k}")
+            futures.append((late, driver.submit(move, stream=STREAM)))
+            after += late
             k += 1
             time.sleep(0.002)
 
@@ -219,7 +222,8 @@ def test_a_stop_during_a_stream_wins_and_holds_it(rig: Rig) -> None:
     stop_now.set()
     sender.join(20)
     assert stop.result(5).ok
-    late = [f.result(10) for f in futures[-50:]]
+    late = [f.result(10) for was_late, f in futures if was_late]
+    assert len(late) == 50
     assert all(o.result is Result.REFUSED and "emergency stop" in o.reason for o in late)
     # Released, the stream's source still on its way: held until it is where the arm is.
     assert driver.execute(ins.release(), 5).ok

@@ -77,9 +77,10 @@ class NoOutcome(TimeoutError):
 #: hears of the other, independently (a mitigation, not a proof: DDS offers none here).
 MATCH_SETTLE_S = 0.1
 #: How long the server's services may stay undiscovered once its topics are: after that a
-#: stop, a release or a shutdown goes on the instruction topic instead (and says so). A
-#: server announces both at once, so a longer lag means its services are not there.
-SERVICE_GRACE_S = 2.0
+#: stop, a release or a shutdown goes on the instruction topic instead (and says so). The
+#: services are on the stop path's DDS participant, discovered apart from the topics':
+#: beside two busy loops once more than 2 s after them.
+SERVICE_GRACE_S = 5.0
 #: A stop's service call unanswered this long is made again. rmw_fastrtps drops an answer
 #: whose client it has not matched 100 ms after the request (ros2/rmw_fastrtps#390), which
 #: on a loaded machine can befall a new client's first call. A second stop is harmless; a
