@@ -73,7 +73,7 @@ SCHEDULING_SLACK_S = 0.005
 #: two busy loops and a flood, a board's answer (an emulator at nice -10 in its own
 #: process) came 75 ms late twice in a row, both asks' bytes reaching it 2 ms apart: the
 #: kernel's work that carries a pty's bytes waited for a core; with 0.1 s excused to our
-#: own thread only, that was a lost link and a missed stop, once in about 9 floods; with
+#: own thread only, that was a lost link and a missed stop, 3 times in 36 floods; with
 #: 0.35 s, none in 30, but a silent board on a busy host was found after 0.85 s (and an
 #: idle one's fault took more than a second).
 EXCUSE_MAX_S = 0.15
