@@ -337,6 +337,17 @@ def test_every_move_on_a_topic_has_its_ghost(rig: Rig) -> None:
     pub = rig.peer.node.create_publisher(JointTrajectory, Names().trajectory, QOS_INSTRUCTIONS)
     try:
         wait_until(lambda: pub.get_subscription_count() >= 2, 10, "the server and the page")
+        # This writer seeing the server's reader is not that reader knowing this writer: a
+        # message sent before it does is lost (a volatile reader starts at the writer's
+        # current sample). Empty trajectories, which the server refuses, until one is answered.
+        probe = 0
+        while not any(i.startswith("web-probe-") for i in rig.peer.results_now()):
+            empty = JointTrajectory()
+            empty.header.frame_id = f"web-probe-{probe}"
+            pub.publish(empty)
+            probe += 1
+            assert probe < 100, "the server never answered a probe"
+            time.sleep(0.2)
         msg = JointTrajectory()
         msg.header.frame_id = "web-trajectory"
         msg.joint_names = ["base"]
