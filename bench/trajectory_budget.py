@@ -38,13 +38,11 @@ from builtin_interfaces.msg import Duration  # noqa: E402
 from control_msgs.action import FollowJointTrajectory  # noqa: E402
 from proc import Proc  # noqa: E402
 from rospeer import LockedActionClient, Peer, wait_future  # noqa: E402
-from trajectory_msgs.msg import JointTrajectoryPoint  # noqa: E402
+from trajectories import ARM, START, goal_of, wave  # noqa: E402
 
 from al5d.arm.config import ArmConfig, load_config  # noqa: E402
 from al5d.ssc32u import protocol as p  # noqa: E402
 
-ARM = ["base", "shoulder", "elbow", "wrist", "wrist_rotate"]
-START = {"base": 0.0, "shoulder": 30.0, "elbow": 90.0, "wrist": 0.0, "wrist_rotate": 0.0}
 TRAVEL = {"base": 40.0, "shoulder": 25.0, "elbow": -30.0, "wrist": 25.0, "wrist_rotate": 30.0}
 CASES = ((100, 0.020), (200, 0.010))
 BAUDS = (9600, 115200)
@@ -57,30 +55,6 @@ STATUS = {
 
 def log(text: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
-
-
-def wave(n: int, dt: float) -> list[tuple[float, dict[str, float]]]:
-    span = (n - 1) * dt
-    out = []
-    for k in range(n):
-        f = (1 - math.cos(2 * math.pi * k * dt / span)) / 2
-        out.append((k * dt, {j: START[j] + TRAVEL[j] * f for j in ARM}))
-    return out
-
-
-def goal_of(config: ArmConfig, points: list[tuple[float, dict[str, float]]]) -> Any:
-    goal = FollowJointTrajectory.Goal()
-    goal.trajectory.joint_names = ARM
-    for t, degrees in points:
-        values = config.model.to_urdf(degrees)
-        sec = int(t)
-        goal.trajectory.points.append(
-            JointTrajectoryPoint(
-                positions=[values[j] for j in ARM],
-                time_from_start=Duration(sec=sec, nanosec=round((t - sec) * 1e9)),
-            )
-        )
-    return goal
 
 
 def run_goal(client: LockedActionClient, goal: Any) -> tuple[str, str]:
@@ -149,7 +123,7 @@ def run(config: ArmConfig, say: Any = log) -> list[dict[str, Any]]:
                 say(f"{n} points at {dt * 1000:.0f} ms, {baud} baud")
                 status, text = run_goal(client, goal_of(config, [(1.0, START)]))
                 assert status == "SUCCEEDED", f"to the start: {status} {text}"
-                points = wave(n, dt)
+                points = wave(n, dt, TRAVEL)
                 goal = goal_of(config, points)
                 goal.goal_time_tolerance = Duration(nanosec=round(TIME_TOLERANCE_S * 1e9))
                 first = len(emu.records)

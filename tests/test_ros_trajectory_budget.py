@@ -11,7 +11,6 @@ thinning can keep on its path is rejected whole, naming the wire.
 from __future__ import annotations
 
 import itertools
-import math
 from collections.abc import Iterator
 from typing import Any
 
@@ -23,13 +22,11 @@ from control_msgs.action import FollowJointTrajectory
 from control_msgs.msg import JointTolerance
 from rospeer import LockedActionClient, Peer, wait_future, wait_until
 from served import Served, served
-from trajectory_msgs.msg import JointTrajectoryPoint
+from trajectories import ARM, START, goal_of, wave
 
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u import protocol as p
 
-ARM = ["base", "shoulder", "elbow", "wrist", "wrist_rotate"]
-START = {"base": 0.0, "shoulder": 30.0, "elbow": 90.0, "wrist": 0.0, "wrist_rotate": 0.0}
 #: Each joint's travel out and back (degrees).
 TRAVEL = {"base": 25.0, "shoulder": 15.0, "elbow": -20.0, "wrist": 15.0, "wrist_rotate": 20.0}
 
@@ -47,18 +44,7 @@ class Rig:
         return self.s.peer
 
     def goal(self, points: list[tuple[float, dict[str, float]]]) -> Any:
-        goal = FollowJointTrajectory.Goal()
-        goal.trajectory.joint_names = ARM
-        for t, degrees in points:
-            values = self.s.config.model.to_urdf(degrees)
-            sec = int(t)
-            goal.trajectory.points.append(
-                JointTrajectoryPoint(
-                    positions=[values[j] for j in ARM],
-                    time_from_start=Duration(sec=sec, nanosec=round((t - sec) * 1e9)),
-                )
-            )
-        return goal
+        return goal_of(self.s.config, points)
 
     def run(self, goal: Any) -> Any:
         handle = wait_future(self.fjt.send_goal_async(goal))
@@ -79,16 +65,6 @@ def rig(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator
             yield r
         finally:
             r.fjt.destroy()
-
-
-def wave(n: int, dt: float) -> list[tuple[float, dict[str, float]]]:
-    """Out and back from START, from rest to rest, as MoveIt times a path: n points dt apart."""
-    span = (n - 1) * dt
-    out = []
-    for k in range(n):
-        f = (1 - math.cos(2 * math.pi * k * dt / span)) / 2
-        out.append((k * dt, {j: START[j] + TRAVEL[j] * f for j in ARM}))
-    return out
 
 
 def kept_points(rig: Rig, points: list[tuple[float, dict[str, float]]]) -> list[int]:
@@ -118,7 +94,7 @@ def matches(pulses: dict[int, int], wanted: dict[int, float]) -> bool:
 def test_a_dense_trajectory_is_thinned_to_the_wire_and_stays_on_its_path(rig: Rig) -> None:
     rig.recover()
     assert rig.run(rig.goal([(1.0, START)])).status == GoalStatus.STATUS_SUCCEEDED
-    points = wave(100, 0.02)
+    points = wave(100, 0.02, TRAVEL)
     goal = rig.goal(points)
     # Generous for a busy host: the defect was 1.9 s late.
     goal.goal_time_tolerance = Duration(sec=0, nanosec=500_000_000)
@@ -141,7 +117,7 @@ def test_a_dense_trajectory_is_thinned_to_the_wire_and_stays_on_its_path(rig: Ri
 def test_a_goal_s_own_path_tolerance_is_kept(rig: Rig) -> None:
     rig.recover()
     assert rig.run(rig.goal([(1.0, START)])).status == GoalStatus.STATUS_SUCCEEDED
-    points = wave(200, 0.01)
+    points = wave(200, 0.01, TRAVEL)
     goal = rig.goal(points)
     goal.path_tolerance = [JointTolerance(name=j, position=0.03) for j in ARM]
     rig.s.emu.clear_records()

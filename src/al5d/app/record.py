@@ -108,20 +108,13 @@ def topics(names: Names, instruction_depth: int = 1000) -> list[Topic]:
     of that topic to `server.instruction_backlog`)."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    def latched(depth: int) -> QoSProfile:
+    def reliable(depth: int, latched: bool = False) -> QoSProfile:
+        durability = DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE
         return QoSProfile(  # type: ignore[no-untyped-call]
             history=HistoryPolicy.KEEP_LAST,
             depth=depth,
             reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL,
-        )
-
-    def reliable(depth: int) -> QoSProfile:
-        return QoSProfile(  # type: ignore[no-untyped-call]
-            history=HistoryPolicy.KEEP_LAST,
-            depth=depth,
-            reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.VOLATILE,
+            durability=durability,
         )
 
     status = "action_msgs/msg/GoalStatusArray"
@@ -130,7 +123,7 @@ def topics(names: Names, instruction_depth: int = 1000) -> list[Topic]:
         Topic(names.result, "al5d_interfaces/msg/InstructionResult", reliable(10_000)),
         # The state's writer keeps the last only (latched): a reader a state behind would
         # miss one (a stop's "stopped" and a release's "ready" a millisecond apart).
-        Topic(names.state, "std_msgs/msg/String", latched(100)),
+        Topic(names.state, "std_msgs/msg/String", reliable(100, latched=True)),
         Topic(names.joint_states, "sensor_msgs/msg/JointState", reliable(100)),
         Topic(names.trajectory, "trajectory_msgs/msg/JointTrajectory", reliable(1000)),
         Topic(names.joint_commands, "sensor_msgs/msg/JointState", reliable(1000)),
