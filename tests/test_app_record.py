@@ -13,7 +13,7 @@ from typing import Any
 from al5d_interfaces.msg import ArmInstruction
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from proc import Proc, patient_config
+from proc import Lines, Proc, patient_config
 from rclpy.serialization import serialize_message
 from rospeer import Peer, wait_future, wait_until
 
@@ -26,16 +26,15 @@ from al5d.app.record import (
 )
 from al5d.app.replay import read_instructions
 from al5d.arm.config import load_config
+from al5d.arm.instruction import PRESET_NAMES, Wait, parse_sequence
+from al5d.ros.client import Client
 from al5d.ssc32u.emulator import Emulator
 
 ROOT = Path(__file__).resolve().parents[1]
 
 #: The sequence the client runs while the recordings are made: a refused move (nothing
-#: written), a stop and a release on the topic, moves before and after. It waits first:
-#: the client waits until its writer has matched the server's readers, and the recorders'
-#: a moment later (a recorder, as rosbag2's, misses what was sent before it matched).
+#: written), a stop and a release on the topic, moves before and after.
 SEQUENCE = """\
-wait 1500
 ready
 move base=30 time=300
 move elbow=200
@@ -122,29 +121,54 @@ def check_topics(by_topic: dict[str, list[tuple[Any, Any]]], goal_uuid: bytes) -
     assert finished and finished[-1].status == STATUS_SUCCEEDED
 
 
-def wait_for_recorders(peer: Peer, n: int) -> None:
-    """Until the graph shows `n` recorders reading the instructions and the results, and a
-    moment more for the server's writers to match them."""
-    for topic in ("/al5d/instruction", "/al5d/result", "/al5d/state"):
-        wait_until(
-            lambda topic=topic: (
-                sum(
-                    i.node_name == "al5d_recorder"
-                    for i in peer.node.get_subscriptions_info_by_topic(topic)
-                )
-                >= n
-            ),
-            20,
-            f"{n} recorders of {topic}",
-        )
-    time.sleep(1.0)
+def writers(lines: Lines, topic: str) -> int:
+    """How many writers of `topic` a recorder last said it had matched."""
+    said = [line for line in lines.drain(0.1) if f" {topic}: " in line and "writer" in line]
+    return int(said[-1].split(f" {topic}: ")[1].split()[0]) if said else 0
+
+
+def wait_for_recorders(client: Client, recorders: list[Lines]) -> None:
+    """Until both recorders have matched the server's writers and this client's, and the
+    client's writer of instructions every reader of them (the recorders' among them): a
+    recorder, as rosbag2's, misses what was sent before it had matched the writer, and
+    on a busy host a participant can be discovered seconds after another."""
+    wait_until(
+        lambda: (
+            sum(
+                i.node_name == "al5d_recorder"
+                for i in client.node.get_subscriptions_info_by_topic("/al5d/instruction")
+            )
+            >= 2
+        ),
+        30,
+        "the recorders, seen by the client",
+    )
+    client.wait_for_server(30)
+    needed = {"/al5d/instruction": 2, "/al5d/result": 1, "/al5d/state": 1, "/joint_states": 1}
+    needed["/al5d/move/_action/status"] = 1
+    for topic, n in needed.items():
+        for lines in recorders:
+            wait_until(
+                lambda lines=lines, topic=topic, n=n: writers(lines, topic) >= n,
+                30,
+                f"{n} writer(s) of {topic}",
+            )
+
+
+def run_sequence(client: Client, text: str) -> list[str]:
+    """Each line of `text`, in turn, each waited for; the outcomes."""
+    outcomes = []
+    for item, _ in parse_sequence(text.encode(), "sequence", PRESET_NAMES):
+        if isinstance(item, Wait):
+            time.sleep(item.ms / 1000)
+        else:
+            outcomes.append(client.execute(item, timeout=30).result.value)
+    return outcomes
 
 
 def test_record_then_replay_reproduces_the_boards_bytes(tmp_path: Path) -> None:
     config = load_config()
     served, recorded = tmp_path / "served.mcap", tmp_path / "recorded.mcap"
-    sequence = tmp_path / "run.seq"
-    sequence.write_text(SEQUENCE)
     link_a = tmp_path / "board-a"
     emu_a = Emulator(config, link=link_a).start()
     server = Proc(
@@ -156,9 +180,9 @@ def test_record_then_replay_reproduces_the_boards_bytes(tmp_path: Path) -> None:
         server.err.wait_for("STATE: ready", 30)
         recorder.out.wait_for("recording to", 30)
         peer.wait_for_server()
-        wait_for_recorders(peer, 2)
-        run = Proc("run", str(sequence))
-        assert run.wait(60) == 1  # the refused move
+        with Client() as client:
+            wait_for_recorders(client, [server.err, recorder.out])
+            assert run_sequence(client, SEQUENCE) == OUTCOMES
         goal_sent = time.monotonic()
         handle = peer.goal(preset="ready")
         assert wait_future(handle.get_result_async(), 20).status == STATUS_SUCCEEDED
@@ -166,7 +190,7 @@ def test_record_then_replay_reproduces_the_boards_bytes(tmp_path: Path) -> None:
         time.sleep(0.5)  # its last status reaches the recorders
         recorder.popen.send_signal(signal.SIGINT)
         assert recorder.wait(20) == 0
-        assert "recorded.mcap: " in recorder.out.wait_for("al5d record: ", 5)
+        assert "recorded.mcap: " in recorder.out.wait_for("recorded.mcap: ", 5)
         server.popen.send_signal(signal.SIGTERM)
         assert server.wait(30) == 0
     finally:

@@ -32,7 +32,7 @@ import sys
 import threading
 import time
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -67,6 +67,8 @@ _BOARD_WRITE_HEAD = struct.Struct("<iIiII")
 #: At most this many messages wait for the file: a disk slower than the messages for long
 #: loses the newest (counted), not the server's memory.
 BACKLOG = 100_000
+#: How often a recorder looks at how many writers each of its topics has matched.
+WRITERS_EVERY_S = 0.1
 _SEPARATOR = "=" * 80
 _PRIMITIVES = frozenset(
     [
@@ -332,10 +334,20 @@ class RecordFile:
 class Recorder:
     """Subscribes to `topics` on a node of its own in `context` and hands every message, as
     DDS delivered it, to `file`; one thread takes them (`al5d.ros.workarounds.Reader`, which
-    has each message's info: when it was sent and its sequence number)."""
+    has each message's info: when it was sent and its sequence number).
+
+    Like rosbag2's, a recorder misses what a writer published before the two had matched,
+    and discovery on a busy host can take seconds. So it says, through `say`, each time the
+    number of writers it has matched on a topic changes ("/al5d/result: 1 writer"): what
+    is recorded from then on."""
 
     def __init__(
-        self, context: Any, file: RecordFile, recorded: Iterable[Topic], namespace: str = "/"
+        self,
+        context: Any,
+        file: RecordFile,
+        recorded: Iterable[Topic],
+        namespace: str = "/",
+        say: Callable[[str], None] | None = None,
     ) -> None:
         from rclpy.node import Node
 
@@ -355,6 +367,23 @@ class Recorder:
             inputs.append((sub, self._handler(channel)))
         self.inputs = inputs
         self.reader = Reader(self.node, inputs, "al5d-record-reader", group=group)
+        self._say = say or (lambda text: log.info("recording %s: %s", file.path, text))
+        self._ended = threading.Event()
+        self._counter = threading.Thread(target=self._count_writers, name="al5d-record-writers")
+        self._counter.start()
+
+    def _count_writers(self) -> None:
+        """Says each topic's number of matched writers whenever it changes."""
+        said: dict[str, int] = {}
+        while not self._ended.wait(WRITERS_EVERY_S):
+            for sub, _ in self.inputs:
+                try:
+                    n = sub.get_publisher_count()
+                except Exception:  # the node is being destroyed
+                    return
+                if said.get(sub.topic_name, 0) != n:
+                    said[sub.topic_name] = n
+                    self._say(f"{sub.topic_name}: {n} writer{'' if n == 1 else 's'}")
 
     def _handler(self, channel: int) -> Any:
         put = self.file.put
@@ -369,6 +398,8 @@ class Recorder:
     def close(self) -> None:
         """End the reader, then record what DDS delivered meanwhile (a server's last results,
         acknowledged to this reader before its nodes closed)."""
+        self._ended.set()
+        self._counter.join()
         self.reader.close()
         for sub, handle in self.inputs:
             while True:
@@ -446,7 +477,13 @@ def record(path: str, namespace: str | None, duration: float | None) -> int:
         print(f"al5d record: {e}", file=sys.stderr)
         return exits.USAGE
     context = start_context()
-    recorder = Recorder(context, file, topics(names), names.node_namespace)
+    recorder = Recorder(
+        context,
+        file,
+        topics(names),
+        names.node_namespace,
+        say=lambda text: print(f"al5d record: {text}", flush=True),
+    )
     print(f"al5d record: recording to {path} (Ctrl-C ends it)", flush=True)
     try:
         done.wait(duration)
