@@ -406,6 +406,7 @@ def test_the_page_says_when_it_lost_the_server(rig: Rig) -> None:
     rig.server = serve(rig.link)
     wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
     wait_until(lambda: controls(page) == before, 10, "the controls back")
+    rig.peer.first_answer()  # the new server's services have answered this peer once
     stop.click()
     rig.state.wait_for("stopped", 10)
     assert rig.peer.trigger("release").success
