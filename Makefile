@@ -11,21 +11,28 @@ IFSRC  := interfaces/wheel_includes.cmake $(wildcard interfaces/al5d_interfaces/
 # controllers, tf2_msgs for /tf), one stamp each.
 STDMSGS := $(VENV)/.control_msgs $(VENV)/.tf2_msgs
 
-.PHONY: install chromium demo test bench soak lint clean
+.PHONY: runtime install chromium demo test bench soak lint clean
 
-install: $(STAMP) $(IFACES) $(STDMSGS) build/COLCON_IGNORE chromium
+# What the server, the client and the demo need (`make demo`); `make test` adds the rest.
+RUNTIME := $(VENV)/.installed-runtime
+runtime: $(RUNTIME) $(IFACES) $(STDMSGS) build/COLCON_IGNORE
+install: runtime $(STAMP) chromium
 
 # Every version is pinned: pyproject.toml pins what we use, constraints.txt
 # pins everything those bring along.
-$(STAMP): pyproject.toml constraints.txt
+$(RUNTIME): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(PIP) install --quiet --upgrade pip==26.3
+	$(PIP) install --quiet -c constraints.txt -e '.[ros,rosbuild]'
+	touch $@
+# The tests', the web view's, colcon's and the benchmarks' packages.
+$(STAMP): $(RUNTIME)
 	$(PIP) install --quiet -c constraints.txt -e '.[dev,ros,rosbuild,colcon,bench,web]'
 	touch $(STAMP)
 
 # The ROS messages and action, built with rosidl into the venv's prefix so that
 # no environment script is needed at run time; skipped when up to date.
-$(IFACES): $(STAMP) $(IFSRC)
+$(IFACES): $(RUNTIME) $(IFSRC)
 	rm -rf build/al5d_interfaces && mkdir -p build
 	. $(BIN)/activate && export AMENT_PREFIX_PATH="$$VIRTUAL_ENV" && \
 	  cmake -S interfaces/al5d_interfaces -B build/al5d_interfaces -DBUILD_TESTING=OFF \
@@ -50,7 +57,7 @@ $(VENV)/.control_msgs: interfaces/wheel_includes.cmake $(wildcard interfaces/con
                          interfaces/control_msgs/msg/* interfaces/control_msgs/action/*)
 $(VENV)/.tf2_msgs: CHECK := tf2_msgs.msg
 $(VENV)/.tf2_msgs: interfaces/wheel_includes.cmake $(wildcard interfaces/tf2_msgs/*.txt interfaces/tf2_msgs/*.xml interfaces/tf2_msgs/msg/*)
-$(STDMSGS): $(VENV)/.%: $(STAMP)
+$(STDMSGS): $(VENV)/.%: $(RUNTIME)
 	@if ! grep -qs "built by al5d" $(VENV)/share/$*/package.xml && \
 	    $(BIN)/python -c "import $(CHECK)" 2>/dev/null; then \
 	  echo "$*: already installed, not built"; touch $@; exit 0; fi; \
@@ -93,7 +100,8 @@ chromium:
 	  DEBIAN_FRONTEND=noninteractive $(APT_GET) install -y -qq \
 	    --no-install-recommends "chromium=$$version" >/dev/null; }
 
-demo: install
+# The demo needs no browser, no test tools and no colcon: it runs once the runtime is in.
+demo: runtime
 	$(BIN)/al5d demo
 
 # Two workers for most of the suite (it waits on servos, wires and DDS more than on the
