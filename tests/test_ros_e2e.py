@@ -56,24 +56,68 @@ def peer() -> Iterator[Peer]:
     node.close()
 
 
-@pytest.fixture
-def server(config: ArmConfig, tmp_path: Path, peer: Peer) -> Iterator[Server]:
-    link = tmp_path / "ssc32u"
-    emu = Emulator(config, link=link).start()
-    proc = Proc("serve", "--port", str(link), "--config", patient_config(), "--log-level", "DEBUG")
+class Served:
+    """One emulated board for the module, and the server on it: started when a test needs
+    it and none runs (the first test, or one after a test that shut it down)."""
+
+    def __init__(self, config: ArmConfig, link: Path) -> None:
+        self.config = config
+        self.link = link
+        self.emu = Emulator(config, link=link).start()
+        self.proc: Proc | None = None
+
+    def running(self, peer: Peer) -> Proc:
+        if self.proc is None or self.proc.popen.poll() is not None:
+            self.proc = Proc(
+                "serve", "--port", str(self.link), "--config", patient_config(), "--log-level",
+                "DEBUG",
+            )  # fmt: skip
+            self.proc.err.wait_for("STATE: ready", 30)
+            peer.wait_for_server()
+        return self.proc
+
+    def reset(self, peer: Peer) -> None:
+        """Back to where a fresh server leaves the arm: unlocked, parked, the board's record
+        empty (a release is refused, and changes nothing, where nothing is stopped)."""
+        peer.trigger("release")
+        ident = f"reset-{uuid.uuid4().hex}"
+        peer.send(ident, "park")
+        result = peer.result(ident)
+        assert result.outcome == "done", result.reason
+        self.emu.clear_records()
+
+    def shut_down(self, peer: Peer) -> None:
+        """The shutdown service ends the server cleanly (exit 0, the arm parked)."""
+        if self.proc is None or self.proc.popen.poll() is not None:
+            return
+        peer.trigger("shutdown")
+        code = self.proc.wait(30)
+        assert code == 0, f"exit {code}; the server said:\n" + "\n".join(
+            self.proc.err.drain(0)[-40:]
+        )
+
+
+@pytest.fixture(scope="module")
+def served(
+    config: ArmConfig, tmp_path_factory: pytest.TempPathFactory, peer: Peer
+) -> Iterator[Served]:
+    arm = Served(config, tmp_path_factory.mktemp("e2e") / "ssc32u")
     try:
-        proc.err.wait_for("STATE: ready", 30)
-        peer.wait_for_server()
-        yield Server(proc, emu, config)
-        if proc.popen.poll() is None:
-            peer.trigger("shutdown")
-            code = proc.wait(30)
-            assert code == 0, f"exit {code}; the server said:\n" + "\n".join(
-                proc.err.drain(0)[-40:]
-            )
+        yield arm
+        arm.shut_down(peer)
     finally:
-        proc.kill()
-        emu.close()
+        if arm.proc is not None:
+            arm.proc.kill()
+        arm.emu.close()
+
+
+@pytest.fixture
+def server(served: Served, peer: Peer) -> Server:
+    """The module's server, running, its arm reset between tests instead of restarted
+    (a restart and a shutdown's park cost seconds a test)."""
+    proc = served.running(peer)
+    served.reset(peer)
+    return Server(proc, served.emu, served.config)
 
 
 def test_every_instruction_through_the_topic(server: Server, peer: Peer) -> None:
