@@ -31,7 +31,7 @@ from spy import profiled, top_frames
 from stats import figure
 from std_srvs.srv import Trigger
 
-from al5d.app.qos import TOLERANCE_DEG
+from al5d.app.reach import TOLERANCE_DEG
 from al5d.arm.config import DEFAULT_CONFIG, ArmConfig
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Record

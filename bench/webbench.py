@@ -38,7 +38,7 @@ from stats import figure  # noqa: E402
 from webrig import StateWatch, WebProc, dismiss_notifications, launch, open_page  # noqa: E402
 
 from al5d.arm.config import load_config  # noqa: E402
-from al5d.ros.runtime import Names  # noqa: E402
+from al5d.ros.names import Names  # noqa: E402
 from al5d.ssc32u import protocol as p  # noqa: E402
 from al5d.ssc32u.emulator import Record  # noqa: E402
 

@@ -24,7 +24,9 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from al5d.ros.runtime import INSTRUCTION_TOPIC, Spinner, start_context
+from al5d.ros.dds import start_context
+from al5d.ros.executors import Spinner
+from al5d.ros.names import INSTRUCTION_TOPIC
 
 
 def main() -> int:

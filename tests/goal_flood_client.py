@@ -27,7 +27,9 @@ from rospeer import LockedActionClient
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 from al5d.arm.config import load_config
-from al5d.ros.runtime import Names, Spinner, start_context
+from al5d.ros.dds import start_context
+from al5d.ros.executors import Spinner
+from al5d.ros.names import Names
 
 ARM = ["base", "shoulder", "elbow", "wrist", "wrist_rotate"]
 

@@ -16,14 +16,10 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from al5d.ros.runtime import (
-    QOS_INSTRUCTIONS,
-    QOS_SERVICES,
-    QOS_STREAM,
-    Names,
-    Spinner,
-    start_context,
-)
+from al5d.ros.dds import start_context
+from al5d.ros.executors import Spinner
+from al5d.ros.names import Names
+from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SERVICES, QOS_STREAM
 
 
 @dataclass

@@ -13,7 +13,7 @@ from rospeer import Peer, wait_until
 from std_msgs.msg import String
 
 from al5d.arm.config import ArmConfig
-from al5d.ros.runtime import QOS_LATCHED
+from al5d.ros.qos import QOS_LATCHED
 from al5d.ssc32u.emulator import Emulator
 
 

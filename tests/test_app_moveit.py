@@ -16,7 +16,7 @@ from proc import Proc
 from al5d.app.moveit import arm_chain, moveit_files, write_moveit_config
 from al5d.arm.config import DEFAULT_CONFIG, load_config
 from al5d.model import forward
-from al5d.ros.runtime import Names
+from al5d.ros.names import Names
 
 SHIPPED = Path(__file__).resolve().parent.parent / "config" / "moveit"
 SHIPPED_CONFIG = SHIPPED / "config"

@@ -17,7 +17,7 @@ import yaml
 from armrig import Rig, executed_tips, group_pulses, settled_tip, tip, written
 
 from al5d.app.demo import DEMO_SEQUENCE
-from al5d.app.qos import QoSRecorder, format_table, label
+from al5d.app.reach import QoSRecorder, format_table, label
 from al5d.arm import cartesian
 from al5d.arm import instruction as ins
 from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, ConfigError, load_config, parse_config

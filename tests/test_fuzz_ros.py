@@ -43,7 +43,7 @@ from rospeer import Peer, wait_until
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d.arm.config import ArmConfig, load_config
-from al5d.ros.runtime import QOS_INSTRUCTIONS
+from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ssc32u import protocol as p
 
 CONFIG = load_config()

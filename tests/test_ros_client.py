@@ -26,7 +26,8 @@ from served import Served, served
 
 from al5d import exits
 from al5d.arm.config import ArmConfig
-from al5d.ros.runtime import QOS_STREAM, Names
+from al5d.ros.names import Names
+from al5d.ros.qos import QOS_STREAM
 from al5d.ssc32u import protocol as p
 
 README = Path(__file__).resolve().parents[1] / "README.md"

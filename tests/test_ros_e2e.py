@@ -28,7 +28,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d import exits
 from al5d.arm.config import ArmConfig, load_config
-from al5d.ros.runtime import QOS_INSTRUCTIONS, QOS_LATCHED
+from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_LATCHED
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
 

@@ -24,8 +24,8 @@ from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Instruction, Outcome
 from al5d.model import forward
 from al5d.model.transforms import Transform, Vec3, quat_from_rpy
+from al5d.ros.names import Names
 from al5d.ros.robot import QOS_TF_STATIC
-from al5d.ros.runtime import Names
 from al5d.ssc32u.emulator import Emulator
 from al5d.web.link import Link
 from al5d.web.scene import ArmScene

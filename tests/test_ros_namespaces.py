@@ -21,8 +21,9 @@ from al5d import exits
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
 from al5d.ros.client import Client
+from al5d.ros.names import Names
+from al5d.ros.qos import QOS_LATCHED
 from al5d.ros.robot import QOS_TF_STATIC
-from al5d.ros.runtime import QOS_LATCHED, Names
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
 

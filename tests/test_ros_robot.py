@@ -27,8 +27,8 @@ from tf2_msgs.msg import TFMessage
 from al5d.arm.config import ArmConfig
 from al5d.model import forward
 from al5d.model.transforms import Transform
+from al5d.ros.qos import QOS_LATCHED
 from al5d.ros.robot import QOS_TF_STATIC
-from al5d.ros.runtime import QOS_LATCHED
 from al5d.ssc32u.emulator import Emulator
 
 

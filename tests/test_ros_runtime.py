@@ -1,4 +1,4 @@
-"""The executor threads of the server (`al5d.ros.runtime.Spinner`), and the test peer's
+"""The executor threads of the server (`al5d.ros.executors.Spinner`), and the test peer's
 catch-up of messages its executor was not told of (`rospeer.CatchUp`)."""
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ from rospeer import CatchUp, Peer, wait_until
 from std_msgs.msg import String
 
 from al5d.priority import URGENT_NICE
-from al5d.ros.runtime import Spinner, start_context
+from al5d.ros.dds import start_context
+from al5d.ros.executors import Spinner
 
 
 @pytest.mark.parametrize("kind", ["events", "single"])
@@ -83,7 +84,7 @@ def test_the_catch_up_takes_what_waits_in_a_quiet_input_and_leaves_a_busy_one() 
 SERVER_PROFILE_CHECK = """
 import os
 os.environ.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
-from al5d.ros.runtime import dds_profile, start_context
+from al5d.ros.dds import dds_profile, start_context
 assert dds_profile(("/al5d/instruction", 1000)) is None
 from rclpy.node import Node
 Node("al5d_profile_check", context=start_context())

@@ -21,7 +21,7 @@ from served import Served, served
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d.arm.config import ArmConfig
-from al5d.ros.runtime import QOS_INSTRUCTIONS
+from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ssc32u import protocol as p
 
 JOINTS = ("base", "shoulder", "elbow", "wrist")

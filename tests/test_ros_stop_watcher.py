@@ -18,7 +18,9 @@ from rospeer import wait_until
 
 from al5d.arm.states import State
 from al5d.ros import safety
-from al5d.ros.runtime import QOS_INSTRUCTIONS, Names, start_context
+from al5d.ros.dds import start_context
+from al5d.ros.names import Names
+from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ros.safety import StopWatcher, first_word
 
 

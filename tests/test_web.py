@@ -44,7 +44,8 @@ from websockets.sync.client import connect
 
 from al5d.arm.config import ArmConfig, load_config
 from al5d.model.table import below
-from al5d.ros.runtime import QOS_INSTRUCTIONS, Names
+from al5d.ros.names import Names
+from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
 from al5d.web.page import LOOP_S, QUIET_S, Page

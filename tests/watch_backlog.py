@@ -17,7 +17,9 @@ import time
 from al5d_interfaces.msg import ArmInstruction
 from rclpy.node import Node
 
-from al5d.ros.runtime import QOS_INSTRUCTIONS, Names, dds_profile, qos_watch, start_context
+from al5d.ros.dds import dds_profile, start_context
+from al5d.ros.names import Names
+from al5d.ros.qos import QOS_INSTRUCTIONS, qos_watch
 
 
 def main() -> int:

@@ -20,7 +20,8 @@ from PIL import Image
 from proc import Proc
 from std_msgs.msg import String
 
-from al5d.ros.runtime import QOS_LATCHED, Names
+from al5d.ros.names import Names
+from al5d.ros.qos import QOS_LATCHED
 
 CHROMIUM = os.environ.get("AL5D_CHROMIUM", "/usr/bin/chromium")
 #: Software WebGL: a headless machine has no GPU.

@@ -1,9 +1,14 @@
-"""The applications: the command line, the server process, the demo and its QoS table.
+"""The applications: the command line, the server process, and the tools around them.
 
-- `cli`: `al5d serve | emulator | send | run | shell | doctor | demo | ...`.
-- `doctor`: `al5d doctor`, what stands between this computer and its SSC-32U.
+- `cli`: `al5d serve | emulator | send | run | shell | doctor | demo | urdf | moveit | web |
+  record | replay`, and the exit codes' table in `--help`.
 - `server`: `al5d serve`, the arm driver on a port or on the embedded emulator, with ROS.
-- `demo`: DE01 on the embedded emulator, with the DE02 table of `qos`.
+- `demo`: DE01 on the embedded emulator, with the DE02 table of `reach`.
+- `reach`: how soon each move reached its target (the demo's and the benchmarks' table).
+- `doctor`: `al5d doctor`, what stands between this computer and its SSC-32U.
+- `moveit`, `moveit_package`: `al5d moveit`, a MoveIt 2 config package for the arm.
+- `record`, `replay`: recordings in rosbag2's MCAP (`al5d record`, `serve --record`) and
+  `al5d replay`.
 
 The top layer: it may import every other part of al5d.
 """

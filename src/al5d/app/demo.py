@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from al5d.app.qos import QoSRecorder, format_table
+from al5d.app.reach import QoSRecorder, format_table
 from al5d.app.server import ServerOptions, arm
 from al5d.arm.config import load_config
 

@@ -41,7 +41,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import Writer
 
 if TYPE_CHECKING:
-    from al5d.ros.runtime import Names
+    from al5d.ros.names import Names
 
 log = logging.getLogger("al5d")
 
@@ -423,13 +423,13 @@ class ServerRecording:
 
     def tap(self, namespace: str | None) -> Any:
         """The board's writes, on `<ns>/al5d/board_writes`: the driver's `WriteTap`."""
-        from al5d.ros.runtime import Names
+        from al5d.ros.names import Names
 
         self.file.record_board(Names.of(namespace).private(BOARD_WRITES))
         return self.file.board_tap
 
     def follow(self, names: Names, instruction_depth: int) -> None:
-        from al5d.ros.runtime import start_context
+        from al5d.ros.dds import start_context
 
         try:
             self._context = start_context()
@@ -463,12 +463,12 @@ def record(path: str, namespace: str | None, duration: float | None) -> int:
     import signal
 
     from al5d import exits
-    from al5d.ros.runtime import start_context
+    from al5d.ros.dds import start_context
 
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, frame: done.set())
-    from al5d.ros.runtime import Names
+    from al5d.ros.names import Names
 
     names = Names.of(namespace)
     try:

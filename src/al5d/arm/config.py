@@ -189,7 +189,7 @@ class ServerSettings(_Frozen):
     queue_capacity: int = Field(default=1024, ge=1, le=1_000_000)
     #: Instruction messages that may wait in DDS for the server to take them (back-pressure
     #: beyond: the sender is slowed, nothing is lost); the stop watcher's reader holds as
-    #: many, newest kept (`al5d.ros.runtime.qos_watch`).
+    #: many, newest kept (`al5d.ros.qos.qos_watch`).
     instruction_backlog: int = Field(default=1000, ge=10, le=1_000_000)
     startup_speed_fraction: float = Field(default=0.5, gt=0, le=1)
     max_move_time_ms: int = Field(default=60_000, ge=1, le=65_535)

@@ -1,16 +1,23 @@
-"""ROS 2: the server's node, the mapping of messages to instructions, and the client.
+"""ROS 2: the server's nodes, the mapping of messages to instructions, and the client.
 
-- `runtime`: the public names (topics, services, the action), QoS profiles,
-  starting a ROS context, the executor and its spin thread.
-- `workarounds`: what rclpy does not give the server, and how it is had here.
+- `names`: every public name of an arm's server (nodes, topics, services, actions) under
+  its namespace; no rclpy.
+- `qos`: the QoS profiles of those topics and services, and why.
+- `dds`: starting DDS as the project needs it (the Fast DDS profile, the context).
+- `executors`: an executor in a thread of its own (`Spinner`), a publishing thread.
+- `workarounds`: what rclpy does not give the server, how it is had here, and when each
+  can go.
 - `convert`: ROS messages <-> instructions and outcomes (pure).
-- `node`: `ArmNode` (node `al5d`), `RobotNode` and `ActionsNode` on an `ArmDriver`;
-  `RosServer` runs them for `al5d serve`.
-- `safety`: the stop, release and shutdown services, and the stop watcher.
-- `robot`: the robot's description, joint states and transforms.
+- `params`: the node's ROS parameters, validated by the configuration's own code.
+- `node`: the nodes on an `ArmDriver`: `ArmNode` (`al5d`: the instruction topic, results,
+  state, parameters), `RobotNode` (`al5d_robot`) and `ActionsNode` (`al5d_actions`).
+- `safety`: the stop, release and shutdown services (node `al5d_safety`) and the stop
+  watcher, on a DDS participant of their own.
+- `robot`: the robot's description, joint states and transforms (`RobotNode`'s).
 - `actions`: the move action; `controllers`: MoveIt's FollowJointTrajectory and
-  GripperCommand.
-- `client`: `al5d send` and `al5d run`, a ROS client of the server.
+  GripperCommand (both `ActionsNode`'s).
+- `server`: `RosStart` and `RosServer`, which put the nodes together for `al5d serve`.
+- `client`: `Client`, `al5d send`, `al5d run` and `al5d shell`, a ROS client of the server.
 
 This layer imports `al5d.arm` (never the board's emulator) and rclpy.
 """

@@ -14,7 +14,7 @@ from dataclasses import replace
 from typing import Any
 
 from al5d_interfaces.action import Move
-from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
+from rclpy.action.server import CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.node import Node
 from rclpy.task import Future as RosFuture
 
@@ -24,28 +24,13 @@ from al5d.arm.validate import Ticket
 from al5d.clock import wall_ns
 from al5d.model import ArmModel
 from al5d.ros.convert import move_from_fields, tool_from_fields
-from al5d.ros.runtime import QOS_SERVICES
+from al5d.ros.qos import QOS_SERVICES
+from al5d.ros.workarounds import IdentifiedActionServer
 
 #: How long a finished goal's result is kept for its client to fetch: rclpy keeps them
 #: 900 s by default and republishes every one kept on each status change, so that each
 #: goal cost more than the one before (2 ms with none kept, 10 ms with 3,000).
 RESULT_KEPT_S = 10.0
-
-
-class IdentifiedActionServer(ActionServer):
-    """An ActionServer whose goal callback can learn the goal's UUID (`goal_id_now`).
-
-    rclpy hands the goal callback the goal alone; this records the UUID just before
-    (rclpy 7.1 calls the callback within `_execute_goal_request` before its first
-    await, in the executor's one thread, so the two cannot be told apart).
-    """
-
-    goal_id_now = ""
-
-    async def _execute_goal_request(self, request_header_and_message: Any) -> None:
-        _, goal_request = request_header_and_message
-        self.goal_id_now = bytes(goal_request.goal_id.uuid).hex()
-        await super()._execute_goal_request(request_header_and_message)
 
 
 def action_server(

@@ -51,15 +51,10 @@ from al5d.arm.instruction import (
 )
 from al5d.clock import Deadline
 from al5d.ros.convert import outcome_from_message, to_message
-from al5d.ros.runtime import (
-    NODE,
-    QOS_INSTRUCTIONS,
-    QOS_SERVICES,
-    QOS_STREAM,
-    Names,
-    Spinner,
-    start_context,
-)
+from al5d.ros.dds import start_context
+from al5d.ros.executors import Spinner
+from al5d.ros.names import NODE, Names
+from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SERVICES, QOS_STREAM
 
 log = logging.getLogger("al5d")
 

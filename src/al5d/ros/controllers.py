@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from control_msgs.action import FollowJointTrajectory, GripperCommand
-from rclpy.action.server import GoalEvent, ServerGoalHandle
+from rclpy.action.server import ServerGoalHandle
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectoryPoint
 
@@ -46,6 +46,7 @@ from al5d.clock import now
 from al5d.model import ArmModel, ModelError
 from al5d.ros.actions import GoalRunner, action_server
 from al5d.ros.convert import trajectory_from_message
+from al5d.ros.workarounds import preempted
 
 log = logging.getLogger("al5d")
 FJT = FollowJointTrajectory.Result
@@ -76,22 +77,6 @@ def tolerances(given: Sequence[Any], joints: Sequence[str]) -> list[Tolerance] |
             return f"{t.name}: tolerance {t.position} is not a number"
         out.append(Tolerance(t.name, t.position if t.position > 0 else None))
     return out
-
-
-def preempted(handle: ServerGoalHandle) -> None:
-    """End a goal that a newer one preempted as CANCELED, as the joint_trajectory_controller
-    does (MoveIt then reports it preempted, not failed).
-
-    rclpy marks a goal CANCELED only from CANCELING, where a client's cancel request puts
-    it; no public call does that for a preemption, so this takes the step rclpy's own
-    cancel handling takes (`ActionServer._execute_cancel_request`)."""
-    try:
-        if not handle.is_cancel_requested:
-            handle._update_state(GoalEvent.CANCEL_GOAL)
-        handle.canceled()
-    except Exception:  # another rclpy: the goal ends all the same, ABORTED
-        log.warning("a preempted goal could not be marked CANCELED; it is ABORTED")
-        handle.abort()
 
 
 def inactive(driver: ArmDriver) -> str:

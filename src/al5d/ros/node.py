@@ -55,20 +55,11 @@ from al5d.ros.convert import (
     trajectory_from_message,
     trajectory_id,
 )
+from al5d.ros.executors import PublishThread
+from al5d.ros.names import ACTIONS_NODE, NODE, ROBOT_NODE, Names, pinned
 from al5d.ros.params import Settings
+from al5d.ros.qos import QOS_COMMANDS, QOS_INSTRUCTIONS, QOS_LATCHED, QOS_STREAM
 from al5d.ros.robot import RobotPublisher
-from al5d.ros.runtime import (
-    ACTIONS_NODE,
-    NODE,
-    QOS_COMMANDS,
-    QOS_INSTRUCTIONS,
-    QOS_LATCHED,
-    QOS_STREAM,
-    ROBOT_NODE,
-    Names,
-    PublishThread,
-    pinned,
-)
 from al5d.ros.workarounds import Reader, ReaderOnly, taken_by_reader
 
 log = logging.getLogger("al5d")

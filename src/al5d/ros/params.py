@@ -19,7 +19,7 @@ with it as the reason).
 
 Fast DDS reads its profile once, when the process's first node is made, and the profile
 sizes the instruction topic's reader by its name (namespace) and the config's
-`server.instruction_backlog` (`runtime.dds_profile`). So those two, and the config file
+`server.instruction_backlog` (`dds.dds_profile`). So those two, and the config file
 that may hold them, are read from the command line before any node exists
 (`early_arguments`, the forms rcl documents), and checked against what rcl makes of the
 same arguments once the node `al5d` exists: a form read otherwise is an error, never a

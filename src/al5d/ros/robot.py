@@ -32,7 +32,8 @@ from tf2_msgs.msg import TFMessage
 from al5d.arm.config import ArmConfig
 from al5d.model import build_chain, joint_transforms, tool_pose, urdf_from_chain
 from al5d.model.transforms import Transform
-from al5d.ros.runtime import QOS_LATCHED, Names
+from al5d.ros.names import Names
+from al5d.ros.qos import QOS_LATCHED
 
 #: /tf_static: every transform kept for late joiners (tf2's own profile: depth 1 would
 #: do for one message, but other static broadcasters share the topic).

@@ -47,16 +47,10 @@ from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind
 from al5d.priority import built_urgently
 from al5d.ros.convert import from_message, sent_ns, stop_key
-from al5d.ros.runtime import (
-    QOS_SERVICES,
-    SAFETY_NODE,
-    WATCHER_NODE,
-    Names,
-    Spinner,
-    pinned,
-    qos_watch,
-    start_context,
-)
+from al5d.ros.dds import start_context
+from al5d.ros.executors import Spinner
+from al5d.ros.names import SAFETY_NODE, WATCHER_NODE, Names, pinned
+from al5d.ros.qos import QOS_SERVICES, qos_watch
 from al5d.ros.workarounds import Reader, stamped_service, taken_by_reader
 
 log = logging.getLogger("al5d")

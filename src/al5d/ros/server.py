@@ -14,9 +14,11 @@ import rclpy
 from al5d.arm.config import ArmConfig, ConfigError
 from al5d.arm.driver import ArmDriver
 from al5d.ros import params
+from al5d.ros.dds import dds_profile, start_context
+from al5d.ros.executors import Spinner
+from al5d.ros.names import NODE, Names
 from al5d.ros.node import ActionsNode, ArmNode, RobotNode
 from al5d.ros.params import Flags, Settings
-from al5d.ros.runtime import NODE, Names, Spinner, dds_profile, start_context
 from al5d.ros.safety import SafetyPath
 from al5d.ros.workarounds import parameter_overrides
 

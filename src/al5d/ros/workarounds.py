@@ -12,6 +12,7 @@ import threading
 from collections.abc import Callable, Coroutine, Iterator
 from typing import Any
 
+from rclpy.action.server import ActionServer, GoalEvent, ServerGoalHandle
 from rclpy.callback_groups import CallbackGroup
 from rclpy.exceptions import InvalidHandle
 from rclpy.executors import SingleThreadedExecutor
@@ -194,7 +195,7 @@ _RANGE = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 def discovery_on_our_transports(local: bool) -> Iterator[None]:
     """While a context starts (`rclpy.init`): with `local`, rmw_fastrtps is told the SUBNET
     discovery range, so that the transports of our Fast DDS profile, every socket on the
-    loopback interface (`runtime.dds_profile`), are the only ones.
+    loopback interface (`dds.dds_profile`), are the only ones.
 
     With the LOCALHOST range, rmw_fastrtps (Jazzy) adds a UDP transport of its own, whose
     sockets are bound to every interface (`ss -uanp`: 0.0.0.0 and the host's address,
@@ -216,3 +217,41 @@ def discovery_on_our_transports(local: bool) -> Iterator[None]:
             del os.environ[_RANGE]
         else:
             os.environ[_RANGE] = before
+
+
+class IdentifiedActionServer(ActionServer):
+    """An ActionServer whose goal callback can learn the goal's UUID (`goal_id_now`).
+
+    rclpy 7.1 hands the goal callback the goal alone; this records the UUID just before
+    (it calls the callback within `_execute_goal_request` before its first await, in
+    the executor's one thread, so the two cannot be told apart). It can go when rclpy's
+    goal callback is given the goal's id or handle; until then it depends on
+    `_execute_goal_request`'s shape (checked by tests/test_ros_e2e.py: a refused goal's
+    reason comes under its UUID).
+    """
+
+    goal_id_now = ""
+
+    async def _execute_goal_request(self, request_header_and_message: Any) -> None:
+        _, goal_request = request_header_and_message
+        self.goal_id_now = bytes(goal_request.goal_id.uuid).hex()
+        await super()._execute_goal_request(request_header_and_message)
+
+
+def preempted(handle: ServerGoalHandle) -> None:
+    """End a goal that a newer one preempted as CANCELED, as the joint_trajectory_controller
+    does (MoveIt then reports it preempted, not failed).
+
+    rclpy marks a goal CANCELED only from CANCELING, where a client's cancel request puts
+    it; no public call does that for a preemption, so this takes the step rclpy's own
+    cancel handling takes (`ActionServer._execute_cancel_request`). It can go when rclpy's
+    goal handle can end a goal the server itself cancels (rclcpp's is asked for in
+    ros2/rclcpp#1104, a preempt); checked by tests/test_ros_controllers.py (a preempted
+    goal ends CANCELED)."""
+    try:
+        if not handle.is_cancel_requested:
+            handle._update_state(GoalEvent.CANCEL_GOAL)
+        handle.canceled()
+    except Exception:  # another rclpy: the goal ends all the same, ABORTED
+        log.warning("a preempted goal could not be marked CANCELED; it is ABORTED")
+        handle.abort()

@@ -1,7 +1,7 @@
 """The live web view and control panel (`al5d web`): a ROS 2 client that serves one page.
 
 Like RViz, it talks to the server only over ROS (the public names of
-`al5d.ros.runtime.Names`), in its own process, so that a browser never slows
+`al5d.ros.names.Names`), in its own process, so that a browser never slows
 the arm. The page is built with viser: the arm in 3D from /robot_description,
 moving with /joint_states, the target of the running move as a ghost, sliders,
 a draggable target for the tool, presets, STOP, and what happened.

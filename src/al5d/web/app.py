@@ -42,7 +42,7 @@ class WebView:
     def __init__(self, options: WebOptions, config: ArmConfig | None = None) -> None:
         import viser
 
-        from al5d.ros.runtime import Names
+        from al5d.ros.names import Names
         from al5d.web import guard
         from al5d.web.link import Link
         from al5d.web.page import Page

@@ -39,16 +39,11 @@ from al5d.ros.convert import (
     to_message,
     trajectory_from_message,
 )
+from al5d.ros.dds import start_context
+from al5d.ros.executors import Spinner
+from al5d.ros.names import Names
+from al5d.ros.qos import QOS_COMMANDS, QOS_INSTRUCTIONS, QOS_LATCHED, QOS_SERVICES
 from al5d.ros.robot import QOS_TF_STATIC
-from al5d.ros.runtime import (
-    QOS_COMMANDS,
-    QOS_INSTRUCTIONS,
-    QOS_LATCHED,
-    QOS_SERVICES,
-    Names,
-    Spinner,
-    start_context,
-)
 
 #: Samples that may be dropped: the latest is all the page wants.
 QOS_LATEST = QoSProfile(

@@ -1,0 +1,163 @@
+"""Starting DDS as this project needs it: the environment's defaults, the Fast DDS profile
+(loopback only unless the user opens it, a deeper shared-memory port, the instruction
+reader's bound) and the ROS context (a DDS participant)."""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import os
+import tempfile
+from collections.abc import Sequence
+
+import rclpy
+from rclpy.context import Context
+from rclpy.signals import SignalHandlerOptions
+
+from al5d.ros.workarounds import discovery_on_our_transports
+
+
+def ros_environment() -> None:
+    """Defaults that must be set before rclpy starts: local discovery, a writable log dir."""
+    # Nobody on the network drives the arm unless the user opens it on purpose.
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    if not any(os.path.isdir(os.environ.get(v, "")) for v in ("ROS_LOG_DIR", "ROS_HOME", "HOME")):
+        os.environ["ROS_LOG_DIR"] = tempfile.mkdtemp(prefix="al5d-ros-log-")
+
+
+#: Fast DDS reads its XML profiles from this file, named at its start.
+PROFILES_VAR = "FASTRTPS_DEFAULT_PROFILES_FILE"
+#: The profiles file this project wrote (a child process may write its own over it); any
+#: other file in PROFILES_VAR is the user's, and kept.
+OURS_VAR = "AL5D_DDS_PROFILES_FILE"
+#: Messages a process's shared-memory port holds before Fast DDS drops what comes next (its
+#: default is 512: about 50 ms of a 10,000/s flood, or half of the outcomes one stop gives
+#: a full queue).
+SHM_PORT_QUEUE = 8192
+_PROFILES = """<?xml version="1.0" encoding="UTF-8"?>
+<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <profiles>
+    <!-- al5d: Fast DDS's own transports (shared memory, UDPv4){udp_note}. -->
+    <transport_descriptors>
+      <transport_descriptor>
+        <transport_id>al5d_shm</transport_id>
+        <type>SHM</type>{port_queue}
+      </transport_descriptor>
+      <transport_descriptor>
+        <transport_id>al5d_udp</transport_id>
+        <type>UDPv4</type>{loopback}
+      </transport_descriptor>
+    </transport_descriptors>
+    <participant profile_name="al5d" is_default_profile="true">
+      <rtps>
+        <userTransports>
+          <transport_id>al5d_shm</transport_id>
+          <transport_id>al5d_udp</transport_id>
+        </userTransports>
+        <useBuiltinTransports>false</useBuiltinTransports>
+      </rtps>
+    </participant>{reader}
+  </profiles>
+</dds>
+"""
+_LOOPBACK = """
+        <interfaceWhiteList>
+          <address>127.0.0.1</address>
+        </interfaceWhiteList>"""
+_PORT_QUEUE = """
+        <port_queue_capacity>{n}</port_queue_capacity>"""
+_READER = """
+    <!-- al5d serve: at most {limit} instructions wait in DDS for the server to take them. -->
+    <data_reader profile_name="{topic}">
+      <topic>
+        <resourceLimitsQos>
+          <max_samples>{limit}</max_samples>
+          <max_instances>1</max_instances>
+          <max_samples_per_instance>{limit}</max_samples_per_instance>
+          <allocated_samples>{allocated}</allocated_samples>
+        </resourceLimitsQos>
+      </topic>
+    </data_reader>"""
+
+
+def local_only() -> bool:
+    """Is DDS kept to this machine? Yes unless the user opened discovery to the network
+    (`ROS_AUTOMATIC_DISCOVERY_RANGE` SUBNET or SYSTEM_DEFAULT; README, "Reaching the node
+    from another machine")."""
+    ros_environment()
+    return os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"].strip().upper() in ("LOCALHOST", "OFF")
+
+
+def dds_profile(instructions: tuple[str, int] | None = None) -> str | None:
+    """Write this process's Fast DDS profile and name it in FASTRTPS_DEFAULT_PROFILES_FILE;
+    the user's own file, if one is named there (then it applies, not ours).
+
+    Every process of the project (the server, the clients, the web view) binds its UDP
+    sockets to the loopback interface unless the user opened DDS to the network
+    (`local_only`): discovery kept to this machine is not enough, since a participant
+    still listens on every interface for anyone who knows its port. Every process's
+    shared-memory port is deeper than Fast DDS's default (below). The server's
+    (`instructions`: the topic and its backlog) also bounds that topic's reader:
+
+    With KEEP_ALL and no bound, a flood faster than the server piles up in its reader,
+    and a stop sent on the topic waits behind the pile (seconds). With the bound, the
+    reader refuses what it cannot hold, and reliable delivery holds it at the sender,
+    slowing it.
+
+    The port: under a 10,000/s flood Fast DDS's default of 512 messages overflowed now
+    and then. What it dropped was lost to the stop watcher (best effort), and a stop
+    request, a stop on the topic or an outcome came 1 to 3 s late, when DDS repaired
+    the loss (6 stops in 4 floods of 30 s, and once an outcome lost for good, its
+    reader 10,000 results behind by then); with 8192, none in 5 floods. A client's port
+    overflows as well: a stop that cancels a full queue sends 1,025 outcomes at once,
+    and three servers flooded beside busy loops lost 19 to 12,839 outcomes a flood on
+    their way to their readers, whose ports held 512.
+
+    Must run before the process's first ROS context starts (Fast DDS reads the file
+    once).
+    """
+    named = os.environ.get(PROFILES_VAR)
+    if named and named != os.environ.get(OURS_VAR):
+        return named
+    local = local_only()
+    reader = ""
+    if instructions is not None:
+        topic, limit = instructions
+        reader = _READER.format(topic=topic, limit=limit, allocated=min(limit, 100))
+    profile = _PROFILES.format(
+        udp_note=", UDP on the loopback interface only" if local else "",
+        port_queue=_PORT_QUEUE.format(n=SHM_PORT_QUEUE),
+        loopback=_LOOPBACK if local else "",
+        reader=reader,
+    )
+    fd, path = tempfile.mkstemp(prefix="al5d-dds-", suffix=".xml")
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(profile)
+    # Fast DDS has read it by the time the process ends; a process this one starts that
+    # uses DDS writes a file of its own (above: ours is not the user's).
+    atexit.register(_remove, path)
+    os.environ[PROFILES_VAR] = os.environ[OURS_VAR] = path
+    return None
+
+
+def _remove(path: str) -> None:
+    with contextlib.suppress(OSError):
+        os.unlink(path)
+
+
+def start_context(args: Sequence[str] | None = None) -> Context:
+    """A ROS context (a DDS participant); the process's DDS profile first, if none is named.
+    `args`: a command line whose `--ros-args` (remaps, parameters) apply to its nodes."""
+    ros_environment()
+    if not os.environ.get(PROFILES_VAR):
+        dds_profile()
+    context = Context()
+    ours = os.environ.get(PROFILES_VAR) == os.environ.get(OURS_VAR)
+    with discovery_on_our_transports(ours and local_only()):
+        # Our own SIGINT/SIGTERM handling parks the arm first; rclpy's would just stop.
+        rclpy.init(
+            args=list(args) if args else None,
+            context=context,
+            signal_handler_options=SignalHandlerOptions.NO,
+        )
+    return context

@@ -1,0 +1,123 @@
+"""The threads that run rclpy: an executor spinning in a thread of its own (`Spinner`), and
+a publisher's thread (`PublishThread`)."""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from collections.abc import Callable
+from typing import Any, Generic, TypeVar
+
+from rclpy.context import Context
+from rclpy.executors import Executor, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+
+from al5d.priority import make_urgent
+from al5d.ros.workarounds import StampedExecutor
+
+log = logging.getLogger("al5d")
+
+
+def make_executor(context: Context, kind: str | None = None) -> Executor:
+    """rclpy's C++ EventsExecutor, or with `kind="single"` its Python SingleThreadedExecutor
+    (which tells a stamped service when its request was sent: `workarounds.StampedExecutor`).
+
+    The events executor takes each message without rebuilding a wait set of every
+    entity in Python, which is what limits the single-threaded one (see the README's
+    Performance section for the figures of both). But in rclpy 7.1 it runs a task that
+    awaits a future again and again until the future is done (ros2/rclpy#1405, fixed
+    later by #1469): a coroutine that waits for the arm would hold a core. The actions,
+    whose execute callbacks are such coroutines, have the Python executor.
+    """
+    if kind == "single":
+        return StampedExecutor(context=context)
+    from rclpy.experimental.events_executor import EventsExecutor
+
+    return EventsExecutor(context=context)
+
+
+T = TypeVar("T")
+
+
+class PublishThread(Generic[T]):
+    """Publishes from a thread of its own: whoever hands an item over (the executor taking
+    instructions, the stop) never waits for DDS, and a burst of a thousand is one hand-over."""
+
+    def __init__(self, publisher: Publisher, convert: Callable[[T], Any], name: str) -> None:
+        self._publisher = publisher
+        self._convert = convert
+        self._items: queue.SimpleQueue[T | None] = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def put(self, item: T) -> None:
+        self._items.put(item)
+
+    def _run(self) -> None:
+        while (item := self._items.get()) is not None:
+            self._publisher.publish(self._convert(item))
+
+    def close(self, timeout: float = 5.0) -> None:
+        """Publish what was handed over, then end."""
+        self._items.put(None)
+        self._thread.join(timeout)
+
+
+class Spinner:
+    """An executor spinning in its own thread, stopped in the order rclpy needs.
+
+    With `owns_context`, closing it also ends the ROS context (a process with one node);
+    `more` nodes share the executor and its thread. An `urgent` spinner (the safety
+    services') runs at the stop path's priority (`al5d.priority`).
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        context: Context,
+        owns_context: bool = True,
+        more: list[Node] | None = None,
+        kind: str | None = None,
+        urgent: bool = False,
+    ) -> None:
+        self.node = node
+        self.urgent = urgent
+        self.context = context
+        self.owns_context = owns_context
+        self.more = list(more or [])
+        self.executor = make_executor(context, kind)
+        # Python's executor rebuilds its wait set at every turn: an idle one should turn
+        # seldom (`close` wakes it). The events executor turns only on events anyway.
+        self.turn_s = 1.0 if isinstance(self.executor, SingleThreadedExecutor) else 0.1
+        for each in (node, *self.more):
+            self.executor.add_node(each)
+        self._running = True
+        self._thread = threading.Thread(
+            target=self._spin, name=f"{node.get_name()}-spin", daemon=True
+        )
+        self._thread.start()
+
+    def _spin(self) -> None:
+        if self.urgent:
+            make_urgent(self._thread.name)
+        # A callback that raises must not end the thread: the safety node's serves the stop.
+        while self._running and self.context.ok():
+            try:
+                self.executor.spin_once(timeout_sec=self.turn_s)
+            except Exception:
+                if not (self._running and self.context.ok()):
+                    return
+                log.exception("%s: a callback failed; its executor goes on", self._thread.name)
+
+    def close(self) -> None:
+        # Join the spin thread before shutting the executor down, or the process can abort.
+        self._running = False
+        self.executor.wake()
+        self._thread.join(5)
+        self.executor.shutdown(timeout_sec=1)
+        for each in (self.node, *self.more):
+            each.destroy_node()
+        if self.owns_context:
+            self.context.try_shutdown()

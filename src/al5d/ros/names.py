@@ -1,0 +1,121 @@
+"""The public names of one arm's server (its nodes, topics, services and actions, under
+its namespace): the one place that spells them, for the server, the clients and the web
+view alike. No rclpy here."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from al5d.arm.config import namespace_problem
+from al5d.arm.instruction import Kind
+
+NODE = "al5d"
+SAFETY_NODE = "al5d_safety"
+WATCHER_NODE = "al5d_stop_watcher"
+ACTIONS_NODE = "al5d_actions"
+ROBOT_NODE = "al5d_robot"
+
+
+@dataclass(frozen=True)
+class Names:
+    """Every public name of one arm's server, under its namespace (ROS conventions).
+
+    With no namespace the names are the design's (`/al5d/instruction`, `/joint_states`,
+    `/arm_controller/follow_joint_trajectory`); with namespace `left` the node-private
+    names become `/left/al5d/...`, the robot's and the controllers' `/left/...`, and the
+    TF frames `left/base_link`... The one place that spells them, for the server, the
+    clients and the web view alike.
+    """
+
+    namespace: str = ""
+
+    @classmethod
+    def of(cls, namespace: str | None) -> Names:
+        """`left`, `/left` or `/lab/left` (None or "" or "/": none); refused with the reason."""
+        problem = namespace_problem(namespace or "")
+        if problem:
+            raise ValueError(problem)
+        ns = (namespace or "").strip("/")
+        return cls(f"/{ns}" if ns else "")
+
+    @property
+    def node_namespace(self) -> str:
+        return self.namespace or "/"
+
+    def private(self, name: str) -> str:
+        return f"{self.namespace}/{NODE}/{name}"
+
+    def shared(self, name: str) -> str:
+        return f"{self.namespace}/{name}"
+
+    @property
+    def frame_prefix(self) -> str:
+        return f"{self.namespace.lstrip('/')}/" if self.namespace else ""
+
+    @property
+    def instruction(self) -> str:
+        return self.private("instruction")
+
+    @property
+    def result(self) -> str:
+        return self.private("result")
+
+    @property
+    def state(self) -> str:
+        return self.private("state")
+
+    @property
+    def move(self) -> str:
+        return self.private("move")
+
+    @property
+    def trajectory(self) -> str:
+        return self.private("joint_trajectory")
+
+    @property
+    def tool_pose(self) -> str:
+        return self.private("tool_pose")
+
+    @property
+    def joint_states(self) -> str:
+        return self.shared("joint_states")
+
+    @property
+    def joint_commands(self) -> str:
+        """Set-points (sensor_msgs/JointState, the URDF's names and values), as ros2_control's
+        topic-based hardware (`JointStateTopicSystem`) publishes its commands."""
+        return self.shared("joint_commands")
+
+    @property
+    def robot_description(self) -> str:
+        return self.shared("robot_description")
+
+    @property
+    def follow_joint_trajectory(self) -> str:
+        return self.shared("arm_controller/follow_joint_trajectory")
+
+    @property
+    def gripper_command(self) -> str:
+        return self.shared("gripper_controller/gripper_cmd")
+
+    @property
+    def services(self) -> dict[str, Kind]:
+        return {self.private(k.value): k for k in (Kind.STOP, Kind.RELEASE, Kind.SHUTDOWN)}
+
+
+#: The names with no namespace, as the design gives them.
+DEFAULT_NAMES = Names()
+INSTRUCTION_TOPIC = DEFAULT_NAMES.instruction
+RESULT_TOPIC = DEFAULT_NAMES.result
+STATE_TOPIC = DEFAULT_NAMES.state
+MOVE_ACTION = DEFAULT_NAMES.move
+TRAJECTORY_TOPIC = DEFAULT_NAMES.trajectory
+JOINT_STATES_TOPIC = "joint_states"
+SERVICES = DEFAULT_NAMES.services
+
+
+def pinned(name: str) -> list[str]:
+    """A node's own arguments that keep its name whatever the command line's `-r __node:=`
+    (which renames every node of a context; a node's own rules come first): the server's
+    nodes but `al5d` keep theirs, so that each has one name, as the design gives them."""
+    return ["--ros-args", "-r", f"__node:={name}"]

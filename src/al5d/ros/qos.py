@@ -1,0 +1,63 @@
+"""The QoS profiles of the arm's topics and services, and why each is what it is."""
+
+from __future__ import annotations
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+#: Instructions: reliable, and kept until taken (KEEP_ALL), so that a flood faster than
+#: the server slows its sender instead of overwriting what it sent (back-pressure).
+QOS_INSTRUCTIONS = QoSProfile(
+    history=HistoryPolicy.KEEP_ALL,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+
+def qos_watch(backlog: int) -> QoSProfile:
+    """The stop watcher's reader of the instruction topic: it never slows a sender (best
+    effort) and never waits: a flood it cannot keep up with overwrites the oldest.
+
+    As deep as the server's instruction backlog, and no deeper: Fast DDS gives the
+    backlog's bound (`dds_profile`) to every reader of the topic in the process, the
+    watcher's too, and a KEEP_LAST reader deeper than its bound, once full, refuses the
+    newest message instead of dropping the oldest (measured: 5,000 sent to a reader 10,000
+    deep bounded at 1,000 kept the first 1,000): a stop that came last would be lost."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=backlog,
+        reliability=ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
+#: Results: reliable and deep; a reader more than 10,000 results behind loses the oldest,
+#: and never slows the server (KEEP_ALL here would let a stuck reader block it).
+QOS_STREAM = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10_000,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+#: The safety services' requests and answers: deep enough for a burst of callers.
+QOS_SERVICES = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1000,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+#: The stream of set-points (`joint_commands`): the newest is all that matters (ros2_control's
+#: hardware writer keeps one too, and so does the web view's jog).
+QOS_COMMANDS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+#: The state: latched, so that a late joiner gets the current one.
+QOS_LATCHED = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
