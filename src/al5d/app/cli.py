@@ -186,6 +186,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         timeout=args.timeout,
         namespace=args.namespace,
         verbose=args.verbose,
+        poses=args.poses,
     )
 
 
@@ -193,7 +194,11 @@ def _cmd_shell(args: argparse.Namespace) -> int:
     from al5d.ros.client import shell
 
     return shell(
-        wait_s=args.wait, timeout=args.timeout, namespace=args.namespace, verbose=args.verbose
+        wait_s=args.wait,
+        timeout=args.timeout,
+        namespace=args.namespace,
+        verbose=args.verbose,
+        poses=args.poses,
     )
 
 
@@ -319,6 +324,12 @@ def build_parser() -> argparse.ArgumentParser:
         elif name == "run":
             cmd.add_argument(
                 "file", help="one instruction a line; wait <ms>; # comments; & = go on"
+            )
+        if name in ("run", "shell"):
+            where = "beside the sequence file" if name == "run" else "in this directory"
+            cmd.add_argument(
+                "--poses",
+                help=f"the poses file that `pose <name>` lines name; default: poses.yaml {where}",
             )
         cmd.add_argument("--wait", type=float, default=10.0, help="seconds to find the server")
         cmd.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
