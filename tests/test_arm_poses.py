@@ -22,10 +22,11 @@ from al5d.arm.poses import (
     beside,
     load_poses,
     parse_poses,
-    read_sequence,
+    parse_text,
     save_poses,
     save_sequence,
     sequence_names,
+    used_by,
 )
 from al5d.model import JOINTS
 
@@ -154,17 +155,19 @@ def test_a_sequence_with_poses_reads_the_same_from_either_side(tmp_path: Path) -
     assert saved == tmp_path / "pick.seq"
     by_cli = parse_sequence(saved.read_bytes(), str(saved), poses=load_poses(beside(saved)))
     assert [type(item) for item, _ in by_cli] == [Instruction, Wait, *[Instruction] * 3]
-    text, by_web = read_sequence(saved, book)
-    assert text == typed + "\n"
+    assert saved.read_text() == typed + "\n"
+    by_web = parse_text(saved.read_text(), book)
     assert [(str(i), bg) for i, bg in by_web] == [(str(i), bg) for i, bg in by_cli]
     by_hand = tmp_path / "by_hand.seq"
     by_hand.write_text("# written in an editor\npose cup time=500   # there\n\npose home\n")
-    text, by_web = read_sequence(by_hand, book)
-    assert text == by_hand.read_text()
+    by_web = parse_text(by_hand.read_text(), book)
     by_cli = parse_sequence(by_hand.read_bytes(), str(by_hand), poses=book)
     assert [(str(i), bg) for i, bg in by_web] == [(str(i), bg) for i, bg in by_cli]
     home = "move " + " ".join(f"{j}={v:g}" for j, v in HOME.items())
     assert [str(i) for i, _ in by_cli] == ["move base=30 time=500", home]
     assert sequence_names(tmp_path) == ("by_hand", "pick")
+    assert used_by(tmp_path, "cup") == ("by_hand", "pick")
+    assert used_by(tmp_path, "home") == ("by_hand", "pick")
+    assert used_by(tmp_path, "hom") == ()
     with pytest.raises(PosesError, match=r"'\.\./x' is not a name"):
         save_sequence(tmp_path, "../x", typed)

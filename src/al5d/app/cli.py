@@ -134,7 +134,7 @@ def _cmd_web(args: argparse.Namespace) -> int:
     from al5d.web.app import WebOptions, serve_web
 
     setup_logging(args.log_level)
-    options = WebOptions(args.port, args.host, args.namespace, args.config)
+    options = WebOptions(args.port, args.host, args.namespace, args.config, args.poses)
     return serve_web(options)
 
 
@@ -393,6 +393,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     web.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: config")
     web.add_argument("--config", help="arm configuration file; default: the shipped one")
+    web.add_argument(
+        "--poses",
+        help="the Teach tab's poses file (its sequences beside it); default: poses.yaml beside "
+        "--config, else in this directory",
+    )
     web.add_argument("--log-level", **LOG_LEVEL)
     web.set_defaults(func=_cmd_web)
     _add_recordings(sub)

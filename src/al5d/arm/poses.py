@@ -233,8 +233,21 @@ def save_sequence(folder: Path, name: str, text: str) -> Path:
     return path
 
 
-def read_sequence(path: Path, poses: PoseBook) -> tuple[str, list[Step]]:
-    """A sequence file's text and its steps, read as `al5d run` reads them; GrammarError
-    (every bad line) or OSError."""
-    data = path.read_bytes()
-    return data.decode("utf-8"), parse_sequence(data, str(path), PRESET_NAMES, poses)
+def parse_text(text: str, poses: PoseBook, name: str = "steps") -> list[Step]:
+    """The steps of a sequence's text, read as `al5d run` reads its file; GrammarError
+    says every bad line."""
+    return parse_sequence(text.encode("utf-8"), name, PRESET_NAMES, poses)
+
+
+def used_by(folder: Path, pose: str) -> tuple[str, ...]:
+    """The sequences in `folder` that name `pose` (which renaming or deleting it breaks)."""
+    line = re.compile(rf"^\s*pose\s+{re.escape(pose)}(\s|$)", re.IGNORECASE | re.MULTILINE)
+    found = []
+    for name in sequence_names(folder):
+        try:
+            text = (folder / f"{name}{SEQUENCE_SUFFIX}").read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError):
+            continue
+        if line.search(text):
+            found.append(name)
+    return tuple(found)
