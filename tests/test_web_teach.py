@@ -23,7 +23,7 @@ from served import Served, served
 from webrig import BrowserUnavailable, WebProc, dismiss_notifications, launch, open_page, wait_text
 
 from al5d.arm.config import ArmConfig
-from al5d.arm.instruction import Instruction, parse_sequence
+from al5d.arm.instruction import parse_sequence
 from al5d.arm.poses import beside, load_poses
 from al5d.ssc32u import protocol as p
 from al5d.web.plan import Planner
@@ -168,15 +168,26 @@ def test_save_two_poses_build_a_sequence_and_play_it(rig: Rig, tmp_path: Path) -
         shutil.copyfile(shot, DOCS / "teach.png")
 
 
-def test_stop_halfway_stops_the_arm_and_ends_the_play(rig: Rig) -> None:
+def write_poses(rig: Rig) -> None:
+    """Poses a and b, as an editor writes them: the page reads the file at each use."""
+    text = "".join(
+        f"{name}: {{{', '.join(f'{j}: {v}' for j, v in pose.items())}}}\n"
+        for name, pose in (("a", A), ("b", B))
+    )
+    (rig.folder / "poses.yaml").write_text(text)
+
+
+def test_a_sequence_written_by_hand_plays_and_stop_halfway_ends_it(rig: Rig) -> None:
     config = rig.arm.config
-    if load_poses(rig.folder / "poses.yaml").names != ("a", "b"):
-        pytest.fail("the test before saves the poses this one plays")
+    write_poses(rig)
+    (rig.folder / "halfway.seq").write_text("# by hand\npose a time=5000\npose b time=500\nready\n")
     rig.state("ready")
-    type_into(rig, "steps", "pose a time=5000\npose b time=500\nready", "3 steps")
+    type_into(rig, "sequence name", "halfway", "sequence 'halfway' is saved")
+    click(rig, "load sequence", "3 steps: ready to play")
     n0 = len(rig.arm.emu.records)
+    before = set(rig.arm.peer.results_now())
     rig.page.get_by_role("button", name="play", exact=True).click()
-    wait_text(rig.page, STATUS, lambda t: "playing step 1 of 3" in t)
+    wait_text(rig.page, STATUS, lambda t: "playing step 1 of 3: pose a time=5000" in t)
     rig.state("moving")
     rig.page.get_by_role("button", name="STOP", exact=True).click()
     text = wait_text(rig.page, STATUS, lambda t: "play ended" in t)
@@ -196,15 +207,24 @@ def test_stop_halfway_stops_the_arm_and_ends_the_play(rig: Rig) -> None:
         15,
         "a STOP for every channel",
     )
-    # The second step was never sent: the server, locked, would have refused it anyway,
-    # so its outcome is what tells (none: not sent).
     assert [targets(m) for m in rig.moves(n0)] == [pulses(config, A)]
+
+    def moves_told() -> list[str]:
+        results = rig.arm.peer.results_now()
+        return [
+            r.outcome for i, r in results.items() if i not in before and r.instruction == "move"
+        ]
+
+    wait_until(lambda: moves_told() == ["cancelled"], 15, "the first step cancelled")
     assert rig.arm.peer.trigger("release").success
     rig.state("ready")
+    # The second step was never sent (a locked server would have refused it: an outcome).
+    assert moves_told() == ["cancelled"]
     assert [targets(m) for m in rig.moves(n0)] == [pulses(config, A)]
 
 
 def test_a_step_the_server_would_refuse_plays_nothing(rig: Rig) -> None:
+    write_poses(rig)
     rig.state("ready")
     type_into(rig, "steps", "pose b\nmove elbow=200", "2 steps")
     n0 = len(rig.arm.emu.records)
@@ -214,4 +234,3 @@ def test_a_step_the_server_would_refuse_plays_nothing(rig: Rig) -> None:
     text = click(rig, "play", "nothing played")
     assert "word 2 'c': no saved pose named 'c'" in text, text
     assert rig.moves(n0) == []
-    assert isinstance(Instruction, type)

@@ -65,6 +65,8 @@ class Player:
         self._lost = lost
         self._show = show
         self._cv = threading.Condition()
+        #: The ids this play sent, and the outcomes of those that came.
+        self._sent: set[str] = set()
         self._outcomes: dict[str, Outcome] = {}
         self._halted = threading.Event()
         self._why = ""
@@ -74,15 +76,19 @@ class Player:
     def busy(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
-    def start(self, steps: Sequence[tuple[str, Step]]) -> None:
-        """Play `steps` (each with the line it was read from)."""
-        self._halted.clear()
+    def start(self, steps: Sequence[tuple[str, Step]]) -> bool:
+        """Play `steps` (each with the line it was read from); False if a play is on."""
         with self._cv:
+            if self.busy:
+                return False
+            self._halted.clear()
+            self._sent.clear()
             self._outcomes.clear()
-        self._thread = threading.Thread(
-            target=self._play, args=(tuple(steps),), name="al5d-web-play", daemon=True
-        )
-        self._thread.start()
+            self._thread = threading.Thread(
+                target=self._play, args=(tuple(steps),), name="al5d-web-play", daemon=True
+            )
+            self._thread.start()
+        return True
 
     def halt(self, why: str) -> None:
         """End the play: nothing more is sent (the caller stops the arm)."""
@@ -94,8 +100,9 @@ class Player:
 
     def on_outcome(self, outcome: Outcome) -> None:
         with self._cv:
-            self._outcomes[outcome.id] = outcome
-            self._cv.notify_all()
+            if outcome.id in self._sent:  # every client's outcomes come by
+                self._outcomes[outcome.id] = outcome
+                self._cv.notify_all()
 
     def join(self, timeout: float) -> None:
         if self._thread is not None:
@@ -111,6 +118,8 @@ class Player:
             if isinstance(item, Wait):
                 self._halted.wait(item.ms / 1000)
                 continue
+            with self._cv:
+                self._sent.add(item.id)
             self._send(item)
             if background:
                 behind.append((k, line, item.id))
@@ -190,10 +199,10 @@ class Teach:
                 self.wait_ms = gui.add_number("wait (ms)", 500, min=0, max=60_000, step=100)
                 self.add = gui.add_button_group("add", ADD_STEPS)
                 self.play = gui.add_button("play", color="green", icon=viser.Icon.PLAYER_PLAY)
-                self.sequence_name: Any = gui.add_text("sequence name", "", hint=NAME_HINT)
-                self.save_sequence = gui.add_button("save sequence", icon=viser.Icon.DEVICE_FLOPPY)
                 saved = sequence_names(self.folder) or (NONE,)
                 self.sequence: Any = gui.add_dropdown("saved", saved)
+                self.sequence_name: Any = gui.add_text("sequence name", "", hint=NAME_HINT)
+                self.save_sequence = gui.add_button("save sequence", icon=viser.Icon.DEVICE_FLOPPY)
                 self.load = gui.add_button("load sequence", icon=viser.Icon.FOLDER_OPEN)
             self.status = gui.add_html(
                 status_html(f"poses and sequences in {self.folder}", None, STATUS)
@@ -226,6 +235,7 @@ class Teach:
         self.steps.on_update(_by_user(lambda _: self._check(str(self.steps.value))))
         self.pose_name.on_update(_by_user(lambda _: self._pose_named()))
         self.sequence_name.on_update(_by_user(lambda _: self._sequence_named()))
+        self.sequence.on_update(_by_user(lambda _: self._sequence_chosen()))
 
     # -- what the link hands over, the page's STOP, and the player's way out ----------
 
@@ -233,7 +243,7 @@ class Teach:
         self.player.on_outcome(outcome)
 
     async def _on_stop(self, event: Any) -> None:
-        # On viser's event loop, after the page's own handler has sent the stop.
+        # On viser's event loop, as the page's own STOP (which stops the arm).
         self.player.halt("STOP")
 
     def _send(self, instr: Instruction) -> None:
@@ -407,7 +417,8 @@ class Teach:
         if problem:
             self._show(f"nothing played: {problem}", False)
             return
-        self.player.start(list(zip(lines, steps, strict=True)))
+        if not self.player.start(list(zip(lines, steps, strict=True))):
+            self._show("a sequence is playing: STOP ends it", False)
 
     def _precheck(self, steps: list[Step], lines: list[str]) -> str:
         """Why a step would be refused, judged from where the arm is as the server will
@@ -427,16 +438,29 @@ class Teach:
                 start = target.degrees
         return ""
 
+    def _saved_sequences(self) -> None:
+        """The list of saved sequences as the folder has it now (an editor may add some)."""
+        with self._lock:
+            self.sequence.options = sequence_names(self.folder) or (NONE,)
+
     def _sequence_named(self) -> None:
-        """What `save sequence` would do with the name typed."""
+        """What `save sequence` and `load sequence` would do with the name typed."""
+        self._saved_sequences()
         name = str(self.sequence_name.value).strip()
         problem = name_problem(name)
         if problem:
             self._show(problem, False)
         elif (self.folder / f"{name}{SEQUENCE_SUFFIX}").exists():
-            self._show(f"sequence {name!r} is saved: save sequence replaces it", None)
+            self._show(f"sequence {name!r} is saved: load it, or save to replace it", None)
         else:
             self._show(f"sequence {name!r}: a new name", None)
+
+    def _sequence_chosen(self) -> None:
+        name = str(self.sequence.value)
+        if name != NONE:
+            with self._lock:
+                self.sequence_name.value = name
+            self._sequence_named()
 
     def _save_sequence(self) -> None:
         name = str(self.sequence_name.value).strip()
@@ -449,8 +473,8 @@ class Teach:
         except OSError as e:
             self._show(f"cannot write {self.folder}: {e.strerror}", False)
             return
+        self._saved_sequences()
         with self._lock:
-            self.sequence.options = sequence_names(self.folder) or (NONE,)
             self.sequence.value = name
         book = self._book()
         steps = "" if book is None else self._parse(text, book)
@@ -460,9 +484,13 @@ class Teach:
             self._show(f"saved {path}: al5d run {path}", True)
 
     def _load(self) -> None:
-        name = str(self.sequence.value)
-        with self._lock:
-            self.sequence.options = sequence_names(self.folder) or (NONE,)
+        """The sequence named in the box into the steps (what they held is replaced)."""
+        self._saved_sequences()
+        name = str(self.sequence_name.value).strip()
+        problem = name_problem(name)
+        if problem:
+            self._show(f"nothing loaded: {problem}", False)
+            return
         path = self.folder / f"{name}{SEQUENCE_SUFFIX}"
         try:
             text = path.read_text(encoding="utf-8")
@@ -472,7 +500,7 @@ class Teach:
             return
         with self._lock:
             self.steps.value = text
-            self.sequence_name.value = name
+            self.sequence.value = name
         self._check(text)
 
 
