@@ -101,3 +101,11 @@ def test_an_unknown_pose_or_a_bad_poses_file_sends_nothing(arm: Served, tmp_path
     assert run.wait(CMD_S) == exits.BAD_INPUT
     assert run.err.drain() == [f"al5d run: nothing sent: {missing}: no such poses file"]
     assert moves(arm, n0) == []
+
+
+def test_the_web_view_will_not_start_on_a_bad_poses_file(tmp_path: Path) -> None:
+    bad = tmp_path / "poses.yaml"
+    bad.write_text("home: {base: 0, wrist: up}\n")
+    web = Proc("web", "--port", "0", "--poses", str(bad))
+    assert web.wait(CMD_S) == exits.USAGE
+    assert f"{bad}: home.wrist: 'up' is not a number of degrees" in web.err.drain()

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import re
 import shutil
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,10 +23,11 @@ from served import Served, served
 from webrig import BrowserUnavailable, WebProc, dismiss_notifications, launch, open_page, wait_text
 
 from al5d.arm.config import ArmConfig
-from al5d.arm.instruction import parse_sequence
+from al5d.arm.instruction import Instruction, Outcome, Result, parse_sequence
 from al5d.arm.poses import beside, load_poses
 from al5d.ssc32u import protocol as p
 from al5d.web.plan import Planner
+from al5d.web.teach import Player
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 #: AL5D_UPDATE_DOCS=1 copies the Teach tab's screenshot to docs/teach.png (for the README).
@@ -234,3 +235,80 @@ def test_a_step_the_server_would_refuse_plays_nothing(rig: Rig) -> None:
     text = click(rig, "play", "nothing played")
     assert "word 2 'c': no saved pose named 'c'" in text, text
     assert rig.moves(n0) == []
+
+
+class Arm:
+    """The player's way to the server, answering each instruction as `answer` says (None:
+    no outcome, the move still going)."""
+
+    def __init__(self, answer: Callable[[Instruction], Outcome | None]) -> None:
+        self.answer = answer
+        self.sent: list[str] = []
+        self.lost = False
+        self.said: list[tuple[str, bool | None]] = []
+        self.player = Player(self.send, lambda: self.lost, lambda t, ok: self.said.append((t, ok)))
+
+    def send(self, instr: Instruction) -> None:
+        self.sent.append(str(instr))
+        outcome = self.answer(instr)
+        if outcome is not None:
+            self.player.on_outcome(outcome)
+
+    def play(self, text: str) -> str:
+        steps = parse_sequence(text.encode())
+        lines = [line for line in text.splitlines() if line]
+        assert self.player.start(list(zip(lines, steps, strict=True)))
+        self.player.join(10)
+        assert not self.player.busy
+        return self.said[-1][0]
+
+
+def done(instr: Instruction) -> Outcome:
+    return Outcome(instr.id, instr.name, Result.DONE)
+
+
+def test_the_player_plays_every_step_and_waits_for_those_in_the_background() -> None:
+    arm = Arm(done)
+    said = arm.play("move base=10 &\nwait 10\nmove base=20 time=100\nready")
+    assert said == "played 4 steps: every one done"
+    assert arm.sent == ["move base=10", "move base=20 time=100", "ready"]
+    assert [t for t, _ in arm.said][:2] == [
+        "playing step 1 of 4: move base=10 & (STOP ends the play)",
+        "playing step 2 of 4: wait 10 (STOP ends the play)",
+    ]
+
+
+def test_the_player_ends_at_a_step_not_done_in_the_background_too() -> None:
+    def refuse_base(instr: Instruction) -> Outcome:
+        if instr.joints and instr.joints[0][0] == "base":
+            return Outcome(instr.id, instr.name, Result.REFUSED, "base: no")
+        return done(instr)
+
+    arm = Arm(refuse_base)
+    said = arm.play("move base=10 &\nwait 10\nmove elbow=20")
+    assert said == "play ended at step 1 of 3: move base=10 &: refused: base: no"
+    assert arm.sent == ["move base=10"]
+    arm = Arm(refuse_base)
+    assert arm.play("ready\nmove base=1\nready").startswith("play ended at step 2 of 3")
+    assert arm.sent == ["ready", "move base=1"]
+
+
+def test_the_player_ends_when_the_server_is_lost_or_at_stop() -> None:
+    arm = Arm(lambda instr: None)  # no outcome: the server gone
+    arm.player.start([("ready", (parse_sequence(b"ready")[0]))])
+    wait_until(lambda: arm.sent == ["ready"], 5, "the first step sent")
+    arm.lost = True
+    arm.player.join(10)
+    assert arm.said[-1] == (
+        "play ended at step 1 of 1: no contact with the server; nothing more sent",
+        False,
+    )
+    arm = Arm(done)
+    steps = parse_sequence(b"ready\nwait 60000\npark")
+    arm.player.start(list(zip(["ready", "wait 60000", "park"], steps, strict=True)))
+    wait_until(lambda: arm.said and "step 2 of 3" in arm.said[-1][0], 5, "the wait")
+    arm.player.halt("STOP")
+    arm.player.join(10)
+    assert not arm.player.busy
+    assert arm.said[-1] == ("play ended by STOP: nothing more sent", False)
+    assert arm.sent == ["ready"]

@@ -45,7 +45,7 @@ class WebView:
     def __init__(self, options: WebOptions, config: ArmConfig | None = None) -> None:
         import viser
 
-        from al5d.arm.poses import beside
+        from al5d.arm.poses import beside, load_poses
         from al5d.ros.runtime import Names
         from al5d.web import guard
         from al5d.web.link import Link
@@ -55,6 +55,8 @@ class WebView:
         # The websocket library's INFO lines (each connection) would drown the page's own.
         logging.getLogger("websockets").setLevel(logging.WARNING)
         config = config or load_config(options.config)
+        poses = (Path(options.poses) if options.poses else beside(options.config)).absolute()
+        load_poses(poses, required=False)  # a bad file stops here, before the port is taken
         ns = config.server.namespace if options.namespace is None else options.namespace
         self.names = Names.of(ns)
         # viser prints a banner of its own; stdout's first line is ours (the URL).
@@ -72,8 +74,7 @@ class WebView:
         host = options.host if ":" not in options.host else f"[{options.host}]"
         self.url = f"http://{host}:{port}/"
         self.page = Page(self.server, config, f"al5d {self.names.namespace or ''}".strip())
-        poses = Path(options.poses) if options.poses else beside(options.config)
-        self.teach = Teach(self.page, poses.absolute())
+        self.teach = Teach(self.page, poses)
         listeners = Listeners(self.page, self.teach)
         self.link = Link(self.names, listeners, config.model, tuple(config.presets))
         self.page.commands = self.link
