@@ -109,3 +109,26 @@ def test_the_web_view_will_not_start_on_a_bad_poses_file(tmp_path: Path) -> None
     web = Proc("web", "--port", "0", "--poses", str(bad))
     assert web.wait(CMD_S) == exits.USAGE
     assert f"{bad}: home.wrist: 'up' is not a number of degrees" in web.err.drain()
+
+
+def test_the_shell_moves_to_a_pose_by_name(arm: Served, tmp_path: Path) -> None:
+    (tmp_path / "mine.yaml").write_text(POSES)
+    n0 = len(arm.emu.records)
+    shell = Proc("shell", "--poses", str(tmp_path / "mine.yaml"), stdin=True)
+    try:
+        for line in ("pose cup time=300", "pose mug", "exit"):
+            shell.send(line)
+        code = shell.wait(CMD_S)
+        out, err = shell.out.drain(), shell.err.drain()
+    finally:
+        shell.kill()
+    assert code == exits.BAD_INPUT, err  # a line was bad; the other ran
+    assert sum(": done" in line for line in out) == 1, out
+    assert (
+        f"al5d shell: word 2 'mug': no saved pose named 'mug' (in {tmp_path / 'mine.yaml'}: "
+        "home, cup)" in err
+    )
+    cup = {"base": -40, "shoulder": 40, "elbow": 80, "wrist": -20, "gripper": 10}
+    assert [{(t.channel, t.pulse_us) for t in m.targets} for m in moves(arm, n0)] == [
+        pulses(arm.config, cup)
+    ]

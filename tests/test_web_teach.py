@@ -169,22 +169,24 @@ def test_save_two_poses_build_a_sequence_and_play_it(rig: Rig, tmp_path: Path) -
         shutil.copyfile(shot, DOCS / "teach.png")
 
 
-def write_poses(rig: Rig) -> None:
-    """Poses a and b, as an editor writes them: the page reads the file at each use."""
+def write_poses(rig: Rig, more: str = "") -> None:
+    """Poses a and b (and `more`), as an editor writes them: the page reads the file at
+    each use."""
     text = "".join(
         f"{name}: {{{', '.join(f'{j}: {v}' for j, v in pose.items())}}}\n"
         for name, pose in (("a", A), ("b", B))
     )
-    (rig.folder / "poses.yaml").write_text(text)
+    (rig.folder / "poses.yaml").write_text(text + more)
 
 
 def test_a_sequence_written_by_hand_plays_and_stop_halfway_ends_it(rig: Rig) -> None:
     config = rig.arm.config
-    write_poses(rig)
+    write_poses(rig, "lean: {base: 15, elbow: 85}\n")
     (rig.folder / "halfway.seq").write_text("# by hand\npose a time=5000\npose b time=500\nready\n")
     rig.state("ready")
     type_into(rig, "sequence name", "halfway", "sequence 'halfway' is saved")
     click(rig, "load sequence", "3 steps: ready to play")
+    wait_text(rig.page, "#al5d-poses", lambda t: "lean base 15 elbow 85" in t)
     n0 = len(rig.arm.emu.records)
     before = set(rig.arm.peer.results_now())
     rig.page.get_by_role("button", name="play", exact=True).click()

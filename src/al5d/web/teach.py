@@ -26,6 +26,7 @@ import viser
 from al5d.arm.instruction import GrammarError, Instruction, Outcome, Step, Wait
 from al5d.arm.poses import (
     SEQUENCE_SUFFIX,
+    Pose,
     PoseBook,
     PosesError,
     load_poses,
@@ -174,6 +175,8 @@ class Teach:
         self.path = poses_path
         self.folder = poses_path.parent
         self._lock = threading.RLock()
+        #: The poses the list shows.
+        self._shown: tuple[Pose, ...] | None = None
         book = load_poses(poses_path, required=False)  # a bad file: PosesError, at start
         self.player = Player(self._send, lambda: page.lost, self._show)
         config = page.config
@@ -256,19 +259,24 @@ class Teach:
     # -- poses ---------------------------------------------------------------------
 
     def _book(self) -> PoseBook | None:
-        """The poses as the file has them now; None (and why, said) if it cannot be read."""
+        """The poses as the file has them now (the list shows them: an editor may have
+        changed them); None (and why, said) if it cannot be read."""
         try:
-            return load_poses(self.path, required=False)
+            book = load_poses(self.path, required=False)
         except PosesError as e:
             self._show(f"{e} (fix the file: nothing was changed)", False)
             return None
+        self._show_poses(book)
+        return book
 
     def _show_poses(self, book: PoseBook, selected: str | None = None) -> None:
         with self._lock:
-            self.pose.options = book.names or (NONE,)
+            if book.poses != self._shown:
+                self._shown = book.poses
+                self.pose.options = book.names or (NONE,)
+                self.poses_html.content = poses_html(book)
             if selected is not None:
                 self.pose.value = selected
-            self.poses_html.content = poses_html(book)
 
     def _changed(self, book: PoseBook, said: str, selected: str | None = None) -> None:
         try:
@@ -314,7 +322,6 @@ class Teach:
         name = str(self.pose.value)
         if book.find(name) is None:
             self._show("choose a saved pose first" if name == NONE else book.unknown(name), False)
-            self._show_poses(book)
             return None
         return name
 
