@@ -134,7 +134,7 @@ def _cmd_web(args: argparse.Namespace) -> int:
     from al5d.web.app import WebOptions, serve_web
 
     setup_logging(args.log_level)
-    options = WebOptions(args.port, args.host, args.namespace, args.config)
+    options = WebOptions(args.port, args.host, args.namespace, args.config, args.poses)
     return serve_web(options)
 
 
@@ -186,6 +186,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         timeout=args.timeout,
         namespace=args.namespace,
         verbose=args.verbose,
+        poses=args.poses,
     )
 
 
@@ -193,7 +194,11 @@ def _cmd_shell(args: argparse.Namespace) -> int:
     from al5d.ros.client import shell
 
     return shell(
-        wait_s=args.wait, timeout=args.timeout, namespace=args.namespace, verbose=args.verbose
+        wait_s=args.wait,
+        timeout=args.timeout,
+        namespace=args.namespace,
+        verbose=args.verbose,
+        poses=args.poses,
     )
 
 
@@ -320,6 +325,12 @@ def build_parser() -> argparse.ArgumentParser:
             cmd.add_argument(
                 "file", help="one instruction a line; wait <ms>; # comments; & = go on"
             )
+        if name in ("run", "shell"):
+            where = "beside the sequence file" if name == "run" else "in this directory"
+            cmd.add_argument(
+                "--poses",
+                help=f"the poses file that `pose <name>` lines name; default: poses.yaml {where}",
+            )
         cmd.add_argument("--wait", type=float, default=10.0, help="seconds to find the server")
         cmd.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
         cmd.add_argument(
@@ -382,6 +393,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     web.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: config")
     web.add_argument("--config", help="arm configuration file; default: the shipped one")
+    web.add_argument(
+        "--poses",
+        help="the Teach tab's poses file (its sequences beside it); default: poses.yaml beside "
+        "--config, else in this directory",
+    )
     web.add_argument("--log-level", **LOG_LEVEL)
     web.set_defaults(func=_cmd_web)
     _add_recordings(sub)

@@ -3,6 +3,7 @@
 - `config`: the arm's configuration file (joints, calibration, servos, presets), validated.
 - `servos`: the servo models an AL5D is built with, as a table.
 - `instruction`: instructions and outcomes as data, and their text grammar.
+- `poses`: the named poses file (`pose <name>` in sequence files), and sequence files.
 - `validate`: whether an instruction can run, judged whole (pure).
 - `resample`: a trajectory at the link's budget: the points thinned to what the wire
   carries within the path tolerance, or the limit it meets (pure).

@@ -6,6 +6,8 @@
             [time=<ms>] [path=joint|line]
     stop | release | shutdown
     wait <ms>                            (sequence files only: a pause on the client)
+    pose <name>                          [time=<ms>]
+                                         (sequence files only: a saved pose, `arm.poses`)
     <instruction> &                      (sequence files only: do not wait for its outcome)
     # comment
 
@@ -21,6 +23,10 @@ import itertools
 import math
 import os
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the poses file's module reads the configuration, which imports this one
+    from al5d.arm.poses import PoseBook
 
 #: The presets every arm has (PO01 park, PO02 ready, PO03 straight up).
 PRESET_NAMES = ("park", "ready", "straight_up")
@@ -351,13 +357,34 @@ def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Ins
     raise GrammarError(f"word 1 {quote(words[0])}: unknown instruction; expected {known}")
 
 
+def _pose_move(words: list[str], poses: PoseBook | None) -> Instruction:
+    """`pose <name> [time=<ms>]`: a move of the saved pose's joints."""
+    if len(words) < 2 or "=" in words[1]:
+        at = _where(words, min(1, len(words) - 1))
+        raise GrammarError(f"{at}: name a saved pose: pose <name> [time=<ms>]")
+    time_ms: int | None = None
+    for i, word in enumerate(words[2:], start=2):
+        key, _, value = word.partition("=")
+        if key.lower() != "time" or not value:
+            raise GrammarError(f"{_where(words, i)}: a pose takes only time=<ms>")
+        if time_ms is not None:
+            raise GrammarError(f"{_where(words, i)}: time given twice")
+        time_ms = _parse_ms(words, i, value)
+    pose = None if poses is None else poses.find(words[1])
+    if pose is None:
+        why = "no poses were read" if poses is None else poses.unknown(words[1])
+        raise GrammarError(f"{_where(words, 1)}: {why}")
+    return Instruction(Kind.MOVE, joints=pose.joints, time_ms=time_ms)
+
+
 def parse_sequence_step(
-    line: str, presets: tuple[str, ...] = PRESET_NAMES
+    line: str, presets: tuple[str, ...] = PRESET_NAMES, poses: PoseBook | None = None
 ) -> tuple[Instruction | Wait, bool] | None:
     """One line of a sequence file: (instruction or wait, whether it runs in the background).
 
     None for a blank line or a comment. A line ending in `&` does not wait for
-    its outcome before the next line (as in a shell).
+    its outcome before the next line (as in a shell). `pose <name>` is a move to one of
+    `poses`.
     """
     text = line.split("#", 1)[0].strip()
     if not text:
@@ -375,6 +402,8 @@ def parse_sequence_step(
         if background:
             raise GrammarError(f"{_where(words, 0)}: wait cannot run in the background (&)")
         return Wait(_parse_ms(words, 1, words[1], WAIT_MAX_MS)), False
+    if words and words[0].lower() == "pose":
+        return _pose_move(words, poses), background
     return parse_instruction(text, presets), background
 
 
@@ -399,9 +428,13 @@ class SequenceErrors(GrammarError):
 
 
 def parse_sequence(
-    data: bytes, name: str = "<sequence>", presets: tuple[str, ...] = PRESET_NAMES
+    data: bytes,
+    name: str = "<sequence>",
+    presets: tuple[str, ...] = PRESET_NAMES,
+    poses: PoseBook | None = None,
 ) -> list[Step]:
-    """Every step of a sequence file, checked whole before anything is sent.
+    """Every step of a sequence file, checked whole before anything is sent; a `pose` line
+    names one of `poses`.
 
     Every bad line is an error, all of them in one `SequenceErrors`, each naming the file,
     the line and the word: `demo.seq:3: word 2 'base=x': 'x' is not a number of degrees`.
@@ -411,7 +444,7 @@ def parse_sequence(
     more = 0
     for number, raw in enumerate(data.splitlines(), start=1):
         try:
-            step = _sequence_line(raw, presets)
+            step = _sequence_line(raw, presets, poses)
         except GrammarError as e:
             if len(errors) < MAX_SEQUENCE_ERRORS:
                 errors.append(f"{name}:{number}: {e}")
@@ -425,10 +458,10 @@ def parse_sequence(
     return steps
 
 
-def _sequence_line(raw: bytes, presets: tuple[str, ...]) -> Step | None:
+def _sequence_line(raw: bytes, presets: tuple[str, ...], poses: PoseBook | None) -> Step | None:
     try:
         line = raw.decode("utf-8")
     except UnicodeDecodeError as e:
         byte = raw[e.start : e.start + 1].hex()
         raise GrammarError(f"not UTF-8 text (byte 0x{byte} at column {e.start + 1})") from None
-    return parse_sequence_step(line, presets)
+    return parse_sequence_step(line, presets, poses)

@@ -49,6 +49,7 @@ from al5d.arm.instruction import (
     parse_sequence,
     parse_sequence_step,
 )
+from al5d.arm.poses import PosesError, beside, load_poses
 from al5d.clock import Deadline
 from al5d.ros.convert import outcome_from_message, to_message
 from al5d.ros.dds import start_context
@@ -510,17 +511,23 @@ def run(
     err: TextIO = sys.stderr,
     namespace: str | None = None,
     verbose: bool = False,
+    poses: str | Path | None = None,
 ) -> int:
     """Run a sequence file; 0 if every instruction was done, 1 if any was not.
 
     The file is checked whole before its first line is sent, and every bad line is said.
     Each outcome is printed when it comes: a line run in the background (`&`) reports as
-    soon as its outcome arrives, not after the next line's.
+    soon as its outcome arrives, not after the next line's. Its `pose <name>` lines name
+    poses of the file `poses` (by default `poses.yaml` beside the sequence, if there).
     """
     try:
-        steps = parse_sequence(Path(path).read_bytes(), str(path), PRESET_NAMES)
+        book = load_poses(beside(path) if poses is None else poses, required=poses is not None)
+        steps = parse_sequence(Path(path).read_bytes(), str(path), PRESET_NAMES, book)
     except OSError as e:
         print(f"al5d run: cannot read {path}: {e.strerror}", file=err)
+        return exits.BAD_INPUT
+    except PosesError as e:
+        print(f"al5d run: nothing sent: {e}", file=err)
         return exits.BAD_INPUT
     except GrammarError as e:
         print(f"al5d run: nothing sent: {e}".replace("\n", "\nal5d run: "), file=err)
@@ -614,15 +621,22 @@ def shell(
     err: TextIO = sys.stderr,
     namespace: str | None = None,
     verbose: bool = False,
+    poses: str | Path | None = None,
 ) -> int:
-    """Read instructions a line at a time (the grammar of a sequence file: `wait`, `&`, `#`)
-    and run each over one connection kept throughout: the server is discovered once.
+    """Read instructions a line at a time (the grammar of a sequence file: `wait`, `&`, `#`,
+    `pose <name>` of the file `poses`, by default `poses.yaml` here if there) and run each
+    over one connection kept throughout: the server is discovered once.
 
     A stop or a release goes by the server's service, as with `al5d send`. A bad line is
     said and skipped. Ctrl-C while an instruction runs is the emergency stop. The exit
     code at the end: no server; else bad input if a line was bad; else whether every
     instruction was done.
     """
+    try:
+        book = load_poses(beside(None) if poses is None else poses, required=poses is not None)
+    except PosesError as e:
+        print(f"al5d shell: {e}", file=err)
+        return exits.BAD_INPUT
     interactive = inp.isatty()
     timing = Timing("al5d shell", verbose, err)
     client = Client(namespace, wait_s=wait_s)
@@ -642,7 +656,7 @@ def shell(
             if line.strip().lower() in SHELL_QUIT:
                 break
             try:
-                step = parse_sequence_step(line, PRESET_NAMES)
+                step = parse_sequence_step(line, PRESET_NAMES, book)
             except GrammarError as e:
                 print(f"al5d shell: {e}", file=err, flush=True)
                 bad = True

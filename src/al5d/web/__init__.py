@@ -4,7 +4,8 @@ Like RViz, it talks to the server only over ROS (the public names of
 `al5d.ros.names.Names`), in its own process, so that a browser never slows
 the arm. The page is built with viser: the arm in 3D from /robot_description,
 moving with /joint_states, the target of the running move as a ghost, sliders,
-a draggable target for the tool, presets, STOP, and what happened.
+a draggable target for the tool, presets, STOP, what happened, and
+teach and replay (named poses, sequences).
 
     link.py    the ROS side: subscriptions, the instruction and jog publishers, the stop service
     plan.py    pure: targets of instructions, the outcome log, the joint history
@@ -12,6 +13,7 @@ a draggable target for the tool, presets, STOP, and what happened.
     scene.py   the 3D view: the arm, its ghost, the straight path, the target gizmo
     panel.py   the widgets: STOP in a window of its own, the side panel
     page.py    the page: what it knows of the arm, its decisions, the user's input
+    teach.py   the Teach tab: named poses, sequences built, saved, loaded and played
     app.py     `al5d web`: the page on a port, until SIGINT/SIGTERM
 
 Imports al5d.arm, al5d.model, al5d.ros (the public names, QoS, conversions),

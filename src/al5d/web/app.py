@@ -18,6 +18,7 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 from al5d.arm.config import ArmConfig, load_config
 
@@ -34,6 +35,8 @@ class WebOptions:
     #: The server's ROS namespace; None: the config's (server.namespace), as `al5d serve`.
     namespace: str | None = None
     config: str | None = None
+    #: The poses file of the Teach tab; None: `poses.yaml` beside the config (or here).
+    poses: str | None = None
 
 
 class WebView:
@@ -42,14 +45,18 @@ class WebView:
     def __init__(self, options: WebOptions, config: ArmConfig | None = None) -> None:
         import viser
 
+        from al5d.arm.poses import beside, load_poses
         from al5d.ros.names import Names
         from al5d.web import guard
         from al5d.web.link import Link
         from al5d.web.page import Page
+        from al5d.web.teach import Listeners, Teach
 
         # The websocket library's INFO lines (each connection) would drown the page's own.
         logging.getLogger("websockets").setLevel(logging.WARNING)
         config = config or load_config(options.config)
+        poses = (Path(options.poses) if options.poses else beside(options.config)).absolute()
+        load_poses(poses, required=False)  # a bad file stops here, before the port is taken
         ns = config.server.namespace if options.namespace is None else options.namespace
         self.names = Names.of(ns)
         # viser prints a banner of its own; stdout's first line is ours (the URL).
@@ -67,7 +74,9 @@ class WebView:
         host = options.host if ":" not in options.host else f"[{options.host}]"
         self.url = f"http://{host}:{port}/"
         self.page = Page(self.server, config, f"al5d {self.names.namespace or ''}".strip())
-        self.link = Link(self.names, self.page, config.model, tuple(config.presets))
+        self.teach = Teach(self.page, poses)
+        listeners = Listeners(self.page, self.teach)
+        self.link = Link(self.names, listeners, config.model, tuple(config.presets))
         self.page.commands = self.link
 
         def on_client(client: viser.ClientHandle) -> None:
@@ -78,6 +87,7 @@ class WebView:
         self.server.on_client_connect(on_client)
 
     def close(self) -> None:
+        self.teach.player.halt("the web view's end")
         self.link.close()
         self.page.close()
         with contextlib.redirect_stdout(sys.stderr):
