@@ -9,17 +9,12 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import domains
 import pytest
 
-# A ROS domain of our own for the whole run (every server and client the tests start
-# inherits it), so that parallel runs on one host never see each other: two runs differ
-# by their pytest process (under pytest-xdist, the workers' parent), and each xdist
-# worker takes two domains of its own (one test uses the next domain as "another").
-os.environ["ROS_DOMAIN_ID"] = str(
-    100
-    + (os.getppid() if "PYTEST_XDIST_WORKER" in os.environ else os.getpid()) % 20 * 6
-    + int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")) % 3 * 2
-)
+# A ROS domain of our own for the whole run (`domains.claim`): every server and client
+# the tests start inherits it.
+os.environ["ROS_DOMAIN_ID"] = str(domains.claim())
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 from armrig import Rig, make_rig
