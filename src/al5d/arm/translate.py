@@ -19,8 +19,6 @@ class Translator:
 
     def __init__(self, config: ArmConfig) -> None:
         self.joints: dict[str, Joint] = dict(config.joints)
-        #: name -> (lowest, highest) degrees: the fast path of validation
-        self.ranges = {n: j.range_deg for n, j in self.joints.items()}
         #: name -> ("#<ch>P", pulse at 0 degrees, us per degree)
         self._pulse = {
             n: (move_prefix(j.channel), j.to_us(0.0), j.us_per_deg) for n, j in self.joints.items()

@@ -90,7 +90,13 @@ def _planar(
 def tool_position(geometry: Geometry, degrees: Mapping[str, float]) -> Vec3:
     """Position of tool0 in base_link (metres) for the arm's degrees."""
     base, shoulder, elbow, wrist, _ = _arm_values(degrees)
-    *_, rt, zt = _planar(geometry, shoulder, elbow, wrist)
+    return tip_at(geometry, base, shoulder, elbow, wrist)
+
+
+def tip_at(g: Geometry, base: float, shoulder: float, elbow: float, wrist: float) -> Vec3:
+    """tool0 in base_link (metres) from the four angles that place it, unchecked: the hot
+    path of planning a straight line, which samples thousands of poses it made itself."""
+    *_, rt, zt = _planar(g, shoulder, elbow, wrist)
     heading = math.radians(-base)
     return (rt * math.cos(heading), rt * math.sin(heading), zt)
 

@@ -19,7 +19,14 @@ from al5d.model.arm import ArmModel
 from al5d.model.errors import InvalidInput, PathUnreachable, Unreachable, excess
 from al5d.model.geometry import Geometry
 from al5d.model.joints import ARM_JOINTS
-from al5d.model.kinematics import below_table, forward, solve, solve_nearest_pitch, wrap_deg
+from al5d.model.kinematics import (
+    below_table,
+    forward,
+    solve,
+    solve_nearest_pitch,
+    tip_at,
+    wrap_deg,
+)
 from al5d.model.transforms import Vec3
 
 Joints = tuple[float, float, float, float, float]
@@ -55,15 +62,7 @@ class LinePlan:
 
 
 def _tip(g: Geometry, q: Joints) -> Vec3:
-    base, shoulder, elbow, wrist = q[0], q[1], q[2], q[3]
-    a1 = math.radians(90.0 - shoulder)
-    a2 = a1 - math.radians(elbow)
-    a3 = a2 + math.radians(wrist)
-    r = g.shoulder_offset + g.humerus * math.cos(a1) + g.ulna * math.cos(a2)
-    r += g.gripper * math.cos(a3)
-    z = g.base_height + g.humerus * math.sin(a1) + g.ulna * math.sin(a2) + g.gripper * math.sin(a3)
-    h = math.radians(-base)
-    return (r * math.cos(h), r * math.sin(h), z)
+    return tip_at(g, q[0], q[1], q[2], q[3])
 
 
 class _Line:
