@@ -682,6 +682,8 @@ def cold_start(runs: int = 3) -> dict[str, Any]:
 
 
 def run(config: ArmConfig, log: Any) -> dict[str, Any]:
+    import floors  # it builds on this module's rig
+
     out: dict[str, Any] = {}
     workdir = Path(tempfile.mkdtemp(prefix="al5d-bench-"))
     OUT.mkdir(exist_ok=True)
@@ -733,6 +735,7 @@ def run(config: ArmConfig, log: Any) -> dict[str, Any]:
             "ROS client -> server", [(trace[i]["recv"] - sent[i]) / 1e6 for i in ids if i in trace]
         )
         out["c2b_9600"]["parts"] = breakdown(out["c2b_9600"], trace)
+        out["floor_9600"] = floors.measure(config, 9600, workdir, peer, log)
         rig = Rig(config, 115200, workdir, peer)
         rigs.append(rig)
         log("command to board at 115200 baud (300 moves)")
@@ -742,6 +745,7 @@ def run(config: ArmConfig, log: Any) -> dict[str, Any]:
         rig.settle()
         trace = rig.close()
         out["c2b_115200"]["parts"] = breakdown(out["c2b_115200"], trace)
+        out["floor_115200"] = floors.measure(config, 115200, workdir, peer, log)
         got = [trace[i]["recv"] for i in burst["ids"] if i in trace]
         elapsed = (max(got) - burst["t0_ns"]) / 1e9
         out["throughput_ros"] = {

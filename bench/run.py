@@ -23,6 +23,7 @@ sys.path[:0] = [str(HERE), str(HERE.parent / "tests")]
 os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
+import floors  # noqa: E402
 import micro  # noqa: E402
 import model_bench  # noqa: E402
 import plot  # noqa: E402
@@ -73,15 +74,23 @@ def rows(r: dict[str, Any]) -> list[tuple[str, str, str, str, bool | None]]:
     for baud in (9600, 115200):
         c = r[f"c2b_{baud}"]
         out.append(
+            floors.ratio_row(
+                f"command to board at {baud} (publish -> CR in effect, wire "
+                f"{ms(c['total']['wire_ms'])})",
+                c["total"],
+                r[f"floor_{baud}"]["c2b"]["total"],
+            )
+        )
+        out.append(
             (
-                f"command to board at {baud} (publish -> CR in effect)",
-                f"p50 {ms(c['total']['p50_ms'])}, p99 {ms(c['total']['p99_ms'])} "
-                f"(wire {ms(c['total']['wire_ms'])}); "
-                f"minus wire p50 {ms(c['software']['p50_ms'])}, "
-                f"p99 {ms(c['software']['p99_ms'])}",
+                "  ... the same minus the wire: ours / the floor's",
+                f"p50 {ms(c['software']['p50_ms'])} / "
+                f"{ms(r[f'floor_{baud}']['c2b']['software']['p50_ms'])}, "
+                f"p99 {ms(c['software']['p99_ms'])} / "
+                f"{ms(r[f'floor_{baud}']['c2b']['software']['p99_ms'])}",
                 "-",
-                "software p99 <= 1 ms",
-                c["software"]["p99_ms"] <= 1,
+                "(information)",
+                None,
             )
         )
     for baud in (9600, 115200):
@@ -109,16 +118,13 @@ def rows(r: dict[str, Any]) -> list[tuple[str, str, str, str, bool | None]]:
         )
     )
     for via in ("service", "topic"):
-        f, sw = s[via], s[f"{via} software"]
+        f = s[via]
         out.append(
-            (
-                f"emergency stop via {via} "
-                f"(-> last STOP in effect, {s['queued at stop']['min']}+ queued)",
-                f"p50 {ms(f['p50_ms'])}, p99 {ms(f['p99_ms'])} (wire {ms(f['wire_ms'])}); "
-                f"minus wire p50 {ms(sw['p50_ms'])}, p99 {ms(sw['p99_ms'])}, n={f['n']}",
-                "-",
-                "software p99 <= 1 ms",
-                sw["p99_ms"] <= 1,
+            floors.ratio_row(
+                f"emergency stop via {via} (-> last STOP in effect, wire "
+                f"{ms(f['wire_ms'])}, {s['queued at stop']['min']}+ queued, n={f['n']})",
+                f,
+                r["floor_9600"]["stop"][via],
             )
         )
     a = s["service answered"]
