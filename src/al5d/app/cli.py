@@ -72,6 +72,14 @@ def _cmd_emulator(args: argparse.Namespace) -> int:
 
     config = load_config(args.config)
     usb = Link(Transport(args.transport), args.latency_timer, args.low_latency)
+    unknown = [name for name, _ in args.misalign if name not in config.joints]
+    if unknown:
+        print(
+            f"al5d emulator: --misalign {unknown[0]}: no such joint; joints: "
+            + ", ".join(config.joints),
+            file=sys.stderr,
+        )
+        return exits.USAGE
     emulator = Emulator(
         config,
         baud=args.baud,
@@ -82,6 +90,7 @@ def _cmd_emulator(args: argparse.Namespace) -> int:
         startup=args.startup,
         power_up=dict(args.power_up),
         announce_reset=args.announce_reset,
+        mechanics=dict(args.misalign),
     )
     print(f"al5d emulator: SSC-32U at {args.baud} baud, {usb.describe()}", file=sys.stderr)
     if args.record is None:
@@ -295,6 +304,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--announce-reset",
         action="store_true",
         help="a reset (SIGUSR1) sends what SS answers, unasked",
+    )
+    emu.add_argument(
+        "--misalign",
+        metavar="JOINT=US[,reversed]",
+        action="append",
+        default=[],
+        type=_emulator_setting("misalign_setting"),
+        help="an arm other than its config says (to try `al5d calibrate` on): the joint "
+        "stands US off its calibration, or turns the other way (repeat)",
     )
     emu.set_defaults(func=_cmd_emulator)
 
