@@ -10,6 +10,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import pytest
+from calibuser import User, truth
 
 from al5d.arm import instruction as ins
 from al5d.arm.calibration import (
@@ -25,14 +26,13 @@ from al5d.arm.calibration import (
     references,
     write_calibration,
 )
-from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, Joint, load_config
+from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
 from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Result
 from al5d.arm.states import State
 from al5d.arm.validate import Limits
 from al5d.arm.validate import judge as judge_instruction
 from al5d.ssc32u.emulator import Emulator, Mechanics
-from al5d.ssc32u.facts import PULSE_CENTRE_US
 
 OUTCOME_S = 20.0
 
@@ -82,42 +82,30 @@ def arm_of(config: ArmConfig) -> Iterator[type[Arm]]:
 
 
 def play_user(arm: Arm, procedure: Procedure) -> None:
-    """A user at the arm: at each reference, nudges toward where the model shows the joint
-    (the other way once a nudge took it further off: a reversed joint) until it is there
-    within half a step, then accepts; a refused calibration is left in `refused`. The
-    user sees the true angle, never the offsets."""
+    """The user (`calibuser.User`) at each reference until it is there, then accepts; a
+    refused calibration is left in `refused`."""
     while procedure.step is Step.NUDGE:
-        name, ref = procedure.joint.name, procedure.reference.deg
-        half_step_deg = procedure.step_us / 2 / abs(procedure.joint.us_per_deg)
+        name = procedure.joint.name
+        user = User(procedure.joint, procedure.reference.deg, procedure.step_us)
         assert arm.go(procedure)
-        way = 1
-        for _ in range(200):
-            off = ref - arm.true_deg(name)
-            if abs(off) <= half_step_deg + 1e-6:
+        for _ in range(100):
+            before = arm.true_deg(name)
+            steps = user.nudge(before)
+            if steps is None:
                 break
-            # As a user types `+12`: about as many steps as the joint looks off.
-            steps = max(1, round(abs(off) * abs(procedure.joint.us_per_deg) / procedure.step_us))
             while True:
                 try:
-                    procedure.nudge(steps * way if off > 0 else -steps * way)
+                    procedure.nudge(steps)
                     if arm.go(procedure):
                         break
                 except CalibrationRefused:  # beyond the servo's pulses
                     pass
-                assert steps > 1, "a single step refused"
-                steps //= 2  # refused (out of the range): a smaller nudge
-            if abs(ref - arm.true_deg(name)) > abs(off):
-                way = -way
+                steps = user.refused(before)
+            user.saw(before, arm.true_deg(name))
         else:
-            raise AssertionError(f"{name} never reached {ref} deg")
+            raise AssertionError(f"{name} never reached {procedure.reference.deg} deg")
         with contextlib.suppress(CalibrationRefused):
             procedure.accept()
-
-
-def truth(joint: Joint, mech: Mechanics, deg: float) -> float:
-    """The pulse that truly puts the emulated joint at `deg`."""
-    us = joint.to_us(deg)
-    return (2 * PULSE_CENTRE_US - us if mech.reversed else us) + mech.offset_us
 
 
 def test_the_procedure_finds_each_joints_offset_within_a_step(
