@@ -3,13 +3,16 @@ joints stand elsewhere than its config says: every nudge a move through the serv
 
 from __future__ import annotations
 
+import os
+import pty
 import re
+import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from calibuser import User, truth
-from proc import Proc
+from proc import AL5D, Lines, Proc
 
 from al5d import exits
 from al5d.app.calibrate import Command, parse_command
@@ -70,6 +73,7 @@ def test_calibrate_through_its_stdin_finds_the_offsets_and_writes_the_file(
     cal = Proc(
         "calibrate",
         *("--joints", "base,elbow", "--step", str(STEP_US), "--time", "300", "--wait", "30"),
+        *("--config", str(arm_file)),  # on a shared host, never another test's server's file
         stdin=True,
     )
     try:
@@ -129,7 +133,11 @@ def test_calibrate_through_its_stdin_finds_the_offsets_and_writes_the_file(
 
 def test_quitting_writes_nothing(server: Emulator, arm_file: Path) -> None:
     before = arm_file.read_text("utf-8")
-    cal = Proc("calibrate", "--joints", "wrist", "--time", "300", "--wait", "30", stdin=True)
+    cal = Proc(
+        *("calibrate", "--joints", "wrist", "--time", "300", "--wait", "30"),
+        *("--config", str(arm_file)),
+        stdin=True,
+    )
     try:
         cal.out.wait_for(PROMPT, 60)
         cal.send("+2")
@@ -143,3 +151,37 @@ def test_quitting_writes_nothing(server: Emulator, arm_file: Path) -> None:
     assert "nothing written" in cal.out.drain()[-1]
     assert arm_file.read_text("utf-8") == before
     assert list(arm_file.parent.glob("*.bak")) == []
+
+
+def test_calibrate_at_a_terminal_takes_single_keys(server: Emulator, arm_file: Path) -> None:
+    """On a terminal (a pty here): a key each, no Enter after it, Enter itself accepts."""
+    main, terminal = pty.openpty()
+    popen = subprocess.Popen(
+        [AL5D, "calibrate", "--joints", "base", "--time", "300", "--config", str(arm_file)],
+        stdin=terminal,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    os.close(terminal)
+    assert popen.stdout is not None and popen.stderr is not None
+    out, err = Lines(popen.stdout), Lines(popen.stderr)
+    try:
+        out.wait_for("keys: + - one step", 60)
+        # 42 us off: ten steps on (+50), two back (+40); the same at the second reference.
+        for keys, seen in (
+            ("]", "base at 1550 us"),
+            ("--", "base at 1540 us"),
+            ("\r", "reference 2 of 2"),
+            ("]--", "base at 1990 us"),
+            ("\r", "(y/n)"),
+            ("y", "written: "),
+        ):
+            os.write(main, keys.encode())
+            out.wait_for(seen, 60)
+        assert popen.wait(60) == exits.DONE, "\n".join(out.drain() + err.drain())
+    finally:
+        if popen.poll() is None:
+            popen.kill()
+        os.close(main)
+    assert load_config(arm_file).joints["base"].calibration[0].us == 1540

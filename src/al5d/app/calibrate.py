@@ -121,7 +121,7 @@ class Keys:
         fd = self.inp.fileno()
         saved = termios.tcgetattr(fd)
         try:
-            tty.setcbreak(fd)
+            tty.setcbreak(fd, termios.TCSANOW)  # keys typed ahead are kept, not flushed
             yield
         finally:
             termios.tcsetattr(fd, termios.TCSADRAIN, saved)
