@@ -216,15 +216,16 @@ class Procedure:
     config: ArmConfig
     joints: tuple[str, ...]
     step_us: int = DEFAULT_STEP_US
-    results: list[JointCalibration] = field(default_factory=list)
-    refused: dict[str, str] = field(default_factory=dict)
-    skipped: list[str] = field(default_factory=list)
-    _index: int = 0
-    _ref: int = 0
-    _found: list[Point] = field(default_factory=list)
-    pulse: int = 0
-    #: The pulse last commanded and done: where the arm is (None: not yet there).
-    at: int | None = None
+    results: list[JointCalibration] = field(default_factory=list, init=False)
+    refused: dict[str, str] = field(default_factory=dict, init=False)
+    skipped: list[str] = field(default_factory=list, init=False)
+    #: The pulse asked for (the arm is sent there)...
+    pulse: int = field(default=0, init=False)
+    #: ...and the last one whose move was done: where the arm is (None: not yet there).
+    at: int | None = field(default=None, init=False)
+    _index: int = field(default=0, init=False)
+    _ref: int = field(default=0, init=False)
+    _found: list[Point] = field(default_factory=list, init=False)
 
     def __post_init__(self) -> None:
         unknown = [j for j in self.joints if j not in self.config.joints]

@@ -12,6 +12,7 @@ a draggable target for the tool, presets, STOP, and what happened.
     scene.py   the 3D view: the arm, its ghost, the straight path, the target gizmo
     panel.py   the widgets: STOP in a window of its own, the side panel
     page.py    the page: what it knows of the arm, its decisions, the user's input
+    calibrate.py  the Calibrate tab: the guided calibration (`al5d.arm.calibration`)
     app.py     `al5d web`: the page on a port, until SIGINT/SIGTERM
 
 Imports al5d.arm, al5d.model, al5d.ros (the public names, QoS, conversions),

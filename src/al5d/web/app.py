@@ -18,8 +18,9 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
-from al5d.arm.config import ArmConfig, load_config
+from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
 
 log = logging.getLogger("al5d.web")
 
@@ -43,7 +44,7 @@ class WebView:
         import viser
 
         from al5d.ros.runtime import Names
-        from al5d.web import guard
+        from al5d.web import calibrate, guard
         from al5d.web.link import Link
         from al5d.web.page import Page
 
@@ -69,6 +70,7 @@ class WebView:
         self.page = Page(self.server, config, f"al5d {self.names.namespace or ''}".strip())
         self.link = Link(self.names, self.page, config.model, tuple(config.presets))
         self.page.commands = self.link
+        calibrate.attach(self.page, Path(options.config) if options.config else DEFAULT_CONFIG)
 
         def on_client(client: viser.ClientHandle) -> None:
             # Only a page the guard let in counts as opened (`al5d demo --web` waits for one).
