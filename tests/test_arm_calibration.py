@@ -251,6 +251,8 @@ def test_the_file_is_written_with_a_backup_and_a_diff(config: ArmConfig, tmp_pat
     base = config.joints["base"]
     result = judge(base, (Point(0, 1540), Point(45, 1990)))
     assert result.offsets_us == (40, 40)
+    assert "CHECK" not in result.describe()
+    assert "CHECK the scale" in judge(base, (Point(0, 1540), Point(45, 1700))).describe()
     real = tmp_path / "real.yaml"
     shutil.copy(DEFAULT_CONFIG, real)
     link = tmp_path / "al5d.yaml"

@@ -173,7 +173,7 @@ def run_procedure(
         try:
             command = parse_command(answer)
         except ValueError as e:
-            say(f"  {e}")
+            say(f"  {answer[:1]!r}: {HELP_TTY}" if keys.interactive else f"  {e}")
             continue
         if command.kind == "quit":
             return False
@@ -216,26 +216,26 @@ def calibrate(
         print(text, file=out, flush=True)
 
     keys = Keys(inp, inp.isatty())
-    with keys.raw():
-        try:
-            finished = run_procedure(procedure, mover, keys, out, reference_ms)
-        except KeyboardInterrupt:
-            finished = False
-        if not finished:
-            say("calibration ended early: nothing written; the arm stays where it is")
-            return exits.NOT_DONE
-        for line in summary(procedure):
-            say(line)
-        if not procedure.results:
-            say("nothing to write")
-            return exits.DONE if not procedure.refused else exits.NOT_DONE
-        names = ", ".join(r.name for r in procedure.results)
-        if not yes:
-            say(f"write the calibration of {names} into {path}? (y/n)")
-            answer = keys.read()
-            if answer is None or answer.strip().lower() not in ("y", "yes"):
-                say("nothing written")
+    try:
+        with keys.raw():
+            if not run_procedure(procedure, mover, keys, out, reference_ms):
+                say("calibration ended early: nothing written; the arm stays where it is")
                 return exits.NOT_DONE
+            for line in summary(procedure):
+                say(line)
+            if not procedure.results:
+                say("nothing to write")
+                return exits.DONE if not procedure.refused else exits.NOT_DONE
+            names = ", ".join(r.name for r in procedure.results)
+            if not yes:
+                say(f"write the calibration of {names} into {path}? (y/n)")
+                answer = keys.read()
+                if answer is None or answer.strip().lower() not in ("y", "yes"):
+                    say("nothing written")
+                    return exits.NOT_DONE
+    except KeyboardInterrupt:
+        say("\ncalibration ended (Ctrl-C): nothing written; the arm stays where it is")
+        return exits.NOT_DONE
     try:
         written = write_calibration(path, procedure.results)
     except (CalibrationRefused, OSError) as e:
@@ -255,9 +255,7 @@ class ServerMover:
         self.timeout = timeout
 
     def move(self, pose: Mapping[str, float], time_ms: int | None) -> Outcome:
-        move = ins.Instruction(
-            ins.Kind.MOVE, joints=tuple(pose.items()), time_ms=time_ms, id=ins.new_id()
-        )
+        move = ins.Instruction(ins.Kind.MOVE, joints=tuple(pose.items()), time_ms=time_ms)
         return self.client.execute(move, self.timeout)
 
 

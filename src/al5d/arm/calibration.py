@@ -42,6 +42,8 @@ from al5d.ssc32u.facts import PULSE_MAX_US, PULSE_MIN_US
 DEFAULT_STEP_US = 5
 #: The pose of the joints not being calibrated: upright, clear of the table.
 REST_PRESET = "straight_up"
+#: A scale found more than this factor off the old one is said (`JointCalibration.describe`).
+SCALE_SUSPECT = 1.2
 #: A reference angle lies at least this far inside the joint's range, so that a joint
 #: that is off by that much can still be nudged to it without leaving the range.
 MARGIN_DEG = 20.0
@@ -172,6 +174,10 @@ class JointCalibration:
                 "; REVERSED: nudging toward +angle moved the joint toward -angle, the new "
                 "calibration turns it round"
             )
+        if not 1 / SCALE_SUSPECT <= abs(scale) <= SCALE_SUSPECT:
+            # One servo's us per degree hardly differs from another's of its model: a scale
+            # this far off is more likely a reference matched at the wrong place.
+            text += "; CHECK the scale: was the joint at the ghost at both references?"
         return text
 
 
