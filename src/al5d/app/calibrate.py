@@ -31,7 +31,7 @@ from al5d.arm.calibration import (
     summary,
     write_calibration,
 )
-from al5d.arm.config import DEFAULT_CONFIG, ArmConfig
+from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Outcome
 
 if TYPE_CHECKING:
@@ -259,10 +259,10 @@ class ServerMover:
         return self.client.execute(move, self.timeout)
 
 
-def server_config(client: Client, given: str | None) -> tuple[Path | None, str]:
-    """The file to write: the one the server was started with. `given` (`--config`) must be
-    it; without it, the server's. (None and why, when they differ.)"""
-    served = client.server_parameter("config_file")
+def server_config(served: Path | None, given: str | None) -> tuple[Path | None, str]:
+    """The file to write: the one the server was started with (`served`, None: it did not
+    say). `given` (`--config`) must be it; without it, the server's. (None and why, when
+    they differ.)"""
     if served is None:
         if given is None:
             return None, (
@@ -270,13 +270,12 @@ def server_config(client: Client, given: str | None) -> tuple[Path | None, str]:
                 "the file al5d serve was started with"
             )
         return Path(given), ""
-    theirs = Path(served) if served else DEFAULT_CONFIG
-    if given is not None and Path(given).resolve() != theirs.resolve():
+    if given is not None and Path(given).resolve() != served.resolve():
         return None, (
-            f"the server runs with {theirs}, not {given}: the pulses are that file's; "
-            f"calibrate with --config {theirs} (or start the server with --config {given})"
+            f"the server runs with {served}, not {given}: the pulses are that file's; "
+            f"calibrate with --config {served} (or start the server with --config {given})"
         )
-    return theirs, ""
+    return served, ""
 
 
 def calibrate_command(
@@ -295,12 +294,14 @@ def calibrate_command(
 ) -> int:
     """`al5d calibrate`: find the server, check its file, run the procedure, write."""
     from al5d.arm.config import load_config
-    from al5d.ros.client import Client, NoOutcome, NoServer
+    from al5d.ros.client import ANSWER_S, Client, NoOutcome, NoServer
+    from al5d.ros.params import served_config_file
 
     client = Client(namespace, wait_s=wait_s)
     try:
         client.wait_for_server(wait_s)
-        path, problem = server_config(client, config_path)
+        served = served_config_file(client.node, client.names, ANSWER_S)
+        path, problem = server_config(served, config_path)
         if path is None:
             print(f"al5d calibrate: {problem}", file=err)
             return exits.USAGE

@@ -385,31 +385,6 @@ class Client:
                 if not future.done():
                     service.remove_pending_request(future)
 
-    def server_parameter(self, name: str, timeout: float = ANSWER_S) -> Any:
-        """The value of one of the server's parameters (`config_file`), or None if the
-        server's node `al5d` does not answer for it within `timeout` (renamed, or gone)."""
-        from rcl_interfaces.msg import ParameterType
-        from rcl_interfaces.srv import GetParameters
-        from rclpy.parameter import parameter_value_to_python
-
-        self._check_open()
-        service = self.node.create_client(GetParameters, self.names.private("get_parameters"))
-        try:
-            if not service.wait_for_service(timeout_sec=timeout):
-                return None
-            done = threading.Event()
-            future = service.call_async(GetParameters.Request(names=[name]))
-            future.add_done_callback(lambda _: done.set())
-            if not done.wait(timeout) or future.result() is None:
-                service.remove_pending_request(future)
-                return None
-            values = future.result().values
-            if not values or values[0].type == ParameterType.PARAMETER_NOT_SET:
-                return None
-            return parameter_value_to_python(values[0])
-        finally:
-            self.node.destroy_client(service)
-
     def close(self) -> None:
         """End the client's node and ROS context; again, or at exit, it does nothing."""
         with self._closing:

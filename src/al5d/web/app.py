@@ -25,6 +25,8 @@ from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
 log = logging.getLogger("al5d.web")
 
 DEFAULT_PORT = 8080
+#: How long the Calibrate tab waits for the server to say its config file.
+SERVED_WAIT_S = 5.0
 DEFAULT_HOST = "127.0.0.1"
 
 
@@ -43,6 +45,7 @@ class WebView:
     def __init__(self, options: WebOptions, config: ArmConfig | None = None) -> None:
         import viser
 
+        from al5d.ros.params import served_config_file
         from al5d.ros.runtime import Names
         from al5d.web import calibrate, guard
         from al5d.web.link import Link
@@ -70,7 +73,11 @@ class WebView:
         self.page = Page(self.server, config, f"al5d {self.names.namespace or ''}".strip())
         self.link = Link(self.names, self.page, config.model, tuple(config.presets))
         self.page.commands = self.link
-        calibrate.attach(self.page, Path(options.config) if options.config else DEFAULT_CONFIG)
+        calibrate.attach(
+            self.page,
+            Path(options.config) if options.config else DEFAULT_CONFIG,
+            lambda: served_config_file(self.link.node, self.names, SERVED_WAIT_S),
+        )
 
         def on_client(client: viser.ClientHandle) -> None:
             # Only a page the guard let in counts as opened (`al5d demo --web` waits for one).

@@ -5,8 +5,9 @@ shows where the joint should stand. Nudge (-10, -1, +1, +10 steps of 5 us, towar
 -angle or +angle as the configuration has it) until the real joint stands where the
 ghost is, then "it is there"; then the second reference. The joint's result (its
 offsets, REVERSED, or why it is refused) stays listed; "write" puts every joint found
-into the configuration file `al5d web --config` names (a backup beside it, the diff
-shown). Every nudge is a move sent to the server, judged whole there, and waited for.
+into the configuration file `al5d web --config` names, once the server says it runs
+with that file (a backup beside it, the diff shown). Every nudge is a move sent to the
+server, judged whole there, and waited for.
 
 It works under the page's lock (the page calls it from the ROS thread with its lock
 held; its handlers take the same lock), and hooks into the page only by
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import html
 import logging
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -55,9 +57,13 @@ def _html(ident: str, body: str, colour: str = "#495057") -> str:
 class CalibrationTab:
     """The tab's widgets and the procedure of the joint being calibrated."""
 
-    def __init__(self, page: Page, path: Path, tabs: Any) -> None:
+    def __init__(
+        self, page: Page, path: Path, tabs: Any, served: Callable[[], Path | None]
+    ) -> None:
         self.page = page
         self.path = path
+        #: Asks the server which file it was started with (None: it did not say).
+        self.served = served
         self.lock = page.lock
         self.procedure: Procedure | None = None
         #: The id of the move sent and not yet answered: no nudge until its outcome.
@@ -159,9 +165,17 @@ class CalibrationTab:
             self.page.refresh_ghost()
 
     def _on_write(self) -> None:
+        served = self.served()  # a service call: not under the page's lock
         with self.lock:
             results = list(self.results.values())
             if not results:
+                return
+            if served is not None and served.resolve() != self.path.resolve():
+                self._show(
+                    f"not written: the server runs with {served}, this page with {self.path}: "
+                    f"start al5d web --config {served}",
+                    ok=False,
+                )
                 return
             try:
                 written = write_calibration(self.path, results)
@@ -219,10 +233,10 @@ class CalibrationTab:
         self.write.disabled = not self.results
 
 
-def attach(page: Page, path: Path) -> CalibrationTab:
-    """The Calibrate tab on `page`, writing into `path`."""
+def attach(page: Page, path: Path, served: Callable[[], Path | None]) -> CalibrationTab:
+    """The Calibrate tab on `page`, writing into `path` if `served` says it is the server's."""
     with page.lock:
-        tab = CalibrationTab(page, path, page.panel.tabs)
+        tab = CalibrationTab(page, path, page.panel.tabs, served)
         page.calibration = tab
         page.panel.controls.extend(tab.controls)
         page.panel.set_enabled(not page.lost)
