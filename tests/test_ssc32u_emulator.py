@@ -10,7 +10,7 @@ import serial
 
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.emulator import Emulator, Fault, Record
+from al5d.ssc32u.emulator import Emulator, Fault, Mechanics, Record
 from al5d.ssc32u.emulator.board import Board
 
 
@@ -226,3 +226,31 @@ def test_the_board_model_needs_no_pty(config: ArmConfig) -> None:
     assert [r.raw for r in board.records] == [b"#0P1500#1P2000", b"QP0QP1", b"#0P1000T1000", b"Q"]
     board.inject(Fault.NO_ANSWER)
     assert board.execute(b"VER", 12.0) == []
+
+
+def test_a_misaligned_joint_stands_elsewhere_than_its_calibration_says(config: ArmConfig) -> None:
+    """`mechanics`: the pulse the config gives for an angle puts the emulated joint elsewhere
+    (a horn seated off, a servo turning the other way), read as the joint's true angle."""
+    board = Board(
+        config,
+        mechanics={"base": Mechanics(offset_us=40), "elbow": Mechanics(-20, reversed=True)},
+    )
+    base, elbow, wrist = (config.joints[n] for n in ("base", "elbow", "wrist"))
+    t = board.powered_at + 1
+    line = f"#0P{base.to_us(30):.0f}#2P{elbow.to_us(90):.0f}#3P{wrist.to_us(45):.0f}"
+    board.execute(line.encode(), t)
+    believed, true = board.servo_degrees(t + 5), board.joint_degrees(t + 5)
+    assert believed["base"] == pytest.approx(30)
+    assert true["base"] == pytest.approx(30 - 40 / base.us_per_deg)  # 4.4 deg short of 30
+    assert believed["elbow"] == pytest.approx(90)
+    # Reversed about the centre pulse: 1700 us reads as 1300 (+20 us of its offset).
+    assert true["elbow"] == pytest.approx(elbow.to_deg(3000 - (elbow.to_us(90) + 20)))
+    assert true["wrist"] == pytest.approx(believed["wrist"]) == pytest.approx(45)
+    # The pulse that puts the joint where the config believes, found by hand, is the offset's.
+    board.execute(f"#0P{base.to_us(30) + 40:.0f}".encode(), t + 6)
+    assert board.joint_degrees(t + 11)["base"] == pytest.approx(30)
+
+
+def test_mechanics_name_a_configured_joint(config: ArmConfig) -> None:
+    with pytest.raises(ValueError, match="'knee': no such joint"):
+        Board(config, mechanics={"knee": Mechanics(10)})

@@ -13,11 +13,12 @@ import pytest
 import serial
 from boardproc import BoardProcess
 
-from al5d.app.cli import build_parser
+from al5d import exits
+from al5d.app.cli import build_parser, main
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.driver import SSC32U
-from al5d.ssc32u.emulator import Record
+from al5d.ssc32u.emulator import Mechanics, Record
 
 AL5D = Path(sys.executable).with_name("al5d")
 
@@ -156,6 +157,10 @@ def test_standalone_low_latency_and_uart(tmp_path: Path) -> None:
         ("--power-up", "0=3000"),
         ("--latency-timer", "0"),
         ("--transport", "can"),
+        ("--misalign", "base"),
+        ("--misalign", "base=x"),
+        ("--misalign", "base=900"),
+        ("--misalign", "base=10,20"),
     ],
 )
 def test_standalone_refuses_bad_settings_before_it_starts(flag: str, value: str) -> None:
@@ -184,3 +189,11 @@ def test_a_board_process_replays_its_resets(config: ArmConfig, tmp_path: Path) -
             assert model.pulse_us(1) == 0
     finally:
         board.close()
+
+
+def test_standalone_takes_a_misaligned_arm() -> None:
+    args = build_parser().parse_args(
+        ["emulator", "--misalign", "base=40", "--misalign", "elbow=-20,reversed"]
+    )
+    assert dict(args.misalign) == {"base": Mechanics(40), "elbow": Mechanics(-20, reversed=True)}
+    assert main(["emulator", "--misalign", "knee=10"]) == exits.USAGE

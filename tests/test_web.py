@@ -21,20 +21,18 @@ from typing import Any
 
 import pytest
 import viser
-from playwright.sync_api import sync_playwright
 from proc import Proc, patient_config
 from rospeer import Peer, wait_until
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from webrig import (
     VIEWPORT,
-    BrowserUnavailable,
     StateWatch,
     WebProc,
     arm_pixels,
+    chromium,
     clickable,
     controls,
     dismiss_notifications,
-    launch,
     open_page,
     wait_for_arm,
     wait_text,
@@ -100,18 +98,11 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
         peer = Peer(name="al5d_test_web_peer")
         state = StateWatch(peer.node, Names())
         peer.wait_for_server()
-        with sync_playwright() as playwright:
-            try:
-                browser = launch(playwright)
-            except BrowserUnavailable as e:
-                pytest.fail(str(e))
-            try:
-                page = open_page(browser, web.url)
-                rig = Rig(config, emu, servers[0], web, peer, state, page, link, browser)
-                yield rig
-                servers.append(rig.server)  # a test may have started another
-            finally:
-                browser.close()
+        with chromium() as browser:
+            page = open_page(browser, web.url)
+            rig = Rig(config, emu, servers[0], web, peer, state, page, link, browser)
+            yield rig
+            servers.append(rig.server)  # a test may have started another
     finally:
         if peer is not None:
             peer.close()

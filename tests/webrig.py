@@ -7,11 +7,12 @@ a browser of its own here. WebGL runs on SwiftShader, Chromium's CPU renderer.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +44,24 @@ def launch(playwright: Any) -> Any:
         return playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
     except Exception as e:
         raise BrowserUnavailable(f"headless Chromium at {CHROMIUM} did not start: {e}") from e
+
+
+@contextlib.contextmanager
+def chromium() -> Iterator[Any]:
+    """Headless Chromium for a test, closed after it; one that cannot start fails the test
+    with the reason (never a skip)."""
+    import pytest
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        try:
+            browser = launch(playwright)
+        except BrowserUnavailable as e:
+            pytest.fail(str(e))
+        try:
+            yield browser
+        finally:
+            browser.close()
 
 
 class WebProc:

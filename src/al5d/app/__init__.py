@@ -9,6 +9,7 @@
 - `moveit`, `moveit_package`: `al5d moveit`, a MoveIt 2 config package for the arm.
 - `record`, `replay`: recordings in rosbag2's MCAP (`al5d record`, `serve --record`) and
   `al5d replay`.
+- `calibrate`: `al5d calibrate`, the guided calibration at the terminal (through the server).
 
 The top layer: it may import every other part of al5d.
 """

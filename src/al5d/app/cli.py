@@ -1,5 +1,5 @@
 """The `al5d` command line: serve, emulator, send, run, shell, doctor, demo, web, record,
-replay."""
+replay, calibrate."""
 
 from __future__ import annotations
 
@@ -72,6 +72,14 @@ def _cmd_emulator(args: argparse.Namespace) -> int:
 
     config = load_config(args.config)
     usb = Link(Transport(args.transport), args.latency_timer, args.low_latency)
+    unknown = [name for name, _ in args.misalign if name not in config.joints]
+    if unknown:
+        print(
+            f"al5d emulator: --misalign {unknown[0]}: no such joint; joints: "
+            + ", ".join(config.joints),
+            file=sys.stderr,
+        )
+        return exits.USAGE
     emulator = Emulator(
         config,
         baud=args.baud,
@@ -82,6 +90,7 @@ def _cmd_emulator(args: argparse.Namespace) -> int:
         startup=args.startup,
         power_up=dict(args.power_up),
         announce_reset=args.announce_reset,
+        mechanics=dict(args.misalign),
     )
     print(f"al5d emulator: SSC-32U at {args.baud} baud, {usb.describe()}", file=sys.stderr)
     if args.record is None:
@@ -202,6 +211,76 @@ def _cmd_shell(args: argparse.Namespace) -> int:
     )
 
 
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from al5d.app.calibrate import calibrate_command
+
+    return calibrate_command(
+        config_path=args.config,
+        joints=tuple(args.joints.split(",")) if args.joints else (),
+        step_us=args.step,
+        namespace=args.namespace,
+        wait_s=args.wait,
+        timeout=args.timeout,
+        yes=args.yes,
+        reference_ms=args.time,
+    )
+
+
+def _within(lo: int, hi: int, unit: str) -> Callable[[str], int]:
+    """A whole number of `unit` within lo..hi, or argparse's error saying so."""
+
+    def convert(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number of {unit}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{value} {unit}: give {lo}..{hi}")
+        return value
+
+    convert.__name__ = unit
+    return convert
+
+
+def _add_calibrate(sub: Any) -> None:
+    """`al5d calibrate` (README, Calibration)."""
+    cal = sub.add_parser(
+        "calibrate",
+        help="find each joint's calibration on the arm (through al5d serve) and write it",
+        description=(
+            "Per joint, the arm goes to two reference poses (through al5d serve); nudge the\n"
+            "pulse until the real joint stands where the model says, and accept. The\n"
+            "calibrations found are written into the server's config file, with a backup\n"
+            "beside it and the diff printed.\n"
+            "At a terminal: + - one step, ] [ ten, Enter accepts, s skips, q quits.\n"
+            "Piped: a line each, + - +N -N ok skip quit, then y or n to write."
+        ),
+        epilog=exits.describe(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    cal.add_argument(
+        "--config", help="the file to write: the one al5d serve runs with (default: the server's)"
+    )
+    cal.add_argument("--joints", help="comma-separated, e.g. base,elbow; default: every joint")
+    cal.add_argument(
+        "--step",
+        type=_within(1, 100, "us"),
+        default=5,
+        help="a nudge, in us (1..100); default %(default)s",
+    )
+    cal.add_argument(
+        "--time",
+        type=_within(0, 60_000, "ms"),
+        default=1500,
+        help="ms for a move to a reference pose (the servos' speed allowing); default %(default)s",
+    )
+    cal.add_argument("--yes", action="store_true", help="write without asking")
+    cal.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
+    cal.add_argument("--wait", type=float, default=10.0, help="seconds to find the server")
+    cal.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for a move")
+    cal.set_defaults(func=_cmd_calibrate)
+
+
 def _cmd_doctor(args: argparse.Namespace) -> int:
     from al5d.app.doctor import doctor
 
@@ -300,6 +379,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--announce-reset",
         action="store_true",
         help="a reset (SIGUSR1) sends what SS answers, unasked",
+    )
+    emu.add_argument(
+        "--misalign",
+        metavar="JOINT=US[,reversed]",
+        action="append",
+        default=[],
+        type=_emulator_setting("misalign_setting"),
+        help="an arm other than its config says (to try `al5d calibrate` on): the joint "
+        "stands US off its calibration, or turns the other way (repeat)",
     )
     emu.set_defaults(func=_cmd_emulator)
 
@@ -401,6 +489,7 @@ def build_parser() -> argparse.ArgumentParser:
     web.add_argument("--log-level", **LOG_LEVEL)
     web.set_defaults(func=_cmd_web)
     _add_recordings(sub)
+    _add_calibrate(sub)
     return parser
 
 

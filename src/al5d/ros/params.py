@@ -29,14 +29,28 @@ reader sized for another topic.
 from __future__ import annotations
 
 import re
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import yaml
 
-from al5d.arm.config import ArmConfig, ConfigError, Geometry, ServerSettings, load_config
+from al5d.arm.config import (
+    DEFAULT_CONFIG,
+    ArmConfig,
+    ConfigError,
+    Geometry,
+    ServerSettings,
+    load_config,
+)
 from al5d.arm.config import with_changes as config_with
+
+if TYPE_CHECKING:
+    from rclpy.node import Node
+
+    from al5d.ros.names import Names
 
 #: Where a parameter's error comes from, in the config's messages.
 SOURCE = "ROS parameters"
@@ -287,3 +301,29 @@ def description(name: str) -> str:
     what = DESCRIPTIONS.get(name, f"the config file's {name}")
     when = "changes apply at once" if name in RUNTIME else "read at start: restart to change"
     return f"{what}; {when}"
+
+
+def served_config_file(node: Node, names: Names, timeout: float) -> Path | None:
+    """The configuration file a running server was started with (its node `al5d`'s
+    `config_file`; the shipped one for ""), asked by a client's `node`; None if that node
+    does not answer within `timeout` (renamed, or gone)."""
+    from rcl_interfaces.msg import ParameterType
+    from rcl_interfaces.srv import GetParameters
+
+    service = node.create_client(GetParameters, names.private("get_parameters"))
+    try:
+        if not service.wait_for_service(timeout_sec=timeout):
+            return None
+        done = threading.Event()
+        future = service.call_async(GetParameters.Request(names=["config_file"]))
+        future.add_done_callback(lambda _: done.set())
+        if not done.wait(timeout) or future.result() is None:
+            service.remove_pending_request(future)
+            return None
+        values = future.result().values
+        if not values or values[0].type != ParameterType.PARAMETER_STRING:
+            return None
+        served = str(values[0].string_value)
+        return Path(served) if served else DEFAULT_CONFIG
+    finally:
+        node.destroy_client(service)

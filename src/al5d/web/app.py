@@ -20,11 +20,13 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from al5d.arm.config import ArmConfig, load_config
+from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
 
 log = logging.getLogger("al5d.web")
 
 DEFAULT_PORT = 8080
+#: How long the Calibrate tab waits for the server to say its config file.
+SERVED_WAIT_S = 5.0
 DEFAULT_HOST = "127.0.0.1"
 
 
@@ -47,7 +49,8 @@ class WebView:
 
         from al5d.arm.poses import beside, load_poses
         from al5d.ros.names import Names
-        from al5d.web import guard
+        from al5d.ros.params import served_config_file
+        from al5d.web import calibrate, guard
         from al5d.web.link import Link
         from al5d.web.page import Page
         from al5d.web.teach import Listeners, Teach
@@ -78,6 +81,11 @@ class WebView:
         listeners = Listeners(self.page, self.teach)
         self.link = Link(self.names, listeners, config.model, tuple(config.presets))
         self.page.commands = self.link
+        calibrate.attach(
+            self.page,
+            Path(options.config) if options.config else DEFAULT_CONFIG,
+            lambda: served_config_file(self.link.node, self.names, SERVED_WAIT_S),
+        )
 
         def on_client(client: viser.ClientHandle) -> None:
             # Only a page the guard let in counts as opened (`al5d demo --web` waits for one).

@@ -61,6 +61,9 @@ class Commands(Protocol):
 class Page:
     """The control panel and the 3D view of one arm, on a viser server."""
 
+    #: The Calibrate tab (`web.calibrate`) once attached: its ghost and its moves' outcomes.
+    calibration: Any = None
+
     def __init__(self, server: viser.ViserServer, config: ArmConfig, title: str) -> None:
         self.server = server
         self.config = config
@@ -161,6 +164,8 @@ class Page:
             self.panel.show_outcomes(self.outcomes)
             if self.pending.pop(outcome.id, None) is not None:
                 self._show_ghost()
+            if self.calibration is not None:
+                self.calibration.on_outcome(outcome)
             if outcome.id == self.page_move_to:
                 ok = outcome.result is Result.DONE
                 self.panel.show_status(f"server: {outcome}", ok)
@@ -205,8 +210,20 @@ class Page:
         return None if self.degrees is None else dict(self.degrees)
 
     def _show_ghost(self) -> None:
-        self.scene.show_ghost(next(reversed(self.pending.values()))[1] if self.pending else None)
+        ghost = next(reversed(self.pending.values()))[1] if self.pending else None
+        if ghost is None and self.calibration is not None:  # where the joint should stand
+            pose = self.calibration.ghost()
+            ghost = None if pose is None else Target("calibration", pose)
+        self.scene.show_ghost(ghost)
         self._show_tool()
+
+    @property
+    def lock(self) -> threading.RLock:
+        return self._lock
+
+    def refresh_ghost(self) -> None:
+        with self._lock:
+            self._show_ghost()
 
     def _set_lost(self, lost: bool, age_s: float | None = None) -> None:
         """The banner (its text again each second while lost); the controls on a change."""
@@ -297,12 +314,16 @@ class Page:
 
         return handler
 
-    def _send(self, instr: Instruction) -> None:
+    def _send(self, instr: Instruction) -> bool:
+        """Send `instr` to the server; False when there is none to send it to."""
         if self.commands is None or self.lost:
-            return
+            return False
         with self._lock:
             self.jog = None  # another instruction ends the jog: its target is not sent again
         self.commands.send(instr)
+        return True
+
+    send_move = _send
 
     def _slider_move(self, values: dict[str, float]) -> Instruction:
         return Instruction(Kind.MOVE, joints=tuple(values.items()), time_ms=self.panel.time_ms())

@@ -120,7 +120,7 @@ class Panel:
         self.release = gui.add_button("release", icon=viser.Icon.LOCK_OPEN)
         self.tool_html = gui.add_html("")
         self.last_html = gui.add_html("")
-        #: The tabs; the Teach tab (teach.py) is added to them.
+        #: The tabs; the Teach tab (teach.py) and the Calibrate tab (calibrate.py) are added.
         self.tabs = tabs = gui.add_tab_group()
         self.joints_tab = tabs.add_tab("Joints", viser.Icon.ADJUSTMENTS)
         with self.joints_tab:

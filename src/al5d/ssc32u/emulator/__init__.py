@@ -11,6 +11,7 @@ context manager, or `start()` and `close()`:
         emu.servo_degrees()      # where the emulated servos are
         emu.set_input("A", 0)    # a switch on input A closes
         emu.inject(Fault.RESET)  # a brown-out
+        emu.joint_degrees()      # the joints' true angles (`mechanics=`: a misaligned arm)
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from al5d.ssc32u.emulator.board import (
     Board,
     Fault,
     InputValue,
+    Mechanics,
     Record,
     ServoJoint,
 )
@@ -45,6 +47,7 @@ __all__ = [
     "Emulator",
     "Fault",
     "Link",
+    "Mechanics",
     "Record",
     "ServoJoint",
     "Transport",
@@ -80,6 +83,7 @@ class Emulator(Board):
         startup: str = "",
         power_up: Mapping[int, int] | None = None,
         announce_reset: bool = False,
+        mechanics: Mapping[str, Mechanics] | None = None,
     ) -> None:
         super().__init__(
             config,
@@ -92,6 +96,7 @@ class Emulator(Board):
             startup=startup,
             power_up=power_up,
             announce_reset=announce_reset,
+            mechanics=mechanics,
         )
         self.usb = usb
         self._link = PtyLink(self, link, usb)

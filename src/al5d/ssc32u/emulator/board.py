@@ -16,7 +16,7 @@ from al5d.clock import now
 from al5d.ssc32u import facts
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator.inputs import Pin, input_level
-from al5d.ssc32u.emulator.measure import ArmDescription, ServoJoint, ServoObserver
+from al5d.ssc32u.emulator.measure import ArmDescription, Mechanics, ServoJoint, ServoObserver
 from al5d.ssc32u.emulator.records import RESET, SERIAL, STARTUP, Answer, Record, RecordLog
 from al5d.ssc32u.emulator.servo import DEFAULT_SPEED_US_S, Servo
 
@@ -30,6 +30,7 @@ __all__ = [
     "Board",
     "Fault",
     "InputValue",
+    "Mechanics",
     "Record",
     "ServoJoint",
 ]
@@ -77,6 +78,8 @@ class Board(RecordLog, ServoObserver):
     "open"; see `inputs.input_level`); unset pins are open. `announce_reset` makes
     a reset send what `SS` would answer, so that a client's handling of unasked-for
     bytes can be tested (the guide mentions nothing a board sends at power-up).
+    `mechanics` (joint name -> `Mechanics`) makes the arm on the board other than its
+    configuration says, as calibration finds it: `joint_degrees` reads its true angles.
     """
 
     def __init__(
@@ -92,10 +95,16 @@ class Board(RecordLog, ServoObserver):
         startup: str = "",
         power_up: Mapping[int, int] | None = None,
         announce_reset: bool = False,
+        mechanics: Mapping[str, Mechanics] | None = None,
     ) -> None:
         RecordLog.__init__(self)
         ServoObserver.__init__(self)
         self.config = config
+        for name, mech in (mechanics or {}).items():
+            if config is None or name not in config.joints:
+                known = ", ".join(config.joints) if config is not None else "none without a config"
+                raise ValueError(f"mechanics of {name!r}: no such joint (joints: {known})")
+            self.mechanics[name] = mech
         self.baud = baud
         self.version = version
         self.answer_delay_s = answer_delay_s

@@ -13,6 +13,7 @@ from collections.abc import Iterable, Mapping
 from typing import Protocol
 
 from al5d.clock import now
+from al5d.ssc32u import facts
 from al5d.ssc32u.emulator.servo import Servo
 
 HISTORY = 100_000  # commands remembered per channel for reach_time
@@ -43,14 +44,37 @@ class ArmDescription(Protocol):
     def presets(self) -> Mapping[str, Mapping[str, float]]: ...
 
 
+@dataclasses.dataclass(frozen=True)
+class Mechanics:
+    """How an emulated joint truly stands on its servo, where the configuration is wrong
+    about it: the horn seated `offset_us` off (to stand at an angle the joint needs that
+    much more pulse than the calibration says), and `reversed` when the servo turns the
+    joint the other way (mirrored about the board's centre pulse). What calibration finds.
+    """
+
+    offset_us: float = 0.0
+    reversed: bool = False
+
+    def true_us(self, servo_us: float) -> float:
+        """The pulse the calibration would need for the angle a servo at `servo_us` gives."""
+        us = servo_us - self.offset_us
+        return 2 * facts.PULSE_CENTRE_US - us if self.reversed else us
+
+
+TRUE = Mechanics()
+
+
 class ServoObserver:
     """The servos as observers see them; the board's model keeps them under `_lock`."""
 
     config: ArmDescription | None
     _lock: threading.RLock
     _servos: dict[int, Servo]
+    #: Joint name -> how it truly stands on its servo (`Mechanics`); absent: as configured.
+    mechanics: dict[str, Mechanics]
 
     def __init__(self) -> None:
+        self.mechanics = {}
         # Per channel: the servo as each command left it, to answer "when did that move arrive".
         self._history: dict[int, deque[Servo]] = {}
 
@@ -74,6 +98,16 @@ class ServoObserver:
             return {}
         return {
             name: j.to_deg(self.servo_us(j.channel, t)) for name, j in self.config.joints.items()
+        }
+
+    def joint_degrees(self, t: float | None = None) -> dict[str, float]:
+        """Every configured joint's true angle: where the emulated arm stands, which differs
+        from `servo_degrees` (the calibration's reading) by the joint's `mechanics`."""
+        if self.config is None:
+            return {}
+        return {
+            name: j.to_deg(self.mechanics.get(name, TRUE).true_us(self.servo_us(j.channel, t)))
+            for name, j in self.config.joints.items()
         }
 
     def _joints(self, joints: Iterable[str] | None, what: str) -> list[tuple[str, ServoJoint]]:

@@ -10,6 +10,7 @@ import argparse
 
 from al5d.ssc32u import facts
 from al5d.ssc32u.emulator.inputs import Level, input_level
+from al5d.ssc32u.emulator.measure import Mechanics
 
 LATENCY_TIMER_MS = facts.LATENCY_TIMER_MS
 
@@ -65,3 +66,22 @@ def pulse_setting(text: str) -> tuple[int, int]:
     if ch not in facts.CHANNELS or not facts.PULSE_MIN_US <= us <= facts.PULSE_MAX_US:
         raise argparse.ArgumentTypeError(f"{text!r}: channels 0..31, pulses 500..2500 us")
     return ch, us
+
+
+#: A misalignment beyond this is a horn on the wrong spline by several teeth, not an offset.
+MISALIGN_MAX_US = 500
+
+
+def misalign_setting(text: str) -> tuple[str, Mechanics]:
+    """`base=40`, `shoulder=-25,reversed`, `elbow=reversed`: a joint that truly stands that
+    many us off its calibration, or turns the other way (checked against the config later)."""
+    name, value = _pair(text, "JOINT=US[,reversed], e.g. base=40 or elbow=-20,reversed")
+    words = [w.strip() for w in value.split(",")]
+    reversed_ = "reversed" in words
+    rest = [w for w in words if w != "reversed"]
+    if len(rest) > 1 or (not rest and not reversed_):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected JOINT=US[,reversed]")
+    offset = float(_int(rest[0].removesuffix("us"), "an offset in us")) if rest else 0.0
+    if abs(offset) > MISALIGN_MAX_US:
+        raise argparse.ArgumentTypeError(f"{text!r}: an offset within +-{MISALIGN_MAX_US} us")
+    return name, Mechanics(offset, reversed_)

@@ -1,0 +1,243 @@
+"""The page's Calibrate tab: the guided calibration of `al5d.arm.calibration` in the browser.
+
+Pick a joint and start: the arm goes to the joint's first reference pose and the ghost
+shows where the joint should stand. Nudge (-10, -1, +1, +10 steps of 5 us, toward
+-angle or +angle as the configuration has it) until the real joint stands where the
+ghost is, then "it is there"; then the second reference. The joint's result (its
+offsets, REVERSED, or why it is refused) stays listed; "write" puts every joint found
+into the configuration file `al5d web --config` names, once the server says it runs
+with that file (a backup beside it, the diff shown). Every nudge is a move sent to the
+server, judged whole there, and waited for.
+
+It works under the page's lock (the page calls it from the ROS thread with its lock
+held; its handlers take the same lock), and hooks into the page only by
+`Page.calibration` (the ghost when no move is pending, and the outcomes).
+"""
+
+from __future__ import annotations
+
+import html
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import viser
+
+from al5d.arm.calibration import (
+    DEFAULT_STEP_US,
+    CalibrationRefused,
+    JointCalibration,
+    Procedure,
+    Step,
+    write_calibration,
+)
+from al5d.arm.instruction import Instruction, Kind, Outcome, Result
+
+if TYPE_CHECKING:
+    from al5d.web.page import Page
+
+log = logging.getLogger("al5d.web")
+
+#: The move to a reference pose takes at least this long: a walk, not the servos' top speed.
+REFERENCE_MOVE_MS = 1500
+NUDGES = ("-10", "-1", "+1", "+10")
+#: The elements the tests read, by id.
+STATUS = "al5d-cal-status"
+RESULTS = "al5d-cal-results"
+
+
+def _html(ident: str, body: str, colour: str = "#495057") -> str:
+    return (
+        f'<div id="{ident}" style="color:{colour};font-size:0.85em;overflow-wrap:anywhere;'
+        f'padding:0 0.6em">{body}</div>'
+    )
+
+
+class CalibrationTab:
+    """The tab's widgets and the procedure of the joint being calibrated."""
+
+    def __init__(
+        self, page: Page, path: Path, tabs: Any, served: Callable[[], Path | None]
+    ) -> None:
+        self.page = page
+        self.path = path
+        #: Asks the server which file it was started with (None: it did not say).
+        self.served = served
+        self.lock = page.lock
+        self.procedure: Procedure | None = None
+        #: The id of the move sent and not yet answered: no nudge until its outcome.
+        self.waiting: str | None = None
+        self.results: dict[str, JointCalibration] = {}
+        self.notes: list[str] = []
+        gui = page.server.gui
+        with tabs.add_tab("Calibrate", viser.Icon.RULER_MEASURE):
+            self.joint = gui.add_dropdown("joint", tuple(page.config.joints))
+            self.start = gui.add_button("start", icon=viser.Icon.PLAYER_PLAY)
+            self.status = gui.add_html(_html(STATUS, html.escape(self._idle_text())))
+            self.nudge = gui.add_button_group("nudge", NUDGES)
+            self.accept = gui.add_button("it is there", icon=viser.Icon.CHECK)
+            self.cancel = gui.add_button("cancel", icon=viser.Icon.X)
+            self.results_html = gui.add_html(_html(RESULTS, ""))
+            self.write = gui.add_button("write", icon=viser.Icon.DEVICE_FLOPPY, disabled=True)
+        self.start.on_click(lambda _: self._on_start())
+        self.nudge.on_click(lambda event: self._on_nudge(int(str(event.target.value))))
+        self.accept.on_click(lambda _: self._on_accept())
+        self.cancel.on_click(lambda _: self._on_cancel())
+        self.write.on_click(lambda _: self._on_write())
+        #: What a lost server turns off with the page's other controls.
+        self.controls = [self.joint, self.start, self.accept, self.cancel]
+
+    def _idle_text(self) -> str:
+        return f"pick a joint and start; the file: {self.path}"
+
+    # -- the page's hooks (under its lock) -------------------------------------------
+
+    def ghost(self) -> dict[str, float] | None:
+        """Where the model shows the arm: the joint at its reference (None: no procedure)."""
+        if self.procedure is None or self.procedure.step is Step.DONE:
+            return None
+        return self.procedure.reference_pose()
+
+    def on_outcome(self, outcome: Outcome) -> None:
+        if self.procedure is None or outcome.id != self.waiting:
+            return
+        self.waiting = None
+        if outcome.result is Result.DONE:
+            self.procedure.moved()
+            self._show()
+        else:
+            self.procedure.not_moved()
+            self._show(f"not moved: {outcome}", ok=False)
+
+    # -- the user's input (viser's threads) ------------------------------------------
+
+    def _on_start(self) -> None:
+        with self.lock:
+            name = str(self.joint.value)
+            self.procedure = Procedure(self.page.config, (name,), DEFAULT_STEP_US)
+            self.results.pop(name, None)
+            self._go(REFERENCE_MOVE_MS)
+
+    def _on_nudge(self, steps: int) -> None:
+        with self.lock:
+            if self.procedure is None or self.procedure.step is Step.DONE:
+                return
+            if self.waiting is not None:
+                self._show("wait: the last move has no outcome yet", ok=False)
+                return
+            try:
+                self.procedure.nudge(steps)
+            except CalibrationRefused as e:
+                self._show(f"not moved: {e}", ok=False)
+                return
+            self._go(None)
+
+    def _on_accept(self) -> None:
+        with self.lock:
+            procedure = self.procedure
+            if procedure is None or procedure.step is Step.DONE or self.waiting is not None:
+                return
+            name = procedure.joint.name
+            try:
+                result = procedure.accept()
+            except CalibrationRefused as e:
+                self.notes.append(f"refused: {e}")
+                self.procedure = None
+                self._show_results()
+                self._show(f"{name}: refused (below)", ok=False)
+                self.page.refresh_ghost()
+                return
+            if result is None:  # on to the second reference
+                self._go(REFERENCE_MOVE_MS)
+                return
+            self.results[name] = result
+            self.procedure = None
+            self._show_results()
+            self._show(f"{name}: found (below); write it, or calibrate another joint", ok=True)
+            self.page.refresh_ghost()
+
+    def _on_cancel(self) -> None:
+        with self.lock:
+            self.procedure = None
+            self.waiting = None
+            self._show(self._idle_text())
+            self.page.refresh_ghost()
+
+    def _on_write(self) -> None:
+        served = self.served()  # a service call: not under the page's lock
+        with self.lock:
+            results = list(self.results.values())
+            if not results:
+                return
+            if served is not None and served.resolve() != self.path.resolve():
+                self._show(
+                    f"not written: the server runs with {served}, this page with {self.path}: "
+                    f"start al5d web --config {served}",
+                    ok=False,
+                )
+                return
+            try:
+                written = write_calibration(self.path, results)
+            except (CalibrationRefused, OSError) as e:
+                self._show(f"not written: {e}", ok=False)
+                return
+            self.results.clear()
+            self.notes = [
+                f"written: {written.path} (the file as it was: {written.backup}); restart "
+                "al5d serve to drive the arm with it"
+            ]
+            self._show_results(written.diff)
+            self._show("written", ok=True)
+            log.info("web: calibration written into %s (backup %s)", written.path, written.backup)
+
+    # -- under the lock ----------------------------------------------------------------
+
+    def _go(self, time_ms: int | None) -> None:
+        """Send the move to the procedure's pulse; its outcome comes to `on_outcome`."""
+        assert self.procedure is not None
+        move = Instruction(Kind.MOVE, joints=tuple(self.procedure.pose().items()), time_ms=time_ms)
+        self.waiting = move.id
+        self._show("moving...")
+        self.page.refresh_ghost()
+        if not self.page.send_move(move):
+            self.waiting = None
+            self.procedure.not_moved()
+            self._show("not sent: no contact with the server", ok=False)
+
+    def _show(self, note: str = "", ok: bool | None = None) -> None:
+        procedure = self.procedure
+        lines = []
+        if procedure is not None and procedure.step is Step.NUDGE:
+            joint, ref = procedure.joint, procedure.reference
+            offset = procedure.pulse - joint.to_us(ref.deg)
+            lines.append(
+                f"{joint.name}, reference {procedure.reference_index + 1} of 2: {ref.deg:g} deg: "
+                f"{ref.looks} (the ghost). At {procedure.pulse} us ({offset:+.0f} us from the "
+                f"config's {ref.deg:g} deg): nudge until the arm matches the ghost."
+            )
+        if note:
+            lines.append(note)
+        colour = {True: "#2b8a3e", False: "#c92a2a", None: "#495057"}[ok]
+        body = "<br>".join(html.escape(line) for line in lines)
+        self.status.content = _html(STATUS, body, colour)
+
+    def _show_results(self, diff: str = "") -> None:
+        lines = [r.describe() for r in self.results.values()] + self.notes
+        body = "<br>".join(html.escape(line) for line in lines)
+        if diff:
+            body += (
+                '<pre style="font-size:0.85em;white-space:pre-wrap">' + html.escape(diff) + "</pre>"
+            )
+        self.results_html.content = _html(RESULTS, body)
+        self.write.disabled = not self.results
+
+
+def attach(page: Page, path: Path, served: Callable[[], Path | None]) -> CalibrationTab:
+    """The Calibrate tab on `page`, writing into `path` if `served` says it is the server's."""
+    with page.lock:
+        tab = CalibrationTab(page, path, page.panel.tabs, served)
+        page.calibration = tab
+        page.panel.controls.extend(tab.controls)
+        page.panel.set_enabled(not page.lost)
+    return tab

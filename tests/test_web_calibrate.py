@@ -1,0 +1,126 @@
+"""The web view's Calibrate tab in a real headless browser: `al5d serve` on an emulated arm
+whose base stands 42 us off its calibration, `al5d web`, and Chromium clicking the
+nudges as a user who watches the real joint (here, the emulator's true angle)."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from calibuser import User
+from proc import Proc
+from webrig import WebProc, chromium, dismiss_notifications, open_page, wait_text
+
+from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
+from al5d.ssc32u.emulator import Emulator, Mechanics
+
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+#: AL5D_UPDATE_DOCS=1 copies the tab's screenshot to docs/calibration.png (for the README).
+UPDATE_DOCS = os.environ.get("AL5D_UPDATE_DOCS") == "1"
+STATUS = "#al5d-cal-status"
+RESULTS = "#al5d-cal-results"
+AT = re.compile(r"At (\d+) us")
+
+
+@pytest.fixture
+def arm_file(tmp_path: Path) -> Path:
+    path = tmp_path / "arm.yaml"
+    text = DEFAULT_CONFIG.read_text(encoding="utf-8")
+    path.write_text(text.replace("answer_timeout_s: 0.05 ", "answer_timeout_s: 0.5  "), "utf-8")
+    return path
+
+
+@pytest.fixture
+def browser_page(
+    config: ArmConfig, arm_file: Path, tmp_path: Path
+) -> Iterator[tuple[Any, Emulator]]:
+    link = tmp_path / "ssc32u"
+    emu = Emulator(config, link=link, mechanics={"base": Mechanics(42)}).start()
+    server = Proc("serve", "--port", str(link), "--config", str(arm_file), "--log-level", "INFO")
+    web: WebProc | None = None
+    try:
+        server.err.wait_for("STATE: ready", 30)
+        web = WebProc("--config", str(arm_file))
+        with chromium() as browser:
+            yield open_page(browser, web.url), emu
+    finally:
+        if web is not None:
+            web.close()
+        if server.popen.poll() is None:
+            server.popen.send_signal(signal.SIGTERM)
+            server.wait(30)
+        emu.close()
+
+
+def settled(page: Any) -> int:
+    """The pulse the status says once the last move has its outcome."""
+    text = wait_text(page, STATUS, lambda t: "moving..." not in t and AT.search(t) is not None)
+    assert "not moved" not in text, text
+    match = AT.search(text)
+    assert match is not None
+    return int(match[1])
+
+
+def test_the_calibrate_tab_finds_the_base_and_writes_the_file(
+    config: ArmConfig, browser_page: tuple[Any, Emulator], arm_file: Path, tmp_path: Path
+) -> None:
+    page, emu = browser_page
+    dismiss_notifications(page)
+    before = arm_file.read_text("utf-8")
+    page.get_by_role("tab", name="Calibrate").click()
+    page.get_by_role("button", name="start").click()
+    base = config.joints["base"]
+    for reference in (0.0, 45.0):
+        wait_text(page, STATUS, lambda t, r=reference: f"{r:g} deg: the arm points" in t)
+        pulse = settled(page)
+        assert pulse == round(base.to_us(reference))
+        user = User(base, reference, 5)
+        for _ in range(30):
+            true = emu.joint_degrees(emu.settle_time(0.01, ["base"]))["base"]
+            steps = user.nudge(true)
+            if steps is None:
+                break
+            tens, ones = divmod(abs(steps), 10)
+            sign = "+" if steps > 0 else "-"
+            for button, times in ((f"{sign}10", tens), (f"{sign}1", ones)):
+                for _ in range(times):
+                    page.get_by_role("button", name=button, exact=True).click()
+                    pulse = settled_after(page, pulse)
+            user.saw(true, emu.joint_degrees(emu.settle_time(0.01, ["base"]))["base"])
+        else:
+            raise AssertionError(f"the base never reached {reference} deg")
+        if reference == 0.0:  # the arm as the config reads it, 4 deg off the ghost
+            shot = tmp_path / "calibration.png"
+            page.screenshot(path=str(shot))
+            if UPDATE_DOCS:
+                DOCS.mkdir(exist_ok=True)
+                shutil.copyfile(shot, DOCS / "calibration.png")
+        page.get_by_role("button", name="it is there").click()
+    found = wait_text(page, RESULTS, lambda t: "base: offset" in t)
+    assert "base: offset +40 us at 0 deg, +40 us at 45 deg" in found, found
+    page.get_by_role("button", name="write").click()
+    shown = wait_text(page, RESULTS, lambda t: "written:" in t)
+    assert "+    calibration: [{deg: 0, us: 1540}, {deg: 45, us: 1990}]" in shown, shown
+    calibrated = load_config(arm_file).joints["base"]
+    assert [(p.deg, p.us) for p in calibrated.calibration] == [(0, 1540), (45, 1990)]
+    (backup,) = arm_file.parent.glob("arm.yaml.*.bak")
+    assert backup.read_text("utf-8") == before
+
+
+def settled_after(page: Any, pulse: int, timeout_s: float = 20.0) -> int:
+    """The pulse once a nudge from `pulse` has its outcome (the status changes first)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        now = settled(page)
+        if now != pulse:
+            return now
+        if time.monotonic() > deadline:
+            raise AssertionError(f"the nudge from {pulse} us was not taken")
+        time.sleep(0.05)
