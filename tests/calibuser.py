@@ -5,12 +5,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from al5d.arm.config import Joint
+from al5d.arm.config import JointSettings
 from al5d.ssc32u.emulator import Mechanics
 from al5d.ssc32u.facts import PULSE_CENTRE_US
 
 
-def truth(joint: Joint, mech: Mechanics, deg: float) -> float:
+def truth(joint: JointSettings, mech: Mechanics, deg: float) -> float:
     """The pulse that truly puts the emulated joint at `deg`."""
     us = joint.to_us(deg)
     return (2 * PULSE_CENTRE_US - us if mech.reversed else us) + mech.offset_us
@@ -22,7 +22,7 @@ class User:
     as it looks off (as one types `+12`), the other way once a nudge took it further off (a
     reversed joint), a smaller nudge after a refusal; content within half a step."""
 
-    joint: Joint
+    joint: JointSettings
     reference_deg: float
     step_us: int
     way: int = 1

@@ -18,7 +18,7 @@ from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Result
 from al5d.arm.states import State
 from al5d.ssc32u.driver import SSC32U
-from al5d.ssc32u.emulator import Emulator, Link, Record
+from al5d.ssc32u.emulator import Emulator, LinkModel, Record
 from al5d.ssc32u.emulator.board import Fault
 
 
@@ -263,7 +263,7 @@ def test_the_driver_and_its_stop_on_the_usb_link(config: ArmConfig) -> None:
     """On the board's USB link a flush drops nothing already written, and every answer
     waits 16 ms in the chip: the driver still works, and its stop still holds the arm,
     because it writes ESC first (a move cut short on the wire is cancelled, not run)."""
-    with Emulator(config, usb=Link()) as emu:
+    with Emulator(config, usb=LinkModel()) as emu:
         driver = ArmDriver(config, emu.port)
         driver.start()
         try:

@@ -15,11 +15,11 @@ from calibuser import User, truth
 from al5d.arm import instruction as ins
 from al5d.arm.calibration import (
     DEFAULT_STEP_US,
+    Awaiting,
     CalibrationRefused,
     JointCalibration,
     Point,
     Procedure,
-    Step,
     edit_calibrations,
     judge,
     nudged,
@@ -84,7 +84,7 @@ def arm_of(config: ArmConfig) -> Iterator[type[Arm]]:
 def play_user(arm: Arm, procedure: Procedure) -> None:
     """The user (`calibuser.User`) at each reference until it is there, then accepts; a
     refused calibration is left in `refused`."""
-    while procedure.step is Step.NUDGE:
+    while procedure.step is Awaiting.NUDGE:
         name = procedure.joint.name
         user = User(procedure.joint, procedure.reference.deg, procedure.step_us)
         assert arm.go(procedure)

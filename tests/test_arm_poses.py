@@ -17,7 +17,7 @@ from al5d.arm.instruction import (
     parse_sequence_step,
 )
 from al5d.arm.poses import (
-    PoseBook,
+    NamedPoses,
     PosesError,
     beside,
     load_poses,
@@ -46,7 +46,7 @@ def test_a_poses_file_reads_in_the_arms_joint_order() -> None:
     assert [j for j, _ in home.joints] == [j for j in JOINTS if j in HOME]
     cup = book.find("cup")
     assert cup is not None and cup.joints == (("base", -35.5), ("elbow", 80.0))
-    assert parse_poses("", FILE) == PoseBook(FILE)
+    assert parse_poses("", FILE) == NamedPoses(FILE)
 
 
 @pytest.mark.parametrize(
@@ -105,7 +105,7 @@ def test_the_default_poses_file_is_beside_the_sequence() -> None:
 
 
 def test_a_pose_line_is_a_move_of_its_joints() -> None:
-    book = PoseBook(FILE).with_pose("home", HOME)
+    book = NamedPoses(FILE).with_pose("home", HOME)
     step = parse_sequence_step("pose home time=800 &", poses=book)
     assert step is not None
     move, background = step
@@ -117,7 +117,7 @@ def test_a_pose_line_is_a_move_of_its_joints() -> None:
 
 
 def test_pose_lines_errors_name_the_line_and_the_word_and_nothing_runs() -> None:
-    book = PoseBook(FILE).with_pose("home", HOME).with_pose("cup", {"base": 30.0})
+    book = NamedPoses(FILE).with_pose("home", HOME).with_pose("cup", {"base": 30.0})
     text = (
         b"pose home time=800\n"
         b"pose hom\n"
@@ -138,9 +138,9 @@ def test_pose_lines_errors_name_the_line_and_the_word_and_nothing_runs() -> None
         "pick.seq:7: word 2 'time=800': name a saved pose: pose <name> [time=<ms>]",
     )
     with pytest.raises(SequenceErrors, match=r"no poses file at /arm/poses\.yaml"):
-        parse_sequence(b"pose home\n", "pick.seq", poses=PoseBook(FILE, exists=False))
+        parse_sequence(b"pose home\n", "pick.seq", poses=NamedPoses(FILE, exists=False))
     with pytest.raises(SequenceErrors, match=r"/arm/poses\.yaml holds none"):
-        parse_sequence(b"pose home\n", "pick.seq", poses=PoseBook(FILE))
+        parse_sequence(b"pose home\n", "pick.seq", poses=NamedPoses(FILE))
     with pytest.raises(SequenceErrors, match="no poses were read"):
         parse_sequence(b"pose home\n", "pick.seq")
 
@@ -148,7 +148,7 @@ def test_pose_lines_errors_name_the_line_and_the_word_and_nothing_runs() -> None
 def test_a_sequence_with_poses_reads_the_same_from_either_side(tmp_path: Path) -> None:
     """What the web view saves `al5d run` reads (and the reverse): one grammar, one file."""
     book = save_poses(
-        PoseBook(tmp_path / "poses.yaml").with_pose("home", HOME).with_pose("cup", {"base": 30.0})
+        NamedPoses(tmp_path / "poses.yaml").with_pose("home", HOME).with_pose("cup", {"base": 30.0})
     )
     typed = "pose home time=800\nwait 200\nmove gripper=40 time=300\npose cup &\nready"
     saved = save_sequence(tmp_path, "pick", typed)

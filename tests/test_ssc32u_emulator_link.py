@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u import facts
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.emulator import UART, USB, Emulator, Link, Transport
+from al5d.ssc32u.emulator import UART, USB, Emulator, LinkModel, Transport
 from al5d.ssc32u.emulator.usb import FtdiChip, Packet, byte_arrivals
 
 
@@ -125,7 +125,7 @@ def test_a_flush_on_a_uart_drops_what_has_not_started(config: ArmConfig) -> None
 
 
 def test_the_default_is_the_boards_usb_link_and_a_uart_is_asked_for(emulator: Emulator) -> None:
-    assert emulator.usb == USB == Link() and USB.transport is Transport.USB
+    assert emulator.usb == USB == LinkModel() and USB.transport is Transport.USB
     assert not USB.flush_drops_unsent and USB.hold_s == 0.016
     assert UART.flush_drops_unsent and UART.hold_s is None
 
@@ -161,7 +161,7 @@ def test_a_short_answer_waits_for_the_16_ms_latency_timer(
 
 def test_low_latency_mode_answers_within_a_few_ms(config: ArmConfig) -> None:
     with (
-        Emulator(config, usb=Link(low_latency=True)) as emu,
+        Emulator(config, usb=LinkModel(low_latency=True)) as emu,
         serial.Serial(emu.port, 9600, timeout=1) as port,
     ):
         times = _answer_times(emu, port)
@@ -172,13 +172,13 @@ def test_low_latency_mode_answers_within_a_few_ms(config: ArmConfig) -> None:
 
 def test_the_latency_timer_is_a_setting(config: ArmConfig) -> None:
     with (
-        Emulator(config, usb=Link(latency_ms=40)) as emu,
+        Emulator(config, usb=LinkModel(latency_ms=40)) as emu,
         serial.Serial(emu.port, 9600, timeout=1) as port,
     ):
         times = _answer_times(emu, port, 3)
     assert all(after_cr >= 0.040 for _, after_cr in times)
     with pytest.raises(ValueError, match=r"1\.\.255"):
-        Link(latency_ms=0)
+        LinkModel(latency_ms=0)
 
 
 def test_a_uart_answers_without_a_latency_timer(config: ArmConfig) -> None:
@@ -263,4 +263,4 @@ def test_the_facts_of_the_link_agree() -> None:
     assert facts.LATENCY_TIMER_MS in facts.LATENCY_TIMER_RANGE_MS
     # The board's own answer delay is within the manual's, and far below the chip's timer.
     assert facts.ANSWER_DELAY_MAX_S < facts.LATENCY_TIMER_MS / 1000
-    assert USB.hold_s == 0.016 and Link(low_latency=True).hold_s == 0.001
+    assert USB.hold_s == 0.016 and LinkModel(low_latency=True).hold_s == 0.001

@@ -25,9 +25,9 @@ from typing import TYPE_CHECKING, Protocol, TextIO
 from al5d import exits
 from al5d.arm import instruction as ins
 from al5d.arm.calibration import (
+    Awaiting,
     CalibrationRefused,
     Procedure,
-    Step,
     summary,
     write_calibration,
 )
@@ -150,7 +150,7 @@ def run_procedure(
 
     say(HELP_TTY if keys.interactive else HELP_LINES)
     begun: tuple[str, int] | None = None
-    while procedure.step is Step.NUDGE:
+    while procedure.step is Awaiting.NUDGE:
         joint, ref = procedure.joint, procedure.reference
         here = (joint.name, procedure.reference_index)
         if begun != here:

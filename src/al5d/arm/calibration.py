@@ -34,7 +34,7 @@ from typing import Any
 import yaml
 from pydantic import ValidationError
 
-from al5d.arm.config import ArmConfig, ConfigError, Joint, parse_config
+from al5d.arm.config import ArmConfig, ConfigError, JointSettings, parse_config
 from al5d.arm.servos import SERVOS
 from al5d.ssc32u.facts import PULSE_MAX_US, PULSE_MIN_US
 
@@ -90,7 +90,7 @@ class CalibrationRefused(ValueError):
     """A nudge or a calibration that cannot be used; the message says what to do."""
 
 
-def references(joint: Joint) -> tuple[Reference, Reference]:
+def references(joint: JointSettings) -> tuple[Reference, Reference]:
     """The joint's two reference angles: its landmarks when they lie well inside its range,
     otherwise the quarter points of the range."""
     lo, hi = joint.range_deg
@@ -104,7 +104,7 @@ def references(joint: Joint) -> tuple[Reference, Reference]:
     )
 
 
-def servo_range(joint: Joint) -> tuple[int, int]:
+def servo_range(joint: JointSettings) -> tuple[int, int]:
     """The pulses the joint's servo takes (its model's, or the board's whole range)."""
     return SERVOS[joint.servo].pulse_us if joint.servo else (PULSE_MIN_US, PULSE_MAX_US)
 
@@ -117,7 +117,7 @@ def pose_for(config: ArmConfig, name: str, us: int) -> dict[str, float]:
     return pose
 
 
-def nudged(joint: Joint, us: int, steps: int, step_us: int) -> int:
+def nudged(joint: JointSettings, us: int, steps: int, step_us: int) -> int:
     """The pulse `steps` nudges of `step_us` toward +angle as the configuration has it
     (toward -angle for steps < 0); refused if it leaves the servo's pulse range."""
     sign = 1 if joint.us_per_deg > 0 else -1
@@ -143,8 +143,8 @@ class Point:
 class JointCalibration:
     """A joint's two points found, and what they change."""
 
-    old: Joint
-    new: Joint
+    old: JointSettings
+    new: JointSettings
     found: tuple[Point, Point]
 
     @property
@@ -181,7 +181,7 @@ class JointCalibration:
         return text
 
 
-def judge(joint: Joint, found: tuple[Point, Point]) -> JointCalibration:
+def judge(joint: JointSettings, found: tuple[Point, Point]) -> JointCalibration:
     """The joint with `found` as its calibration points, validated as the file's own code
     does (its range's ends within the servo's pulses); CalibrationRefused says why not."""
     a, b = found
@@ -193,7 +193,7 @@ def judge(joint: Joint, found: tuple[Point, Point]) -> JointCalibration:
     data = joint.model_dump()
     data["calibration"] = [{"deg": p.deg, "us": p.us} for p in found]
     try:
-        new = Joint.model_validate(data)
+        new = JointSettings.model_validate(data)
     except ValidationError as e:
         reasons = "; ".join(err["msg"].removeprefix("Value error, ") for err in e.errors())
         lo, hi = joint.range_deg
@@ -206,7 +206,7 @@ def judge(joint: Joint, found: tuple[Point, Point]) -> JointCalibration:
     return JointCalibration(joint, new, found)
 
 
-class Step(enum.Enum):
+class Awaiting(enum.Enum):
     """What the procedure waits for."""
 
     NUDGE = "nudge"  # the user nudges the current joint toward its reference, then accepts
@@ -244,11 +244,11 @@ class Procedure:
         self._begin_reference()
 
     @property
-    def step(self) -> Step:
-        return Step.DONE if self._index >= len(self.joints) else Step.NUDGE
+    def step(self) -> Awaiting:
+        return Awaiting.DONE if self._index >= len(self.joints) else Awaiting.NUDGE
 
     @property
-    def joint(self) -> Joint:
+    def joint(self) -> JointSettings:
         return self.config.joints[self.joints[self._index]]
 
     @property
@@ -320,7 +320,7 @@ class Procedure:
 
     def _begin_reference(self) -> None:
         self.at = None
-        if self.step is Step.NUDGE:
+        if self.step is Awaiting.NUDGE:
             self.pulse = round(self.joint.to_us(self.reference.deg))
 
 

@@ -51,7 +51,7 @@ class ReferencePoint(_Frozen):
     us: FiniteFloat = Field(ge=PULSE_MIN_US, le=PULSE_MAX_US)
 
 
-class Joint(_Frozen):
+class JointSettings(_Frozen):
     """One joint: its channel, safe range, calibration and servo (model, or speed)."""
 
     name: str = ""
@@ -83,7 +83,7 @@ class Joint(_Frozen):
         return v
 
     @model_validator(mode="after")
-    def _consistent(self) -> Joint:
+    def _consistent(self) -> JointSettings:
         lo, hi = self.range_deg
         if not lo < hi:
             raise ValueError(f"range_deg [{lo}, {hi}]: the first value must be below the second")
@@ -267,7 +267,7 @@ class ServerSettings(_Frozen):
         return v
 
 
-class Geometry(_Frozen):
+class GeometrySettings(_Frozen):
     """The arm's lengths in millimetres; the defaults are Lynxmotion's published constants.
 
     Arms differ (sources give an ulna of 177 to 187 mm): measure yours.
@@ -290,7 +290,7 @@ class Geometry(_Frozen):
     table_height_mm: FiniteFloat = Field(default=0.0, ge=-1000, le=1000)
 
     @model_validator(mode="after")
-    def _table_below_shoulder(self) -> Geometry:
+    def _table_below_shoulder(self) -> GeometrySettings:
         if self.table_height_mm >= self.base_height_mm:
             raise ValueError(
                 f"table_height_mm {self.table_height_mm:g} must be below the shoulder axis "
@@ -306,9 +306,9 @@ class Geometry(_Frozen):
 class ArmConfig(_Frozen):
     """The whole arm: joints by name, presets in degrees, geometry, server settings."""
 
-    joints: dict[str, Joint]
+    joints: dict[str, JointSettings]
     presets: dict[str, dict[str, FiniteFloat]]
-    geometry: Geometry = Geometry()
+    geometry: GeometrySettings = GeometrySettings()
     server: ServerSettings = ServerSettings()
 
     @model_validator(mode="before")

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the poses file's module reads the configuration, which imports this one
-    from al5d.arm.poses import PoseBook
+    from al5d.arm.poses import NamedPoses
 
 #: The presets every arm has (PO01 park, PO02 ready, PO03 straight up).
 PRESET_NAMES = ("park", "ready", "straight_up")
@@ -357,7 +357,7 @@ def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Ins
     raise GrammarError(f"word 1 {quote(words[0])}: unknown instruction; expected {known}")
 
 
-def _pose_move(words: list[str], poses: PoseBook | None) -> Instruction:
+def _pose_move(words: list[str], poses: NamedPoses | None) -> Instruction:
     """`pose <name> [time=<ms>]`: a move of the saved pose's joints."""
     if len(words) < 2 or "=" in words[1]:
         at = _where(words, min(1, len(words) - 1))
@@ -378,7 +378,7 @@ def _pose_move(words: list[str], poses: PoseBook | None) -> Instruction:
 
 
 def parse_sequence_step(
-    line: str, presets: tuple[str, ...] = PRESET_NAMES, poses: PoseBook | None = None
+    line: str, presets: tuple[str, ...] = PRESET_NAMES, poses: NamedPoses | None = None
 ) -> tuple[Instruction | Wait, bool] | None:
     """One line of a sequence file: (instruction or wait, whether it runs in the background).
 
@@ -407,7 +407,7 @@ def parse_sequence_step(
     return parse_instruction(text, presets), background
 
 
-Step = tuple[Instruction | Wait, bool]
+SequenceStep = tuple[Instruction | Wait, bool]
 
 
 #: The most errors of a sequence file that are told one by one (then how many more).
@@ -431,15 +431,15 @@ def parse_sequence(
     data: bytes,
     name: str = "<sequence>",
     presets: tuple[str, ...] = PRESET_NAMES,
-    poses: PoseBook | None = None,
-) -> list[Step]:
+    poses: NamedPoses | None = None,
+) -> list[SequenceStep]:
     """Every step of a sequence file, checked whole before anything is sent; a `pose` line
     names one of `poses`.
 
     Every bad line is an error, all of them in one `SequenceErrors`, each naming the file,
     the line and the word: `demo.seq:3: word 2 'base=x': 'x' is not a number of degrees`.
     """
-    steps: list[Step] = []
+    steps: list[SequenceStep] = []
     errors: list[str] = []
     more = 0
     for number, raw in enumerate(data.splitlines(), start=1):
@@ -458,7 +458,9 @@ def parse_sequence(
     return steps
 
 
-def _sequence_line(raw: bytes, presets: tuple[str, ...], poses: PoseBook | None) -> Step | None:
+def _sequence_line(
+    raw: bytes, presets: tuple[str, ...], poses: NamedPoses | None
+) -> SequenceStep | None:
     try:
         line = raw.decode("utf-8")
     except UnicodeDecodeError as e:

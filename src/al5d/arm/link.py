@@ -46,7 +46,7 @@ class Probe:
     token: int | None
 
 
-class Link:
+class LinkKeeper:
     """The worker's hold on the board: open it, check it, lose it, get it back."""
 
     def __init__(self, config: ArmConfig, core: Core, port: str, baud: int) -> None:

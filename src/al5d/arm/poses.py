@@ -27,7 +27,7 @@ from typing import Any
 import yaml
 
 from al5d.arm.config import ConfigError
-from al5d.arm.instruction import PRESET_NAMES, Step, parse_sequence
+from al5d.arm.instruction import PRESET_NAMES, SequenceStep, parse_sequence
 from al5d.model import JOINTS
 
 #: The poses file's name, beside the sequence files that use it.
@@ -63,7 +63,7 @@ class Pose:
 
 
 @dataclass(frozen=True)
-class PoseBook:
+class NamedPoses:
     """The poses of one file, in its order; `path` where they are read and saved, `exists`
     whether that file was there."""
 
@@ -86,7 +86,7 @@ class PoseBook:
             return f"no saved pose named {_quote(name)} ({self.path} holds none)"
         return f"no saved pose named {_quote(name)} (in {self.path}: {', '.join(self.names)})"
 
-    def with_pose(self, name: str, degrees: dict[str, float]) -> PoseBook:
+    def with_pose(self, name: str, degrees: dict[str, float]) -> NamedPoses:
         """This book with `name` at `degrees` (rounded to 0.1 degree): replaced where it
         was, else added at the end."""
         problem = name_problem(name)
@@ -97,7 +97,7 @@ class PoseBook:
             return replace(self, poses=(*self.poses, pose))
         return replace(self, poses=tuple(pose if p.name == name else p for p in self.poses))
 
-    def renamed(self, old: str, new: str) -> PoseBook:
+    def renamed(self, old: str, new: str) -> NamedPoses:
         problem = name_problem(new)
         if problem:
             raise PosesError(problem)
@@ -109,7 +109,7 @@ class PoseBook:
             self, poses=tuple(replace(p, name=new) if p.name == old else p for p in self.poses)
         )
 
-    def without(self, name: str) -> PoseBook:
+    def without(self, name: str) -> NamedPoses:
         if self.find(name) is None:
             raise PosesError(self.unknown(name))
         return replace(self, poses=tuple(p for p in self.poses if p.name != name))
@@ -152,14 +152,14 @@ def _pose(name: str, angles: Any, where: str) -> Pose:
     return Pose(name, joints)
 
 
-def parse_poses(text: str, path: Path) -> PoseBook:
+def parse_poses(text: str, path: Path) -> NamedPoses:
     """The poses of a file's text; PosesError names the file, the pose and the joint."""
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:
         raise PosesError(f"{path}: not valid YAML: {e}") from None
     if data is None:
-        return PoseBook(path)
+        return NamedPoses(path)
     if not isinstance(data, dict):
         raise PosesError(f"{path}: the file must map pose names to joint angles")
     poses = []
@@ -170,10 +170,10 @@ def parse_poses(text: str, path: Path) -> PoseBook:
         if problem:
             raise PosesError(f"{path}: pose {problem}")
         poses.append(_pose(name, angles, f"{path}: {name}"))
-    return PoseBook(path, tuple(poses))
+    return NamedPoses(path, tuple(poses))
 
 
-def load_poses(path: str | Path, *, required: bool = True) -> PoseBook:
+def load_poses(path: str | Path, *, required: bool = True) -> NamedPoses:
     """The poses of the file at `path`. A file that is not there is an error if `required`,
     else an empty book that saving creates."""
     p = Path(path)
@@ -182,14 +182,14 @@ def load_poses(path: str | Path, *, required: bool = True) -> PoseBook:
     except FileNotFoundError:
         if required:
             raise PosesError(f"{p}: no such poses file") from None
-        return PoseBook(p, exists=False)
+        return NamedPoses(p, exists=False)
     except (OSError, UnicodeDecodeError) as e:
         why = e.strerror if isinstance(e, OSError) else "not UTF-8 text"
         raise PosesError(f"{p}: cannot read the poses: {why}") from None
     return parse_poses(text, p)
 
 
-def save_poses(book: PoseBook) -> PoseBook:
+def save_poses(book: NamedPoses) -> NamedPoses:
     """Write the book to its file (whole: a reader never sees half a file); the book saved."""
     write_text(book.path, book.text())
     return replace(book, exists=True)
@@ -233,7 +233,7 @@ def save_sequence(folder: Path, name: str, text: str) -> Path:
     return path
 
 
-def parse_text(text: str, poses: PoseBook, name: str = "steps") -> list[Step]:
+def parse_text(text: str, poses: NamedPoses, name: str = "steps") -> list[SequenceStep]:
     """The steps of a sequence's text, read as `al5d run` reads its file; GrammarError
     says every bad line."""
     return parse_sequence(text.encode("utf-8"), name, PRESET_NAMES, poses)

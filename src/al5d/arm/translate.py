@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from al5d.arm.config import ArmConfig, Joint
+from al5d.arm.config import ArmConfig, JointSettings
 from al5d.ssc32u.protocol import move_prefix, time_suffix
 
 
@@ -18,7 +18,7 @@ class Translator:
     """Degrees to pulse widths and move times for one arm."""
 
     def __init__(self, config: ArmConfig) -> None:
-        self.joints: dict[str, Joint] = dict(config.joints)
+        self.joints: dict[str, JointSettings] = dict(config.joints)
         #: name -> ("#<ch>P", pulse at 0 degrees, us per degree)
         self._pulse = {
             n: (move_prefix(j.channel), j.to_us(0.0), j.us_per_deg) for n, j in self.joints.items()

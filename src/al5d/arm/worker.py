@@ -2,7 +2,7 @@
 
 It takes its tasks from the protocol (`core.Core.next_task`) and does the board
 I/O that may take long: the moves, the wait for their completion (their time,
-then `Q`), and, through its `link.Link`, the read-backs, the idle checks and the
+then `Q`), and, through its `link.LinkKeeper`, the read-backs, the idle checks and the
 reconnects. What it learns it reports to the core, which may have ended the job
 meanwhile (a stop, a cancel, a fault): the worker then lets go.
 """
@@ -20,7 +20,7 @@ from al5d.arm.core import Core
 from al5d.arm.effects import Halt
 from al5d.arm.instruction import Result
 from al5d.arm.jobs import Job, Mode, finish
-from al5d.arm.link import Link
+from al5d.arm.link import LinkKeeper
 from al5d.arm.states import Task
 from al5d.arm.validate import Step
 from al5d.arm.writer import StepWriter
@@ -53,7 +53,7 @@ class Worker:
         self.core = core
         self.port = port
         self.settings = config.server
-        self.link = Link(config, core, port, baud)
+        self.link = LinkKeeper(config, core, port, baud)
         self.writer = writer
         self._refuse = refuse
         self._write_halt = write_halt

@@ -43,7 +43,7 @@ from al5d.arm.instruction import (
     Kind,
     Outcome,
     Result,
-    Step,
+    SequenceStep,
     Wait,
     parse_instruction,
     parse_sequence,
@@ -690,7 +690,7 @@ def shell(
 def _shell_step(
     client: Client,
     report: Report,
-    step: Step,
+    step: SequenceStep,
     timeout: float,
     background: list[Instruction],
     interactive: bool,

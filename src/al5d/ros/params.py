@@ -41,7 +41,7 @@ from al5d.arm.config import (
     DEFAULT_CONFIG,
     ArmConfig,
     ConfigError,
-    Geometry,
+    GeometrySettings,
     ServerSettings,
     load_config,
 )
@@ -73,7 +73,7 @@ PARAMETERS: tuple[str, ...] = (
     *TOP,
     *(f"server.{k}" for k in ServerSettings.model_fields if k not in _NOT_SERVER),
     *MOUNT,
-    *(f"geometry.{k}" for k in Geometry.model_fields),
+    *(f"geometry.{k}" for k in GeometrySettings.model_fields),
 )
 
 _NS_RULE = re.compile(r"(?:([^:=]+):)?__ns:=(.*)")

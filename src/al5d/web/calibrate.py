@@ -26,10 +26,10 @@ import viser
 
 from al5d.arm.calibration import (
     DEFAULT_STEP_US,
+    Awaiting,
     CalibrationRefused,
     JointCalibration,
     Procedure,
-    Step,
     write_calibration,
 )
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result
@@ -95,7 +95,7 @@ class CalibrationTab:
 
     def ghost(self) -> dict[str, float] | None:
         """Where the model shows the arm: the joint at its reference (None: no procedure)."""
-        if self.procedure is None or self.procedure.step is Step.DONE:
+        if self.procedure is None or self.procedure.step is Awaiting.DONE:
             return None
         return self.procedure.reference_pose()
 
@@ -121,7 +121,7 @@ class CalibrationTab:
 
     def _on_nudge(self, steps: int) -> None:
         with self.lock:
-            if self.procedure is None or self.procedure.step is Step.DONE:
+            if self.procedure is None or self.procedure.step is Awaiting.DONE:
                 return
             if self.waiting is not None:
                 self._show("wait: the last move has no outcome yet", ok=False)
@@ -136,7 +136,7 @@ class CalibrationTab:
     def _on_accept(self) -> None:
         with self.lock:
             procedure = self.procedure
-            if procedure is None or procedure.step is Step.DONE or self.waiting is not None:
+            if procedure is None or procedure.step is Awaiting.DONE or self.waiting is not None:
                 return
             name = procedure.joint.name
             try:
@@ -208,7 +208,7 @@ class CalibrationTab:
     def _show(self, note: str = "", ok: bool | None = None) -> None:
         procedure = self.procedure
         lines = []
-        if procedure is not None and procedure.step is Step.NUDGE:
+        if procedure is not None and procedure.step is Awaiting.NUDGE:
             joint, ref = procedure.joint, procedure.reference
             offset = procedure.pulse - joint.to_us(ref.deg)
             lines.append(

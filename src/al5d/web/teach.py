@@ -23,11 +23,11 @@ from typing import Any
 
 import viser
 
-from al5d.arm.instruction import GrammarError, Instruction, Outcome, Step, Wait
+from al5d.arm.instruction import GrammarError, Instruction, Outcome, SequenceStep, Wait
 from al5d.arm.poses import (
     SEQUENCE_SUFFIX,
+    NamedPoses,
     Pose,
-    PoseBook,
     PosesError,
     load_poses,
     name_problem,
@@ -77,7 +77,7 @@ class Player:
     def busy(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
-    def start(self, steps: Sequence[tuple[str, Step]]) -> bool:
+    def start(self, steps: Sequence[tuple[str, SequenceStep]]) -> bool:
         """Play `steps` (each with the line it was read from); False if a play is on."""
         with self._cv:
             if self.busy:
@@ -109,7 +109,7 @@ class Player:
         if self._thread is not None:
             self._thread.join(timeout)
 
-    def _play(self, steps: tuple[tuple[str, Step], ...]) -> None:
+    def _play(self, steps: tuple[tuple[str, SequenceStep], ...]) -> None:
         n = len(steps)
         behind: list[tuple[int, str, str]] = []  # steps run in the background: k, line, id
         for k, (line, (item, background)) in enumerate(steps, start=1):
@@ -258,7 +258,7 @@ class Teach:
 
     # -- poses ---------------------------------------------------------------------
 
-    def _book(self) -> PoseBook | None:
+    def _book(self) -> NamedPoses | None:
         """The poses as the file has them now (the list shows them: an editor may have
         changed them); None (and why, said) if it cannot be read."""
         try:
@@ -269,7 +269,7 @@ class Teach:
         self._show_poses(book)
         return book
 
-    def _show_poses(self, book: PoseBook, selected: str | None = None) -> None:
+    def _show_poses(self, book: NamedPoses, selected: str | None = None) -> None:
         with self._lock:
             if book.poses != self._shown:
                 self._shown = book.poses
@@ -278,7 +278,7 @@ class Teach:
             if selected is not None:
                 self.pose.value = selected
 
-    def _changed(self, book: PoseBook, said: str, selected: str | None = None) -> None:
+    def _changed(self, book: NamedPoses, said: str, selected: str | None = None) -> None:
         try:
             book = save_poses(book)
         except OSError as e:
@@ -318,7 +318,7 @@ class Teach:
         else:
             self._show(f"pose {name!r}: a new name", None)
 
-    def _selected(self, book: PoseBook) -> str | None:
+    def _selected(self, book: NamedPoses) -> str | None:
         name = str(self.pose.value)
         if book.find(name) is None:
             self._show("choose a saved pose first" if name == NONE else book.unknown(name), False)
@@ -386,7 +386,7 @@ class Teach:
             self.steps.value = text
         self._check(text)
 
-    def _parse(self, text: str, book: PoseBook) -> list[Step] | str:
+    def _parse(self, text: str, book: NamedPoses) -> list[SequenceStep] | str:
         """The steps of `text`, or why it cannot be played (every bad line)."""
         try:
             return parse_text(text, book)
@@ -427,7 +427,7 @@ class Teach:
         if not self.player.start(list(zip(lines, steps, strict=True))):
             self._show("a sequence is playing: STOP ends it", False)
 
-    def _precheck(self, steps: list[Step], lines: list[str]) -> str:
+    def _precheck(self, steps: list[SequenceStep], lines: list[str]) -> str:
         """Why a step would be refused, judged from where the arm is as the server will
         judge it (each step from where the one before leaves the arm), or ""."""
         if self.page.lost:
@@ -531,7 +531,7 @@ def _ignoring_event(handler: Callable[[], None]) -> Callable[[Any], None]:
     return lambda _: handler()
 
 
-def poses_html(book: PoseBook) -> str:
+def poses_html(book: NamedPoses) -> str:
     """The saved poses, a line each with its angles; names are escaped (a file's text)."""
     if not book.poses:
         body = '<span style="color:#868e96">no pose saved yet</span>'

@@ -2,7 +2,7 @@
 
 `Emulator` is the board's model (`board.Board`: commands, servos, inputs,
 registers, answers, records) on its serial link (`pty.PtyLink`: a pty at the
-client's baud, through the USB chip or a plain UART, `usb.Link`). Use it as a
+client's baud, through the USB chip or a plain UART, `usb.LinkModel`). Use it as a
 context manager, or `start()` and `close()`:
 
     with Emulator(config, baud=9600) as emu:
@@ -38,7 +38,7 @@ from al5d.ssc32u.emulator.board import (
     ServoJoint,
 )
 from al5d.ssc32u.emulator.pty import PtyLink
-from al5d.ssc32u.emulator.usb import UART, USB, Link, Transport
+from al5d.ssc32u.emulator.usb import UART, USB, LinkModel, Transport
 
 __all__ = [
     "UART",
@@ -46,7 +46,7 @@ __all__ = [
     "ArmDescription",
     "Emulator",
     "Fault",
-    "Link",
+    "LinkModel",
     "Mechanics",
     "Record",
     "ServoJoint",
@@ -74,7 +74,7 @@ class Emulator(Board):
         *,
         baud: int = facts.FACTORY_BAUD,
         link: str | os.PathLike[str] | None = None,
-        usb: Link = USB,
+        usb: LinkModel = USB,
         version: str = facts.FIRMWARE,
         answer_delay_s: float = DEFAULT_ANSWER_DELAY_S,
         initial_pose: Mapping[str, float] | None = None,

@@ -5,7 +5,7 @@ pty's slave like the board's USB port. The link reads the master side as soon
 as the client writes and gives each byte a virtual slot on the wire at the
 baud the client set (10 bit times a byte); a line goes to the board when its CR
 arrives. The board's answers are written back when they are due: on the USB
-link (`usb.Link`, the default) they first wait in the FTDI chip for its latency
+link (`usb.LinkModel`, the default) they first wait in the FTDI chip for its latency
 timer, on a plain UART they come as the board sends them.
 
 A client's output flush (TCOFLUSH) reaches the link through the pty's packet
@@ -40,7 +40,7 @@ from al5d.clock import now
 from al5d.priority import make_urgent
 from al5d.ssc32u import facts
 from al5d.ssc32u.emulator.board import Answer, Board, Record
-from al5d.ssc32u.emulator.usb import FtdiChip, Link, Packet, byte_arrivals
+from al5d.ssc32u.emulator.usb import FtdiChip, LinkModel, Packet, byte_arrivals
 
 MAX_LINE = 1024
 #: What termios calls the bauds a client may set.
@@ -71,11 +71,11 @@ class PtyLink:
         self,
         board: Board,
         link: str | os.PathLike[str] | None = None,
-        model: Link | None = None,
+        model: LinkModel | None = None,
     ) -> None:
         self.board = board
         self.link = Path(link) if link is not None else None
-        self.model = model if model is not None else Link()
+        self.model = model if model is not None else LinkModel()
         self._master = -1
         self._slave = -1
         self.device = ""

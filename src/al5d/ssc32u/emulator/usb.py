@@ -1,6 +1,6 @@
 """The link between the board and the computer: the SSC-32U's FTDI USB chip, or a plain UART.
 
-`Link` is the setting (a frozen value); `FtdiChip` is the chip's buffer towards
+`LinkModel` is the setting (a frozen value); `FtdiChip` is the chip's buffer towards
 the computer, pure arithmetic over byte times, used by the pty link's answer
 thread. Only the USB link has the chip.
 
@@ -34,7 +34,7 @@ class Transport(enum.Enum):
 
 
 @dataclass(frozen=True, slots=True)
-class Link:
+class LinkModel:
     """The link's model: its transport and, on USB, the chip's latency timer.
 
     `low_latency` says the host has set the port's low-latency mode (Linux
@@ -77,9 +77,9 @@ class Link:
 
 #: The board's USB port as it is (the default everywhere): an output flush drops nothing
 #: written, a short answer waits 16 ms in the chip.
-USB = Link()
+USB = LinkModel()
 #: A plain serial line to the board's TTL header: a flush drops unsent bytes, no chip.
-UART = Link(Transport.UART)
+UART = LinkModel(Transport.UART)
 
 
 @dataclass(frozen=True, slots=True)
