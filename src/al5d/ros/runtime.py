@@ -256,7 +256,7 @@ _READER = """
 
 def local_only() -> bool:
     """Is DDS kept to this machine? Yes unless the user opened discovery to the network
-    (`ROS_AUTOMATIC_DISCOVERY_RANGE` SUBNET or SYSTEM_DEFAULT; README, "Reaching the node
+    (`ROS_AUTOMATIC_DISCOVERY_RANGE` SUBNET or SYSTEM_DEFAULT; docs/ros.md, "Reaching the node
     from another machine")."""
     ros_environment()
     return os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"].strip().upper() in ("LOCALHOST", "OFF")
@@ -349,9 +349,9 @@ def make_executor(context: Context, kind: str | None = None) -> Executor:
     (which tells a stamped service when its request was sent: `workarounds.StampedExecutor`).
 
     The events executor takes each message without rebuilding a wait set of every
-    entity in Python, which is what limits the single-threaded one (see the README's
-    Performance section for the figures of both). But in rclpy 7.1 it runs a task that
-    awaits a future again and again until the future is done (ros2/rclpy#1405, fixed
+    entity in Python, which is what limits the single-threaded one (docs/architecture.md,
+    "How the server reads its inputs", has the figures of both). But in rclpy 7.1 it runs
+    a task that awaits a future again and again until the future is done (ros2/rclpy#1405, fixed
     later by #1469): a coroutine that waits for the arm would hold a core. The actions,
     whose execute callbacks are such coroutines, have the Python executor.
     """
