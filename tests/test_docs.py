@@ -172,8 +172,9 @@ def run(block: Block, cwd: Path) -> subprocess.CompletedProcess[str]:
         args = ["bash", "-e", "-o", "pipefail", "-c", block.code]
     else:
         args = [sys.executable, "-c", block.code]
-    # A session of its own: what the example left running (a recorder, an emulator) ends
-    # with it, and so does everything when it overruns.
+    # A process group of its own: what the example left running (a recorder, an emulator)
+    # ends with it, and so does everything when it overruns. Not a session of its own: its
+    # leader would take the emulator's pty, which an example opens, for its terminal.
     proc = subprocess.Popen(
         args,
         cwd=cwd,
@@ -181,7 +182,7 @@ def run(block: Block, cwd: Path) -> subprocess.CompletedProcess[str]:
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        start_new_session=True,
+        preexec_fn=os.setpgrp,  # process_group=0 from Python 3.11 on
     )
     try:
         out, err = proc.communicate(timeout=BLOCK_S)
