@@ -232,3 +232,55 @@ def test_shown_output_is_what_the_example_printed(block: Block) -> None:
         pytest.fail(f"{block.name}: the example before it did not run")
     missing = [ln for ln in block.code.splitlines() if ln.strip() and ln.strip() not in printed]
     assert not missing, f"{block.name}: not printed: {missing}\n--- printed\n{printed}"
+
+
+LINK = re.compile(r"\]\(([^)\s]+)\)")
+#: The requirement ids (docs/glossary.md): the design document's D1..D7 and the
+#: assignment's.
+REQUIREMENT = re.compile(r"\b(D[1-7]|(?:SA|PO|VE|INF|EX|IM|DE)0\d)\b")
+
+
+def anchors(page: Path) -> set[str]:
+    """GitHub's anchors of a page's headings: lowercase, punctuation gone, spaces as -."""
+    found = set()
+    for heading in re.findall(r"^#+ (.+)$", FENCE.sub("", page.read_text()), re.M):
+        slug = re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+        found.add(slug)
+    return found
+
+
+def test_every_relative_link_leads_somewhere() -> None:
+    broken = []
+    for page in PAGES:
+        for target in LINK.findall(FENCE.sub("", page.read_text())):
+            if re.match(r"[a-z]+://", target):
+                continue
+            path, _, anchor = target.partition("#")
+            dest = (page.parent / path).resolve() if path else page
+            if not dest.exists():
+                broken.append(f"{page.name}: {target} (no such file)")
+            elif anchor and dest.suffix == ".md" and anchor not in anchors(dest):
+                broken.append(f"{page.name}: {target} (no such heading)")
+    assert not broken, "\n".join(broken)
+
+
+def test_every_image_in_docs_is_shown() -> None:
+    shown = {t for page in PAGES for t in LINK.findall(page.read_text())}
+    images = [p for p in (REPO / "docs").iterdir() if p.suffix in (".png", ".svg", ".jpg")]
+    unshown = [p.name for p in images if not any(t.endswith(p.name) for t in shown)]
+    assert not unshown, f"images in docs/ no page shows: {unshown}"
+
+
+def test_every_requirement_id_cited_is_defined_once() -> None:
+    """The code, tests, benchmarks and pages cite requirement ids; the glossary defines each."""
+    glossary = (REPO / "docs" / "glossary.md").read_text()
+    defined = re.findall(r"^\| (\w+) \|", glossary, re.M)
+    cited: set[str] = set()
+    for folder in ("src", "tests", "bench", "docs"):
+        for f in (REPO / folder).rglob("*"):
+            if f.suffix in (".py", ".md", ".seq", ".yaml"):
+                cited |= set(REQUIREMENT.findall(f.read_text()))
+    cited |= set(REQUIREMENT.findall((REPO / "README.md").read_text()))
+    ids = [d for d in defined if REQUIREMENT.fullmatch(d)]
+    assert sorted(ids) == sorted(set(ids)), "an id defined twice in docs/glossary.md"
+    assert not cited - set(ids), f"cited but not in docs/glossary.md: {sorted(cited - set(ids))}"
