@@ -30,7 +30,7 @@ class BoardProcess:
         self._model = Board(config, baud=baud) if config is not None else None
         self._changed = threading.Condition()
         # The board's USB link (al5d emulator's default), or AL5D_BOARD_TRANSPORT=uart: a plain
-        # serial line, to see which figures the USB link's model moves (bench/README).
+        # serial line, to see which figures the USB link's model moves (docs/performance.md).
         transport = os.environ.get("AL5D_BOARD_TRANSPORT", "usb")
         args = ["--baud", str(baud), "--link", str(link), "--record", "-", "--transport", transport]
         self.popen = subprocess.Popen(

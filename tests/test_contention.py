@@ -4,10 +4,10 @@ Short runs of the rigs in `contention.py` and `falsefaults.py`: a trajectory-goa
 flood at 9600 baud beside two busy loops, and a board in its own process on a
 loaded host. What is checked here is behaviour (every stop reaches the board,
 every goal is answered once, no false fault, the server lives on); the latencies
-are `make soak`'s to print against their targets (README, Reliability). Three
+are `make soak`'s to print against their targets (docs/reliability.md). Three
 servers flooded at once beside busy loops are `make soak`'s alone
 (`bench/busy_host.py`): there a stop now and then still misses the board within
-10 s, which a test here would turn into a flaky suite (README, Reliability).
+10 s, which a test here would turn into a flaky suite (docs/reliability.md).
 """
 
 from __future__ import annotations

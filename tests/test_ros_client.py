@@ -30,7 +30,7 @@ from al5d.ros.names import Names
 from al5d.ros.qos import QOS_STREAM
 from al5d.ssc32u import protocol as p
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+SERVER_DOC = Path(__file__).resolve().parents[1] / "docs" / "server.md"
 #: Generous bounds: rclpy's start, discovery and a move on a loaded machine.
 SCRIPT_S = 90.0
 STATE_S = 30.0
@@ -73,11 +73,11 @@ def ended_normally(done: subprocess.CompletedProcess[str]) -> bool:
 
 
 def readme_example() -> str:
-    """The first Python block under the README's "From Python"."""
-    text = README.read_text()
-    section = text[text.index("\n### From Python\n") :]
+    """The first Python block under docs/server.md's "From Python"."""
+    text = SERVER_DOC.read_text()
+    section = text[text.index("\n## From Python\n") :]
     found = re.search(r"^```python\n(.*?)^```$", section, re.S | re.M)
-    assert found is not None, "no Python block under 'From Python' in README.md"
+    assert found is not None, "no Python block under 'From Python' in docs/server.md"
     return found.group(1)
 
 

@@ -29,7 +29,7 @@ from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
 
 NAMESPACE = "cell"
-#: The joints of the AL5D's ros2_control tag, in its order (the README's xacro).
+#: The joints of the AL5D's ros2_control tag, in its order (docs/moveit.md's xacro).
 COMMANDED = ("base", "shoulder", "elbow", "wrist", "wrist_rotate", "gripper")
 
 

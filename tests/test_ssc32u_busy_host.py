@@ -46,7 +46,7 @@ def test_the_emulated_board_runs_ahead_of_the_hosts_load(board_process: BoardPro
 
 def test_a_board_that_never_comes_back_is_lost(board_process: BoardProcess) -> None:
     # What is excused is bounded: a board that stays away is a fault (in `make soak`, within
-    # the figures of README Reliability).
+    # the figures of docs/reliability.md).
     with SSC32U(board_process.port) as ssc:
         os.kill(board_process.popen.pid, signal.SIGSTOP)
         try:

@@ -94,7 +94,7 @@ def _flood_then_flush(emu: Emulator, port: serial.Serial) -> list[bytes]:
     link has read them all from the pty, and most have not started on the wire.
 
     A flush at once, before the link could read them, would find them in the pty, which
-    drops them itself whatever the model (the README's "What it does not model")."""
+    drops them itself whatever the model (docs/emulator.md, "What it does not model")."""
     for i in range(20):
         port.write(f"#0P{1000 + i * 10}\r".encode())
     emu.wait_for(lambda rs: any(r.raw == b"#0P1000" for r in rs), 2)

@@ -80,7 +80,7 @@ class Standalone:
 
     def flood_then_flush(self) -> int:
         """QP0 after 20 moves of channel 0 and an output flush once the first has arrived
-        (the link has read them all from the pty by then: see the README's "What it does
+        (the link has read them all from the pty by then: see docs/emulator.md's "What it does
         not model" for a flush at once)."""
         for i in range(20):
             self.port.write(f"#0P{1000 + i * 10}\r".encode())

@@ -49,7 +49,7 @@ from al5d.ssc32u.emulator import Emulator
 from al5d.web.page import LOOP_S, QUIET_S, Page
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
-#: AL5D_UPDATE_DOCS=1 copies the page's screenshot to docs/web.png (for the README);
+#: AL5D_UPDATE_DOCS=1 copies the page's screenshot to docs/web.png (for docs/web.md);
 #: otherwise it stays under the test's output and the tree stays as it was.
 UPDATE_DOCS = os.environ.get("AL5D_UPDATE_DOCS") == "1"
 

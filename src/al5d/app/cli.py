@@ -300,7 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
         "serve",
         help="the arm server (embedded emulator without --port)",
         epilog="ROS arguments follow --ros-args, as for any ROS node: -p NAME:=VALUE (the "
-        "parameters: README, ROS parameters), --params-file FILE, -r __ns:=/NS, "
+        "parameters: docs/ros.md), --params-file FILE, -r __ns:=/NS, "
         "-r __node:=NAME. These flags win over parameters, which win over the config file.",
     )
     srv.add_argument("--port", help="serial device of the SSC-32U; default: embedded emulator")
@@ -513,7 +513,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _add_recordings(sub: Any) -> None:
-    """`al5d record` and `al5d replay` (README, Recordings)."""
+    """`al5d record` and `al5d replay` (docs/ros.md, Recordings)."""
     rec = sub.add_parser(
         "record", help="record the arm's topics in an MCAP file (rosbag2's format) until Ctrl-C"
     )

@@ -1,5 +1,16 @@
 """The AL5D as a robot model: geometry, joint conventions, kinematics, URDF, lines, MoveIt.
 
+- `geometry`: the arm's lengths; `arm`: `ArmModel`, the lengths and the joints' ranges.
+- `joints`: the one table arm degrees <-> URDF values (`CONVENTIONS`, `GripperMap`).
+- `transforms`: rigid transforms as tuples (quaternions, matrices, RPY).
+- `chain`: the links and joints, and their poses; `urdf`: the URDF made from it.
+- `kinematics`: closed-form forward and inverse kinematics.
+- `lines`: a straight line of the tool cut into the fewest group moves.
+- `table`: whether the arm's bodies stay above the table, at a pose and along a move.
+- `collisions`: the link pairs that can never touch (the SRDF's disabled collisions).
+- `moveit`: the SRDF, joint limits, kinematics and controllers files of MoveIt.
+- `errors`: what the model raises when it refuses an input or a target.
+
 Pure: standard library and numpy only, nothing else of al5d. Angles in the
 arm's own degrees (dict joint -> degrees) unless a name says URDF; lengths in
 metres. The one table from arm degrees to URDF values is `joints.CONVENTIONS`

@@ -2,8 +2,11 @@
 
 `Emulator` is the board's model (`board.Board`: commands, servos, inputs,
 registers, answers, records) on its serial link (`pty.PtyLink`: a pty at the
-client's baud, through the USB chip or a plain UART, `usb.LinkModel`). Use it as a
-context manager, or `start()` and `close()`:
+client's baud, through the USB chip or a plain UART, `usb.LinkModel`). The modules:
+`board` (the board's logic), `servo` (each servo's travel), `inputs` (the input
+pins), `records` (every line received) and `measure` (what observers read of the
+servos), `pty` and `usb` (the link), `settings` (`al5d emulator`'s values as text).
+Use it as a context manager, or `start()` and `close()`:
 
     with Emulator(config, baud=9600) as emu:
         print(emu.port)          # open this with SSC32U or any serial program

@@ -16,7 +16,7 @@ What a pty cannot do: a flush on the slave discards the bytes the link has not
 yet read from the master, before the link hears of the flush. Bytes written
 and flushed at once (within a few tens of microseconds) are lost on either
 model; the link reads as soon as it can, but no reader wins that race every
-time (see the README's "What it does not model").
+time (see docs/emulator.md, "What it does not model").
 """
 
 from __future__ import annotations
