@@ -47,7 +47,7 @@ from al5d.model.table import below
 from al5d.ros.runtime import QOS_INSTRUCTIONS, Names
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
-from al5d.web.page import LOOP_S, QUIET_S, Page
+from al5d.web.page import FOLLOW_AFTER_S, LOOP_S, QUIET_S, Page
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 #: AL5D_UPDATE_DOCS=1 copies the page's screenshot to docs/web.png (for the README);
@@ -123,13 +123,13 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
         emu.close()
 
 
-def serve(link: Path) -> Proc:
-    """`al5d serve` on the emulated board's link, once it is ready."""
-    server = Proc(
-        "serve", "--port", str(link), "--config", patient_config(), "--log-level", "DEBUG"
-    )
-    server.err.wait_for("STATE: ready", 30)
-    return server
+def serve(link: Path, speeds: tuple[tuple[str, float], ...] = (), **server: float) -> Proc:
+    """`al5d serve` on the emulated board's link, once it is ready; `speeds` and `server`:
+    settings of its configuration (`patient_config`)."""
+    config = patient_config(speeds, **server)
+    proc = Proc("serve", "--port", str(link), "--config", config, "--log-level", "DEBUG")
+    proc.err.wait_for("STATE: ready", 30)
+    return proc
 
 
 def test_the_page_draws_the_arm(rig: Rig, tmp_path: Path) -> None:
@@ -186,6 +186,70 @@ def test_a_long_slider_drag_follows_live_and_leaves_no_queue(rig: Rig) -> None:
     took = t_up - t0
     assert len(moves) <= took / LOOP_S + 5, (len(moves), took)  # one a page tick at most
     assert {(t.channel, t.pulse_us) for t in moves[-1].targets} == {(0, pulse)}
+
+
+def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:
+    """The page stalls longer than the server's stream watchdog (as on a busy host) while
+    the jog's last set-point runs: the server holds the arm short of the slider, and the
+    page, once it runs again, sends the slider's target again: the arm gets there."""
+    rig.server.popen.kill()
+    rig.server.wait(10)
+    # A slow base (6 s across its range): the stall falls in the set-point's move, whenever
+    # this busy test process gets to it.
+    rig.server = serve(rig.link, (("base", 30.0),), stream_timeout_s=0.1)
+    page = rig.page
+    try:
+        wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
+        rig.state.wait_for("ready", 10)
+        page.get_by_role("tab", name="Joints").click()
+        thumb = page.get_by_role("slider").nth(0)  # base
+        thumb.focus()
+        thumb.press("Home")  # the base to one end of its range...
+        wait_until(lambda: rig.emu.servo_degrees()["base"] < -89, 20, "the base at -90")
+        n0 = len(rig.emu.records)
+        thumb.press("End")  # ...then to the other, in one value
+        degrees = float(thumb.get_attribute("aria-valuenow") or "nan")
+        assert degrees == 90, degrees
+        pulse = round(rig.config.joints["base"].to_us(degrees))
+        seen = len(rig.server.err.drain(0))
+        wait_until(
+            lambda: any(
+                (0, pulse) in {(t.channel, t.pulse_us) for t in m.targets}
+                for m in rig.group_moves(n0)
+            ),
+            10,
+            "the slider's set-point on the board",
+        )
+        os.kill(rig.web.proc.popen.pid, signal.SIGSTOP)  # the page's process stalls
+        try:
+            wait_until(
+                lambda: any("watchdog:" in x for x in rig.server.err.drain(0.05)[seen:]),
+                10,
+                "the server's watchdog holding the arm",
+            )
+            rig.state.wait_for("ready", 10)
+            # The stall outlasts the jog's keep-alive (the page would send its set-point
+            # again anyway while the user held the slider or the arm was seen moving), and
+            # the joint states' silence that makes the page take the server for lost.
+            time.sleep(FOLLOW_AFTER_S + 0.5)
+        finally:
+            os.kill(rig.web.proc.popen.pid, signal.SIGCONT)
+        held = rig.emu.servo_degrees()["base"]
+        assert abs(held - degrees) > 5, (held, degrees)  # short of the slider
+        wait_until(
+            lambda: abs(rig.emu.servo_degrees()["base"] - degrees) < 0.2,
+            20,
+            "the arm at the slider",
+        )
+    finally:
+        rig.server.popen.kill()
+        rig.server.wait(10)
+        rig.server = serve(rig.link)
+        wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
+    rig.state.wait_for("ready", 10)
+    rig.peer.send("web-jog-back", "move", base=0)  # as the other tests expect it
+    assert rig.peer.result("web-jog-back").outcome == "done"
+    wait_until(lambda: thumb.get_attribute("aria-valuenow") == "0", 10, "the slider at 0")
 
 
 def test_sliders_into_the_table_show_why_and_send_nothing(rig: Rig) -> None:
