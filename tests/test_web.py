@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import shutil
 import signal
 import time
@@ -43,6 +44,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
 from al5d.arm.config import ArmConfig, load_config
+from al5d.model import forward
 from al5d.model.table import below
 from al5d.ros.runtime import QOS_INSTRUCTIONS, Names
 from al5d.ssc32u import protocol as p
@@ -300,9 +302,29 @@ def test_stop_and_release_from_the_page(rig: Rig) -> None:
     rig.every_channel_stopped(n0)
     assert rig.peer.result("web-slow").outcome == "cancelled"
     wait_text(page, "#al5d-state", lambda t: t == "STOPPED")
-    page.get_by_role("button", name="release").click()
+    release = page.get_by_role("button", name="release")
+    release.click()  # shown once stopped: there is something to release
     rig.state.wait_for("ready", 5)
     wait_text(page, "#al5d-state", lambda t: t == "READY")
+    wait_until(lambda: not release.is_visible(), 5, "no release button in READY")
+
+
+def test_release_is_shown_only_when_there_is_something_to_release(rig: Rig) -> None:
+    page = rig.page
+    release = page.get_by_role("button", name="release")
+    rig.state.wait_for("ready", 10)
+    wait_text(page, "#al5d-state", lambda t: t == "READY")
+    assert not release.is_visible()
+    rig.peer.send("web-moving", "move", time_ms=3000, base=-20)
+    wait_text(page, "#al5d-state", lambda t: t == "MOVING")
+    assert not release.is_visible()
+    assert rig.peer.trigger("stop").success
+    wait_text(page, "#al5d-state", lambda t: t == "STOPPED")
+    wait_until(release.is_visible, 5, "the release button when stopped")
+    assert clickable(page, release)
+    assert rig.peer.trigger("release").success
+    wait_text(page, "#al5d-state", lambda t: t == "READY")
+    wait_until(lambda: not release.is_visible(), 5, "no release button in READY")
 
 
 def test_an_unreachable_target_shows_the_servers_reason(rig: Rig) -> None:
@@ -324,6 +346,105 @@ def test_an_unreachable_target_shows_the_servers_reason(rig: Rig) -> None:
     assert "x=500 y=0 z=100" in text
     time.sleep(0.2)
     assert rig.group_moves(n0) == []
+
+
+def test_the_target_tab_moves_the_tool_with_pitch_roll_gripper_and_time(rig: Rig) -> None:
+    """A Cartesian target with every field of the Target tab: sent, done on the board, the
+    tool where it was asked (position and pitch), the wrist rotate and gripper as typed, in
+    the time typed."""
+    page = rig.page
+    rig.peer.send("web-target-ready", "ready")
+    assert rig.peer.result("web-target-ready").outcome == "done"
+    page.get_by_role("tab", name="Target").click()
+    fields = {  # each with what the page's check of the target says of it
+        "x (mm)": ("240", "x 240 "),
+        "y (mm)": ("60", "y 60 "),
+        "z (mm)": ("120", "z 120 "),
+        "pitch (deg)": ("-20", "pitch -20"),
+        "roll (deg)": ("45", "roll 45"),
+        "gripper (deg)": ("40", "gripper 40"),
+        "move time (ms)": ("1500", "1500 ms"),
+    }
+    for label, (value, said) in fields.items():
+        box = field(page, label)
+        box.fill(value)
+        box.press("Tab")
+        # One field after the other, each once the page has it (viser's client keeps only
+        # the latest change of each 50 ms).
+        wait_text(page, "#al5d-target-status", lambda t, said=said: said in t)
+    status = "x 240 y 60 z 120 mm, pitch -20, roll 45, gripper 40, 1500 ms: reachable"
+    wait_text(page, "#al5d-target-status", lambda t: t == status)
+    n0 = len(rig.emu.records)
+    page.get_by_role("button", name="move to").click()
+    text = wait_text(page, "#al5d-target-status", lambda t: t.startswith("server:"), 15)
+    assert "done" in text, text
+    moves = rig.group_moves(n0)
+    assert moves and moves[-1].time_ms == 1500, moves
+    degrees = rig.emu.servo_degrees()
+    pose = forward(rig.config.model.geometry, degrees)
+    assert pose.position == pytest.approx((0.24, 0.06, 0.12), abs=0.002)
+    assert pose.pitch_deg == pytest.approx(-20, abs=0.5)
+    assert degrees["wrist_rotate"] == pytest.approx(45, abs=0.5)
+    assert degrees["gripper"] == pytest.approx(40, abs=0.5)
+    for label, said in (
+        ("pitch (deg)", "pitch"),
+        ("roll (deg)", "roll"),
+        ("gripper (deg)", "grip"),
+    ):
+        field(page, label).fill("")  # empty again, as the other tests expect
+        field(page, label).press("Tab")
+        wait_text(page, "#al5d-target-status", lambda t, said=said: said not in t)
+
+
+def field(page: Any, label: str) -> Any:
+    """The input of the panel's row labelled `label` (viser ties no label to a text box)."""
+    row = page.locator(".mantine-Flex-root").filter(has_text=re.compile(f"^{re.escape(label)}$"))
+    return row.locator("input").last
+
+
+def test_the_page_says_the_server_has_ended(rig: Rig) -> None:
+    """A clean shutdown: the page says plainly that the server has ended (not a clipped
+    SHUTTING_DOWN forever); a server started again: the page goes on."""
+    page = rig.page
+    rig.server.popen.send_signal(signal.SIGTERM)  # parks the arm, then ends
+    wait_text(page, "#al5d-state", lambda t: t == "SHUTTING DOWN", 15)
+    assert clickable(page, page.locator("#al5d-state"))
+    width = page.locator("#al5d-state").evaluate("e => [e.scrollWidth, e.clientWidth]")
+    assert width[0] <= width[1], width  # not clipped
+    assert rig.server.wait(60) == 0
+    text = wait_text(page, "#al5d-banner", lambda t: "The server has ended" in t, 15)
+    assert "Start it again" in text and "STOP still works" in text, text
+    assert wait_text(page, "#al5d-state", lambda t: t == "SERVER ENDED")
+    rig.server = serve(rig.link)
+    wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
+    wait_text(page, "#al5d-state", lambda t: t == "READY", 15)
+
+
+def test_stop_is_first_and_one_tap_on_a_phone(rig: Rig) -> None:
+    """On a phone (390 x 844, touch), STOP is big at the top of the screen, over the bottom
+    sheet and anything else, and one tap stops the arm."""
+    context = rig.browser.new_context(
+        viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True
+    )
+    try:
+        phone = context.new_page()
+        phone.goto(rig.web.url)
+        phone.wait_for_selector("#al5d-tool", timeout=30_000)
+        stop = phone.get_by_role("button", name="STOP")
+        wait_until(lambda: clickable(phone, stop), 10, "STOP in view")
+        box = stop.bounding_box()
+        assert box["y"] < 100 and box["height"] >= 48 and box["width"] >= 300, box
+        rig.peer.send("web-phone", "move", time_ms=20_000, base=60)
+        rig.state.wait_for("moving", 5)
+        n0 = len(rig.emu.records)
+        stop.tap()
+        rig.state.wait_for("stopped", 5)
+        rig.every_channel_stopped(n0)
+        assert rig.peer.result("web-phone").outcome == "cancelled"
+    finally:
+        context.close()
+    assert rig.peer.trigger("release").success
+    rig.state.wait_for("ready", 5)
 
 
 def test_only_the_page_itself_may_connect(rig: Rig) -> None:

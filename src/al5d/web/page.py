@@ -116,8 +116,9 @@ class Page:
         for name, slider in panel.sliders.items():
             slider.on_update(self._slider_handler(name))
         panel.on_preset(self._on_preset)
-        for number in panel.xyz_numbers.values():
+        for number in (*panel.xyz_numbers.values(), *panel.tool_texts.values()):
             number.on_update(self._on_xyz_typed)
+        panel.target_time_number.on_update(self._on_xyz_typed)
         panel.move_to.on_click(lambda _: self._send_target())
         self.scene.on_target_drag(self._on_target_drag)
 
@@ -223,7 +224,15 @@ class Page:
         changed = lost != self.lost
         self.lost = lost
         text = None
-        if lost:
+        if lost and self.state in ("shutting_down", "ended"):
+            # Its last word was that it shuts down, and it has gone quiet: it has ended.
+            self.state = "ended"
+            self.panel.show_state("ended")
+            text = (
+                "The server has ended (it shut down, the arm parked). Start it again "
+                "(al5d serve) to go on. Controls are off; STOP still works."
+            )
+        elif lost:
             since = "never heard from it" if age_s is None else f"no joint states for {age_s:.0f} s"
             text = f"No contact with the server ({since}). Controls are off; STOP still works."
         elif changed and time.monotonic() - self.touched > JOG_KEPT_LOST_S:
@@ -328,12 +337,27 @@ class Page:
         if self.commands is not None and not self.lost:
             self.commands.release()
 
-    def _target_instr(self, xyz_mm: Sequence[float]) -> Instruction:
+    def _target_instr(self, xyz_mm: Sequence[float]) -> Instruction | str:
+        """The Target tab's `move_to`, or what is wrong with one of its fields."""
         x, y, z = xyz_mm
-        return move_to(x, y, z, line=self.panel.line(), time_ms=self.panel.time_ms())
+        tool = self.panel.tool_fields()
+        if isinstance(tool, str):
+            return tool
+        return move_to(
+            x,
+            y,
+            z,
+            pitch=tool["pitch"],
+            roll=tool["roll"],
+            gripper=tool["gripper"],
+            line=self.panel.line(),
+            time_ms=self.panel.target_time_ms(),
+        )
 
-    def _precheck(self, instr: Instruction) -> str:
+    def _precheck(self, instr: Instruction | str) -> str:
         """The reason the server would refuse `instr` from where the arm is, or ''."""
+        if isinstance(instr, str):
+            return instr
         with self._lock:
             start = self._planning_start()
         if start is None:
@@ -373,8 +397,18 @@ class Page:
             xyz = self.panel.xyz()
             x, y, z = xyz
             self.scene.place_target((x / 1000, y / 1000, z / 1000))
-        reason = self._precheck(self._target_instr(xyz))
+        instr = self._target_instr(xyz)
+        reason = self._precheck(instr)
         point = "x {:g} y {:g} z {:g} mm".format(*xyz)
+        if not isinstance(instr, str) and instr.tool is not None:
+            tool = instr.tool
+            given = (
+                ("pitch", tool.pitch_deg),
+                ("roll", tool.roll_deg),
+                ("gripper", tool.gripper_deg),
+            )
+            point += "".join(f", {k} {v:g}" for k, v in given if v is not None)
+            point += f", {instr.time_ms} ms" if instr.time_ms else ""
         with self._lock:
             self.panel.show_status(
                 f"{point}: unreachable: {reason}" if reason else f"{point}: reachable", not reason
@@ -389,6 +423,10 @@ class Page:
             instr = self._target_instr(self.panel.xyz())
             self.target_touched = time.monotonic()
         reason = self._precheck(instr)
+        if isinstance(instr, str):
+            with self._lock:
+                self.panel.show_status(f"not sent: {instr}", False)
+            return
         with self._lock:
             self.page_move_to = instr.id
             text = f"will be refused: {reason}" if reason else f"sent: {instr}"
