@@ -178,9 +178,18 @@ def test_a_long_slider_drag_follows_live_and_leaves_no_queue(rig: Rig) -> None:
     during = [r for r in rig.emu.records[n0:] if r.t_effect < t_up]
     assert sum(isinstance(c, p.GroupMove) for r in during for c in r.commands) >= 3
     # Nothing behind: the arm is at the slider's value at once, and nothing more comes.
-    wait_until(
-        lambda: abs(rig.emu.servo_degrees()["base"] - degrees) < 0.2, 5, "the arm at the slider"
-    )
+    try:
+        wait_until(
+            lambda: abs(rig.emu.servo_degrees()["base"] - degrees) < 0.2, 5, "the arm at the slider"
+        )
+    except AssertionError as e:  # what the page and the server did, for the next reader
+        web = rig.web.proc.err.drain(0)[-8:]
+        server = [x for x in rig.server.err.drain(0) if "watchdog" in x or "refused" in x][-5:]
+        raise AssertionError(
+            f"{e}: slider {degrees}, base {rig.emu.servo_degrees()['base']:.2f}, last lines "
+            f"{rig.group_moves(n0)[-3:]}, states {rig.state.states[-4:]}, web {web}, "
+            f"server {server}"
+        ) from e
     rig.state.wait_for("ready", 10)
     moves = rig.group_moves(n0)
     time.sleep(1.0)
@@ -673,6 +682,28 @@ def test_a_lost_server_leaves_the_gizmo_nothing_to_grab(config: ArmConfig) -> No
         target.position = (0.3, 0.0, 0.1)  # where a drag would have left it
         page._on_target_drag(SimpleNamespace(client=object(), target=target, phase="end"))
         assert tuple(target.position) == pytest.approx(tool)
+        assert commands.sent == []
+    finally:
+        page.close()
+        server.stop()
+
+
+def test_a_target_field_that_is_no_number_sends_nothing(config: ArmConfig) -> None:
+    """Every field of the Target tab is read whole before anything is sent: a pitch, roll or
+    gripper that is no number (or not finite) says which, and sends nothing."""
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    page = Page(server, config, "al5d test")
+    commands = Recorder()
+    page.commands = commands
+    try:
+        ready = config.model.to_urdf(config.presets["ready"])
+        for key, text in (("pitch", "abc"), ("roll", "inf"), ("gripper", "nan")):
+            page.on_joints(list(ready), list(ready.values()), time.monotonic())  # not lost
+            page.panel.tool_texts[key].value = text
+            page._send_target()
+            status = page.panel.target_status.content
+            assert f"not sent: {key} (deg): &#x27;{text}&#x27; is not a number" in status, status
+            page.panel.tool_texts[key].value = ""
         assert commands.sent == []
     finally:
         page.close()

@@ -330,11 +330,12 @@ class Panel:
         for key, text in self.tool_texts.items():
             value = str(text.value).strip()
             try:
-                out[key] = float(value) if value else None
+                number = float(value) if value else None
             except ValueError:
+                number = math.nan
+            if number is not None and not math.isfinite(number):
                 return f"{TOOL_FIELDS[key][0]}: {value!r} is not a number"
-            if out[key] is not None and not math.isfinite(out[key] or 0.0):
-                return f"{TOOL_FIELDS[key][0]}: {value!r} is not a number"
+            out[key] = number
         return out
 
     def line(self) -> bool:
