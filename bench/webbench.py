@@ -1,5 +1,7 @@
 """The web view's figures: STOP clicked in a real browser until STOP on the board, the view's
-update rate while a move runs, and the web process's CPU while idle.
+update rate while a move runs, the page's state lag (the server's state change until the
+page shows it, beside a bare viser page's round trip measured in the same run), and the web
+process's CPU while idle.
 
 Five processes: the emulated board (`al5d emulator --record -`, its times not held up
 by this process's GIL), `al5d serve --port LINK`, `al5d web`, headless Chromium, and
@@ -10,6 +12,7 @@ monotonic clock with an offset measured against the page (the uncertainty is
 printed: half the best round trip of the calibration).
 
     .venv/bin/python bench/webbench.py          # prints the figures, writes bench/out/web.json
+    .venv/bin/python bench/webbench.py --state-lag   # the page's state lag alone
 """
 
 from __future__ import annotations
@@ -181,6 +184,105 @@ def update_rate(page: Any, peer: Peer, state: StateWatch, move_ms: int = 3000) -
     }
 
 
+#: Each text the state element shows, stamped (wall clock) as the page's DOM takes it.
+WATCH_STATE = """() => {
+  window.__states = [];
+  let last = null;
+  new MutationObserver(() => {
+    const el = document.getElementById(window.__stateId || "al5d-state");
+    const text = el ? el.textContent : null;
+    if (text !== last) {
+      window.__states.push([performance.timeOrigin + performance.now(), text]);
+      last = text;
+    }
+  }).observe(document.body, { childList: true, subtree: true, characterData: true });
+}"""
+
+
+def shown_at(page: Any, text: str, since_ms: float, timeout_s: float = 5.0) -> float | None:
+    """The page's wall-clock ms when its watched element first showed `text` after
+    `since_ms` (page wall clock); None if it did not within `timeout_s`."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        for t, shown in page.evaluate("window.__states"):
+            if t >= since_ms and shown == text:
+                return float(t)
+        if time.monotonic() > deadline:
+            return None
+        time.sleep(0.02)
+
+
+def state_lag(
+    page: Any, peer: Peer, state: StateWatch, trials: int = 40
+) -> tuple[list[float], int, float]:
+    """The server's state changes (moving, then ready: a 300 ms move), as a ROS client hears
+    them, until the page shows them, in ms; how many the page never showed (within 5 s);
+    and the clock's uncertainty."""
+    page.evaluate(WATCH_STATE)
+    lags: list[float] = []
+    missed = 0
+    worst = 0.0
+    for trial in range(trials):
+        offset, err = clock_offset(page, 5)
+        worst = max(worst, err)
+        n0 = len(state.times)
+        since = time.monotonic() * 1000 + offset
+        peer.send(f"web-lag-{trial}", "move", 300, base=20 if trial % 2 else -20)
+        assert peer.result(f"web-lag-{trial}", 30).outcome == "done"
+        state.wait_for("ready", 5)
+        for word in ("moving", "ready"):
+            i = state.states.index(word, n0)
+            heard_ms = state.times[i] * 1000 + offset
+            shown = shown_at(page, word.upper(), since)
+            if shown is None:
+                missed += 1
+            else:
+                lags.append(shown - heard_ms)
+        time.sleep(0.1 + random.random() * 0.1)
+    return lags, missed, worst
+
+
+def bare_viser_lag(browser: Any, trials: int = 40) -> tuple[list[float], float]:
+    """The floor: a bare viser page (one HTML element, nothing else) on a server in this
+    process: its content set here until the browser's DOM has it, in ms."""
+    import viser
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        element = server.gui.add_html('<div id="bare">0</div>')
+        page = browser.new_page()
+        page.goto(f"http://127.0.0.1:{server.get_port()}/")
+        page.wait_for_selector("#bare", timeout=30_000)
+        page.evaluate("window.__stateId = 'bare'")
+        page.evaluate(WATCH_STATE)
+        lags: list[float] = []
+        worst = 0.0
+        for trial in range(1, trials + 1):
+            offset, err = clock_offset(page, 5)
+            worst = max(worst, err)
+            t0 = time.monotonic() * 1000 + offset
+            element.content = f'<div id="bare">{trial}</div>'
+            shown = shown_at(page, str(trial), t0)
+            assert shown is not None, "the bare page did not show its content in 5 s"
+            lags.append(shown - t0)
+            time.sleep(0.1 + random.random() * 0.1)
+        page.close()
+        return lags, worst
+    finally:
+        server.stop()
+
+
+def state_lags(page: Any, peer: Peer, state: StateWatch, browser: Any) -> dict[str, Any]:
+    log("the page's state lag, then a bare viser page's, 40 + 40 times")
+    lags, missed, err_page = state_lag(page, peer, state)
+    floor, err_floor = bare_viser_lag(browser)
+    return {
+        "page": figure("server state heard -> shown in the page", lags, missed=missed),
+        "floor": figure("bare viser page: content set -> in its DOM", floor),
+        "clock_uncertainty_ms": max(err_page, err_floor),
+    }
+
+
 def idle_cpu(pid: int, seconds: float = 10.0) -> float:
     cpu0, _ = proc_stat(pid)
     time.sleep(seconds)
@@ -188,7 +290,7 @@ def idle_cpu(pid: int, seconds: float = 10.0) -> float:
     return (cpu1 - cpu0) / seconds * 100
 
 
-def run(log: Any = log, trials: int = 50) -> dict[str, Any]:
+def run(log: Any = log, trials: int = 50, only_state_lag: bool = False) -> dict[str, Any]:
     out: dict[str, Any] = {}
     workdir = Path(tempfile.mkdtemp(prefix="al5d-webbench-"))
     config = load_config()
@@ -202,14 +304,18 @@ def run(log: Any = log, trials: int = 50) -> dict[str, Any]:
         peer = Peer(name="al5d_webbench_peer")
         state = StateWatch(peer.node, Names())
         peer.wait_for_server()
-        log("web process CPU while idle, no page open (10 s)")
-        out["web_idle_cpu_no_page_percent"] = idle_cpu(web.proc.popen.pid)
+        if not only_state_lag:
+            log("web process CPU while idle, no page open (10 s)")
+            out["web_idle_cpu_no_page_percent"] = idle_cpu(web.proc.popen.pid)
         with sync_playwright() as playwright:
             browser = launch(playwright)
             try:
                 page = open_page(browser, web.url)
                 dismiss_notifications(page)
                 time.sleep(2.0)
+                if only_state_lag:
+                    out["state_lag"] = state_lags(page, peer, state, browser)
+                    return out
                 log("web process and server CPU while idle, the page open (10 s)")
                 cpu0 = proc_stat(server.popen.pid)[0]
                 out["web_idle_cpu_percent"] = idle_cpu(web.proc.popen.pid)
@@ -220,6 +326,7 @@ def run(log: Any = log, trials: int = 50) -> dict[str, Any]:
                 out["stop"] = stop_clicks(page, board, peer, state, trials)
                 log("the view's update rate during a 3 s move")
                 out["updates"] = update_rate(page, peer, state)
+                out["state_lag"] = state_lags(page, peer, state, browser)
             finally:
                 browser.close()
         wait_until(lambda: state.now == "ready", 5, "ready")
@@ -238,6 +345,7 @@ def run(log: Any = log, trials: int = 50) -> dict[str, Any]:
 #: The issue's targets for the web view's figures.
 SOFTWARE_P99_MS = 50.0
 UPDATES_PER_S = 20.0
+STATE_LAG_P99_MS = 100.0
 
 
 def rows(r: dict[str, Any]) -> list[tuple[str, str, str, str, bool | None]]:
@@ -245,6 +353,7 @@ def rows(r: dict[str, Any]) -> list[tuple[str, str, str, str, bool | None]]:
     target, held), so that they count in its tally of targets held."""
     sw, u = r["stop"]["software"], r["updates"]
     total = r["stop"]["click_to_all_stops"]
+    lag, floor = r["state_lag"]["page"], r["state_lag"]["floor"]
     return [
         (
             "web: STOP click in the page -> every STOP in effect, minus wire",
@@ -263,6 +372,14 @@ def rows(r: dict[str, Any]) -> list[tuple[str, str, str, str, bool | None]]:
             u["scene_updates_per_s"] >= UPDATES_PER_S,
         ),
         (
+            "web: the page's state lag (server state heard -> shown in the page)",
+            f"p50 {lag['p50_ms']:.1f} ms, p99 {lag['p99_ms']:.1f} ms "
+            f"(bare viser page p50 {floor['p50_ms']:.1f} ms, p99 {floor['p99_ms']:.1f} ms)",
+            "-",
+            f"p99 <= {STATE_LAG_P99_MS:.0f} ms",
+            lag["p99_ms"] <= STATE_LAG_P99_MS and not lag["missed"],
+        ),
+        (
             "web: web process CPU while idle, page open",
             f"{r['web_idle_cpu_percent']:.1f} %",
             "-",
@@ -279,6 +396,7 @@ def table(r: dict[str, Any]) -> str:
         r["stop"]["click_to_first_stop"],
     )
     u = r["updates"]
+    lag, floor = r["state_lag"]["page"], r["state_lag"]["floor"]
     rows = [
         (
             "STOP click in the page -> every STOP in effect (9600 baud)",
@@ -304,6 +422,19 @@ def table(r: dict[str, Any]) -> str:
             f"{u['scene_updates_per_s']:.1f}/s scene updates (the arm drawn anew), "
             f"{u['page_updates_per_s']:.1f}/s redraws of the tool readout",
         ),
+        (
+            f"page state lag: server state heard -> shown (p99 <= {STATE_LAG_P99_MS:.0f} ms)",
+            f"p50 {lag['p50_ms']:.1f} ms, p99 {lag['p99_ms']:.1f} ms, n={lag['n']}, "
+            f"never shown {lag['missed']}: "
+            + ("held" if lag["p99_ms"] <= STATE_LAG_P99_MS and not lag["missed"] else "NOT held"),
+        ),
+        (
+            "  ... floor: a bare viser page, content set -> in its DOM",
+            f"p50 {floor['p50_ms']:.1f} ms, p99 {floor['p99_ms']:.1f} ms "
+            f"(ratio p50 {lag['p50_ms'] / max(floor['p50_ms'], 1e-3):.1f}, "
+            f"p99 {lag['p99_ms'] / max(floor['p99_ms'], 1e-3):.1f}; clock within "
+            f"{r['state_lag']['clock_uncertainty_ms']:.2f} ms)",
+        ),
         ("web process CPU while idle, page open", f"{r['web_idle_cpu_percent']:.1f} %"),
         ("web process CPU while idle, no page", f"{r['web_idle_cpu_no_page_percent']:.1f} %"),
         ("server CPU while idle, page open", f"{r['server_idle_cpu_with_page_percent']:.1f} %"),
@@ -314,6 +445,15 @@ def table(r: dict[str, Any]) -> str:
 
 def main() -> int:
     t0 = time.monotonic()
+    if "--state-lag" in sys.argv:  # that figure alone (a minute)
+        lag = run(only_state_lag=True)["state_lag"]
+        for f in (lag["page"], lag["floor"]):
+            print(
+                f"{f['name']}: p50 {f['p50_ms']:.1f} ms, p99 {f['p99_ms']:.1f} ms, n={f['n']}, "
+                f"never shown {f.get('missed', 0)}"
+            )
+        print(f"ratio p50 {lag['page']['p50_ms'] / max(lag['floor']['p50_ms'], 1e-3):.1f}")
+        return 0
     r = run()
     OUT.mkdir(exist_ok=True)
     (OUT / "web.json").write_text(json.dumps(r, indent=1))

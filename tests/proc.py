@@ -21,15 +21,20 @@ AL5D = str(Path(sys.executable).with_name("al5d"))
 
 
 @functools.cache
-def patient_config() -> str:
+def patient_config(speeds: tuple[tuple[str, float], ...] = (), **server: float) -> str:
     """The packaged configuration with `server.answer_timeout_s` at 0.5 s, for a server
     whose emulated board is a thread of the busy test process.
 
     The board answers within 5 ms; this emulator, on two loaded cores, once missed the
     0.15 s of two asks during a CI run, and the server rightly took it for a lost link
-    (the test's move ended `cancelled`). Tests that are about faults keep the default."""
+    (the test's move ended `cancelled`). Tests that are about faults keep the default.
+    `speeds`: joints' speeds (deg/s); `server`: other settings of the `server` section."""
     data = yaml.safe_load(DEFAULT_CONFIG.read_text())
     data["server"]["answer_timeout_s"] = 0.5
+    data["server"].update(server)
+    for joint, speed in speeds:
+        data["joints"][joint].pop("servo", None)
+        data["joints"][joint]["speed_deg_s"] = speed
     path = Path(tempfile.mkdtemp(prefix="al5d-test-")) / "al5d.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return str(path)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import shutil
 import signal
 import time
@@ -41,12 +42,13 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
 from al5d.arm.config import ArmConfig, load_config
+from al5d.model import forward
 from al5d.model.table import below
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
-from al5d.web.page import LOOP_S, QUIET_S, Page
+from al5d.web.page import FOLLOW_AFTER_S, LOOP_S, QUIET_S, Page
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 #: AL5D_UPDATE_DOCS=1 copies the page's screenshot to docs/web.png (for docs/web.md);
@@ -115,13 +117,13 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
         emu.close()
 
 
-def serve(link: Path) -> Proc:
-    """`al5d serve` on the emulated board's link, once it is ready."""
-    server = Proc(
-        "serve", "--port", str(link), "--config", patient_config(), "--log-level", "DEBUG"
-    )
-    server.err.wait_for("STATE: ready", 30)
-    return server
+def serve(link: Path, speeds: tuple[tuple[str, float], ...] = (), **server: float) -> Proc:
+    """`al5d serve` on the emulated board's link, once it is ready; `speeds` and `server`:
+    settings of its configuration (`patient_config`)."""
+    config = patient_config(speeds, **server)
+    proc = Proc("serve", "--port", str(link), "--config", config, "--log-level", "DEBUG")
+    proc.err.wait_for("STATE: ready", 30)
+    return proc
 
 
 def test_the_page_draws_the_arm(rig: Rig, tmp_path: Path) -> None:
@@ -168,9 +170,18 @@ def test_a_long_slider_drag_follows_live_and_leaves_no_queue(rig: Rig) -> None:
     during = [r for r in rig.emu.records[n0:] if r.t_effect < t_up]
     assert sum(isinstance(c, p.GroupMove) for r in during for c in r.commands) >= 3
     # Nothing behind: the arm is at the slider's value at once, and nothing more comes.
-    wait_until(
-        lambda: abs(rig.emu.servo_degrees()["base"] - degrees) < 0.2, 5, "the arm at the slider"
-    )
+    try:
+        wait_until(
+            lambda: abs(rig.emu.servo_degrees()["base"] - degrees) < 0.2, 5, "the arm at the slider"
+        )
+    except AssertionError as e:  # what the page and the server did, for the next reader
+        web = rig.web.proc.err.drain(0)[-8:]
+        server = [x for x in rig.server.err.drain(0) if "watchdog" in x or "refused" in x][-5:]
+        raise AssertionError(
+            f"{e}: slider {degrees}, base {rig.emu.servo_degrees()['base']:.2f}, last lines "
+            f"{rig.group_moves(n0)[-3:]}, states {rig.state.states[-4:]}, web {web}, "
+            f"server {server}"
+        ) from e
     rig.state.wait_for("ready", 10)
     moves = rig.group_moves(n0)
     time.sleep(1.0)
@@ -178,6 +189,70 @@ def test_a_long_slider_drag_follows_live_and_leaves_no_queue(rig: Rig) -> None:
     took = t_up - t0
     assert len(moves) <= took / LOOP_S + 5, (len(moves), took)  # one a page tick at most
     assert {(t.channel, t.pulse_us) for t in moves[-1].targets} == {(0, pulse)}
+
+
+def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:
+    """The page stalls longer than the server's stream watchdog (as on a busy host) while
+    the jog's last set-point runs: the server holds the arm short of the slider, and the
+    page, once it runs again, sends the slider's target again: the arm gets there."""
+    rig.server.popen.kill()
+    rig.server.wait(10)
+    # A slow base (6 s across its range): the stall falls in the set-point's move, whenever
+    # this busy test process gets to it.
+    rig.server = serve(rig.link, (("base", 30.0),), stream_timeout_s=0.1)
+    page = rig.page
+    try:
+        wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
+        rig.state.wait_for("ready", 10)
+        page.get_by_role("tab", name="Joints").click()
+        thumb = page.get_by_role("slider").nth(0)  # base
+        thumb.focus()
+        thumb.press("Home")  # the base to one end of its range...
+        wait_until(lambda: rig.emu.servo_degrees()["base"] < -89, 20, "the base at -90")
+        n0 = len(rig.emu.records)
+        thumb.press("End")  # ...then to the other, in one value
+        degrees = float(thumb.get_attribute("aria-valuenow") or "nan")
+        assert degrees == 90, degrees
+        pulse = round(rig.config.joints["base"].to_us(degrees))
+        seen = len(rig.server.err.drain(0))
+        wait_until(
+            lambda: any(
+                (0, pulse) in {(t.channel, t.pulse_us) for t in m.targets}
+                for m in rig.group_moves(n0)
+            ),
+            10,
+            "the slider's set-point on the board",
+        )
+        os.kill(rig.web.proc.popen.pid, signal.SIGSTOP)  # the page's process stalls
+        try:
+            wait_until(
+                lambda: any("watchdog:" in x for x in rig.server.err.drain(0.05)[seen:]),
+                10,
+                "the server's watchdog holding the arm",
+            )
+            rig.state.wait_for("ready", 10)
+            # The stall outlasts the jog's keep-alive (the page would send its set-point
+            # again anyway while the user held the slider or the arm was seen moving), and
+            # the joint states' silence that makes the page take the server for lost.
+            time.sleep(FOLLOW_AFTER_S + 0.5)
+        finally:
+            os.kill(rig.web.proc.popen.pid, signal.SIGCONT)
+        held = rig.emu.servo_degrees()["base"]
+        assert abs(held - degrees) > 5, (held, degrees)  # short of the slider
+        wait_until(
+            lambda: abs(rig.emu.servo_degrees()["base"] - degrees) < 0.2,
+            20,
+            "the arm at the slider",
+        )
+    finally:
+        rig.server.popen.kill()
+        rig.server.wait(10)
+        rig.server = serve(rig.link)
+        wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
+    rig.state.wait_for("ready", 10)
+    rig.peer.send("web-jog-back", "move", base=0)  # as the other tests expect it
+    assert rig.peer.result("web-jog-back").outcome == "done"
+    wait_until(lambda: thumb.get_attribute("aria-valuenow") == "0", 10, "the slider at 0")
 
 
 def test_sliders_into_the_table_show_why_and_send_nothing(rig: Rig) -> None:
@@ -228,9 +303,29 @@ def test_stop_and_release_from_the_page(rig: Rig) -> None:
     rig.every_channel_stopped(n0)
     assert rig.peer.result("web-slow").outcome == "cancelled"
     wait_text(page, "#al5d-state", lambda t: t == "STOPPED")
-    page.get_by_role("button", name="release").click()
+    release = page.get_by_role("button", name="release")
+    release.click()  # shown once stopped: there is something to release
     rig.state.wait_for("ready", 5)
     wait_text(page, "#al5d-state", lambda t: t == "READY")
+    wait_until(lambda: not release.is_visible(), 5, "no release button in READY")
+
+
+def test_release_is_shown_only_when_there_is_something_to_release(rig: Rig) -> None:
+    page = rig.page
+    release = page.get_by_role("button", name="release")
+    rig.state.wait_for("ready", 10)
+    wait_text(page, "#al5d-state", lambda t: t == "READY")
+    assert not release.is_visible()
+    rig.peer.send("web-moving", "move", time_ms=3000, base=-20)
+    wait_text(page, "#al5d-state", lambda t: t == "MOVING")
+    assert not release.is_visible()
+    assert rig.peer.trigger("stop").success
+    wait_text(page, "#al5d-state", lambda t: t == "STOPPED")
+    wait_until(release.is_visible, 5, "the release button when stopped")
+    assert clickable(page, release)
+    assert rig.peer.trigger("release").success
+    wait_text(page, "#al5d-state", lambda t: t == "READY")
+    wait_until(lambda: not release.is_visible(), 5, "no release button in READY")
 
 
 def test_an_unreachable_target_shows_the_servers_reason(rig: Rig) -> None:
@@ -252,6 +347,105 @@ def test_an_unreachable_target_shows_the_servers_reason(rig: Rig) -> None:
     assert "x=500 y=0 z=100" in text
     time.sleep(0.2)
     assert rig.group_moves(n0) == []
+
+
+def test_the_target_tab_moves_the_tool_with_pitch_roll_gripper_and_time(rig: Rig) -> None:
+    """A Cartesian target with every field of the Target tab: sent, done on the board, the
+    tool where it was asked (position and pitch), the wrist rotate and gripper as typed, in
+    the time typed."""
+    page = rig.page
+    rig.peer.send("web-target-ready", "ready")
+    assert rig.peer.result("web-target-ready").outcome == "done"
+    page.get_by_role("tab", name="Target").click()
+    fields = {  # each with what the page's check of the target says of it
+        "x (mm)": ("240", "x 240 "),
+        "y (mm)": ("60", "y 60 "),
+        "z (mm)": ("120", "z 120 "),
+        "pitch (deg)": ("-20", "pitch -20"),
+        "roll (deg)": ("45", "roll 45"),
+        "gripper (deg)": ("40", "gripper 40"),
+        "move time (ms)": ("1500", "1500 ms"),
+    }
+    for label, (value, said) in fields.items():
+        box = field(page, label)
+        box.fill(value)
+        box.press("Tab")
+        # One field after the other, each once the page has it (viser's client keeps only
+        # the latest change of each 50 ms).
+        wait_text(page, "#al5d-target-status", lambda t, said=said: said in t)
+    status = "x 240 y 60 z 120 mm, pitch -20, roll 45, gripper 40, 1500 ms: reachable"
+    wait_text(page, "#al5d-target-status", lambda t: t == status)
+    n0 = len(rig.emu.records)
+    page.get_by_role("button", name="move to").click()
+    text = wait_text(page, "#al5d-target-status", lambda t: t.startswith("server:"), 15)
+    assert "done" in text, text
+    moves = rig.group_moves(n0)
+    assert moves and moves[-1].time_ms == 1500, moves
+    degrees = rig.emu.servo_degrees()
+    pose = forward(rig.config.model.geometry, degrees)
+    assert pose.position == pytest.approx((0.24, 0.06, 0.12), abs=0.002)
+    assert pose.pitch_deg == pytest.approx(-20, abs=0.5)
+    assert degrees["wrist_rotate"] == pytest.approx(45, abs=0.5)
+    assert degrees["gripper"] == pytest.approx(40, abs=0.5)
+    for label, said in (
+        ("pitch (deg)", "pitch"),
+        ("roll (deg)", "roll"),
+        ("gripper (deg)", "grip"),
+    ):
+        field(page, label).fill("")  # empty again, as the other tests expect
+        field(page, label).press("Tab")
+        wait_text(page, "#al5d-target-status", lambda t, said=said: said not in t)
+
+
+def field(page: Any, label: str) -> Any:
+    """The input of the panel's row labelled `label` (viser ties no label to a text box)."""
+    row = page.locator(".mantine-Flex-root").filter(has_text=re.compile(f"^{re.escape(label)}$"))
+    return row.locator("input").last
+
+
+def test_the_page_says_the_server_has_ended(rig: Rig) -> None:
+    """A clean shutdown: the page says plainly that the server has ended (not a clipped
+    SHUTTING_DOWN forever); a server started again: the page goes on."""
+    page = rig.page
+    rig.server.popen.send_signal(signal.SIGTERM)  # parks the arm, then ends
+    wait_text(page, "#al5d-state", lambda t: t == "SHUTTING DOWN", 15)
+    assert clickable(page, page.locator("#al5d-state"))
+    width = page.locator("#al5d-state").evaluate("e => [e.scrollWidth, e.clientWidth]")
+    assert width[0] <= width[1], width  # not clipped
+    assert rig.server.wait(60) == 0
+    text = wait_text(page, "#al5d-banner", lambda t: "The server has ended" in t, 15)
+    assert "Start it again" in text and "STOP still works" in text, text
+    assert wait_text(page, "#al5d-state", lambda t: t == "SERVER ENDED")
+    rig.server = serve(rig.link)
+    wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
+    wait_text(page, "#al5d-state", lambda t: t == "READY", 15)
+
+
+def test_stop_is_first_and_one_tap_on_a_phone(rig: Rig) -> None:
+    """On a phone (390 x 844, touch), STOP is big at the top of the screen, over the bottom
+    sheet and anything else, and one tap stops the arm."""
+    context = rig.browser.new_context(
+        viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True
+    )
+    try:
+        phone = context.new_page()
+        phone.goto(rig.web.url)
+        phone.wait_for_selector("#al5d-tool", timeout=30_000)
+        stop = phone.get_by_role("button", name="STOP")
+        wait_until(lambda: clickable(phone, stop), 10, "STOP in view")
+        box = stop.bounding_box()
+        assert box["y"] < 100 and box["height"] >= 48 and box["width"] >= 300, box
+        rig.peer.send("web-phone", "move", time_ms=20_000, base=60)
+        rig.state.wait_for("moving", 5)
+        n0 = len(rig.emu.records)
+        stop.tap()
+        rig.state.wait_for("stopped", 5)
+        rig.every_channel_stopped(n0)
+        assert rig.peer.result("web-phone").outcome == "cancelled"
+    finally:
+        context.close()
+    assert rig.peer.trigger("release").success
+    rig.state.wait_for("ready", 5)
 
 
 def test_only_the_page_itself_may_connect(rig: Rig) -> None:
@@ -481,6 +675,28 @@ def test_a_lost_server_leaves_the_gizmo_nothing_to_grab(config: ArmConfig) -> No
         target.position = (0.3, 0.0, 0.1)  # where a drag would have left it
         page._on_target_drag(SimpleNamespace(client=object(), target=target, phase="end"))
         assert tuple(target.position) == pytest.approx(tool)
+        assert commands.sent == []
+    finally:
+        page.close()
+        server.stop()
+
+
+def test_a_target_field_that_is_no_number_sends_nothing(config: ArmConfig) -> None:
+    """Every field of the Target tab is read whole before anything is sent: a pitch, roll or
+    gripper that is no number (or not finite) says which, and sends nothing."""
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    page = Page(server, config, "al5d test")
+    commands = Recorder()
+    page.commands = commands
+    try:
+        ready = config.model.to_urdf(config.presets["ready"])
+        for key, text in (("pitch", "abc"), ("roll", "inf"), ("gripper", "nan")):
+            page.on_joints(list(ready), list(ready.values()), time.monotonic())  # not lost
+            page.panel.tool_texts[key].value = text
+            page._send_target()
+            status = page.panel.target_status.content
+            assert f"not sent: {key} (deg): &#x27;{text}&#x27; is not a number" in status, status
+            page.panel.tool_texts[key].value = ""
         assert commands.sent == []
     finally:
         page.close()

@@ -123,12 +123,16 @@ class StateWatch:
 
     def __init__(self, node: Any, names: Names) -> None:
         self.states: list[str] = []
+        #: When each state came (CLOCK_MONOTONIC), as `states`.
+        self.times: list[float] = []
         self._changed = threading.Condition()
         node.create_subscription(String, names.state, self._on, QOS_LATCHED)
 
     def _on(self, msg: String) -> None:
+        t = time.monotonic()
         with self._changed:
             self.states.append(str(msg.data))
+            self.times.append(t)
             self._changed.notify_all()
 
     @property

@@ -51,7 +51,7 @@ class WebView:
         from al5d.ros.names import Names
         from al5d.ros.params import served_config_file
         from al5d.web import calibrate, guard
-        from al5d.web.link import Link
+        from al5d.web.link import WebNode
         from al5d.web.page import Page
         from al5d.web.teach import Listeners, Teach
 
@@ -79,7 +79,7 @@ class WebView:
         self.page = Page(self.server, config, f"al5d {self.names.namespace or ''}".strip())
         self.teach = Teach(self.page, poses)
         listeners = Listeners(self.page, self.teach)
-        self.link = Link(self.names, listeners, config.model, tuple(config.presets))
+        self.link = WebNode(self.names, listeners, config.model, tuple(config.presets))
         self.page.commands = self.link
         calibrate.attach(
             self.page,

@@ -62,6 +62,17 @@ QOS_OUTCOMES = QoSProfile(
 )
 
 
+#: The state: latched as the server writes it, and every change kept until this page takes
+#: it (a reader of depth 1 whose executor lagged a short move behind showed READY, READY:
+#: the MOVING between them was overwritten before it was taken).
+QOS_STATES = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=20,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
+
 class Listener(Protocol):
     """What the link hands over, in its executor's thread."""
 
@@ -78,7 +89,7 @@ class Listener(Protocol):
     def on_mount(self, parent: str, mount: Transform) -> None: ...
 
 
-class Link:
+class WebNode:
     """The web process's node: subscriptions to the server's outputs, the instruction topic,
     and the stop and release services."""
 
@@ -97,7 +108,7 @@ class Link:
         self.jog_pub = node.create_publisher(JointState, names.joint_commands, QOS_COMMANDS)
         node.create_subscription(String, names.robot_description, self._on_description, QOS_LATCHED)
         node.create_subscription(JointState, names.joint_states, self._on_joints, QOS_LATEST)
-        node.create_subscription(String, names.state, self._on_state, QOS_LATCHED)
+        node.create_subscription(String, names.state, self._on_state, QOS_STATES)
         node.create_subscription(InstructionResult, names.result, self._on_result, QOS_OUTCOMES)
         node.create_subscription(
             ArmInstruction, names.instruction, self._on_instruction, QOS_LATEST

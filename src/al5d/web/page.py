@@ -44,6 +44,12 @@ PLOT_EVERY_S = 0.25
 FOLLOW_AFTER_S = 1.5
 #: The gizmo stays where the user left it this long (a refused target stays in view).
 TARGET_KEPT_S = 5.0
+#: A jog let go with the arm idle short of its target (degrees) is sent again this often,
+#: for up to FOLLOW_AFTER_S of the arm idle there.
+JOG_THERE_DEG = 0.5
+JOG_RESEND_S = 0.3
+#: A jog goes on after the server was lost if the sliders were let go at most this long ago.
+JOG_KEPT_LOST_S = 5.0
 
 
 class Commands(Protocol):
@@ -88,6 +94,10 @@ class Page:
         #: Why the jog's latest target would be refused (the table, a limit), or "": such a
         #: target is not sent, and once the sliders are let go they go back to the arm.
         self.jog_refused = ""
+        #: When the jog's latest target was set (the user's hand, or sent again), and since
+        #: when the arm has been idle short of it (None: it is not).
+        self.jog_t = -math.inf
+        self.jog_short_t: float | None = None
         self.touched = -math.inf
         self.target_touched = -math.inf
         #: Where the tool was when the gizmo was last put at it (None: never).
@@ -109,8 +119,9 @@ class Page:
         for name, slider in panel.sliders.items():
             slider.on_update(self._slider_handler(name))
         panel.on_preset(self._on_preset)
-        for number in panel.xyz_numbers.values():
+        for number in (*panel.xyz_numbers.values(), *panel.tool_texts.values()):
             number.on_update(self._on_xyz_typed)
+        panel.target_time_number.on_update(self._on_xyz_typed)
         panel.move_to.on_click(lambda _: self._send_target())
         self.scene.on_target_drag(self._on_target_drag)
 
@@ -230,9 +241,20 @@ class Page:
         changed = lost != self.lost
         self.lost = lost
         text = None
-        if lost:
+        if lost and self.state in ("shutting_down", "ended"):
+            # Its last word was that it shuts down, and it has gone quiet: it has ended.
+            self.state = "ended"
+            self.panel.show_state("ended")
+            text = (
+                "The server has ended (it shut down, the arm parked). Start it again "
+                "(al5d serve) to go on. Controls are off; STOP still works."
+            )
+        elif lost:
             since = "never heard from it" if age_s is None else f"no joint states for {age_s:.0f} s"
             text = f"No contact with the server ({since}). Controls are off; STOP still works."
+        elif changed and time.monotonic() - self.touched > JOG_KEPT_LOST_S:
+            # A jog is kept over a short loss (this page's own process stalled, on a busy
+            # host), and goes on once the server answers; not over a long one.
             self.jog = None
         with self.server.atomic():
             self.panel.show_lost(text)
@@ -297,7 +319,8 @@ class Page:
                     if self.degrees is not None and joint in self.degrees:
                         self.panel.set_slider(joint, self.degrees[joint])
                     return
-                self.touched = time.monotonic()
+                self.touched = self.jog_t = time.monotonic()
+                self.jog_short_t = None
                 if self.jog is None:
                     self.jog = {}
                 self.jog[joint] = float(event.target.value)
@@ -335,12 +358,27 @@ class Page:
         if self.commands is not None and not self.lost:
             self.commands.release()
 
-    def _target_instr(self, xyz_mm: Sequence[float]) -> Instruction:
+    def _target_instr(self, xyz_mm: Sequence[float]) -> Instruction | str:
+        """The Target tab's `move_to`, or what is wrong with one of its fields."""
         x, y, z = xyz_mm
-        return move_to(x, y, z, line=self.panel.line(), time_ms=self.panel.time_ms())
+        tool = self.panel.tool_fields()
+        if isinstance(tool, str):
+            return tool
+        return move_to(
+            x,
+            y,
+            z,
+            pitch=tool["pitch"],
+            roll=tool["roll"],
+            gripper=tool["gripper"],
+            line=self.panel.line(),
+            time_ms=self.panel.target_time_ms(),
+        )
 
-    def _precheck(self, instr: Instruction) -> str:
+    def _precheck(self, instr: Instruction | str) -> str:
         """The reason the server would refuse `instr` from where the arm is, or ''."""
+        if isinstance(instr, str):
+            return instr
         with self._lock:
             start = self._planning_start()
         if start is None:
@@ -380,8 +418,18 @@ class Page:
             xyz = self.panel.xyz()
             x, y, z = xyz
             self.scene.place_target((x / 1000, y / 1000, z / 1000))
-        reason = self._precheck(self._target_instr(xyz))
+        instr = self._target_instr(xyz)
+        reason = self._precheck(instr)
         point = "x {:g} y {:g} z {:g} mm".format(*xyz)
+        if not isinstance(instr, str) and instr.tool is not None:
+            tool = instr.tool
+            given = (
+                ("pitch", tool.pitch_deg),
+                ("roll", tool.roll_deg),
+                ("gripper", tool.gripper_deg),
+            )
+            point += "".join(f", {k} {v:g}" for k, v in given if v is not None)
+            point += f", {instr.time_ms} ms" if instr.time_ms else ""
         with self._lock:
             self.panel.show_status(
                 f"{point}: unreachable: {reason}" if reason else f"{point}: reachable", not reason
@@ -396,6 +444,10 @@ class Page:
             instr = self._target_instr(self.panel.xyz())
             self.target_touched = time.monotonic()
         reason = self._precheck(instr)
+        if isinstance(instr, str):
+            with self._lock:
+                self.panel.show_status(f"not sent: {instr}", False)
+            return
         with self._lock:
             self.page_move_to = instr.id
             text = f"will be refused: {reason}" if reason else f"sent: {instr}"
@@ -436,7 +488,7 @@ class Page:
         the sliders changed; the same one again while the user is at them or the arm is on
         its way, which writes nothing and keeps the server's watchdog from holding the arm
         (were this page to stop, the arm would be held where it is). The jog ends once the
-        sliders are let go and the arm has arrived."""
+        sliders are let go and the arm is there."""
         jog = self.jog
         if jog is None or self.lost:
             return None
@@ -446,15 +498,47 @@ class Page:
                 self.panel.show_joints_status(f"not sent: {self.jog_refused}", False)
                 self.jog, self.jog_refused, self.touched = None, "", -math.inf
             return None
-        # A set-point goes at the servos' speed: any is there well within FOLLOW_AFTER_S
-        # (a move of another client's that runs then is not the jog's to keep alive).
-        on_its_way = self.state == "moving" and now - self.touched < FOLLOW_AFTER_S
-        if self.jog_sent and not at_it and not on_its_way:
+        moving = self.state == "moving"
+        # A set-point goes at the servos' speed: there within FOLLOW_AFTER_S of its way's
+        # time (a move of another client's that runs then is not the jog's to keep alive).
+        way_s = FOLLOW_AFTER_S + self._way_s(jog)
+        if not self.jog_sent or at_it or (moving and now - self.jog_t < way_s):
+            self.jog_sent = True
+            self.jog_short_t = None
+            return dict(jog)
+        if moving:
+            self.jog_short_t = None
+            return None
+        if self._jog_there(jog):
             if now - self.touched > FOLLOW_AFTER_S:
                 self.jog = None
             return None
-        self.jog_sent = True
+        # Let go, and the arm idle short of the target: the server's watchdog held it (this
+        # page's loop lagged more than server.stream_timeout_s behind, on a busy host) or
+        # the set-point was lost. Sent again, a while; then the sliders go back to the arm.
+        if self.jog_short_t is None:
+            self.jog_short_t = now
+        if now - self.jog_short_t > FOLLOW_AFTER_S:
+            self.jog, self.jog_short_t, self.touched = None, None, -math.inf
+            return None
+        if now - self.jog_t < JOG_RESEND_S:
+            return None
+        self.jog_t = now
+        log.info("web: the jog stopped short of its target: sent again")
         return dict(jog)
+
+    def _way_s(self, jog: Mapping[str, float]) -> float:
+        """How long the arm takes from where it is to `jog`, at its servos' speed."""
+        degrees = self.degrees or {}
+        joints = self.config.joints
+        return max(
+            (abs(v - degrees[j]) / joints[j].speed_deg_s for j, v in jog.items() if j in degrees),
+            default=0.0,
+        )
+
+    def _jog_there(self, jog: Mapping[str, float]) -> bool:
+        degrees = self.degrees or {}
+        return all(j in degrees and abs(degrees[j] - v) <= JOG_THERE_DEG for j, v in jog.items())
 
     def close(self) -> None:
         self._running = False

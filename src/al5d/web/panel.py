@@ -12,6 +12,7 @@ into a dock either.
 from __future__ import annotations
 
 import html
+import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -32,11 +33,23 @@ STATE_COLOURS = {
     "fault": "#e67700",
     "initializing": "#868e96",
     "shutting_down": "#868e96",
+    "ended": "#495057",
+}
+#: The states a release is for: the release button is shown in these only.
+RELEASABLE = ("stopped", "fault")
+#: The Target tab's optional fields: key, (label, hint).
+TOOL_FIELDS = {
+    "pitch": ("pitch (deg)", "the gripper's axis to the horizontal, + up; empty: the nearest"),
+    "roll": ("roll (deg)", "the wrist rotate; empty: as it is"),
+    "gripper": ("gripper (deg)", "the gripper servo; empty: as it is"),
 }
 JOINT_COLOURS = ("#e03131", "#1971c2", "#2f9e44", "#f08c00", "#9c36b5", "#0c8599")
 #: Where the STOP window floats: this far from the 3D view's bottom-left corner (px).
 STOP_MARGIN_PX = 16
 STOP_WIDTH_PX = 260
+#: Below this width viser's client draws no windows but a bottom sheet, where STOP's
+#: window is a collapsed section (Mantine's `xs` breakpoint, 36em).
+PHONE_MAX_WIDTH_PX = 575
 
 # Hooks: the window that holds #al5d-stop-style is STOP's (CSS :has), Mantine's Styles API
 # class names, and viser's dock attributes for the window's chrome. If viser renames the
@@ -62,11 +75,42 @@ PAGE_STYLE = """<style id="al5d-stop-style">
 </style>"""
 
 
+def phone_style(stop_id: str) -> str:
+    """On a phone, STOP (its element's id) pinned over the top of the screen, big, above
+    everything: one tap, whatever the bottom sheet shows. There its window is a section
+    of the sheet, expanded by the panel (a collapsed one makes its content inert): the
+    section's header, whose tap would collapse it, is not drawn. No ancestor makes a
+    containing block, so `position: fixed` takes STOP out to the screen."""
+    stop = f'[id="{stop_id}"]'
+    return (
+        f'<style id="al5d-phone-style">@media (max-width: {PHONE_MAX_WIDTH_PX}px) {{'
+        f" .mantine-Tabs-root:has({stop}) > :first-child {{ display: none !important; }}"
+        f" {stop} {{ position: fixed !important; top: 8px; left: 8px; right: 8px;"
+        " width: auto !important; height: 4rem !important; font-size: 1.8rem !important;"
+        " z-index: 1000 !important; box-shadow: 0 0 0 3px #fff, 0 2px 14px rgba(0,0,0,.35); }"
+        f" {stop} .mantine-Button-label {{ letter-spacing: .1em; font-weight: 800 !important; }}"
+        f" {stop} .mantine-Button-section {{ margin-inline-end: .45em !important; }}"
+        f" {stop} .mantine-Button-section svg {{ left: 0; }}"
+        # viser's toasts (software WebGL, a lost connection) come down from the top: below
+        # STOP, not over it.
+        " .mantine-Notifications-root { top: calc(4rem + 20px) !important; }"
+        "}</style>"
+    )
+
+
+#: The page's words for the server's states where the server's are not plain English.
+STATE_WORDS = {"shutting_down": "shutting down", "ended": "server ended"}
+
+
 def state_html(state: str) -> str:
     colour = STATE_COLOURS.get(state, "#495057")
+    word = STATE_WORDS.get(state, state)
+    # Two words or a long one: smaller, and wrapped rather than clipped by the panel.
+    size = "2.4em" if len(word) <= 9 else "1.6em"
     return (
-        f'<div id="al5d-state" style="font-size:2.4em;font-weight:800;text-align:center;'
-        f'letter-spacing:0.06em;color:{colour}">{html.escape(state.upper())}</div>'
+        f'<div id="al5d-state" style="font-size:{size};font-weight:800;text-align:center;'
+        f"letter-spacing:0.06em;overflow-wrap:anywhere;line-height:1.15;"
+        f'color:{colour}">{html.escape(word.upper())}</div>'
     )
 
 
@@ -114,10 +158,12 @@ class Panel:
             self.stop = gui.add_button(
                 "STOP", color="red", icon=viser.Icon.HAND_STOP, hint="emergency stop (any state)"
             )
+            gui.add_html(phone_style(self.stop._impl.uuid))
         self.stop_window.float(x=STOP_MARGIN_PX, y=-STOP_MARGIN_PX, width=STOP_WIDTH_PX)
+        self.stop_window.expand()  # a phone's sheet draws it as a section, collapsed
         self.state_html = gui.add_html(state_html("unknown"))
         self.banner = gui.add_html(banner_html("waiting for the server..."))
-        self.release = gui.add_button("release", icon=viser.Icon.LOCK_OPEN)
+        self.release = gui.add_button("release", icon=viser.Icon.LOCK_OPEN, visible=False)
         self.tool_html = gui.add_html("")
         self.last_html = gui.add_html("")
         #: The tabs; the Teach tab (teach.py) and the Calibrate tab (calibrate.py) are added.
@@ -150,7 +196,23 @@ class Panel:
                 axis: gui.add_number(f"{axis} (mm)", initial_value=0.0, step=1.0)
                 for axis in ("x", "y", "z")
             }
-            self.line_checkbox = gui.add_checkbox("straight line", initial_value=False)
+            #: Empty: the server picks (the reachable pitch nearest the current; the wrist
+            #: rotate and the gripper stay).
+            self.tool_texts: dict[str, Any] = {
+                key: gui.add_text(label, initial_value="", hint=hint)
+                for key, (label, hint) in TOOL_FIELDS.items()
+            }
+            self.target_time_number = gui.add_number(
+                "move time (ms)",
+                initial_value=0,
+                min=0,
+                max=config.server.max_move_time_ms,
+                step=100,
+                hint="0: as fast as the servos allow",
+            )
+            self.line_checkbox = gui.add_checkbox(
+                "straight line", initial_value=False, hint="path: the tool on a straight line"
+            )
             self.move_to = gui.add_button("move to", icon=viser.Icon.ARROW_RIGHT)
             self.target_status = gui.add_html(
                 status_html("drag the gizmo at the tool, or type a point", None)
@@ -176,6 +238,8 @@ class Panel:
             *self.sliders.values(),
             self.time_ms_number,
             *self.xyz_numbers.values(),
+            *self.tool_texts.values(),
+            self.target_time_number,
             self.line_checkbox,
             self.move_to,
         ]
@@ -185,6 +249,8 @@ class Panel:
 
     def show_state(self, state: str) -> None:
         self.state_html.content = state_html(state)
+        # Nothing to release in any other state: a button there would only be refused.
+        self.release.visible = state in RELEASABLE
 
     def show_lost(self, text: str | None) -> None:
         """The red banner with `text`, or none."""
@@ -255,6 +321,23 @@ class Panel:
 
     def time_ms(self) -> int | None:
         return int(self.time_ms_number.value) or None
+
+    def target_time_ms(self) -> int | None:
+        return int(self.target_time_number.value) or None
+
+    def tool_fields(self) -> dict[str, float | None] | str:
+        """The Target tab's pitch, roll and gripper (None: empty), or what is wrong with one."""
+        out: dict[str, float | None] = {}
+        for key, text in self.tool_texts.items():
+            value = str(text.value).strip()
+            try:
+                number = float(value) if value else None
+            except ValueError:
+                number = math.nan
+            if number is not None and not math.isfinite(number):
+                return f"{TOOL_FIELDS[key][0]}: {value!r} is not a number"
+            out[key] = number
+        return out
 
     def line(self) -> bool:
         return bool(self.line_checkbox.value)
