@@ -22,7 +22,7 @@ from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
 from al5d.ssc32u.emulator import Emulator, Mechanics
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
-#: AL5D_UPDATE_DOCS=1 copies the tab's screenshot to docs/calibration.png (for the README).
+#: AL5D_UPDATE_DOCS=1 copies the tab's screenshot to docs/calibration.png (for docs/web.md).
 UPDATE_DOCS = os.environ.get("AL5D_UPDATE_DOCS") == "1"
 STATUS = "#al5d-cal-status"
 RESULTS = "#al5d-cal-results"

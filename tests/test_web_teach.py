@@ -30,7 +30,7 @@ from al5d.web.plan import Planner
 from al5d.web.teach import Player
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
-#: AL5D_UPDATE_DOCS=1 copies the Teach tab's screenshot to docs/teach.png (for the README).
+#: AL5D_UPDATE_DOCS=1 copies the Teach tab's screenshot to docs/teach.png (for docs/web.md).
 UPDATE_DOCS = os.environ.get("AL5D_UPDATE_DOCS") == "1"
 STATUS = "#al5d-teach-status"
 

@@ -1,7 +1,7 @@
 """The applications: the command line, the server process, and the tools around them.
 
 - `cli`: `al5d serve | emulator | send | run | shell | doctor | demo | urdf | moveit | web |
-  record | replay`, and the exit codes' table in `--help`.
+  record | replay | calibrate`, and the exit codes' table in `--help`.
 - `server`: `al5d serve`, the arm driver on a port or on the embedded emulator, with ROS.
 - `demo`: DE01 on the embedded emulator, with the DE02 table of `reach`.
 - `reach`: how soon each move reached its target (the demo's and the benchmarks' table).
