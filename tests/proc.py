@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import functools
 import os
 import queue
@@ -10,6 +12,7 @@ import sys
 import tempfile
 import threading
 import time
+import weakref
 from pathlib import Path
 from typing import IO
 
@@ -91,10 +94,24 @@ class Lines:
         return self.all
 
 
+#: Every `Proc` still running, killed when this process ends: a server a test failed to end
+#: (its teardown raised first) would live on in the ROS domain that this run held, and the
+#: next run to claim that domain would take its answers for its own server's.
+_LIVE: weakref.WeakSet[Proc] = weakref.WeakSet()
+
+
+@atexit.register
+def _kill_live() -> None:
+    for proc in list(_LIVE):
+        with contextlib.suppress(Exception):
+            proc.kill()
+
+
 class Proc:
     """An `al5d` subcommand in its own process, with its stdout and stderr lines."""
 
     def __init__(self, *args: str, env: dict[str, str] | None = None, stdin: bool = False) -> None:
+        _LIVE.add(self)
         self.popen = subprocess.Popen(
             [AL5D, *args],
             stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,

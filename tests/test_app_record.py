@@ -228,11 +228,15 @@ def test_record_then_replay_reproduces_the_boards_bytes(tmp_path: Path) -> None:
         assert [o.rstrip(":") for o in outcomes] == OUTCOMES
         time.sleep(0.5)  # the last move's bytes are in effect
         assert motion_lines([r.raw for r in emu_b.records]) == before_goal
-        # As recorded: the same outcomes, each sent at its recorded time.
+        # As recorded: each sent at its recorded time, each with one outcome. Not always the
+        # same outcomes: on a host slower now than when it was recorded, the stop sent at
+        # its time can find the move before it still running, and cancel it.
         slow = Proc("replay", str(recorded))
         assert slow.wait(60) == 1
         outcomes = [line.split("]: ")[1].split()[0] for line in slow.out.drain() if "]: " in line]
-        assert sorted(o.rstrip(":") for o in outcomes) == sorted(OUTCOMES)
+        said = [o.rstrip(":") for o in outcomes]
+        assert len(said) == len(OUTCOMES) and said.count("refused") == 1, said
+        assert set(said) <= {"done", "refused", "cancelled"}, said
     finally:
         server_b.kill()
         emu_b.close()

@@ -51,12 +51,15 @@ def browser_page(
         with chromium() as browser:
             yield open_page(browser, web.url), emu
     finally:
-        if web is not None:
-            web.close()
-        if server.popen.poll() is None:
-            server.popen.send_signal(signal.SIGTERM)
-            server.wait(30)
-        emu.close()
+        try:
+            if web is not None:
+                web.close()
+            if server.popen.poll() is None:
+                server.popen.send_signal(signal.SIGTERM)
+                server.wait(30)
+        finally:
+            server.kill()
+            emu.close()
 
 
 def settled(page: Any) -> int:

@@ -57,6 +57,12 @@ class Rig:
     def state(self, state: str, timeout: float = 15.0) -> None:
         wait_until(lambda: self.arm.states[-1] == state, timeout, f"state {state}")
 
+    def ready(self) -> None:
+        """The arm unlocked and ready, whatever a test before left it in (a release is
+        refused, and changes nothing, where nothing is stopped)."""
+        self.arm.peer.trigger("release")
+        self.state("ready")
+
 
 @pytest.fixture(scope="module")
 def rig(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
@@ -183,7 +189,7 @@ def test_a_sequence_written_by_hand_plays_and_stop_halfway_ends_it(rig: Rig) -> 
     config = rig.arm.config
     write_poses(rig, "lean: {base: 15, elbow: 85}\n")
     (rig.folder / "halfway.seq").write_text("# by hand\npose a time=5000\npose b time=500\nready\n")
-    rig.state("ready")
+    rig.ready()
     type_into(rig, "sequence name", "halfway", "sequence 'halfway' is saved")
     click(rig, "load sequence", "3 steps: ready to play")
     wait_text(rig.page, "#al5d-poses", lambda t: "lean base 15 elbow 85" in t)
@@ -194,7 +200,9 @@ def test_a_sequence_written_by_hand_plays_and_stop_halfway_ends_it(rig: Rig) -> 
     rig.state("moving")
     rig.page.get_by_role("button", name="STOP", exact=True).click()
     text = wait_text(rig.page, STATUS, lambda t: "play ended" in t)
-    assert "by STOP: nothing more sent" in text, text
+    # The play learns of the click, or first (on a busy host) of its step cancelled by the
+    # stop the click sent: either way it ends there (nothing more sent: the outcomes below).
+    assert "by STOP: nothing more sent" in text or "cancelled: cancelled by stop" in text, text
     rig.state("stopped")
     channels = {joint.channel for joint in config.joints.values()}
     wait_until(
@@ -228,7 +236,7 @@ def test_a_sequence_written_by_hand_plays_and_stop_halfway_ends_it(rig: Rig) -> 
 
 def test_a_step_the_server_would_refuse_plays_nothing(rig: Rig) -> None:
     write_poses(rig)
-    rig.state("ready")
+    rig.ready()
     type_into(rig, "steps", "pose b\nmove elbow=200", "2 steps")
     n0 = len(rig.arm.emu.records)
     text = click(rig, "play", "nothing played")
