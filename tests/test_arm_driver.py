@@ -12,6 +12,7 @@ from concurrent.futures import Future
 
 import pytest
 from armrig import Rig, group_pulses, logged, make_rig, min_ms, pulses, state_lines, written
+from rospeer import wait_until
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
@@ -234,7 +235,9 @@ class TestStop:
         assert rig.driver.execute(ins.release(), 5).ok
         assert rig.driver.state is State.READY
         assert rig.driver.execute(ins.move(base=0), 10).ok
-        assert state_lines(caplog)[-4:] == ["stopped", "ready", "moving", "ready"]
+        # The outcome is handed over before the state that follows it is announced.
+        want = ["stopped", "ready", "moving", "ready"]
+        wait_until(lambda: state_lines(caplog)[-4:] == want, 5, f"states {want}")
 
     def test_a_move_after_a_stop_does_not_wait_for_the_stopped_moves_time(self, rig: Rig) -> None:
         # UG-38: after a STOP in a timed move, Q says '+' until that move's time is over.

@@ -27,7 +27,7 @@ from al5d.model.transforms import Transform, Vec3, quat_from_rpy
 from al5d.ros.names import Names
 from al5d.ros.robot import QOS_TF_STATIC
 from al5d.ssc32u.emulator import Emulator
-from al5d.web.link import Link
+from al5d.web.link import WebNode
 from al5d.web.scene import ArmScene
 
 MOUNTS: dict[str, tuple[Vec3, Vec3]] = {
@@ -194,7 +194,7 @@ def test_the_web_view_shows_its_arm_where_its_mount_puts_it(
 ) -> None:
     right = arms[1]
     listener = Listener()
-    link = Link(Names.of("right"), listener, config.model, tuple(config.presets))
+    link = WebNode(Names.of("right"), listener, config.model, tuple(config.presets))
     try:
         wait_until(lambda: listener.mounts, 20, "the right arm's mount")
     finally:

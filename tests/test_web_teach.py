@@ -17,10 +17,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from playwright.sync_api import sync_playwright
 from rospeer import wait_until
 from served import Served, served
-from webrig import BrowserUnavailable, WebProc, dismiss_notifications, launch, open_page, wait_text
+from webrig import WebProc, chromium, dismiss_notifications, open_page, wait_text
 
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Instruction, Outcome, Result, parse_sequence
@@ -72,18 +71,11 @@ def rig(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator
     with served(config, workdir, "al5d_teach_web_peer") as arm:
         web = WebProc("--poses", str(folder / "poses.yaml"))
         try:
-            with sync_playwright() as playwright:
-                try:
-                    browser = launch(playwright)
-                except BrowserUnavailable as e:
-                    pytest.fail(str(e))
-                try:
-                    page = open_page(browser, web.url)
-                    dismiss_notifications(page)
-                    page.get_by_role("tab", name="Teach").click()
-                    yield Rig(arm, web, folder, page)
-                finally:
-                    browser.close()
+            with chromium() as browser:
+                page = open_page(browser, web.url)
+                dismiss_notifications(page)
+                page.get_by_role("tab", name="Teach").click()
+                yield Rig(arm, web, folder, page)
         finally:
             web.close()
 
