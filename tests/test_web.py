@@ -168,7 +168,11 @@ def test_a_long_slider_drag_follows_live_and_leaves_no_queue(rig: Rig) -> None:
     pulse = round(rig.config.joints["base"].to_us(degrees))
     # The arm followed while the slider moved, not after it.
     during = [r for r in rig.emu.records[n0:] if r.t_effect < t_up]
-    assert sum(isinstance(c, p.GroupMove) for r in during for c in r.commands) >= 3
+    moved = sum(isinstance(c, p.GroupMove) for r in during for c in r.commands)
+    assert moved >= 3, (
+        f"{moved} group moves while the slider moved; web {rig.web.proc.err.drain(0)[-12:]}, "
+        f"server {[x for x in rig.server.err.drain(0) if 'WARNING' in x or 'ERROR' in x][-6:]}"
+    )
     # Nothing behind: the arm is at the slider's value at once, and nothing more comes.
     try:
         wait_until(
@@ -199,16 +203,20 @@ def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:
     rig.server.wait(10)
     # A slow base (6 s across its range): the stall falls in the set-point's move, whenever
     # this busy test process gets to it.
-    rig.server = serve(rig.link, (("base", 30.0),), stream_timeout_s=0.1)
+    # The server's own watchdog (0.5 s): a stall of the page's process (SIGSTOP, below) far
+    # longer than it holds the arm, and a busy host's lag of the page's ticks does not.
+    rig.server = serve(rig.link, (("base", 30.0),))
     page = rig.page
     try:
         wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
         rig.state.wait_for("ready", 10)
+        rig.peer.first_answer()  # the new server has heard this peer
+        rig.peer.send("web-jog-start", "move", base=-90)  # the base to one end of its range...
+        assert rig.peer.result("web-jog-start", 20).outcome == "done"
         page.get_by_role("tab", name="Joints").click()
         thumb = page.get_by_role("slider").nth(0)  # base
+        wait_until(lambda: thumb.get_attribute("aria-valuenow") == "-90", 10, "the slider at -90")
         thumb.focus()
-        thumb.press("Home")  # the base to one end of its range...
-        wait_until(lambda: rig.emu.servo_degrees()["base"] < -89, 20, "the base at -90")
         n0 = len(rig.emu.records)
         thumb.press("End")  # ...then to the other, in one value
         degrees = float(thumb.get_attribute("aria-valuenow") or "nan")
