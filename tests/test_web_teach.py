@@ -250,11 +250,14 @@ class Arm:
         self.said: list[tuple[str, bool | None]] = []
         self.player = Player(self.send, lambda: self.lost, lambda t, ok: self.said.append((t, ok)))
 
-    def send(self, instr: Instruction) -> None:
+    def send(self, instr: Instruction) -> bool:
+        if self.lost:
+            return False
         self.sent.append(str(instr))
         outcome = self.answer(instr)
         if outcome is not None:
             self.player.on_outcome(outcome)
+        return True
 
     def play(self, text: str) -> str:
         steps = parse_sequence(text.encode())

@@ -66,10 +66,6 @@ def _cmd_emulator(args: argparse.Namespace) -> int:
     from al5d.priority import make_urgent
     from al5d.ssc32u.emulator import Emulator, LinkModel, Transport, serve_forever
 
-    # A board answers in its own time whatever the computer does: the emulated one runs
-    # ahead of the host's load (every thread it starts inherits this), where the OS allows.
-    make_urgent("al5d emulator")
-
     config = load_config(args.config)
     usb = LinkModel(Transport(args.transport), args.latency_timer, args.low_latency)
     unknown = [name for name, _ in args.misalign if name not in config.joints]
@@ -80,6 +76,10 @@ def _cmd_emulator(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return exits.USAGE
+    # A board answers in its own time whatever the computer does: the emulated one runs
+    # ahead of the host's load (every thread it starts inherits this), where the OS allows.
+    # Once its arguments are good: a caller's thread (`main` in a test) keeps its own.
+    make_urgent("al5d emulator")
     emulator = Emulator(
         config,
         baud=args.baud,

@@ -200,7 +200,7 @@ class CalibrationTab:
         self.waiting = move.id
         self._show("moving...")
         self.page.refresh_ghost()
-        if not self.page.send_move(move):
+        if not self.page.send_instruction(move):
             self.waiting = None
             self.procedure.not_moved()
             self._show("not sent: no contact with the server", ok=False)

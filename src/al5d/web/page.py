@@ -337,7 +337,7 @@ class Page:
 
         return handler
 
-    def _send(self, instr: Instruction) -> bool:
+    def send_instruction(self, instr: Instruction) -> bool:
         """Send `instr` to the server; False when there is none to send it to."""
         if self.commands is None or self.lost:
             return False
@@ -346,13 +346,11 @@ class Page:
         self.commands.send(instr)
         return True
 
-    send_move = _send
-
     def _slider_move(self, values: dict[str, float]) -> Instruction:
         return Instruction(Kind.MOVE, joints=tuple(values.items()), time_ms=self.panel.time_ms())
 
     def _on_preset(self, event: Any) -> None:
-        self._send(preset(str(event.target.value), time_ms=self.panel.time_ms()))
+        self.send_instruction(preset(str(event.target.value), time_ms=self.panel.time_ms()))
 
     def _on_release(self, event: Any) -> None:
         if self.commands is not None and not self.lost:
@@ -452,7 +450,7 @@ class Page:
             self.page_move_to = instr.id
             text = f"will be refused: {reason}" if reason else f"sent: {instr}"
             self.panel.show_status(text, False if reason else None)
-        self._send(instr)
+        self.send_instruction(instr)
 
     # -- the page's loop -------------------------------------------------------------
 

@@ -58,7 +58,7 @@ class Player:
 
     def __init__(
         self,
-        send: Callable[[Instruction], None],
+        send: Callable[[Instruction], bool],
         lost: Callable[[], bool],
         show: Callable[[str, bool | None], None],
     ) -> None:
@@ -121,7 +121,9 @@ class Player:
                 continue
             with self._cv:
                 self._sent.add(item.id)
-            self._send(item)
+            if not self._send(item):  # the page has no server to send it to this moment
+                self._show(f"play ended at step {k} of {n}: no contact with the server", False)
+                return
             if background:
                 behind.append((k, line, item.id))
             elif not self._done(k, n, line, self._outcome(item.id)):
@@ -249,8 +251,8 @@ class Teach:
         # On viser's event loop, as the page's own STOP (which stops the arm).
         self.player.halt("STOP")
 
-    def _send(self, instr: Instruction) -> None:
-        self.page._send(instr)  # as the page's own moves: it ends a jog
+    def _send(self, instr: Instruction) -> bool:
+        return self.page.send_instruction(instr)  # as the page's own moves: it ends a jog
 
     def _show(self, text: str, ok: bool | None) -> None:
         with self._lock:
@@ -339,8 +341,10 @@ class Teach:
         steps = parse_text(f"pose {name}{self._time()}", book)
         item, _ = steps[0]
         assert isinstance(item, Instruction)
-        self._show(f"sent: pose {name}{self._time()}", None)
-        self._send(item)
+        if self._send(item):
+            self._show(f"sent: pose {name}{self._time()}", None)
+        else:
+            self._show("not sent: no contact with the server", False)
 
     def _rename(self) -> None:
         book = self._book()
