@@ -195,78 +195,6 @@ def test_a_long_slider_drag_follows_live_and_leaves_no_queue(rig: Rig) -> None:
     assert {(t.channel, t.pulse_us) for t in moves[-1].targets} == {(0, pulse)}
 
 
-def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:
-    """The page stalls longer than the server's stream watchdog (as on a busy host) while
-    the jog's last set-point runs: the server holds the arm short of the slider, and the
-    page, once it runs again, sends the slider's target again: the arm gets there."""
-    rig.server.popen.kill()
-    rig.server.wait(10)
-    # A slow base (6 s across its range): the stall falls in the set-point's move, whenever
-    # this busy test process gets to it.
-    # The server's own watchdog (0.5 s): a stall of the page's process (SIGSTOP, below) far
-    # longer than it holds the arm, and a busy host's lag of the page's ticks does not.
-    rig.server = serve(rig.link, (("base", 30.0),))
-    page = rig.page
-    try:
-        wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
-        rig.state.wait_for("ready", 10)
-        rig.peer.first_answer()  # the new server has heard this peer
-        rig.peer.send("web-jog-start", "move", base=-90)  # the base to one end of its range...
-        assert rig.peer.result("web-jog-start", 20).outcome == "done"
-        page.get_by_role("tab", name="Joints").click()
-        thumb = page.get_by_role("slider").nth(0)  # base
-        wait_until(lambda: thumb.get_attribute("aria-valuenow") == "-90", 10, "the slider at -90")
-        thumb.focus()
-        n0 = len(rig.emu.records)
-        thumb.press("End")  # ...then to the other, in one value
-        degrees = float(thumb.get_attribute("aria-valuenow") or "nan")
-        assert degrees == 90, degrees
-        pulse = round(rig.config.joints["base"].to_us(degrees))
-        seen = len(rig.server.err.drain(0))
-        wait_until(
-            lambda: any(
-                (0, pulse) in {(t.channel, t.pulse_us) for t in m.targets}
-                for m in rig.group_moves(n0)
-            ),
-            10,
-            "the slider's set-point on the board",
-        )
-        os.kill(rig.web.proc.popen.pid, signal.SIGSTOP)  # the page's process stalls
-        try:
-            wait_until(
-                lambda: any("watchdog:" in x for x in rig.server.err.drain(0.05)[seen:]),
-                10,
-                "the server's watchdog holding the arm",
-            )
-            rig.state.wait_for("ready", 10)
-            # The stall outlasts the jog's keep-alive (the page would send its set-point
-            # again anyway while the user held the slider or the arm was seen moving), and
-            # the joint states' silence that makes the page take the server for lost.
-            time.sleep(FOLLOW_AFTER_S + 0.5)
-        finally:
-            os.kill(rig.web.proc.popen.pid, signal.SIGCONT)
-        held = rig.emu.servo_degrees()["base"]
-        assert abs(held - degrees) > 5, (held, degrees)  # short of the slider
-        wait_until(
-            lambda: abs(rig.emu.servo_degrees()["base"] - degrees) < 0.2,
-            20,
-            "the arm at the slider",
-        )
-    finally:
-        rig.server.popen.kill()
-        rig.server.wait(10)
-        rig.server = serve(rig.link)
-        wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
-    rig.state.wait_for("ready", 10)
-    # The base back at 0, as the other tests expect it, by the page's own preset, which
-    # ends its jog: a jog let go a moment before the server was lost is kept, and sent
-    # again to the server that came back (a move of another client's would be undone).
-    page.get_by_role("tab", name="Joints").click()
-    page.get_by_role("button", name="ready", exact=True).click()
-    wait_until(lambda: thumb.get_attribute("aria-valuenow") == "0", 20, "the slider at 0")
-    wait_until(lambda: abs(rig.emu.servo_degrees()["base"]) < 0.2, 20, "the base at 0")
-
-
 def test_sliders_into_the_table_show_why_and_send_nothing(rig: Rig) -> None:
     rig.peer.send("web-ready-2", "ready")  # shoulder 30, elbow 90, wrist 0: hand level
     assert rig.peer.result("web-ready-2").outcome == "done"
@@ -670,6 +598,76 @@ class Recorder:
 
     def release(self) -> None:
         self.sent.append("release")
+
+
+def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:
+    """The page stalls longer than the server's stream watchdog (as on a busy host) while
+    the jog's last set-point runs: the server holds the arm short of the slider, and the
+    page, once it runs again, sends the slider's target again: the arm gets there.
+
+    The module's last test of its rig: a jog let go a moment before the server was lost is
+    kept, and sent again to the server that comes back, wherever another client has moved
+    the arm meanwhile (the page cannot tell a stall from that); the tests after it would
+    find the base where this one's jog puts it."""
+    rig.server.popen.kill()
+    rig.server.wait(10)
+    # A slow base (6 s across its range): the stall falls in the set-point's move, whenever
+    # this busy test process gets to it.
+    # The server's own watchdog (0.5 s): a stall of the page's process (SIGSTOP, below) far
+    # longer than it holds the arm, and a busy host's lag of the page's ticks does not.
+    rig.server = serve(rig.link, (("base", 30.0),))
+    page = rig.page
+    try:
+        wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
+        rig.state.wait_for("ready", 10)
+        rig.peer.first_answer()  # the new server has heard this peer
+        rig.peer.send("web-jog-start", "move", base=-90)  # the base to one end of its range...
+        assert rig.peer.result("web-jog-start", 20).outcome == "done"
+        page.get_by_role("tab", name="Joints").click()
+        thumb = page.get_by_role("slider").nth(0)  # base
+        wait_until(lambda: thumb.get_attribute("aria-valuenow") == "-90", 10, "the slider at -90")
+        thumb.focus()
+        n0 = len(rig.emu.records)
+        thumb.press("End")  # ...then to the other, in one value
+        degrees = float(thumb.get_attribute("aria-valuenow") or "nan")
+        assert degrees == 90, degrees
+        pulse = round(rig.config.joints["base"].to_us(degrees))
+        seen = len(rig.server.err.drain(0))
+        wait_until(
+            lambda: any(
+                (0, pulse) in {(t.channel, t.pulse_us) for t in m.targets}
+                for m in rig.group_moves(n0)
+            ),
+            10,
+            "the slider's set-point on the board",
+        )
+        os.kill(rig.web.proc.popen.pid, signal.SIGSTOP)  # the page's process stalls
+        try:
+            wait_until(
+                lambda: any("watchdog:" in x for x in rig.server.err.drain(0.05)[seen:]),
+                10,
+                "the server's watchdog holding the arm",
+            )
+            rig.state.wait_for("ready", 10)
+            # The stall outlasts the jog's keep-alive (the page would send its set-point
+            # again anyway while the user held the slider or the arm was seen moving), and
+            # the joint states' silence that makes the page take the server for lost.
+            time.sleep(FOLLOW_AFTER_S + 0.5)
+        finally:
+            os.kill(rig.web.proc.popen.pid, signal.SIGCONT)
+        held = rig.emu.servo_degrees()["base"]
+        assert abs(held - degrees) > 5, (held, degrees)  # short of the slider
+        wait_until(
+            lambda: abs(rig.emu.servo_degrees()["base"] - degrees) < 0.2,
+            20,
+            "the arm at the slider",
+        )
+    finally:
+        rig.server.popen.kill()
+        rig.server.wait(10)
+        rig.server = serve(rig.link)
+        wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
+    rig.state.wait_for("ready", 10)
 
 
 def test_a_lost_server_leaves_the_gizmo_nothing_to_grab(config: ArmConfig) -> None:
