@@ -220,6 +220,14 @@ class Peer:
         assert self.move.wait_for_server(timeout_sec=10)
         self.first_answer()
 
+    def first_stop_answer(self) -> None:
+        """A stop and a release, so that the server's stop process (a DDS participant of its
+        own) has answered this peer once: its first answer may be dropped as `first_answer`
+        says, and the stop is asked again a second later (`trigger`). Only where the arm may
+        be stopped and released."""
+        assert self.trigger("stop").success
+        assert self.trigger("release").success
+
     def first_answer(self, timeout: float = 20.0) -> None:
         """Until the server has answered this peer once. rmw_fastrtps drops an answer when,
         100 ms after the request, the server has not yet matched the client's reader of
@@ -250,7 +258,20 @@ class Peer:
         return self.results[ident]
 
     def trigger(self, name: str) -> Trigger.Response:
-        return wait_future(self.services[name].call_async(Trigger.Request()))
+        """A safety service's answer. A stop unanswered for a second is asked again, as the
+        packaged client does (`al5d.ros.client.STOP_RETRY_S`): the stop process's
+        participant may drop its first answer to this peer (ros2/rmw_fastrtps#390)."""
+        client = self.services[name]
+        if name != "stop":
+            return wait_future(client.call_async(Trigger.Request()))
+        for _ in range(9):
+            future = client.call_async(Trigger.Request())
+            done = threading.Event()
+            future.add_done_callback(lambda f, done=done: done.set())
+            if done.wait(1.0):
+                return future.result()
+            print("rospeer: a stop unanswered for 1 s: asked again", flush=True)
+        return wait_future(client.call_async(Trigger.Request()))
 
     def goal(
         self,

@@ -74,6 +74,7 @@ class Served:
             )  # fmt: skip
             self.proc.err.wait_for("STATE: ready", 30)
             peer.wait_for_server()
+            peer.first_stop_answer()  # the tests time the stop's answer
         return self.proc
 
     def reset(self, peer: Peer) -> None:

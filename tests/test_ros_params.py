@@ -27,7 +27,7 @@ from al5d.ssc32u.emulator import Emulator
 
 #: The node `al5d`, renamed by `-r __node:=`: the others keep their names.
 RENAMED = "left_arm"
-OTHERS = ("al5d_robot", "al5d_actions", "al5d_safety", "al5d_stop_watcher")
+OTHERS = ("al5d_robot", "al5d_actions", "al5d_safety", "al5d_stop")
 
 
 @dataclass

@@ -21,7 +21,7 @@ from al5d.ros import safety
 from al5d.ros.dds import start_context
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_INSTRUCTIONS
-from al5d.ros.safety import StopWatcher, first_word
+from al5d.ros.safety import first_word, stop_here
 
 
 def raw(word: str, **fields: object) -> bytes:
@@ -48,7 +48,7 @@ def test_a_stop_behind_a_full_batch_is_obeyed(rig: Rig, monkeypatch: pytest.Monk
     context = start_context()
     watcher = None
     try:
-        watcher = StopWatcher(rig.driver, context, Names())
+        watcher = stop_here(rig.driver, context, Names())
         sender = Node("al5d_watch_test", context=context)
         pub = sender.create_publisher(ArmInstruction, Names().instruction, QOS_INSTRUCTIONS)
         wait_until(lambda: pub.get_subscription_count() > 0, 10, "the watcher's reader")
@@ -59,7 +59,7 @@ def test_a_stop_behind_a_full_batch_is_obeyed(rig: Rig, monkeypatch: pytest.Monk
         wait_until(lambda: rig.driver.state is State.STOPPED, 10, "the stop obeyed")
     finally:
         if watcher is not None:
-            watcher.reader.close()
+            watcher.close()
         context.try_shutdown()
 
 

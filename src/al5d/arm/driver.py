@@ -161,6 +161,7 @@ class ArmDriver:
         key: Hashable | None = None,
         listeners: bool = True,
         stream: str = "",
+        written: bool = False,
     ) -> Future[Outcome]:
         """Hand over an instruction (or a ticket of `judge`); its Future resolves to its one
         outcome.
@@ -168,7 +169,9 @@ class ArmDriver:
         `key` identifies a stop message that two readers may both see (`core`, rule 3):
         the second gets the first's future, and no listener hears of it again. With
         `listeners=False` no listener hears of it at all. A move given a `stream` is a
-        set-point of it: the latest wins (`core`, the lane of set-points)."""
+        set-point of it: the latest wins (`core`, the lane of set-points). A stop `written`
+        has its STOP on the wire already (the stop process wrote it): it is obeyed without
+        writing it again."""
         t0 = now()
         instr = what.instr if isinstance(what, Ticket) else what
         # When it was sent: where its channel does not say, now, as the driver takes it.
@@ -176,7 +179,7 @@ class ArmDriver:
         future: Future[Outcome] = Future()
         kind = instr.kind
         if kind is Kind.STOP:  # before any listener: a stop waits for nothing
-            first = self._stop(instr, future, t0, sent, key)
+            first = self._stop(instr, future, t0, sent, key, written)
             if first is not future:
                 return first  # the same stop, obeyed already
         if self.submit_listeners and listeners:
@@ -331,14 +334,15 @@ class ArmDriver:
         elif motion is not None and written is not None:
             self.writer.told(job, written, motion)
 
-    def _write_halt(self, halt: Halt) -> SerialFault | None:
-        """Write a STOP the core decided (a stop's or a cancel's); the error if it failed."""
+    def _write_halt(self, halt: Halt, key: Hashable | None = None) -> SerialFault | None:
+        """Write a STOP the core decided (a stop's or a cancel's, or a stop message's known by
+        `key`: written once, whichever process is first); the error if it failed."""
         if halt.board is None:
             self.core.halt_written(None)
             return LinkLost(self.port, "no board connected")
         error: SerialFault | None = None
         try:
-            halt.board.stop(halt.channels, paced=not halt.urgent)
+            halt.board.stop(halt.channels, paced=not halt.urgent, key=key)
         except SerialFault as e:
             error = e
         except BaseException as e:  # a bug: the core must still hear that the write is over
@@ -360,12 +364,17 @@ class ArmDriver:
         t0: float,
         sent: int,
         key: Hashable | None,
+        written: bool = False,
     ) -> Future[Outcome]:
         """VE01/D4: halt at once, drop the queue, lock. Never waits for the worker."""
         halt = self.core.stop(future, sent, key)
         if isinstance(halt, Future):
             return halt
-        error = self._write_halt(halt)
+        if written:
+            error = None
+            self.core.halt_written(None)
+        else:
+            error = self._write_halt(halt, key)
         self.core.announce()
         jobs = halt.ended.jobs
         if jobs:

@@ -11,7 +11,7 @@ from al5d.arm.instruction import Kind
 
 NODE = "al5d"
 SAFETY_NODE = "al5d_safety"
-WATCHER_NODE = "al5d_stop_watcher"
+STOP_NODE = "al5d_stop"
 ACTIONS_NODE = "al5d_actions"
 ROBOT_NODE = "al5d_robot"
 

@@ -1,5 +1,4 @@
-"""The stop, release and shutdown services, and the stop watcher, each on a node and a
-thread of its own.
+"""The stop, release and shutdown services, and the stop watcher: the server's stop path.
 
 An emergency stop must never queue behind instruction traffic: with one
 executor, a stop request waited behind every message taken before it (seconds
@@ -23,19 +22,27 @@ reader here can see is a stop still queued in its sender (a client that floods
 through the same publisher is slowed by back-pressure, stop included): the
 stop service is the way for emergencies.
 
-Both are the stop path (`SafetyPath`): a DDS participant of their own (an
-rclpy context: its own shared-memory port, sockets and receive threads), so
-that the flood the node `al5d` takes, its results and the actions' traffic
-never stand in the same queues as a stop request; and their threads, the
-participant's included, at a higher scheduling priority where the OS allows
-(`al5d.priority`).
+The stop service and the watcher are the node `al5d_stop` (`StopNode`), which runs
+in a process of its own (`al5d.ros.stopproc`) that writes the STOP itself: in the
+server, its thread would wait for the interpreter lock behind the flood's
+(`al5d.ssc32u.stopline` says why and how the two processes' writes keep their
+order). The release and shutdown services are the node `al5d_safety`. Both are the
+stop path (`SafetyPath`): DDS participants of their own (an rclpy context: its own
+shared-memory port, sockets and receive threads), so that the flood the node `al5d`
+takes, its results and the actions' traffic never stand in the same queues as a stop
+request; and their threads, the participants' included, at a higher scheduling
+priority where the OS allows (`al5d.priority`). Where the stop process cannot run
+(or ends), `al5d_stop` runs in the server, obeying through the driver, and one log
+line says so.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Callable, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from al5d_interfaces.msg import ArmInstruction
 from rclpy.context import Context
@@ -43,15 +50,20 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from std_srvs.srv import Trigger
 
+from al5d.arm.config import ArmConfig
 from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind
 from al5d.priority import built_urgently
 from al5d.ros.convert import from_message, sent_ns, stop_key
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
-from al5d.ros.names import SAFETY_NODE, WATCHER_NODE, Names, pinned
+from al5d.ros.names import SAFETY_NODE, STOP_NODE, Names, pinned
 from al5d.ros.qos import QOS_SERVICES, qos_watch
-from al5d.ros.workarounds import Reader, stamped_service, taken_by_reader
+from al5d.ros.workarounds import Reader, ReaderOnly, stamped_service, taken_by_reader
+
+if TYPE_CHECKING:
+    from al5d.model.arm import ArmModel
+    from al5d.ros.stopproc import StopProcess
 
 log = logging.getLogger("al5d")
 #: Messages the watcher takes in one call, at most.
@@ -77,8 +89,8 @@ def first_word(raw: bytes) -> str | None:
 
 
 class SafetyNode(Node):
-    """Node `al5d_safety`: `/al5d/stop`, `/al5d/release`, `/al5d/shutdown` (std_srvs/Trigger),
-    under the server's namespace."""
+    """Node `al5d_safety`: `/al5d/release` and `/al5d/shutdown` (std_srvs/Trigger), under the
+    server's namespace."""
 
     def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
         super().__init__(
@@ -89,88 +101,191 @@ class SafetyNode(Node):
         )
         self.driver = driver
         for name, kind in names.services.items():
-            stamped_service(self, Trigger, name, self._trigger(kind), QOS_SERVICES)
+            if kind is not Kind.STOP:
+                stamped_service(self, Trigger, name, self._trigger(kind), QOS_SERVICES)
 
     def _trigger(self, kind: Kind) -> Callable[[Any, Any, int], Any]:
         def answer(
             request: Trigger.Request, response: Trigger.Response, sent: int
         ) -> Trigger.Response:
-            future = self.driver.submit(Instruction(kind, sent_ns=sent or None))
-            if future.done():
-                outcome = future.result()
-                response.success = outcome.ok
-                response.message = outcome.reason or f"{kind.value}: {outcome.result.value}"
-            else:  # shutdown: parking takes a while; the outcome follows on /al5d/result
-                response.success = True
-                response.message = "shutting down: parking, then the server ends"
+            response.success, response.message = submitted(self.driver, kind, sent)
             return response
 
         return answer
 
 
-class StopWatcher(Node):
-    """Node `al5d_stop_watcher`: reads the instruction topic beside the node `al5d` and obeys
-    a stop as soon as it sees one. On a thread of its own: reading a flood takes it
-    milliseconds at a time, which the stop service must never wait for (measured: with
-    the two on one thread, a stop service call behind 1000 queued moves took 10 ms)."""
+def submitted(driver: ArmDriver, kind: Kind, sent: int | None) -> tuple[bool, str]:
+    """A safety service's request, obeyed by the driver: the service's answer."""
+    future = driver.submit(Instruction(kind, sent_ns=sent or None))
+    if not future.done():  # shutdown: parking takes a while; the outcome follows on /al5d/result
+        return True, "shutting down: parking, then the server ends"
+    outcome = future.result()
+    return outcome.ok, outcome.reason or f"{kind.value}: {outcome.result.value}"
 
-    def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
+
+def stop_instruction(
+    raw: bytes, info: dict[str, int], presets: tuple[str, ...], model: ArmModel
+) -> Instruction | None:
+    """The stop in a serialized message the watcher saw; None if the node `al5d` would
+    refuse it (and answer it) as something else."""
+    msg = deserialize_message(raw, ArmInstruction)
+    instr = from_message(msg, presets, model, sent_ns(info))
+    return instr if isinstance(instr, Instruction) and instr.kind is Kind.STOP else None
+
+
+#: What the node `al5d_stop` does with a stop service's request (sent at the given time):
+#: the service's answer.
+ServiceStop = Callable[[int | None], tuple[bool, str]]
+#: ...and with a valid stop the watcher saw: the message's bytes, its info, the stop.
+TopicStop = Callable[[bytes, dict[str, int], Instruction], None]
+
+
+class StopNode(Node):
+    """Node `al5d_stop`: the `/al5d/stop` service, and the stop watcher, which reads the
+    instruction topic beside the node `al5d` and obeys a stop as soon as it sees one.
+
+    The watcher has a thread of its own: reading a flood takes it milliseconds at a time,
+    which the stop service must never wait for (measured: with the two on one thread, a
+    stop service call behind 1000 queued moves took 10 ms). What a stop does is given
+    (`on_service`, `on_topic`): the server's driver obeys it, or the stop process writes
+    it and tells the server."""
+
+    def __init__(
+        self,
+        context: Context,
+        names: Names,
+        stops: StopSetup,
+        on_service: ServiceStop,
+        on_topic: TopicStop,
+    ) -> None:
         super().__init__(
-            WATCHER_NODE,
+            STOP_NODE,
             namespace=names.node_namespace,
             context=context,
-            cli_args=pinned(WATCHER_NODE),
+            cli_args=pinned(STOP_NODE),
         )
-        self.driver = driver
-        self.presets = tuple(driver.config.presets)
+        self.stops = stops
+        self.on_service = on_service
+        self.on_topic = on_topic
+        stamped_service(self, Trigger, names.private(_STOP), self._answer, QOS_SERVICES)
+        # Taken by the reader's thread only: the executor that answers the service never
+        # waits on it (`ReaderOnly`).
+        group = ReaderOnly()
         watched = self.create_subscription(
             ArmInstruction,
             names.instruction,
             taken_by_reader,
-            qos_watch(driver.config.server.instruction_backlog),
+            qos_watch(stops.backlog),
+            callback_group=group,
             raw=True,
         )
         # A thread of its own takes what waits, up to `WATCH_BATCH` at a time, in one go:
         # under a flood, one GIL hand-over a message would leave the watcher behind.
         self.reader = Reader(
-            self, [(watched, self._watch)], "al5d-stop-watcher", WATCH_BATCH, urgent=True
+            self, [(watched, self._watch)], "al5d-stop-watcher", WATCH_BATCH, True, group
         )
+
+    def _answer(
+        self, request: Trigger.Request, response: Trigger.Response, sent: int
+    ) -> Trigger.Response:
+        response.success, response.message = self.on_service(sent or None)
+        return response
 
     def _watch(self, raw: bytes, info: dict[str, int]) -> None:
         """A message on the instruction topic, serialized: a stop is obeyed at once. A failure
         is logged and the watcher goes on; the node `al5d` still obeys every stop."""
         if first_word(raw) == _STOP:
-            self._obey(raw, info)
+            instr = stop_instruction(raw, info, self.stops.presets, self.stops.model)
+            if instr is not None:  # what the node `al5d` would refuse, it refuses itself
+                self.on_topic(raw, info, instr)
 
-    def _obey(self, raw: bytes, info: dict[str, int]) -> None:
-        msg = deserialize_message(raw, ArmInstruction)
-        instr = from_message(msg, self.presets, self.driver.config.model, sent_ns(info))
-        # What the node `al5d` would refuse, it refuses (and answers) itself.
-        if isinstance(instr, Instruction) and instr.kind is Kind.STOP:
-            self.driver.submit(instr, key=stop_key(info))
+    def close(self) -> None:
+        self.reader.close()
+
+
+@dataclass(frozen=True)
+class StopSetup:
+    """What the node `al5d_stop` needs of the server's config, wherever it runs."""
+
+    channels: tuple[int, ...]
+    presets: tuple[str, ...]
+    model: ArmModel
+    backlog: int
+
+    @classmethod
+    def of(cls, config: ArmConfig) -> StopSetup:
+        channels = tuple(sorted(j.channel for j in config.joints.values()))
+        return cls(channels, tuple(config.presets), config.model, config.server.instruction_backlog)
+
+
+def stop_here(driver: ArmDriver, context: Context, names: Names) -> StopNode:
+    """The node `al5d_stop` in the server: its stops obeyed by the driver."""
+
+    def on_topic(raw: bytes, info: dict[str, int], instr: Instruction) -> None:
+        driver.submit(instr, key=stop_key(info))
+
+    return StopNode(
+        context,
+        names,
+        StopSetup.of(driver.config),
+        lambda sent: submitted(driver, Kind.STOP, sent),
+        on_topic,
+    )
 
 
 class SafetyPath:
-    """The stop path of one server: `SafetyNode` and `StopWatcher` on a DDS participant (an
-    rclpy context) of their own, every thread of it at the stop path's priority. `args`:
-    the server's command line, whose `--ros-args` (remaps: the namespace) apply here too."""
+    """The stop path of one server: `SafetyNode` on a DDS participant (an rclpy context) of
+    its own, every thread of it at the stop path's priority, and `StopNode` in the stop
+    process (`stop`, started early by `RosStart`) or, where there is none or it ends,
+    here. `args`: the server's command line, whose `--ros-args` (remaps: the namespace)
+    apply here too."""
 
-    def __init__(self, driver: ArmDriver, names: Names, args: Sequence[str] | None = None) -> None:
-        def build() -> tuple[Context, SafetyNode, StopWatcher, Spinner]:
+    def __init__(
+        self,
+        driver: ArmDriver,
+        names: Names,
+        args: Sequence[str] | None = None,
+        stop: StopProcess | None = None,
+    ) -> None:
+        self.driver = driver
+        self.names = names
+        self.here: tuple[StopNode, Spinner] | None = None
+        self._lock = threading.Lock()
+        self._closed = False
+
+        def build() -> tuple[Context, SafetyNode, Spinner]:
             # Made here, in a thread at the stop path's priority: the threads the participant
             # starts with its first node (its receive threads) inherit it.
             context = start_context(args or [SAFETY_NODE])
             safety = SafetyNode(driver, context, names)
-            watcher = StopWatcher(driver, context, names)
             spinner = Spinner(safety, context, owns_context=False, kind="single", urgent=True)
-            return context, safety, watcher, spinner
+            return context, safety, spinner
 
-        self.context, self.safety, self.watcher, self.spinner = built_urgently(
-            "al5d-stop-path", build
-        )
+        self.context, self.safety, self.spinner = built_urgently("al5d-stop-path", build)
+        self.stop = stop
+        if stop is None or not stop.serve(driver, self.take_over):
+            self.take_over()
+
+    def take_over(self) -> None:
+        """Serve the stop here (the stop process could not start, or has ended)."""
+        with self._lock:
+            if self.here is not None or self._closed:
+                return
+
+            def build() -> tuple[StopNode, Spinner]:
+                node = stop_here(self.driver, self.context, self.names)
+                return node, Spinner(node, self.context, False, kind="single", urgent=True)
+
+            self.here = built_urgently("al5d-stop-here", build)
 
     def close(self) -> None:
-        self.watcher.reader.close()
+        with self._lock:
+            self._closed = True
+            here = self.here
+        if self.stop is not None:
+            self.stop.close()
+        if here is not None:
+            here[0].close()
+            here[1].close()  # destroys the stop node
         self.spinner.close()  # destroys the safety node
-        self.watcher.destroy_node()
         self.context.try_shutdown()

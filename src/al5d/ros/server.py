@@ -19,7 +19,8 @@ from al5d.ros.executors import Spinner
 from al5d.ros.names import NODE, Names
 from al5d.ros.node import ActionsNode, ArmNode, RobotNode
 from al5d.ros.params import Flags, Settings
-from al5d.ros.safety import SafetyPath
+from al5d.ros.safety import SafetyPath, StopSetup
+from al5d.ros.stopproc import Setup, StopProcess
 from al5d.ros.workarounds import parameter_overrides
 
 log = logging.getLogger("al5d")
@@ -68,6 +69,9 @@ class RosStart:
             raise
         self.settings = settings
         self.names = names
+        # Started now, so that its imports and DDS start-up go on beside the board's.
+        stops = StopSetup.of(settings.config)
+        self.stop = StopProcess(Setup(stops, names.namespace, tuple(self.args or ())))
 
     def _same(self, early: Settings, settings: Settings) -> None:
         """What rcl made of the arguments is what `early_arguments` read of them, where the
@@ -86,16 +90,18 @@ class RosStart:
 
     def close(self) -> None:
         """When the server does not start after all (its board cannot be opened)."""
+        self.stop.close()
         self.node.destroy_node()
         self.context.try_shutdown()
 
 
 class RosServer:
     """The nodes with their executor threads, for `al5d serve`: `al5d` for the instructions,
-    the outputs and the parameters, `al5d_safety` for the stop, release and shutdown,
-    `al5d_stop_watcher` for stops on the topic, `al5d_actions` for the actions. `start`:
-    the node `al5d` made already with the command line's parameters (`RosStart`); without
-    it, one for the driver's config, in `namespace` (None: the config's)."""
+    the outputs and the parameters, `al5d_safety` for the release and the shutdown,
+    `al5d_stop` for the stop service and stops on the topic (in the stop process),
+    `al5d_actions` for the actions. `start`: the node `al5d` made already with the command
+    line's parameters (`RosStart`); without it, one for the driver's config, in
+    `namespace` (None: the config's)."""
 
     def __init__(
         self,
@@ -112,7 +118,7 @@ class RosServer:
         self.node.attach(driver)
         self.robot = RobotNode(driver, self.context, names)
         # The stop path's participant takes the same arguments: remaps, and the namespace.
-        self.safety = SafetyPath(driver, names, start.args)
+        self.safety = SafetyPath(driver, names, start.args, start.stop)
         self.actions = ActionsNode(driver, self.context, names)
         self.node.appliers += [self.robot.set_rates, self.actions.set_rate]
         self.trace_path = trace

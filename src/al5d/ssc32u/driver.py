@@ -19,6 +19,11 @@ account of the wire, `arrival`), and a writer that comes sooner waits its turn
 here, outside the write lock; a stop never waits, and finds at most that
 horizon and one command ahead of it.
 
+The emergency stop may be written by another process (`al5d.ssc32u.stopline`): a port
+given a `StopGate` (`gate_port`) hands each board's file descriptor to that process,
+every write here holds the gate's lock, and a move waits for, and is withheld by, a
+stop that process wrote and the server has not obeyed yet.
+
 A recording (`al5d serve --record`) taps the writes of a port (`tap_writes`): each write,
 stop included, hands its bytes and times to the tap, which must only hand them over (a
 queue's put) and never wait.
@@ -33,7 +38,7 @@ import select
 import termios
 import threading
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
 from types import TracebackType
 
 import serial
@@ -57,6 +62,7 @@ from al5d.ssc32u.facts import (
     LATENCY_TIMER_MS,
     LOW_LATENCY_TIMER_MS,
 )
+from al5d.ssc32u.stopline import StopGate
 
 log = logging.getLogger("al5d")
 
@@ -97,6 +103,13 @@ Targets = Mapping[int, int] | Sequence[p.ChannelTarget]
 WriteTap = Callable[[bytes, float, float], None]
 #: The taps by port, taken by each `SSC32U` opened on that port (a reconnect's too).
 _taps: dict[str, WriteTap] = {}
+#: The stop gates by port (`gate_port`), and the boards open now, by port.
+_gates: dict[str, StopGate] = {}
+_open: dict[str, SSC32U] = {}
+_gates_lock = threading.Lock()
+#: How long a move waits for the server to obey a stop another process wrote (the server's
+#: thread that obeys it may wait for a core on a busy host); past that it is withheld.
+GATE_WAIT_S = 1.0
 
 
 def tap_writes(port: str, tap: WriteTap | None) -> None:
@@ -107,6 +120,19 @@ def tap_writes(port: str, tap: WriteTap | None) -> None:
         _taps.pop(port, None)
     else:
         _taps[port] = tap
+
+
+def gate_port(port: str, gate: StopGate | None) -> None:
+    """Order every write to the boards opened on `port` with the stops `gate`'s other end
+    writes (None: no more), the board open now included."""
+    with _gates_lock:
+        board = _open.get(port)
+        if gate is None:
+            _gates.pop(port, None)
+        else:
+            _gates[port] = gate
+        if board is not None:
+            board._gated(gate)
 
 
 class SSC32U:
@@ -154,6 +180,7 @@ class SSC32U:
         timer_ms = LOW_LATENCY_TIMER_MS if self.low_latency else LATENCY_TIMER_MS
         self._margin_s = read_timeout_s + timer_ms / 1000.0
         self.firmware = ""
+        self._gate: StopGate | None = None
         if check:
             try:
                 self._write(p.CANCEL)
@@ -161,6 +188,24 @@ class SSC32U:
             except SerialFault:
                 self.close()
                 raise
+        with _gates_lock:
+            _open[port] = self
+            self._gated(_gates.get(port))
+
+    def _gated(self, gate: StopGate | None) -> None:
+        """Writes from now on ordered with `gate`'s stops; its other end gets our port."""
+        try:
+            fd = self._ser.fileno()
+        except (AttributeError, NotImplementedError, *IO_ERRORS):
+            return  # a pyserial URL with no descriptor: the server's own stop only
+        if gate is self._gate:
+            return
+        if self._gate is not None:
+            self._gate.closed()
+        with self._write_lock:
+            self._gate = gate
+        if gate is not None and not self._closed:
+            gate.opened(fd)
 
     def _ask_low_latency(self) -> bool:
         """Ask the USB serial chip to pass short answers on at once.
@@ -188,6 +233,11 @@ class SSC32U:
         # Said before the port goes: another thread's read or write under way may then fail
         # on a half-closed port with what pyserial raises for it (see `_lost`).
         self._closed = True
+        with _gates_lock:
+            if _open.get(self.port) is self:
+                del _open[self.port]
+            if self._gate is not None:
+                self._gate.closed()
         with contextlib.suppress(*IO_ERRORS):  # closing a dead port must not raise
             self._ser.close()
 
@@ -242,7 +292,9 @@ class SSC32U:
         """
         return self._write(data, unless, paced=True, horizon_s=min(horizon_s, WIRE_HORIZON_S))
 
-    def stop(self, channels: Iterable[int], paced: bool = False) -> bytes:
+    def stop(
+        self, channels: Iterable[int], paced: bool = False, key: Hashable | None = None
+    ) -> bytes:
         """Emergency stop: ESC, which cancels any partial line on the board, then STOP every
         channel, in one write, without waiting for any query in progress or for the wire.
         `paced`: a STOP that is no emergency (a cancelled move's) waits for the wire as a
@@ -252,12 +304,21 @@ class SSC32U:
         The output is flushed first: on a plain UART that drops what has not gone yet, but
         on the board's USB link it drops nothing already written (Linux's USB serial drivers
         keep it), so the STOPs may queue behind the rest of a move; the ESC is what makes a
-        half-sent move harmless either way. Returns the bytes written.
+        half-sent move harmless either way. Returns the bytes written. A stop known by `key`
+        (a message on the instruction topic) that another process wrote already
+        (`gate_port`) is not written again.
         """
         data = p.CANCEL + p.encode_stop(channels)
         self._stops += 1
-        self._write(data, paced=paced, flush=True)
+        self._write(data, paced=paced, flush=True, key=key)
         return data
+
+    def plan_stops(self, channels: Sequence[int], until: float) -> None:
+        """A stop another process writes (`gate_port`) STOPs the channels in this order until
+        `until` (CLOCK_MONOTONIC), as `stop` would be asked to; nothing without one."""
+        gate = self._gate
+        if gate is not None:
+            gate.plan(channels, until)
 
     def cancel(self) -> None:
         """ESC: the board drops the partial line it holds."""
@@ -342,21 +403,32 @@ class SSC32U:
         paced: bool = False,
         flush: bool = False,
         horizon_s: float = WIRE_HORIZON_S,
+        key: Hashable | None = None,
     ) -> float | None:
         """Write `data` (after `WIRE_HORIZON_S` allows it, if `paced`; after an output flush,
-        with `flush`); when its last byte reaches the board, or None if `unless` said so."""
+        with `flush`); when its last byte reaches the board, or None if `unless` said so (or
+        the stop known by `key` was written by another process)."""
         if not paced:
-            return self._write_now(data, unless, flush)
+            return self._write_now(data, unless, flush, key)
         with self._pace_lock:
             while (wait := self._wire_free_at - horizon_s - now()) > 0:
                 time.sleep(wait)
-            return self._write_now(data, unless, flush)
+            return self._write_now(data, unless, flush, key)
 
     def _write_now(
-        self, data: bytes, unless: Callable[[], bool] | None, flush: bool
+        self,
+        data: bytes,
+        unless: Callable[[], bool] | None,
+        flush: bool,
+        key: Hashable | None = None,
     ) -> float | None:
-        with self._write_lock:
-            if unless is not None and unless():
+        gate = self._gate
+        if gate is not None and unless is not None and gate.pending():
+            gate.wait_seen(GATE_WAIT_S)
+        with self._write_lock, gate.turn() if gate is not None else contextlib.nullcontext():
+            if unless is not None and ((gate is not None and gate.pending()) or unless()):
+                return None
+            if key is not None and gate is not None and not gate.claim(key):
                 return None
             try:
                 if flush:
