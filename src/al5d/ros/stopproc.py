@@ -55,6 +55,7 @@ READY_S = 60.0
 #: How long a stop the process could not write waits for the server's answer.
 ANSWER_S = 2.0
 _MESSAGE_MAX = 1 << 20
+SWITCH_INTERVAL_S = 0.0005
 _PR_SET_PDEATHSIG = 1
 
 
@@ -201,6 +202,9 @@ def main(argv: Sequence[str]) -> int:
     shared, port, messages = (int(a) for a in argv)
     # Before any thread: every thread of this process (DDS's too) inherits the priority.
     make_urgent("al5d stop process")
+    # The service's thread must not wait 5 ms (the default) for the watcher's to let go of
+    # the interpreter while it reads a flood.
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     with contextlib.suppress(OSError, AttributeError):  # ends with the server, however it ends
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
     # A terminal's ^C, and a SIGTERM to the server's process group, are the server's to

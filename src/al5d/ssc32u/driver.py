@@ -470,6 +470,11 @@ class SSC32U:
                 if not ready:
                     raise serial.SerialTimeoutException("Write timeout")
 
+    def _stop_count(self) -> int:
+        """The emergency stops written so far, another process's included (`gate_port`)."""
+        gate = self._gate
+        return self._stops + (gate.stops if gate is not None else 0)
+
     def _query(self, data: bytes, n_answer: int | None, name: str) -> bytes:
         """Write a query and read its answer; asked once more before a missing answer is a fault.
 
@@ -479,7 +484,7 @@ class SSC32U:
         late first answer is never left for the next query to take as its own.
         """
         with self._query_lock:
-            stops = self._stops
+            stops = self._stop_count()
             try:
                 self._ser.reset_input_buffer()
                 t_sent = now()
@@ -494,7 +499,7 @@ class SSC32U:
             except (*IO_ERRORS, *CLOSED_UNDER) as e:
                 raise self._lost(e, f"{name} failed") from e
         if _answers(answer, n_answer) == 0:
-            if self._stops != stops:
+            if self._stop_count() != stops:
                 raise Interrupted(f"{name} was flushed by an emergency stop")
             got = f", got {answer!r}" if answer else ""
             waited = (deadline.at - t_sent) * 1000
