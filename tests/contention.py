@@ -56,18 +56,20 @@ def arm(index: int, seconds: float, rate: float, stops_every_s: float) -> dict[s
     from proc import Proc, patient_config
     from rospeer import Peer
 
-    # This process stands for the board's record (the emulator's, read here) and for an
-    # operator's stop button: it runs ahead of the load where the OS allows, so that what
-    # is measured is the server's share, not this process's own wait for a core.
-    with contextlib.suppress(OSError):
-        if not os.environ.get("AL5D_NONICE"):
-            os.nice(-10)
     link = Path(tempfile.mkdtemp(prefix=f"al5d-contention-{index}-")) / "ssc32u"
     board = BoardProcess(link)
     # A patient link check: this rig measures the stop; the false faults of a board in a
     # starved process are `link_check`'s to count.
     trace = link.with_name("trace.jsonl")
+    # Started as a user starts it, at the default priority (its stop path raises its own).
     server = Proc("serve", "--port", str(link), "--config", patient_config(), "--trace", str(trace))
+    # This process stands for the board's record (the emulator's, read here) and for an
+    # operator's stop button: it runs ahead of the load where the OS allows, so that what
+    # is measured is the server's share, not this process's own wait for a core. (The
+    # flood's client it starts runs at the default priority: `loadrig.flood`.)
+    with contextlib.suppress(OSError):
+        if not os.environ.get("AL5D_NONICE"):
+            os.nice(-10)
     peer = Peer(results=False, name=f"al5d_contention_peer_{index}")
     try:
         server.err.wait_for("STATE: ready", 60)

@@ -183,6 +183,11 @@ def quiet_stops(emu: Board, peer: Peer, trials: int) -> dict[str, list[float]]:
     return quiet
 
 
+def default_priority() -> None:
+    """In a child before it runs: the default priority (nice 0), whatever its parent's."""
+    os.setpriority(os.PRIO_PROCESS, 0, 0)
+
+
 def flood(
     emu: Board,
     peer: Peer,
@@ -212,6 +217,8 @@ def flood(
         stdout=subprocess.PIPE,
         text=True,
         env=os.environ.copy(),
+        # A client (MoveIt, a script) runs at the default priority, whatever this process's.
+        preexec_fn=default_priority,
     )
     assert client.stdin is not None and client.stdout is not None
     try:

@@ -40,6 +40,7 @@ from typing import Any
 
 from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind
+from al5d.clock import wall_ns
 from al5d.priority import make_urgent
 from al5d.ros.convert import stop_key
 from al5d.ros.names import STOP_NODE, Names
@@ -56,6 +57,8 @@ READY_S = 60.0
 ANSWER_S = 2.0
 _MESSAGE_MAX = 1 << 20
 SWITCH_INTERVAL_S = 0.0005
+#: A stop written this late after it was sent is said (on the host's clock).
+LATE_MS = 50.0
 _PR_SET_PDEATHSIG = 1
 
 
@@ -180,6 +183,20 @@ class StopProcess:
 # -- the process ----------------------------------------------------------------------
 
 
+def late(sent: int | None, taken: int) -> None:
+    """Say a stop written `LATE_MS` or more after it was sent, and where the time went."""
+    if sent is None:
+        return
+    written = wall_ns()
+    if (written - sent) / 1e6 >= LATE_MS:
+        log.warning(
+            "a stop written %.0f ms after it was sent: taken %.0f ms after, written in %.1f ms",
+            (written - sent) / 1e6,
+            (taken - sent) / 1e6,
+            (written - taken) / 1e6,
+        )
+
+
 class _Answers:
     """The server's answers to the stops this process told it of, by stop number."""
 
@@ -225,7 +242,9 @@ def main(argv: Sequence[str]) -> int:
     answers = _Answers()
 
     def on_service(sent: int | None) -> tuple[bool, str]:
+        taken = wall_ns()
         count, error = end.stop()
+        late(sent, taken)
         waiting = answers.expect(count) if error else None
         _send(sock, "stop", count, not error, None, None, sent)
         if waiting is None:
@@ -236,7 +255,9 @@ def main(argv: Sequence[str]) -> int:
             return False, f"{error}; the server did not answer within {ANSWER_S:g} s"
 
     def on_topic(raw: bytes, info: dict[str, int], instr: Instruction) -> None:
+        taken = wall_ns()
         count, error = end.stop(stop_key(info))
+        late(instr.sent_ns, taken)
         _send(sock, "stop", count, not error, raw, info, None)
 
     from al5d.ros.dds import start_context
