@@ -127,8 +127,8 @@ def test_moves_and_stops_racing_the_checks_never_look_like_a_reset(
             time.sleep(0.01)
             return read_pulses(channels)
 
-        def slow_stop(channels: list[int], paced: bool = False) -> bytes:
-            data = stop(channels, paced)
+        def slow_stop(channels: list[int], paced: bool = False, key: object = None) -> bytes:
+            data = stop(channels, paced, key)
             time.sleep(0.04)
             return data
 

@@ -48,7 +48,7 @@ def test_a_failing_stop_write_still_frees_the_arm_for_the_next_move(rig: object)
     assert board is not None
     stop = board.stop
 
-    def broken(channels: object, paced: bool = False) -> bytes:
+    def broken(channels: object, paced: bool = False, key: object = None) -> bytes:
         raise RuntimeError("a bug in the write")
 
     board.stop = broken  # type: ignore[assignment,method-assign]

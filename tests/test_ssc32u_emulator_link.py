@@ -165,9 +165,15 @@ def test_low_latency_mode_answers_within_a_few_ms(config: ArmConfig) -> None:
         serial.Serial(emu.port, 9600, timeout=1) as port,
     ):
         times = _answer_times(emu, port)
+    with (
+        Emulator(config, usb=LinkModel()) as emu,
+        serial.Serial(emu.port, 9600, timeout=1) as port,
+    ):
+        timer = _answer_times(emu, port)
     assert all(after_cr >= 0.001 for _, after_cr in times)
-    # 3 bytes of wire (3.1 ms), the board's delay and 1 ms in the chip: well before 10 ms.
-    assert statistics.median(total for total, _ in times) < 0.010
+    # 3 bytes of wire (3.1 ms), the board's delay and 1 ms in the chip, against the 16 ms
+    # of the default timer: compared in the same run, so that a busy host delays both.
+    assert statistics.median(t for t, _ in times) < statistics.median(t for t, _ in timer)
 
 
 def test_the_latency_timer_is_a_setting(config: ArmConfig) -> None:

@@ -161,7 +161,7 @@ class ArmDriver:
         key: Hashable | None = None,
         listeners: bool = True,
         stream: str = "",
-        written: bool = False,
+        written: bytes | None = None,
     ) -> Future[Outcome]:
         """Hand over an instruction (or a ticket of `judge`); its Future resolves to its one
         outcome.
@@ -170,8 +170,8 @@ class ArmDriver:
         the second gets the first's future, and no listener hears of it again. With
         `listeners=False` no listener hears of it at all. A move given a `stream` is a
         set-point of it: the latest wins (`core`, the lane of set-points). A stop `written`
-        has its STOP on the wire already (the stop process wrote it): it is obeyed without
-        writing it again."""
+        has its STOP on the wire already (these bytes: the stop process wrote them; none
+        when the server had): it is obeyed without writing it again."""
         t0 = now()
         instr = what.instr if isinstance(what, Ticket) else what
         # When it was sent: where its channel does not say, now, as the driver takes it.
@@ -364,13 +364,16 @@ class ArmDriver:
         t0: float,
         sent: int,
         key: Hashable | None,
-        written: bool = False,
+        written: bytes | None = None,
     ) -> Future[Outcome]:
         """VE01/D4: halt at once, drop the queue, lock. Never waits for the worker."""
         halt = self.core.stop(future, sent, key)
+        board = self.core.board
+        if written and board is not None:  # told even when the other reader obeyed it first
+            board.written_elsewhere(written)
         if isinstance(halt, Future):
             return halt
-        if written:
+        if written is not None:
             error = None
             self.core.halt_written(None)
         else:

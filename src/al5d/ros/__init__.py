@@ -11,9 +11,11 @@
 - `params`: the node's ROS parameters, validated by the configuration's own code.
 - `node`: the nodes on an `ArmDriver`: `ArmNode` (`al5d`: the instruction topic, results,
   state, parameters), `RobotNode` (`al5d_robot`) and `ActionsNode` (`al5d_actions`).
-- `safety`: node `al5d_safety` (the stop, release and shutdown services) and node
-  `al5d_stop_watcher` (a stop on the instruction topic, obeyed at once), on a DDS
-  participant of their own.
+- `safety`: node `al5d_safety` (the release and shutdown services) and node `al5d_stop`
+  (the stop service, and a stop on the instruction topic obeyed at once), on DDS
+  participants of their own.
+- `stopproc`: the stop process: node `al5d_stop` in a process of its own that writes the
+  STOP itself, whatever the server's threads are doing.
 - `robot`: the robot's description, joint states and transforms (`RobotNode`'s).
 - `actions`: the move action; `controllers`: MoveIt's FollowJointTrajectory and
   GripperCommand (both `ActionsNode`'s).

@@ -243,10 +243,10 @@ def main(argv: Sequence[str]) -> int:
 
     def on_service(sent: int | None) -> tuple[bool, str]:
         taken = wall_ns()
-        count, error = end.stop()
+        count, error, data = end.stop()
         late(sent, taken)
         waiting = answers.expect(count) if error else None
-        _send(sock, "stop", count, not error, None, None, sent)
+        _send(sock, "stop", count, None if error else data, None, None, sent)
         if waiting is None:
             return True, "stop: done"
         try:
@@ -256,9 +256,9 @@ def main(argv: Sequence[str]) -> int:
 
     def on_topic(raw: bytes, info: dict[str, int], instr: Instruction) -> None:
         taken = wall_ns()
-        count, error = end.stop(stop_key(info))
+        count, error, data = end.stop(stop_key(info))
         late(instr.sent_ns, taken)
-        _send(sock, "stop", count, not error, raw, info, None)
+        _send(sock, "stop", count, None if error else data, raw, info, None)
 
     from al5d.ros.dds import start_context
     from al5d.ros.executors import Spinner

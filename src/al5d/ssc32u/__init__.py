@@ -4,6 +4,8 @@
 - `protocol`: the bytes of every command and answer, as pure functions.
 - `errors`: what can go wrong on the serial link, named for what the user must check.
 - `driver`: `SSC32U`, one method per board function; serial I/O stays inside.
+- `stopline`: the emergency stop written by another process: the port handed over, and
+  both processes' writes kept in order.
 - `emulator`: an SSC-32U on a pseudo terminal (a pure board model and its pty link).
 
 This layer knows channels and pulse widths, never joints or degrees of an arm.

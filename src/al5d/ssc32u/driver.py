@@ -313,6 +313,16 @@ class SSC32U:
         self._write(data, paced=paced, flush=True, key=key)
         return data
 
+    def written_elsewhere(self, data: bytes) -> None:
+        """Another process has written `data` to this port (the stop process's STOP): the
+        account of the wire, and the tap, hear of it as of a write here."""
+        with self._write_lock:
+            t = now()
+            self._wire_free_at = max(t, self._wire_free_at) + self.wire_time_s(data)
+            if self._tap is not None:
+                with contextlib.suppress(Exception):  # a recording never fails a write
+                    self._tap(data, t, self._wire_free_at)
+
     def plan_stops(self, channels: Sequence[int], until: float) -> None:
         """A stop another process writes (`gate_port`) STOPs the channels in this order until
         `until` (CLOCK_MONOTONIC), as `stop` would be asked to; nothing without one."""

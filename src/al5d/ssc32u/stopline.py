@@ -250,17 +250,19 @@ class StopEnd:
                     os.close(self._port)
             self._port = fd
 
-    def stop(self, key: Hashable | None = None) -> tuple[int, str]:
-        """Count a stop, then write it: its number (for the server to acknowledge), and why
-        it could not be written ("" when it was). A stop known by `key` that the server
-        has written already is not written again."""
+    def stop(self, key: Hashable | None = None) -> tuple[int, str, bytes]:
+        """Count a stop, then write it: its number (for the server to acknowledge), why it
+        could not be written ("" when it was), and the bytes written. A stop known by `key`
+        that the server has written already is not written again (no bytes, no error)."""
         with self._lock:
             count = self._shared.add(_STOPS)
             writes = self._shared.read(_WRITES)
             held = self._hold(HOLD_S)
             try:
-                written = held and key is not None and not self._shared.claim(key)
-                error = "" if written else self._write()
+                if held and key is not None and not self._shared.claim(key):
+                    error, data = "", b""
+                else:
+                    error, data = self._write()
             finally:
                 if held:
                     self._shared.unlock()
@@ -268,7 +270,7 @@ class StopEnd:
             # The server lost its core holding the lock: whatever it wrote once it had it
             # back went out after our STOP, which must then follow it again.
             threading.Thread(target=self._backstop, args=(writes,), daemon=True).start()
-        return count, error
+        return count, error, data
 
     def _hold(self, timeout: float) -> bool:
         deadline = time.monotonic() + timeout
@@ -293,27 +295,29 @@ class StopEnd:
                     return
             time.sleep(_POLL_S)
 
-    def _write(self) -> str:
+    def _write(self) -> tuple[str, bytes]:
+        """Why the STOP could not be written (or ""), and its bytes."""
         fd = self._port
         if fd is None:
-            return "no board is open"
+            return "no board is open", b""
         try:
             # As the server's own stop: what waits in the port is dropped where the link
             # allows (a UART); the ESC makes a half-written line harmless either way.
             with contextlib.suppress(termios.error, OSError):
                 termios.tcflush(fd, termios.TCOFLUSH)
-            view = memoryview(p.CANCEL + p.encode_stop(self._order()))
+            data = p.CANCEL + p.encode_stop(self._order())
+            view = memoryview(data)
             deadline = time.monotonic() + BACKSTOP_S
             while view:
                 with contextlib.suppress(BlockingIOError):
                     view = view[os.write(fd, view) :]
                 if view and time.monotonic() > deadline:
-                    return "the port took no byte for 2 s"
+                    return "the port took no byte for 2 s", b""
                 if view:
                     time.sleep(_POLL_S)
         except OSError as e:
-            return f"stop could not be written: {e}"
-        return ""
+            return f"stop could not be written: {e}", b""
+        return "", data
 
     def _order(self) -> tuple[int, ...]:
         planned = self._shared.planned()
