@@ -106,6 +106,12 @@ class Board(RecordLog, ServoObserver):
     def __init__(
         self, config: ArmDescription | None = None, **settings: Unpack[BoardSettings]
     ) -> None:
+        # The type checker sees a misspelt setting; a caller without one must hear of it too,
+        # not get the factory's value for it.
+        unknown = sorted(settings.keys() - BoardSettings.__optional_keys__)
+        if unknown:
+            known = ", ".join(sorted(BoardSettings.__optional_keys__))
+            raise TypeError(f"Board: no setting {', '.join(unknown)} (settings: {known})")
         RecordLog.__init__(self)
         ServoObserver.__init__(self)
         self.config = config
