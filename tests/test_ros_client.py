@@ -20,25 +20,21 @@ from typing import Any
 
 import pytest
 from al5d_interfaces.msg import ArmInstruction
-from proc import Proc
-from rospeer import wait_until
-from served import Served, served
 
 from al5d import exits
 from al5d.arm.config import ArmConfig
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_STREAM
 from al5d.ssc32u import protocol as p
+from al5d_rig.domains import alone
+from al5d_rig.proc import Proc
+from al5d_rig.rospeer import wait_until
+from al5d_rig.served import Served, served
 
 SERVER_DOC = Path(__file__).resolve().parents[1] / "docs" / "server.md"
 #: Generous bounds: rclpy's start, discovery and a move on a loaded machine.
 SCRIPT_S = 90.0
 STATE_S = 30.0
-
-
-def alone() -> dict[str, str]:
-    """A ROS domain with no server (the test's next one, kept free for this: conftest)."""
-    return {"ROS_DOMAIN_ID": str(int(os.environ["ROS_DOMAIN_ID"]) + 1)}
 
 
 def run_script(

@@ -8,13 +8,13 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from proc import Proc, patient_config
-from rospeer import Peer, wait_until
 from std_msgs.msg import String
 
 from al5d.arm.config import ArmConfig
 from al5d.ros.qos import QOS_LATCHED
 from al5d.ssc32u.emulator import Emulator
+from al5d_rig.proc import Proc, patient_config
+from al5d_rig.rospeer import Peer, wait_until
 
 
 @dataclass
@@ -36,9 +36,11 @@ def served(config: ArmConfig, workdir: Path, name: str) -> Iterator[Served]:
     proc = Proc("serve", "--port", str(link), "--config", patient_config(), "--log-level", "INFO")
     peer = Peer(name=name)
     states: list[str] = []
-    peer.node.create_subscription(
-        String, "/al5d/state", lambda m: states.append(m.data), QOS_LATCHED
-    )
+
+    def on_state(msg: String) -> None:
+        states.append(msg.data)
+
+    peer.node.create_subscription(String, "/al5d/state", on_state, QOS_LATCHED)
     try:
         proc.err.wait_for("STATE: ready", 30)
         peer.wait_for_server()
