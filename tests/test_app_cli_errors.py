@@ -42,11 +42,7 @@ def server(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Itera
 @pytest.fixture
 def arm(server: Served) -> Served:
     """The server, its arm released and at rest, whatever the last test left."""
-    wait_until(lambda: server.states[-1] in ("ready", "stopped"), STATE_S, "the arm at rest")
-    if server.states[-1] == "stopped":
-        assert server.peer.trigger("release").success
-    wait_until(lambda: server.states[-1] == "ready", STATE_S, "ready")
-    return server
+    return server.ready(STATE_S)
 
 
 def ended(proc: Proc) -> tuple[int, list[str], list[str]]:

@@ -36,17 +36,6 @@ class Arm(Served):
     def moves_after(self, index: int) -> list[p.GroupMove]:
         return group_moves(self.emu.records[index:])
 
-    def stops(self) -> int:
-        """STOP commands the board has received (six to a stop of this arm)."""
-        return sum(isinstance(c, p.Stop) for r in self.emu.records for c in r.commands)
-
-    def ready(self) -> None:
-        """Released and at rest, whatever the last sequence left."""
-        wait_until(lambda: self.states and self.states[-1] in ("ready", "stopped"), 20, "rest")
-        if self.states[-1] == "stopped":
-            assert self.peer.trigger("release").success
-        wait_until(lambda: self.states[-1] == "ready", 20, "ready")
-
     def outcomes(self, ids: list[str]) -> dict[str, str]:
         wait_until(
             lambda: all(i in self.peer.results for i in ids), OUTCOME_S, f"{len(ids)} outcomes"
