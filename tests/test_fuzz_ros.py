@@ -268,9 +268,8 @@ def test_trajectory_messages(target: Target, traj: JointTrajectory) -> None:
             f"no result for trajectory {traj}; server log:\n{tail}\nserver threads:\n{stacks}"
         ) from None
     if result.outcome == "refused":
-        assert (
-            len(group_moves(target.emu.records)) == moves_before
-        )  # refused whole: nothing written
+        # Refused whole: nothing written.
+        assert len(group_moves(target.emu.records)) == moves_before
     elif result.outcome == "done":
         assert len(group_moves(target.emu.records)) - moves_before == len(traj.points)
     check_the_wire(target)

@@ -171,9 +171,8 @@ def test_a_moveit_shaped_trajectory_from_the_start_state_succeeds(rig: Rig) -> N
     assert handle.accepted
     answer = wait_future(handle.get_result_async(), 15)
     assert answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result.error_string
-    assert (
-        len(group_moves(rig.emu.records)) == n + 1
-    )  # the start point too: the arm is already there
+    # The start point too: the arm is already there.
+    assert len(group_moves(rig.emu.records)) == n + 1
     ends = rig.emu.servo_degrees()
     for j, deg in pose(base=25, shoulder=15, elbow=70).items():
         assert abs(ends[j] - deg) < 0.5
