@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+MODULE = "al5d_rig.contention"  # its arms run it: python -m MODULE --arm I
 BUSY_LOOP = "while True: pass"
 
 
@@ -188,15 +189,7 @@ def run(
     try:
         for i in range(servers):
             env = {**os.environ, "ROS_DOMAIN_ID": str(base + i)}
-            cmd = [
-                sys.executable,
-                "-m",
-                "al5d_rig.contention",
-                "--arm",
-                str(i),
-                "--seconds",
-                str(seconds),
-            ]
+            cmd = [sys.executable, "-m", MODULE, "--arm", str(i), "--seconds", str(seconds)]
             cmd += ["--rate", str(rate), "--stops-every", str(stops_every_s)]
             arms.append(
                 subprocess.Popen(
