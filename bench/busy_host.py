@@ -20,12 +20,12 @@ from pathlib import Path
 from typing import Any
 
 HERE = Path(__file__).resolve().parent
-sys.path[:0] = [str(HERE), str(HERE.parent / "tests")]
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
-from contention import goals, run  # noqa: E402
-from falsefaults import run as false_faults  # noqa: E402
 from soak import log, p99, render  # noqa: E402
+
+from al5d_rig.contention import goals, run  # noqa: E402
+from al5d_rig.falsefaults import run as false_faults  # noqa: E402
 
 OUT = HERE / "out"
 SECONDS = float(os.environ.get("CONTENTION_SECONDS", "40"))

@@ -15,15 +15,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-from boardproc import BoardProcess
 from rosbench import STOP_BYTES, STOP_LINES, Rig, command_to_board
-from rospeer import Peer, wait_future
 from stats import figure
 from std_srvs.srv import Trigger
 
 from al5d.arm.config import ArmConfig
 from al5d.ros.qos import QOS_SERVICES
 from al5d.ssc32u import protocol as p
+from al5d_rig.boardproc import BoardProcess
+from al5d_rig.rospeer import Peer, wait_future
 
 HERE = Path(__file__).resolve().parent
 #: Our figure over its floor, at most: the median within 20 %, the tail within 50 %.

@@ -10,7 +10,6 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from proc import Proc
 from stats import figure
 
 from al5d.arm import instruction as ins
@@ -18,6 +17,7 @@ from al5d.arm.config import ArmConfig
 from al5d.arm.driver import ArmDriver
 from al5d.arm.states import State
 from al5d.ssc32u.driver import SSC32U
+from al5d_rig.proc import Proc
 
 WARMUP = 2000
 

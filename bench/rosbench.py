@@ -24,9 +24,6 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from boardproc import BoardProcess
-from proc import Proc
-from rospeer import Peer, wait_future, wait_until
 from spy import profiled, top_frames
 from stats import figure
 from std_srvs.srv import Trigger
@@ -35,6 +32,9 @@ from al5d.app.reach import TOLERANCE_DEG
 from al5d.arm.config import DEFAULT_CONFIG, ArmConfig
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Record
+from al5d_rig.boardproc import BoardProcess
+from al5d_rig.proc import Proc
+from al5d_rig.rospeer import Peer, wait_future, wait_until
 
 OUT = Path(__file__).resolve().parent / "out"
 STOP_LINES = [f"STOP{ch}".encode() for ch in range(6)]
@@ -372,7 +372,8 @@ def goal_cost(rig: Rig, before: int = 3000, n: int = 100) -> dict[str, Any]:
 
 def _fjt_client(rig: Rig) -> Any:
     from control_msgs.action import FollowJointTrajectory
-    from rospeer import LockedActionClient
+
+    from al5d_rig.rospeer import LockedActionClient
 
     client = LockedActionClient(
         rig.peer.node, FollowJointTrajectory, rig.peer.names.follow_joint_trajectory

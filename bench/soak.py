@@ -21,18 +21,16 @@ from pathlib import Path
 from typing import Any
 
 HERE = Path(__file__).resolve().parent
-sys.path[:0] = [str(HERE), str(HERE.parent / "tests")]
 os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
-from boardproc import BoardProcess  # noqa: E402
-from faultrig import MOMENTS, run_trial  # noqa: E402
-from loadrig import Counter, flood, quiet_stops  # noqa: E402
-from proc import Proc  # noqa: E402
-from rospeer import Peer  # noqa: E402
-
 from al5d.arm.config import load_config  # noqa: E402
 from al5d.ssc32u.emulator import Fault  # noqa: E402
+from al5d_rig.boardproc import BoardProcess  # noqa: E402
+from al5d_rig.faultrig import MOMENTS, run_trial  # noqa: E402
+from al5d_rig.loadrig import Counter, flood, quiet_stops  # noqa: E402
+from al5d_rig.proc import Proc  # noqa: E402
+from al5d_rig.rospeer import Peer  # noqa: E402
 
 OUT = HERE / "out"
 REPEATS = int(os.environ.get("SOAK_REPEATS", "3"))

@@ -28,19 +28,17 @@ import time
 from pathlib import Path
 from typing import Any
 
-HERE = Path(__file__).resolve().parent
-sys.path[:0] = [str(HERE), str(HERE.parent / "tests")]
 os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
-from boardproc import BoardProcess  # noqa: E402
-from proc import Proc  # noqa: E402
-from rclpy.qos import QoSProfile  # noqa: E402
-from rospeer import Peer, wait_until  # noqa: E402
-from sensor_msgs.msg import JointState  # noqa: E402
+from rclpy.qos import QoSProfile
+from sensor_msgs.msg import JointState
 
-from al5d.arm.config import ArmConfig, load_config  # noqa: E402
-from al5d.ssc32u import protocol as p  # noqa: E402
+from al5d.arm.config import ArmConfig, load_config
+from al5d.ssc32u import protocol as p
+from al5d_rig.boardproc import BoardProcess
+from al5d_rig.proc import Proc
+from al5d_rig.rospeer import Peer, wait_until
 
 BAUDS = (9600, 115200)
 RATE_HZ = 50.0

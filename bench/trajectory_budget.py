@@ -27,21 +27,19 @@ import time
 from pathlib import Path
 from typing import Any
 
-HERE = Path(__file__).resolve().parent
-sys.path[:0] = [str(HERE), str(HERE.parent / "tests")]
 os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
-from action_msgs.msg import GoalStatus  # noqa: E402
-from boardproc import BoardProcess  # noqa: E402
-from builtin_interfaces.msg import Duration  # noqa: E402
-from control_msgs.action import FollowJointTrajectory  # noqa: E402
-from proc import Proc  # noqa: E402
-from rospeer import LockedActionClient, Peer, wait_future  # noqa: E402
-from trajectories import ARM, START, goal_of, wave  # noqa: E402
+from action_msgs.msg import GoalStatus
+from builtin_interfaces.msg import Duration
+from control_msgs.action import FollowJointTrajectory
 
-from al5d.arm.config import ArmConfig, load_config  # noqa: E402
-from al5d.ssc32u import protocol as p  # noqa: E402
+from al5d.arm.config import ArmConfig, load_config
+from al5d.ssc32u import protocol as p
+from al5d_rig.boardproc import BoardProcess
+from al5d_rig.proc import Proc
+from al5d_rig.rospeer import LockedActionClient, Peer, wait_future
+from al5d_rig.trajectories import ARM, START, goal_of, wave
 
 TRAVEL = {"base": 40.0, "shoulder": 25.0, "elbow": -30.0, "wrist": 25.0, "wrist_rotate": 30.0}
 CASES = ((100, 0.020), (200, 0.010))

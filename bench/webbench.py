@@ -28,22 +28,21 @@ from pathlib import Path
 from typing import Any
 
 HERE = Path(__file__).resolve().parent
-sys.path[:0] = [str(HERE), str(HERE.parent / "tests")]
 os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
-from boardproc import BoardProcess  # noqa: E402
 from playwright.sync_api import sync_playwright  # noqa: E402
-from proc import Proc  # noqa: E402
 from rosbench import STOP_BYTES, proc_stat  # noqa: E402
-from rospeer import Peer, wait_until  # noqa: E402
 from stats import figure  # noqa: E402
-from webrig import StateWatch, WebProc, dismiss_notifications, launch, open_page  # noqa: E402
 
 from al5d.arm.config import load_config  # noqa: E402
 from al5d.ros.names import Names  # noqa: E402
 from al5d.ssc32u import protocol as p  # noqa: E402
 from al5d.ssc32u.emulator import Record  # noqa: E402
+from al5d_rig.boardproc import BoardProcess  # noqa: E402
+from al5d_rig.proc import Proc  # noqa: E402
+from al5d_rig.rospeer import Peer, wait_until  # noqa: E402
+from al5d_rig.webrig import StateWatch, WebProc, dismiss_notifications, launch, open_page  # noqa: E402
 
 OUT = HERE / "out"
 BAUD = 9600

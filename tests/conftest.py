@@ -9,21 +9,21 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import domains
 import pytest
+
+from al5d_rig import domains
 
 # A ROS domain of our own for the whole run (`domains.claim`): every server and client
 # the tests start inherits it.
 os.environ["ROS_DOMAIN_ID"] = str(domains.claim())
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
-from armrig import Rig, make_rig
-
 from al5d.arm.config import ArmConfig, load_config
 from al5d.arm.driver import ArmDriver
 from al5d.arm.states import State
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator
+from al5d_rig.armrig import Rig, make_rig
 
 
 @pytest.fixture(scope="session")
@@ -68,7 +68,7 @@ def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, ArmD
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
     """Under pytest-xdist, a worker hands its fuzz counts to the controller."""
-    from fuzzcount import CASES
+    from al5d_rig.fuzzcount import CASES
 
     output = getattr(session.config, "workeroutput", None)
     if output is not None:
@@ -77,14 +77,14 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_testnodedown(node: Any, error: Any) -> None:
-    from fuzzcount import CASES
+    from al5d_rig.fuzzcount import CASES
 
     CASES.update(getattr(node, "workeroutput", {}).get("fuzz_cases", {}))
 
 
 def pytest_terminal_summary(terminalreporter: Any) -> None:
     """The fuzz suites' case counts, at the end of the run (and in build/reliability)."""
-    from fuzzcount import CASES
+    from al5d_rig.fuzzcount import CASES
 
     if not CASES:
         return

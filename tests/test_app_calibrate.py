@@ -11,13 +11,13 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from calibuser import User, truth
-from proc import AL5D, Lines, Proc
 
 from al5d import exits
 from al5d.app.calibrate import Command, parse_command
 from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
 from al5d.ssc32u.emulator import Emulator, Mechanics
+from al5d_rig.calibuser import User, truth
+from al5d_rig.proc import AL5D, Lines, Proc
 
 STEP_US = 5
 MECHANICS = {"base": Mechanics(42), "elbow": Mechanics(-20, reversed=True)}

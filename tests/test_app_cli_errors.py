@@ -17,16 +17,16 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from proc import Proc, patient_config
-from rospeer import wait_until
-from served import Served, served
-from test_ros_client import alone
 
 from al5d import exits
 from al5d.arm.config import ArmConfig
 from al5d.ros.client import SLOW_DISCOVERY_S, Client, NoServer, Timing
-from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
+from al5d_rig.armrig import group_moves
+from al5d_rig.domains import alone
+from al5d_rig.proc import Proc, patient_config
+from al5d_rig.rospeer import wait_until
+from al5d_rig.served import Served, served
 
 #: Generous bounds: rclpy's start, discovery and a move on a loaded machine.
 CMD_S = 90.0
@@ -42,15 +42,7 @@ def server(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Itera
 @pytest.fixture
 def arm(server: Served) -> Served:
     """The server, its arm released and at rest, whatever the last test left."""
-    wait_until(lambda: server.states[-1] in ("ready", "stopped"), STATE_S, "the arm at rest")
-    if server.states[-1] == "stopped":
-        assert server.peer.trigger("release").success
-    wait_until(lambda: server.states[-1] == "ready", STATE_S, "ready")
-    return server
-
-
-def group_moves(server: Served) -> list[p.GroupMove]:
-    return [c for r in server.emu.records for c in r.commands if isinstance(c, p.GroupMove)]
+    return server.ready(STATE_S)
 
 
 def ended(proc: Proc) -> tuple[int, list[str], list[str]]:
@@ -112,7 +104,7 @@ def test_a_sequence_files_errors_are_said_all_at_once_and_nothing_is_sent(
         b"ready\nmove base=x\nmove base=10 time=300\nwait\n# fine\nmove_to x=0.2 y=0 z=0.1\n"
         b"park \xff\nstop\n"
     )
-    moves = len(group_moves(arm))
+    moves = len(group_moves(arm.emu.records))
     code, out, err = ended(Proc("run", str(seq)))
     assert code == exits.BAD_INPUT, err
     assert out == []
@@ -123,7 +115,7 @@ def test_a_sequence_files_errors_are_said_all_at_once_and_nothing_is_sent(
         "millimetres: x=200 y=0 z=100",
         f"al5d run: {seq}:7: not UTF-8 text (byte 0xff at column 6)",
     ]
-    assert len(group_moves(arm)) == moves
+    assert len(group_moves(arm.emu.records)) == moves
     assert arm.states[-1] == "ready"
 
 
@@ -187,7 +179,7 @@ def test_a_client_started_before_its_server_says_how_long_it_waited(
 
 
 def test_the_shell_runs_each_line_over_one_connection(arm: Served) -> None:
-    moves = len(group_moves(arm))
+    moves = len(group_moves(arm.emu.records))
     shell = Proc("shell", "--verbose", stdin=True)
     try:
         for line in ("ready", "move base=x", "move base=10 time=200", "move base=0 &", "exit"):
@@ -202,7 +194,7 @@ def test_the_shell_runs_each_line_over_one_connection(arm: Served) -> None:
     assert "al5d shell: word 2 'base=x': 'x' is not a number of degrees" in err
     # One discovery for all of them.
     assert sum("s for the server to be discovered" in line for line in err) == 1, err
-    assert len(group_moves(arm)) - moves >= 2
+    assert len(group_moves(arm.emu.records)) - moves >= 2
 
 
 def test_ctrl_c_in_the_shell_stops_the_arm(arm: Served) -> None:

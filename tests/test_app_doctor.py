@@ -19,13 +19,13 @@ from pathlib import Path
 import pytest
 import serial
 import yaml
-from proc import Proc
 from serial.tools.list_ports_common import ListPortInfo
 
 from al5d import exits
 from al5d.app import doctor as doc
 from al5d.arm.config import DEFAULT_CONFIG, ArmConfig
 from al5d.ssc32u.emulator import Emulator
+from al5d_rig.proc import Proc
 
 DOCTOR_S = 60.0
 

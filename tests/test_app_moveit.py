@@ -11,12 +11,12 @@ from pathlib import Path
 import xacro
 import yaml
 import yourdfpy
-from proc import Proc
 
 from al5d.app.moveit import arm_chain, moveit_files, write_moveit_config
 from al5d.arm.config import DEFAULT_CONFIG, load_config
 from al5d.model import forward
 from al5d.ros.names import Names
+from al5d_rig.proc import Proc
 
 SHIPPED = Path(__file__).resolve().parent.parent / "config" / "moveit"
 SHIPPED_CONFIG = SHIPPED / "config"

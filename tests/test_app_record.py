@@ -13,9 +13,7 @@ from typing import Any
 from al5d_interfaces.msg import ArmInstruction
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from proc import Lines, Proc, patient_config
 from rclpy.serialization import serialize_message
-from rospeer import Peer, wait_future, wait_until
 
 from al5d import exits
 from al5d.app.record import (
@@ -29,6 +27,8 @@ from al5d.arm.config import load_config
 from al5d.arm.instruction import PRESET_NAMES, Wait, parse_sequence
 from al5d.ros.client import Client
 from al5d.ssc32u.emulator import Emulator
+from al5d_rig.proc import Lines, Proc, patient_config
+from al5d_rig.rospeer import Peer, wait_future, wait_until
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -7,11 +7,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-from proc import Proc, patient_config
-
 from al5d.app.server import EXIT_NOT_PARKED
 from al5d.arm.config import load_config
 from al5d.ssc32u.emulator import Emulator, Fault
+from al5d_rig.proc import Proc, patient_config
 
 
 def test_serve_parks_takes_instructions_and_shuts_down() -> None:

@@ -8,13 +8,14 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from proc import Proc
-from rospeer import wait_until
-from served import Served, served
 
 from al5d import exits
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u import protocol as p
+from al5d_rig.armrig import group_moves
+from al5d_rig.proc import Proc
+from al5d_rig.rospeer import wait_until
+from al5d_rig.served import Served, served
 
 #: Generous bounds: rclpy's start, discovery and a move on a loaded machine.
 CMD_S = 90.0
@@ -32,7 +33,7 @@ def arm(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator
 
 
 def moves(arm: Served, since: int) -> list[p.GroupMove]:
-    return [c for r in arm.emu.records[since:] for c in r.commands if isinstance(c, p.GroupMove)]
+    return group_moves(arm.emu.records[since:])
 
 
 def pulses(config: ArmConfig, degrees: dict[str, float]) -> set[tuple[int, int]]:

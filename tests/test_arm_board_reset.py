@@ -10,7 +10,6 @@ import time
 from collections.abc import Iterator
 
 import pytest
-from armrig import Rig, logged
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
@@ -20,6 +19,7 @@ from al5d.arm.states import State
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator, LinkModel, Record
 from al5d.ssc32u.emulator.board import Fault
+from al5d_rig.armrig import Rig, logged
 
 
 def warnings(caplog: pytest.LogCaptureFixture, text: str) -> list[str]:

@@ -10,7 +10,6 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import pytest
-from calibuser import User, truth
 
 from al5d.arm import instruction as ins
 from al5d.arm.calibration import (
@@ -33,6 +32,7 @@ from al5d.arm.states import State
 from al5d.arm.validate import Limits
 from al5d.arm.validate import judge as judge_instruction
 from al5d.ssc32u.emulator import Emulator, Mechanics
+from al5d_rig.calibuser import User, truth
 
 OUTCOME_S = 20.0
 

@@ -14,7 +14,6 @@ from typing import Any
 
 import pytest
 import yaml
-from armrig import Rig, executed_tips, group_pulses, settled_tip, tip, written
 
 from al5d.app.demo import DEMO_SEQUENCE
 from al5d.app.reach import QoSRecorder, format_table, label
@@ -27,6 +26,7 @@ from al5d.arm.validate import Limits, check
 from al5d.model import distance_to_segment, forward, solve
 from al5d.model.transforms import Vec3
 from al5d.ssc32u import protocol as p
+from al5d_rig.armrig import Rig, executed_tips, group_pulses, settled_tip, tip, written
 
 CONFIG = load_config()
 TRANSLATOR = Translator(CONFIG)

@@ -41,7 +41,7 @@ def test_a_port_closed_under_a_write_is_a_lost_link(config: ArmConfig) -> None:
 
 
 def test_a_failing_stop_write_still_frees_the_arm_for_the_next_move(rig: object) -> None:
-    from armrig import Rig
+    from al5d_rig.armrig import Rig
 
     assert isinstance(rig, Rig)
     board = rig.driver.core.board

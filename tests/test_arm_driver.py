@@ -11,8 +11,6 @@ import time
 from concurrent.futures import Future
 
 import pytest
-from armrig import Rig, group_pulses, logged, make_rig, min_ms, pulses, state_lines, written
-from rospeer import wait_until
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
@@ -22,6 +20,17 @@ from al5d.arm.states import TRANSITIONS, State
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator, Fault
+from al5d_rig.armrig import (
+    Rig,
+    group_pulses,
+    logged,
+    make_rig,
+    min_ms,
+    pulses,
+    state_lines,
+    written,
+)
+from al5d_rig.rospeer import wait_until
 
 
 class TestStartup:

@@ -14,7 +14,6 @@ from concurrent.futures import Future
 from dataclasses import dataclass, replace
 
 import pytest
-from armrig import Rig, executed_tips
 
 from al5d.arm import instruction as ins
 from al5d.arm.instruction import Outcome, Result
@@ -23,6 +22,7 @@ from al5d.clock import wall_ns
 from al5d.model import distance_to_segment
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Record
+from al5d_rig.armrig import Rig, executed_tips
 
 
 def writers(rig: Rig) -> list[str]:

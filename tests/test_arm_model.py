@@ -43,7 +43,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from fuzzcount import SCALE, count
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import (
@@ -60,6 +59,7 @@ from al5d.arm.instruction import Instruction, Outcome, Result
 from al5d.arm.states import State
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator, Fault
+from al5d_rig.fuzzcount import SCALE, count
 
 #: The identities of stop messages: each a new one (the driver remembers those it obeyed).
 KEYS = itertools.count()

@@ -15,7 +15,6 @@ import time
 from pathlib import Path
 
 import pytest
-from armrig import Rig, group_pulses, logged, min_ms, pulses, state_lines
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig, load_config
@@ -26,6 +25,7 @@ from al5d.arm.states import State
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.driver import EXCUSE_MAX_S, SSC32U
 from al5d.ssc32u.emulator import Emulator, Fault
+from al5d_rig.armrig import Rig, group_pulses, logged, min_ms, pulses, state_lines
 
 
 def slow_to_give_up(answer_timeout_s: float) -> ArmConfig:

@@ -13,13 +13,13 @@ import time
 from concurrent.futures import Future
 
 import pytest
-from armrig import Rig
 
 from al5d.arm import instruction as ins
 from al5d.arm.instruction import Instruction, Outcome, Result
 from al5d.arm.states import State
 from al5d.clock import wall_ns
 from al5d.ssc32u import protocol as p
+from al5d_rig.armrig import Rig, group_moves
 
 REPEATS = 20
 JOINTS = ("base", "shoulder", "elbow", "wrist")
@@ -43,7 +43,7 @@ def sent(instr: Instruction, t_ns: int) -> Instruction:
 
 
 def moves_since(rig: Rig, index: int) -> int:
-    return sum(isinstance(c, p.GroupMove) for r in rig.emu.records[index:] for c in r.commands)
+    return len(group_moves(rig.emu.records[index:]))
 
 
 def test_a_stop_on_the_topic_and_a_release_never_wedge_the_queue(rig: Rig) -> None:

@@ -7,14 +7,14 @@ import threading
 import time
 
 import pytest
-from armrig import Rig, group_pulses, logged, pulses
-from rospeer import wait_until
 
 from al5d.arm import instruction as ins
 from al5d.arm.instruction import Result
 from al5d.arm.states import State
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Record
+from al5d_rig.armrig import Rig, group_moves, group_pulses, logged, pulses
+from al5d_rig.rospeer import wait_until
 
 STREAM = "joint_commands"
 
@@ -238,4 +238,4 @@ def test_a_stop_during_a_stream_wins_and_holds_it(rig: Rig) -> None:
     ]
     assert stops
     after = [r for r in rig.emu.records if r.t_effect > stops[0].t_effect]
-    assert not any(isinstance(c, p.GroupMove) for r in after for c in r.commands)
+    assert not group_moves(after)

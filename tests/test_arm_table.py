@@ -8,7 +8,6 @@ import math
 import time
 
 import numpy as np
-from armrig import Rig, written
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
@@ -19,6 +18,7 @@ from al5d.arm.validate import Limits, check, from_start
 from al5d.model import JOINTS, build_chain, link_poses
 from al5d.model.table import HEIGHT_JOINTS, PATH_TOLERANCE_M, below, heights, path_below
 from al5d.model.transforms import matrix_from_quat
+from al5d_rig.armrig import Rig, written
 
 CONFIG = load_config()
 MODEL = CONFIG.model

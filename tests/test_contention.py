@@ -13,8 +13,9 @@ servers flooded at once beside busy loops are `make soak`'s alone
 from __future__ import annotations
 
 import pytest
-from contention import goals
-from falsefaults import run as false_faults
+
+from al5d_rig.contention import goals
+from al5d_rig.falsefaults import run as false_faults
 
 pytestmark = pytest.mark.solo  # load suites: alone (see pyproject.toml)
 

@@ -32,7 +32,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from proc import Proc, patient_config
+
+from al5d_rig.proc import Proc, patient_config
 
 REPO = Path(__file__).resolve().parents[1]
 PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]

@@ -32,19 +32,19 @@ from typing import Any
 import pytest
 from al5d_interfaces.action import Move
 from al5d_interfaces.msg import ArmInstruction
-from boardproc import BoardProcess
 from builtin_interfaces.msg import Duration
-from fuzzcount import count, examples
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
-from loadrig import Counter, proc_status
-from proc import Proc, patient_config
-from rospeer import Peer, wait_until
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d.arm.config import ArmConfig, load_config
 from al5d.ros.qos import QOS_INSTRUCTIONS
-from al5d.ssc32u import protocol as p
+from al5d_rig.armrig import group_moves
+from al5d_rig.boardproc import BoardProcess
+from al5d_rig.fuzzcount import count, examples
+from al5d_rig.loadrig import Counter, proc_status
+from al5d_rig.proc import Proc, patient_config
+from al5d_rig.rospeer import Peer, wait_until
 
 CONFIG = load_config()
 JOINTS = list(CONFIG.joints)
@@ -157,9 +157,6 @@ class Target:
     counter: Counter
     trace: Path
 
-    def group_moves(self) -> list[p.GroupMove]:
-        return [c for r in self.emu.records for c in r.commands if isinstance(c, p.GroupMove)]
-
 
 @pytest.fixture(scope="module")
 def target(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Target]:
@@ -202,7 +199,7 @@ def pulse_ranges(config: ArmConfig) -> dict[int, tuple[float, float]]:
 
 def check_the_wire(target: Target) -> None:
     ranges = pulse_ranges(target.config)
-    for move in target.group_moves():
+    for move in group_moves(target.emu.records):
         for t in move.targets:
             lo, hi = ranges[t.channel]
             assert lo <= t.pulse_us <= hi, f"channel {t.channel}: {t.pulse_us} us on the wire"
@@ -257,7 +254,7 @@ def test_trajectory_messages(target: Target, traj: JointTrajectory) -> None:
         wait_until(lambda: pub.get_subscription_count() > 0, 10)
         target._traj_pub = pub  # type: ignore[attr-defined]
     traj.header.frame_id = uuid.uuid4().hex
-    moves_before = len(target.group_moves())
+    moves_before = len(group_moves(target.emu.records))
     pub.publish(traj)
     try:
         result = peer.result(traj.header.frame_id, 30)
@@ -271,9 +268,10 @@ def test_trajectory_messages(target: Target, traj: JointTrajectory) -> None:
             f"no result for trajectory {traj}; server log:\n{tail}\nserver threads:\n{stacks}"
         ) from None
     if result.outcome == "refused":
-        assert len(target.group_moves()) == moves_before  # refused whole: nothing written
+        # Refused whole: nothing written.
+        assert len(group_moves(target.emu.records)) == moves_before
     elif result.outcome == "done":
-        assert len(target.group_moves()) - moves_before == len(traj.points)
+        assert len(group_moves(target.emu.records)) - moves_before == len(traj.points)
     check_the_wire(target)
 
 
@@ -282,14 +280,14 @@ def test_trajectory_messages(target: Target, traj: JointTrajectory) -> None:
 def test_move_goals(target: Target, goal: Any) -> None:
     count("Move goals")
     peer = target.peer
-    moves_before = len(target.group_moves())
+    moves_before = len(group_moves(target.emu.records))
     future = peer.move.send_goal_async(goal)
     wait_until(lambda: future.done(), 10, "the goal's answer")
     handle = future.result()
     if not handle.accepted:
         refusal = peer.result(bytes(handle.goal_id.uuid).hex(), 10)
         assert refusal.outcome == "refused" and refusal.reason
-        assert len(target.group_moves()) == moves_before
+        assert len(group_moves(target.emu.records)) == moves_before
     else:
         result_future = handle.get_result_async()
         time.sleep(0.3)  # a goal may ask for a minute: cut it short, as the messages are
@@ -307,7 +305,7 @@ def test_move_goals(target: Target, goal: Any) -> None:
 
 
 def test_the_server_lived_and_its_memory_is_bounded(target: Target) -> None:
-    moves = target.group_moves()
+    moves = group_moves(target.emu.records)
     count("group moves checked on the wire", len(moves))
     assert len(moves) >= 10  # the wire's invariant was put to the test
     assert target.proc.popen.poll() is None

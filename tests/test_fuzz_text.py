@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import string
 
-from fuzzcount import count, examples
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from al5d.arm import instruction as ins
 from al5d.arm.instruction import GrammarError
+from al5d_rig.fuzzcount import count, examples
 
 WORDS = ["park", "ready", "straight_up", "move", "stop", "release", "shutdown", "wait", "&", "#"]
 KEYS = ["base", "shoulder", "elbow", "wrist", "gripper", "wrist_rotate", "time", "finger", ""]

@@ -10,7 +10,6 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_model_support import CHAIN, GEOMETRY, MODEL, PRESETS, RANGES
 
 from al5d.model import (
     ARM_JOINTS,
@@ -26,6 +25,7 @@ from al5d.model import (
     joint_to_urdf,
     link_poses,
 )
+from al5d_rig.model_support import CHAIN, GEOMETRY, MODEL, PRESETS, RANGES
 
 MODEL_DIR = Path(__file__).resolve().parents[1] / "src" / "al5d" / "model"
 

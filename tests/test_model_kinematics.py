@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_model_support import GEOMETRY, MODEL, PRESETS, mid_pose
 
 from al5d.model import (
     ARM_JOINTS,
@@ -30,6 +29,7 @@ from al5d.model import (
 )
 from al5d.model.kinematics import wrap_deg
 from al5d.model.transforms import matrix_from_quat
+from al5d_rig.model_support import GEOMETRY, MODEL, PRESETS, mid_pose
 
 G = GEOMETRY
 TOL_M = 1e-5  # 0.01 mm

@@ -8,7 +8,6 @@ import re
 from collections.abc import Mapping
 
 import pytest
-from test_model_support import GEOMETRY, MODEL, PRESETS, mid_pose
 
 from al5d.arm.cartesian import pulse_scale
 from al5d.arm.config import load_config
@@ -30,6 +29,7 @@ from al5d.model import (
 )
 from al5d.model.lines import LinePlan
 from al5d.model.transforms import Vec3
+from al5d_rig.model_support import GEOMETRY, MODEL, PRESETS, mid_pose
 
 READY = {j: float(PRESETS["ready"][j]) for j in ARM_JOINTS}
 TOL = 0.001

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 import yaml
 import yourdfpy  # type: ignore[import-untyped]
-from test_model_support import CHAIN, MODEL, PRESETS, RANGES, SPEEDS
 
 from al5d.model import (
     ARM_JOINTS,
@@ -26,6 +25,7 @@ from al5d.model import (
     urdf,
 )
 from al5d.model.collisions import disabled_pairs
+from al5d_rig.model_support import CHAIN, MODEL, PRESETS, RANGES, SPEEDS
 
 URDF = yourdfpy.URDF.load(io.StringIO(urdf(MODEL, SPEEDS)), load_meshes=False)
 SRDF = ET.fromstring(srdf(MODEL, CHAIN, PRESETS))

@@ -10,7 +10,6 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 import yourdfpy  # type: ignore[import-untyped]
-from test_model_support import CHAIN, GEOMETRY, MODEL, RANGES, SPEEDS
 
 from al5d.model import (
     ARM_JOINTS,
@@ -25,6 +24,7 @@ from al5d.model import (
     urdf_from_chain,
 )
 from al5d.model.transforms import matrix_from_quat
+from al5d_rig.model_support import CHAIN, GEOMETRY, MODEL, RANGES, SPEEDS
 
 TEXT = urdf(MODEL, SPEEDS)
 

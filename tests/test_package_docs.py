@@ -1,5 +1,5 @@
 """Each subpackage's first docstring names every module in it, so that it stays the map of
-the package that docs/architecture.md points to.
+the package that docs/architecture.md points to; so does the test rig's (al5d_rig).
 
 A module counts as named when the docstring spells it as a module: in backticks (`core`,
 or `core.Core`), as a file (core.py) or by its dotted name (al5d.arm.core); a word in
@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "al5d"
-PACKAGES = sorted(p.parent for p in SRC.rglob("__init__.py"))
+RIG = SRC.with_name("al5d_rig")
+PACKAGES = sorted(p.parent for top in (SRC, RIG) for p in top.rglob("__init__.py"))
 
 
 def members(package: Path) -> list[str]:
@@ -54,3 +55,4 @@ def test_the_check_sees_a_missing_module() -> None:
     assert not named("server", "the server's node")
     assert not named("link", "`linked` and relink.py")
     assert members(SRC / "ros")  # the glob finds the modules
+    assert RIG in PACKAGES

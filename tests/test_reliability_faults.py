@@ -13,10 +13,10 @@ import random
 from pathlib import Path
 
 import pytest
-from faultrig import MOMENTS, Trial, run_trial
 
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u.emulator import Fault
+from al5d_rig.faultrig import MOMENTS, Trial, run_trial
 
 OUT = Path(__file__).resolve().parents[1] / "build" / "reliability"
 TRIALS: list[Trial] = []

@@ -16,10 +16,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from boardproc import BoardProcess
-from loadrig import Counter, FloodResult, flood, quiet_stops
-from proc import Proc
-from rospeer import Peer
+
+from al5d_rig.boardproc import BoardProcess
+from al5d_rig.loadrig import Counter, FloodResult, flood, quiet_stops
+from al5d_rig.proc import Proc
+from al5d_rig.rospeer import Peer
 
 pytestmark = pytest.mark.solo  # load suites: alone (see pyproject.toml)
 

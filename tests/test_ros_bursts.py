@@ -16,12 +16,12 @@ from typing import Any
 
 import pytest
 from al5d_interfaces.action import Move
-from boardproc import BoardProcess
-from proc import Proc
-from rospeer import Peer, wait_until
 from std_srvs.srv import Trigger
 
 from al5d.arm.config import ArmConfig
+from al5d_rig.boardproc import BoardProcess
+from al5d_rig.proc import Proc
+from al5d_rig.rospeer import Peer, wait_until
 
 pytestmark = pytest.mark.solo  # load suites: alone (see pyproject.toml)
 

@@ -20,25 +20,20 @@ from typing import Any
 
 import pytest
 from al5d_interfaces.msg import ArmInstruction
-from proc import Proc
-from rospeer import wait_until
-from served import Served, served
 
 from al5d import exits
 from al5d.arm.config import ArmConfig
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_STREAM
-from al5d.ssc32u import protocol as p
+from al5d_rig.domains import alone
+from al5d_rig.proc import Proc
+from al5d_rig.rospeer import wait_until
+from al5d_rig.served import Served, served
 
 SERVER_DOC = Path(__file__).resolve().parents[1] / "docs" / "server.md"
 #: Generous bounds: rclpy's start, discovery and a move on a loaded machine.
 SCRIPT_S = 90.0
 STATE_S = 30.0
-
-
-def alone() -> dict[str, str]:
-    """A ROS domain with no server (the test's next one, kept free for this: conftest)."""
-    return {"ROS_DOMAIN_ID": str(int(os.environ["ROS_DOMAIN_ID"]) + 1)}
 
 
 def run_script(
@@ -81,11 +76,6 @@ def readme_example() -> str:
     return found.group(1)
 
 
-def stops(server: Served) -> int:
-    """STOP commands the board has received."""
-    return sum(isinstance(c, p.Stop) for r in server.emu.records for c in r.commands)
-
-
 @pytest.fixture(scope="module")
 def server(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
     with served(config, tmp_path_factory.mktemp("client"), "al5d_client_peer") as s:
@@ -95,11 +85,7 @@ def server(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Itera
 @pytest.fixture
 def arm(server: Served) -> Served:
     """The server, its arm released and at rest, whatever the last test left."""
-    wait_until(lambda: server.states[-1] in ("ready", "stopped"), STATE_S, "the arm at rest")
-    if server.states[-1] == "stopped":
-        assert server.peer.trigger("release").success
-    wait_until(lambda: server.states[-1] == "ready", STATE_S, "ready")
-    return server
+    return server.ready(STATE_S)
 
 
 @pytest.fixture
@@ -124,7 +110,7 @@ def topic_words(arm: Served) -> Iterator[list[str]]:
 def test_a_script_that_raises_in_its_with_block_ends_with_its_traceback(
     arm: Served, tmp_path: Path
 ) -> None:
-    before, seen = stops(arm), len(arm.states)
+    before, seen = arm.stops(), len(arm.states)
     done = run_script(
         tmp_path,
         "from al5d.ros.client import Client\n"
@@ -138,7 +124,7 @@ def test_a_script_that_raises_in_its_with_block_ends_with_its_traceback(
     assert re.fullmatch(r"move \[[0-9a-f]+-\d+\]: done \(\d+ ms\)\n", done.stdout), done.stdout
     # Leaving the block closed the client and nothing more: no stop reached the arm.
     wait_until(lambda: arm.states[-1] == "ready", STATE_S, "ready after the move")
-    assert stops(arm) == before and "stopped" not in arm.states[seen:]
+    assert arm.stops() == before and "stopped" not in arm.states[seen:]
 
 
 def test_a_script_that_never_closes_its_client_exits_0(arm: Served, tmp_path: Path) -> None:
@@ -153,7 +139,7 @@ def test_a_script_that_never_closes_its_client_exits_0(arm: Served, tmp_path: Pa
 def test_stop_and_release_go_by_the_services_and_lock_the_arm_between(
     arm: Served, topic_words: list[str], tmp_path: Path
 ) -> None:
-    before, seen = stops(arm), len(arm.states)
+    before, seen = arm.stops(), len(arm.states)
     done = run_script(
         tmp_path,
         "from al5d.ros.client import Client\n"
@@ -177,7 +163,7 @@ def test_stop_and_release_go_by_the_services_and_lock_the_arm_between(
     assert again == (
         "release|False|True|/al5d/release|the arm is not stopped (state ready): nothing to release"
     )
-    wait_until(lambda: stops(arm) > before, STATE_S, "the board stopped")
+    wait_until(lambda: arm.stops() > before, STATE_S, "the board stopped")
     wait_until(lambda: "stopped" in arm.states[seen:], STATE_S, "the state stopped")
     # The stop and the releases did not go on the topic (the answers above say by which
     # service each went). This test's reader may miss the script's moves: its client need

@@ -14,17 +14,17 @@ from typing import Any
 
 import pytest
 from action_msgs.msg import GoalStatus
-from armrig import LINK_CHECK
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from control_msgs.msg import JointTolerance
-from rospeer import LockedActionClient, Peer, wait_future, wait_until
-from served import served
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
+from al5d_rig.armrig import LINK_CHECK, group_moves
+from al5d_rig.rospeer import LockedActionClient, Peer, wait_future, wait_until
+from al5d_rig.served import served
 
 ARM = ["base", "shoulder", "elbow", "wrist", "wrist_rotate"]
 FJT = FollowJointTrajectory.Result
@@ -38,9 +38,6 @@ class Rig:
     fjt: LockedActionClient
     gripper: LockedActionClient
     states: list[str]
-
-    def group_moves(self) -> list[p.GroupMove]:
-        return [c for r in self.emu.records for c in r.commands if isinstance(c, p.GroupMove)]
 
     def urdf(self, **degrees: float) -> list[float]:
         """Arm degrees of the five arm joints in the URDF's radians (REP 103), in ARM order."""
@@ -119,7 +116,7 @@ def test_a_trajectory_runs_one_group_move_per_point_in_order_at_its_times(rig: R
     assert answer.status == GoalStatus.STATUS_SUCCEEDED
     assert answer.result.error_code == FJT.SUCCESSFUL, answer.result.error_string
     records = [r for r in rig.emu.records if any(isinstance(c, p.GroupMove) for c in r.commands)]
-    moves = rig.group_moves()
+    moves = group_moves(rig.emu.records)
     assert len(moves) == len(points) == len(records)
     # Each point is reached at its time_from_start, counted from the first move's effect:
     # the board's pulses get there when each group move's time has run (a line written
@@ -174,7 +171,8 @@ def test_a_moveit_shaped_trajectory_from_the_start_state_succeeds(rig: Rig) -> N
     assert handle.accepted
     answer = wait_future(handle.get_result_async(), 15)
     assert answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result.error_string
-    assert len(rig.group_moves()) == n + 1  # the start point too: the arm is already there
+    # The start point too: the arm is already there.
+    assert len(group_moves(rig.emu.records)) == n + 1
     ends = rig.emu.servo_degrees()
     for j, deg in pose(base=25, shoulder=15, elbow=70).items():
         assert abs(ends[j] - deg) < 0.5

@@ -18,19 +18,18 @@ from typing import Any
 
 import pytest
 from al5d_interfaces.msg import ArmInstruction
-from armrig import written
 from builtin_interfaces.msg import Duration
-from loadrig import Counter, proc_status
-from proc import Proc, patient_config
-from rospeer import Peer, wait_future, wait_until
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d import exits
 from al5d.arm.config import ArmConfig, load_config
 from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_LATCHED
-from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
+from al5d_rig.armrig import group_moves, written
+from al5d_rig.loadrig import Counter, proc_status
+from al5d_rig.proc import Proc, patient_config
+from al5d_rig.rospeer import Peer, wait_future, wait_until
 
 
 @dataclass
@@ -38,9 +37,6 @@ class Server:
     proc: Proc
     emu: Emulator
     config: ArmConfig
-
-    def group_moves(self) -> list[p.GroupMove]:
-        return [c for r in self.emu.records for c in r.commands if isinstance(c, p.GroupMove)]
 
     def pulses_of(self, pose: dict[str, float]) -> dict[int, int]:
         return {
@@ -128,7 +124,7 @@ def test_every_instruction_through_the_topic(server: Server, peer: Peer) -> None
         r = peer.result(ident)
         assert (r.outcome, r.instruction) == ("done", word)
         assert {
-            t.channel: t.pulse_us for t in server.group_moves()[-1].targets
+            t.channel: t.pulse_us for t in group_moves(server.emu.records)[-1].targets
         } == server.pulses_of(cfg.presets[word])
     peer.send("t-move", "move", base=30, elbow=90)
     assert peer.result("t-move").outcome == "done"
@@ -137,7 +133,7 @@ def test_every_instruction_through_the_topic(server: Server, peer: Peer) -> None
     assert last.startswith(b"#0P1800#2P1700T"), last
     peer.send("t-timed", "move", time_ms=600, base=-30)
     assert peer.result("t-timed").outcome == "done"
-    assert server.group_moves()[-1].time_ms == 600
+    assert group_moves(server.emu.records)[-1].time_ms == 600
     peer.send("t-stop", "stop")
     assert peer.result("t-stop").outcome == "done"
     peer.send("t-release", "release")
@@ -380,13 +376,13 @@ def trajectories(peer: Peer) -> Any:
 def test_a_joint_trajectory_runs_its_points_in_order_as_one_instruction(
     server: Server, peer: Peer, trajectories: Any
 ) -> None:
-    before = len(server.group_moves())
+    before = len(group_moves(server.emu.records))
     trajectories.publish(
         trajectory("t-good", ({"base": 20, "elbow": 80}, 0.5), ({"base": -20, "elbow": 60}, 1.3))
     )
     result = peer.result("t-good")  # one outcome, under the header's frame_id
     assert (result.outcome, result.instruction) == ("done", "trajectory")
-    moves = server.group_moves()[before:]
+    moves = group_moves(server.emu.records)[before:]
     records = [r for r in server.emu.records if r.raw.startswith(b"#")][before:]
     assert len(moves) == len(records) == 2 and moves[0].time_ms == 500
     # The second point is reached 1.3 s after the first move took effect (the schedule of

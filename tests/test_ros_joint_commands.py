@@ -17,16 +17,15 @@ from dataclasses import dataclass
 from typing import Any
 
 import pytest
-from armrig import group_pulses, pulses
-from proc import Proc, patient_config
 from rclpy.qos import QoSProfile
-from rospeer import Peer, wait_until
 from sensor_msgs.msg import JointState
 
 from al5d.arm.config import ArmConfig
 from al5d.ros.node import COMMAND_REFUSALS_EVERY_S
-from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
+from al5d_rig.armrig import group_moves, group_pulses, pulses
+from al5d_rig.proc import Proc, patient_config
+from al5d_rig.rospeer import Peer, wait_until
 
 NAMESPACE = "cell"
 #: The joints of the AL5D's ros2_control tag, in its order (docs/moveit.md's xacro).
@@ -40,11 +39,6 @@ class Served:
     peer: Peer
     config: ArmConfig
     commands: object  # the peer's publisher of joint commands
-
-    def group_moves(self, since: int = 0) -> list[p.GroupMove]:
-        return [
-            c for r in self.emu.records[since:] for c in r.commands if isinstance(c, p.GroupMove)
-        ]
 
     def command(
         self, degrees: Mapping[str, float], ident: str = "", **raw: list[Any]
@@ -117,7 +111,7 @@ def test_a_joint_command_moves_the_arm_and_the_joint_states_say_where(served: Se
     since = len(served.emu.records)
     served.command(target)
     settled(served, target)
-    moves = served.group_moves(since)
+    moves = group_moves(served.emu.records[since:])
     assert len(moves) == 1
     assert group_pulses(moves[0]) == pulses(served.config, target)
     # Where the hardware reads the state back: the same names, the same units.
@@ -139,7 +133,7 @@ def test_nan_is_no_command_for_that_joint(served: Served) -> None:
     since = len(served.emu.records)
     served.command(target, "nan-gripper", position=positions)
     settled(served, {"base": -25.0, "wrist": 10.0})
-    moves = served.group_moves(since)
+    moves = group_moves(served.emu.records[since:])
     assert len(moves) == 1
     channels = {t.channel for t in moves[0].targets}
     assert served.config.joints["gripper"].channel not in channels
@@ -165,7 +159,7 @@ def test_a_bad_joint_command_is_refused_whole_and_writes_nothing(served: Served)
         assert result.outcome == "refused", (ident, result.reason)
         assert reason in result.reason, (ident, result.reason)
     time.sleep(0.5)  # anything it wrongly wrote would be on the board by now
-    assert served.group_moves(since) == []
+    assert group_moves(served.emu.records[since:]) == []
 
 
 def test_a_command_the_arm_is_at_or_going_to_writes_nothing_more(served: Served) -> None:
@@ -181,7 +175,7 @@ def test_a_command_the_arm_is_at_or_going_to_writes_nothing_more(served: Served)
         served.command(target)
         time.sleep(0.01)
     time.sleep(0.5)
-    moves = served.group_moves(since)
+    moves = group_moves(served.emu.records[since:])
     assert len(moves) == 1, [m.targets for m in moves]
     assert group_pulses(moves[0]) == pulses(served.config, target)
 
@@ -191,14 +185,14 @@ def test_the_latest_command_wins(served: Served) -> None:
     since = len(served.emu.records)
     # A long move holds the arm; 60 set-points of a sweep meanwhile replace each other.
     served.peer.send("hold", "move", time_ms=5000, **(start | {"wrist": start["wrist"] + 20}))
-    wait_until(lambda: served.group_moves(since), 20, "the long move on the board")
+    wait_until(lambda: group_moves(served.emu.records[since:]), 20, "the long move on the board")
     last = start
     for k in range(1, 61):
         last = start | {"base": -60.0 + k, "elbow": 60.0 + k / 2}
         served.command(last)
     assert served.peer.result("hold", 30).outcome == "done"
     settled(served, last)
-    moves = served.group_moves(since)
+    moves = group_moves(served.emu.records[since:])
     assert len(moves) == 2, len(moves)  # the long move, then the last set-point only
     assert group_pulses(moves[-1]) == pulses(served.config, last)
 

@@ -16,8 +16,6 @@ from dataclasses import dataclass
 import pytest
 import viser
 import yaml
-from proc import Proc, patient_config
-from rospeer import Peer, wait_until
 from tf2_msgs.msg import TFMessage
 
 from al5d.arm.config import ArmConfig
@@ -29,6 +27,8 @@ from al5d.ros.robot import QOS_TF_STATIC
 from al5d.ssc32u.emulator import Emulator
 from al5d.web.link import WebNode
 from al5d.web.scene import ArmScene
+from al5d_rig.proc import Proc, patient_config
+from al5d_rig.rospeer import Peer, wait_until
 
 MOUNTS: dict[str, tuple[Vec3, Vec3]] = {
     "left": ((0.0, 0.35, 0.0), (0.0, 0.0, -math.pi / 2)),

@@ -11,8 +11,6 @@ import yaml
 from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory, GripperCommand
-from proc import Proc, patient_config
-from rospeer import LockedActionClient, Peer, wait_future, wait_until
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectoryPoint
@@ -24,8 +22,10 @@ from al5d.ros.client import Client
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_LATCHED
 from al5d.ros.robot import QOS_TF_STATIC
-from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
+from al5d_rig.armrig import group_moves
+from al5d_rig.proc import Proc, patient_config
+from al5d_rig.rospeer import LockedActionClient, Peer, wait_future, wait_until
 
 
 @dataclass
@@ -34,9 +34,6 @@ class Arm:
     emu: Emulator
     proc: Proc
     peer: Peer
-
-    def group_moves(self) -> list[p.GroupMove]:
-        return [c for r in self.emu.records for c in r.commands if isinstance(c, p.GroupMove)]
 
 
 @pytest.fixture(scope="module")
@@ -97,10 +94,10 @@ def test_each_server_moves_its_own_arm_only(arms: list[Arm]) -> None:
         arm.emu.clear_records()
     left.peer.send("l-1", "move", time_ms=300, base=40)
     assert done(left, "l-1")
-    assert len(left.group_moves()) == 1 and right.group_moves() == []
+    assert len(group_moves(left.emu.records)) == 1 and group_moves(right.emu.records) == []
     right.peer.send("r-1", "move", time_ms=300, base=-40)
     assert done(right, "r-1")
-    assert len(left.group_moves()) == 1 and len(right.group_moves()) == 1
+    assert len(group_moves(left.emu.records)) == 1 and len(group_moves(right.emu.records)) == 1
     assert abs(left.emu.servo_degrees()["base"] - 40) < 0.5
     assert abs(right.emu.servo_degrees()["base"] + 40) < 0.5
     # A stop for one arm leaves the other free.
@@ -140,7 +137,7 @@ def test_the_command_line_client_takes_the_namespace(arms: list[Arm], tmp_path: 
         arm.emu.clear_records()
     sent = Proc("send", "--namespace", "right", "move", "elbow=70", "time=200")
     assert sent.wait(30) == 0, sent.err.drain()
-    assert right.group_moves() and left.group_moves() == []
+    assert group_moves(right.emu.records) and group_moves(left.emu.records) == []
     lost = Proc("send", "--namespace", "middle", "--wait", "1", "ready")
     assert lost.wait(30) == exits.NO_SERVER
     assert "/middle/al5d/instruction" in "\n".join(lost.err.drain())
@@ -165,12 +162,12 @@ def test_each_arms_control_actions_move_that_arm_only(arms: list[Arm], config: A
         handle = wait_future(fjt.send_goal_async(goal))
         assert handle.accepted, left.peer.result(bytes(handle.goal_id.uuid).hex()).reason
         assert wait_future(handle.get_result_async(), 10).status == GoalStatus.STATUS_SUCCEEDED
-        assert len(left.group_moves()) == 1 and right.group_moves() == []
+        assert len(group_moves(left.emu.records)) == 1 and group_moves(right.emu.records) == []
         close = GripperCommand.Goal()
         close.command.position = 0.005
         handle = wait_future(gripper.send_goal_async(close))
         assert wait_future(handle.get_result_async(), 10).status == GoalStatus.STATUS_SUCCEEDED
-        assert len(left.group_moves()) == 1 and len(right.group_moves()) == 1
+        assert len(group_moves(left.emu.records)) == 1 and len(group_moves(right.emu.records)) == 1
         assert abs(left.emu.servo_degrees()["elbow"] - 60) < 0.5
     finally:
         fjt.destroy()
@@ -187,7 +184,7 @@ def test_the_sequence_runner_and_the_python_client_take_the_namespace(
     seq.write_text("move wrist=20 time=200\nmove wrist=0 time=200\n")
     ran = Proc("run", "--namespace", "left", str(seq))
     assert ran.wait(30) == 0, ran.err.drain()
-    assert len(left.group_moves()) == 2 and right.group_moves() == []
+    assert len(group_moves(left.emu.records)) == 2 and group_moves(right.emu.records) == []
     client = Client(namespace="right")
     try:
         client.wait_for_server(10)
@@ -197,7 +194,7 @@ def test_the_sequence_runner_and_the_python_client_take_the_namespace(
         assert outcome is not None and outcome.ok
     finally:
         client.close()
-    assert len(left.group_moves()) == 2 and len(right.group_moves()) == 1
+    assert len(group_moves(left.emu.records)) == 2 and len(group_moves(right.emu.records)) == 1
 
 
 def test_each_arms_description_and_static_frames_carry_its_prefix(arms: list[Arm]) -> None:

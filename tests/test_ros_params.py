@@ -13,17 +13,17 @@ from typing import Any
 
 import pytest
 import yaml
-from proc import Proc, patient_config
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.action import get_action_names_and_types
-from rospeer import Peer, wait_future, wait_until
 from tf2_msgs.msg import TFMessage
 
 from al5d.arm.config import DEFAULT_CONFIG, ArmConfig
 from al5d.ros.robot import QOS_TF_STATIC
-from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
+from al5d_rig.armrig import group_moves
+from al5d_rig.proc import Proc, patient_config
+from al5d_rig.rospeer import Peer, wait_future, wait_until
 
 #: The node `al5d`, renamed by `-r __node:=`: the others keep their names.
 RENAMED = "left_arm"
@@ -151,7 +151,7 @@ def test_a_namespace_remap_moves_every_node_name_and_frame(served: Served) -> No
     before = len(served.emu.records)
     served.peer.send("p-1", "move", time_ms=200, base=25)
     assert served.peer.result("p-1").outcome == "done"
-    assert any(isinstance(c, p.GroupMove) for r in served.emu.records[before:] for c in r.commands)
+    assert group_moves(served.emu.records[before:])
 
 
 def test_the_parameters_read_back_what_the_server_runs_with(served: Served) -> None:

@@ -19,8 +19,6 @@ import yourdfpy
 from al5d_interfaces.action import Move
 from al5d_interfaces.msg import ArmInstruction
 from geometry_msgs.msg import PoseStamped
-from proc import Proc, patient_config
-from rospeer import Peer, wait_future, wait_until
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
@@ -30,6 +28,8 @@ from al5d.model.transforms import Transform
 from al5d.ros.qos import QOS_LATCHED
 from al5d.ros.robot import QOS_TF_STATIC
 from al5d.ssc32u.emulator import Emulator
+from al5d_rig.proc import Proc, patient_config
+from al5d_rig.rospeer import Peer, wait_future, wait_until
 
 
 @pytest.fixture(scope="module")

@@ -12,15 +12,15 @@ import time
 from pathlib import Path
 
 import pytest
-from proc import Proc
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rospeer import CatchUp, Peer, wait_until
 from std_msgs.msg import String
 
 from al5d.priority import URGENT_NICE
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
+from al5d_rig.proc import Proc, thread_nices
+from al5d_rig.rospeer import CatchUp, Peer, wait_until
 
 
 @pytest.mark.parametrize("kind", ["events", "single"])
@@ -154,16 +154,6 @@ def test_the_network_is_opened_on_purpose(tmp_path: Path) -> None:
     env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"}
     server = sockets_of_a_server(tmp_path, env)
     assert any(a.is_unspecified for a in server), server
-
-
-def thread_nices(pid: int) -> list[int]:
-    """The nice value of every thread of process `pid` (/proc/PID/task/TID/stat, field 19)."""
-    nices = []
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        with contextlib.suppress(OSError):
-            stat = (task / "stat").read_text()
-            nices.append(int(stat.rsplit(")", 1)[1].split()[16]))
-    return nices
 
 
 def test_the_stop_path_runs_ahead_of_the_rest_or_says_why_not() -> None:

@@ -15,14 +15,15 @@ from collections.abc import Iterator
 
 import pytest
 from builtin_interfaces.msg import Duration
-from fuzzcount import examples
-from rospeer import wait_until
-from served import Served, served
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d.arm.config import ArmConfig
 from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ssc32u import protocol as p
+from al5d_rig.armrig import group_moves
+from al5d_rig.fuzzcount import examples
+from al5d_rig.rospeer import wait_until
+from al5d_rig.served import Served, served
 
 JOINTS = ("base", "shoulder", "elbow", "wrist")
 #: Generous: an outcome on a loaded machine (timing is `bench/`'s, not a test's).
@@ -33,20 +34,7 @@ class Arm(Served):
     """The served arm, and what these sequences read of it."""
 
     def moves_after(self, index: int) -> list[p.GroupMove]:
-        return [
-            c for r in self.emu.records[index:] for c in r.commands if isinstance(c, p.GroupMove)
-        ]
-
-    def stops(self) -> int:
-        """STOP commands the board has received (six to a stop of this arm)."""
-        return sum(isinstance(c, p.Stop) for r in self.emu.records for c in r.commands)
-
-    def ready(self) -> None:
-        """Released and at rest, whatever the last sequence left."""
-        wait_until(lambda: self.states and self.states[-1] in ("ready", "stopped"), 20, "rest")
-        if self.states[-1] == "stopped":
-            assert self.peer.trigger("release").success
-        wait_until(lambda: self.states[-1] == "ready", 20, "ready")
+        return group_moves(self.emu.records[index:])
 
     def outcomes(self, ids: list[str]) -> dict[str, str]:
         wait_until(

@@ -7,14 +7,11 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 from al5d_interfaces.msg import ArmInstruction
-from armrig import Rig
 from rclpy.node import Node
 from rclpy.serialization import serialize_message
-from rospeer import wait_until
 
 from al5d.arm.states import State
 from al5d.ros import safety
@@ -22,6 +19,8 @@ from al5d.ros.dds import start_context
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ros.safety import first_word, stop_here
+from al5d_rig.armrig import Rig
+from al5d_rig.rospeer import wait_until
 
 
 def raw(word: str, **fields: object) -> bytes:
@@ -68,9 +67,8 @@ def test_a_flood_that_outruns_the_watcher_loses_its_oldest_not_the_stop_sent_las
     # never the newest: the stop that came last. A reader deeper than the bound Fast DDS
     # gives the topic (the server's instruction backlog) refuses the newest once full.
     backlog = 50
-    script = Path(__file__).with_name("watch_backlog.py")
     done = subprocess.run(
-        [sys.executable, str(script), str(backlog)],
+        [sys.executable, "-m", "al5d_rig.watch_backlog", str(backlog)],
         capture_output=True,
         text=True,
         timeout=60,

@@ -21,15 +21,15 @@ from pathlib import Path
 
 import pytest
 import yaml
-from armrig import group_pulses, pulses
-from proc import Proc, patient_config
 from rclpy.qos import QoSProfile
-from rospeer import Peer, wait_until
 from sensor_msgs.msg import JointState
 
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator, Record
+from al5d_rig.armrig import group_moves, group_pulses, pulses
+from al5d_rig.proc import Proc, patient_config
+from al5d_rig.rospeer import Peer, wait_until
 
 NAMESPACE = "stream"
 #: The server's watchdog here (its ROS parameter).
@@ -58,10 +58,6 @@ class Streamed:
 
     def records(self, since: int = 0) -> list[Record]:
         return self.emu.records[since:]
-
-
-def _moves(records: list[Record]) -> list[p.GroupMove]:
-    return [c for r in records for c in r.commands if isinstance(c, p.GroupMove)]
 
 
 def _stops(records: list[Record]) -> list[Record]:
@@ -128,7 +124,7 @@ def test_a_burst_of_1000_set_points_writes_a_handful_of_lines_the_last_the_newes
         last = here | {"base": here["base"] + 10 * math.sin(k / 50), "wrist": -10 + k / 100}
         streamed.command(last, f"burst-{k}")
     settled(streamed, last)
-    moves = _moves(streamed.records(since))
+    moves = group_moves(streamed.records(since))
     # The wire carries a group move in 40 ms at 9600 baud: the burst, published in well under
     # a second, is a handful of lines, not a thousand, and the last is the newest.
     assert 1 <= len(moves) <= 30, len(moves)
@@ -174,7 +170,7 @@ def test_a_stop_during_a_stream_wins_and_the_stream_stays_held(streamed: Streame
     sender = threading.Thread(target=stream)
     sender.start()
     try:
-        wait_until(lambda: len(_moves(streamed.records(since))) >= 5, 10, "the stream moving")
+        wait_until(lambda: len(group_moves(streamed.records(since))) >= 5, 10, "the stream moving")
         t_stop = time.monotonic()
         assert streamed.peer.trigger("stop").success
         time.sleep(0.5)
@@ -182,11 +178,11 @@ def test_a_stop_during_a_stream_wins_and_the_stream_stays_held(streamed: Streame
         stops = [r for r in _stops(records) if r.t_effect >= t_stop]
         assert stops
         after = [r for r in records if r.t_effect > stops[0].t_effect]
-        assert not _moves(after), [r.raw for r in after]  # the stop won
+        assert not group_moves(after), [r.raw for r in after]  # the stop won
         assert streamed.peer.trigger("release").success
         time.sleep(0.5)  # released, the stream still on its sweep: held
         records = streamed.records(since)
-        assert not _moves([r for r in records if r.t_effect > stops[0].t_effect])
+        assert not group_moves([r for r in records if r.t_effect > stops[0].t_effect])
     finally:
         streaming.clear()
         sender.join(5)
@@ -206,7 +202,7 @@ def test_a_stop_during_a_stream_wins_and_the_stream_stays_held(streamed: Streame
         n = len(streamed.emu.records)
         streamed.command(here, "home")
         time.sleep(0.3)
-        resumed = bool(_moves(streamed.records(n)))
+        resumed = bool(group_moves(streamed.records(n)))
         return resumed
 
     wait_until(resume, 15, "the stream resumed from where the arm stands")

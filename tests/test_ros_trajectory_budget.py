@@ -16,16 +16,15 @@ from typing import Any
 
 import pytest
 from action_msgs.msg import GoalStatus
-from armrig import LINK_CHECK
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory
 from control_msgs.msg import JointTolerance
-from rospeer import LockedActionClient, Peer, wait_future, wait_until
-from served import Served, served
-from trajectories import ARM, START, goal_of, wave
 
 from al5d.arm.config import ArmConfig
-from al5d.ssc32u import protocol as p
+from al5d_rig.armrig import LINK_CHECK, group_moves
+from al5d_rig.rospeer import LockedActionClient, Peer, wait_future, wait_until
+from al5d_rig.served import Served, served
+from al5d_rig.trajectories import ARM, START, goal_of, wave
 
 #: Each joint's travel out and back (degrees).
 TRAVEL = {"base": 25.0, "shoulder": 15.0, "elbow": -20.0, "wrist": 15.0, "wrist_rotate": 20.0}
@@ -76,7 +75,7 @@ def kept_points(rig: Rig, points: list[tuple[float, dict[str, float]]]) -> list[
         {channels[j]: rig.s.config.joints[j].to_us(d) for j, d in degrees.items()}
         for _, degrees in points
     ]
-    moves = [c for r in rig.s.emu.records for c in r.commands if isinstance(c, p.GroupMove)]
+    moves = group_moves(rig.s.emu.records)
     kept: list[int] = []
     for n, move in enumerate(moves):
         pulses = {t.channel: t.pulse_us for t in move.targets}

@@ -16,13 +16,13 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from boardproc import BoardProcess
-from test_ros_runtime import thread_nices
 
 from al5d.priority import URGENT_NICE, cpu_waited_s
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator
 from al5d.ssc32u.errors import LinkLost, NoAnswer
+from al5d_rig.boardproc import BoardProcess
+from al5d_rig.proc import thread_nices
 
 
 @pytest.fixture

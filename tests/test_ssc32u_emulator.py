@@ -251,6 +251,15 @@ def test_a_misaligned_joint_stands_elsewhere_than_its_calibration_says(config: A
     assert board.joint_degrees(t + 11)["base"] == pytest.approx(30)
 
 
+def test_a_setting_the_board_has_not_is_refused(config: ArmConfig) -> None:
+    # The settings are keywords of a TypedDict: nothing but this check catches a misspelt
+    # one at run time (it would take the factory's value).
+    with pytest.raises(TypeError, match="no setting answer_delay "):
+        Board(config, answer_delay=0.01)  # type: ignore[call-arg]
+    with pytest.raises(TypeError, match="no setting bauds "):
+        Emulator(config, bauds=9600)  # type: ignore[call-arg]
+
+
 def test_mechanics_name_a_configured_joint(config: ArmConfig) -> None:
     with pytest.raises(ValueError, match="'knee': no such joint"):
         Board(config, mechanics={"knee": Mechanics(10)})

@@ -11,8 +11,6 @@ from pathlib import Path
 
 import pytest
 import serial
-from boardproc import BoardProcess
-from proc import Proc
 
 from al5d import exits
 from al5d.app.cli import build_parser
@@ -20,6 +18,8 @@ from al5d.arm.config import ArmConfig
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Mechanics, Record
+from al5d_rig.boardproc import BoardProcess
+from al5d_rig.proc import Proc
 
 AL5D = Path(sys.executable).with_name("al5d")
 

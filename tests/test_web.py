@@ -22,10 +22,22 @@ from typing import Any
 
 import pytest
 import viser
-from proc import Proc, patient_config
-from rospeer import Peer, wait_until
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
-from webrig import (
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import connect
+
+from al5d.arm.config import ArmConfig, load_config
+from al5d.model import forward
+from al5d.model.table import below
+from al5d.ros.names import Names
+from al5d.ros.qos import QOS_INSTRUCTIONS
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator import Emulator
+from al5d.web.page import FOLLOW_AFTER_S, LOOP_S, QUIET_S, Page
+from al5d_rig.armrig import group_moves
+from al5d_rig.proc import Proc, patient_config
+from al5d_rig.rospeer import Peer, wait_until
+from al5d_rig.webrig import (
     VIEWPORT,
     StateWatch,
     WebProc,
@@ -38,17 +50,6 @@ from webrig import (
     wait_for_arm,
     wait_text,
 )
-from websockets.exceptions import ConnectionClosed
-from websockets.sync.client import connect
-
-from al5d.arm.config import ArmConfig, load_config
-from al5d.model import forward
-from al5d.model.table import below
-from al5d.ros.names import Names
-from al5d.ros.qos import QOS_INSTRUCTIONS
-from al5d.ssc32u import protocol as p
-from al5d.ssc32u.emulator import Emulator
-from al5d.web.page import FOLLOW_AFTER_S, LOOP_S, QUIET_S, Page
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 #: AL5D_UPDATE_DOCS=1 copies the page's screenshot to docs/web.png (for docs/web.md);
@@ -67,11 +68,6 @@ class Rig:
     page: Any
     link: Path
     browser: Any
-
-    def group_moves(self, since: int) -> list[p.GroupMove]:
-        return [
-            c for r in self.emu.records[since:] for c in r.commands if isinstance(c, p.GroupMove)
-        ]
 
     def stops(self, since: int) -> list[p.Stop]:
         return [c for r in self.emu.records[since:] for c in r.commands if isinstance(c, p.Stop)]
@@ -168,7 +164,7 @@ def test_a_long_slider_drag_follows_live_and_leaves_no_queue(rig: Rig) -> None:
     pulse = round(rig.config.joints["base"].to_us(degrees))
     # The arm followed while the slider moved, not after it.
     during = [r for r in rig.emu.records[n0:] if r.t_effect < t_up]
-    moved = sum(isinstance(c, p.GroupMove) for r in during for c in r.commands)
+    moved = len(group_moves(during))
     assert moved >= 3, (
         f"{moved} group moves while the slider moved; web {rig.web.proc.err.drain(0)[-12:]}, "
         f"server {[x for x in rig.server.err.drain(0) if 'WARNING' in x or 'ERROR' in x][-6:]}"
@@ -183,13 +179,13 @@ def test_a_long_slider_drag_follows_live_and_leaves_no_queue(rig: Rig) -> None:
         server = [x for x in rig.server.err.drain(0) if "watchdog" in x or "refused" in x][-5:]
         raise AssertionError(
             f"{e}: slider {degrees}, base {rig.emu.servo_degrees()['base']:.2f}, last lines "
-            f"{rig.group_moves(n0)[-3:]}, states {rig.state.states[-4:]}, web {web}, "
+            f"{group_moves(rig.emu.records[n0:])[-3:]}, states {rig.state.states[-4:]}, web {web}, "
             f"server {server}"
         ) from e
     rig.state.wait_for("ready", 10)
-    moves = rig.group_moves(n0)
+    moves = group_moves(rig.emu.records[n0:])
     time.sleep(1.0)
-    assert len(rig.group_moves(n0)) == len(moves)
+    assert len(group_moves(rig.emu.records[n0:])) == len(moves)
     took = t_up - t0
     assert len(moves) <= took / LOOP_S + 5, (len(moves), took)  # one a page tick at most
     assert {(t.channel, t.pulse_us) for t in moves[-1].targets} == {(0, pulse)}
@@ -223,7 +219,7 @@ def test_sliders_into_the_table_show_why_and_send_nothing(rig: Rig) -> None:
     cfg = rig.config
     by_channel = {cfg.joints[j].channel: j for j in cfg.joints}
     pose = dict(cfg.presets["ready"])
-    for move in rig.group_moves(n0):
+    for move in group_moves(rig.emu.records[n0:]):
         pose |= {
             by_channel[t.channel]: cfg.joints[by_channel[t.channel]].to_deg(t.pulse_us)
             for t in move.targets
@@ -286,7 +282,7 @@ def test_an_unreachable_target_shows_the_servers_reason(rig: Rig) -> None:
     assert "refused" in text and "out of reach" in text, text
     assert "x=500 y=0 z=100" in text
     time.sleep(0.2)
-    assert rig.group_moves(n0) == []
+    assert group_moves(rig.emu.records[n0:]) == []
 
 
 def test_the_target_tab_moves_the_tool_with_pitch_roll_gripper_and_time(rig: Rig) -> None:
@@ -319,7 +315,7 @@ def test_the_target_tab_moves_the_tool_with_pitch_roll_gripper_and_time(rig: Rig
     page.get_by_role("button", name="move to").click()
     text = wait_text(page, "#al5d-target-status", lambda t: t.startswith("server:"), 15)
     assert "done" in text, text
-    moves = rig.group_moves(n0)
+    moves = group_moves(rig.emu.records[n0:])
     assert moves and moves[-1].time_ms == 1500, moves
     degrees = rig.emu.servo_degrees()
     pose = forward(rig.config.model.geometry, degrees)
@@ -636,7 +632,7 @@ def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:
         wait_until(
             lambda: any(
                 (0, pulse) in {(t.channel, t.pulse_us) for t in m.targets}
-                for m in rig.group_moves(n0)
+                for m in group_moves(rig.emu.records[n0:])
             ),
             10,
             "the slider's set-point on the board",

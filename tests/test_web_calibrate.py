@@ -14,12 +14,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from calibuser import User
-from proc import Proc
-from webrig import WebProc, chromium, dismiss_notifications, open_page, wait_text
 
 from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
 from al5d.ssc32u.emulator import Emulator, Mechanics
+from al5d_rig.calibuser import User
+from al5d_rig.proc import Proc
+from al5d_rig.webrig import WebProc, chromium, dismiss_notifications, open_page, wait_text
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 #: AL5D_UPDATE_DOCS=1 copies the tab's screenshot to docs/calibration.png (for docs/web.md).

@@ -17,9 +17,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from rospeer import wait_until
-from served import Served, served
-from webrig import WebProc, chromium, dismiss_notifications, open_page, wait_text
 
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Instruction, Outcome, Result, parse_sequence
@@ -27,6 +24,10 @@ from al5d.arm.poses import beside, load_poses
 from al5d.ssc32u import protocol as p
 from al5d.web.plan import Planner
 from al5d.web.teach import Player
+from al5d_rig.armrig import group_moves
+from al5d_rig.rospeer import wait_until
+from al5d_rig.served import Served, served
+from al5d_rig.webrig import WebProc, chromium, dismiss_notifications, open_page, wait_text
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 #: AL5D_UPDATE_DOCS=1 copies the Teach tab's screenshot to docs/teach.png (for docs/web.md).
@@ -46,12 +47,7 @@ class Rig:
     page: Any
 
     def moves(self, since: int) -> list[p.GroupMove]:
-        return [
-            c
-            for r in self.arm.emu.records[since:]
-            for c in r.commands
-            if isinstance(c, p.GroupMove)
-        ]
+        return group_moves(self.arm.emu.records[since:])
 
     def state(self, state: str, timeout: float = 15.0) -> None:
         wait_until(lambda: self.arm.states[-1] == state, timeout, f"state {state}")

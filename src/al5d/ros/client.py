@@ -173,7 +173,7 @@ class Client:
         self._closing = threading.Lock()
         self._closed = False
         # rclpy's Python executor: its events executor is now and then told of one message
-        # too few, and the last one waits for the next (tests/rospeer.py, `CatchUp`); here
+        # too few, and the last one waits for the next (src/al5d_rig/rospeer.py, `CatchUp`); here
         # that would be an outcome, or a service's answer, waited for until the timeout.
         self.spinner = Spinner(self.node, self.context, kind="single")
         _open.add(self)

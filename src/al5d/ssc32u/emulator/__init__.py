@@ -23,19 +23,16 @@ import os
 import queue
 import signal
 import threading
-from collections.abc import Mapping
 from types import TracebackType
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
-from al5d.ssc32u import facts
 from al5d.ssc32u.emulator import settings
 from al5d.ssc32u.emulator.board import (
-    DEFAULT_ANSWER_DELAY_S,
     Answer,
     ArmDescription,
     Board,
+    BoardSettings,
     Fault,
-    InputValue,
     Mechanics,
     Record,
     ServoJoint,
@@ -43,10 +40,14 @@ from al5d.ssc32u.emulator.board import (
 from al5d.ssc32u.emulator.pty import PtyLink
 from al5d.ssc32u.emulator.usb import UART, USB, LinkModel, Transport
 
+if TYPE_CHECKING:
+    from typing import Unpack  # Python 3.11; only read by the type checker
+
 __all__ = [
     "UART",
     "USB",
     "ArmDescription",
+    "BoardSettings",
     "Emulator",
     "Fault",
     "LinkModel",
@@ -68,39 +69,18 @@ class Emulator(Board):
     `usb` is the link's model: the board's USB port as it is by default
     (`USB`: an output flush drops nothing, a 16 ms latency timer), or `UART`
     for a plain serial line to the board's TTL header.
-    The other settings are the board's (see `board.Board`).
+    The other keywords are the board's settings (`BoardSettings`, see `board.Board`).
     """
 
     def __init__(
         self,
         config: ArmDescription | None = None,
         *,
-        baud: int = facts.FACTORY_BAUD,
         link: str | os.PathLike[str] | None = None,
         usb: LinkModel = USB,
-        version: str = facts.FIRMWARE,
-        answer_delay_s: float = DEFAULT_ANSWER_DELAY_S,
-        initial_pose: Mapping[str, float] | None = None,
-        inputs: Mapping[str, InputValue] | None = None,
-        registers: Mapping[int, int] | None = None,
-        startup: str = "",
-        power_up: Mapping[int, int] | None = None,
-        announce_reset: bool = False,
-        mechanics: Mapping[str, Mechanics] | None = None,
+        **board: Unpack[BoardSettings],
     ) -> None:
-        super().__init__(
-            config,
-            baud=baud,
-            version=version,
-            answer_delay_s=answer_delay_s,
-            initial_pose=initial_pose,
-            inputs=inputs,
-            registers=registers,
-            startup=startup,
-            power_up=power_up,
-            announce_reset=announce_reset,
-            mechanics=mechanics,
-        )
+        super().__init__(config, **board)
         self.usb = usb
         self._link = PtyLink(self, link, usb)
 

@@ -11,6 +11,10 @@ from __future__ import annotations
 import enum
 import threading
 from collections.abc import Mapping
+from typing import TYPE_CHECKING, TypedDict
+
+if TYPE_CHECKING:
+    from typing import Unpack  # Python 3.11; only read by the type checker
 
 from al5d.clock import now
 from al5d.ssc32u import facts
@@ -28,6 +32,7 @@ __all__ = [
     "Answer",
     "ArmDescription",
     "Board",
+    "BoardSettings",
     "Fault",
     "InputValue",
     "Mechanics",
@@ -53,6 +58,22 @@ class Fault(enum.Enum):
 
 
 InputValue = bool | int | str | None
+
+
+class BoardSettings(TypedDict, total=False):
+    """What a board is set to, besides the arm on its channels: the keywords of `Board`
+    and `Emulator` (see `Board` for each; an unset one takes the factory's value)."""
+
+    baud: int
+    version: str
+    answer_delay_s: float
+    initial_pose: Mapping[str, float] | None
+    inputs: Mapping[str, InputValue] | None
+    registers: Mapping[int, int] | None
+    startup: str
+    power_up: Mapping[int, int] | None
+    announce_reset: bool
+    mechanics: Mapping[str, Mechanics] | None
 
 
 def default_registers(baud: int = facts.FACTORY_BAUD) -> dict[int, int]:
@@ -83,44 +104,41 @@ class Board(RecordLog, ServoObserver):
     """
 
     def __init__(
-        self,
-        config: ArmDescription | None = None,
-        *,
-        baud: int = facts.FACTORY_BAUD,
-        version: str = facts.FIRMWARE,
-        answer_delay_s: float = DEFAULT_ANSWER_DELAY_S,
-        initial_pose: Mapping[str, float] | None = None,
-        inputs: Mapping[str, InputValue] | None = None,
-        registers: Mapping[int, int] | None = None,
-        startup: str = "",
-        power_up: Mapping[int, int] | None = None,
-        announce_reset: bool = False,
-        mechanics: Mapping[str, Mechanics] | None = None,
+        self, config: ArmDescription | None = None, **settings: Unpack[BoardSettings]
     ) -> None:
+        # The type checker sees a misspelt setting; a caller without one must hear of it too,
+        # not get the factory's value for it.
+        unknown = sorted(settings.keys() - BoardSettings.__optional_keys__)
+        if unknown:
+            known = ", ".join(sorted(BoardSettings.__optional_keys__))
+            raise TypeError(f"Board: no setting {', '.join(unknown)} (settings: {known})")
         RecordLog.__init__(self)
         ServoObserver.__init__(self)
         self.config = config
-        for name, mech in (mechanics or {}).items():
+        baud = settings.get("baud", facts.FACTORY_BAUD)
+        initial_pose = settings.get("initial_pose")
+        startup = settings.get("startup", "")
+        for name, mech in (settings.get("mechanics") or {}).items():
             if config is None or name not in config.joints:
                 known = ", ".join(config.joints) if config is not None else "none without a config"
                 raise ValueError(f"mechanics of {name!r}: no such joint (joints: {known})")
             self.mechanics[name] = mech
         self.baud = baud
-        self.version = version
-        self.answer_delay_s = answer_delay_s
-        self.announce_reset = announce_reset
+        self.version = settings.get("version", facts.FIRMWARE)
+        self.answer_delay_s = settings.get("answer_delay_s", DEFAULT_ANSWER_DELAY_S)
+        self.announce_reset = settings.get("announce_reset", False)
         self._lock = threading.RLock()  # the board's model
         self._faults: set[Fault] = set()
         self._servos: dict[int, Servo] = {}
         self._pins = {pin: Pin() for pin in facts.ANALOG_PINS}
-        for name, value in (inputs or {}).items():
+        for name, value in (settings.get("inputs") or {}).items():
             pin, level = input_level(name, value)
             self._pins[pin].level = level
         self._registers = default_registers(baud)
-        for number, value in (registers or {}).items():
+        for number, value in (settings.get("registers") or {}).items():
             self._check_register(number, value)
             self._registers[number] = value
-        for ch, pw in (power_up or {}).items():
+        for ch, pw in (settings.get("power_up") or {}).items():
             if ch not in facts.CHANNELS or not facts.PULSE_MIN_US <= pw <= facts.PULSE_MAX_US:
                 raise ValueError(f"power-up pulse {ch}: {pw} us; channels 0..31, 500..2500 us")
             self._registers[facts.R_PULSE_WIDTH + ch] = pw

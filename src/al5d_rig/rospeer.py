@@ -10,7 +10,7 @@ from typing import Any
 
 from al5d_interfaces.action import Move
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
-from rclpy.action import ActionClient
+from rclpy.action.client import ActionClient
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from sensor_msgs.msg import JointState

@@ -18,11 +18,11 @@ from typing import Any
 
 import numpy as np
 from PIL import Image
-from proc import Proc
 from std_msgs.msg import String
 
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_LATCHED
+from al5d_rig.proc import Proc
 
 CHROMIUM = os.environ.get("AL5D_CHROMIUM", "/usr/bin/chromium")
 #: Software WebGL: a headless machine has no GPU.

@@ -1,7 +1,7 @@
 """A MoveIt-like client that sends FollowJointTrajectory goals at a steady rate, each
 preempting the last: run as its own process (issue 23's goal flood).
 
-    python tests/goal_flood_client.py RATE SECONDS
+    python -m al5d_rig.goal_flood_client RATE SECONDS
 
 Prints one line of JSON when ready, waits for a line on stdin, floods, then waits
 for every goal's answer and prints how many were sent, answered (accepted or
@@ -15,21 +15,18 @@ import random
 import sys
 import threading
 import time
-from pathlib import Path
 from typing import Any
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory
 from rclpy.node import Node
-from rospeer import LockedActionClient
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 from al5d.arm.config import load_config
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.names import Names
+from al5d_rig.rospeer import LockedActionClient
 
 ARM = ["base", "shoulder", "elbow", "wrist", "wrist_rotate"]
 

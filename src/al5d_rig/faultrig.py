@@ -16,8 +16,6 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from armrig import pulses
-
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
 from al5d.arm.driver import ArmDriver
@@ -25,6 +23,7 @@ from al5d.arm.instruction import Outcome, Result
 from al5d.arm.states import State
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator, Fault
+from al5d_rig.armrig import pulses
 
 MOMENTS = ("idle", "mid-move", "during-stop", "startup-park", "shutdown-park")
 

@@ -1,11 +1,11 @@
 """Several servers flooded at once on one machine, busy loops beside them (issue 23's rig).
 
-    python tests/contention.py [--servers 3] [--seconds 20] [--rate 5000] [--busy 2]
-    python tests/contention.py --goals [--seconds 20] [--rate 100] [--busy 2]
+    python -m al5d_rig.contention [--servers 3] [--seconds 20] [--rate 5000] [--busy 2]
+    python -m al5d_rig.contention --goals [--seconds 20] [--rate 100] [--busy 2]
 
 Each server is `al5d serve` in its own process on its own board (an emulator
 process on a pty) and its own ROS domain, flooded by its own client process
-(`flood_client.py`); one process per server (this file with `--arm I`) stops
+(`flood_client.py`); one process per server (this module with `--arm I`) stops
 and releases it every quarter second, by service and by topic in turn, as a
 non-flooding peer, and counts every outcome (`loadrig.flood`). Busy loops
 (`python3 -c 'while True: pass'`) take what CPU is left. Prints one line of JSON
@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-HERE = Path(__file__).resolve().parent
+MODULE = "al5d_rig.contention"  # its arms run it: python -m MODULE --arm I
 BUSY_LOOP = "while True: pass"
 
 
@@ -50,11 +50,10 @@ def ended(procs: list[subprocess.Popen[Any]]) -> None:
 
 def arm(index: int, seconds: float, rate: float, stops_every_s: float) -> dict[str, Any]:
     """One server under its flood, measured by this process (in the server's ROS domain)."""
-    sys.path.insert(0, str(HERE))
-    from boardproc import BoardProcess
-    from loadrig import Counter, flood
-    from proc import Proc, patient_config
-    from rospeer import Peer
+    from al5d_rig.boardproc import BoardProcess
+    from al5d_rig.loadrig import Counter, flood
+    from al5d_rig.proc import Proc, patient_config
+    from al5d_rig.rospeer import Peer
 
     link = Path(tempfile.mkdtemp(prefix=f"al5d-contention-{index}-")) / "ssc32u"
     board = BoardProcess(link)
@@ -111,12 +110,12 @@ def arm(index: int, seconds: float, rate: float, stops_every_s: float) -> dict[s
 
 def goals(seconds: float, rate: float, busy: int, stops_every_s: float = 0.5) -> dict[str, Any]:
     """The goal flood at 9600 baud (one server, in this process's ROS domain)."""
-    sys.path.insert(0, str(HERE))
-    from boardproc import BoardProcess
-    from loadrig import stop_latency_ms
-    from proc import Proc, patient_config
-    from rospeer import Peer, wait_future
     from std_srvs.srv import Trigger
+
+    from al5d_rig.boardproc import BoardProcess
+    from al5d_rig.loadrig import stop_latency_ms
+    from al5d_rig.proc import Proc, patient_config
+    from al5d_rig.rospeer import Peer, wait_future
 
     link = Path(tempfile.mkdtemp(prefix="al5d-goals-")) / "ssc32u"
     board = BoardProcess(link)
@@ -124,7 +123,7 @@ def goals(seconds: float, rate: float, busy: int, stops_every_s: float = 0.5) ->
     peer = Peer(results=False, name="al5d_goals_peer")
     loops: list[subprocess.Popen[bytes]] = []
     client = subprocess.Popen(
-        [sys.executable, str(HERE / "goal_flood_client.py"), str(rate), str(seconds)],
+        [sys.executable, "-m", "al5d_rig.goal_flood_client", str(rate), str(seconds)],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
@@ -192,7 +191,7 @@ def run(
     try:
         for i in range(servers):
             env = {**os.environ, "ROS_DOMAIN_ID": str(base + i)}
-            cmd = [sys.executable, __file__, "--arm", str(i), "--seconds", str(seconds)]
+            cmd = [sys.executable, "-m", MODULE, "--arm", str(i), "--seconds", str(seconds)]
             cmd += ["--rate", str(rate), "--stops-every", str(stops_every_s)]
             arms.append(
                 subprocess.Popen(
@@ -203,7 +202,7 @@ def run(
             assert each.stdout is not None
             line = each.stdout.readline()
             if not line:
-                raise RuntimeError(f"an arm of the rig ended before it was ready: {each.args}")
+                raise RuntimeError(f"an arm of the rig ended before it was ready: {each.args!r}")
         t0 = time.monotonic()
         for each in arms:
             assert each.stdin is not None

@@ -1,6 +1,6 @@
 """A client that floods `/al5d/instruction` at a steady rate: run as its own process.
 
-    python tests/flood_client.py RATE SECONDS PREFIX [--mix] [--keep-last]
+    python -m al5d_rig.flood_client RATE SECONDS PREFIX [--mix] [--keep-last]
 
 Publishes RATE moves a second for SECONDS, with ids PREFIX-0, PREFIX-1, ...,
 once a line comes on stdin (meanwhile it sends instructions PREFIX-probe-K, which
@@ -48,7 +48,12 @@ def main() -> int:
     # busy machine: up to 6,918 of a flood's first instructions never reached the server).
     # Probes until told to go: the rig says go once a probe's outcome came back.
     go = threading.Event()
-    threading.Thread(target=lambda: (sys.stdin.readline(), go.set()), daemon=True).start()
+
+    def go_when_told() -> None:
+        sys.stdin.readline()
+        go.set()
+
+    threading.Thread(target=go_when_told, daemon=True).start()
     probe = 0
     while not go.wait(0 if probe == 0 else 0.2):
         pub.publish(ArmInstruction(instruction="probe", id=f"{prefix}-probe-{probe}"))

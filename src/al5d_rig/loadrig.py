@@ -21,11 +21,11 @@ from typing import Any, Protocol
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rospeer import Peer, wait_future, wait_until
 from std_srvs.srv import Trigger
 
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Record
+from al5d_rig.rospeer import Peer, wait_future, wait_until
 
 #: How the board's record notes an ESC (the first byte of every stop's write).
 ESC_NOTE = "cancelled by ESC"
@@ -44,7 +44,6 @@ class Board(Protocol):
     ) -> list[Record]: ...
 
 
-HERE = Path(__file__).resolve().parent
 #: A reader that keeps every result it has not handed over: what we count must not be
 #: lost on our side of the wire.
 QOS_ALL = QoSProfile(
@@ -207,7 +206,8 @@ def flood(
     client = subprocess.Popen(
         [
             sys.executable,
-            str(HERE / "flood_client.py"),
+            "-m",
+            "al5d_rig.flood_client",
             str(rate),
             str(seconds),
             prefix,

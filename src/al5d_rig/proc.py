@@ -136,3 +136,13 @@ class Proc:
         if self.popen.poll() is None:
             self.popen.kill()
             self.popen.wait(5)
+
+
+def thread_nices(pid: int) -> list[int]:
+    """The nice value of every thread of process `pid` (/proc/PID/task/TID/stat, field 19)."""
+    nices = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):
+            stat = (task / "stat").read_text()
+            nices.append(int(stat.rsplit(")", 1)[1].split()[16]))
+    return nices

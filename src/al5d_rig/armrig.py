@@ -6,7 +6,7 @@ import logging
 import math
 import re
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
 import pytest
@@ -49,6 +49,11 @@ LINK_CHECK = re.compile(rb"Q|QP\d{1,2}")
 def written(records: list[Record]) -> list[bytes]:
     """The lines the board received, but the link checks the driver makes on its own."""
     return [r.raw for r in records if not LINK_CHECK.fullmatch(r.raw)]
+
+
+def group_moves(records: Iterable[Record]) -> list[p.GroupMove]:
+    """The group moves in `records` (an emulator's, or a board process's), in order."""
+    return [c for r in records for c in r.commands if isinstance(c, p.GroupMove)]
 
 
 def pulses(config: ArmConfig, pose: dict[str, float]) -> dict[int, int]:

@@ -10,12 +10,11 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 
-from proc import AL5D
-
 from al5d.arm.config import ArmConfig
 from al5d.clock import Deadline
 from al5d.ssc32u.emulator import Record
 from al5d.ssc32u.emulator.board import RESET, Board
+from al5d_rig.proc import AL5D
 
 
 class BoardProcess:

@@ -1,6 +1,6 @@
 """False link faults on a busy host (issue 23's rig): the board and the server apart, loaded.
 
-    python tests/falsefaults.py [--seconds 60] [--busy 6]
+    python -m al5d_rig.falsefaults [--seconds 60] [--busy 6]
 
 `al5d emulator` and `al5d serve --port` run as separate processes at the
 default priority with the default configuration, `busy` busy loops beside them,
@@ -22,12 +22,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-
-from contention import busy_loops, ended  # noqa: E402
-from proc import AL5D, Proc  # noqa: E402
-from rospeer import Peer  # noqa: E402
+from al5d_rig.contention import busy_loops, ended
+from al5d_rig.proc import AL5D, Proc
+from al5d_rig.rospeer import Peer
 
 #: What the server logs when it takes the board for lost.
 FAULT = "serial fault"

@@ -8,13 +8,14 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from proc import Proc, patient_config
-from rospeer import Peer, wait_until
 from std_msgs.msg import String
 
 from al5d.arm.config import ArmConfig
 from al5d.ros.qos import QOS_LATCHED
+from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
+from al5d_rig.proc import Proc, patient_config
+from al5d_rig.rospeer import Peer, wait_until
 
 
 @dataclass
@@ -26,6 +27,19 @@ class Served:
     #: Every state `/al5d/state` said, the last one last.
     states: list[str]
 
+    def ready(self, timeout: float = 30.0) -> Served:
+        """The arm released and at rest, whatever the last test left: the reset between the
+        tests of a module that shares one server (a restart costs seconds of discovery)."""
+        wait_until(lambda: self.states and self.states[-1] in ("ready", "stopped"), timeout, "rest")
+        if self.states[-1] == "stopped":
+            assert self.peer.trigger("release").success
+        wait_until(lambda: self.states[-1] == "ready", timeout, "ready")
+        return self
+
+    def stops(self) -> int:
+        """STOP commands the board has received (six to a stop of the arm)."""
+        return sum(isinstance(c, p.Stop) for r in self.emu.records for c in r.commands)
+
 
 @contextmanager
 def served(config: ArmConfig, workdir: Path, name: str) -> Iterator[Served]:
@@ -36,9 +50,11 @@ def served(config: ArmConfig, workdir: Path, name: str) -> Iterator[Served]:
     proc = Proc("serve", "--port", str(link), "--config", patient_config(), "--log-level", "INFO")
     peer = Peer(name=name)
     states: list[str] = []
-    peer.node.create_subscription(
-        String, "/al5d/state", lambda m: states.append(m.data), QOS_LATCHED
-    )
+
+    def on_state(msg: String) -> None:
+        states.append(msg.data)
+
+    peer.node.create_subscription(String, "/al5d/state", on_state, QOS_LATCHED)
     try:
         proc.err.wait_for("STATE: ready", 30)
         peer.wait_for_server()

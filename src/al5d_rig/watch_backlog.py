@@ -2,7 +2,7 @@
 of the topic as the stop watcher has, which takes nothing while a flood outruns it: run as its
 own process (the profile is read once, before a process's first ROS context).
 
-    python tests/watch_backlog.py BACKLOG
+    python -m al5d_rig.watch_backlog BACKLOG
 
 Publishes 3 x BACKLOG moves and then a stop; prints, as JSON, the instructions of the
 messages the reader then holds, in order.

@@ -1,0 +1,31 @@
+"""The test and benchmark rig: the arm's parts started for real, and what reads them back.
+
+Installed with the project (`pip install -e .`, as `make install` does), so that the
+tests (tests/) and the benchmarks (bench/) import it as any package, and the scripts
+among its modules run as `python -m al5d_rig.NAME`. It sits above every subpackage of
+`al5d` and may import any of them; nothing in `al5d` imports it. The modules:
+
+- `proc`: `al5d` commands as processes of their own, their output read as it comes.
+- `boardproc`: `al5d emulator` in a process of its own, its records streamed back.
+- `armrig`: a driver on an emulated board in this process, and what tests read of the
+  board's records (`group_moves`, `written`, `group_pulses`).
+- `served`: `al5d serve` on an emulated board, with a peer that follows its state.
+- `rospeer`: a ROS 2 peer of the server: publishes, calls, listens.
+- `domains`: the ROS domains of a test run, a pair claimed by each pytest process.
+- `loadrig`: floods over DDS, and the stop measured under them; `flood_client` floods
+  (a process: `python -m al5d_rig.flood_client`).
+- `contention` and `falsefaults`: several servers beside busy loops, and false link
+  faults on a busy host (both also run as processes); `goal_flood_client` floods with
+  trajectory goals (a process).
+- `faultrig`: faults injected at chosen moments into a driver, and what it made of them.
+- `watch_backlog`: a reader of the instruction topic that a flood outruns (a process).
+- `trajectories`: dense trajectories as MoveIt times them, and their goals.
+- `webrig`: `al5d web` in its own process, and a headless Chromium.
+- `calibuser`: the user of a calibration, who sees where a joint truly stands.
+- `model_support`: the shipped arm's ranges, speeds and presets for the model's tests.
+- `fuzzcount`: how many cases each fuzz suite ran.
+
+The pytest fixtures stay in tests/conftest.py, not here as a plugin: they claim the run's
+ROS domain when pytest loads them, which only the test suite must do (a benchmark
+claims no domain), and pytest finds conftest.py without any registration.
+"""
