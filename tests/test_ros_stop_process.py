@@ -153,3 +153,26 @@ def test_when_the_stop_process_ends_the_server_serves_the_stop_itself(served: Se
     assert answer.success, answer.message
     assert served.peer.result("after").reason == "cancelled by stop"
     wait_until(lambda: len(served.stops_since(n)) >= 6, 10, "the STOPs")
+
+
+def test_a_release_sent_after_the_stop_is_judged_after_it(served: Served) -> None:
+    """The stop process answers a stop before the server has obeyed it. A release (or a move)
+    the server takes in that moment waits for that stop: the release unlocks the arm (it
+    is not refused as "nothing to release" and then undone by the stop), a move sent in
+    between is refused. Frozen, the server takes them all at once when it runs again."""
+    from std_srvs.srv import Trigger
+
+    os.kill(served.pid, signal.SIGSTOP)
+    try:
+        assert served.peer.trigger("stop").success
+        served.peer.send("between", "move", base=10)
+        release = served.peer.services["release"].call_async(Trigger.Request())
+        time.sleep(0.5)  # the release is in the server's socket before it runs again
+    finally:
+        os.kill(served.pid, signal.SIGCONT)
+    wait_until(release.done, 20, "the release's answer")
+    answer = release.result()
+    assert answer.success, answer.message
+    assert served.peer.result("between").outcome == "refused"  # locked, whichever came first
+    served.peer.send("after", "move", base=-10)
+    assert served.peer.result("after").outcome == "done"

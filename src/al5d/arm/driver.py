@@ -182,6 +182,12 @@ class ArmDriver:
             first = self._stop(instr, future, t0, sent, key, written)
             if first is not future:
                 return first  # the same stop, obeyed already
+        else:
+            # A stop the stop process wrote, not yet obeyed here, comes first: a release or a
+            # move sent after it is judged as after it (locked), not before.
+            board = self.core.board
+            if board is not None:
+                board.settle_stops()
         if self.submit_listeners and listeners:
             tell(self.submit_listeners, instr, "submit")
         if self.outcome_listeners and listeners:

@@ -323,6 +323,12 @@ class SSC32U:
                 with contextlib.suppress(Exception):  # a recording never fails a write
                     self._tap(data, t, self._wire_free_at)
 
+    def settle_stops(self, timeout: float = GATE_WAIT_S) -> bool:
+        """Wait (at most `timeout`) until every stop another process wrote (`gate_port`) has
+        been obeyed by the server; True if none is left."""
+        gate = self._gate
+        return gate is None or not gate.pending() or gate.wait_seen(timeout)
+
     def plan_stops(self, channels: Sequence[int], until: float) -> None:
         """A stop another process writes (`gate_port`) STOPs the channels in this order until
         `until` (CLOCK_MONOTONIC), as `stop` would be asked to; nothing without one."""
