@@ -50,6 +50,14 @@ JOG_THERE_DEG = 0.5
 JOG_RESEND_S = 0.3
 #: A jog goes on after the server was lost if the sliders were let go at most this long ago.
 JOG_KEPT_LOST_S = 5.0
+#: After a change of the server's state the 3D view (the arm, the ghost) waits this long,
+#: then shows the newest pose: the state goes to the browser at once, in a batch of viser's
+#: of its own. viser's client applies a batch of GUI updates at once when nothing waits
+#: before it, but one that moves something in the 3D view waits for the next frame the
+#: browser draws (in software, on a machine without a GPU, 100 ms and more), and holds up
+#: every batch behind it. The ghost is drawn by the page's loop, a tick after what moved
+#: it: an instruction's ghost would otherwise go just before the state it brings.
+STATE_ALONE_S = 0.04
 
 
 class Commands(Protocol):
@@ -104,6 +112,9 @@ class Page:
         self.target_tool: Vec3 | None = None
         self.arrivals: list[float] = []
         self.last_change_t = -math.inf
+        #: Until when the 3D view waits (STATE_ALONE_S), and what it has to show then.
+        self.scene_held_until = -math.inf
+        self.arm_due = self.ghost_due = False
         self.scene = ArmScene(server, self.model)
         self.panel = Panel(server, config, title)
         self.panel.show_outcomes(self.outcomes)
@@ -152,9 +163,7 @@ class Page:
             if changed:
                 # An idle arm's states repeat 25 times a second: nothing to redraw.
                 self.last_change_t = t
-                with self.server.atomic():
-                    self.scene.show_arm(self.degrees)
-                    self._show_tool()
+                self._show_arm()
             if first:
                 self._follow(force=True)
             if self.lost:
@@ -163,7 +172,7 @@ class Page:
     def on_state(self, state: str) -> None:
         with self._lock:
             self.state = state
-            self.panel.show_state(state)
+            self._show_state(state)
             if state in ("stopped", "fault", "shutting_down"):
                 # Nothing queued survives these: a stop cancels all, a fault too.
                 self.pending.clear()
@@ -202,6 +211,40 @@ class Page:
 
     # -- showing (under the lock) ----------------------------------------------------
 
+    def _show_state(self, state: str) -> None:
+        """The state, sent at once and alone: the 3D view holds its updates a moment."""
+        if self.panel.show_state(state):
+            self.scene_held_until = time.monotonic() + STATE_ALONE_S
+            self.server.flush()
+
+    def _scene_held(self) -> bool:
+        return time.monotonic() < self.scene_held_until
+
+    def _show_arm(self) -> None:
+        if self._scene_held():
+            self.arm_due = True
+            self._show_tool()
+            return
+        self.arm_due = False
+        if self.degrees is not None:
+            with self.server.atomic():
+                self.scene.show_arm(self.degrees)
+                self._show_tool()
+            # Sent now, not in viser's next window (1/60 s): a state that comes a moment
+            # later would share that window, and wait with the pose for a frame.
+            self.server.flush()
+
+    def _show_held(self) -> None:
+        """The ghost, and what the 3D view held back while a state went out (the page's
+        loop)."""
+        if self._scene_held():
+            return
+        if self.arm_due:
+            self._show_arm()
+        if self.ghost_due:
+            self.ghost_due = False
+            self.scene.show_ghost(self._ghost())
+
     def _show_tool(self) -> None:
         """The tool's position, the joint states' rate and the ghost's instruction, under
         the state: each arm update changes it (the benchmark counts its changes)."""
@@ -221,12 +264,16 @@ class Page:
         return None if self.degrees is None else dict(self.degrees)
 
     def _show_ghost(self) -> None:
+        """The ghost at the next tick of the page's loop; the readout of its instruction now."""
+        self.ghost_due = True
+        self._show_tool()
+
+    def _ghost(self) -> Target | None:
         ghost = next(reversed(self.pending.values()))[1] if self.pending else None
         if ghost is None and self.calibration is not None:  # where the joint should stand
             pose = self.calibration.ghost()
             ghost = None if pose is None else Target("calibration", pose)
-        self.scene.show_ghost(ghost)
-        self._show_tool()
+        return ghost
 
     @property
     def lock(self) -> threading.RLock:
@@ -244,7 +291,7 @@ class Page:
         if lost and self.state in ("shutting_down", "ended"):
             # Its last word was that it shuts down, and it has gone quiet: it has ended.
             self.state = "ended"
-            self.panel.show_state("ended")
+            self._show_state("ended")
             text = (
                 "The server has ended (it shut down, the arm parked). Start it again "
                 "(al5d serve) to go on. Controls are off; STOP still works."
@@ -464,6 +511,7 @@ class Page:
                     age = now - self.last_joints_t
                     if age > LOST_AFTER_S and (not self.lost or int(age) != int(age - LOOP_S)):
                         self._set_lost(True, age)
+                self._show_held()
                 jog = self._jog_due(now)
                 if jog is None:
                     self._follow()
