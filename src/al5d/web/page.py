@@ -55,8 +55,8 @@ JOG_KEPT_LOST_S = 5.0
 #: of its own. viser's client applies a batch of GUI updates at once when nothing waits
 #: before it, but one that moves something in the 3D view waits for the next frame the
 #: browser draws (in software, on a machine without a GPU, 100 ms and more), and holds up
-#: every batch behind it. The ghost is drawn by the page's loop, a tick after what moved
-#: it: an instruction's ghost would otherwise go just before the state it brings.
+#: every batch behind it. An instruction seen and an outcome hold the 3D view as well: a
+#: state comes with them (the ghost they change would go just before it).
 STATE_ALONE_S = 0.04
 
 
@@ -180,6 +180,7 @@ class Page:
 
     def on_outcome(self, outcome: Outcome) -> None:
         with self._lock:
+            self._hold_scene()
             self.outcomes.add(outcome)
             self.panel.show_outcomes(self.outcomes)
             if self.pending.pop(outcome.id, None) is not None:
@@ -200,6 +201,7 @@ class Page:
                 return
             target = self.planner.target_of(instr, start)
             if isinstance(target, Target):
+                self._hold_scene()
                 self.pending[instr.id] = (f"{instr.name} [{instr.id}]", target)
                 self._show_ghost()
 
@@ -214,36 +216,40 @@ class Page:
     def _show_state(self, state: str) -> None:
         """The state, sent at once and alone: the 3D view holds its updates a moment."""
         if self.panel.show_state(state):
-            self.scene_held_until = time.monotonic() + STATE_ALONE_S
+            self._hold_scene()
             self.server.flush()
+
+    def _hold_scene(self) -> None:
+        self.scene_held_until = max(self.scene_held_until, time.monotonic() + STATE_ALONE_S)
 
     def _scene_held(self) -> bool:
         return time.monotonic() < self.scene_held_until
 
     def _show_arm(self) -> None:
+        self.arm_due = True
+        self._show_scene()
+
+    def _show_scene(self) -> None:
+        """The arm's pose and the ghost, as they are due; nothing while the view is held."""
         if self._scene_held():
-            self.arm_due = True
             self._show_tool()
             return
-        self.arm_due = False
-        if self.degrees is not None:
-            with self.server.atomic():
+        with self.server.atomic():
+            if self.arm_due and self.degrees is not None:
                 self.scene.show_arm(self.degrees)
-                self._show_tool()
-            # Sent now, not in viser's next window (1/60 s): a state that comes a moment
-            # later would share that window, and wait with the pose for a frame.
-            self.server.flush()
+            if self.ghost_due:
+                self.scene.show_ghost(self._ghost())
+            self._show_tool()
+        self.arm_due = self.ghost_due = False
+        # Sent now, not in viser's next window (1/60 s): a state that comes a moment later
+        # would share that window, and wait with the pose for a frame.
+        self.server.flush()
 
     def _show_held(self) -> None:
         """The ghost, and what the 3D view held back while a state went out (the page's
         loop)."""
-        if self._scene_held():
-            return
-        if self.arm_due:
-            self._show_arm()
-        if self.ghost_due:
-            self.ghost_due = False
-            self.scene.show_ghost(self._ghost())
+        if (self.arm_due or self.ghost_due) and not self._scene_held():
+            self._show_scene()
 
     def _show_tool(self) -> None:
         """The tool's position, the joint states' rate and the ghost's instruction, under
@@ -513,7 +519,7 @@ class Page:
                         self._set_lost(True, age)
                 self._show_held()
                 jog = self._jog_due(now)
-                if jog is None:
+                if jog is None and not self._scene_held():  # the gizmo is in the 3D view
                     self._follow()
                 if self.degrees is not None and now - last_readout >= 1.0:
                     if now - self.last_change_t >= 1.0:  # moving, each state refreshes it
