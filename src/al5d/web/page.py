@@ -58,6 +58,10 @@ JOG_KEPT_LOST_S = 5.0
 #: every batch behind it. An instruction seen and an outcome hold the 3D view as well: a
 #: state comes with them (the ghost they change would go just before it).
 STATE_ALONE_S = 0.04
+#: ... and at most this long for viser to send the state's batch (a busy host can keep its
+#: event loop waiting longer than STATE_ALONE_S): a browser that takes nothing is not
+#: left without its 3D view.
+STATE_SENT_WITHIN_S = 0.5
 
 
 class Commands(Protocol):
@@ -114,6 +118,10 @@ class Page:
         self.last_change_t = -math.inf
         #: Until when the 3D view waits (STATE_ALONE_S), and what it has to show then.
         self.scene_held_until = -math.inf
+        #: The state's message in viser's outgoing buffer, until viser has taken it into a
+        #: batch for every browser (None: taken), and until when the view waits for that.
+        self.state_message: int | None = None
+        self.state_sent_by = -math.inf
         self.arm_due = self.ghost_due = False
         self.scene = ArmScene(server, self.model)
         self.panel = Panel(server, config, title)
@@ -217,13 +225,28 @@ class Page:
         """The state, sent at once and alone: the 3D view holds its updates a moment."""
         if self.panel.show_state(state):
             self._hold_scene()
+            buffer = self._outgoing()
+            self.state_message = buffer.message_counter - 1
+            self.state_sent_by = time.monotonic() + STATE_SENT_WITHIN_S
             self.server.flush()
+
+    def _outgoing(self) -> Any:
+        """viser's buffer of the messages for every browser (viser 1.1.1's, not public):
+        its `message_counter` numbers them, its `generator_cursors` say, for each browser,
+        up to which one it has taken them into a batch."""
+        return self.server._websock_server.get_message_buffer()
 
     def _hold_scene(self) -> None:
         self.scene_held_until = max(self.scene_held_until, time.monotonic() + STATE_ALONE_S)
 
     def _scene_held(self) -> bool:
-        return time.monotonic() < self.scene_held_until
+        now = time.monotonic()
+        if self.state_message is not None:
+            cursors = list(self._outgoing().generator_cursors.values())
+            if now < self.state_sent_by and any(c < self.state_message for c in cursors):
+                return True
+            self.state_message = None
+        return now < self.scene_held_until
 
     def _show_arm(self) -> None:
         self.arm_due = True
