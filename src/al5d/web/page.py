@@ -293,7 +293,8 @@ class Page:
         return None if self.degrees is None else dict(self.degrees)
 
     def _show_ghost(self) -> None:
-        """The ghost at the next tick of the page's loop; the readout of its instruction now."""
+        """The ghost with the arm's next pose or at the page's loop's next tick; the readout
+        of its instruction now."""
         self.ghost_due = True
         self._show_tool()
 
