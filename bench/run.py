@@ -28,6 +28,7 @@ import model_bench  # noqa: E402
 import plot  # noqa: E402
 import rosbench  # noqa: E402
 import stream_budget  # noqa: E402
+import tables  # noqa: E402
 import trajectory_budget  # noqa: E402
 import webbench  # noqa: E402
 
@@ -307,17 +308,6 @@ def model_figures() -> dict[str, Any]:
     }
 
 
-def table(lines: list[tuple[str, str, str, str, bool | None]]) -> str:
-    w = [max(len(x[i]) for x in lines) for i in range(4)]
-    head = ("figure", "ours", "design doc", "target")
-    text = [" | ".join(h.ljust(w[i]) for i, h in enumerate(head)) + " | held"]
-    text.append("-+-".join("-" * n for n in w) + "-+-----")
-    for row in lines:
-        held = {True: " | yes", False: " | NO", None: " | -"}[row[4]]
-        text.append(" | ".join(row[i].ljust(w[i]) for i in range(4)) + held)
-    return "\n".join(text)
-
-
 def main() -> int:
     started = time.monotonic()
     # The emulated board shares this process with the ROS client: let its threads have
@@ -355,9 +345,7 @@ def main() -> int:
     OUT.mkdir(exist_ok=True)
     (OUT / "results.json").write_text(json.dumps(results, indent=1))
     plot.draw(results, OUT / "bench.png")
-    print(table(lines))
-    print("\nThe web view (al5d web, headless Chromium):")
-    print(webbench.table(results["web"]))
+    print(tables.table(lines))
     held = sum(x[4] is True for x in lines)
     targets = sum(x[4] is not None for x in lines)
     print(

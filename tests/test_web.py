@@ -489,6 +489,65 @@ def test_every_move_on_a_topic_has_its_ghost(rig: Rig) -> None:
     rig.state.wait_for("ready", 15)
 
 
+#: Each batch of messages viser's client takes from its websocket (read in a Web Worker,
+#: which posts each batch to the page), as the kinds of its messages; an update of the
+#: state's element as "state:" and the word it shows.
+WATCH_BATCHES = """
+window.__batches = [];
+const ViserWorker = window.Worker;
+window.Worker = class extends ViserWorker {
+  constructor(...args) {
+    super(...args);
+    this.addEventListener("message", (event) => {
+      const batch = event.data && event.data.messages;
+      if (!batch) return;
+      window.__batches.push(batch.map((m) => {
+        const content = String((m.updates && m.updates.content) || "");
+        return content.includes('id="al5d-state"')
+          ? "state:" + content.replace(/<[^>]*>/g, "") : m.type;
+      }));
+    });
+  }
+};
+"""
+
+
+def test_each_state_goes_to_the_page_once_and_alone(rig: Rig) -> None:
+    """Each change of the server's state reaches the browser once, in a batch of viser's
+    with nothing for the 3D view in it: viser's client applies such a batch at once, where
+    one that moves the arm or its ghost waits for the browser's next frame (slow where it
+    draws in software). The arm and its ghost follow all the same."""
+    page = rig.browser.new_page(viewport=VIEWPORT)
+    try:
+        page.add_init_script(WATCH_BATCHES)
+        page.goto(rig.web.url)
+        page.wait_for_selector("#al5d-tool", timeout=30_000)
+        wait_text(page, "#al5d-state", lambda t: t == "READY", 15)
+        page.evaluate("window.__batches.length = 0")
+
+        def states() -> list[str]:
+            return [m for b in page.evaluate("window.__batches") for m in b if "state:" in m]
+
+        moves = 3
+        for i in range(moves):
+            rig.peer.send(f"web-alone-{i}", "move", time_ms=600, base=-15 if i % 2 else 15)
+            assert rig.peer.result(f"web-alone-{i}").outcome == "done"
+            rig.state.wait_for("ready", 15)
+            # The browser has this move's READY before the next move begins (a state that a
+            # newer one replaced before viser sent it is never sent at all).
+            wait_until(lambda i=i: states().count("state:READY") > i, 15, "READY at the page")
+        batches: list[list[str]] = page.evaluate("window.__batches")
+        assert states() == ["state:MOVING", "state:READY"] * moves, batches
+        for batch in batches:
+            if any(m.startswith("state:") for m in batch):
+                assert all(m.startswith(("state:", "Gui")) for m in batch), batch
+        kinds = {m for b in batches for m in b}
+        assert "SetOrientationMessage" in kinds, kinds  # the arm was drawn moving
+        assert "SetSceneNodeVisibilityMessage" in kinds, kinds  # its ghost shown and hidden
+    finally:
+        page.close()
+
+
 def test_the_page_says_when_it_lost_the_server(rig: Rig) -> None:
     """The server killed outright: the banner within a few seconds, every control off but
     STOP, which still sends; a server back: the banner goes and the controls come back."""

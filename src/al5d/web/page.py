@@ -50,6 +50,18 @@ JOG_THERE_DEG = 0.5
 JOG_RESEND_S = 0.3
 #: A jog goes on after the server was lost if the sliders were let go at most this long ago.
 JOG_KEPT_LOST_S = 5.0
+#: After a change of the server's state the 3D view (the arm, the ghost) waits this long,
+#: then shows the newest pose: the state goes to the browser at once, in a batch of viser's
+#: of its own. viser's client applies a batch of GUI updates at once when nothing waits
+#: before it, but one that moves something in the 3D view waits for the next frame the
+#: browser draws (in software, on a machine without a GPU, 100 ms and more), and holds up
+#: every batch behind it. An instruction seen and an outcome hold the 3D view as well: a
+#: state comes with them (the ghost they change would go just before it).
+STATE_ALONE_S = 0.04
+#: ... and at most this long for viser to send the state's batch (a busy host can keep its
+#: event loop waiting longer than STATE_ALONE_S): a browser that takes nothing is not
+#: left without its 3D view.
+STATE_SENT_WITHIN_S = 0.5
 
 
 class Commands(Protocol):
@@ -104,6 +116,13 @@ class Page:
         self.target_tool: Vec3 | None = None
         self.arrivals: list[float] = []
         self.last_change_t = -math.inf
+        #: Until when the 3D view waits (STATE_ALONE_S), and what it has to show then.
+        self.scene_held_until = -math.inf
+        #: The state's message in viser's outgoing buffer, until viser has taken it into a
+        #: batch for every browser (None: taken), and until when the view waits for that.
+        self.state_message: int | None = None
+        self.state_sent_by = -math.inf
+        self.arm_due = self.ghost_due = False
         self.scene = ArmScene(server, self.model)
         self.panel = Panel(server, config, title)
         self.panel.show_outcomes(self.outcomes)
@@ -152,9 +171,7 @@ class Page:
             if changed:
                 # An idle arm's states repeat 25 times a second: nothing to redraw.
                 self.last_change_t = t
-                with self.server.atomic():
-                    self.scene.show_arm(self.degrees)
-                    self._show_tool()
+                self._show_arm()
             if first:
                 self._follow(force=True)
             if self.lost:
@@ -163,7 +180,7 @@ class Page:
     def on_state(self, state: str) -> None:
         with self._lock:
             self.state = state
-            self.panel.show_state(state)
+            self._show_state(state)
             if state in ("stopped", "fault", "shutting_down"):
                 # Nothing queued survives these: a stop cancels all, a fault too.
                 self.pending.clear()
@@ -171,6 +188,7 @@ class Page:
 
     def on_outcome(self, outcome: Outcome) -> None:
         with self._lock:
+            self._hold_scene()
             self.outcomes.add(outcome)
             self.panel.show_outcomes(self.outcomes)
             if self.pending.pop(outcome.id, None) is not None:
@@ -191,6 +209,7 @@ class Page:
                 return
             target = self.planner.target_of(instr, start)
             if isinstance(target, Target):
+                self._hold_scene()
                 self.pending[instr.id] = (f"{instr.name} [{instr.id}]", target)
                 self._show_ghost()
 
@@ -201,6 +220,59 @@ class Page:
         log.info("web: the arm is mounted in %s at %s", parent, mount.translation)
 
     # -- showing (under the lock) ----------------------------------------------------
+
+    def _show_state(self, state: str) -> None:
+        """The state, sent at once and alone: the 3D view holds its updates a moment."""
+        if self.panel.show_state(state):
+            self._hold_scene()
+            buffer = self._outgoing()
+            self.state_message = buffer.message_counter - 1
+            self.state_sent_by = time.monotonic() + STATE_SENT_WITHIN_S
+            self.server.flush()
+
+    def _outgoing(self) -> Any:
+        """viser's buffer of the messages for every browser (viser 1.1.1's, not public):
+        its `message_counter` numbers them, its `generator_cursors` say, for each browser,
+        up to which one it has taken them into a batch."""
+        return self.server._websock_server.get_message_buffer()
+
+    def _hold_scene(self) -> None:
+        self.scene_held_until = max(self.scene_held_until, time.monotonic() + STATE_ALONE_S)
+
+    def _scene_held(self) -> bool:
+        now = time.monotonic()
+        if self.state_message is not None:
+            cursors = list(self._outgoing().generator_cursors.values())
+            if now < self.state_sent_by and any(c < self.state_message for c in cursors):
+                return True
+            self.state_message = None
+        return now < self.scene_held_until
+
+    def _show_arm(self) -> None:
+        self.arm_due = True
+        self._show_scene()
+
+    def _show_scene(self) -> None:
+        """The arm's pose and the ghost, as they are due; nothing while the view is held."""
+        if self._scene_held():
+            self._show_tool()
+            return
+        with self.server.atomic():
+            if self.arm_due and self.degrees is not None:
+                self.scene.show_arm(self.degrees)
+            if self.ghost_due:
+                self.scene.show_ghost(self._ghost())
+            self._show_tool()
+        self.arm_due = self.ghost_due = False
+        # Sent now, not in viser's next window (1/60 s): a state that comes a moment later
+        # would share that window, and wait with the pose for a frame.
+        self.server.flush()
+
+    def _show_held(self) -> None:
+        """The ghost, and what the 3D view held back while a state went out (the page's
+        loop)."""
+        if (self.arm_due or self.ghost_due) and not self._scene_held():
+            self._show_scene()
 
     def _show_tool(self) -> None:
         """The tool's position, the joint states' rate and the ghost's instruction, under
@@ -221,12 +293,17 @@ class Page:
         return None if self.degrees is None else dict(self.degrees)
 
     def _show_ghost(self) -> None:
+        """The ghost with the arm's next pose or at the page's loop's next tick; the readout
+        of its instruction now."""
+        self.ghost_due = True
+        self._show_tool()
+
+    def _ghost(self) -> Target | None:
         ghost = next(reversed(self.pending.values()))[1] if self.pending else None
         if ghost is None and self.calibration is not None:  # where the joint should stand
             pose = self.calibration.ghost()
             ghost = None if pose is None else Target("calibration", pose)
-        self.scene.show_ghost(ghost)
-        self._show_tool()
+        return ghost
 
     @property
     def lock(self) -> threading.RLock:
@@ -244,7 +321,7 @@ class Page:
         if lost and self.state in ("shutting_down", "ended"):
             # Its last word was that it shuts down, and it has gone quiet: it has ended.
             self.state = "ended"
-            self.panel.show_state("ended")
+            self._show_state("ended")
             text = (
                 "The server has ended (it shut down, the arm parked). Start it again "
                 "(al5d serve) to go on. Controls are off; STOP still works."
@@ -464,8 +541,9 @@ class Page:
                     age = now - self.last_joints_t
                     if age > LOST_AFTER_S and (not self.lost or int(age) != int(age - LOOP_S)):
                         self._set_lost(True, age)
+                self._show_held()
                 jog = self._jog_due(now)
-                if jog is None:
+                if jog is None and not self._scene_held():  # the gizmo is in the 3D view
                     self._follow()
                 if self.degrees is not None and now - last_readout >= 1.0:
                     if now - self.last_change_t >= 1.0:  # moving, each state refreshes it

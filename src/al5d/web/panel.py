@@ -247,10 +247,15 @@ class Panel:
 
     # -- showing ---------------------------------------------------------------------
 
-    def show_state(self, state: str) -> None:
-        self.state_html.content = state_html(state)
+    def show_state(self, state: str) -> bool:
+        """The state shown; False if it was shown already (nothing sent)."""
+        content = state_html(state)
+        if self.state_html.content == content:
+            return False
+        self.state_html.content = content
         # Nothing to release in any other state: a button there would only be refused.
         self.release.visible = state in RELEASABLE
+        return True
 
     def show_lost(self, text: str | None) -> None:
         """The red banner with `text`, or none."""
