@@ -7,6 +7,7 @@ this process behind a pty, so the tests see exactly what reached it.
 from __future__ import annotations
 
 import math
+import re
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -354,7 +355,11 @@ def test_a_start_point_away_from_the_arm_is_reached_first_and_the_times_count_fr
     goal = rig.trajectory([(first_s, pose(base=50)), (0.5, pose(base=40)), (1.0, pose(base=30))])
     answer = wait_future(rig.send(rig.fjt, goal).get_result_async(), 15)
     assert answer.status == GoalStatus.STATUS_SUCCEEDED
-    assert answer.result.error_string == "", answer.result.error_string
+    # Counted from the goal's start instead, points 1 and 2 would come the ~170 ms the
+    # servos take for 50 deg late; a busy host may write a step a few ms late (seen: 6 ms).
+    text = answer.result.error_string
+    late_ms = [float(w) for w in re.findall(r"reached (\d+) ms after", text)]
+    assert all(ms < 50 for ms in late_ms), text
 
 
 def test_a_slow_enough_trajectory_with_tolerances_succeeds(rig: Rig) -> None:
