@@ -348,7 +348,7 @@ class CoreState:
         motion = self._book.moving(written.motion, written.t_write)
         self._book.written(motion, written.t_end)
         job.written = written
-        if self._board is not None:  # for a stop written by the stop process
+        if self._board is not None and self._board.gated:  # for the stop process's STOP
             order = stop_order(motion, written.t_write, self._channels)
             self._board.plan_stops(order, motion.t0 + motion.duration_s)
         return motion

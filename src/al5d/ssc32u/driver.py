@@ -329,6 +329,11 @@ class SSC32U:
         gate = self._gate
         return gate is None or not gate.pending() or gate.wait_seen(timeout)
 
+    @property
+    def gated(self) -> bool:
+        """Another process may write a stop to this port (`gate_port`)."""
+        return self._gate is not None
+
     def plan_stops(self, channels: Sequence[int], until: float) -> None:
         """A stop another process writes (`gate_port`) STOPs the channels in this order until
         `until` (CLOCK_MONOTONIC), as `stop` would be asked to; nothing without one."""

@@ -226,10 +226,6 @@ class StopEnd:
         self._thread = threading.Thread(target=self._follow, name="al5d-stop-port", daemon=True)
         self._thread.start()
 
-    @property
-    def has_port(self) -> bool:
-        return self._port is not None
-
     def _follow(self) -> None:
         """The server's port, as it is opened and closed."""
         while True:
@@ -325,9 +321,3 @@ class StopEnd:
             return self._channels
         first = planned[1]
         return first + tuple(ch for ch in self._channels if ch not in first)
-
-    def close(self) -> None:
-        with contextlib.suppress(OSError):
-            self._sock.shutdown(socket.SHUT_RDWR)
-        self._set(None)
-        self._shared.close()
