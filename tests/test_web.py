@@ -675,7 +675,9 @@ def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:
     try:
         wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
         rig.state.wait_for("ready", 10)
-        rig.peer.first_answer()  # the new server has heard this peer
+        # The new server's topics matched this peer, not only its services (seen: the move
+        # below sent before its reader had matched, and no result in 20 s).
+        rig.peer.wait_for_server()
         rig.peer.send("web-jog-start", "move", base=-90)  # the base to one end of its range...
         assert rig.peer.result("web-jog-start", 20).outcome == "done"
         page.get_by_role("tab", name="Joints").click()
