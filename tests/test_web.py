@@ -514,9 +514,12 @@ window.Worker = class extends ViserWorker {
 
 def test_each_state_goes_to_the_page_once_and_alone(rig: Rig) -> None:
     """Each change of the server's state reaches the browser once, in a batch of viser's
-    with nothing for the 3D view in it: viser's client applies such a batch at once, where
+    with nothing for the 3D view after it: viser's client applies such a batch at once, where
     one that moves the arm or its ghost waits for the browser's next frame (slow where it
-    draws in software). The arm and its ghost follow all the same."""
+    draws in software). A pose the page queued before the state came may still share its
+    batch (seen: viser had not taken it yet); it would hold the state up all the same in a
+    batch of its own, since the client applies batches in order. The arm and its ghost
+    follow all the same."""
     page = rig.browser.new_page(viewport=VIEWPORT)
     try:
         page.add_init_script(WATCH_BATCHES)
@@ -539,8 +542,10 @@ def test_each_state_goes_to_the_page_once_and_alone(rig: Rig) -> None:
         batches: list[list[str]] = page.evaluate("window.__batches")
         assert states() == ["state:MOVING", "state:READY"] * moves, batches
         for batch in batches:
-            if any(m.startswith("state:") for m in batch):
-                assert all(m.startswith(("state:", "Gui")) for m in batch), batch
+            firsts = [i for i, m in enumerate(batch) if m.startswith("state:")]
+            if firsts:
+                after = batch[firsts[0] :]
+                assert all(m.startswith(("state:", "Gui")) for m in after), batch
         kinds = {m for b in batches for m in b}
         assert "SetOrientationMessage" in kinds, kinds  # the arm was drawn moving
         assert "SetSceneNodeVisibilityMessage" in kinds, kinds  # its ghost shown and hidden

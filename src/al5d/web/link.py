@@ -164,13 +164,16 @@ class WebNode:
     def send(self, instr: Instruction) -> None:
         self.pub.publish(to_message(instr))
 
-    def jog(self, degrees: Mapping[str, float]) -> None:
+    def jog(self, degrees: Mapping[str, float]) -> bool:
         """A set-point of the jog (the arm's degrees) on the server's stream of set-points,
-        in the URDF's values as ros2_control's hardware sends them."""
+        in the URDF's values as ros2_control's hardware sends them. False when no server
+        reads the stream yet: a server just (re)started can send its joint states to this
+        page before DDS has matched this writer to its reader, and the set-point is lost."""
         values = self.model.to_urdf(dict(degrees))
         msg = JointState(name=list(values), position=[float(v) for v in values.values()])
         msg.header.stamp = self.node.get_clock().now().to_msg()
         self.jog_pub.publish(msg)
+        return self.jog_pub.get_subscription_count() > 0
 
     def stop(self) -> str:
         """The emergency stop, by the service (it never waits behind instructions) and on the

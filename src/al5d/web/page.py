@@ -69,7 +69,9 @@ class Commands(Protocol):
 
     def send(self, instr: Instruction) -> None: ...
 
-    def jog(self, degrees: Mapping[str, float]) -> None: ...
+    def jog(self, degrees: Mapping[str, float]) -> bool:
+        """Sends a set-point; False when no server reads them yet."""
+        ...
 
     def stop(self) -> str: ...
 
@@ -549,8 +551,9 @@ class Page:
                     if now - self.last_change_t >= 1.0:  # moving, each state refreshes it
                         self._show_tool()
                     last_readout = now
-            if jog is not None and self.commands is not None:
-                self.commands.jog(jog)
+            if jog is not None and self.commands is not None and not self.commands.jog(jog):
+                with self._lock:  # nobody read it: due again at the next tick
+                    self.jog_sent, self.jog_short_t = False, None
             # While the arm is still the plot is flat lines already: redraws would only
             # slide the time axis, at a window of samples each.
             recent = now - self.last_change_t < self.history.seconds + PLOT_EVERY_S
