@@ -106,8 +106,11 @@ demo: runtime
 
 # Two workers for most of the suite (it waits on servos, wires and DDS more than on the
 # CPU), then the load suites (marked solo) alone.
+# `make test WORKERS=4 DURATIONS=0` for other worker counts and every test's time.
+WORKERS   ?= 2
+DURATIONS ?= 12
 test: install
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not solo" --durations=12
+	$(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile -m "not solo" --durations=$(DURATIONS)
 	$(BIN)/python -m pytest -q -m solo
 
 bench: install

@@ -140,7 +140,8 @@ def table(trials: list[dict[str, Any]], load: dict[str, Any]) -> str:
             (
                 f"flood {rate}/s for {SECONDS:g} s: outcomes lost",
                 f"{r['lost']} of {r['sent']} (duplicates {r['duplicates']}, "
-                f"publishes refused {r['failed_publishes']})",
+                f"publishes refused {r['publish_retries']} and sent again, "
+                f"given up {r['failed_publishes']})",
                 "0",
                 held(r["lost"] == 0 and r["duplicates"] == 0),
             )

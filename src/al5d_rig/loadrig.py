@@ -95,6 +95,9 @@ class FloodResult:
     seconds: float
     sent: int = 0
     failed_publishes: int = 0
+    #: Publishes the writer refused (its history full of samples not acked) and that the
+    #: client sent again.
+    publish_retries: int = 0
     outcomes: int = 0
     duplicates: int = 0
     drained_s: float = 0.0
@@ -253,6 +256,7 @@ def flood(
             via = "topic" if via == "service" else "service"
         done = json.loads(client.stdout.readline())
         result.sent, result.failed_publishes = done["sent"], done["failed"]
+        result.publish_retries = done["retried"]
         t_sent = time.monotonic()
         # The moves still queued get their outcomes from more stops, not a minute of moving:
         # the server may not have taken the whole flood yet (the sender was slowed).
