@@ -104,10 +104,12 @@ chromium:
 demo: runtime
 	$(BIN)/al5d demo
 
-# Two workers for most of the suite (it waits on servos, wires and DDS more than on the
-# CPU), then the load suites (marked solo) alone.
-# `make test WORKERS=4 DURATIONS=0` for other worker counts and every test's time.
-WORKERS   ?= 2
+# Three workers on two cores for most of the suite (it waits on servos, wires, DDS and the
+# browser more than on the CPU: with two its parallel part took 484 s, with four 315 s;
+# four beside two busy loops drove a board in a test process late enough for a link
+# fault), then the load suites (marked solo) alone. `make test WORKERS=2 DURATIONS=0` for another
+# worker count and every test's time.
+WORKERS   ?= 3
 DURATIONS ?= 12
 test: install
 	$(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile -m "not solo" --durations=$(DURATIONS)

@@ -37,9 +37,16 @@ class Arm(Served):
         return group_moves(self.emu.records[index:])
 
     def outcomes(self, ids: list[str]) -> dict[str, str]:
-        wait_until(
-            lambda: all(i in self.peer.results for i in ids), OUTCOME_S, f"{len(ids)} outcomes"
-        )
+        try:
+            wait_until(
+                lambda: all(i in self.peer.results for i in ids), OUTCOME_S, f"{len(ids)} outcomes"
+            )
+        except AssertionError as e:  # which, and what the server said, for the next reader
+            missing = [i for i in ids if i not in self.peer.results]
+            said = self.proc.err.drain(0)[-25:]
+            raise AssertionError(
+                f"{e}: missing {missing}; states {self.states[-8:]}; {said}"
+            ) from e
         results = self.peer.results_now()
         return {i: results[i].outcome for i in ids}
 

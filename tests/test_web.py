@@ -176,7 +176,11 @@ def test_a_long_slider_drag_follows_live_and_leaves_no_queue(rig: Rig) -> None:
         )
     except AssertionError as e:  # what the page and the server did, for the next reader
         web = rig.web.proc.err.drain(0)[-8:]
-        server = [x for x in rig.server.err.drain(0) if "watchdog" in x or "refused" in x][-5:]
+        server = [
+            x
+            for x in rig.server.err.drain(0)
+            if any(w in x for w in ("watchdog", "refused", "WARNING", "ERROR"))
+        ][-8:]
         raise AssertionError(
             f"{e}: slider {degrees}, base {rig.emu.servo_degrees()['base']:.2f}, last lines "
             f"{group_moves(rig.emu.records[n0:])[-3:]}, states {rig.state.states[-4:]}, web {web}, "
@@ -695,14 +699,21 @@ def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:
         assert degrees == 90, degrees
         pulse = round(rig.config.joints["base"].to_us(degrees))
         seen = len(rig.server.err.drain(0))
-        wait_until(
-            lambda: any(
-                (0, pulse) in {(t.channel, t.pulse_us) for t in m.targets}
-                for m in group_moves(rig.emu.records[n0:])
-            ),
-            10,
-            "the slider's set-point on the board",
-        )
+        try:
+            wait_until(
+                lambda: any(
+                    (0, pulse) in {(t.channel, t.pulse_us) for t in m.targets}
+                    for m in group_moves(rig.emu.records[n0:])
+                ),
+                10,
+                "the slider's set-point on the board",
+            )
+        except AssertionError as e:  # what the page and the server did, for the next reader
+            raise AssertionError(
+                f"{e}: moves {group_moves(rig.emu.records[n0:])[-3:]}, states "
+                f"{rig.state.states[-4:]}, web {rig.web.proc.err.drain(0)[-10:]}, "
+                f"server {rig.server.err.drain(0)[seen:][-12:]}"
+            ) from e
         os.kill(rig.web.proc.popen.pid, signal.SIGSTOP)  # the page's process stalls
         try:
             wait_until(
