@@ -8,17 +8,23 @@ or a call of the stop service becomes ESC and STOP for every channel. No validat
 queue, no state, no link checks. Each instruction is answered `done` on the result topic
 once written, so that the benchmark can pace itself as it does with the server.
 
-`python bench/floor_node.py --port PATH --baud B`; says "ready" on stdout once its
-subscription, publisher and service exist; ends on SIGTERM or SIGINT.
+`python bench/floor_node.py --port PATH --baud B [--trace FILE]`; says "ready" on stdout
+once its subscription, publisher and service exist; ends on SIGTERM or SIGINT. With
+--trace it writes, as it ends, when each instruction reached its callback, as `al5d serve
+--trace` does ("recv", CLOCK_MONOTONIC in ns); an instruction `latency` is only traced and
+answered (the ROS latency trial sends faster than the wire would carry moves).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import sys
 import threading
+import time
+from pathlib import Path
 
 import serial
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
@@ -40,6 +46,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--port", required=True)
     parser.add_argument("--baud", type=int, default=9600)
+    parser.add_argument("--trace", type=Path)
     args = parser.parse_args()
     config = load_config()
     translator = Translator(config)
@@ -51,8 +58,10 @@ def main() -> int:
     node = Node(NAME, context=context)
     results = node.create_publisher(InstructionResult, names.result, QOS_STREAM)
     pose: dict[str, float | None] = {}
+    received: list[tuple[str, int]] = []
 
     def on_instruction(msg: ArmInstruction) -> None:
+        received.append((msg.id, time.monotonic_ns()))
         if msg.instruction == "stop":
             os.write(fd, stop)
         elif msg.instruction == "move":
@@ -77,6 +86,8 @@ def main() -> int:
     done.wait()
     spinner.close()
     port.close()
+    if args.trace is not None:
+        args.trace.write_text("".join(json.dumps([i, "recv", t]) + "\n" for i, t in received))
     return 0
 
 

@@ -2,9 +2,11 @@
 its floor, which no driver in Python could beat on this machine at this moment, so that a
 busy or a slow machine moves both and the ratio stays.
 
-The floor of command to board and of the stop is `floor_node.py`: a bare rclpy node that
-writes the same bytes to the same kind of board (`al5d emulator` in its own process, on a
-pty, at the same baud) as soon as a message or a request comes.
+The floor of command to board, of the stop and of a message's way to its callback is
+`floor_node.py`: a bare rclpy node that writes the same bytes to the same kind of board
+(`al5d emulator` in its own process, on a pty, at the same baud) as soon as a message or a
+request comes. The floor of the serial write is pyserial's own write of the same bytes
+(`micro.serial_write`).
 """
 
 from __future__ import annotations
@@ -15,7 +17,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rosbench import STOP_BYTES, STOP_LINES, Rig, command_to_board
+from rosbench import (
+    STOP_BYTES,
+    STOP_LINES,
+    Rig,
+    command_to_board,
+    latency_figure,
+    read_trace,
+    ros_latency,
+)
 from stats import figure
 from std_srvs.srv import Trigger
 
@@ -42,6 +52,7 @@ class FloorRig(Rig):
         self.peer = peer
         self.n = 0
         self.link = workdir / f"floor-{baud}"
+        self.trace = workdir / f"floor-trace-{baud}.txt"
         self.emu = BoardProcess(self.link, baud, config)
         self.node = subprocess.Popen(
             [
@@ -51,6 +62,8 @@ class FloorRig(Rig):
                 str(self.link),
                 "--baud",
                 str(baud),
+                "--trace",
+                str(self.trace),
             ],
             stdout=subprocess.PIPE,
             text=True,
@@ -88,14 +101,21 @@ class FloorRig(Rig):
                 if time.monotonic() > deadline:
                     raise
 
+    def barrier(self, timeout: float = 30.0, peer: Peer | None = None) -> None:
+        """Until the floor has taken in everything sent so far (it answers each in order)."""
+        ident = self.ident("barrier")
+        (peer or self.peer).send(ident, "barrier")
+        (peer or self.peer).result(ident, timeout)
+
     def close(self) -> dict[str, dict[str, int]]:
+        """Ends the floor node; its trace (empty if it could not write one)."""
         self.node.terminate()
         try:
             self.node.wait(10)
         except subprocess.TimeoutExpired:
             self.node.kill()
         self.emu.close()
-        return {}
+        return read_trace(self.trace) if self.trace.exists() else {}
 
 
 def stop_floor(rig: FloorRig, trials: int = 100) -> dict[str, Any]:
@@ -121,16 +141,22 @@ def measure(config: ArmConfig, baud: int, workdir: Path, peer: Peer, log: Any) -
     """The floors at `baud`: command to board (as `rosbench.command_to_board`), and at 9600
     the stop."""
     rig = FloorRig(config, baud, workdir, peer)
+    out: dict[str, Any] = {}
     try:
+        if baud == 9600:
+            log("floor: ROS client -> node (2000 paced messages, floor_node.py)")
+            ids, sent = ros_latency(rig, word="latency")
         log(f"floor: command to board at {baud} baud (300 moves, floor_node.py)")
-        out: dict[str, Any] = {"c2b": command_to_board(rig)}
+        out["c2b"] = command_to_board(rig)
         out["c2b"].pop("times")
         if baud == 9600:
             log("floor: the stop by service and on the topic (100 trials)")
             out["stop"] = stop_floor(rig)
-        return out
     finally:
-        rig.close()
+        trace = rig.close()
+    if baud == 9600:
+        out["ros_latency"] = latency_figure("ROS client -> bare node", ids, sent, trace)
+    return out
 
 
 def ratio_row(

@@ -166,29 +166,45 @@ class Rig:
         self.proc.popen.send_signal(signal.SIGTERM)
         self.proc.wait(60)
         self.emu.close()
-        trace: dict[str, dict[str, int]] = {}
-        for line in self.trace.read_text().splitlines():
-            ident, what, t = json.loads(line)
-            trace.setdefault(ident, {})[what] = t
-        return trace
+        return read_trace(self.trace)
 
 
-def ros_latency(rig: Rig, n: int = 2000, warmup: int = 200) -> tuple[list[str], dict[str, float]]:
-    """Publish paced moves (queued on the server); the trace gives each callback's start."""
+def read_trace(path: Path) -> dict[str, dict[str, int]]:
+    """A trace's lines ([id, what, ns]) by instruction id, then by what."""
+    trace: dict[str, dict[str, int]] = {}
+    for line in path.read_text().splitlines():
+        ident, what, t = json.loads(line)
+        trace.setdefault(ident, {})[what] = t
+    return trace
+
+
+def ros_latency(
+    rig: Rig, n: int = 2000, warmup: int = 200, word: str = "move"
+) -> tuple[list[str], dict[str, float]]:
+    """Publish paced moves (queued on the server; for the floor, `word` is one it only
+    traces, of the same size); the trace gives each callback's start."""
     sent: dict[str, float] = {}
     ids = []
     for i in range(n + warmup):
         ident = rig.ident("lat")
         t = time.monotonic_ns()
-        rig.peer.send(ident, "move", 0, base=0.0)
+        rig.peer.send(ident, word, 0, base=0.0)
         if i >= warmup:
             sent[ident] = t
             ids.append(ident)
         time.sleep(0.002)
     rig.barrier()
-    rig.peer.trigger("stop")
-    rig.peer.trigger("release")
+    if word == "move":
+        rig.peer.trigger("stop")
+        rig.peer.trigger("release")
     return ids, sent
+
+
+def latency_figure(
+    name: str, ids: list[str], sent: dict[str, float], trace: dict[str, dict[str, int]]
+) -> dict[str, Any]:
+    """Publish to callback start, in ms, of the traced ones of `ids`."""
+    return figure(name, [(trace[i]["recv"] - sent[i]) / 1e6 for i in ids if i in trace])
 
 
 def command_to_board(rig: Rig, n: int = 300) -> dict[str, Any]:
@@ -732,9 +748,7 @@ def run(config: ArmConfig, log: Any) -> dict[str, Any]:
         out["goals"] = goal_cost(rig)
         rig.settle()
         trace = rig.close()
-        out["ros_latency"] = figure(
-            "ROS client -> server", [(trace[i]["recv"] - sent[i]) / 1e6 for i in ids if i in trace]
-        )
+        out["ros_latency"] = latency_figure("ROS client -> server", ids, sent, trace)
         out["c2b_9600"]["parts"] = breakdown(out["c2b_9600"], trace)
         out["floor_9600"] = floors.measure(config, 9600, workdir, peer, log)
         rig = Rig(config, 115200, workdir, peer)
