@@ -201,7 +201,12 @@ def test_record_then_replay_reproduces_the_boards_bytes(tmp_path: Path) -> None:
 
     # The server's recording: every topic, and the board's bytes as the board received them.
     _, by_topic = read_back(served)
-    check_topics(by_topic, goal_uuid)
+    try:
+        check_topics(by_topic, goal_uuid)
+    except AssertionError as e:  # what the server's recorder said it matched, for the reader
+        said = [x for x in server.err.drain(0) if "recording" in x or "recorded" in x]
+        counts = {topic: len(messages) for topic, messages in by_topic.items()}
+        raise AssertionError(f"{e}: recorded {counts}; the server said {said[-15:]}") from e
     writes = [d for _, d in by_topic["/al5d/board_writes"]]
     assert [m.sequence for m, _ in by_topic["/al5d/board_writes"]] == list(
         range(1, len(writes) + 1)
