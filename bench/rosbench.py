@@ -265,10 +265,16 @@ def emergency_stop(rig: Rig, trials: int = 200, queued: int = 1000) -> dict[str,
     for trial in range(trials):
         via = "service" if trial % 2 == 0 else "topic"
         t_long = time.monotonic()
-        quiet.send(rig.ident("long"), "move", 5000, base=80 if trial % 4 < 2 else -80, shoulder=40)
+        # The base alone: with the shoulder at 40 degrees as well, the fingers would go
+        # under the table, and the server refuses such a move whole.
+        quiet.send(rig.ident("long"), "move", 5000, base=80 if trial % 4 < 2 else -80)
         for k in range(queued):
             quiet.send(rig.ident("q"), "move", 0, base=(k % 60) - 30)
-        rig.record_after(t_long, lambda r: b"T5000" in r.raw)
+        try:
+            rig.record_after(t_long, lambda r: b"T5000" in r.raw)
+        except TimeoutError:
+            rig.diagnose(f"trial {trial}: the long move never reached the board in 10 s")
+            raise
         rig.barrier(peer=quiet)  # the queued moves are all in the server's queue
         t0 = time.monotonic()
         if via == "service":
