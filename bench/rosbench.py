@@ -321,6 +321,30 @@ def _halted(channels: list[int], t0: float, records: list[Record]) -> bool:
     return len(_stops(channels, t0, records)) >= len(channels)
 
 
+def _order_move(rig: Rig, moving: list[str], end: int) -> str:
+    """A 3 s move of the `moving` joints towards one end of their ranges, on the board: 80 %
+    of the way there, or less where the server refuses it whole (the fingers would go
+    under the table)."""
+    cfg = rig.config
+    for frac in (0.8, 0.65, 0.5, 0.35):
+        target = {
+            j: cfg.joints[j].range_deg[end] * frac + cfg.joints[j].range_deg[1 - end] * (1 - frac)
+            for j in moving
+        }
+        ident, t_pub = rig.move("order", 3000, **target)
+
+        def written(records: list[Record], ident: str = ident, t_pub: float = t_pub) -> bool:
+            return ident in rig.peer.results or any(
+                r.t_effect > t_pub and b"T3000" in r.raw for r in records
+            )
+
+        rig.emu.wait_for(written, 10)
+        result = rig.peer.results.get(ident)
+        if result is None or result.outcome != "refused":
+            return ident
+    raise AssertionError(f"every move of {moving} towards end {end} was refused")
+
+
 def stop_order(rig: Rig, trials: int = 10) -> dict[str, Any]:
     """By number of moving joints: stop request (service) until the last MOVING servo's STOP
     is in effect. The moving joints' STOPs go first, the fastest first; in channel order
@@ -333,13 +357,7 @@ def stop_order(rig: Rig, trials: int = 10) -> dict[str, Any]:
         channels = [cfg.joints[j].channel for j in moving]
         samples = []
         for trial in range(trials):
-            target = {
-                j: cfg.joints[j].range_deg[trial % 2] * 0.8
-                + cfg.joints[j].range_deg[1 - trial % 2] * 0.2
-                for j in moving
-            }
-            ident, t_pub = rig.move("order", 3000, **target)
-            rig.record_after(t_pub, lambda r: b"T3000" in r.raw)
+            ident = _order_move(rig, moving, trial % 2)
             time.sleep(0.3)
             t0 = time.monotonic()
             wait_future(rig.peer.services["stop"].call_async(Trigger.Request()))
