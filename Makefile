@@ -104,12 +104,13 @@ chromium:
 demo: runtime
 	$(BIN)/al5d demo
 
-# Three workers on two cores for most of the suite (it waits on servos, wires, DDS and the
-# browser more than on the CPU: with two its parallel part took 484 s, with four 315 s;
-# four beside two busy loops drove a board in a test process late enough for a link
-# fault), then the load suites (marked solo) alone. `make test WORKERS=2 DURATIONS=0` for another
-# worker count and every test's time.
-WORKERS   ?= 3
+# Two workers for most of the suite, then the load suites (marked solo) alone. More
+# workers finish sooner (it waits on servos, wires, DDS and the browser more than on the
+# CPU: the parallel part took 484 s on two, 315 s on four, 362 s on three) but load the
+# host past what some tests bear today: on three, a clean clone's idle run lost the
+# outcome of one instruction (`test_the_queue_never_wedges_after_a_stop_and_a_release`),
+# not yet explained. `make test WORKERS=3 DURATIONS=0` for another count and every time.
+WORKERS   ?= 2
 DURATIONS ?= 12
 test: install
 	$(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile -m "not solo" --durations=$(DURATIONS)
