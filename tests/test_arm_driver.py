@@ -18,8 +18,9 @@ from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Outcome, Result
 from al5d.arm.states import TRANSITIONS, State
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.driver import SSC32U
+from al5d.ssc32u.driver import SSC32U, gate_port
 from al5d.ssc32u.emulator import Emulator, Fault
+from al5d.ssc32u.stopline import _STOPS, StopGate
 from al5d_rig.armrig import (
     Rig,
     group_pulses,
@@ -489,3 +490,22 @@ def test_every_instruction_gets_exactly_one_outcome(rig: Rig) -> None:
     assert sorted(o.id for o in outcomes) == sorted(ids)
     assert sorted(o.id for o in seen if o.id in set(ids)) == sorted(ids)  # once each, no more
     assert {o.result for o in outcomes} == {Result.DONE, Result.REFUSED, Result.CANCELLED}
+
+
+def test_a_move_withheld_for_a_stop_not_yet_obeyed_gets_its_outcome(rig: Rig) -> None:
+    """The stop process has written a STOP the driver has not obeyed yet (its notice is
+    late): an idle arm's move, written from the caller's thread, is withheld, and still
+    gets one outcome (it was ended silently: seen as a flood's first move never answered
+    in the sequences over DDS)."""
+    gate = StopGate()
+    gate_port(rig.driver.port, gate)
+    try:
+        n = len(rig.moves())
+        gate._shared.add(_STOPS)  # the other end's count (`StopEnd.stop`): one stop more
+        future = rig.driver.submit(ins.move(base=20))
+        outcome = future.result(10)
+        assert outcome.result is Result.CANCELLED, outcome
+        assert len(rig.moves()) == n  # nothing of it reached the board
+    finally:
+        gate_port(rig.driver.port, None)
+        gate.close()

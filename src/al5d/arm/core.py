@@ -169,7 +169,8 @@ class Core(CoreState):
         self, job: Job, written: Written | None, error: SerialFault | None = None
     ) -> tuple[Motion | None, Ended]:
         """The caller has written (or not) the first step of the job `admit` gave it: the
-        worker sees it through from here. The motion on the board, and what a fault ended."""
+        worker sees it through from here. The motion on the board, and what ended: a
+        fault's jobs, or this one, withheld for a stop another process wrote."""
         with self._cv:
             self._writing -= 1
             self._cv.notify_all()
@@ -179,8 +180,12 @@ class Core(CoreState):
             if job is self._current:
                 if motion is not None:
                     self._runner = Runner.HANDED
-                else:  # nothing of it went out, and nothing ended it: it ends
-                    self._end_current(job)
+                elif self._end_current(job) and written is None:
+                    # Nothing of it went out and nothing here ended it: the write was
+                    # withheld for a STOP the stop process wrote, which this server has not
+                    # obeyed yet; that stop would cancel it, so it ends so (its outcome is
+                    # the caller's to set, as an event's).
+                    return None, Ended((job,), "cancelled by stop")
             return motion, Ended()
 
     def stop(

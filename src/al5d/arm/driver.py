@@ -332,13 +332,13 @@ class ArmDriver:
             core.announce()
             self._refuse_job(job, reason)
             return
-        motion, lost = core.first_written(job, written, error)
+        motion, ended = core.first_written(job, written, error)
         core.announce()
         if error is not None:
             log.error("serial fault: %s", error)
-            lost.settle()
         elif motion is not None and written is not None:
             self.writer.told(job, written, motion)
+        ended.settle()
 
     def _write_halt(self, halt: Halt, key: Hashable | None = None) -> SerialFault | None:
         """Write a STOP the core decided (a stop's or a cancel's, or a stop message's known by
