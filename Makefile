@@ -106,10 +106,10 @@ demo: runtime
 
 # Two workers for most of the suite, then the load suites (marked solo) alone. More
 # workers finish sooner (it waits on servos, wires, DDS and the browser more than on the
-# CPU: the parallel part took 484 s on two, 315 s on four, 362 s on three) but load the
-# host past what some tests bear today: on three, a clean clone's idle run lost the
-# outcome of one instruction (`test_the_queue_never_wedges_after_a_stop_and_a_release`),
-# not yet explained. `make test WORKERS=3 DURATIONS=0` for another count and every time.
+# CPU: the parallel part took 484 s on two, 315 s on four, 362 s on three), and load the
+# host more: on three and four, tests failed that two have not shown failing (a web jog's
+# first result, a false link fault on four). `make test WORKERS=3 DURATIONS=0` for another
+# count and every test's time.
 WORKERS   ?= 2
 DURATIONS ?= 12
 test: install
