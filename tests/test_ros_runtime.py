@@ -85,18 +85,21 @@ SERVER_PROFILE_CHECK = """
 import os
 os.environ.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
 from al5d.ros.dds import dds_profile, start_context
-assert dds_profile(("/al5d/instruction", 1000)) is None
+assert dds_profile(("/al5d/instruction", 1000), in_process=IN_PROCESS) is None
 from rclpy.node import Node
 Node("al5d_profile_check", context=start_context())
 print("started")
 """
 
 
-def test_fast_dds_takes_the_servers_profile_whole() -> None:
+@pytest.mark.parametrize("in_process", [True, False], ids=["serving", "recording"])
+def test_fast_dds_takes_the_servers_profile_whole(in_process: bool) -> None:
     # Fast DDS says nothing but an XMLPARSER error for a profile it cannot
-    # read, and goes on with its defaults: the backlog bound and the deeper port lost.
+    # read, and goes on with its defaults: the backlog bound and the deeper port lost
+    # (and, for a recording server, its recorder's delivery through the transport).
+    script = f"IN_PROCESS = {in_process}\n" + SERVER_PROFILE_CHECK
     done = subprocess.run(
-        [sys.executable, "-c", SERVER_PROFILE_CHECK], capture_output=True, text=True, timeout=60
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=60
     )
     said = done.stdout + done.stderr  # Fast DDS logs its errors on stdout
     assert done.returncode == 0 and "started" in done.stdout, said

@@ -50,7 +50,8 @@ class RosStart:
             early = params.resolve({}, flags, remap, base)
         names = Names.of(early.namespace)
         backlog = early.config.server.instruction_backlog
-        theirs = dds_profile((names.instruction, backlog))
+        # A recording's participant reads the server's topics through the transport.
+        theirs = dds_profile((names.instruction, backlog), in_process=early.record is None)
         if theirs:
             log.warning(
                 "Fast DDS profiles from %s: the instruction backlog and the transports are theirs",
