@@ -685,8 +685,10 @@ def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:
         wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
         rig.state.wait_for("ready", 10)
         # The new server's topics matched this peer, not only its services (seen: the move
-        # below sent before its reader had matched, and no result in 20 s).
+        # below sent before its reader had matched, and no result in 20 s): the killed
+        # server's reader may still be counted, so an answered probe says it.
         rig.peer.wait_for_server()
+        rig.peer.wait_for_topics("web-jog-probe-")
         rig.peer.send("web-jog-start", "move", base=-90)  # the base to one end of its range...
         assert rig.peer.result("web-jog-start", 20).outcome == "done"
         page.get_by_role("tab", name="Joints").click()

@@ -220,6 +220,21 @@ class Peer:
         assert self.move.wait_for_server(timeout_sec=10)
         self.first_answer()
 
+    def wait_for_topics(self, prefix: str, timeout: float = 20.0) -> None:
+        """Until an instruction sent on the topic has come back answered: both ways matched
+        with the server that runs now. After a server was killed, `wait_for_server`'s counts
+        may still be the dead one's (DDS forgets a killed participant only when its lease
+        ends), and a move sent then reaches nobody. The probes are refused (no such
+        instruction): nothing is written."""
+        deadline = time.monotonic() + timeout
+        n = 0
+        while not any(ident.startswith(prefix) for ident in self.results_now()):
+            if time.monotonic() > deadline:
+                raise AssertionError(f"no probe {prefix}* answered in {timeout} s")
+            self.send(f"{prefix}{n}", "probe")
+            n += 1
+            time.sleep(0.2)
+
     def first_stop_answer(self) -> None:
         """A stop and a release, so that the server's stop process (a DDS participant of its
         own) has answered this peer once: its first answer may be dropped as `first_answer`
