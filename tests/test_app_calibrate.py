@@ -14,10 +14,10 @@ import pytest
 
 from al5d import exits
 from al5d.app.calibrate import Command, parse_command
-from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
+from al5d.arm.config import ArmConfig, load_config
 from al5d.ssc32u.emulator import Emulator, Mechanics
 from al5d_rig.calibuser import User, truth
-from al5d_rig.proc import AL5D, Lines, Proc
+from al5d_rig.proc import AL5D, Lines, Proc, patient_config_text
 
 STEP_US = 5
 MECHANICS = {"base": Mechanics(42), "elbow": Mechanics(-20, reversed=True)}
@@ -28,11 +28,9 @@ PROMPT = "nudge until it is there"
 @pytest.fixture
 def arm_file(tmp_path: Path) -> Path:
     """The shipped file, comments and all, with a patient answer timeout (a board that is a
-    thread of a busy test process: `proc.patient_config`)."""
+    thread of a busy test process)."""
     path = tmp_path / "arm.yaml"
-    text = DEFAULT_CONFIG.read_text(encoding="utf-8")
-    assert "answer_timeout_s: 0.05 " in text
-    path.write_text(text.replace("answer_timeout_s: 0.05 ", "answer_timeout_s: 0.5  "), "utf-8")
+    path.write_text(patient_config_text(), "utf-8")
     return path
 
 

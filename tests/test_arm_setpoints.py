@@ -150,7 +150,9 @@ def test_a_newer_set_point_retargets_the_running_one_as_soon_as_the_wire_allows(
     assert len(moves) == 2
     assert group_pulses(moves[1].commands[0]) == pulses(rig.config, {"base": -30})
     assert moves[1].t_effect < t_old + 3.0  # mid-move, not after the old one's 3 s
-    assert abs(rig.emu.servo_degrees()["base"] + 30) < 0.5
+    # There: a set-point is done when its time is over by the server's clock (no `Q`),
+    # which a board thread of a busy test process can trail (1.35 degrees short once).
+    wait_until(lambda: abs(rig.emu.servo_degrees()["base"] + 30) < 0.5, 5, "the base at -30")
     assert not any(isinstance(c, p.Stop) for r in rig.emu.records for c in r.commands)
 
 

@@ -203,6 +203,14 @@ def test_sliders_into_the_table_show_why_and_send_nothing(rig: Rig) -> None:
     page.get_by_role("tab", name="Joints").click()
     thumb = page.get_by_role("slider").nth(1)  # shoulder: forward takes the hand down
     wait_text(page, "#al5d-joints-status", lambda t: t != "")
+    # The slider has followed the arm to ready (on a busy host it lags the arm): the drag
+    # starts on its thumb, not on the track where the thumb was (a jump to far forward).
+    shoulder = rig.config.presets["ready"]["shoulder"]
+    wait_until(
+        lambda: float(thumb.get_attribute("aria-valuenow") or "nan") == shoulder,
+        10,
+        f"the shoulder's slider at {shoulder}",
+    )
     box = thumb.bounding_box()
     x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
     n0 = len(rig.emu.records)

@@ -15,10 +15,10 @@ from typing import Any
 
 import pytest
 
-from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
+from al5d.arm.config import ArmConfig, load_config
 from al5d.ssc32u.emulator import Emulator, Mechanics
 from al5d_rig.calibuser import User
-from al5d_rig.proc import Proc
+from al5d_rig.proc import Proc, patient_config_text
 from al5d_rig.webrig import WebProc, chromium, dismiss_notifications, open_page, wait_text
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
@@ -31,9 +31,10 @@ AT = re.compile(r"At (\d+) us")
 
 @pytest.fixture
 def arm_file(tmp_path: Path) -> Path:
+    """The shipped file, comments and all, with a patient answer timeout (a board that is a
+    thread of a busy test process)."""
     path = tmp_path / "arm.yaml"
-    text = DEFAULT_CONFIG.read_text(encoding="utf-8")
-    path.write_text(text.replace("answer_timeout_s: 0.05 ", "answer_timeout_s: 0.5  "), "utf-8")
+    path.write_text(patient_config_text(), "utf-8")
     return path
 
 

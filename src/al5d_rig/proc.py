@@ -23,17 +23,29 @@ from al5d.arm.config import DEFAULT_CONFIG
 AL5D = str(Path(sys.executable).with_name("al5d"))
 
 
+#: The answer timeout of a server whose emulated board is a thread of the busy test
+#: process. The board answers within 5 ms; this emulator, on two loaded cores, once missed
+#: the 0.15 s of two asks during a CI run, and once 0.5 s (four workers and two busy loops
+#: beside them), and the server rightly took it for a lost link (the test's move ended
+#: `cancelled`). Tests that are about faults keep the default.
+PATIENT_ANSWER_S = 1.0
+
+
+def patient_config_text() -> str:
+    """The packaged configuration file, comments and all, with `PATIENT_ANSWER_S`."""
+    text = DEFAULT_CONFIG.read_text(encoding="utf-8")
+    shipped = "answer_timeout_s: 0.05 "
+    assert shipped in text, "the packaged answer timeout moved"
+    return text.replace(shipped, f"answer_timeout_s: {PATIENT_ANSWER_S:<4} ")
+
+
 @functools.cache
 def patient_config(speeds: tuple[tuple[str, float], ...] = (), **server: float) -> str:
-    """The packaged configuration with `server.answer_timeout_s` at 0.5 s, for a server
-    whose emulated board is a thread of the busy test process.
-
-    The board answers within 5 ms; this emulator, on two loaded cores, once missed the
-    0.15 s of two asks during a CI run, and the server rightly took it for a lost link
-    (the test's move ended `cancelled`). Tests that are about faults keep the default.
-    `speeds`: joints' speeds (deg/s); `server`: other settings of the `server` section."""
+    """The packaged configuration with `server.answer_timeout_s` at `PATIENT_ANSWER_S`, for
+    a server whose emulated board is a thread of the busy test process. `speeds`: joints'
+    speeds (deg/s); `server`: other settings of the `server` section."""
     data = yaml.safe_load(DEFAULT_CONFIG.read_text())
-    data["server"]["answer_timeout_s"] = 0.5
+    data["server"]["answer_timeout_s"] = PATIENT_ANSWER_S
     data["server"].update(server)
     for joint, speed in speeds:
         data["joints"][joint].pop("servo", None)
