@@ -209,7 +209,9 @@ def test_a_refusal_sent_again_and_again_is_published_once_a_second(served: Serve
     served.command(here, "sentinel", **(named | {"position": [0.0] * 5 + [9.0]}))
     assert served.peer.result("sentinel", 20).outcome == "refused"  # another reason: told
     told = [i for i in range(40) if f"again-{i}" in served.peer.results]
-    assert told and told[0] == 0, told
+    # The first the server judged is told (the stream keeps the newest command only, so on
+    # a busy host the server may read again-6 first: seen, beside two busy loops).
+    assert told, told
     # At most one a second of the 40 (sent within `took` seconds).
     took = time.monotonic() - t0
     assert len(told) <= 1 + took / COMMAND_REFUSALS_EVERY_S, (told, took)

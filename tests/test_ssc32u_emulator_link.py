@@ -193,7 +193,14 @@ def test_a_uart_answers_without_a_latency_timer(config: ArmConfig) -> None:
         serial.Serial(emu.port, 9600, timeout=1) as port,
     ):
         times = _answer_times(emu, port)
-    assert statistics.median(total for total, _ in times) < 0.010
+    with (
+        Emulator(config, usb=LinkModel()) as emu,
+        serial.Serial(emu.port, 9600, timeout=1) as port,
+    ):
+        timer = _answer_times(emu, port)
+    # Compared in the same run, as low latency's above (beside busy loops the UART's median
+    # was once 13.3 ms: no fixed figure holds on a busy host).
+    assert statistics.median(t for t, _ in times) < statistics.median(t for t, _ in timer)
 
 
 def test_a_long_answer_arrives_whole(config: ArmConfig) -> None:
