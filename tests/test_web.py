@@ -661,12 +661,16 @@ def test_the_demo_waits_for_a_page_then_runs(rig: Rig) -> None:
 class Recorder:
     def __init__(self) -> None:
         self.sent: list[Any] = []
+        self.lost = 0
 
     def send(self, instr: Any) -> None:
         self.sent.append(instr)
 
     def stop(self) -> str:
         return "test"
+
+    def server_lost(self) -> None:
+        self.lost += 1
 
     def release(self) -> None:
         self.sent.append("release")

@@ -20,6 +20,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
+from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -105,7 +106,15 @@ class WebNode:
             f"al5d_web_{os.getpid()}", namespace=names.node_namespace, context=self.context
         )
         self.pub = node.create_publisher(ArmInstruction, names.instruction, QOS_INSTRUCTIONS)
-        self.jog_pub = node.create_publisher(JointState, names.joint_commands, QOS_COMMANDS)
+        # Readers of the jog ever matched (the matched event's total), and that total when
+        # the page last lost the server (`server_lost`).
+        self._jog_matched = self._jog_mark = 0
+        self.jog_pub = node.create_publisher(
+            JointState,
+            names.joint_commands,
+            QOS_COMMANDS,
+            event_callbacks=PublisherEventCallbacks(matched=self._on_jog_matched),
+        )
         node.create_subscription(String, names.robot_description, self._on_description, QOS_LATCHED)
         node.create_subscription(JointState, names.joint_states, self._on_joints, QOS_LATEST)
         node.create_subscription(String, names.state, self._on_state, QOS_STATES)
@@ -168,12 +177,21 @@ class WebNode:
         """A set-point of the jog (the arm's degrees) on the server's stream of set-points,
         in the URDF's values as ros2_control's hardware sends them. False when no server
         reads the stream yet: a server just (re)started can send its joint states to this
-        page before DDS has matched this writer to its reader, and the set-point is lost."""
+        page before DDS has matched this writer to its reader, and the set-point is lost.
+        After the page lost the server, only a reader matched since counts: a killed
+        server's reader stays matched until DDS notices it has gone (its lease, seconds),
+        and a set-point sent to it alone reaches nobody."""
         values = self.model.to_urdf(dict(degrees))
         msg = JointState(name=list(values), position=[float(v) for v in values.values()])
         msg.header.stamp = self.node.get_clock().now().to_msg()
         self.jog_pub.publish(msg)
-        return self.jog_pub.get_subscription_count() > 0
+        return self.jog_pub.get_subscription_count() > 0 and self._jog_matched > self._jog_mark
+
+    def server_lost(self) -> None:
+        self._jog_mark = self._jog_matched
+
+    def _on_jog_matched(self, info: QoSPublisherMatchedInfo) -> None:
+        self._jog_matched = info.total_count
 
     def stop(self) -> str:
         """The emergency stop, by the service (it never waits behind instructions) and on the

@@ -73,6 +73,11 @@ class Commands(Protocol):
         """Sends a set-point; False when no server reads them yet."""
         ...
 
+    def server_lost(self) -> None:
+        """The page has lost the server: a set-point is read again only by a server whose
+        reader matched after this."""
+        ...
+
     def stop(self) -> str: ...
 
     def release(self) -> Any: ...
@@ -340,6 +345,8 @@ class Page:
             if changed:
                 self.panel.set_enabled(not lost)
                 self.scene.set_target_enabled(not lost)
+        if changed and lost and self.commands is not None:
+            self.commands.server_lost()
         if changed:
             log.log(
                 logging.WARNING if lost else logging.INFO,

@@ -1,0 +1,91 @@
+"""The web view's ROS link (`al5d.web.link.WebNode`) against readers in processes of their own:
+whether a jog's set-point has a server to read it, across a server killed outright."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator, Sequence
+
+import pytest
+
+from al5d.arm.config import ArmConfig
+from al5d.arm.instruction import Outcome
+from al5d.model.transforms import Transform
+from al5d.ros.names import Names
+from al5d.web.link import WebNode
+from al5d_rig.rospeer import wait_until
+
+NAMES = Names.of("web_link_test")
+
+#: A server's reader of the set-points, alone in a process (as a server's is).
+READER = f"""
+import time
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from al5d.ros.dds import start_context
+from al5d.ros.qos import QOS_COMMANDS
+node = Node("jog_reader", context=start_context())
+node.create_subscription(JointState, {NAMES.joint_commands!r}, lambda msg: None, QOS_COMMANDS)
+print("reading", flush=True)
+time.sleep(600)
+"""
+
+
+class Quiet:
+    """A listener that takes what the link hands over and keeps none of it."""
+
+    def on_description(self, urdf: str) -> None: ...
+
+    def on_joints(self, names: Sequence[str], positions: Sequence[float], t: float) -> None: ...
+
+    def on_state(self, state: str) -> None: ...
+
+    def on_outcome(self, outcome: Outcome) -> None: ...
+
+    def on_instruction(self, instr: object) -> None: ...
+
+    def on_mount(self, parent: str, mount: Transform) -> None: ...
+
+
+def reader() -> subprocess.Popen[str]:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", READER], stdout=subprocess.PIPE, text=True, env=os.environ.copy()
+    )
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "reading"
+    return proc
+
+
+@pytest.fixture
+def link(config: ArmConfig) -> Iterator[WebNode]:
+    node = WebNode(NAMES, Quiet(), config.model, tuple(config.presets))
+    yield node
+    node.close()
+
+
+def test_after_the_server_is_lost_only_a_reader_matched_since_reads_the_jog(
+    link: WebNode, config: ArmConfig
+) -> None:
+    """A server killed outright stays matched until DDS notices (its lease: seconds), and a
+    set-point sent to it alone reaches nobody; the page keeps it due until the server that
+    comes back has matched."""
+    here = dict(config.presets["ready"])
+    first = reader()
+    try:
+        wait_until(lambda: link.jog(here), 20, "the first reader matched")
+        first.send_signal(signal.SIGKILL)
+        first.wait(10)
+        link.server_lost()  # the page saw its joint states stop
+        assert link.jog_pub.get_subscription_count() == 1  # the killed one, still matched
+        assert not link.jog(here)
+        second = reader()
+        try:
+            wait_until(lambda: link.jog(here), 20, "the second reader matched")
+        finally:
+            second.kill()
+            second.wait(10)
+    finally:
+        first.kill()
+        first.wait(10)
