@@ -102,7 +102,15 @@ def settled(s: Served, degrees: Mapping[str, float], timeout: float = 20.0) -> N
             if n in urdf
         )
 
-    wait_until(there, timeout, f"the arm at {dict(degrees)}")
+    try:
+        wait_until(there, timeout, f"the arm at {dict(degrees)}")
+    except AssertionError as e:
+        raise AssertionError(f"{e}: {said(s)}") from e
+
+
+def said(s: Served) -> str:
+    """Where the servos are and what the server said last, for a failure's reader."""
+    return f"servos {s.emu.servo_degrees()}, server {s.proc.err.drain(0)[-15:]}"
 
 
 def test_a_joint_command_moves_the_arm_and_the_joint_states_say_where(served: Served) -> None:
@@ -185,7 +193,10 @@ def test_the_latest_command_wins(served: Served) -> None:
     since = len(served.emu.records)
     # A long move holds the arm; 60 set-points of a sweep meanwhile replace each other.
     served.peer.send("hold", "move", time_ms=5000, **(start | {"wrist": start["wrist"] + 20}))
-    wait_until(lambda: group_moves(served.emu.records[since:]), 20, "the long move on the board")
+    try:
+        wait_until(lambda: group_moves(served.emu.records[since:]), 20, "the long move")
+    except AssertionError as e:
+        raise AssertionError(f"{e}: {said(served)}") from e
     last = start
     for k in range(1, 61):
         last = start | {"base": -60.0 + k, "elbow": 60.0 + k / 2}

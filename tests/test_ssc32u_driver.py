@@ -9,7 +9,13 @@ import time
 import pytest
 
 from al5d.arm.config import ArmConfig
-from al5d.ssc32u.driver import DEFAULT_READ_TIMEOUT_S, SSC32U, WIRE_HORIZON_S
+from al5d.ssc32u.driver import (
+    DEFAULT_READ_TIMEOUT_S,
+    SSC32U,
+    WIRE_HORIZON_S,
+    WIRE_PIECE_S,
+    tap_writes,
+)
 from al5d.ssc32u.emulator import UART, Emulator, Fault, LinkModel
 from al5d.ssc32u.errors import (
     GarbageAnswer,
@@ -96,6 +102,66 @@ def test_moves_wait_for_the_wire_so_a_stop_finds_little_ahead(
     moves = [r for r in raws if r.startswith(b"#0P")]
     assert moves == [f"#0P{1000 + 10 * i}".encode() for i in range(len(moves))]
     assert len(moves) >= 29
+
+
+#: A group move of all six joints with its time: 47 bytes, 49 ms at 9600 baud.
+LONG = {ch: 1500 for ch in range(6)}
+
+
+def test_a_long_move_goes_out_in_pieces_so_a_stop_finds_the_horizon_and_a_piece(
+    emulator: Emulator, board: SSC32U
+) -> None:
+    """A stop finds ahead of it the horizon and one piece at most, not a whole line (at
+    9600 baud a line of six joints is 49 ms on the wire)."""
+    for i in range(6):
+        line = board.move({ch: 1000 + 10 * i + ch for ch in LONG}, time_ms=500)
+        assert board.wire_time_s(line) > 2 * WIRE_PIECE_S
+        # What a stop written now would find ahead of it (a busy host only makes it less).
+        assert board.arrival(0) - time.monotonic() <= WIRE_HORIZON_S + WIRE_PIECE_S
+    # The board took each line whole: the pieces are bytes, not commands.
+    raws = [r.raw for r in emulator.wait_for(lambda rs: len(rs) >= 6)]
+    assert raws == [
+        "".join(f"#{ch}P{1000 + 10 * i + ch}" for ch in LONG).encode() + b"T500" for i in range(6)
+    ]
+
+
+def test_a_stop_between_the_pieces_of_a_line_cancels_it_and_nothing_of_it_follows(
+    emulator: Emulator,
+) -> None:
+    """A stop written while a long line goes out in pieces: the board cancels the half
+    it has (the stop's ESC), the rest is never written, the writer hears None, and the next
+    write begins with an ESC of its own (a cut line is never left open)."""
+    long = {ch: 1500 + ch for ch in range(32)}  # 32 channels: 300 ms on the wire, 34 pieces
+    taps: list[bytes] = []
+    tap_writes(emulator.port, lambda data, written, arrival: taps.append(data))
+    try:
+        with SSC32U(emulator.port, 9600) as writer:
+            line = b"".join(f"#{ch}P{pw}".encode() for ch, pw in long.items()) + b"\r"
+
+            def write(out: list[float | None]) -> None:
+                out.append(writer.write_command(line, unless=lambda: False))
+
+            for _ in range(5):  # until the stop falls between two pieces (a busy host may not)
+                emulator.clear_records()
+                got: list[float | None] = []
+                thread = threading.Thread(target=write, args=(got,))
+                thread.start()
+                time.sleep(0.1)
+                writer.stop(range(32))
+                thread.join(5)
+                if got == [None]:
+                    break
+                time.sleep(0.5)  # the line and the STOPs off the wire
+            assert got == [None], "no stop fell between the pieces of a line in five tries"
+            raws = emulator.wait_for(lambda rs: any(r.raw == b"STOP31" for r in rs))
+            cut = [r for r in raws if r.raw.startswith(b"#0P1500")][-1]
+            assert cut.ignored == "cancelled by ESC" and not cut.commands, cut
+            after = raws[raws.index(cut) + 1 :]
+            assert [r.raw for r in after] == [f"STOP{ch}".encode() for ch in range(32)]
+            writer.move({0: 1200})
+            assert taps[-1] == b"\x1b#0P1200\r"  # the cut line, cancelled once more
+    finally:
+        tap_writes(emulator.port, None)
 
 
 def test_stop_on_a_uart_drops_output_still_waiting(config: ArmConfig) -> None:

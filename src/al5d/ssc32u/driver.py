@@ -16,8 +16,12 @@ queue behind them (the port sends in order; on the USB link nothing already
 written can be taken back). So a move is written only when at most
 `WIRE_HORIZON_S` of earlier bytes are still on their way (the driver's own
 account of the wire, `arrival`), and a writer that comes sooner waits its turn
-here, outside the write lock; a stop never waits, and finds at most that
-horizon and one command ahead of it.
+here, outside the write lock. A move longer than `WIRE_PIECE_S` on the wire (a
+group move of six channels is 49 ms at 9600 baud) is written in pieces, each when
+the horizon allows it: a stop never waits, and finds at most the horizon and one
+piece ahead of it. A stop written between two pieces ends the line: its ESC
+cancels the half-sent line on the board, and the rest is not written; a line cut
+short any other way is cancelled by an ESC before the next bytes.
 
 The emergency stop may be written by another process (`al5d.ssc32u.stopline`): a port
 given a `StopGate` (`gate_port`) hands each board's file descriptor to that process,
@@ -57,6 +61,7 @@ from al5d.ssc32u.errors import (
 )
 from al5d.ssc32u.facts import (
     ANSWER_DELAY_MAX_S,
+    BITS_PER_BYTE,
     FACTORY_BAUD,
     FIRMWARE_PREFIX,
     LATENCY_TIMER_MS,
@@ -85,8 +90,11 @@ SCHEDULING_SLACK_S = 0.005
 EXCUSE_MAX_S = 0.15
 DEFAULT_WRITE_TIMEOUT_S = 0.5
 #: How much of earlier bytes' wire time a move may find still to go when it is written (the
-#: horizon a stop can find ahead of it, with the one command written last).
+#: horizon a stop can find ahead of it, with the one piece written last).
 WIRE_HORIZON_S = 0.02
+#: A paced write longer than this on the wire goes out in pieces of at most it (9 bytes at
+#: 9600 baud, 115 at 115200: only the slow bauds' long lines are cut).
+WIRE_PIECE_S = 0.01
 #: A VER answer's length, for its deadline (`SSC32-V2.50USB\r` is 15 bytes).
 VERSION_ANSWER_BYTES = 16
 #: What a dead port raises, depending on the call: pyserial's own, the OS's, and termios's
@@ -158,6 +166,8 @@ class SSC32U:
         self._pace_lock = threading.Lock()
         self._query_lock = threading.Lock()
         self._stops = 0  # counts emergency stops, to tell a flushed query from a dead board
+        # A line whose pieces stopped half way with no ESC known to follow it (write lock).
+        self._cut = False
         self._closed = False
         # When the wire will have carried every byte written so far: a query's answer
         # cannot come before its own bytes, and those queue behind the earlier ones.
@@ -285,7 +295,8 @@ class SSC32U:
         `unless` is asked under the write lock, just before the write; if it says True,
         nothing is written and None is returned. A caller whose command must never follow
         a stop makes the stop decide before it takes this lock: then either the command
-        goes out first and the STOP after it, or the command does not go out at all.
+        goes out first and the STOP after it, or the command does not go out at all (a long
+        one cut short by a stop between its pieces, cancelled by the stop's ESC: None too).
         The write waits until the wire's horizon allows it (`WIRE_HORIZON_S`, or a shorter
         `horizon_s`: a stream's set-point waits until the wire is free, where a newer one
         may still take its place).
@@ -431,10 +442,45 @@ class SSC32U:
         the stop known by `key` was written by another process)."""
         if not paced:
             return self._write_now(data, unless, flush, key)
+        piece = max(1, int(self.baud / BITS_PER_BYTE * WIRE_PIECE_S))
         with self._pace_lock:
-            while (wait := self._wire_free_at - horizon_s - now()) > 0:
-                time.sleep(wait)
-            return self._write_now(data, unless, flush, key)
+            if flush or len(data) <= piece:
+                self._wait_for_horizon(horizon_s)
+                return self._write_now(data, unless, flush, key)
+            return self._write_pieces(data, piece, unless, horizon_s)
+
+    def _wait_for_horizon(self, horizon_s: float) -> None:
+        while (wait := self._wire_free_at - horizon_s - now()) > 0:
+            time.sleep(wait)
+
+    def _write_pieces(
+        self, data: bytes, piece: int, unless: Callable[[], bool] | None, horizon_s: float
+    ) -> float | None:
+        """`data` in pieces of `piece` bytes, each when the horizon allows it (`horizon_s`
+        for the first, which decides whether the line goes out at all); the first if
+        `unless` lets it, the others unless a stop came meanwhile (its ESC cancels the half
+        line). The tap hears of what went out as one write."""
+        stops = self._stop_count()
+
+        def stopped() -> bool:
+            return self._stop_count() != stops
+
+        t_first, sent, end = 0.0, 0, None
+        while sent < len(data):
+            self._wait_for_horizon(WIRE_HORIZON_S if sent else horizon_s)
+            chunk = data[sent : sent + piece]
+            end = self._write_now(chunk, stopped if sent else unless, False, tap=False)
+            if end is None:
+                break
+            t_first = t_first or now()
+            sent += len(chunk)
+        if 0 < sent < len(data):
+            with self._write_lock:
+                self._cut = True
+        if sent and self._tap is not None:
+            with contextlib.suppress(Exception):  # a recording never fails a write
+                self._tap(data[:sent], t_first, self._wire_free_at)
+        return end if sent == len(data) else None
 
     def _write_now(
         self,
@@ -442,6 +488,7 @@ class SSC32U:
         unless: Callable[[], bool] | None,
         flush: bool,
         key: Hashable | None = None,
+        tap: bool = True,
     ) -> float | None:
         gate = self._gate
         if gate is not None and unless is not None and gate.pending():
@@ -451,6 +498,8 @@ class SSC32U:
                 return None
             if key is not None and gate is not None and not gate.claim(key):
                 return None
+            if self._cut and not data.startswith(p.CANCEL):
+                data = p.CANCEL + data  # the line cut short before it, cancelled on the board
             try:
                 if flush:
                     self._ser.reset_output_buffer()
@@ -458,11 +507,12 @@ class SSC32U:
             except (*IO_ERRORS, *CLOSED_UNDER) as e:
                 what = "stop could not be written" if flush else "write failed"
                 raise self._lost(e, what) from e
+            self._cut = False
             # After a flush, as if it dropped nothing (the USB link): later than the truth on
             # a UART, which only makes a query's deadline later, never too early.
             t = now()
             self._wire_free_at = max(t, self._wire_free_at) + self.wire_time_s(data)
-            if self._tap is not None:
+            if tap and self._tap is not None:
                 with contextlib.suppress(Exception):  # a recording never fails a write
                     self._tap(data, t, self._wire_free_at)
             return self._wire_free_at
