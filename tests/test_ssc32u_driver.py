@@ -164,6 +164,21 @@ def test_a_stop_between_the_pieces_of_a_line_cancels_it_and_nothing_of_it_follow
         tap_writes(emulator.port, None)
 
 
+def test_a_query_waits_for_the_end_of_a_line_going_out_in_pieces(
+    emulator: Emulator, board: SSC32U
+) -> None:
+    """A query asked while a long line goes out in pieces is written after the line, not
+    into it (the board would take its bytes for part of the line, and answer nothing)."""
+    line = b"".join(f"#{ch}P{1500 + ch}".encode() for ch in range(32)) + b"\r"
+    thread = threading.Thread(target=board.write_command, args=(line,))
+    thread.start()
+    time.sleep(0.1)  # a third of the line's 300 ms of wire out
+    board.is_done()  # answered (a query that the board takes for part of a line is not)
+    thread.join(5)
+    raws = [r.raw for r in emulator.wait_for(lambda rs: len(rs) >= 2)]
+    assert raws[:2] == [line[:-1], b"Q"], raws
+
+
 def test_stop_on_a_uart_drops_output_still_waiting(config: ArmConfig) -> None:
     with Emulator(config, usb=UART) as emu, SSC32U(emu.port) as board:
         stack(board, [f"#0P{1000 + 10 * i}\r".encode() for i in range(30)])  # 250 ms of wire

@@ -3,7 +3,6 @@ and the USB chip's latency timer (issue 11)."""
 
 from __future__ import annotations
 
-import statistics
 import time
 from collections.abc import Iterator
 
@@ -133,6 +132,11 @@ def test_the_default_is_the_boards_usb_link_and_a_uart_is_asked_for(emulator: Em
 # -- the latency timer ------------------------------------------------------------------------
 
 
+#: No answer through the default 16 ms timer comes sooner than this after its query is
+#: written (the timer, less a millisecond of slack, and the query's 3 bytes of wire).
+TIMER_FLOOR_S = 0.015 + p.wire_time_s(3, 9600)
+
+
 def _answer_times(emu: Emulator, port: serial.Serial, n: int = 7) -> list[tuple[float, float]]:
     """(seconds from writing `Q` to its answer, from the board hearing it to its answer)."""
     out = []
@@ -156,7 +160,7 @@ def test_a_short_answer_waits_for_the_16_ms_latency_timer(
         # The answer's byte reaches the chip after the board's delay and its wire time,
         # then waits the whole timer: never earlier, whatever the load.
         assert after_cr >= 0.016 + emu.answer_delay_s + p.wire_time_s(1, 9600) - 1e-4
-        assert total >= 0.015 + p.wire_time_s(3, 9600)
+        assert total >= TIMER_FLOOR_S
 
 
 def test_low_latency_mode_answers_within_a_few_ms(config: ArmConfig) -> None:
@@ -164,16 +168,12 @@ def test_low_latency_mode_answers_within_a_few_ms(config: ArmConfig) -> None:
         Emulator(config, usb=LinkModel(low_latency=True)) as emu,
         serial.Serial(emu.port, 9600, timeout=1) as port,
     ):
-        times = _answer_times(emu, port)
-    with (
-        Emulator(config, usb=LinkModel()) as emu,
-        serial.Serial(emu.port, 9600, timeout=1) as port,
-    ):
-        timer = _answer_times(emu, port)
+        times = _answer_times(emu, port, 15)
     assert all(after_cr >= 0.001 for _, after_cr in times)
-    # 3 bytes of wire (3.1 ms), the board's delay and 1 ms in the chip, against the 16 ms
-    # of the default timer: compared in the same run, so that a busy host delays both.
-    assert statistics.median(t for t, _ in times) < statistics.median(t for t, _ in timer)
+    # 3 bytes of wire (3.1 ms), the board's delay and 1 ms in the chip: sooner than the
+    # default timer ever answers. The fastest of 15, since a busy host only adds (beside
+    # busy loops and four test workers, the median of 7 was once 34 ms).
+    assert min(t for t, _ in times) < TIMER_FLOOR_S
 
 
 def test_the_latency_timer_is_a_setting(config: ArmConfig) -> None:
@@ -192,15 +192,9 @@ def test_a_uart_answers_without_a_latency_timer(config: ArmConfig) -> None:
         Emulator(config, usb=UART) as emu,
         serial.Serial(emu.port, 9600, timeout=1) as port,
     ):
-        times = _answer_times(emu, port)
-    with (
-        Emulator(config, usb=LinkModel()) as emu,
-        serial.Serial(emu.port, 9600, timeout=1) as port,
-    ):
-        timer = _answer_times(emu, port)
-    # Compared in the same run, as low latency's above (beside busy loops the UART's median
-    # was once 13.3 ms: no fixed figure holds on a busy host).
-    assert statistics.median(t for t, _ in times) < statistics.median(t for t, _ in timer)
+        times = _answer_times(emu, port, 15)
+    # As low latency's above (beside busy loops the UART's median was once 13.3 ms).
+    assert min(t for t, _ in times) < TIMER_FLOOR_S
 
 
 def test_a_long_answer_arrives_whole(config: ArmConfig) -> None:

@@ -21,7 +21,8 @@ group move of six channels is 49 ms at 9600 baud) is written in pieces, each whe
 the horizon allows it: a stop never waits, and finds at most the horizon and one
 piece ahead of it. A stop written between two pieces ends the line: its ESC
 cancels the half-sent line on the board, and the rest is not written; a line cut
-short any other way is cancelled by an ESC before the next bytes.
+short any other way is cancelled by an ESC before the next bytes. Other writes (a
+query) wait for the line's end: the board would take them for part of it.
 
 The emergency stop may be written by another process (`al5d.ssc32u.stopline`): a port
 given a `StopGate` (`gate_port`) hands each board's file descriptor to that process,
@@ -441,7 +442,12 @@ class SSC32U:
         with `flush`); when its last byte reaches the board, or None if `unless` said so (or
         the stop known by `key` was written by another process)."""
         if not paced:
-            return self._write_now(data, unless, flush, key)
+            if flush:  # a stop: never waits, and its ESC cancels a line it comes into
+                return self._write_now(data, unless, flush, key)
+            # A query (or an ESC) must not come into a line going out in pieces: the board
+            # would take it for part of the line. The pace lock is free between lines.
+            with self._pace_lock:
+                return self._write_now(data, unless, flush, key)
         piece = max(1, int(self.baud / BITS_PER_BYTE * WIRE_PIECE_S))
         with self._pace_lock:
             if flush or len(data) <= piece:
