@@ -54,6 +54,10 @@ def test_parse(
         ("fly", r"word 1 'fly': unknown instruction"),
         ("move", r"word 1 'move': name at least one"),
         ("move base=abc", r"word 2 'base=abc': 'abc' is not a number of degrees"),
+        # Python's float() reads these (a fuzz run found 'move 0=NAN' taken as a move).
+        ("move 0=NAN", r"word 2 '0=NAN': 'NAN' is not a number of degrees"),
+        ("move base=-inf", r"word 2 'base=-inf': '-inf' is not a number of degrees"),
+        ("move_to x=1e999 y=0 z=100", r"word 2 'x=1e999': '1e999' is not a number of mm"),
         ("move base30", r"word 2 'base30': expected <name>=<value>"),
         ("move base=10 time=fast", r"word 3 'time=fast': 'fast' is not a whole number of ms"),
         ("move base=10 time=-5", r"word 3 'time=-5': time -5 ms is negative"),

@@ -273,11 +273,12 @@ METRES_HINT_MM = 1.0
 
 def _number(words: list[str], i: int, value: str, unit: str) -> float:
     try:
-        return float(value)
+        number = float(value)
     except ValueError:
-        raise GrammarError(
-            f"{_where(words, i)}: {quote(value)} is not a number of {unit}"
-        ) from None
+        number = math.nan
+    if not math.isfinite(number):  # Python reads "nan" and "inf"; no arm goes there
+        raise GrammarError(f"{_where(words, i)}: {quote(value)} is not a number of {unit}")
+    return number
 
 
 def _tool(words: list[str], values: dict[str, tuple[int, str]]) -> ToolTarget:
