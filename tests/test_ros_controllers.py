@@ -296,7 +296,9 @@ def test_a_new_goal_preempts_the_running_one(rig: Rig) -> None:
     assert old.result.error_code == FJT.INVALID_GOAL
     new = wait_future(second.get_result_async(), 10)
     assert new.status == GoalStatus.STATUS_SUCCEEDED
-    assert abs(rig.emu.servo_degrees()["elbow"] - 45) < 0.5
+    # There: the goal ends by the server's clock, which a board thread of a busy test
+    # process can trail (1.86 degrees short once, four workers beside busy loops).
+    wait_until(lambda: abs(rig.emu.servo_degrees()["elbow"] - 45) < 0.5, 5, "the elbow at 45")
     assert rig.states[-1] == "ready"
 
 
