@@ -331,9 +331,7 @@ class SSC32U:
         with self._write_lock:
             t = now()
             self._wire_free_at = max(t, self._wire_free_at) + self.wire_time_s(data)
-            if self._tap is not None:
-                with contextlib.suppress(Exception):  # a recording never fails a write
-                    self._tap(data, t, self._wire_free_at)
+            self._tell_tap(data, t)
 
     def settle_stops(self, timeout: float = GATE_WAIT_S) -> bool:
         """Wait (at most `timeout`) until every stop another process wrote (`gate_port`) has
@@ -483,9 +481,8 @@ class SSC32U:
         if 0 < sent < len(data):
             with self._write_lock:
                 self._cut = True
-        if sent and self._tap is not None:
-            with contextlib.suppress(Exception):  # a recording never fails a write
-                self._tap(data[:sent], t_first, self._wire_free_at)
+        if sent:
+            self._tell_tap(data[:sent], t_first)
         return end if sent == len(data) else None
 
     def _write_now(
@@ -518,10 +515,16 @@ class SSC32U:
             # a UART, which only makes a query's deadline later, never too early.
             t = now()
             self._wire_free_at = max(t, self._wire_free_at) + self.wire_time_s(data)
-            if tap and self._tap is not None:
-                with contextlib.suppress(Exception):  # a recording never fails a write
-                    self._tap(data, t, self._wire_free_at)
+            if tap:
+                self._tell_tap(data, t)
             return self._wire_free_at
+
+    def _tell_tap(self, data: bytes, written: float) -> None:
+        """The recording's tap, if any, of bytes written at `written` (a recording never
+        fails a write)."""
+        if self._tap is not None:
+            with contextlib.suppress(Exception):
+                self._tap(data, written, self._wire_free_at)
 
     def _send(self, data: bytes) -> None:
         """All of `data` into the port; a port that takes no byte for the write timeout is
