@@ -93,8 +93,7 @@ def topic_words(arm: Served) -> Iterator[list[str]]:
     """The instruction word of every message on the instruction topic while the test runs."""
     words: list[str] = []
     peer = arm.peer
-    sub: Any = peer.catch_up.subscribe(
-        peer.node,
+    sub: Any = peer.node.create_subscription(
         ArmInstruction,
         Names().instruction,
         lambda m: words.append(m.instruction),
@@ -103,8 +102,7 @@ def topic_words(arm: Served) -> Iterator[list[str]]:
     try:
         yield words
     finally:
-        peer.catch_up.forget(sub)
-        peer.node.destroy_subscription(sub)
+        peer.destroy(sub)
 
 
 def test_a_script_that_raises_in_its_with_block_ends_with_its_traceback(

@@ -96,8 +96,7 @@ def rig(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator
             assert fjt.wait_for_server(timeout_sec=10) and gripper.wait_for_server(timeout_sec=10)
             yield Rig(s.emu, s.peer, config, fjt, gripper, s.states)
         finally:
-            fjt.destroy()
-            gripper.destroy()
+            s.peer.destroy(fjt, gripper)
 
 
 def test_a_trajectory_runs_one_group_move_per_point_in_order_at_its_times(rig: Rig) -> None:
@@ -358,10 +357,11 @@ def test_a_start_point_away_from_the_arm_is_reached_first_and_the_times_count_fr
     answer = wait_future(rig.send(rig.fjt, goal).get_result_async(), 15)
     assert answer.status == GoalStatus.STATUS_SUCCEEDED
     # Counted from the goal's start instead, points 1 and 2 would come the ~170 ms the
-    # servos take for 50 deg late; a busy host may write a step a few ms late (seen: 6 ms).
+    # servos take for 50 deg late; a busy host may write a step late (seen: 6 ms, and 63
+    # ms with four workers on two cores).
     text = answer.result.error_string
     late_ms = [float(w) for w in re.findall(r"reached (\d+) ms after", text)]
-    assert all(ms < 50 for ms in late_ms), text
+    assert all(ms < 120 for ms in late_ms), text
 
 
 def test_a_slow_enough_trajectory_with_tolerances_succeeds(rig: Rig) -> None:

@@ -124,8 +124,7 @@ def tree(peer: Peer, tools: Sequence[str]) -> dict[str, tuple[str, Transform]]:
         with contextlib.suppress(AssertionError):  # the test says what is missing
             wait_until(whole, 20, f"a tree for {tools}")
     finally:
-        for sub in subs:
-            peer.node.destroy_subscription(sub)
+        peer.destroy(*subs)
     return {**static, **moving}
 
 

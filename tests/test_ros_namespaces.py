@@ -117,7 +117,7 @@ def test_each_arm_has_its_joint_states_controllers_and_prefixed_frames(arms: lis
             f"{names.follow_joint_trajectory}/_action/send_goal",
         )
         assert client.wait_for_service(timeout_sec=5)
-        arm.peer.node.destroy_client(client)
+        arm.peer.destroy(client)
     frames: set[str] = set()
     sub = arms[0].peer.node.create_subscription(
         TFMessage, "/tf", lambda m: frames.update(t.child_frame_id for t in m.transforms), 100
@@ -127,7 +127,7 @@ def test_each_arm_has_its_joint_states_controllers_and_prefixed_frames(arms: lis
             lambda: {f.split("/")[0] for f in frames} == {"left", "right"}, 5, "both arms' frames"
         )
     finally:
-        arms[0].peer.node.destroy_subscription(sub)
+        arms[0].peer.destroy(sub)
     assert all(f.startswith(("left/", "right/")) for f in frames)
 
 
@@ -170,8 +170,7 @@ def test_each_arms_control_actions_move_that_arm_only(arms: list[Arm], config: A
         assert len(group_moves(left.emu.records)) == 1 and len(group_moves(right.emu.records)) == 1
         assert abs(left.emu.servo_degrees()["elbow"] - 60) < 0.5
     finally:
-        fjt.destroy()
-        gripper.destroy()
+        left.peer.destroy(fjt, gripper)
 
 
 def test_the_sequence_runner_and_the_python_client_take_the_namespace(
@@ -226,8 +225,7 @@ def test_each_arms_description_and_static_frames_carry_its_prefix(arms: list[Arm
             lambda: {f.split("/")[0] for f in static} >= {"left", "right"}, 5, "static frames"
         )
     finally:
-        for sub in subs:
-            peer.node.destroy_subscription(sub)
+        peer.destroy(*subs)
     for name, urdf in urdfs.items():
         other = "right" if name == "left" else "left"
         assert f'<link name="{name}/base_link"' in urdf and f'"{name}/tool0"' in urdf

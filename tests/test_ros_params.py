@@ -90,7 +90,7 @@ def get(peer: Peer, *names: str) -> dict[str, Any]:
         answer = wait_future(client.call_async(GetParameters.Request(names=list(names))), 20)
         return {n: _value(v) for n, v in zip(names, answer.values, strict=True)}
     finally:
-        peer.node.destroy_client(client)
+        peer.destroy(client)
 
 
 def set_one(peer: Peer, name: str, value: ParameterValue) -> Any:
@@ -100,7 +100,7 @@ def set_one(peer: Peer, name: str, value: ParameterValue) -> Any:
         request = SetParameters.Request(parameters=[Parameter(name=name, value=value)])
         return wait_future(client.call_async(request), 20).results[0]
     finally:
-        peer.node.destroy_client(client)
+        peer.destroy(client)
 
 
 def double(x: float) -> ParameterValue:
@@ -145,7 +145,7 @@ def test_a_namespace_remap_moves_every_node_name_and_frame(served: Served) -> No
     try:
         wait_until(lambda: frames, 20, "the static frames")
     finally:
-        node.destroy_subscription(sub)
+        served.peer.destroy(sub)
     assert all(f.startswith("left/") for f in frames), frames
     # The port parameter named the board: a move reaches it.
     before = len(served.emu.records)

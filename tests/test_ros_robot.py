@@ -54,7 +54,7 @@ def latest(peer: Peer, kind: Any, topic: str, qos: Any, n: int = 1) -> list[Any]
     try:
         wait_until(lambda: len(got) >= n, 10, topic)
     finally:
-        peer.node.destroy_subscription(sub)
+        peer.destroy(sub)
     return got
 
 

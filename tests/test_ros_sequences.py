@@ -20,6 +20,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from al5d.arm.config import ArmConfig
 from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ssc32u import protocol as p
+from al5d.ssc32u.stopline import BACKSTOP_SAID
 from al5d_rig.armrig import group_moves
 from al5d_rig.fuzzcount import examples
 from al5d_rig.rospeer import wait_until
@@ -120,6 +121,7 @@ def test_a_release_sent_before_a_stop_never_undoes_it(arm: Arm) -> None:
         for ident in after:
             peer.send(ident, "move", **near_ready(rng, arm.config))
         stops = arm.stops()
+        said, asked = len(arm.proc.err.drain(0)), peer.stops_asked
         assert peer.trigger("stop").success
         outcomes = arm.outcomes([*flood, release, *after])
         wait_until(lambda: arm.states[-1] == "stopped", 10, "stopped at the end")
@@ -137,8 +139,14 @@ def test_a_release_sent_before_a_stop_never_undoes_it(arm: Arm) -> None:
             overtaken += 1
             assert reason.startswith("this release was sent before the stop"), reason
             assert all(outcomes[i] != "done" for i in after), outcomes
-        # One burst of STOPs per stop obeyed: none obeyed twice (defect 5's extra burst).
-        assert arm.stops() - stops == 6
+        # One burst of STOPs per stop obeyed: none obeyed twice (defect 5's extra burst),
+        # unless the stop process wrote its STOPs while the server held the port (a busy
+        # host) and then again behind what the server wrote, as it says.
+        # A stop unanswered for a second is asked again (`Peer.trigger`): that one is
+        # obeyed too.
+        again = sum(BACKSTOP_SAID in line for line in arm.proc.err.drain(0.2)[said:])
+        asked = peer.stops_asked - asked
+        assert arm.stops() - stops == 6 * (asked + again), f"asked {asked}, again {again}"
     print(f"the last stop overtook the release in {overtaken} of {examples(2)} runs")
 
 
@@ -162,7 +170,7 @@ def test_a_finger_joint_on_the_trajectory_topic_is_refused(arm: Arm) -> None:
             result.reason
         )
     assert not arm.moves_after(n)
-    arm.peer.node.destroy_publisher(pub)
+    arm.peer.destroy(pub)
 
 
 @pytest.mark.parametrize("pitch", [1e300, -1e300, 1e18])

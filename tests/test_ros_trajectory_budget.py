@@ -63,7 +63,7 @@ def rig(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator
         try:
             yield r
         finally:
-            r.fjt.destroy()
+            r.peer.destroy(r.fjt)
 
 
 def kept_points(rig: Rig, points: list[tuple[float, dict[str, float]]]) -> list[int]:

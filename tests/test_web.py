@@ -225,7 +225,9 @@ def test_sliders_into_the_table_show_why_and_send_nothing(rig: Rig) -> None:
     page.mouse.up()
     assert degrees >= 50, degrees  # from ready, shoulder 50 puts a finger 65 mm under
     text = wait_text(page, "#al5d-joints-status", lambda t: t.startswith("not sent: "))
-    assert "finger" in text and "mm under it" in text, text
+    # Which point goes lowest (a finger, or the tool tip further forward) depends on how
+    # far the drag got before the release.
+    assert "below the table" in text and "mm under it" in text, text
     time.sleep(QUIET_S + 1.0)  # a set-point, were it sent, would be on the board by now
     # The jog followed the drag while it stayed above the table, and no further.
     cfg = rig.config
@@ -497,7 +499,7 @@ def test_every_move_on_a_topic_has_its_ghost(rig: Rig) -> None:
         assert rig.peer.result("web-trajectory").outcome == "done"
         wait_text(page, "#al5d-tool", lambda t: "target:" not in t, 15)
     finally:
-        rig.peer.node.destroy_publisher(pub)
+        rig.peer.destroy(pub)
     rig.state.wait_for("ready", 15)
 
 

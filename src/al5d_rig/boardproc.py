@@ -14,7 +14,7 @@ from al5d.arm.config import ArmConfig
 from al5d.clock import Deadline
 from al5d.ssc32u.emulator import Record
 from al5d.ssc32u.emulator.board import RESET, Board
-from al5d_rig.proc import AL5D
+from al5d_rig.proc import AL5D, dies_with_parent
 
 
 class BoardProcess:
@@ -37,6 +37,7 @@ class BoardProcess:
             stdout=subprocess.PIPE,
             text=True,
             env=os.environ.copy(),
+            preexec_fn=dies_with_parent,
         )
         assert self.popen.stdout is not None
         first = self.popen.stdout.readline().strip()  # the device path comes first

@@ -31,13 +31,18 @@ import time
 from pathlib import Path
 from typing import Any
 
+from al5d_rig.proc import dies_with_parent
+
 MODULE = "al5d_rig.contention"  # its arms run it: python -m MODULE --arm I
 BUSY_LOOP = "while True: pass"
 
 
 def busy_loops(n: int) -> list[subprocess.Popen[bytes]]:
     """`n` processes that take a core each, as long as they are let (`ended` ends them)."""
-    return [subprocess.Popen([sys.executable, "-c", BUSY_LOOP]) for _ in range(n)]
+    return [
+        subprocess.Popen([sys.executable, "-c", BUSY_LOOP], preexec_fn=dies_with_parent)
+        for _ in range(n)
+    ]
 
 
 def ended(procs: list[subprocess.Popen[Any]]) -> None:
@@ -127,6 +132,7 @@ def goals(seconds: float, rate: float, busy: int, stops_every_s: float = 0.5) ->
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
+        preexec_fn=dies_with_parent,
     )
     assert client.stdin is not None and client.stdout is not None
     out: dict[str, Any] = {"rate": rate, "seconds": seconds, "busy": busy}
@@ -195,7 +201,12 @@ def run(
             cmd += ["--rate", str(rate), "--stops-every", str(stops_every_s)]
             arms.append(
                 subprocess.Popen(
-                    cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env
+                    cmd,
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                    text=True,
+                    env=env,
+                    preexec_fn=dies_with_parent,
                 )
             )
         for each in arms:

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from al5d_rig.contention import busy_loops, ended
-from al5d_rig.proc import AL5D, Proc
+from al5d_rig.proc import AL5D, Proc, dies_with_parent
 from al5d_rig.rospeer import Peer
 
 #: What the server logs when it takes the board for lost.
@@ -33,7 +33,10 @@ FAULT = "serial fault"
 def run(seconds: float, busy: int) -> dict[str, Any]:
     link = Path(tempfile.mkdtemp(prefix="al5d-falsefaults-")) / "ssc32u"
     emulator = subprocess.Popen(
-        [AL5D, "emulator", "--link", str(link)], stdout=subprocess.PIPE, text=True
+        [AL5D, "emulator", "--link", str(link)],
+        stdout=subprocess.PIPE,
+        text=True,
+        preexec_fn=dies_with_parent,
     )
     assert emulator.stdout is not None
     emulator.stdout.readline()  # the device path: the board is up

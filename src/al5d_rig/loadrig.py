@@ -25,6 +25,7 @@ from std_srvs.srv import Trigger
 
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Record
+from al5d_rig.proc import dies_with_parent
 from al5d_rig.rospeer import Peer, wait_future, wait_until
 
 #: How the board's record notes an ESC (the first byte of every stop's write).
@@ -68,8 +69,7 @@ class Counter:
         self.lock = threading.Lock()
         self.seen: dict[str, int] = {}
         self.reasons: dict[str, str] = {}
-        # Through the peer's catch-up: a result its executor was not told of is still counted.
-        peer.catch_up.subscribe(peer.node, InstructionResult, "/al5d/result", self._on, QOS_ALL)
+        peer.node.create_subscription(InstructionResult, "/al5d/result", self._on, QOS_ALL)
 
     def _on(self, msg: InstructionResult) -> None:
         with self.lock:
@@ -190,8 +190,10 @@ SLOW_STOP_MS = 250.0
 
 
 def default_priority() -> None:
-    """In a child before it runs: the default priority (nice 0), whatever its parent's."""
+    """In a child before it runs: the default priority (nice 0), whatever its parent's,
+    and killed with its parent (`dies_with_parent`)."""
     os.setpriority(os.PRIO_PROCESS, 0, 0)
+    dies_with_parent()
 
 
 def flood(

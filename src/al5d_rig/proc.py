@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import ctypes
 import functools
 import os
 import queue
+import signal
 import subprocess
 import sys
 import tempfile
@@ -21,6 +23,20 @@ import yaml
 from al5d.arm.config import DEFAULT_CONFIG
 
 AL5D = str(Path(sys.executable).with_name("al5d"))
+
+_PR_SET_PDEATHSIG = 1
+_prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before any fork
+
+
+def dies_with_parent() -> None:
+    """`preexec_fn` of the rig's processes: killed when the test process dies.
+
+    A pytest worker that crashed left its servers running, with its ROS domain's lock
+    released: the worker started in its place claimed the same domain and met them (a CI
+    run's tests then failed one after another until the run's time ran out). Linux sends
+    the signal when the thread that forked ends: the rig starts processes from the main
+    thread only. One foreign call, nothing else, between fork and exec."""
+    _prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
 
 
 #: The answer timeout of a server whose emulated board is a thread of the busy test
@@ -131,6 +147,7 @@ class Proc:
             stderr=subprocess.PIPE,
             text=True,
             env={**os.environ, **(env or {})},
+            preexec_fn=dies_with_parent,
         )
         assert self.popen.stdout is not None and self.popen.stderr is not None
         self.out = Lines(self.popen.stdout)

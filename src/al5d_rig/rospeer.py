@@ -4,14 +4,11 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from typing import Any
 
 from al5d_interfaces.action import Move
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rclpy.action.client import ActionClient
-from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
@@ -20,78 +17,6 @@ from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SERVICES, QOS_STREAM
-
-
-@dataclass
-class _Input:
-    sub: Any  # rclpy Subscription
-    heard: int = 0  # its callback's calls
-    seen: int = 0  # `heard` at the last catch-up
-
-
-class CatchUp:
-    """Takes the messages that wait in subscriptions unannounced (the test peer's; the server
-    reads its inputs with `al5d.ros.workarounds.Reader`, which needs none).
-
-    rclpy 7.1's events executor takes as many messages as it was told of, and now and
-    then it is told of one too few: the last message then waits until the next one comes
-    (seen in the fuzz suite: a trajectory unanswered for 30 s with its server idle; none
-    with rclpy's Python executor).
-    `run`, called at a fixed rate on the executor's thread, takes what waits in an input
-    whose callback has not run since the last call. A busy input is left alone: what
-    waits there comes with the next notice, and a flood is never read here, in a timer
-    that would then hold the thread (the joint states) for as long as the flood lasts.
-    """
-
-    def __init__(self, limit: int = 1000) -> None:
-        self.limit = limit
-        self._inputs: list[_Input] = []
-
-    def subscribe(
-        self, node: Node, msg_type: Any, topic: str, callback: Callable[[Any], None], qos: Any
-    ) -> Any:
-        """`node.create_subscription`, its callback's calls counted."""
-        entry = _Input(None)
-
-        def counted(msg: Any) -> None:
-            entry.heard += 1
-            callback(msg)
-
-        entry.sub = node.create_subscription(msg_type, topic, counted, qos)
-        self._inputs.append(entry)
-        return entry.sub
-
-    def forget(self, sub: Any) -> None:
-        """Before the subscription is destroyed."""
-        self._inputs = [e for e in self._inputs if e.sub is not sub]
-
-    def run(self) -> dict[str, int]:
-        """Take what waits in each quiet input (at most `limit` each): messages taken by topic."""
-        caught: dict[str, int] = {}
-        for entry in list(self._inputs):
-            if entry.heard == entry.seen:
-                n = 0
-                try:
-                    for msg in waiting(entry.sub, self.limit):
-                        n += 1
-                        entry.sub.callback(msg)
-                except InvalidHandle:  # destroyed meanwhile (a client that stops listening)
-                    continue
-                if n:
-                    caught[entry.sub.topic_name] = n
-            entry.seen = entry.heard
-        return caught
-
-
-def waiting(sub: Any, limit: int) -> Iterator[Any]:
-    """Up to `limit` messages that wait in the subscription `sub`, taken one at a time
-    without the executor (serialized if it was created with `raw=True`)."""
-    with sub.handle:
-        for _ in range(limit):
-            taken = sub.handle.take_message(sub.msg_type, sub.raw)
-            if taken is None:
-                return
-            yield taken[0]
 
 
 def wait_until(predicate: Any, timeout: float = 10.0, what: str = "condition") -> None:
@@ -155,7 +80,16 @@ class LockedActionClient(ActionClient):
 
 class Peer:
     """A ROS 2 node in the test process: publishes, calls, and listens like any client, to
-    the server in `namespace` (none by default)."""
+    the server in `namespace` (none by default).
+
+    It spins rclpy's Python executor. With the events executor, a test process died of a
+    segmentation fault now and then (once in a CI run, once in a load suite): three peers
+    sending goals from their threads, then closed, crashed within ten rounds, twice in
+    two tries, in the executor's thread; with this one, none in 40 rounds. Entities are
+    destroyed by `destroy` and `close`, which stop the spinning first. (The events
+    executor was also now and then told of one message too few, which a catch-up timer
+    here made up for; this one is told of each.)
+    """
 
     def __init__(
         self, results: bool = True, name: str = "al5d_test_peer", namespace: str = ""
@@ -167,7 +101,6 @@ class Peer:
         self.results: dict[str, InstructionResult] = {}
         self.joint_states: list[JointState] = []
         self._result_sub: Any = None
-        self.catch_up = CatchUp()
         if results:  # a benchmark may not want a thousand results arriving as it measures
             self.listen_results()
         self.node.create_subscription(JointState, names.joint_states, self.joint_states.append, 10)
@@ -176,30 +109,22 @@ class Peer:
             for n in names.services
         }
         self.move = LockedActionClient(self.node, Move, names.move)
-        #: Results taken by the catch-up, not by the executor's own notice.
-        self.caught_up = 0
-        self.node.create_timer(0.1, self._catch_up)
-        self.spinner = Spinner(self.node, self.context)
+        #: Stop requests sent by `trigger` (a stop unanswered for a second is asked again).
+        self.stops_asked = 0
+        self.spinner = Spinner(self.node, self.context, kind="single")
 
     def listen_results(self, on: bool = True) -> None:
         """Take /al5d/result, or stop (a benchmark's burst of results loads this process)."""
         if on and self._result_sub is None:
-            self._result_sub = self.catch_up.subscribe(
-                self.node, InstructionResult, self.names.result, self._on_result, QOS_STREAM
+            self._result_sub = self.node.create_subscription(
+                InstructionResult, self.names.result, self._on_result, QOS_STREAM
             )
         elif not on and self._result_sub is not None:
-            self.catch_up.forget(self._result_sub)
-            self.node.destroy_subscription(self._result_sub)
-            self._result_sub = None
+            sub, self._result_sub = self._result_sub, None
+            self.destroy(sub)
 
     def _on_result(self, msg: InstructionResult) -> None:
         self.results[msg.id] = msg
-
-    def _catch_up(self) -> None:
-        # The server's `CatchUp`, for the same executor's lost notices: a test that sends
-        # one input and waits for its result would otherwise wait for ever (seen once in
-        # `make soak`: a trajectory's result not taken in 30 s, the server idle).
-        self.caught_up += sum(self.catch_up.run().values())
 
     def results_now(self) -> dict[str, InstructionResult]:
         """A copy of the results so far, safe to iterate while the spin thread adds more
@@ -280,12 +205,14 @@ class Peer:
         if name != "stop":
             return wait_future(client.call_async(Trigger.Request()))
         for _ in range(9):
+            self.stops_asked += 1
             future = client.call_async(Trigger.Request())
             done = threading.Event()
             future.add_done_callback(lambda f, done=done: done.set())
             if done.wait(1.0):
                 return future.result()
             print("rospeer: a stop unanswered for 1 s: asked again", flush=True)
+        self.stops_asked += 1
         return wait_future(client.call_async(Trigger.Request()))
 
     def goal(
@@ -315,6 +242,16 @@ class Peer:
         assert handle.accepted is accepted
         return handle
 
+    def destroy(self, *entities: Any) -> None:
+        """Destroy subscriptions, publishers, clients or action clients of this peer's node
+        while no callback runs (`Spinner.paused` says why)."""
+        with self.spinner.paused():
+            for entity in entities:
+                if isinstance(entity, ActionClient):
+                    entity.destroy()
+                else:
+                    kind = type(entity).__name__.lower()  # subscription, publisher, client
+                    getattr(self.node, f"destroy_{kind}")(entity)
+
     def close(self) -> None:
-        self.move.destroy()
-        self.spinner.close()
+        self.spinner.close(self.move)

@@ -173,8 +173,9 @@ class Client:
         self._closing = threading.Lock()
         self._closed = False
         # rclpy's Python executor: its events executor is now and then told of one message
-        # too few, and the last one waits for the next (src/al5d_rig/rospeer.py, `CatchUp`); here
-        # that would be an outcome, or a service's answer, waited for until the timeout.
+        # too few, and the last one waits for the next; here that would be an outcome, or a
+        # service's answer, waited for until the timeout (and the test peer's spin thread
+        # crashed with it: `al5d_rig.rospeer.Peer`).
         self.spinner = Spinner(self.node, self.context, kind="single")
         _open.add(self)
 

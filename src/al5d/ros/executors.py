@@ -3,11 +3,12 @@ a publisher's thread (`PublishThread`)."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import queue
 import threading
-from collections.abc import Callable
-from typing import Any, Generic, TypeVar
+from collections.abc import Callable, Iterator
+from typing import Any, Generic, Protocol, TypeVar
 
 from rclpy.context import Context
 from rclpy.executors import Executor, SingleThreadedExecutor
@@ -39,6 +40,15 @@ def make_executor(context: Context, kind: str | None = None) -> Executor:
 
 
 T = TypeVar("T")
+
+#: How long stopping a spin thread waits for the callback it is in (a busy host's).
+HALT_S = 30.0
+
+
+class Destroyable(Protocol):
+    """An action client or server: `Node.destroy_node` leaves them to their owner."""
+
+    def destroy(self) -> None: ...
 
 
 class PublishThread(Generic[T]):
@@ -93,11 +103,8 @@ class Spinner:
         self.turn_s = 1.0 if isinstance(self.executor, SingleThreadedExecutor) else 0.1
         for each in (node, *self.more):
             self.executor.add_node(each)
-        self._running = True
-        self._thread = threading.Thread(
-            target=self._spin, name=f"{node.get_name()}-spin", daemon=True
-        )
-        self._thread.start()
+        self._thread: threading.Thread
+        self._start()
 
     def _spin(self) -> None:
         if self.urgent:
@@ -111,12 +118,49 @@ class Spinner:
                     return
                 log.exception("%s: a callback failed; its executor goes on", self._thread.name)
 
-    def close(self) -> None:
-        # Join the spin thread before shutting the executor down, or the process can abort.
+    def _halt(self) -> bool:
+        """Whether the spin thread has ended (a callback may hold it: it is given time)."""
         self._running = False
         self.executor.wake()
-        self._thread.join(5)
-        self.executor.shutdown(timeout_sec=1)
+        self._thread.join(HALT_S)
+        if self._thread.is_alive():
+            log.warning("%s: still in a callback after %.0f s", self._thread.name, HALT_S)
+            return False
+        return True
+
+    def _start(self) -> None:
+        self._running = True
+        self._thread = threading.Thread(
+            target=self._spin, name=f"{self.node.get_name()}-spin", daemon=True
+        )
+        self._thread.start()
+
+    @contextlib.contextmanager
+    def paused(self) -> Iterator[None]:
+        """No callback runs inside: the place to destroy an entity of its nodes.
+
+        rclpy 7.1's events executor, spinning while an action client of its node was
+        destroyed, called into Python without the GIL and killed the process (closing
+        test peers whose action clients had just been busy: a segmentation fault within
+        ten rounds). rclpy's Python executors hold an entity while they use it.
+        """
+        if not self._halt():
+            self._start()  # the old thread ends at its next turn
+            raise RuntimeError(f"{self._thread.name}: a callback held the executor")
+        try:
+            yield
+        finally:
+            self._start()
+
+    def close(self, *entities: Destroyable) -> None:
+        """Stop spinning, destroy `entities` (what `destroy_node` leaves: action clients
+        and servers), then the nodes, and end the context if it owns it."""
+        # Join the spin thread before shutting the executor down, or the process can abort;
+        # a thread still in a callback keeps the entities (leaked, not freed under it).
+        if self._halt():
+            self.executor.shutdown(timeout_sec=1)
+            for entity in entities:
+                entity.destroy()
         for each in (self.node, *self.more):
             each.destroy_node()
         if self.owns_context:

@@ -33,6 +33,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import hashlib
+import logging
 import mmap
 import os
 import socket
@@ -44,6 +45,8 @@ from collections.abc import Callable, Hashable, Iterator, Sequence
 
 from al5d.clock import now
 from al5d.ssc32u import protocol as p
+
+log = logging.getLogger("al5d")
 
 #: The shared block: the stops the other end wrote, the writes the server made, and the
 #: order to STOP the channels in until a time (the moving joints first: `plan`), behind a
@@ -60,6 +63,8 @@ _SIZE = _KEYS_AT + _KEYS.size
 HOLD_S = 0.005
 #: How long it then waits for the lock, to halt what the server wrote meanwhile.
 BACKSTOP_S = 2.0
+#: What the stop process says when it wrote a stop's STOPs a second time (`StopEnd.stop`).
+BACKSTOP_SAID = "STOP written again: the server wrote while the stop waited for its lock"
 _POLL_S = 0.0002
 #: A message on the port socket: a file descriptor comes with it, or the port is closed.
 _OPEN, _CLOSE = b"open", b"close"
@@ -285,7 +290,8 @@ class StopEnd:
                 if self._shared.lock(wait=False):
                     try:
                         if self._shared.read(_WRITES) != writes:
-                            self._write()
+                            error, _ = self._write()
+                            log.warning("%s%s", BACKSTOP_SAID, f": {error}" if error else "")
                     finally:
                         self._shared.unlock()
                     return
