@@ -111,11 +111,15 @@ demo: runtime
 # the rig took a killed server's match for the new one's (fixed), a board thread of a busy
 # test process answered later than 0.5 s (test servers now give it 1 s).
 # `make test WORKERS=2 DURATIONS=0` for another count and every test's time.
+# Each part is interrupted (pytest then reports what ran and what failed) long after it
+# should have ended: a CI run once waited out its 90 minutes on a stuck suite.
 WORKERS   ?= 4
 DURATIONS ?= 12
+PART_S    ?= 1800
 test: install
-	$(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile -m "not solo" --durations=$(DURATIONS)
-	$(BIN)/python -m pytest -q -m solo
+	timeout -s INT -k 60 $(PART_S) \
+	  $(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile -m "not solo" --durations=$(DURATIONS)
+	timeout -s INT -k 60 $(PART_S) $(BIN)/python -m pytest -q -m solo
 
 bench: install
 	$(BIN)/python bench/run.py

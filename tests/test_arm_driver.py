@@ -216,7 +216,8 @@ class TestStop:
         time.sleep(0.3)
         n_moves = len(rig.moves())
         outcome = rig.driver.execute(ins.stop(), 5)
-        assert outcome.ok and outcome.elapsed_ms < 50
+        # Not behind the 3 s move (how fast: `make bench`; a busy host may take a while).
+        assert outcome.ok and outcome.elapsed_ms < 1000
         for f in [running, *queued]:
             o = f.result(5)
             assert o.result is Result.CANCELLED and o.reason == "cancelled by stop"

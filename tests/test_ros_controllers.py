@@ -339,7 +339,11 @@ def test_a_late_point_the_next_catches_up_with_is_reported(rig: Rig) -> None:
     answer = wait_future(rig.send(rig.fjt, goal).get_result_async(), 15)
     assert answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result.error_string
     text = answer.result.error_string
-    assert text.startswith("point 1 was reached ") and "the last point" not in text, text
+    assert text.startswith("point 1 was reached "), text
+    # The last point had the time to catch up: on time, or a busy host's few ms late (seen:
+    # 7 ms beside two busy loops).
+    last = re.search(r"the last point was reached (\d+) ms after", text)
+    assert last is None or float(last.group(1)) < 50, text
     late_ms = float(text.split()[4])
     assert 40 < late_ms < 300, text  # 60 deg of base take about 180 ms
 

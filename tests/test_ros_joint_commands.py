@@ -109,8 +109,13 @@ def settled(s: Served, degrees: Mapping[str, float], timeout: float = 20.0) -> N
 
 
 def said(s: Served) -> str:
-    """Where the servos are and what the server said last, for a failure's reader."""
-    return f"servos {s.emu.servo_degrees()}, server {s.proc.err.drain(0)[-15:]}"
+    """Where the servos are, what the server said last and where its threads are, for a
+    failure's reader (seen once beside two busy loops: neither a command nor a move on the
+    instruction topic moved the arm for 40 s, and the server said nothing)."""
+    return (
+        f"servos {s.emu.servo_degrees()}, states {s.peer.joint_states[-1:]}, "
+        f"server {s.proc.err.drain(0)[-15:]}\n{s.proc.stacks()}"
+    )
 
 
 def test_a_joint_command_moves_the_arm_and_the_joint_states_say_where(served: Served) -> None:

@@ -89,3 +89,31 @@ def test_after_the_server_is_lost_only_a_reader_matched_since_reads_the_jog(
     finally:
         first.kill()
         first.wait(10)
+
+
+def test_a_reader_matched_before_the_loss_was_noticed_reads_once_the_killed_one_has_gone(
+    link: WebNode, config: ArmConfig
+) -> None:
+    """On a busy host the server that comes back can match before the page notices the loss
+    (the page's joint states stop only so often): its reader is not new then, and counts
+    once DDS has let the killed one go. Before, the jog waited for a match that had already
+    happened (a CI run's web test: no set-point in 10 s)."""
+    here = dict(config.presets["ready"])
+    first = reader()
+    try:
+        wait_until(lambda: link.jog(here), 20, "the first reader matched")
+        second = reader()
+        try:
+            wait_until(lambda: link.jog_pub.get_subscription_count() == 2, 20, "both matched")
+            first.send_signal(signal.SIGKILL)
+            first.wait(10)
+            link.server_lost()
+            assert not link.jog(here)  # both still matched: the killed one may be the reader
+            wait_until(lambda: link.jog(here), 60, "the killed reader gone, the second reading")
+            assert link.jog_pub.get_subscription_count() == 1
+        finally:
+            second.kill()
+            second.wait(10)
+    finally:
+        first.kill()
+        first.wait(10)

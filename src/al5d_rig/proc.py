@@ -153,6 +153,21 @@ class Proc:
         self.out = Lines(self.popen.stdout)
         self.err = Lines(self.popen.stderr)
 
+    def stacks(self) -> str:
+        """Every thread's stack in the process now (py-spy), for a failure's reader: where a
+        server that went silent is waiting."""
+        spy = str(Path(sys.executable).with_name("py-spy"))
+        try:
+            done = subprocess.run(
+                [spy, "dump", "--pid", str(self.popen.pid)],
+                capture_output=True,
+                text=True,
+                timeout=30,
+            )
+        except (OSError, subprocess.TimeoutExpired) as e:
+            return f"(no stacks: {e})"
+        return done.stdout + done.stderr
+
     def send(self, line: str) -> None:
         assert self.popen.stdin is not None
         self.popen.stdin.write(line + "\n")

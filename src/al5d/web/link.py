@@ -106,9 +106,9 @@ class WebNode:
             f"al5d_web_{os.getpid()}", namespace=names.node_namespace, context=self.context
         )
         self.pub = node.create_publisher(ArmInstruction, names.instruction, QOS_INSTRUCTIONS)
-        # Readers of the jog ever matched (the matched event's total), and that total when
-        # the page last lost the server (`server_lost`).
-        self._jog_matched = self._jog_mark = 0
+        # Readers of the jog ever matched and ever gone (the matched event's counts), and
+        # both when the page last lost the server (`server_lost`).
+        self._jog_seen = self._jog_mark = (0, 0)
         self.jog_pub = node.create_publisher(
             JointState,
             names.joint_commands,
@@ -178,20 +178,25 @@ class WebNode:
         in the URDF's values as ros2_control's hardware sends them. False when no server
         reads the stream yet: a server just (re)started can send its joint states to this
         page before DDS has matched this writer to its reader, and the set-point is lost.
-        After the page lost the server, only a reader matched since counts: a killed
-        server's reader stays matched until DDS notices it has gone (its lease, seconds),
-        and a set-point sent to it alone reaches nobody."""
+        After the page lost the server, a reader counts once one has matched or gone since:
+        a killed server's reader stays matched until DDS notices it has gone (its lease,
+        seconds), and a set-point sent to it alone reaches nobody; the new server's may have
+        matched before the page noticed the loss (a busy host), and then counts once the
+        killed one's has gone."""
         values = self.model.to_urdf(dict(degrees))
         msg = JointState(name=list(values), position=[float(v) for v in values.values()])
         msg.header.stamp = self.node.get_clock().now().to_msg()
         self.jog_pub.publish(msg)
-        return self.jog_pub.get_subscription_count() > 0 and self._jog_matched > self._jog_mark
+        (matched, gone), (matched_then, gone_then) = self._jog_seen, self._jog_mark
+        changed = matched > matched_then or gone > gone_then
+        return self.jog_pub.get_subscription_count() > 0 and changed
 
     def server_lost(self) -> None:
-        self._jog_mark = self._jog_matched
+        self._jog_mark = self._jog_seen
 
     def _on_jog_matched(self, info: QoSPublisherMatchedInfo) -> None:
-        self._jog_matched = info.total_count
+        # One assignment: `jog`, on another thread, reads both counts of one event.
+        self._jog_seen = (info.total_count, info.total_count - info.current_count)
 
     def stop(self) -> str:
         """The emergency stop, by the service (it never waits behind instructions) and on the
