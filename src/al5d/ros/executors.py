@@ -99,10 +99,18 @@ class Spinner:
         self.more = list(more or [])
         self.executor = make_executor(context, kind)
         # Python's executor rebuilds its wait set at every turn: an idle one should turn
-        # seldom (`close` wakes it). The events executor turns only on events anyway.
+        # seldom (`close` stirs it). The events executor turns only on events anyway.
         self.turn_s = 1.0 if isinstance(self.executor, SingleThreadedExecutor) else 0.1
         for each in (node, *self.more):
             self.executor.add_node(each)
+        # Its callback ends the Python executor's turn, which `wake` alone does not (it waits
+        # out its turn when nothing else is ready: up to `turn_s` per close). The events
+        # executor's `wake` does (and with this guard its nodes' callbacks failed).
+        self._stir = (
+            node.create_guard_condition(lambda: None)
+            if isinstance(self.executor, SingleThreadedExecutor)
+            else None
+        )
         self._thread: threading.Thread
         self._start()
 
@@ -121,6 +129,8 @@ class Spinner:
     def _halt(self) -> bool:
         """Whether the spin thread has ended (a callback may hold it: it is given time)."""
         self._running = False
+        if self._stir is not None:
+            self._stir.trigger()
         self.executor.wake()
         self._thread.join(HALT_S)
         if self._thread.is_alive():
