@@ -70,9 +70,9 @@ class Standalone:
         return self.port.read_until(b"\r") if n is None else self.port.read(n)
 
     def answer_s(self) -> float:
-        """The least of a few Q round trips."""
+        """The least of 15 Q round trips (three were all 15 ms once beside busy loops)."""
         times = []
-        for _ in range(3):
+        for _ in range(15):
             time.sleep(0.05)
             t0 = time.monotonic()
             assert self.ask(b"Q\r", 1) == b"."
@@ -135,7 +135,8 @@ def test_standalone_defaults_to_the_real_link_and_takes_the_board_settings(
 def test_standalone_low_latency_and_uart(tmp_path: Path) -> None:
     fast = Standalone(tmp_path, "--latency-timer", "40", "--low-latency")
     try:
-        assert fast.answer_s() < 0.010
+        # Its own 40 ms latency timer would make it 40 ms at least: 1 ms plus a busy host's.
+        assert fast.answer_s() < 0.020
     finally:
         err = fast.close()
     assert "low-latency mode (1 ms)" in err

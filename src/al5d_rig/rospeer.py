@@ -140,9 +140,11 @@ class Peer:
             20,
             "the server's topics",
         )
-        for client in self.services.values():
-            assert client.wait_for_service(timeout_sec=10)
-        assert self.move.wait_for_server(timeout_sec=10)
+        # The safety services are a participant of their own, discovered apart (seen: more
+        # than 10 s with four workers beside two busy loops).
+        for name, client in self.services.items():
+            assert client.wait_for_service(timeout_sec=30), f"no {name} service in 30 s"
+        assert self.move.wait_for_server(timeout_sec=30), "no move action in 30 s"
         self.first_answer()
 
     def wait_for_topics(self, prefix: str, timeout: float = 20.0) -> None:
