@@ -457,7 +457,9 @@ def test_the_client_application(server: Server, peer: Peer, tmp_path: Path) -> N
         for line in refused.out.drain()
     )
     seq = tmp_path / "seq.txt"
-    seq.write_text("park\nmove base=10 time=300 &\nwait 100\nstop\nrelease\nmove base=5\n")
+    # A background move long enough that the stop 100 ms later finds it running, however
+    # late a busy host runs the client (300 ms ended "done" once beside two busy loops).
+    seq.write_text("park\nmove base=10 time=3000 &\nwait 100\nstop\nrelease\nmove base=5\n")
     run = Proc("run", str(seq))
     assert run.wait(30) == 1  # the background move was cancelled by the stop
     out = run.out.drain()

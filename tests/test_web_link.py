@@ -3,6 +3,7 @@ whether a jog's set-point has a server to read it, across a server killed outrig
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -50,12 +51,23 @@ class Quiet:
     def on_mount(self, parent: str, mount: Transform) -> None: ...
 
 
-def reader() -> subprocess.Popen[str]:
+@contextlib.contextmanager
+def reader() -> Iterator[subprocess.Popen[str]]:
+    """A reader process, reading; killed at the end (if the test has not killed it)."""
     proc = subprocess.Popen(
         [sys.executable, "-c", READER], stdout=subprocess.PIPE, text=True, env=os.environ.copy()
     )
-    assert proc.stdout is not None and proc.stdout.readline().strip() == "reading"
-    return proc
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "reading"
+        yield proc
+    finally:
+        proc.kill()
+        proc.wait(10)
+
+
+def killed(proc: subprocess.Popen[str]) -> None:
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(10)
 
 
 @pytest.fixture
@@ -72,23 +84,14 @@ def test_after_the_server_is_lost_only_a_reader_matched_since_reads_the_jog(
     set-point sent to it alone reaches nobody; the page keeps it due until the server that
     comes back has matched."""
     here = dict(config.presets["ready"])
-    first = reader()
-    try:
+    with reader() as first:
         wait_until(lambda: link.jog(here), 20, "the first reader matched")
-        first.send_signal(signal.SIGKILL)
-        first.wait(10)
+        killed(first)
         link.server_lost()  # the page saw its joint states stop
         assert link.jog_pub.get_subscription_count() == 1  # the killed one, still matched
         assert not link.jog(here)
-        second = reader()
-        try:
+        with reader():
             wait_until(lambda: link.jog(here), 20, "the second reader matched")
-        finally:
-            second.kill()
-            second.wait(10)
-    finally:
-        first.kill()
-        first.wait(10)
 
 
 def test_a_reader_matched_before_the_loss_was_noticed_reads_once_the_killed_one_has_gone(
@@ -97,23 +100,14 @@ def test_a_reader_matched_before_the_loss_was_noticed_reads_once_the_killed_one_
     """On a busy host the server that comes back can match before the page notices the loss
     (the page's joint states stop only so often): its reader is not new then, and counts
     once DDS has let the killed one go. Before, the jog waited for a match that had already
-    happened (a CI run's web test: no set-point in 10 s)."""
+    happened (the web jog test beside two busy loops: no set-point in 10 s)."""
     here = dict(config.presets["ready"])
-    first = reader()
-    try:
+    with reader() as first:
         wait_until(lambda: link.jog(here), 20, "the first reader matched")
-        second = reader()
-        try:
+        with reader():
             wait_until(lambda: link.jog_pub.get_subscription_count() == 2, 20, "both matched")
-            first.send_signal(signal.SIGKILL)
-            first.wait(10)
+            killed(first)
             link.server_lost()
             assert not link.jog(here)  # both still matched: the killed one may be the reader
             wait_until(lambda: link.jog(here), 60, "the killed reader gone, the second reading")
             assert link.jog_pub.get_subscription_count() == 1
-        finally:
-            second.kill()
-            second.wait(10)
-    finally:
-        first.kill()
-        first.wait(10)

@@ -14,8 +14,28 @@ from al5d.arm.config import ArmConfig
 from al5d.ros.qos import QOS_LATCHED
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
+from al5d.ssc32u.stopline import BACKSTOP_SAID
 from al5d_rig.proc import Proc, patient_config
 from al5d_rig.rospeer import Peer, wait_until
+
+
+class StopBursts:
+    """The bursts of STOPs the board should get for the stops `peer` asks of the server in
+    `proc` from now on: one per stop request sent (`Peer.trigger` asks again after a second
+    unanswered), and one more per backstop the stop process said it wrote (when it could not
+    take the port's lock at once and the server wrote meanwhile: a busy host)."""
+
+    def __init__(self, peer: Peer, proc: Proc) -> None:
+        self.peer, self.proc = peer, proc
+        self.asked = peer.stops_asked
+        self.said = len(proc.err.drain(0))
+
+    def expected(self, on_topic: int = 0) -> tuple[int, str]:
+        """The bursts due so far with `on_topic` stops sent on the instruction topic, and
+        why, for a failure's message."""
+        again = sum(BACKSTOP_SAID in line for line in self.proc.err.drain(0.2)[self.said :])
+        asked = self.peer.stops_asked - self.asked + on_topic
+        return asked + again, f"{asked} stop(s) sent, {again} backstop(s)"
 
 
 @dataclass

@@ -288,12 +288,14 @@ class StopEnd:
         while time.monotonic() < deadline:
             with self._lock:
                 if self._shared.lock(wait=False):
+                    error: str | None = None  # None: not written again
                     try:
                         if self._shared.read(_WRITES) != writes:
                             error, _ = self._write()
-                            log.warning("%s%s", BACKSTOP_SAID, f": {error}" if error else "")
                     finally:
                         self._shared.unlock()
+                    if error is not None:  # said once the server may write again
+                        log.warning("%s%s", BACKSTOP_SAID, f": {error}" if error else "")
                     return
             time.sleep(_POLL_S)
 
