@@ -69,7 +69,7 @@ class Counter:
         self.lock = threading.Lock()
         self.seen: dict[str, int] = {}
         self.reasons: dict[str, str] = {}
-        peer.node.create_subscription(InstructionResult, "/al5d/result", self._on, QOS_ALL)
+        peer.read(InstructionResult, "/al5d/result", self._on, QOS_ALL)
 
     def _on(self, msg: InstructionResult) -> None:
         with self.lock:
