@@ -20,8 +20,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+from al5d_rig import domains
+
 HERE = Path(__file__).resolve().parent
-os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))
+# A pair of domains claimed as a test run claims them: a random one met a running
+# suite's servers (their states reached its page).
+if "ROS_DOMAIN_ID" not in os.environ:
+    os.environ["ROS_DOMAIN_ID"] = str(domains.claim())
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 from al5d.arm.config import load_config  # noqa: E402

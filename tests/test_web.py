@@ -26,13 +26,16 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
+from al5d.arm import instruction
 from al5d.arm.config import ArmConfig, load_config
-from al5d.model import forward
+from al5d.model import JOINTS, forward
 from al5d.model.table import below
+from al5d.model.urdf import urdf
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
+from al5d.web import page as web_page
 from al5d.web.page import FOLLOW_AFTER_S, LOOP_S, QUIET_S, Page
 from al5d_rig.armrig import group_moves
 from al5d_rig.proc import Proc, patient_config
@@ -565,6 +568,65 @@ def test_each_state_goes_to_the_page_once_and_alone(rig: Rig) -> None:
         assert "SetSceneNodeVisibilityMessage" in kinds, kinds  # its ghost shown and hidden
     finally:
         page.close()
+
+
+def _newest(page: Page) -> tuple[int, int]:
+    """In viser's outgoing buffer (which keeps each node's newest message): the number of
+    the arm's newest pose message and of the state's newest update."""
+    buffer = page._outgoing()
+    with buffer.buffer_lock:
+        messages = list(buffer.message_from_id.items())
+    arm = [i for i, m in messages if getattr(m, "name", "").startswith("/base_link/arm")]
+    state = [i for i, m in messages if 'id="al5d-state"' in str(getattr(m, "updates", ""))]
+    return max(arm, default=-1), max(state, default=-1)
+
+
+def test_the_arms_arrival_waits_for_the_state_it_brings(
+    config: ArmConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The arm's arrival at its last target comes 0-35 ms before the server's READY: a pose
+    sent then waits in the browser for its next frame (slow in software), and READY behind
+    it. The page holds the arrival until the state changes, then shows it after the state;
+    with no change of state, for at most ARRIVAL_HELD_S."""
+    monkeypatch.setattr(web_page, "ARRIVAL_HELD_S", 60.0)  # longer than a busy host's stall
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    page = Page(server, config, "al5d test")
+    page.commands = Recorder()
+    model = config.model
+
+    def joints(degrees: dict[str, float]) -> None:
+        values = model.to_urdf(degrees)
+        page.on_joints(list(values), list(values.values()), time.monotonic())
+
+    try:
+        page.on_description(urdf(model, dict.fromkeys(JOINTS, 90.0)))
+        start = dict(config.presets["ready"])
+        joints(start)
+        page.on_state("ready")
+        for base in (20.0, -20.0):
+            page.on_instruction(instruction.move(1000, base=base))
+            page.on_state("moving")
+            joints({**start, "base": base / 2})
+            wait_until(lambda: _newest(page)[0] > _newest(page)[1], 5, "the arm shown on its way")
+            on_its_way, moving = _newest(page)
+            joints({**start, "base": base})  # there
+            time.sleep(2 * LOOP_S)  # the page's loop would have sent a pose it holds no more
+            assert _newest(page)[0] == on_its_way
+            page.on_state("ready")
+            wait_until(
+                lambda m=moving: _newest(page)[0] > _newest(page)[1] > m, 5, "there, after READY"
+            )
+            start["base"] = base
+        # No state to wait for (another move queued behind it, say): shown all the same.
+        monkeypatch.setattr(web_page, "ARRIVAL_HELD_S", 0.3)
+        page.on_instruction(instruction.move(1000, base=0.0))
+        page.on_state("moving")
+        joints({**start, "base": 0.0})
+        arm, state = _newest(page)
+        wait_until(lambda: _newest(page)[0] > max(arm, state), 5, "there, without a state")
+    finally:
+        page.close()
+        server.stop()
 
 
 def test_the_page_says_when_it_lost_the_server(rig: Rig) -> None:

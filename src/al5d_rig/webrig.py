@@ -99,7 +99,7 @@ def dismiss_notifications(page: Any) -> None:
 def arm_pixels(png: bytes) -> int:
     """How many pixels of the canvas show the arm's dark parts (base, turntable, wrist).
 
-    The page is white with a light grey grid and shadows; only the arm is dark, so a
+    The page is white with a light grey grid; only the arm is dark, so a
     canvas where this is 0 did not render the arm (blank, or only the grid)."""
     rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.int16)
     return int(np.count_nonzero(rgb.max(axis=2) < 100))

@@ -62,6 +62,11 @@ STATE_ALONE_S = 0.04
 #: event loop waiting longer than STATE_ALONE_S): a browser that takes nothing is not
 #: left without its 3D view.
 STATE_SENT_WITHIN_S = 0.5
+#: The arm's arrival at its last target (within ARRIVED_DEG on every joint) comes 0-35 ms
+#: before the server's READY: a pose sent then would wait for the browser's next frame with
+#: READY behind it. The view holds the arrival until the state changes, for at most this long.
+ARRIVED_DEG = 0.5
+ARRIVAL_HELD_S = 0.15
 
 
 class Commands(Protocol):
@@ -125,6 +130,8 @@ class Page:
         self.last_change_t = -math.inf
         #: Until when the 3D view waits (STATE_ALONE_S), and what it has to show then.
         self.scene_held_until = -math.inf
+        #: Until when the arm's arrival at its last target waits for the state (ARRIVAL_HELD_S).
+        self.arrival_held_until = -math.inf
         #: The state's message in viser's outgoing buffer, until viser has taken it into a
         #: batch for every browser (None: taken), and until when the view waits for that.
         self.state_message: int | None = None
@@ -178,6 +185,8 @@ class Page:
             if changed:
                 # An idle arm's states repeat 25 times a second: nothing to redraw.
                 self.last_change_t = t
+                if self._arrived():
+                    self.arrival_held_until = time.monotonic() + ARRIVAL_HELD_S
                 self._show_arm()
             if first:
                 self._follow(force=True)
@@ -228,9 +237,17 @@ class Page:
 
     # -- showing (under the lock) ----------------------------------------------------
 
+    def _arrived(self) -> bool:
+        """The arm is at the last target on its way (its READY is due), while moving."""
+        if self.state != "moving" or not self.pending or self.degrees is None:
+            return False
+        target = next(reversed(self.pending.values()))[1].degrees
+        return all(abs(self.degrees.get(j, math.inf) - v) <= ARRIVED_DEG for j, v in target.items())
+
     def _show_state(self, state: str) -> None:
         """The state, sent at once and alone: the 3D view holds its updates a moment."""
         if self.panel.show_state(state):
+            self.arrival_held_until = -math.inf  # what it waited for has come
             self._hold_scene()
             buffer = self._outgoing()
             self.state_message = buffer.message_counter - 1
@@ -253,7 +270,7 @@ class Page:
             if now < self.state_sent_by and any(c < self.state_message for c in cursors):
                 return True
             self.state_message = None
-        return now < self.scene_held_until
+        return now < max(self.scene_held_until, self.arrival_held_until)
 
     def _show_arm(self) -> None:
         self.arm_due = True
