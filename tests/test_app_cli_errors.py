@@ -19,8 +19,9 @@ from pathlib import Path
 import pytest
 
 from al5d import exits
+from al5d.app.terminal import SLOW_DISCOVERY_S, Timing
 from al5d.arm.config import ArmConfig
-from al5d.ros.client import SLOW_DISCOVERY_S, Client, NoServer, Timing
+from al5d.ros.client import Client, NoServer
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import group_moves
 from al5d_rig.domains import alone

@@ -24,6 +24,7 @@ from al5d.arm.config import ArmConfig
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import LINK_CHECK, group_moves
+from al5d_rig.host import Shortage
 from al5d_rig.rospeer import LockedActionClient, Peer, wait_future, wait_until
 from al5d_rig.served import served
 
@@ -108,6 +109,7 @@ def test_a_trajectory_runs_one_group_move_per_point_in_order_at_its_times(rig: R
     ]
     rig.emu.clear_records()
     feedback: list[Any] = []
+    short = Shortage()
     handle = rig.send(rig.fjt, rig.trajectory(points), feedback)
     assert handle.accepted
     t0 = time.monotonic()
@@ -122,11 +124,12 @@ def test_a_trajectory_runs_one_group_move_per_point_in_order_at_its_times(rig: R
     # the board's pulses get there when each group move's time has run (a line written
     # late has its time shortened to arrive on time). How close is `make bench`'s figure
     # (trajectory timing); here, generous: a loaded machine wakes late (138 ms once beside
-    # two busy loops).
+    # two busy loops, and 1.67 s once, when the host was short of cores for seconds).
     start = records[0].t_effect
+    late_s = 0.5 + short.s
     for rec, move, (at, _) in zip(records, moves, points, strict=True):
         assert move.time_ms is not None
-        assert abs(rec.t_effect + move.time_ms / 1000 - start - at) < 0.5
+        assert -0.5 < rec.t_effect + move.time_ms / 1000 - start - at < late_s
     channels = {j: rig.config.joints[j].channel for j in ARM}
     for move, (_, degrees) in zip(moves, points, strict=True):
         pulses = {t.channel: t.pulse_us for t in move.targets}
@@ -358,14 +361,16 @@ def test_a_start_point_away_from_the_arm_is_reached_first_and_the_times_count_fr
     # Point 0 at time 0 is 50 deg of base away: reached at the servos' speed, then the
     # others keep their times from there, none of them late.
     goal = rig.trajectory([(first_s, pose(base=50)), (0.5, pose(base=40)), (1.0, pose(base=30))])
+    short = Shortage()
     answer = wait_future(rig.send(rig.fjt, goal).get_result_async(), 15)
     assert answer.status == GoalStatus.STATUS_SUCCEEDED
     # Counted from the goal's start instead, points 1 and 2 would come the ~170 ms the
-    # servos take for 50 deg late; a busy host may write a step late (seen: 6 ms, and 63
-    # ms with four workers on two cores).
+    # servos take for 50 deg late; a busy host may write a step late (seen: 6 ms, 63 ms
+    # with four workers on two cores, 133 ms beside two busy loops): what it was short of
+    # cores meanwhile is allowed on top.
     text = answer.result.error_string
     late_ms = [float(w) for w in re.findall(r"reached (\d+) ms after", text)]
-    assert all(ms < 120 for ms in late_ms), text
+    assert all(ms < 120 + 1000 * short.s for ms in late_ms), (text, short.s)
 
 
 def test_a_slow_enough_trajectory_with_tolerances_succeeds(rig: Rig) -> None:

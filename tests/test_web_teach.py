@@ -23,7 +23,7 @@ from al5d.arm.instruction import Instruction, Outcome, Result, parse_sequence
 from al5d.arm.poses import beside, load_poses
 from al5d.ssc32u import protocol as p
 from al5d.web.plan import Planner
-from al5d.web.teach import Player
+from al5d.web.player import Player
 from al5d_rig.armrig import group_moves
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import Served, served

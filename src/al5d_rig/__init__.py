@@ -24,8 +24,9 @@ among its modules run as `python -m al5d_rig.NAME`. It sits above every subpacka
 - `calibuser`: the user of a calibration, who sees where a joint truly stands.
 - `model_support`: the shipped arm's ranges, speeds and presets for the model's tests.
 - `fuzzcount`: how many cases each fuzz suite ran.
+- `host`: how short of cores the host was over a stretch of a test (its timing excused).
 
 The pytest fixtures stay in tests/conftest.py, not here as a plugin: they claim the run's
 ROS domain when pytest loads them, which only the test suite must do (a benchmark
-claims no domain), and pytest finds conftest.py without any registration.
+claims its own as it starts), and pytest finds conftest.py without any registration.
 """

@@ -2,6 +2,8 @@
 
 - `cli`: `al5d serve | emulator | send | run | shell | doctor | demo | urdf | moveit | web |
   record | replay | calibrate`, and the exit codes' table in `--help`.
+- `emulator`: `al5d emulator`, a standalone emulated SSC-32U on a pseudo terminal.
+- `terminal`: `al5d send`, `al5d run`, `al5d shell`, the client's commands at the terminal.
 - `server`: `al5d serve`, the arm driver on a port or on the embedded emulator, with ROS.
 - `demo`: DE01 on the embedded emulator, with the DE02 table of `reach`.
 - `reach`: how soon each move reached its target (the demo's and the benchmarks' table).

@@ -119,9 +119,10 @@ def replay(
     (any one refused, cancelled or unanswered), bad input (a file that cannot be replayed:
     nothing sent) or no server."""
     from al5d import exits
+    from al5d.app.terminal import Report
     from al5d.arm.config import load_config
     from al5d.arm.instruction import Instruction
-    from al5d.ros.client import Client, NoServer, Report
+    from al5d.ros.client import Client, NoServer
     from al5d.ros.convert import from_message
 
     try:

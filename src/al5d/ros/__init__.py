@@ -20,7 +20,8 @@
 - `actions`: the move action; `controllers`: MoveIt's FollowJointTrajectory and
   GripperCommand (both `ActionsNode`'s).
 - `server`: `RosStart` and `RosServer`, which put the nodes together for `al5d serve`.
-- `client`: `Client`, `al5d send`, `al5d run` and `al5d shell`, a ROS client of the server.
+- `client`: `Client`, a ROS client of the server (the terminal's commands on it are
+  `al5d.app.terminal`'s).
 
 This layer imports `al5d.arm` (never the board's emulator) and rclpy.
 """

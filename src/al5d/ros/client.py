@@ -1,14 +1,8 @@
-"""The client application: sends instructions to the server over ROS 2 and reports their outcomes.
+"""The client of the server over ROS 2: instructions sent, their outcomes waited for, the
+stop, release and shutdown by the server's services (the terminal's commands on it:
+`al5d.app.terminal`).
 
-`al5d send` sends one instruction and waits for its outcome (a stop or a release
-goes by the server's service). `al5d run` runs a sequence file: each instruction
-waits for its outcome before the next line, unless the line ends with `&` (then
-the client goes on at once, so that, say, a `stop` can land in the middle of a
-move); `wait <ms>` pauses. `al5d shell` reads instructions a line at a time and
-keeps its one connection: the server's discovery is paid once, not per command.
-Exit codes: `al5d.exits` (done, not done, bad input, no server).
-
-From Python, `Client` is a context manager:
+`Client` is a context manager:
 
     with Client() as arm:
         print(arm.execute("move base=30 time=800"))   # an Outcome
@@ -18,38 +12,26 @@ From Python, `Client` is a context manager:
 from __future__ import annotations
 
 import atexit
-import contextlib
-import functools
 import logging
 import os
-import sys
 import threading
 import time
 import weakref
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from types import TracebackType
-from typing import Any, TextIO
+from typing import Any
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from std_srvs.srv import Trigger
 
-from al5d import exits
 from al5d.arm.instruction import (
     PRESET_NAMES,
-    GrammarError,
     Instruction,
     Kind,
     Outcome,
-    Result,
-    SequenceStep,
-    Wait,
     parse_instruction,
-    parse_sequence,
-    parse_sequence_step,
 )
-from al5d.arm.poses import PosesError, beside, load_poses
 from al5d.clock import Deadline
 from al5d.ros.convert import outcome_from_message, to_message
 from al5d.ros.dds import start_context
@@ -89,9 +71,6 @@ WAIT_S = 10.0
 OUTCOME_S = 120.0
 #: A stop, a release or a shutdown is answered at once.
 ANSWER_S = 10.0
-#: Finding the server slower than this is said (where the time went), even without
-#: `--verbose`: a user waiting seconds for a command should know it was discovery.
-SLOW_DISCOVERY_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -390,317 +369,3 @@ class Client:
             self._closed = True
             _open.discard(self)
             self.spinner.close()
-
-
-class Report:
-    """Prints each outcome when it comes, whichever thread it comes in; keeps the verdict."""
-
-    def __init__(self, out: TextIO) -> None:
-        self._out = out
-        self._lock = threading.Lock()
-        self.all_done = True
-
-    def line(self, text: str) -> None:
-        with self._lock:
-            print(text, file=self._out, flush=True)
-
-    def outcome(self, outcome: Outcome | None, *, instr: Instruction) -> None:
-        if outcome is None:
-            text = f"{instr.name} [{instr.id}]: no outcome (timed out)"
-        else:
-            text = str(outcome)
-        with self._lock:
-            self.all_done &= outcome is not None and outcome.result is Result.DONE
-            print(text, file=self._out, flush=True)
-
-
-class Timing:
-    """Where a command's time went: ROS's start, the server's discovery, the rest. Said on
-    stderr: all of it with `--verbose`, the discovery alone whenever it was slow."""
-
-    def __init__(self, prog: str, verbose: bool, err: TextIO) -> None:
-        self.prog = prog
-        self.verbose = verbose
-        self.err = err
-        self.start = time.monotonic()
-        self.ros_s = 0.0
-        self._told = 0.0
-
-    def ros_started(self) -> None:
-        self.ros_s = time.monotonic() - self.start
-        if self.verbose:
-            self._say(f"ROS started in {self.ros_s:.2f} s")
-
-    def discovered(self, client: Client) -> None:
-        """Once the server is found (or not): how long that took, if slow or asked for."""
-        waited = client.discovery_s - self._told
-        self._told = client.discovery_s
-        if self.verbose:
-            self._say(f"waited {waited:.2f} s for the server to be discovered")
-        elif waited > SLOW_DISCOVERY_S:
-            self._say(
-                f"waited {waited:.1f} s for the server to be discovered (ROS 2 discovery, "
-                "which each new client pays: `al5d shell` pays it once for many instructions)"
-            )
-
-    def end(self) -> None:
-        if self.verbose:
-            self._say(f"{time.monotonic() - self.start:.2f} s in all")
-
-    def _say(self, text: str) -> None:
-        print(f"{self.prog}: {text}", file=self.err, flush=True)
-
-
-def _by_service(client: Client, instr: Instruction, timeout: float) -> Answer:
-    """A stop or a release, by the server's service."""
-    call = client.stop if instr.kind is Kind.STOP else client.release
-    return call(timeout)
-
-
-def send(
-    text: str,
-    *,
-    wait_s: float,
-    timeout: float,
-    out: TextIO = sys.stdout,
-    err: TextIO = sys.stderr,
-    namespace: str | None = None,
-    verbose: bool = False,
-) -> int:
-    """Send one instruction and print its outcome; a stop or a release by the server's
-    service (the topic only if the service is not there), printed with what carried it."""
-    try:
-        instr = parse_instruction(text, PRESET_NAMES)
-    except GrammarError as e:
-        print(f"al5d send: {e}", file=err)
-        return exits.BAD_INPUT
-    timing = Timing("al5d send", verbose, err)
-    client = Client(namespace, wait_s=wait_s)
-    timing.ros_started()
-    report = Report(out)
-    try:
-        if instr.kind in (Kind.STOP, Kind.RELEASE):
-            answer = _by_service(client, instr, timeout)
-            timing.discovered(client)
-            report.line(str(answer))
-            return exits.DONE if answer.success else exits.NOT_DONE
-        client.wait_for_server(wait_s)
-        timing.discovered(client)
-        try:
-            outcome: Outcome | None = client.execute(instr, timeout)
-        except NoOutcome:
-            outcome = None
-        report.outcome(outcome, instr=instr)
-        return exits.DONE if report.all_done else exits.NOT_DONE
-    except NoOutcome as e:
-        report.line(str(e))
-        return exits.NOT_DONE
-    except NoServer as e:
-        print(f"al5d send: {e}", file=err)
-        return exits.NO_SERVER
-    finally:
-        client.close()
-        timing.end()
-
-
-def run(
-    path: str | Path,
-    *,
-    wait_s: float,
-    timeout: float,
-    out: TextIO = sys.stdout,
-    err: TextIO = sys.stderr,
-    namespace: str | None = None,
-    verbose: bool = False,
-    poses: str | Path | None = None,
-) -> int:
-    """Run a sequence file; 0 if every instruction was done, 1 if any was not.
-
-    The file is checked whole before its first line is sent, and every bad line is said.
-    Each outcome is printed when it comes: a line run in the background (`&`) reports as
-    soon as its outcome arrives, not after the next line's. Its `pose <name>` lines name
-    poses of the file `poses` (by default `poses.yaml` beside the sequence, if there).
-    """
-    try:
-        book = load_poses(beside(path) if poses is None else poses, required=poses is not None)
-        steps = parse_sequence(Path(path).read_bytes(), str(path), PRESET_NAMES, book)
-    except OSError as e:
-        print(f"al5d run: cannot read {path}: {e.strerror}", file=err)
-        return exits.BAD_INPUT
-    except PosesError as e:
-        print(f"al5d run: nothing sent: {e}", file=err)
-        return exits.BAD_INPUT
-    except GrammarError as e:
-        print(f"al5d run: nothing sent: {e}".replace("\n", "\nal5d run: "), file=err)
-        return exits.BAD_INPUT
-    timing = Timing("al5d run", verbose, err)
-    client = Client(namespace)
-    timing.ros_started()
-    report = Report(out)
-    try:
-        client.wait_for_server(wait_s)
-        timing.discovered(client)
-        background: list[Instruction] = []
-        for item, in_background in steps:
-            _step(client, report, item, in_background, timeout, background)
-        _drain(client, report, background, timeout)
-        return exits.DONE if report.all_done else exits.NOT_DONE
-    except NoServer as e:
-        print(f"al5d run: {e}", file=err)
-        return exits.NO_SERVER
-    finally:
-        client.close()
-        timing.end()
-
-
-def _step(
-    client: Client,
-    report: Report,
-    item: Instruction | Wait,
-    in_background: bool,
-    timeout: float,
-    background: list[Instruction],
-    *,
-    echo: bool = True,
-) -> None:
-    """One step of a sequence, on the instruction topic: its outcome waited for and printed,
-    or (in the background) printed when it comes; `echo`: the step is printed first."""
-    if isinstance(item, Wait):
-        if echo:
-            report.line(f"wait {item.ms} ms")
-        time.sleep(item.ms / 1000)
-        return
-    if echo:
-        report.line(f"> {item}{' &' if in_background else ''}")
-    if in_background:
-        background.append(item)
-        client.watch(item.id, functools.partial(report.outcome, instr=item))
-    client.send(item)
-    if not in_background:
-        report.outcome(client.outcome(item.id, timeout), instr=item)
-
-
-def _drain(client: Client, report: Report, background: list[Instruction], timeout: float) -> None:
-    """Wait for the outcomes of the lines run in the background (each printed as it came)."""
-    for item in background:
-        if client.outcome(item.id, timeout) is None:
-            report.outcome(None, instr=item)
-    background.clear()
-
-
-#: What ends `al5d shell`, besides the end of its input.
-SHELL_QUIT = ("exit", "quit")
-SHELL_PROMPT = "al5d> "
-
-
-def _lines(inp: TextIO, interactive: bool) -> Iterator[str]:
-    """The shell's input, a line at a time; at a terminal with a prompt and line editing,
-    and Ctrl-C there drops the line typed, as a shell does."""
-    if not interactive:
-        # Ctrl-C with no instruction running: the end of the input, quietly.
-        with contextlib.suppress(KeyboardInterrupt):
-            yield from inp
-        return
-    import readline  # noqa: F401  (imported for its effect: input() gets editing and history)
-
-    while True:
-        try:
-            yield input(SHELL_PROMPT)
-        except KeyboardInterrupt:
-            print(file=sys.stdout)
-        except EOFError:
-            print(file=sys.stdout)
-            return
-
-
-def shell(
-    *,
-    wait_s: float,
-    timeout: float,
-    inp: TextIO = sys.stdin,
-    out: TextIO = sys.stdout,
-    err: TextIO = sys.stderr,
-    namespace: str | None = None,
-    verbose: bool = False,
-    poses: str | Path | None = None,
-) -> int:
-    """Read instructions a line at a time (the grammar of a sequence file: `wait`, `&`, `#`,
-    `pose <name>` of the file `poses`, by default `poses.yaml` here if there) and run each
-    over one connection kept throughout: the server is discovered once.
-
-    A stop or a release goes by the server's service, as with `al5d send`. A bad line is
-    said and skipped. Ctrl-C while an instruction runs is the emergency stop. The exit
-    code at the end: no server; else bad input if a line was bad; else whether every
-    instruction was done.
-    """
-    try:
-        book = load_poses(beside(None) if poses is None else poses, required=poses is not None)
-    except PosesError as e:
-        print(f"al5d shell: {e}", file=err)
-        return exits.BAD_INPUT
-    interactive = inp.isatty()
-    timing = Timing("al5d shell", verbose, err)
-    client = Client(namespace, wait_s=wait_s)
-    timing.ros_started()
-    report = Report(out)
-    bad = False
-    background: list[Instruction] = []
-    try:
-        client.wait_for_server(wait_s)
-        timing.discovered(client)
-        if interactive:
-            report.line(
-                "al5d shell: one instruction a line (as in a sequence file); Ctrl-C while "
-                "one runs stops the arm; exit or Ctrl-D ends"
-            )
-        for line in _lines(inp, interactive):
-            if line.strip().lower() in SHELL_QUIT:
-                break
-            try:
-                step = parse_sequence_step(line, PRESET_NAMES, book)
-            except GrammarError as e:
-                print(f"al5d shell: {e}", file=err, flush=True)
-                bad = True
-                continue
-            if step is None:
-                continue
-            try:
-                _shell_step(client, report, step, timeout, background, interactive)
-            except KeyboardInterrupt:
-                answer = client.stop()
-                report.line(f"Ctrl-C: {answer}")
-                report.all_done = False
-                item, in_background = step
-                if isinstance(item, Instruction) and not in_background:
-                    report.outcome(client.outcome(item.id, timeout), instr=item)
-            except NoOutcome as e:
-                report.line(str(e))
-                report.all_done = False
-        _drain(client, report, background, timeout)
-        if bad:
-            return exits.BAD_INPUT
-        return exits.DONE if report.all_done else exits.NOT_DONE
-    except NoServer as e:
-        print(f"al5d shell: {e}", file=err)
-        return exits.NO_SERVER
-    finally:
-        client.close()
-        timing.end()
-
-
-def _shell_step(
-    client: Client,
-    report: Report,
-    step: SequenceStep,
-    timeout: float,
-    background: list[Instruction],
-    interactive: bool,
-) -> None:
-    item, in_background = step
-    if isinstance(item, Instruction) and item.kind in (Kind.STOP, Kind.RELEASE):
-        answer = _by_service(client, item, timeout)
-        report.all_done &= answer.success
-        report.line(str(answer))
-        return
-    # At a terminal the line typed is on the screen already: it is not echoed.
-    _step(client, report, item, in_background, timeout, background, echo=not interactive)

@@ -14,6 +14,7 @@ teach and replay (named poses, sequences).
     panel.py   the widgets: STOP in a window of its own, the side panel
     page.py    the page: what it knows of the arm, its decisions, the user's input
     teach.py   the Teach tab: named poses, sequences built, saved, loaded and played
+    player.py  a sequence played step by step, each outcome waited for (no viser, no ROS)
     calibrate.py  the Calibrate tab: the guided calibration (`al5d.arm.calibration`)
     app.py     `al5d web`: the page on a port, until SIGINT/SIGTERM
 

@@ -1,0 +1,163 @@
+"""`al5d emulator`: a standalone emulated SSC-32U on a pseudo terminal, its arguments and
+its run until SIGINT or SIGTERM.
+
+The emulator itself (`al5d.ssc32u.emulator`) is imported when the command runs or an
+argument is read: the other commands never load it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from al5d import exits
+from al5d.arm.config import load_config
+from al5d.ssc32u.facts import BAUDS, FACTORY_BAUD, LATENCY_TIMER_MS
+
+
+def add_emulator(sub: Any) -> None:
+    """The `emulator` subcommand on `sub` (argparse's subparsers)."""
+    emu = sub.add_parser("emulator", help="a standalone emulated SSC-32U on a pseudo terminal")
+    emu.add_argument("--baud", type=int, default=FACTORY_BAUD, choices=BAUDS)
+    emu.add_argument("--link", help="also make this path a symlink to the device")
+    emu.add_argument("--config", help="arm configuration (servo speeds); default: shipped")
+    emu.add_argument(
+        "--record",
+        metavar="FILE",
+        help="write every line the board receives as JSON (time of effect, bytes); - = stdout",
+    )
+    emu.add_argument(
+        "--transport",
+        choices=("usb", "uart"),
+        default="usb",
+        help="usb (default): the board's USB port, an output flush drops nothing written and "
+        "short answers wait for the latency timer; uart: a plain serial line, a flush drops "
+        "unsent bytes",
+    )
+    emu.add_argument(
+        "--latency-timer",
+        metavar="MS",
+        type=_emulator_setting("latency_ms"),
+        default=LATENCY_TIMER_MS,
+        help="the USB chip's latency timer, 1..255 ms (default %(default)s)",
+    )
+    emu.add_argument(
+        "--low-latency",
+        action="store_true",
+        help="as if the host had set the port's low-latency mode (the timer at 1 ms)",
+    )
+    emu.add_argument(
+        "--input",
+        metavar="PIN=LEVEL",
+        action="append",
+        default=[],
+        type=_emulator_setting("input_setting"),
+        help="an input pin: A..H=0|1|open, VA..VH=0..255|open (repeat; default all open)",
+    )
+    emu.add_argument(
+        "--register",
+        metavar="N=VALUE",
+        action="append",
+        default=[],
+        type=_emulator_setting("register_setting"),
+        help="a register at power-up, e.g. 0=8 (repeat); R4 is the baud / 10",
+    )
+    emu.add_argument(
+        "--startup",
+        metavar="TEXT",
+        default="",
+        help="the startup string, run at power-up (R0 bit 0 is set), e.g. '#0P1500;#1P1500;'",
+    )
+    emu.add_argument(
+        "--power-up",
+        metavar="CH=US",
+        action="append",
+        default=[],
+        type=_emulator_setting("pulse_setting"),
+        help="a channel's pulse at power-up (the initial pulse width registers; repeat)",
+    )
+    emu.add_argument(
+        "--announce-reset",
+        action="store_true",
+        help="a reset (SIGUSR1) sends what SS answers, unasked",
+    )
+    emu.add_argument(
+        "--misalign",
+        metavar="JOINT=US[,reversed]",
+        action="append",
+        default=[],
+        type=_emulator_setting("misalign_setting"),
+        help="an arm other than its config says (to try `al5d calibrate` on): the joint "
+        "stands US off its calibration, or turns the other way (repeat)",
+    )
+    emu.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from al5d.priority import make_urgent
+    from al5d.ssc32u.emulator import Emulator, LinkModel, Transport, serve_forever
+
+    config = load_config(args.config)
+    usb = LinkModel(Transport(args.transport), args.latency_timer, args.low_latency)
+    unknown = [name for name, _ in args.misalign if name not in config.joints]
+    if unknown:
+        print(
+            f"al5d emulator: --misalign {unknown[0]}: no such joint; joints: "
+            + ", ".join(config.joints),
+            file=sys.stderr,
+        )
+        return exits.USAGE
+    # A board answers in its own time whatever the computer does: the emulated one runs
+    # ahead of the host's load (every thread it starts inherits this), where the OS allows.
+    # Once its arguments are good: a caller's thread (`main` in a test) keeps its own.
+    make_urgent("al5d emulator")
+    emulator = Emulator(
+        config,
+        baud=args.baud,
+        link=args.link,
+        usb=usb,
+        inputs=dict(args.input),
+        registers=dict(args.register),
+        startup=args.startup,
+        power_up=dict(args.power_up),
+        announce_reset=args.announce_reset,
+        mechanics=dict(args.misalign),
+    )
+    print(f"al5d emulator: SSC-32U at {args.baud} baud, {usb.describe()}", file=sys.stderr)
+    if args.record is None:
+        serve_forever(emulator, _until_signal())
+    elif args.record == "-":
+        serve_forever(emulator, _until_signal(), sys.stdout)
+    else:
+        with open(args.record, "w", encoding="utf-8") as record:
+            serve_forever(emulator, _until_signal(), record)
+    return exits.DONE
+
+
+def _until_signal() -> threading.Event:
+    """An event set by SIGINT or SIGTERM (so that both end the program the same clean way)."""
+    done = threading.Event()
+
+    def handler(signum: int, frame: object) -> None:
+        done.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return done
+
+
+def _emulator_setting(name: str) -> Callable[[str], Any]:
+    """`al5d.ssc32u.emulator.settings.<name>`, imported when a value is first read: only
+    `al5d emulator` loads the emulator, not `al5d serve --port` nor the clients."""
+
+    def convert(text: str) -> Any:
+        from al5d.ssc32u.emulator import settings
+
+        return getattr(settings, name)(text)
+
+    convert.__name__ = name  # argparse names the type in its errors
+    return convert
