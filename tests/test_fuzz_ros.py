@@ -199,10 +199,18 @@ def pulse_ranges(config: ArmConfig) -> dict[int, tuple[float, float]]:
 
 def check_the_wire(target: Target) -> None:
     ranges = pulse_ranges(target.config)
-    for move in group_moves(target.emu.records):
-        for t in move.targets:
-            lo, hi = ranges[t.channel]
-            assert lo <= t.pulse_us <= hi, f"channel {t.channel}: {t.pulse_us} us on the wire"
+    records = target.emu.records
+    for k, rec in enumerate(records):
+        for move in group_moves([rec]):
+            for t in move.targets:
+                lo, hi = ranges[t.channel]
+                # The line and its neighbours on the board, for the next reader (seen once
+                # beside two busy loops: 179 us on channel 1, the line not kept).
+                near = records[max(0, k - 4) : k + 3]
+                assert lo <= t.pulse_us <= hi, (
+                    f"channel {t.channel}: {t.pulse_us} us on the wire, in "
+                    f"{[(r.t_effect, r.raw, r.ignored, r.source) for r in near]}"
+                )
 
 
 def send_and_count(target: Target, messages: list[ArmInstruction]) -> None:

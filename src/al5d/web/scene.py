@@ -44,9 +44,10 @@ class ArmScene:
         scene = server.scene
         server.initial_camera.position = CAMERA
         server.initial_camera.look_at = LOOK_AT
-        # A browser without a GPU draws in software: shadows (a pass of their own per
-        # light) and the environment map's lighting took a frame from 67 to 183 ms (p50,
-        # headless Chromium, 2 cores), and a state sent while a frame is drawn waits for it.
+        # A browser without a GPU draws in software: with shadows (a pass of their own per
+        # light) and the environment map's lighting a frame took 183 ms against 67 without
+        # (p50, headless Chromium on 2 cores beside a test suite), and a state that comes
+        # while a frame is drawn waits for it.
         scene.configure_default_lights(enabled=True, cast_shadow=False)
         scene.configure_environment_map(hdri=None)
         scene.add_grid("/grid", width=0.8, height=0.8, cell_size=0.05, section_size=0.2)
