@@ -24,8 +24,11 @@ which is per process):
   first (from then on no move of the server's goes out), then writes ESC and STOP for
   every channel. It waits for the lock `HOLD_S` at most: the server holds it only
   across one write, but on a busy host it may lose its core holding it. Past that the
-  STOP goes out all the same, and once the lock comes, a STOP goes out again if the
-  server wrote meanwhile, so that whatever it wrote then is halted too.
+  STOP goes out all the same, behind what the port holds (not flushed: a flush would
+  drop the unsent end of a line whose start the board has, and the server's write under
+  way, a query or a line, would then complete it into a command: a line cut at `#1P179`
+  followed by `Q` moves channel 1 to 179 us), and once the lock comes, a STOP goes out
+  again if the server wrote meanwhile, so that whatever it wrote then is halted too.
 """
 
 from __future__ import annotations
@@ -263,7 +266,7 @@ class StopEnd:
                 if held and key is not None and not self._shared.claim(key):
                     error, data = "", b""
                 else:
-                    error, data = self._write()
+                    error, data = self._write(flush=held)
             finally:
                 if held:
                     self._shared.unlock()
@@ -291,7 +294,7 @@ class StopEnd:
                     error: str | None = None  # None: not written again
                     try:
                         if self._shared.read(_WRITES) != writes:
-                            error, _ = self._write()
+                            error, _ = self._write(flush=True)
                     finally:
                         self._shared.unlock()
                     if error is not None:  # said once the server may write again
@@ -299,16 +302,20 @@ class StopEnd:
                     return
             time.sleep(_POLL_S)
 
-    def _write(self) -> tuple[str, bytes]:
-        """Why the STOP could not be written (or ""), and its bytes."""
+    def _write(self, flush: bool) -> tuple[str, bytes]:
+        """Why the STOP could not be written (or ""), and its bytes; with `flush` (only with
+        the lock held: no write of the server's is under way) what waits in the port is
+        dropped first."""
         fd = self._port
         if fd is None:
             return "no board is open", b""
         try:
             # As the server's own stop: what waits in the port is dropped where the link
-            # allows (a UART); the ESC makes a half-written line harmless either way.
-            with contextlib.suppress(termios.error, OSError):
-                termios.tcflush(fd, termios.TCOFLUSH)
+            # allows (a UART); the ESC makes a half-written line harmless either way, as
+            # long as no write comes between the flush and it, which the lock ensures.
+            if flush:
+                with contextlib.suppress(termios.error, OSError):
+                    termios.tcflush(fd, termios.TCOFLUSH)
             data = p.CANCEL + p.encode_stop(self._order())
             view = memoryview(data)
             deadline = time.monotonic() + BACKSTOP_S
