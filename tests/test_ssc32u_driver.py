@@ -16,7 +16,7 @@ from al5d.ssc32u.driver import (
     WIRE_PIECE_S,
     tap_writes,
 )
-from al5d.ssc32u.emulator import UART, Emulator, Fault, LinkModel
+from al5d.ssc32u.emulator import UART, Emulator, Fault, LinkModel, Record
 from al5d.ssc32u.errors import (
     GarbageAnswer,
     Interrupted,
@@ -297,7 +297,17 @@ class TestFaults:
         self, emulator: Emulator, board: SSC32U
     ) -> None:
         emulator.inject(Fault.NO_ANSWER)
-        threading.Timer(0.02, emulator.clear).start()  # the first Q goes unanswered
+        asked: list[bytes] = []
+
+        def on_record(rec: Record) -> None:
+            # The second Q is answered: the fault ends as the board takes it (its record
+            # comes before its answer). A timer ending the fault 20 ms on was too early
+            # beside two busy loops (the first Q came later, and was answered).
+            asked.append(rec.raw)
+            if asked.count(b"Q") == 2:
+                emulator.clear()
+
+        emulator.record_listeners.append(on_record)
         t0 = time.monotonic()
         assert board.is_done()
         # It waited out one read timeout, then asked again.
