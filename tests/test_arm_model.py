@@ -109,6 +109,9 @@ class Rig:
     emu: Emulator | None = None
     driver: ArmDriver | None = None
     told: Counter[str] = field(default_factory=Counter)
+    #: The outcomes are counted on the driver's threads while a check reads them (a copy
+    #: taken without it once raised "dictionary changed size during iteration").
+    told_lock: threading.Lock = field(default_factory=threading.Lock)
     pulled: bool = False
     #: An example failed: the next one starts on a new driver (what went wrong there must
     #: not be found again by every example after it).
@@ -120,10 +123,22 @@ class Rig:
         link = self.workdir / "ssc32u-model"
         self.emu = Emulator(self.config, baud=115200, link=link, initial_pose=pose).start()
         self.driver = ArmDriver(self.config, str(link), 115200)
-        self.driver.outcome_listeners.append(lambda o: self.told.update([o.id]))
+        self.driver.outcome_listeners.append(self._tell)
         self.driver.start()
         self.driver.wait_for_state(State.READY, 20)
         self.pulled = False
+
+    def _tell(self, outcome: Outcome) -> None:
+        with self.told_lock:
+            self.told.update([outcome.id])
+
+    def told_so_far(self, clear: bool = False) -> dict[str, int]:
+        """The outcomes told, by id (and from now on none, with `clear`)."""
+        with self.told_lock:
+            told = dict(self.told)
+            if clear:
+                self.told.clear()
+        return told
 
     def close(self) -> None:
         if self.driver is not None:
@@ -490,7 +505,7 @@ class ArmProtocol(RuleBasedStateMachine):
         for a in list(self.asked):
             if a.kind in ("stop", "release"):
                 assert a.future.done(), f"{a.kind} {a.instr.id} not answered at once"
-        for ident, n in list(self.rig.told.items()):
+        for ident, n in self.rig.told_so_far().items():
             assert n <= 1, f"{ident} was told {n} outcomes"
         assert not self.problems, self.problems
 
@@ -558,9 +573,8 @@ class ArmProtocol(RuleBasedStateMachine):
         self._stream_held_after_a_stop()
         if not self.ended:
             self._probe()
-        for ident, n in self.rig.told.items():
+        for ident, n in self.rig.told_so_far(clear=True).items():
             assert n == 1 or not any(a.instr.id == ident for a in self.asked), (ident, n)
-        self.rig.told.clear()
 
     def _probe(self) -> None:
         """The wedge: after stop and release, a move is done. A board plugged back just now
