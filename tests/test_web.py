@@ -35,8 +35,9 @@ from al5d.ros.names import Names
 from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
-from al5d.web import page as web_page
-from al5d.web.page import FOLLOW_AFTER_S, LOOP_S, QUIET_S, Page
+from al5d.web import viewhold
+from al5d.web.jog import FOLLOW_AFTER_S, QUIET_S
+from al5d.web.page import LOOP_S, Page
 from al5d_rig.armrig import group_moves
 from al5d_rig.proc import Proc, patient_config
 from al5d_rig.rospeer import Peer, wait_until
@@ -573,7 +574,7 @@ def test_each_state_goes_to_the_page_once_and_alone(rig: Rig) -> None:
 def _newest(page: Page) -> tuple[int, int]:
     """In viser's outgoing buffer (which keeps each node's newest message): the number of
     the arm's newest pose message and of the state's newest update."""
-    buffer = page._outgoing()
+    buffer = page.hold.outgoing()
     with buffer.buffer_lock:
         messages = list(buffer.message_from_id.items())
     arm = [i for i, m in messages if getattr(m, "name", "").startswith("/base_link/arm")]
@@ -588,7 +589,7 @@ def test_the_arms_arrival_waits_for_the_state_it_brings(
     sent then waits in the browser for its next frame (slow in software), and READY behind
     it. The page holds the arrival until the state changes, then shows it after the state;
     with no change of state, for at most ARRIVAL_HELD_S."""
-    monkeypatch.setattr(web_page, "ARRIVAL_HELD_S", 60.0)  # longer than a busy host's stall
+    monkeypatch.setattr(viewhold, "ARRIVAL_HELD_S", 60.0)  # longer than a busy host's stall
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     page = Page(server, config, "al5d test")
     page.commands = Recorder()
@@ -618,7 +619,7 @@ def test_the_arms_arrival_waits_for_the_state_it_brings(
             )
             start["base"] = base
         # No state to wait for (another move queued behind it, say): shown all the same.
-        monkeypatch.setattr(web_page, "ARRIVAL_HELD_S", 0.3)
+        monkeypatch.setattr(viewhold, "ARRIVAL_HELD_S", 0.3)
         page.on_instruction(instruction.move(1000, base=0.0))
         page.on_state("moving")
         joints({**start, "base": 0.0})

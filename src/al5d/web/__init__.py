@@ -13,6 +13,8 @@ teach and replay (named poses, sequences).
     scene.py   the 3D view: the arm, its ghost, the straight path, the target gizmo
     panel.py   the widgets: STOP in a window of its own, the side panel
     page.py    the page: what it knows of the arm, its decisions, the user's input
+    jog.py     the sliders' jog: when a set-point is due, sent again, given up (no viser)
+    viewhold.py  when the 3D view may change: a state goes to the browsers first
     teach.py   the Teach tab: named poses, sequences built, saved, loaded and played
     player.py  a sequence played step by step, each outcome waited for (no viser, no ROS)
     calibrate.py  the Calibrate tab: the guided calibration (`al5d.arm.calibration`)

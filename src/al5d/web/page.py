@@ -5,7 +5,8 @@ threads touch it: the ROS executor (joint states, state, outcomes, instructions
 seen), viser (the user's clicks and drags: STOP on viser's event loop, the rest
 in its thread pool) and the page's own loop (the watchdog, the jog's set-points, the
 plot). One lock keeps what they share consistent; the 3D view
-(scene.py) and the widgets (panel.py) are only called under it.
+(scene.py), the widgets (panel.py), the jog (jog.py) and the view's hold (viewhold.py)
+are only called under it.
 """
 
 from __future__ import annotations
@@ -24,49 +25,23 @@ from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result, move_to, preset
 from al5d.model import JOINTS, ModelError
 from al5d.model.transforms import Transform, Vec3
+from al5d.web.jog import Jog
 from al5d.web.panel import Panel
 from al5d.web.plan import JointHistory, OutcomeLog, Planner, Target
 from al5d.web.scene import ArmScene
+from al5d.web.viewhold import ViewHold, arrived
 
 log = logging.getLogger("al5d.web")
 
 #: No joint states for this long: the server is lost (banner, controls off but STOP).
 LOST_AFTER_S = 1.0
-#: A slider still for this long has been let go (viser 1.1.1 tells the server no slider
-#: release, only values): until then the jog's set-point is sent again each tick.
-QUIET_S = 0.3
 #: The page's loop: the watchdog, the jog's set-points (20 a second at most: the server
 #: writes the newest as soon as the wire allows) and the sliders following the arm.
 LOOP_S = 0.05
 #: The plot is redrawn this often (each redraw sends the whole window of samples).
 PLOT_EVERY_S = 0.25
-#: Sliders follow the arm once nobody has touched them for this long and it is not moving.
-FOLLOW_AFTER_S = 1.5
 #: The gizmo stays where the user left it this long (a refused target stays in view).
 TARGET_KEPT_S = 5.0
-#: A jog let go with the arm idle short of its target (degrees) is sent again this often,
-#: for up to FOLLOW_AFTER_S of the arm idle there.
-JOG_THERE_DEG = 0.5
-JOG_RESEND_S = 0.3
-#: A jog goes on after the server was lost if the sliders were let go at most this long ago.
-JOG_KEPT_LOST_S = 5.0
-#: After a change of the server's state the 3D view (the arm, the ghost) waits this long,
-#: then shows the newest pose: the state goes to the browser at once, in a batch of viser's
-#: of its own. viser's client applies a batch of GUI updates at once when nothing waits
-#: before it, but one that moves something in the 3D view waits for the next frame the
-#: browser draws (in software, on a machine without a GPU, 100 ms and more), and holds up
-#: every batch behind it. An instruction seen and an outcome hold the 3D view as well: a
-#: state comes with them (the ghost they change would go just before it).
-STATE_ALONE_S = 0.04
-#: ... and at most this long for viser to send the state's batch (a busy host can keep its
-#: event loop waiting longer than STATE_ALONE_S): a browser that takes nothing is not
-#: left without its 3D view.
-STATE_SENT_WITHIN_S = 0.5
-#: The arm's arrival at its last target (within ARRIVED_DEG on every joint) comes 0-35 ms
-#: before the server's READY: a pose sent then would wait for the browser's next frame with
-#: READY behind it. The view holds the arrival until the state changes, for at most this long.
-ARRIVED_DEG = 0.5
-ARRIVAL_HELD_S = 0.15
 
 
 class Commands(Protocol):
@@ -110,32 +85,16 @@ class Page:
         self.page_move_to: str | None = None
         self.history = JointHistory(tuple(JOINTS))
         self.outcomes = OutcomeLog()
-        #: The jog: the sliders' targets since the user took them (None: no jog), sent as
-        #: set-points of the server's stream (`joint_commands`), the newest replacing any
-        #: not yet written; `jog_sent` is False while its latest is still to be sent.
-        self.jog: dict[str, float] | None = None
-        self.jog_sent = True
-        #: Why the jog's latest target would be refused (the table, a limit), or "": such a
-        #: target is not sent, and once the sliders are let go they go back to the arm.
-        self.jog_refused = ""
-        #: When the jog's latest target was set (the user's hand, or sent again), and since
-        #: when the arm has been idle short of it (None: it is not).
-        self.jog_t = -math.inf
-        self.jog_short_t: float | None = None
-        self.touched = -math.inf
+        #: The jog: the sliders' targets, sent as set-points of the server's stream
+        #: (`joint_commands`).
+        self.jog = Jog({name: joint.speed_deg_s for name, joint in config.joints.items()})
         self.target_touched = -math.inf
         #: Where the tool was when the gizmo was last put at it (None: never).
         self.target_tool: Vec3 | None = None
         self.arrivals: list[float] = []
         self.last_change_t = -math.inf
-        #: Until when the 3D view waits (STATE_ALONE_S), and what it has to show then.
-        self.scene_held_until = -math.inf
-        #: Until when the arm's arrival at its last target waits for the state (ARRIVAL_HELD_S).
-        self.arrival_held_until = -math.inf
-        #: The state's message in viser's outgoing buffer, until viser has taken it into a
-        #: batch for every browser (None: taken), and until when the view waits for that.
-        self.state_message: int | None = None
-        self.state_sent_by = -math.inf
+        #: When the 3D view may change, and what it has to show then.
+        self.hold = ViewHold(server)
         self.arm_due = self.ghost_due = False
         self.scene = ArmScene(server, self.model)
         self.panel = Panel(server, config, title)
@@ -186,7 +145,7 @@ class Page:
                 # An idle arm's states repeat 25 times a second: nothing to redraw.
                 self.last_change_t = t
                 if self._arrived():
-                    self.arrival_held_until = time.monotonic() + ARRIVAL_HELD_S
+                    self.hold.arrival()
                 self._show_arm()
             if first:
                 self._follow(force=True)
@@ -204,7 +163,7 @@ class Page:
 
     def on_outcome(self, outcome: Outcome) -> None:
         with self._lock:
-            self._hold_scene()
+            self.hold.hold()
             self.outcomes.add(outcome)
             self.panel.show_outcomes(self.outcomes)
             if self.pending.pop(outcome.id, None) is not None:
@@ -225,7 +184,7 @@ class Page:
                 return
             target = self.planner.target_of(instr, start)
             if isinstance(target, Target):
-                self._hold_scene()
+                self.hold.hold()
                 self.pending[instr.id] = (f"{instr.name} [{instr.id}]", target)
                 self._show_ghost()
 
@@ -241,36 +200,13 @@ class Page:
         """The arm is at the last target on its way (its READY is due), while moving."""
         if self.state != "moving" or not self.pending or self.degrees is None:
             return False
-        target = next(reversed(self.pending.values()))[1].degrees
-        return all(abs(self.degrees.get(j, math.inf) - v) <= ARRIVED_DEG for j, v in target.items())
+        return arrived(self.degrees, next(reversed(self.pending.values()))[1].degrees)
 
     def _show_state(self, state: str) -> None:
         """The state, sent at once and alone: the 3D view holds its updates a moment."""
         if self.panel.show_state(state):
-            self.arrival_held_until = -math.inf  # what it waited for has come
-            self._hold_scene()
-            buffer = self._outgoing()
-            self.state_message = buffer.message_counter - 1
-            self.state_sent_by = time.monotonic() + STATE_SENT_WITHIN_S
+            self.hold.state_sent()
             self.server.flush()
-
-    def _outgoing(self) -> Any:
-        """viser's buffer of the messages for every browser (viser 1.1.1's, not public):
-        its `message_counter` numbers them, its `generator_cursors` say, for each browser,
-        up to which one it has taken them into a batch."""
-        return self.server._websock_server.get_message_buffer()
-
-    def _hold_scene(self) -> None:
-        self.scene_held_until = max(self.scene_held_until, time.monotonic() + STATE_ALONE_S)
-
-    def _scene_held(self) -> bool:
-        now = time.monotonic()
-        if self.state_message is not None:
-            cursors = list(self._outgoing().generator_cursors.values())
-            if now < self.state_sent_by and any(c < self.state_message for c in cursors):
-                return True
-            self.state_message = None
-        return now < max(self.scene_held_until, self.arrival_held_until)
 
     def _show_arm(self) -> None:
         self.arm_due = True
@@ -278,7 +214,7 @@ class Page:
 
     def _show_scene(self) -> None:
         """The arm's pose and the ghost, as they are due; nothing while the view is held."""
-        if self._scene_held():
+        if self.hold.held():
             self._show_tool()
             return
         with self.server.atomic():
@@ -295,7 +231,7 @@ class Page:
     def _show_held(self) -> None:
         """The ghost, and what the 3D view held back while a state went out (the page's
         loop)."""
-        if (self.arm_due or self.ghost_due) and not self._scene_held():
+        if (self.arm_due or self.ghost_due) and not self.hold.held():
             self._show_scene()
 
     def _show_tool(self) -> None:
@@ -353,10 +289,8 @@ class Page:
         elif lost:
             since = "never heard from it" if age_s is None else f"no joint states for {age_s:.0f} s"
             text = f"No contact with the server ({since}). Controls are off; STOP still works."
-        elif changed and time.monotonic() - self.touched > JOG_KEPT_LOST_S:
-            # A jog is kept over a short loss (this page's own process stalled, on a busy
-            # host), and goes on once the server answers; not over a long one.
-            self.jog = None
+        elif changed:
+            self.jog.contact_back(time.monotonic())
         with self.server.atomic():
             self.panel.show_lost(text)
             if changed:
@@ -377,7 +311,7 @@ class Page:
         if self.degrees is None:
             return
         idle = self.state != "moving" and not self.pending
-        quiet = self.jog is None and time.monotonic() - self.touched > FOLLOW_AFTER_S
+        quiet = self.jog.quiet(time.monotonic())
         if not force and not (idle and quiet):
             return
         for name in self.panel.sliders:
@@ -406,7 +340,7 @@ class Page:
     async def _on_stop(self, event: Any) -> None:
         # On viser's event loop itself, not its thread pool: the stop goes out as the
         # click's message is read, whatever else the pool is busy with.
-        self.jog = None
+        self.jog.end()
         if self.commands is not None:
             way = self.commands.stop()
             log.info("web: STOP clicked (sent by %s)", way)
@@ -422,18 +356,13 @@ class Page:
                     if self.degrees is not None and joint in self.degrees:
                         self.panel.set_slider(joint, self.degrees[joint])
                     return
-                self.touched = self.jog_t = time.monotonic()
-                self.jog_short_t = None
-                if self.jog is None:
-                    self.jog = {}
-                self.jog[joint] = float(event.target.value)
-                self.jog_sent = False
-                move = self._slider_move(self.jog)
+                jog = self.jog.take(joint, float(event.target.value), time.monotonic())
+                move = self._slider_move(jog)
             # Judged while dragging, as the server will judge it: a set-point it would refuse
             # is not sent (the arm stays at the last one it took), and the page says why.
             reason = self._precheck(move)
             with self._lock:
-                self.jog_refused = reason
+                self.jog.refused = reason
                 self.panel.show_joints_status(
                     f"will not be sent: {reason}" if reason else "jogging", not reason
                 )
@@ -445,7 +374,7 @@ class Page:
         if self.commands is None or self.lost:
             return False
         with self._lock:
-            self.jog = None  # another instruction ends the jog: its target is not sent again
+            self.jog.end()  # another instruction ends the jog: its target is not sent again
         self.commands.send(instr)
         return True
 
@@ -568,8 +497,10 @@ class Page:
                     if age > LOST_AFTER_S and (not self.lost or int(age) != int(age - LOOP_S)):
                         self._set_lost(True, age)
                 self._show_held()
-                jog = self._jog_due(now)
-                if jog is None and not self._scene_held():  # the gizmo is in the 3D view
+                jog, said = (None, "") if self.lost else self._jog_due(now)
+                if said:
+                    self.panel.show_joints_status(said, False)
+                if jog is None and not self.hold.held():  # the gizmo is in the 3D view
                     self._follow()
                 if self.degrees is not None and now - last_readout >= 1.0:
                     if now - self.last_change_t >= 1.0:  # moving, each state refreshes it
@@ -577,7 +508,7 @@ class Page:
                     last_readout = now
             if jog is not None and self.commands is not None and not self.commands.jog(jog):
                 with self._lock:  # nobody read it: due again at the next tick
-                    self.jog_sent, self.jog_short_t = False, None
+                    self.jog.unread()
             # While the arm is still the plot is flat lines already: redraws would only
             # slide the time axis, at a window of samples each.
             recent = now - self.last_change_t < self.history.seconds + PLOT_EVERY_S
@@ -586,62 +517,9 @@ class Page:
                 with self._lock:
                     self.panel.show_plot(self.history.series(now))
 
-    def _jog_due(self, now: float) -> dict[str, float] | None:
-        """The jog's set-point to send now (under the lock), or None. A new one as soon as
-        the sliders changed; the same one again while the user is at them or the arm is on
-        its way, which writes nothing and keeps the server's watchdog from holding the arm
-        (were this page to stop, the arm would be held where it is). The jog ends once the
-        sliders are let go and the arm is there."""
-        jog = self.jog
-        if jog is None or self.lost:
-            return None
-        at_it = now - self.touched < QUIET_S
-        if self.jog_refused:
-            if not at_it:  # let go where the server would refuse it: nothing more is sent
-                self.panel.show_joints_status(f"not sent: {self.jog_refused}", False)
-                self.jog, self.jog_refused, self.touched = None, "", -math.inf
-            return None
-        moving = self.state == "moving"
-        # A set-point goes at the servos' speed: there within FOLLOW_AFTER_S of its way's
-        # time (a move of another client's that runs then is not the jog's to keep alive).
-        way_s = FOLLOW_AFTER_S + self._way_s(jog)
-        if not self.jog_sent or at_it or (moving and now - self.jog_t < way_s):
-            self.jog_sent = True
-            self.jog_short_t = None
-            return dict(jog)
-        if moving:
-            self.jog_short_t = None
-            return None
-        if self._jog_there(jog):
-            if now - self.touched > FOLLOW_AFTER_S:
-                self.jog = None
-            return None
-        # Let go, and the arm idle short of the target: the server's watchdog held it (this
-        # page's loop lagged more than server.stream_timeout_s behind, on a busy host) or
-        # the set-point was lost. Sent again, a while; then the sliders go back to the arm.
-        if self.jog_short_t is None:
-            self.jog_short_t = now
-        if now - self.jog_short_t > FOLLOW_AFTER_S:
-            self.jog, self.jog_short_t, self.touched = None, None, -math.inf
-            return None
-        if now - self.jog_t < JOG_RESEND_S:
-            return None
-        self.jog_t = now
-        log.info("web: the jog stopped short of its target: sent again")
-        return dict(jog)
-
-    def _way_s(self, jog: Mapping[str, float]) -> float:
-        """How long the arm takes from where it is to `jog`, at its servos' speed."""
-        degrees = self.degrees or {}
-        joints = self.config.joints
-        return max(
-            (abs(v - degrees[j]) / joints[j].speed_deg_s for j, v in jog.items() if j in degrees),
-            default=0.0,
-        )
-
-    def _jog_there(self, jog: Mapping[str, float]) -> bool:
-        degrees = self.degrees or {}
-        return all(j in degrees and abs(degrees[j] - v) <= JOG_THERE_DEG for j, v in jog.items())
+    def _jog_due(self, now: float) -> tuple[dict[str, float] | None, str]:
+        """The jog's set-point to send now, and what to tell the user (`Jog.due`)."""
+        return self.jog.due(now, self.state == "moving", self.degrees)
 
     def close(self) -> None:
         self._running = False

@@ -1,0 +1,131 @@
+"""The page's jog: the sliders' targets, sent as set-points of the server's stream, and
+when each is due.
+
+Rules and state only (no viser, no ROS): the page (page.py) calls it under its lock,
+from the sliders' handler and from its loop, and sends what `due` gives.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+log = logging.getLogger("al5d.web")
+
+#: A slider still for this long has been let go (viser 1.1.1 tells the server no slider
+#: release, only values): until then the jog's set-point is sent again each tick.
+QUIET_S = 0.3
+#: Sliders follow the arm once nobody has touched them for this long and it is not moving;
+#: a jog let go with the arm idle short of its target is given up after as long.
+FOLLOW_AFTER_S = 1.5
+#: A jog let go with the arm idle short of its target (degrees) is sent again this often.
+JOG_THERE_DEG = 0.5
+JOG_RESEND_S = 0.3
+#: A jog goes on after the server was lost if the sliders were let go at most this long ago.
+JOG_KEPT_LOST_S = 5.0
+
+
+@dataclass
+class Jog:
+    """The sliders' targets since the user took them (`target`; None: no jog), the newest
+    replacing any not yet written; `speeds` in degrees a second, by joint."""
+
+    speeds: Mapping[str, float]
+    target: dict[str, float] | None = None
+    #: False while the latest target is still to be sent.
+    sent: bool = True
+    #: Why the latest target would be refused (the table, a limit), or "": such a target is
+    #: not sent, and once the sliders are let go they go back to the arm.
+    refused: str = ""
+    #: When the sliders were last moved by the user (-inf: not since the jog ended).
+    touched: float = -math.inf
+    #: When the latest target was set (the user's hand, or sent again), and since when the
+    #: arm has been idle short of it (None: it is not).
+    set_t: float = -math.inf
+    short_t: float | None = field(default=None)
+
+    def take(self, joint: str, degrees: float, now: float) -> dict[str, float]:
+        """The user moved `joint`'s slider to `degrees`: the jog's whole target now."""
+        self.touched = self.set_t = now
+        self.short_t = None
+        if self.target is None:
+            self.target = {}
+        self.target[joint] = degrees
+        self.sent = False
+        return dict(self.target)
+
+    def end(self) -> None:
+        """Another instruction, a stop: the jog's target is not sent again."""
+        self.target = None
+
+    def unread(self) -> None:
+        """Nobody read the set-point sent: it is due again at the next tick."""
+        self.sent, self.short_t = False, None
+
+    def quiet(self, now: float) -> bool:
+        """No jog, and the sliders let go FOLLOW_AFTER_S ago: they may follow the arm."""
+        return self.target is None and now - self.touched > FOLLOW_AFTER_S
+
+    def contact_back(self, now: float) -> None:
+        """The server answers again: a jog is kept over a short loss (this page's own
+        process stalled, on a busy host), and goes on; not over a long one."""
+        if now - self.touched > JOG_KEPT_LOST_S:
+            self.target = None
+
+    def due(
+        self, now: float, moving: bool, degrees: Mapping[str, float] | None
+    ) -> tuple[dict[str, float] | None, str]:
+        """The set-point to send now (or None), and what to tell the user ("": nothing).
+
+        A new one as soon as the sliders changed; the same one again while the user is at
+        them or the arm is on its way, which writes nothing and keeps the server's watchdog
+        from holding the arm (were the page to stop, the arm would be held where it is).
+        The jog ends once the sliders are let go and the arm is there."""
+        jog = self.target
+        if jog is None:
+            return None, ""
+        at_it = now - self.touched < QUIET_S
+        if self.refused:
+            if at_it:
+                return None, ""
+            # Let go where the server would refuse it: nothing more is sent.
+            said = f"not sent: {self.refused}"
+            self.target, self.refused, self.touched = None, "", -math.inf
+            return None, said
+        here = degrees or {}
+        # A set-point goes at the servos' speed: there within FOLLOW_AFTER_S of its way's
+        # time (a move of another client's that runs then is not the jog's to keep alive).
+        way_s = FOLLOW_AFTER_S + self._way_s(jog, here)
+        if not self.sent or at_it or (moving and now - self.set_t < way_s):
+            self.sent = True
+            self.short_t = None
+            return dict(jog), ""
+        if moving:
+            self.short_t = None
+            return None, ""
+        if all(j in here and abs(here[j] - v) <= JOG_THERE_DEG for j, v in jog.items()):
+            if now - self.touched > FOLLOW_AFTER_S:
+                self.target = None
+            return None, ""
+        # Let go, and the arm idle short of the target: the server's watchdog held it (the
+        # page's loop lagged more than server.stream_timeout_s behind, on a busy host) or
+        # the set-point was lost. Sent again, a while; then the sliders go back to the arm.
+        if self.short_t is None:
+            self.short_t = now
+        if now - self.short_t > FOLLOW_AFTER_S:
+            self.target, self.short_t, self.touched = None, None, -math.inf
+            return None, ""
+        if now - self.set_t < JOG_RESEND_S:
+            return None, ""
+        self.set_t = now
+        log.info("web: the jog stopped short of its target: sent again")
+        return dict(jog), ""
+
+    def _way_s(self, jog: Mapping[str, float], here: Mapping[str, float]) -> float:
+        """How long the arm takes from `here` to `jog`, at its servos' speed."""
+        return max(
+            (abs(v - here[j]) / self.speeds[j] for j, v in jog.items() if j in here),
+            default=0.0,
+        )

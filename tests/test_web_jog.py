@@ -1,0 +1,88 @@
+"""The web page's jog rules (`al5d.web.jog`), on a clock of the test's own: when a
+set-point is due, sent again, given up, and what the user is told."""
+
+from __future__ import annotations
+
+import itertools
+
+from al5d.web.jog import FOLLOW_AFTER_S, JOG_KEPT_LOST_S, JOG_RESEND_S, QUIET_S, Jog
+
+SPEEDS = {"base": 100.0, "shoulder": 50.0}
+ARM = {"base": 0.0, "shoulder": 0.0}
+
+
+def test_a_new_target_is_due_at_once_and_again_while_the_user_is_at_the_slider() -> None:
+    jog = Jog(SPEEDS)
+    assert jog.due(0.0, False, ARM) == (None, "")
+    assert jog.take("base", 10.0, 0.0) == {"base": 10.0}
+    assert jog.take("shoulder", 5.0, 0.01) == {"base": 10.0, "shoulder": 5.0}
+    assert jog.due(0.02, False, ARM) == ({"base": 10.0, "shoulder": 5.0}, "")
+    # Still at it: the same set-point again, which keeps the server's watchdog content.
+    assert jog.due(0.02 + QUIET_S / 2, False, ARM) == ({"base": 10.0, "shoulder": 5.0}, "")
+
+
+def test_a_jog_ends_once_let_go_and_the_arm_is_there() -> None:
+    jog = Jog(SPEEDS)
+    jog.take("base", 10.0, 0.0)
+    assert jog.due(0.0, False, ARM)[0] is not None
+    there = {"base": 10.0, "shoulder": 0.0}
+    assert jog.due(QUIET_S + 0.1, False, there) == (None, "")
+    assert jog.target is not None  # the sliders were let go only just now
+    assert not jog.quiet(QUIET_S + 0.1)
+    assert jog.due(FOLLOW_AFTER_S + 0.1, False, there) == (None, "")
+    assert jog.target is None
+    assert jog.quiet(FOLLOW_AFTER_S + 0.2)
+
+
+def test_a_moving_arm_keeps_the_jog_alive_for_its_way_and_no_longer() -> None:
+    jog = Jog(SPEEDS)
+    jog.take("base", 100.0, 0.0)  # 1 s of way at 100 deg/s
+    jog.due(0.0, True, ARM)
+    assert jog.due(QUIET_S + 0.1, True, ARM)[0] == {"base": 100.0}
+    assert jog.due(1.0 + FOLLOW_AFTER_S + 0.1, True, ARM) == (None, "")  # another's move
+
+
+def test_a_target_the_server_would_refuse_is_not_sent_and_said_once_let_go() -> None:
+    jog = Jog(SPEEDS)
+    jog.take("base", 500.0, 0.0)
+    jog.refused = "base 500 deg is outside its range"
+    assert jog.due(0.05, False, ARM) == (None, "")  # while at it: the handler says why
+    assert jog.due(QUIET_S + 0.1, False, ARM) == (
+        None,
+        "not sent: base 500 deg is outside its range",
+    )
+    assert jog.target is None and jog.refused == ""
+    assert jog.quiet(QUIET_S + 0.2)  # the sliders go back to the arm at once
+
+
+def test_a_jog_stopped_short_is_sent_again_then_given_up() -> None:
+    jog = Jog(SPEEDS)
+    jog.take("base", 10.0, 0.0)
+    jog.due(0.0, False, ARM)
+    # Let go, and the arm idle short of the target (the server's watchdog held it).
+    ticks = [u / 100 for u in range(int(QUIET_S * 100) + 1, 400)]
+    resent = [t for t in ticks if jog.due(t, False, ARM)[0] is not None]
+    assert len(resent) >= 3, resent
+    assert all(b - a >= JOG_RESEND_S - 1e-9 for a, b in itertools.pairwise(resent))
+    assert resent[-1] <= resent[0] + FOLLOW_AFTER_S + 1e-9
+    assert jog.target is None  # given up: the sliders go back to the arm
+
+
+def test_a_set_point_nobody_read_is_due_again() -> None:
+    jog = Jog(SPEEDS)
+    jog.take("base", 10.0, 0.0)
+    t = QUIET_S + 0.1
+    assert jog.due(t, False, ARM)[0] == {"base": 10.0}  # the first
+    assert jog.due(t, False, ARM)[0] == {"base": 10.0}  # short of it: sent again at once
+    assert jog.due(t + 0.05, False, ARM) == (None, "")  # ... and not again that soon
+    jog.unread()
+    assert jog.due(t + 0.06, False, ARM)[0] == {"base": 10.0}
+
+
+def test_a_jog_survives_a_short_loss_of_the_server_not_a_long_one() -> None:
+    jog = Jog(SPEEDS)
+    jog.take("base", 10.0, 0.0)
+    jog.contact_back(JOG_KEPT_LOST_S - 1)
+    assert jog.target == {"base": 10.0}
+    jog.contact_back(JOG_KEPT_LOST_S + 1)
+    assert jog.target is None
