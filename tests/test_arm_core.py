@@ -29,7 +29,7 @@ def test_a_port_closed_under_a_write_is_a_lost_link(config: ArmConfig) -> None:
     with Emulator(config) as emu, SSC32U(emu.port) as board:
         # Another thread is closing it: its descriptor is gone, `is_open` not yet false (as
         # pyserial's `close` leaves it between its two steps).
-        board._closed = True
+        board._wire.closed = True
         fd, board._ser.fd = board._ser.fd, None
         try:
             with pytest.raises(LinkLost, match="the port was closed"):

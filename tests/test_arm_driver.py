@@ -18,9 +18,10 @@ from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Outcome, Result
 from al5d.arm.states import TRANSITIONS, State
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.driver import SSC32U, gate_port
+from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator, Fault
 from al5d.ssc32u.stopline import _STOPS, StopGate
+from al5d.ssc32u.wire import gate_port
 from al5d_rig.armrig import (
     Rig,
     group_pulses,

@@ -9,13 +9,7 @@ import time
 import pytest
 
 from al5d.arm.config import ArmConfig
-from al5d.ssc32u.driver import (
-    DEFAULT_READ_TIMEOUT_S,
-    SSC32U,
-    WIRE_HORIZON_S,
-    WIRE_PIECE_S,
-    tap_writes,
-)
+from al5d.ssc32u.driver import DEFAULT_READ_TIMEOUT_S, SSC32U
 from al5d.ssc32u.emulator import UART, Emulator, Fault, LinkModel, Record
 from al5d.ssc32u.errors import (
     GarbageAnswer,
@@ -26,6 +20,7 @@ from al5d.ssc32u.errors import (
     PortUnavailable,
     SerialFault,
 )
+from al5d.ssc32u.wire import WIRE_HORIZON_S, WIRE_PIECE_S, tap_writes
 
 
 def test_connect_checks_the_board(emulator: Emulator, board: SSC32U) -> None:

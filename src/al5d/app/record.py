@@ -262,7 +262,7 @@ class RecordFile:
         self._items.put((channel, data, log_ns, publish_ns, seq))
 
     def board_tap(self, data: bytes, written: float, arrival: float) -> None:
-        """A `al5d.ssc32u.driver.WriteTap`: one write to the board (only a queue's put)."""
+        """A `al5d.ssc32u.wire.WriteTap`: one write to the board (only a queue's put)."""
         if self._items.qsize() >= BACKLOG or self.failed:
             self.dropped += 1
             return

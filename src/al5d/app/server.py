@@ -28,8 +28,8 @@ from al5d.arm.instruction import GrammarError, Instruction, Outcome, parse_instr
 if TYPE_CHECKING:
     from al5d.app.record import ServerRecording
     from al5d.ros.server import RosStart
-    from al5d.ssc32u.driver import WriteTap
     from al5d.ssc32u.emulator import Emulator
+    from al5d.ssc32u.wire import WriteTap
 
 log = logging.getLogger("al5d")
 
@@ -75,7 +75,7 @@ def arm(
     options: ServerOptions, config: ArmConfig | None = None, tap: WriteTap | None = None
 ) -> Iterator[tuple[ArmDriver, Emulator | None]]:
     """The driver on the given port, or on an embedded emulator; closed (parked) on exit.
-    `tap`: told of every write to the board (`al5d.ssc32u.driver.tap_writes`)."""
+    `tap`: told of every write to the board (`al5d.ssc32u.wire.tap_writes`)."""
     config = config or load_config(options.config)
     baud = options.baud or config.server.baud
     emulator: Emulator | None = None
@@ -88,7 +88,7 @@ def arm(
         link = emulator.usb.describe()
         log.info("no --port: using the embedded SSC-32U emulator on %s, %s", port, link)
     if tap is not None:
-        from al5d.ssc32u.driver import tap_writes
+        from al5d.ssc32u.wire import tap_writes
 
         tap_writes(port, tap)
     driver = ArmDriver(config, port, baud)

@@ -45,8 +45,8 @@ from al5d.priority import make_urgent
 from al5d.ros.convert import stop_key
 from al5d.ros.names import STOP_NODE, Names
 from al5d.ros.safety import StopSetup, stop_instruction
-from al5d.ssc32u.driver import gate_port
 from al5d.ssc32u.stopline import StopEnd, StopGate
+from al5d.ssc32u.wire import gate_port
 
 log = logging.getLogger("al5d")
 

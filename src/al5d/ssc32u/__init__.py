@@ -4,6 +4,8 @@
 - `protocol`: the bytes of every command and answer, as pure functions.
 - `errors`: what can go wrong on the serial link, named for what the user must check.
 - `driver`: `SSC32U`, one method per board function; serial I/O stays inside.
+- `wire`: the port's writes: one at a time, a stop's never waiting, moves paced to the
+  wire (no more than a short horizon ahead of a stop), a recording's tap.
 - `stopline`: the emergency stop written by another process: the port handed over, and
   both processes' writes kept in order.
 - `emulator`: an SSC-32U on a pseudo terminal (a pure board model and its pty link).

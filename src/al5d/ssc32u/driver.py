@@ -6,43 +6,15 @@ failure, whatever pyserial or the OS calls it, leaves here as a `SerialFault`
 subclass (see `al5d.ssc32u.errors`) with the port and what happened.
 
 Threads: a query (write then read) holds a query lock; `stop()` does not take
-it, so an emergency stop never waits behind a read. Writes are serialised by a
-short write lock so that the bytes of two commands never interleave.
-
-The wire is not a queue. At 9600 baud a group move takes 40 ms on the wire, and
-the port takes bytes as fast as they come: a client writing faster than that
-would stack seconds of moves in the port, and an emergency stop's bytes would
-queue behind them (the port sends in order; on the USB link nothing already
-written can be taken back). So a move is written only when at most
-`WIRE_HORIZON_S` of earlier bytes are still on their way (the driver's own
-account of the wire, `arrival`), and a writer that comes sooner waits its turn
-here, outside the write lock. A move longer than `WIRE_PIECE_S` on the wire (a
-group move of six channels is 49 ms at 9600 baud) is written in pieces, each when
-the horizon allows it: a stop never waits, and finds at most the horizon and one
-piece ahead of it. A stop written between two pieces ends the line: its ESC
-cancels the half-sent line on the board, and the rest is not written; a line cut
-short any other way is cancelled by an ESC before the next bytes. Other writes (a
-query) wait for the line's end: the board would take them for part of it.
-
-The emergency stop may be written by another process (`al5d.ssc32u.stopline`): a port
-given a `StopGate` (`gate_port`) hands each board's file descriptor to that process,
-every write here holds the gate's lock, and a move waits for, and is withheld by, a
-stop that process wrote and the server has not obeyed yet.
-
-A recording (`al5d serve --record`) taps the writes of a port (`tap_writes`): each write,
-stop included, hands its bytes and times to the tap, which must only hand them over (a
-queue's put) and never wait.
+it, so an emergency stop never waits behind a read. The writes, moves paced to the
+wire and stops that never wait, are `al5d.ssc32u.wire`'s.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
-import os
-import select
-import termios
 import threading
-import time
 from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
 from types import TracebackType
 
@@ -54,7 +26,6 @@ from al5d.ssc32u import protocol as p
 from al5d.ssc32u.errors import (
     GarbageAnswer,
     Interrupted,
-    LinkLost,
     NoAnswer,
     NotAnSSC32U,
     PortUnavailable,
@@ -62,13 +33,19 @@ from al5d.ssc32u.errors import (
 )
 from al5d.ssc32u.facts import (
     ANSWER_DELAY_MAX_S,
-    BITS_PER_BYTE,
     FACTORY_BAUD,
     FIRMWARE_PREFIX,
     LATENCY_TIMER_MS,
     LOW_LATENCY_TIMER_MS,
 )
-from al5d.ssc32u.stopline import StopGate
+from al5d.ssc32u.wire import (
+    CLOSED_UNDER,
+    DEFAULT_WRITE_TIMEOUT_S,
+    GATE_WAIT_S,
+    IO_ERRORS,
+    WIRE_HORIZON_S,
+    Wire,
+)
 
 log = logging.getLogger("al5d")
 
@@ -89,59 +66,11 @@ SCHEDULING_SLACK_S = 0.005
 #: 0.35 s, none in 30, but a silent board on a busy host was found after 0.85 s (and an
 #: idle one's fault took more than a second).
 EXCUSE_MAX_S = 0.15
-DEFAULT_WRITE_TIMEOUT_S = 0.5
-#: How much of earlier bytes' wire time a move may find still to go when it is written (the
-#: horizon a stop can find ahead of it, with the one piece written last).
-WIRE_HORIZON_S = 0.02
-#: A paced write longer than this on the wire goes out in pieces of at most it (9 bytes at
-#: 9600 baud, 115 at 115200: only the slow bauds' long lines are cut).
-WIRE_PIECE_S = 0.01
 #: A VER answer's length, for its deadline (`SSC32-V2.50USB\r` is 15 bytes).
 VERSION_ANSWER_BYTES = 16
-#: What a dead port raises, depending on the call: pyserial's own, the OS's, and termios's
-#: (tcflush on a pty whose master is gone raises termios.error, which is not an OSError).
-IO_ERRORS = (serial.SerialException, OSError, termios.error)
-#: What pyserial raises when another thread closes the port under a read or a write (its
-#: file descriptor is gone mid-call): a lost link too, once the port is closed.
-CLOSED_UNDER = (TypeError, AttributeError)
 
 
 Targets = Mapping[int, int] | Sequence[p.ChannelTarget]
-#: Told of every write to a port once its bytes are in it: the bytes, when the write
-#: returned and when their last byte reaches the board (CLOCK_MONOTONIC, `al5d.clock.now`).
-WriteTap = Callable[[bytes, float, float], None]
-#: The taps by port, taken by each `SSC32U` opened on that port (a reconnect's too).
-_taps: dict[str, WriteTap] = {}
-#: The stop gates by port (`gate_port`), and the boards open now, by port.
-_gates: dict[str, StopGate] = {}
-_open: dict[str, SSC32U] = {}
-_gates_lock = threading.Lock()
-#: How long a move waits for the server to obey a stop another process wrote (the server's
-#: thread that obeys it may wait for a core on a busy host); past that it is withheld.
-GATE_WAIT_S = 1.0
-
-
-def tap_writes(port: str, tap: WriteTap | None) -> None:
-    """Tell `tap` of every write to the boards opened on `port` from now on (None: no more).
-    It runs under the write lock, in the writer's thread (the stop's too): it must not
-    wait or raise; what it raises is dropped, never the write's failure."""
-    if tap is None:
-        _taps.pop(port, None)
-    else:
-        _taps[port] = tap
-
-
-def gate_port(port: str, gate: StopGate | None) -> None:
-    """Order every write to the boards opened on `port` with the stops `gate`'s other end
-    writes (None: no more), the board open now included."""
-    with _gates_lock:
-        board = _open.get(port)
-        if gate is None:
-            _gates.pop(port, None)
-        else:
-            _gates[port] = gate
-        if board is not None:
-            board._gated(gate)
 
 
 class SSC32U:
@@ -162,19 +91,7 @@ class SSC32U:
     ) -> None:
         self.port = port
         self.baud = baud
-        self._write_lock = threading.Lock()
-        # Paced writers (moves, a cancel's STOPs) wait for the wire one at a time, in turn.
-        self._pace_lock = threading.Lock()
         self._query_lock = threading.Lock()
-        self._stops = 0  # counts emergency stops, to tell a flushed query from a dead board
-        # A line whose pieces stopped half way with no ESC known to follow it (write lock).
-        self._cut = False
-        self._closed = False
-        # When the wire will have carried every byte written so far: a query's answer
-        # cannot come before its own bytes, and those queue behind the earlier ones.
-        self._wire_free_at = 0.0
-        self._write_timeout_s = write_timeout_s
-        self._tap = _taps.get(port)
         try:
             self._ser = serial.serial_for_url(
                 port,
@@ -191,32 +108,15 @@ class SSC32U:
         timer_ms = LOW_LATENCY_TIMER_MS if self.low_latency else LATENCY_TIMER_MS
         self._margin_s = read_timeout_s + timer_ms / 1000.0
         self.firmware = ""
-        self._gate: StopGate | None = None
+        self._wire = Wire(self._ser, port, baud, write_timeout_s)
         if check:
             try:
-                self._write(p.CANCEL)
+                self._wire.write(p.CANCEL)
                 self.firmware = self._check_version()
             except SerialFault:
                 self.close()
                 raise
-        with _gates_lock:
-            _open[port] = self
-            self._gated(_gates.get(port))
-
-    def _gated(self, gate: StopGate | None) -> None:
-        """Writes from now on ordered with `gate`'s stops; its other end gets our port."""
-        try:
-            fd = self._ser.fileno()
-        except (AttributeError, NotImplementedError, *IO_ERRORS):
-            return  # a pyserial URL with no descriptor: the server's own stop only
-        if gate is self._gate:
-            return
-        if self._gate is not None:
-            self._gate.closed()
-        with self._write_lock:
-            self._gate = gate
-        if gate is not None and not self._closed:
-            gate.opened(fd)
+        self._wire.register()
 
     def _ask_low_latency(self) -> bool:
         """Ask the USB serial chip to pass short answers on at once.
@@ -242,13 +142,8 @@ class SSC32U:
 
     def close(self) -> None:
         # Said before the port goes: another thread's read or write under way may then fail
-        # on a half-closed port with what pyserial raises for it (see `_lost`).
-        self._closed = True
-        with _gates_lock:
-            if _open.get(self.port) is self:
-                del _open[self.port]
-            if self._gate is not None:
-                self._gate.closed()
+        # on a half-closed port with what pyserial raises for it (see `Wire.lost`).
+        self._wire.close()
         with contextlib.suppress(*IO_ERRORS):  # closing a dead port must not raise
             self._ser.close()
 
@@ -280,7 +175,7 @@ class SSC32U:
         else:
             seq = list(targets)
         data = p.encode_group_move(seq, time_ms)
-        self._write(data, paced=True)
+        self._wire.write(data, paced=True)
         return data
 
     def write_command(
@@ -302,7 +197,7 @@ class SSC32U:
         `horizon_s`: a stream's set-point waits until the wire is free, where a newer one
         may still take its place).
         """
-        return self._write(data, unless, paced=True, horizon_s=min(horizon_s, WIRE_HORIZON_S))
+        return self._wire.write(data, unless, paced=True, horizon_s=min(horizon_s, WIRE_HORIZON_S))
 
     def stop(
         self, channels: Iterable[int], paced: bool = False, key: Hashable | None = None
@@ -321,39 +216,32 @@ class SSC32U:
         (`gate_port`) is not written again.
         """
         data = p.CANCEL + p.encode_stop(channels)
-        self._stops += 1
-        self._write(data, paced=paced, flush=True, key=key)
+        self._wire.stop(data, paced, key)
         return data
 
     def written_elsewhere(self, data: bytes) -> None:
         """Another process has written `data` to this port (the stop process's STOP): the
         account of the wire, and the tap, hear of it as of a write here."""
-        with self._write_lock:
-            t = now()
-            self._wire_free_at = max(t, self._wire_free_at) + self.wire_time_s(data)
-            self._tell_tap(data, t)
+        self._wire.written_elsewhere(data)
 
     def settle_stops(self, timeout: float = GATE_WAIT_S) -> bool:
         """Wait (at most `timeout`) until every stop another process wrote (`gate_port`) has
         been obeyed by the server; True if none is left."""
-        gate = self._gate
-        return gate is None or not gate.pending() or gate.wait_seen(timeout)
+        return self._wire.settle_stops(timeout)
 
     @property
     def gated(self) -> bool:
         """Another process may write a stop to this port (`gate_port`)."""
-        return self._gate is not None
+        return self._wire.gated
 
     def plan_stops(self, channels: Sequence[int], until: float) -> None:
         """A stop another process writes (`gate_port`) STOPs the channels in this order until
         `until` (CLOCK_MONOTONIC), as `stop` would be asked to; nothing without one."""
-        gate = self._gate
-        if gate is not None:
-            gate.plan(channels, until)
+        self._wire.plan_stops(channels, until)
 
     def cancel(self) -> None:
         """ESC: the board drops the partial line it holds."""
-        self._write(p.CANCEL)
+        self._wire.write(p.CANCEL)
 
     def is_done(self) -> bool:
         """Q: True when the board reports every move complete."""
@@ -382,30 +270,21 @@ class SSC32U:
 
     def set_offsets(self, offsets: Mapping[int, int]) -> None:
         """PO: volatile pulse trims, -100..100 us."""
-        self._write(p.encode_pulse_offset(offsets), paced=True)
+        self._wire.write(p.encode_pulse_offset(offsets), paced=True)
 
     def set_outputs(self, levels: Mapping[int, bool]) -> None:
         """H/L: use channels as digital outputs."""
-        self._write(p.encode_digital_output(levels), paced=True)
+        self._wire.write(p.encode_digital_output(levels), paced=True)
 
     def arrival(self, n_bytes: int) -> float:
         """When a command of `n_bytes` written now would have reached the board."""
-        return max(now(), self._wire_free_at) + self.wire_time_s(n_bytes)
+        return self._wire.arrival(n_bytes)
 
     def wire_time_s(self, command: bytes | int) -> float:
         """Seconds the command (or that many bytes) needs on the wire at the current baud."""
-        n = command if isinstance(command, int) else len(command)
-        return p.wire_time_s(n, self.baud)
+        return self._wire.wire_time_s(command)
 
     # -- inside ----------------------------------------------------------------------
-
-    def _lost(self, error: Exception, what: str) -> LinkLost:
-        """The I/O error as a lost link; a programming error (not one of a port closed under
-        the call) goes on as it is."""
-        if isinstance(error, CLOSED_UNDER) and not self._closed:
-            raise error
-        reason = error if isinstance(error, IO_ERRORS) else "the port was closed"
-        return LinkLost(self.port, f"{what}: {reason}")
 
     def _check_version(self) -> str:
         try:
@@ -426,135 +305,6 @@ class SSC32U:
             )
         return firmware
 
-    def _write(
-        self,
-        data: bytes,
-        unless: Callable[[], bool] | None = None,
-        *,
-        paced: bool = False,
-        flush: bool = False,
-        horizon_s: float = WIRE_HORIZON_S,
-        key: Hashable | None = None,
-    ) -> float | None:
-        """Write `data` (after `WIRE_HORIZON_S` allows it, if `paced`; after an output flush,
-        with `flush`); when its last byte reaches the board, or None if `unless` said so (or
-        the stop known by `key` was written by another process)."""
-        if not paced:
-            if flush:  # a stop: never waits, and its ESC cancels a line it comes into
-                return self._write_now(data, unless, flush, key)
-            # A query (or an ESC) must not come into a line going out in pieces: the board
-            # would take it for part of the line. The pace lock is free between lines.
-            with self._pace_lock:
-                return self._write_now(data, unless, flush, key)
-        piece = max(1, int(self.baud / BITS_PER_BYTE * WIRE_PIECE_S))
-        with self._pace_lock:
-            if flush or len(data) <= piece:
-                self._wait_for_horizon(horizon_s)
-                return self._write_now(data, unless, flush, key)
-            return self._write_pieces(data, piece, unless, horizon_s)
-
-    def _wait_for_horizon(self, horizon_s: float) -> None:
-        while (wait := self._wire_free_at - horizon_s - now()) > 0:
-            time.sleep(wait)
-
-    def _write_pieces(
-        self, data: bytes, piece: int, unless: Callable[[], bool] | None, horizon_s: float
-    ) -> float | None:
-        """`data` in pieces of `piece` bytes, each when the horizon allows it (`horizon_s`
-        for the first, which decides whether the line goes out at all); the first if
-        `unless` lets it, the others unless a stop came meanwhile (its ESC cancels the half
-        line). The tap hears of what went out as one write."""
-        stops = self._stop_count()
-
-        def stopped() -> bool:
-            return self._stop_count() != stops
-
-        t_first, sent, end = 0.0, 0, None
-        while sent < len(data):
-            self._wait_for_horizon(WIRE_HORIZON_S if sent else horizon_s)
-            chunk = data[sent : sent + piece]
-            end = self._write_now(chunk, stopped if sent else unless, False, tap=False)
-            if end is None:
-                break
-            t_first = t_first or now()
-            sent += len(chunk)
-        if 0 < sent < len(data):
-            with self._write_lock:
-                self._cut = True
-        if sent:
-            self._tell_tap(data[:sent], t_first)
-        return end if sent == len(data) else None
-
-    def _write_now(
-        self,
-        data: bytes,
-        unless: Callable[[], bool] | None,
-        flush: bool,
-        key: Hashable | None = None,
-        tap: bool = True,
-    ) -> float | None:
-        gate = self._gate
-        if gate is not None and unless is not None and gate.pending():
-            gate.wait_seen(GATE_WAIT_S)
-        with self._write_lock, gate.turn() if gate is not None else contextlib.nullcontext():
-            if unless is not None and ((gate is not None and gate.pending()) or unless()):
-                return None
-            if key is not None and gate is not None and not gate.claim(key):
-                return None
-            if self._cut and not data.startswith(p.CANCEL):
-                data = p.CANCEL + data  # the line cut short before it, cancelled on the board
-            try:
-                if flush:
-                    self._ser.reset_output_buffer()
-                self._send(data)
-            except (*IO_ERRORS, *CLOSED_UNDER) as e:
-                what = "stop could not be written" if flush else "write failed"
-                raise self._lost(e, what) from e
-            self._cut = False
-            # After a flush, as if it dropped nothing (the USB link): later than the truth on
-            # a UART, which only makes a query's deadline later, never too early.
-            t = now()
-            self._wire_free_at = max(t, self._wire_free_at) + self.wire_time_s(data)
-            if tap:
-                self._tell_tap(data, t)
-            return self._wire_free_at
-
-    def _tell_tap(self, data: bytes, written: float) -> None:
-        """The recording's tap, if any, of bytes written at `written` (a recording never
-        fails a write)."""
-        if self._tap is not None:
-            with contextlib.suppress(Exception):
-                self._tap(data, written, self._wire_free_at)
-
-    def _send(self, data: bytes) -> None:
-        """All of `data` into the port; a port that takes no byte for the write timeout is
-        a fault (`SerialTimeoutException`), and the time this thread was not running is not.
-
-        pyserial's own `write` raises "Write timeout" when its timeout has passed after an
-        `os.write` that took every byte, so a stop written whole, by a thread that waited for
-        a core on a busy host, was reported as failed and the link taken for lost (seen under
-        three flooded servers beside busy loops). This writes to the port's file descriptor
-        (pyserial opens it non-blocking) and waits only while the port is full. A port with no
-        file descriptor (a pyserial URL such as loop://) is written by pyserial."""
-        try:
-            fd = self._ser.fileno()
-        except (AttributeError, NotImplementedError, *IO_ERRORS):
-            self._ser.write(data)
-            return
-        view = memoryview(data)
-        while view:
-            with contextlib.suppress(BlockingIOError):  # the port is full: wait below
-                view = view[os.write(fd, view) :]
-            if view:
-                _, ready, _ = select.select([], [fd], [], self._write_timeout_s)
-                if not ready:
-                    raise serial.SerialTimeoutException("Write timeout")
-
-    def _stop_count(self) -> int:
-        """The emergency stops written so far, another process's included (`gate_port`)."""
-        gate = self._gate
-        return self._stops + (gate.stops if gate is not None else 0)
-
     def _query(self, data: bytes, n_answer: int | None, name: str) -> bytes:
         """Write a query and read its answer; asked once more before a missing answer is a fault.
 
@@ -564,7 +314,7 @@ class SSC32U:
         late first answer is never left for the next query to take as its own.
         """
         with self._query_lock:
-            stops = self._stop_count()
+            stops = self._wire.stop_count()
             try:
                 self._ser.reset_input_buffer()
                 t_sent = now()
@@ -577,9 +327,9 @@ class SSC32U:
                         # The first was lost, or the second is late: a margin more for it.
                         answer = self._read(answer, n_answer, 2, Deadline(self._margin_s))
             except (*IO_ERRORS, *CLOSED_UNDER) as e:
-                raise self._lost(e, f"{name} failed") from e
+                raise self._wire.lost(e, f"{name} failed") from e
         if _answers(answer, n_answer) == 0:
-            if self._stop_count() != stops:
+            if self._wire.stop_count() != stops:
                 raise Interrupted(f"{name} was flushed by an emergency stop")
             got = f", got {answer!r}" if answer else ""
             waited = (deadline.at - t_sent) * 1000
@@ -591,9 +341,9 @@ class SSC32U:
     def _ask(self, data: bytes, n_answer: int | None) -> Deadline:
         """Write the query; its answer's deadline: our bytes on the wire (behind any before
         them), the answer's own bytes back, then the margin."""
-        self._write(data)
+        self._wire.write(data)
         back = self.wire_time_s(n_answer if n_answer is not None else VERSION_ANSWER_BYTES)
-        return Deadline(back + self._margin_s, start=self._wire_free_at)
+        return Deadline(back + self._margin_s, start=self._wire.free_at)
 
     def _read(self, answer: bytes, n_answer: int | None, count: int, deadline: Deadline) -> bytes:
         """Read on from `answer` until it holds `count` answers or the deadline has passed.

@@ -14,7 +14,7 @@ Two ends share a small block of memory and a lock (a POSIX record lock on that b
 which is per process):
 
 - `StopGate`, the server's end, kept by the port's `SSC32U`
-  (`al5d.ssc32u.driver.gate_port`): every write the server makes holds the lock; a
+  (`al5d.ssc32u.wire.gate_port`): every write the server makes holds the lock; a
   move's write is withheld while the other end has written a stop the server has not
   obeyed yet (`pending`), and waits for that briefly (`wait_seen`), so that its job
   ends as the stop ends it. The server obeys the stop and then `acknowledge`s it.
