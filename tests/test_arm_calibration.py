@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from al5d.arm import instruction as ins
+from al5d.arm.calfile import edit_calibrations, write_calibration
 from al5d.arm.calibration import (
     DEFAULT_STEP_US,
     Awaiting,
@@ -19,11 +20,9 @@ from al5d.arm.calibration import (
     JointCalibration,
     Point,
     Procedure,
-    edit_calibrations,
     judge,
     nudged,
     references,
-    write_calibration,
 )
 from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
 from al5d.arm.driver import ArmDriver

@@ -24,12 +24,12 @@ from typing import TYPE_CHECKING, Protocol, TextIO
 
 from al5d import exits
 from al5d.arm import instruction as ins
+from al5d.arm.calfile import write_calibration
 from al5d.arm.calibration import (
     Awaiting,
     CalibrationRefused,
     Procedure,
     summary,
-    write_calibration,
 )
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Outcome

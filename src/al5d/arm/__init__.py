@@ -3,7 +3,9 @@
 - `config`: the arm's configuration file (joints, calibration, servos, presets), validated.
 - `servos`: the servo models an AL5D is built with, as a table.
 - `calibration`: the guided calibration's logic: reference poses, nudges, the points found,
-  the direction and limits checked, the file written with a backup and a diff.
+  the direction and limits checked.
+- `calfile`: the calibrations found written into the configuration file, checked first,
+  with a backup and a diff.
 - `instruction`: instructions and outcomes as data, and their text grammar.
 - `poses`: the named poses file (`pose <name>` in sequence files), and sequence files.
 - `validate`: whether an instruction can run, judged whole (pure).

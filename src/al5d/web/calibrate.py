@@ -24,13 +24,13 @@ from typing import TYPE_CHECKING, Any
 
 import viser
 
+from al5d.arm.calfile import write_calibration
 from al5d.arm.calibration import (
     DEFAULT_STEP_US,
     Awaiting,
     CalibrationRefused,
     JointCalibration,
     Procedure,
-    write_calibration,
 )
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result
 
