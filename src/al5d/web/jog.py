@@ -50,11 +50,12 @@ class Jog:
         """The user moved `joint`'s slider to `degrees`: the jog's whole target now."""
         self.touched = self.set_t = now
         self.short_t = None
-        if self.target is None:
-            self.target = {}
-        self.target[joint] = degrees
+        # A new dict, set whole: STOP ends the jog from viser's event loop, without the
+        # page's lock, and must find either the old target or the new one.
+        target = {**(self.target or {}), joint: degrees}
+        self.target = target
         self.sent = False
-        return dict(self.target)
+        return dict(target)
 
     def end(self) -> None:
         """Another instruction, a stop: the jog's target is not sent again."""
