@@ -750,14 +750,19 @@ def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:
     kept, and sent again to the server that comes back, wherever another client has moved
     the arm meanwhile (the page cannot tell a stall from that); the tests after it would
     find the base where this one's jog puts it."""
+    page = rig.page
     rig.server.popen.kill()
     rig.server.wait(10)
+    # The page has noticed the loss before the new server starts: the banner gone below is
+    # then the page hearing the new server (seen: a loss not yet noticed let the test go
+    # on, and the banner came later, moving the panel under the click on the Joints tab,
+    # which hit STOP and ended the jog).
+    wait_until(lambda: page.locator("#al5d-banner").count() > 0, 20, "the banner shown")
     # A slow base (6 s across its range): the stall falls in the set-point's move, whenever
     # this busy test process gets to it.
     # The server's own watchdog (0.5 s): a stall of the page's process (SIGSTOP, below) far
     # longer than it holds the arm, and a busy host's lag of the page's ticks does not.
     rig.server = serve(rig.link, (("base", 30.0),))
-    page = rig.page
     try:
         wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
         rig.state.wait_for("ready", 10)
