@@ -855,7 +855,7 @@ def test_a_lost_server_leaves_the_gizmo_nothing_to_grab(config: ArmConfig) -> No
         assert target.opacity < 0.5 and target.visible
         tool = tuple(target.position)
         target.position = (0.3, 0.0, 0.1)  # where a drag would have left it
-        page._on_target_drag(SimpleNamespace(client=object(), target=target, phase="end"))
+        page.target_tab.on_drag(SimpleNamespace(client=object(), target=target, phase="end"))
         assert tuple(target.position) == pytest.approx(tool)
         assert commands.sent == []
     finally:
@@ -875,7 +875,7 @@ def test_a_target_field_that_is_no_number_sends_nothing(config: ArmConfig) -> No
         for key, text in (("pitch", "abc"), ("roll", "inf"), ("gripper", "nan")):
             page.on_joints(list(ready), list(ready.values()), time.monotonic())  # not lost
             page.panel.tool_texts[key].value = text
-            page._send_target()
+            page.target_tab.send()
             status = page.panel.target_status.content
             assert f"not sent: {key} (deg): &#x27;{text}&#x27; is not a number" in status, status
             page.panel.tool_texts[key].value = ""

@@ -15,6 +15,7 @@ teach and replay (named poses, sequences).
     page.py    the page: what it knows of the arm, its decisions, the user's input
     jog.py     the sliders' jog: when a set-point is due, sent again, given up (no viser)
     viewhold.py  when the 3D view may change: a state goes to the browsers first
+    target.py  the Target tab: the gizmo dragged, the numbers typed, `move_to` sent
     teach.py   the Teach tab: named poses, sequences built, saved, loaded and played
     player.py  a sequence played step by step, each outcome waited for (no viser, no ROS)
     calibrate.py  the Calibrate tab: the guided calibration (`al5d.arm.calibration`)

@@ -22,13 +22,14 @@ import numpy as np
 import viser
 
 from al5d.arm.config import ArmConfig
-from al5d.arm.instruction import Instruction, Kind, Outcome, Result, move_to, preset
+from al5d.arm.instruction import Instruction, Kind, Outcome, Result, preset
 from al5d.model import JOINTS, ModelError
 from al5d.model.transforms import Transform, Vec3
 from al5d.web.jog import Jog
 from al5d.web.panel import Panel
 from al5d.web.plan import JointHistory, OutcomeLog, Planner, Target
 from al5d.web.scene import ArmScene
+from al5d.web.target import TargetTab
 from al5d.web.viewhold import ViewHold, arrived
 
 log = logging.getLogger("al5d.web")
@@ -111,11 +112,12 @@ class Page:
         for name, slider in panel.sliders.items():
             slider.on_update(self._slider_handler(name))
         panel.on_preset(self._on_preset)
+        self.target_tab = target = TargetTab(self)
         for number in (*panel.xyz_numbers.values(), *panel.tool_texts.values()):
-            number.on_update(self._on_xyz_typed)
-        panel.target_time_number.on_update(self._on_xyz_typed)
-        panel.move_to.on_click(lambda _: self._send_target())
-        self.scene.on_target_drag(self._on_target_drag)
+            number.on_update(target.on_typed)
+        panel.target_time_number.on_update(target.on_typed)
+        panel.move_to.on_click(lambda _: target.send())
+        self.scene.on_target_drag(target.on_drag)
 
     # -- from the server (ROS executor thread) ---------------------------------------
 
@@ -174,7 +176,7 @@ class Page:
                 ok = outcome.result is Result.DONE
                 self.panel.show_status(f"server: {outcome}", ok)
                 if ok:
-                    self._target_to_tool()
+                    self.target_to_tool()
 
     def on_instruction(self, instr: Instruction) -> None:
         """An instruction seen on a topic (ours or anyone's): its target is the ghost."""
@@ -325,9 +327,9 @@ class Page:
         moved = self.target_tool is None or _distance(tool, self.target_tool) > 1e-3
         kept = time.monotonic() - self.target_touched < TARGET_KEPT_S
         if force or (moved and not kept):
-            self._target_to_tool()
+            self.target_to_tool()
 
-    def _target_to_tool(self) -> None:
+    def target_to_tool(self) -> None:
         tool = None if self.degrees is None else self.planner.tool_of(self.degrees)
         if tool is None:
             return
@@ -360,7 +362,7 @@ class Page:
                 move = self._slider_move(jog)
             # Judged while dragging, as the server will judge it: a set-point it would refuse
             # is not sent (the arm stays at the last one it took), and the page says why.
-            reason = self._precheck(move)
+            reason = self.precheck(move)
             with self._lock:
                 self.jog.refused = reason
                 self.panel.show_joints_status(
@@ -388,24 +390,7 @@ class Page:
         if self.commands is not None and not self.lost:
             self.commands.release()
 
-    def _target_instr(self, xyz_mm: Sequence[float]) -> Instruction | str:
-        """The Target tab's `move_to`, or what is wrong with one of its fields."""
-        x, y, z = xyz_mm
-        tool = self.panel.tool_fields()
-        if isinstance(tool, str):
-            return tool
-        return move_to(
-            x,
-            y,
-            z,
-            pitch=tool["pitch"],
-            roll=tool["roll"],
-            gripper=tool["gripper"],
-            line=self.panel.line(),
-            time_ms=self.panel.target_time_ms(),
-        )
-
-    def _precheck(self, instr: Instruction | str) -> str:
+    def precheck(self, instr: Instruction | str) -> str:
         """The reason the server would refuse `instr` from where the arm is, or ''."""
         if isinstance(instr, str):
             return instr
@@ -415,74 +400,6 @@ class Page:
             return "the arm's pose is not known yet"
         target = self.planner.target_of(instr, start)
         return target if isinstance(target, str) else ""
-
-    def _on_target_drag(self, event: Any) -> None:
-        if event.client is None:
-            return
-        with self._lock:
-            if self.lost:
-                # A gizmo cannot be disabled (it has no handle left to grab): were it
-                # moved all the same, it goes back, and nothing is sent.
-                self._target_to_tool()
-                return
-            self.target_touched = time.monotonic()
-            xyz = [round(v * 1000, 1) for v in self.scene.target_position]
-            self.panel.set_xyz(xyz)
-        if event.phase == "end":
-            self._send_target()
-        else:
-            reason = self._precheck(self._target_instr(xyz))
-            with self._lock:
-                self.panel.show_status(
-                    f"unreachable: {reason}" if reason else "reachable: release to move",
-                    not reason,
-                )
-
-    def _on_xyz_typed(self, event: Any) -> None:
-        if event.client is None:
-            return
-        with self._lock:
-            if self.lost:
-                return
-            self.target_touched = time.monotonic()
-            xyz = self.panel.xyz()
-            x, y, z = xyz
-            self.scene.place_target((x / 1000, y / 1000, z / 1000))
-        instr = self._target_instr(xyz)
-        reason = self._precheck(instr)
-        point = "x {:g} y {:g} z {:g} mm".format(*xyz)
-        if not isinstance(instr, str) and instr.tool is not None:
-            tool = instr.tool
-            given = (
-                ("pitch", tool.pitch_deg),
-                ("roll", tool.roll_deg),
-                ("gripper", tool.gripper_deg),
-            )
-            point += "".join(f", {k} {v:g}" for k, v in given if v is not None)
-            point += f", {instr.time_ms} ms" if instr.time_ms else ""
-        with self._lock:
-            self.panel.show_status(
-                f"{point}: unreachable: {reason}" if reason else f"{point}: reachable", not reason
-            )
-
-    def _send_target(self) -> None:
-        """`move_to` the target; the local check shows the reason at once, and the move goes
-        to the server all the same: its outcome is the word that counts."""
-        with self._lock:
-            if self.lost:
-                return
-            instr = self._target_instr(self.panel.xyz())
-            self.target_touched = time.monotonic()
-        reason = self._precheck(instr)
-        if isinstance(instr, str):
-            with self._lock:
-                self.panel.show_status(f"not sent: {instr}", False)
-            return
-        with self._lock:
-            self.page_move_to = instr.id
-            text = f"will be refused: {reason}" if reason else f"sent: {instr}"
-            self.panel.show_status(text, False if reason else None)
-        self.send_instruction(instr)
 
     # -- the page's loop -------------------------------------------------------------
 
