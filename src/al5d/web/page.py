@@ -18,13 +18,12 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
-import numpy as np
 import viser
 
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result, preset
 from al5d.model import JOINTS, ModelError
-from al5d.model.transforms import Transform, Vec3
+from al5d.model.transforms import Transform
 from al5d.web.jog import Jog
 from al5d.web.panel import Panel
 from al5d.web.plan import JointHistory, OutcomeLog, Planner, Target
@@ -41,8 +40,6 @@ LOST_AFTER_S = 1.0
 LOOP_S = 0.05
 #: The plot is redrawn this often (each redraw sends the whole window of samples).
 PLOT_EVERY_S = 0.25
-#: The gizmo stays where the user left it this long (a refused target stays in view).
-TARGET_KEPT_S = 5.0
 
 
 class Commands(Protocol):
@@ -89,9 +86,8 @@ class Page:
         #: The jog: the sliders' targets, sent as set-points of the server's stream
         #: (`joint_commands`).
         self.jog = Jog({name: joint.speed_deg_s for name, joint in config.joints.items()})
-        self.target_touched = -math.inf
-        #: Where the tool was when the gizmo was last put at it (None: never).
-        self.target_tool: Vec3 | None = None
+        #: The Target tab's input and its gizmo.
+        self.target_tab = TargetTab(self)
         self.arrivals: list[float] = []
         self.last_change_t = -math.inf
         #: When the 3D view may change, and what it has to show then.
@@ -112,7 +108,7 @@ class Page:
         for name, slider in panel.sliders.items():
             slider.on_update(self._slider_handler(name))
         panel.on_preset(self._on_preset)
-        self.target_tab = target = TargetTab(self)
+        target = self.target_tab
         for number in (*panel.xyz_numbers.values(), *panel.tool_texts.values()):
             number.on_update(target.on_typed)
         panel.target_time_number.on_update(target.on_typed)
@@ -176,7 +172,7 @@ class Page:
                 ok = outcome.result is Result.DONE
                 self.panel.show_status(f"server: {outcome}", ok)
                 if ok:
-                    self.target_to_tool()
+                    self.target_tab.to_tool()
 
     def on_instruction(self, instr: Instruction) -> None:
         """An instruction seen on a topic (ours or anyone's): its target is the ghost."""
@@ -279,19 +275,13 @@ class Page:
         """The banner (its text again each second while lost); the controls on a change."""
         changed = lost != self.lost
         self.lost = lost
-        text = None
-        if lost and self.state in ("shutting_down", "ended"):
+        ended = lost and self.state in ("shutting_down", "ended")
+        if ended:
             # Its last word was that it shuts down, and it has gone quiet: it has ended.
             self.state = "ended"
             self._show_state("ended")
-            text = (
-                "The server has ended (it shut down, the arm parked). Start it again "
-                "(al5d serve) to go on. Controls are off; STOP still works."
-            )
-        elif lost:
-            since = "never heard from it" if age_s is None else f"no joint states for {age_s:.0f} s"
-            text = f"No contact with the server ({since}). Controls are off; STOP still works."
-        elif changed:
+        text = lost_text(ended, age_s) if lost else None
+        if changed and not lost:
             self.jog.contact_back(time.monotonic())
         with self.server.atomic():
             self.panel.show_lost(text)
@@ -319,23 +309,7 @@ class Page:
         for name in self.panel.sliders:
             if name in self.degrees:
                 self.panel.set_slider(name, self.degrees[name])
-        # The gizmo goes back to the tool once the arm has moved from where it put it, and
-        # a target the user set (a refused one too) has been in view a while.
-        tool = self.planner.tool_of(self.degrees)
-        if tool is None:
-            return
-        moved = self.target_tool is None or _distance(tool, self.target_tool) > 1e-3
-        kept = time.monotonic() - self.target_touched < TARGET_KEPT_S
-        if force or (moved and not kept):
-            self.target_to_tool()
-
-    def target_to_tool(self) -> None:
-        tool = None if self.degrees is None else self.planner.tool_of(self.degrees)
-        if tool is None:
-            return
-        self.target_tool = tool
-        self.scene.place_target(tool)
-        self.panel.set_xyz([v * 1000 for v in tool])
+        self.target_tab.follow(force)
 
     # -- the user's input (viser's threads) --------------------------------------------
 
@@ -359,7 +333,9 @@ class Page:
                         self.panel.set_slider(joint, self.degrees[joint])
                     return
                 jog = self.jog.take(joint, float(event.target.value), time.monotonic())
-                move = self._slider_move(jog)
+                move = Instruction(
+                    Kind.MOVE, joints=tuple(jog.items()), time_ms=self.panel.time_ms()
+                )
             # Judged while dragging, as the server will judge it: a set-point it would refuse
             # is not sent (the arm stays at the last one it took), and the page says why.
             reason = self.precheck(move)
@@ -379,9 +355,6 @@ class Page:
             self.jog.end()  # another instruction ends the jog: its target is not sent again
         self.commands.send(instr)
         return True
-
-    def _slider_move(self, values: dict[str, float]) -> Instruction:
-        return Instruction(Kind.MOVE, joints=tuple(values.items()), time_ms=self.panel.time_ms())
 
     def _on_preset(self, event: Any) -> None:
         self.send_instruction(preset(str(event.target.value), time_ms=self.panel.time_ms()))
@@ -414,7 +387,8 @@ class Page:
                     if age > LOST_AFTER_S and (not self.lost or int(age) != int(age - LOOP_S)):
                         self._set_lost(True, age)
                 self._show_held()
-                jog, said = (None, "") if self.lost else self._jog_due(now)
+                moving = self.state == "moving"
+                jog, said = (None, "") if self.lost else self.jog.due(now, moving, self.degrees)
                 if said:
                     self.panel.show_joints_status(said, False)
                 if jog is None and not self.hold.held():  # the gizmo is in the 3D view
@@ -434,14 +408,17 @@ class Page:
                 with self._lock:
                     self.panel.show_plot(self.history.series(now))
 
-    def _jog_due(self, now: float) -> tuple[dict[str, float] | None, str]:
-        """The jog's set-point to send now, and what to tell the user (`Jog.due`)."""
-        return self.jog.due(now, self.state == "moving", self.degrees)
-
     def close(self) -> None:
         self._running = False
         self._thread.join(2)
 
 
-def _distance(a: Vec3, b: Vec3) -> float:
-    return float(np.linalg.norm(np.subtract(a, b)))
+def lost_text(ended: bool, age_s: float | None) -> str:
+    """The banner's text: the server ended, or not heard from for `age_s` (None: never)."""
+    if ended:
+        return (
+            "The server has ended (it shut down, the arm parked). Start it again "
+            "(al5d serve) to go on. Controls are off; STOP still works."
+        )
+    since = "never heard from it" if age_s is None else f"no joint states for {age_s:.0f} s"
+    return f"No contact with the server ({since}). Controls are off; STOP still works."

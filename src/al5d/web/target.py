@@ -7,21 +7,56 @@ its lock (`Page.lock`).
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from al5d.arm.instruction import Instruction, move_to
+from al5d.model.transforms import Vec3
 
 if TYPE_CHECKING:
     from al5d.web.page import Page
 
 
+#: The gizmo stays where the user left it this long (a refused target stays in view).
+TARGET_KEPT_S = 5.0
+
+
 class TargetTab:
-    """The Target tab's input on one page."""
+    """The Target tab's input on one page, and where its gizmo stands."""
 
     def __init__(self, page: Page) -> None:
         self._page = page
+        #: When the user last set the target, and where the tool was when the gizmo was
+        #: last put at it (None: never).
+        self.touched = -math.inf
+        self.tool: Vec3 | None = None
+
+    def follow(self, force: bool) -> None:
+        """The gizmo goes back to the tool once the arm has moved from where it put it, and
+        a target the user set (a refused one too) has been in view a while (under the
+        page's lock)."""
+        page = self._page
+        tool = None if page.degrees is None else page.planner.tool_of(page.degrees)
+        if tool is None:
+            return
+        moved = self.tool is None or float(np.linalg.norm(np.subtract(tool, self.tool))) > 1e-3
+        kept = time.monotonic() - self.touched < TARGET_KEPT_S
+        if force or (moved and not kept):
+            self.to_tool()
+
+    def to_tool(self) -> None:
+        """The gizmo and the numbers at the tool (under the page's lock)."""
+        page = self._page
+        tool = None if page.degrees is None else page.planner.tool_of(page.degrees)
+        if tool is None:
+            return
+        self.tool = tool
+        page.scene.place_target(tool)
+        page.panel.set_xyz([v * 1000 for v in tool])
 
     def instr(self, xyz_mm: Sequence[float]) -> Instruction | str:
         """The Target tab's `move_to`, or what is wrong with one of its fields."""
@@ -49,9 +84,9 @@ class TargetTab:
             if page.lost:
                 # A gizmo cannot be disabled (it has no handle left to grab): were it
                 # moved all the same, it goes back, and nothing is sent.
-                page.target_to_tool()
+                self.to_tool()
                 return
-            page.target_touched = time.monotonic()
+            self.touched = time.monotonic()
             xyz = [round(v * 1000, 1) for v in page.scene.target_position]
             page.panel.set_xyz(xyz)
         if event.phase == "end":
@@ -71,7 +106,7 @@ class TargetTab:
         with page.lock:
             if page.lost:
                 return
-            page.target_touched = time.monotonic()
+            self.touched = time.monotonic()
             xyz = page.panel.xyz()
             x, y, z = xyz
             page.scene.place_target((x / 1000, y / 1000, z / 1000))
@@ -100,7 +135,7 @@ class TargetTab:
             if page.lost:
                 return
             instr = self.instr(page.panel.xyz())
-            page.target_touched = time.monotonic()
+            self.touched = time.monotonic()
         reason = page.precheck(instr)
         if isinstance(instr, str):
             with page.lock:
