@@ -140,6 +140,7 @@ class Proc:
 
     def __init__(self, *args: str, env: dict[str, str] | None = None, stdin: bool = False) -> None:
         _LIVE.add(self)
+        self.command = " ".join(("al5d", *args))
         self.popen = subprocess.Popen(
             [AL5D, *args],
             stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
@@ -174,7 +175,16 @@ class Proc:
         self.popen.stdin.flush()
 
     def wait(self, timeout: float = 30.0) -> int:
-        return self.popen.wait(timeout)
+        """Its exit code; still running after `timeout`, a failure that shows what it said
+        and where it waits."""
+        try:
+            return self.popen.wait(timeout)
+        except subprocess.TimeoutExpired:
+            said = "\n".join(self.err.drain(0.5)[-30:])
+            raise AssertionError(
+                f"{self.command} still running after {timeout} s; "
+                f"its stderr:\n{said}\n{self.stacks()}"
+            ) from None
 
     def kill(self) -> None:
         if self.popen.poll() is None:

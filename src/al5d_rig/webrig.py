@@ -82,7 +82,13 @@ class WebProc:
                 self.proc.kill()
 
 
-def open_page(browser: Any, url: str, timeout_s: float = 30.0) -> Any:
+#: How long a page may take to load and show the arm's joint states: viser's client is
+#: megabytes of script, and a CI run of six test processes on two cores (four browsers among
+#: them) once took over 30 s for it.
+PAGE_LOAD_S = 90.0
+
+
+def open_page(browser: Any, url: str, timeout_s: float = PAGE_LOAD_S) -> Any:
     """The page, once the arm's joint states have reached it (the tool readout is there)."""
     page = browser.new_page(viewport=VIEWPORT)
     page.goto(url)
@@ -163,6 +169,28 @@ def wait_text(
             return str(text)
         time.sleep(0.05)
     raise AssertionError(f"{selector}: {text!r} after {timeout_s} s")
+
+
+def watch_texts(page: Any, selector: str) -> Callable[[], list[str]]:
+    """Every text `selector` shows from now on, as the browser renders them: a text shown
+    for less than a poll of `wait_text` takes on a busy machine is kept too."""
+    key = "__texts_" + "".join(c if c.isalnum() else "_" for c in selector)
+    page.evaluate(
+        """([selector, key]) => {
+        const seen = (window[key] = []);
+        const look = () => {
+          const found = document.querySelector(selector);
+          const text = found ? found.innerText : "";
+          if (text && seen[seen.length - 1] !== text) seen.push(text);
+        };
+        look();
+        new MutationObserver(look).observe(document.body, {
+          subtree: true, childList: true, characterData: true, attributes: true,
+        });
+      }""",
+        [selector, key],
+    )
+    return lambda: [str(t) for t in page.evaluate(f"window.{key}")]
 
 
 def clickable(page: Any, locator: Any) -> bool:

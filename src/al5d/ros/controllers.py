@@ -42,7 +42,6 @@ from al5d.arm.jobs import Sent
 from al5d.arm.resample import Follow
 from al5d.arm.states import State, refusal
 from al5d.arm.validate import Ticket
-from al5d.clock import now
 from al5d.model import ArmModel, ModelError
 from al5d.ros.actions import GoalRunner, action_server
 from al5d.ros.convert import trajectory_from_message
@@ -303,13 +302,12 @@ class FollowTrajectoryAction(GoalRunner):
 
     # -- feedback ---------------------------------------------------------------------
 
-    def feedback(self, degrees: Mapping[str, float]) -> None:
+    def feedback(self, degrees: Mapping[str, float], t: float) -> None:
         """Desired, actual and error to every running goal (the joint-state rate); a path
-        tolerance broken halts the goal."""
+        tolerance broken halts the goal. `degrees`: where the arm is at `t`."""
         if not self.running or any(v != v for v in degrees.values()):
             return
         values = self.model.to_urdf(degrees)
-        t = now()
         stamp = self.node.get_clock().now().to_msg()
         for ident, run in list(self.running.items()):
             desired = run.desired(t)

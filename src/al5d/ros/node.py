@@ -43,6 +43,7 @@ from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Kind, Outcome, Result, new_id
 from al5d.arm.jobs import Sent
 from al5d.arm.states import State
+from al5d.clock import now
 from al5d.ros import params
 from al5d.ros.actions import MoveAction
 from al5d.ros.controllers import FollowTrajectoryAction, GripperAction
@@ -350,7 +351,10 @@ class ActionsNode(Node):
         ):
             self.timer.cancel()
             return
-        degrees = self.driver.positions()
+        # One instant for where the arm is and where a trajectory wants it: a thread switch
+        # between two readings of the clock would show the arm behind its path.
+        t = now()
+        degrees = self.driver.positions(t)
         self.move_action.feedback(degrees)
-        self.trajectory_action.feedback(degrees)
+        self.trajectory_action.feedback(degrees, t)
         self.gripper_action.feedback()
