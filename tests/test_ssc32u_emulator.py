@@ -165,7 +165,9 @@ def test_a_command_takes_effect_when_its_cr_has_arrived(config: ArmConfig, baud:
             emu.clear_records()
             wire = p.wire_time_s(len(command), baud)
             assert rec.t_effect - t_write >= wire
-            assert rec.t_effect - t_write < wire + 0.05  # generous: only against a hang
+            # Only against a hang: beside two busy loops this test process's board thread
+            # once read the CR 59 ms after the wire had carried it.
+            assert rec.t_effect - t_write < wire + 1.0
             time.sleep(0.01)
 
 

@@ -805,8 +805,11 @@ def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:
                 "the slider's set-point on the board",
             )
         except AssertionError as e:  # what the page and the server did, for the next reader
+            status = page.locator("#al5d-joints-status")
             raise AssertionError(
-                f"{e}: moves {group_moves(rig.emu.records[n0:])[-3:]}, states "
+                f"{e}: page {status.first.inner_text() if status.count() else None!r}, "
+                f"slider {thumb.get_attribute('aria-valuenow')}, "
+                f"moves {group_moves(rig.emu.records[n0:])[-3:]}, states "
                 f"{rig.state.states[-4:]}, web {rig.web.proc.err.drain(0)[-10:]}, "
                 f"server {rig.server.err.drain(0)[seen:][-12:]}"
             ) from e

@@ -119,6 +119,11 @@ class Lines:
         deadline = time.monotonic() + timeout
         while self._next(deadline) is not None:
             pass
+        # And every line read from the stream by then (`_next` takes none past its deadline:
+        # drain(0) would return no line that came since the last call).
+        with contextlib.suppress(queue.Empty):
+            while (line := self._q.get_nowait()) is not None:
+                self.all.append(line)
         return self.all
 
 
