@@ -46,6 +46,11 @@ def read_packets(fd: int, settle_s: float = 0.3) -> tuple[bytes, int]:
 @pytest.fixture
 def pty_pair() -> Iterator[tuple[int, int]]:
     board, port = os.openpty()
+    # Held as the server holds its port (pyserial's exclusive lock): a driver of another test
+    # reconnecting to its vanished emulator's /dev/pts/N, a number this pty may have reused,
+    # cannot open it (seen beside two busy loops: its ESC and VER came between the line and
+    # the stop's bytes).
+    fcntl.flock(port, fcntl.LOCK_EX | fcntl.LOCK_NB)
     tty.setraw(port)
     fcntl.ioctl(board, termios.TIOCPKT, b"\x01\x00\x00\x00")  # packet mode
     try:
