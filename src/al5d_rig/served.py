@@ -3,7 +3,8 @@ follows the arm's state: the rig of the tests that talk to a server over real DD
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +37,25 @@ class StopBursts:
         again = sum(BACKSTOP_SAID in line for line in self.proc.err.drain(0.2)[self.said :])
         asked = self.peer.stops_asked - self.asked + on_topic
         return asked + again, f"{asked} stop(s) sent, {again} backstop(s)"
+
+    def check(self, stops: Callable[[], int], on_topic: int = 0, timeout_s: float = 5.0) -> None:
+        """`stops()` (the STOP commands on the board since the first of these stops) is six
+        to each burst due, no more, no fewer. Compared again for a while: the stop process
+        says a backstop on the server's stderr, which on a busy host reaches this process
+        after the backstop's STOPs have reached the board."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            due, why = self.expected(on_topic)
+            got = stops()
+            if got == 6 * due:
+                return
+            if time.monotonic() > deadline:
+                said = self.proc.err.drain(0)[self.said :]
+                raise AssertionError(
+                    f"{got} STOPs on the board, {6 * due} due ({why}); the server said:\n"
+                    + "\n".join(said[-20:])
+                )
+            time.sleep(0.2)
 
 
 @dataclass
