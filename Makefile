@@ -78,7 +78,7 @@ $(STDMSGS): $(VENV)/.%: $(RUNTIME)
 # update the pin to what `apt-cache policy chromium` offers). APT_GET, APT_CACHE and
 # CHROMIUM_BIN are there to try the choice without apt: e.g.
 #   make chromium CHROMIUM_BIN=none APT_GET='echo apt-get' APT_CACHE=./fake-apt-cache
-CHROMIUM_VERSION := 156.0.8078.79-1~deb12u1
+CHROMIUM_VERSION := 156.0.8078.108-1~deb12u1
 CHROMIUM_BIN ?= chromium
 APT_GET ?= apt-get
 APT_CACHE ?= apt-cache
@@ -112,6 +112,9 @@ demo: runtime
 # What four showed failing beside two busy loops: a move withheld for a stop got no outcome (fixed),
 # the rig took a killed server's match for the new one's (fixed), a board thread of a busy
 # test process answered later than 0.5 s (test servers now give it 1 s).
+# The files that keep a worker longest go first (tests/conftest.py, LONGEST_FIRST), so that
+# none starts near the end: xdist's own order (by the number of tests in a file) left the
+# browser's files to the end.
 # `make test WORKERS=2 DURATIONS=0` for another count and every test's time.
 # Each part is interrupted (pytest then reports what ran and what failed) long after it
 # should have ended: a CI run once waited out its 90 minutes on a stuck suite.
@@ -123,7 +126,7 @@ DURATIONS ?= 12
 PART_S    ?= 1800
 test: install
 	timeout -s INT -k 60 $(PART_S) \
-	  $(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile -m "not solo" --durations=$(DURATIONS)
+	  $(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile --no-loadscope-reorder -m "not solo" --durations=$(DURATIONS)
 	timeout -s INT -k 60 $(PART_S) $(BIN)/python -m pytest -q -m solo
 
 bench: install
