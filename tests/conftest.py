@@ -96,8 +96,8 @@ def pytest_terminal_summary(terminalreporter: Any) -> None:
     (out / "fuzz.json").write_text(json.dumps(dict(CASES), indent=1))
 
 
-#: The files that keep one worker longest (seconds of one worker in a fresh clone's
-#: `make test` with four workers: 233, 109, 80, 78, 70, 60, 57, 49, 44, 42, 42, 40).
+#: The files that keep one worker longest (seconds of one worker in a `make test` here
+#: with four workers: 233, 109, 80, 78, 70, 60, 57, 49, 44, 42, 42, 40).
 #: pytest-xdist hands out whole files in collection order (the Makefile turns off its
 #: own order, by the number of tests in a file): these go first, so that none starts
 #: near the end and keeps the run going alone (test_web.py, collected last, did).
