@@ -14,10 +14,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import pytest
-from action_msgs.msg import GoalStatus
+from action_msgs.msg import GoalStatus, GoalStatusArray
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from control_msgs.msg import JointTolerance
+from rclpy.qos import qos_profile_action_status_default
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 from al5d.arm.config import ArmConfig
@@ -303,6 +304,44 @@ def test_a_new_goal_preempts_the_running_one(rig: Rig) -> None:
     wait_until(lambda: abs(rig.emu.servo_degrees()["elbow"] - 45) < 0.5, 5, "the elbow at 45")
     # READY comes over ROS, after the arm is there (seen still MOVING beside two busy loops).
     wait_until(lambda: rig.states[-1] == "ready", 10, "ready")
+
+
+def test_a_result_is_kept_after_its_goal_has_left_the_status_messages(rig: Rig) -> None:
+    """The status messages carry only recent goals (each message lists every goal kept, so
+    a long list costs every goal), while a result stays for a client that asks late."""
+    rig.recover()
+    lists: list[dict[bytes, int]] = []
+    rig.peer.read(
+        GoalStatusArray,
+        "/arm_controller/follow_joint_trajectory/_action/status",
+        lambda msg: lists.append(
+            {bytes(s.goal_info.goal_id.uuid): s.status for s in msg.status_list}
+        ),
+        qos_profile_action_status_default,
+    )
+    at = rig.emu.servo_degrees()
+    here = pose(**{j: round(at[j]) for j in ARM})  # where the arm is: the next test's start
+    first = rig.send(rig.fjt, rig.trajectory([(0.3, here)]))
+    assert first.accepted
+    uuid = bytes(first.goal_id.uuid)
+    ended = GoalStatus.STATUS_SUCCEEDED
+    wait_until(lambda: any(s.get(uuid) == ended for s in lists), 15, "the first goal's end")
+
+    def gone() -> bool:
+        # A status message goes out when a goal changes state: a new goal's lists the
+        # goals still kept.
+        later = rig.send(rig.fjt, rig.trajectory([(0.2, here)]))
+        assert later.accepted
+        mine = bytes(later.goal_id.uuid)
+        wait_until(lambda: any(mine in s for s in lists), 15, "the later goal's status")
+        return uuid not in next(s for s in reversed(lists) if mine in s)
+
+    deadline = time.monotonic() + 60
+    while not gone():
+        assert time.monotonic() < deadline, "the first goal still in the status messages"
+        time.sleep(1.0)
+    late = wait_future(first.get_result_async(), 10)
+    assert late.status == GoalStatus.STATUS_SUCCEEDED
 
 
 def test_tolerances_report_a_point_faster_than_the_servos(rig: Rig) -> None:

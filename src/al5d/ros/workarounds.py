@@ -6,9 +6,12 @@ Each workaround names what it works around and how to tell when it can go.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 import threading
+import time
+from collections import OrderedDict
 from collections.abc import Callable, Coroutine, Iterator
 from typing import Any
 
@@ -20,6 +23,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.service import Service
+from rclpy.task import Future
 
 from al5d.priority import make_urgent
 
@@ -28,6 +32,9 @@ log = logging.getLogger("al5d")
 #: A service callback that is also told when its request was sent (CLOCK_REALTIME ns).
 StampedCallback = Callable[[Any, Any, int], Any]
 _STAMPED = "al5d_stamped_callback"
+#: How long (whole seconds: rclpy's type) an ended goal stays in its action's status
+#: messages: long enough for a status reader to see it end.
+STATUS_KEPT_S = 1
 
 
 def stamped_service(
@@ -220,22 +227,59 @@ def discovery_on_our_transports(local: bool) -> Iterator[None]:
 
 
 class IdentifiedActionServer(ActionServer):
-    """An ActionServer whose goal callback can learn the goal's UUID (`goal_id_now`).
+    """An ActionServer whose goal callback can learn the goal's UUID (`goal_id_now`), and
+    whose status messages list only the goals of the last `STATUS_KEPT_S` while each
+    result can still be fetched for `results_kept_s`.
 
-    rclpy 7.1 hands the goal callback the goal alone; this records the UUID just before
-    (it calls the callback within `_execute_goal_request` before its first await, in
-    the executor's one thread, so the two cannot be told apart). It can go when rclpy's
-    goal callback is given the goal's id or handle; until then it depends on
+    The UUID: rclpy 7.1 hands the goal callback the goal alone; this records the UUID just
+    before (it calls the callback within `_execute_goal_request` before its first await,
+    in the executor's one thread, so the two cannot be told apart). It can go when
+    rclpy's goal callback is given the goal's id or handle; until then it depends on
     `_execute_goal_request`'s shape (checked by tests/test_ros_e2e.py: a refused goal's
     reason comes under its UUID).
+
+    The results: rcl keeps a goal in every status message until its result expires, and
+    rclpy visits every kept goal's future at each of the server's wake-ups, so each goal
+    costs the server, and each client's status reader, in proportion to the goals kept
+    (at 100 goals a second with results kept 10 s, a 2-core machine's server and client
+    were both saturated and fell behind). Here rcl lets a goal go `STATUS_KEPT_S` after
+    it ended; its result future is kept aside and a late request for it is answered
+    from there. It can go when rcl's status message and result lifetime part (no such
+    option in rcl 9); it depends on `_execute_expire_goals` and
+    `_execute_get_result_request`'s shape (checked by tests/test_ros_controllers.py: a
+    result asked for after its goal left the status message).
     """
 
     goal_id_now = ""
+
+    def __init__(self, *args: Any, results_kept_s: float, **kwargs: Any) -> None:
+        super().__init__(*args, result_timeout=STATUS_KEPT_S, **kwargs)
+        self._results_kept_s = results_kept_s
+        # goal UUID -> (when it left rcl, its result future); in that order.
+        self._ended: OrderedDict[bytes, tuple[float, Future]] = OrderedDict()
 
     async def _execute_goal_request(self, request_header_and_message: Any) -> None:
         _, goal_request = request_header_and_message
         self.goal_id_now = bytes(goal_request.goal_id.uuid).hex()
         await super()._execute_goal_request(request_header_and_message)
+
+    async def _execute_expire_goals(self, expired_goals: Any) -> None:
+        now = time.monotonic()
+        for goal in expired_goals:
+            uuid = bytes(goal.goal_id.uuid)
+            if (future := self._result_futures.get(uuid)) is not None:
+                self._ended[uuid] = (now, future)
+        await super()._execute_expire_goals(expired_goals)
+        while self._ended and next(iter(self._ended.values()))[0] < now - self._results_kept_s:
+            self._ended.popitem(last=False)
+
+    async def _execute_get_result_request(self, request_header_and_message: Any) -> None:
+        request_header, request = request_header_and_message
+        kept = self._ended.get(bytes(request.goal_id.uuid))
+        if kept is None or bytes(request.goal_id.uuid) in self._goal_handles:
+            await super()._execute_get_result_request(request_header_and_message)
+            return
+        kept[1].add_done_callback(functools.partial(self._send_result_response, request_header))
 
 
 def preempted(handle: ServerGoalHandle) -> None:
