@@ -306,6 +306,30 @@ def test_a_new_goal_preempts_the_running_one(rig: Rig) -> None:
     wait_until(lambda: rig.states[-1] == "ready", 10, "ready")
 
 
+def test_goals_sent_back_to_back_leave_the_newest_running(rig: Rig) -> None:
+    """Each goal preempts the ones before it, also one still waiting for its own
+    predecessor's halt (the halts are written off the executor's thread): the last one
+    runs, every other ends CANCELED naming a later goal."""
+    rig.recover()
+    first = rig.send(rig.fjt, rig.trajectory([(2.0, pose(base=60)), (4.0, pose(base=-60))]))
+    time.sleep(0.3)
+    futures = [
+        rig.fjt.send_goal_async(rig.trajectory([(0.5, pose(base=b, elbow=50))]))
+        for b in (-30, -20, -10)
+    ]
+    handles = [first, *(wait_future(f, 10) for f in futures)]
+    assert all(h.accepted for h in handles)
+    results = [wait_future(h.get_result_async(), 20) for h in handles]
+    ids = [bytes(h.goal_id.uuid).hex() for h in handles]
+    for k, r in enumerate(results[:-1]):
+        assert r.status == GoalStatus.STATUS_CANCELED, (k, r.status, r.result.error_string)
+        by = re.match(r"preempted by goal (\w+)", r.result.error_string)
+        assert by is not None and by.group(1) in ids[k + 1 :], (k, r.result.error_string)
+    assert results[-1].status == GoalStatus.STATUS_SUCCEEDED
+    wait_until(lambda: abs(rig.emu.servo_degrees()["base"] + 10) < 0.5, 5, "the base at -10")
+    wait_until(lambda: rig.states[-1] == "ready", 10, "ready")
+
+
 def test_a_result_is_kept_after_its_goal_has_left_the_status_messages(rig: Rig) -> None:
     """The status messages carry only recent goals (each message lists every goal kept, so
     a long list costs every goal), while a result stays for a client that asks late."""

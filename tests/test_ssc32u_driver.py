@@ -120,6 +120,39 @@ def test_a_long_move_goes_out_in_pieces_so_a_stop_finds_the_horizon_and_a_piece(
     ]
 
 
+def test_a_cancelled_moves_stops_go_out_in_pieces_too(emulator: Emulator, board: SSC32U) -> None:
+    """A cancelled move's STOPs (paced: a preempting client has one every goal) leave a stop
+    the horizon and a piece at most, not six STOPs (38 ms at 9600 baud)."""
+    for i in range(3):
+        board.move({ch: 1000 + 10 * i + ch for ch in LONG}, time_ms=500)
+        data = board.stop(range(6), paced=True)
+        assert board.wire_time_s(data) > WIRE_HORIZON_S + WIRE_PIECE_S
+        # What a stop written now would find ahead of it (a busy host only makes it less).
+        assert board.arrival(0) - time.monotonic() <= WIRE_HORIZON_S + WIRE_PIECE_S
+    raws = [r.raw for r in emulator.wait_for(lambda rs: len(rs) >= 3 * 8)]
+    stops = [f"STOP{ch}".encode() for ch in range(6)]
+    assert raws[-6:] == stops and raws.count(b"STOP5") == 3  # each whole: bytes cut, not lines
+
+
+def test_a_query_waits_for_the_wire_so_a_stop_finds_it_alone_ahead(emulator: Emulator) -> None:
+    """A query is written whole, once the wire is free: a stop finds at most the query ahead
+    of it, not the horizon, a piece and the query."""
+    taps: list[tuple[bytes, float, float]] = []
+    tap_writes(emulator.port, lambda data, written, arrival: taps.append((data, written, arrival)))
+    try:
+        with SSC32U(emulator.port, 9600) as board:  # a board opened after the tap hears it
+            for i in range(3):
+                board.move({ch: 1000 + 10 * i + ch for ch in LONG}, time_ms=500)
+                board.read_pulses(range(6))
+    finally:
+        tap_writes(emulator.port, None)
+    queries = [(d, w, a) for d, w, a in taps if d.startswith(b"QP")]
+    assert len(queries) == 3
+    for data, written, arrival in queries:
+        # Its own bytes on the wire from when it was written: nothing before them.
+        assert arrival - written == pytest.approx(board.wire_time_s(data), abs=1e-6)
+
+
 def test_a_stop_between_the_pieces_of_a_line_cancels_it_and_nothing_of_it_follows(
     emulator: Emulator,
 ) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import replace
-from typing import Any
+from typing import Any, TypeVar
 
 from al5d_interfaces.action import Move
 from rclpy.action.server import CancelResponse, GoalResponse, ServerGoalHandle
@@ -56,18 +56,22 @@ def action_server(
     )
 
 
-async def outcome_of(node: Node, future: Future[Outcome]) -> Outcome:
-    """Await a driver future inside the node's executor without holding its thread."""
+T = TypeVar("T")
+
+
+async def outcome_of(node: Node, future: Future[T]) -> T:
+    """Await a driver future (or a thread's) inside the node's executor without holding its
+    thread."""
     executor = node.executor
     done: RosFuture = RosFuture(executor=executor)
 
-    def hand_over(f: Future[Outcome]) -> None:
+    def hand_over(f: Future[T]) -> None:
         done.set_result(f.result())
         if executor is not None:
             executor.wake()  # the awaiting task runs at the executor's next turn
 
     future.add_done_callback(hand_over)
-    outcome: Outcome = await done
+    outcome: T = await done
     return outcome
 
 

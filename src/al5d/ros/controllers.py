@@ -28,6 +28,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -43,7 +44,7 @@ from al5d.arm.resample import Follow
 from al5d.arm.states import State, refusal
 from al5d.arm.validate import Ticket
 from al5d.model import ArmModel, ModelError
-from al5d.ros.actions import GoalRunner, action_server
+from al5d.ros.actions import GoalRunner, action_server, outcome_of
 from al5d.ros.convert import trajectory_from_message
 from al5d.ros.workarounds import preempted
 
@@ -145,6 +146,13 @@ class FollowTrajectoryAction(GoalRunner):
         super().__init__(node, driver)
         self.model: ArmModel = driver.config.model
         self.running: dict[str, Running] = {}
+        #: Goals waiting for the goals they preempt to be halted, each with the goal that
+        #: preempted it meanwhile ("": none has).
+        self.starting: dict[str, str] = {}
+        # A preempted goal's halt waits for the wire (tens of ms at 9600 baud): this thread
+        # writes it, and the executor's answers the goals that come meanwhile (a preempting
+        # client at 100 goals a second outran an executor that wrote each halt itself).
+        self._halts = ThreadPoolExecutor(max_workers=1, thread_name_prefix="al5d-preempt")
         self.server = action_server(
             node, FollowJointTrajectory, name, self._execute, self._goal, self._cancel
         )
@@ -216,9 +224,9 @@ class FollowTrajectoryAction(GoalRunner):
         if judged is None:  # rclpy executes only what the goal callback accepted
             handle.abort()
             return _result(FJT.INVALID_GOAL, "the goal was never judged")
-        for other, run in list(self.running.items()):  # the newest goal wins, as in the JTC
-            run.preempted_by = ident
-            self.driver.cancel(other, f"preempted by trajectory goal {ident}")
+        if by := await self._preempt(ident):
+            preempted(handle)
+            return _preempted_result(by)
         names = list(goal.trajectory.joint_names)
         here = self._actual(names)
         run = Running(
@@ -233,15 +241,29 @@ class FollowTrajectoryAction(GoalRunner):
         outcome = await self._run(ident, run, judged.ticket)
         return self._finish(run, outcome, judged.end, goal)
 
+    async def _preempt(self, ident: str) -> str:
+        """The newest goal wins, as in the JTC: halt the goals running (in the halts' thread),
+        and end those still waiting for theirs. The goal that preempted `ident` meanwhile,
+        or ""."""
+        ended = list(self.running.items())
+        for run in self.running.values():
+            run.preempted_by = ident
+        for other in self.starting:
+            self.starting[other] = ident
+        if not ended:
+            return ""
+        self.starting[ident] = ""
+        reason = f"preempted by trajectory goal {ident}"
+        await outcome_of(
+            self.node, self._halts.submit(lambda: [self.driver.cancel(o, reason) for o, _ in ended])
+        )
+        return self.starting.pop(ident)
+
     def _finish(self, run: Running, outcome: Outcome, end: list[Tolerance], goal: Any) -> Any:
         handle = run.handle
         if outcome.result is Result.CANCELLED and run.preempted_by:
             preempted(handle)
-            return _result(
-                FJT.INVALID_GOAL,
-                f"preempted by goal {run.preempted_by}: "
-                "current goal cancelled due to new incoming action",
-            )
+            return _preempted_result(run.preempted_by)
         if outcome.result is Result.CANCELLED and run.violated:
             handle.abort()
             return _result(FJT.PATH_TOLERANCE_VIOLATED, run.violated)
@@ -352,6 +374,12 @@ def lateness(run: Running) -> str:
             f"the last point was reached {last[0] * 1000.0:.0f} ms after its time_from_start"
         )
     return "; ".join(parts) + ": faster than the servos can move (INF03)" if parts else ""
+
+
+def _preempted_result(by: str) -> Any:
+    """As the joint_trajectory_controller ends a preempted goal."""
+    why = "current goal cancelled due to new incoming action"
+    return _result(FJT.INVALID_GOAL, f"preempted by goal {by}: {why}")
 
 
 def _result(code: int, text: str) -> Any:
