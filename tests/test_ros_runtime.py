@@ -9,6 +9,8 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -18,6 +20,7 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 from al5d.priority import URGENT_NICE
+from al5d.ros.actions import outcome_of
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d_rig.proc import Proc, thread_nices
@@ -50,6 +53,36 @@ def test_a_callback_that_raises_does_not_end_the_executor_thread(
         assert "a callback failed" in caplog.text
     finally:
         spinner.close()
+
+
+def test_a_threads_result_or_error_reaches_the_task_that_awaits_it() -> None:
+    """`outcome_of`: a task of the executor awaits another thread's future without holding
+    the executor; what the thread raised is raised in the task (a preempted goal's halt
+    that failed ends its goal), not lost in a callback with the task waiting for good."""
+    context = start_context()
+    node = Node("al5d_outcome_of_test", context=context)
+    spinner = Spinner(node, context, kind="single")
+    pool = ThreadPoolExecutor(max_workers=1)
+    try:
+
+        def fails() -> int:
+            raise RuntimeError("the halt could not be written")
+
+        async def await_in_task(work: Callable[[], int]) -> int:
+            return await outcome_of(node, pool.submit(work))
+
+        executor = node.executor
+        assert executor is not None
+        good = executor.create_task(await_in_task, lambda: 7)
+        bad = executor.create_task(await_in_task, fails)
+        executor.wake()
+        wait_until(lambda: good.done() and bad.done(), 10, "both tasks ended")
+        assert good.result() == 7
+        error = bad.exception()
+        assert isinstance(error, RuntimeError) and "could not be written" in str(error)
+    finally:
+        spinner.close()
+        pool.shutdown()
 
 
 @pytest.mark.parametrize("kind", ["events", "single"])

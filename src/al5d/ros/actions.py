@@ -66,7 +66,13 @@ async def outcome_of(node: Node, future: Future[T]) -> T:
     done: RosFuture = RosFuture(executor=executor)
 
     def hand_over(f: Future[T]) -> None:
-        done.set_result(f.result())
+        # What the thread raised is raised in the awaiting task (rclpy then ends the goal),
+        # not in this callback, where it would leave the task waiting for good.
+        error = f.exception()
+        if error is not None:
+            done.set_exception(error)
+        else:
+            done.set_result(f.result())
         if executor is not None:
             executor.wake()  # the awaiting task runs at the executor's next turn
 

@@ -241,8 +241,8 @@ class IdentifiedActionServer(ActionServer):
     The results: rcl keeps a goal in every status message until its result expires, and
     rclpy visits every kept goal's future at each of the server's wake-ups, so each goal
     costs the server, and each client's status reader, in proportion to the goals kept
-    (at 100 goals a second with results kept 10 s, a 2-core machine's server and client
-    were both saturated and fell behind). Here rcl lets a goal go `STATUS_KEPT_S` after
+    (at 100 goals a second on an idle 2-core machine, with results kept 10 s, 2,133 of
+    2,500 goals were answered; with 1 s, all). Here rcl lets a goal go `STATUS_KEPT_S` after
     it ended; its result future is kept aside and a late request for it is answered
     from there. It can go when rcl's status message and result lifetime part (no such
     option in rcl 9); it depends on `_execute_expire_goals` and
