@@ -245,7 +245,7 @@ class FollowTrajectoryAction(GoalRunner):
         """The newest goal wins, as in the JTC: halt the goals running (in the halts' thread),
         and end those still waiting for theirs. The goal that preempted `ident` meanwhile,
         or ""."""
-        ended = list(self.running.items())
+        ended = list(self.running)
         for run in self.running.values():
             run.preempted_by = ident
         for other in self.starting:
@@ -255,7 +255,7 @@ class FollowTrajectoryAction(GoalRunner):
         self.starting[ident] = ""
         reason = f"preempted by trajectory goal {ident}"
         await outcome_of(
-            self.node, self._halts.submit(lambda: [self.driver.cancel(o, reason) for o, _ in ended])
+            self.node, self._halts.submit(lambda: [self.driver.cancel(o, reason) for o in ended])
         )
         return self.starting.pop(ident)
 

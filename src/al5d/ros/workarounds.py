@@ -275,8 +275,9 @@ class IdentifiedActionServer(ActionServer):
 
     async def _execute_get_result_request(self, request_header_and_message: Any) -> None:
         request_header, request = request_header_and_message
-        kept = self._ended.get(bytes(request.goal_id.uuid))
-        if kept is None or bytes(request.goal_id.uuid) in self._goal_handles:
+        uuid = bytes(request.goal_id.uuid)
+        kept = self._ended.get(uuid)
+        if kept is None or uuid in self._goal_handles:  # a client may reuse a UUID
             await super()._execute_get_result_request(request_header_and_message)
             return
         kept[1].add_done_callback(functools.partial(self._send_result_response, request_header))
