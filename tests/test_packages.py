@@ -30,6 +30,8 @@ PACKAGES = ("al5d", "al5d_moveit_config")
 EXECUTABLES = ("al5d", "server", "web", "emulator")
 XML = (".xml", ".srdf", ".urdf", ".xacro")
 YAML = (".yaml", ".rviz", ".setup_assistant")
+#: The message packages the Makefile builds into the venv, ours first.
+PACKAGES_BUILT = ("al5d_interfaces", "control_msgs", "tf2_msgs")
 
 
 def colcon(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -305,3 +307,19 @@ def test_the_driver_package_and_the_pip_package_agree() -> None:
     assert manifest.findtext("license") == project["license"]
     depends = {d.text for d in manifest.findall("exec_depend")}
     assert {"al5d_interfaces", "rclpy", "control_msgs", "tf2_msgs", "launch_ros"} <= depends
+
+
+def test_the_makefiles_message_builds_are_c_and_python_only() -> None:
+    """The venv's users are Python: `make runtime` generates no C++ (it was 40 % of the
+    builds' CPU time, and of `make demo`'s wait). control_msgs and tf2_msgs are built only
+    where no ROS install has them, al5d_interfaces always."""
+    manifests = [REPO / "build" / name / "install_manifest.txt" for name in PACKAGES_BUILT]
+    built = [m for m in manifests if m.exists()]
+    assert manifests[0] in built, "make runtime left no build of al5d_interfaces"
+    for manifest in built:
+        installed = manifest.read_text().splitlines()
+        assert any(line.endswith("__rosidl_typesupport_c.so") for line in installed), (
+            f"{manifest}: no C typesupport installed"
+        )
+        cpp = [line for line in installed if re.search(r"_cpp|\.hpp$", line)]
+        assert not cpp, f"{manifest}: C++ installed: {cpp[:3]}"
