@@ -13,6 +13,7 @@ import os
 import re
 import shutil
 import signal
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -742,6 +743,7 @@ def test_the_demo_waits_for_a_page_then_runs(rig: Rig) -> None:
 class Recorder:
     def __init__(self) -> None:
         self.sent: list[Any] = []
+        self.jogs: list[dict[str, float]] = []
         self.lost = 0
 
     def send(self, instr: Any) -> None:
@@ -755,6 +757,10 @@ class Recorder:
 
     def release(self) -> None:
         self.sent.append("release")
+
+    def jog(self, degrees: Any) -> bool:
+        self.jogs.append(dict(degrees))
+        return True
 
 
 def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:
@@ -900,5 +906,59 @@ def test_a_target_field_that_is_no_number_sends_nothing(config: ArmConfig) -> No
             page.panel.tool_texts[key].value = ""
         assert commands.sent == []
     finally:
+        page.close()
+        server.stop()
+
+
+def test_a_sliders_value_is_the_users_however_late_viser_runs_its_handlers(
+    rig: Rig, config: ArmConfig
+) -> None:
+    """With the arm idle the page's loop keeps the sliders on it: a user's value that waited
+    in viser's thread pool (a busy host) was overwritten with the arm's before a handler read
+    it, and the jog went where the arm already was (seen: a slider pressed to 90, no move on
+    the board, the slider back at -90). The value is read as it arrives."""
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    page = Page(server, config, "al5d test")
+    commands = Recorder()
+    page.commands = commands
+    model = config.model
+    ready = model.to_urdf(config.presets["ready"])
+    feeding = threading.Event()
+
+    def feed() -> None:  # an idle arm's joint states, as the server sends them
+        while not feeding.wait(0.04):
+            page.on_joints(list(ready), list(ready.values()), time.monotonic())
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    feeder.start()
+    # Every thread of viser's pool busy: the handlers it runs wait (a private attribute of
+    # viser 1.1.1; a busy host makes the same wait, at random).
+    pool = server._thread_executor
+    gate = threading.Event()
+    blockers = [pool.submit(gate.wait, 60) for _ in range(pool._max_workers)]
+    browser = None
+    try:
+        page.on_description(urdf(model, dict.fromkeys(JOINTS, 90.0)))
+        page.on_state("ready")
+        browser = open_page(rig.browser, f"http://127.0.0.1:{server.get_port()}")
+        browser.get_by_role("tab", name="Joints").click()
+        thumb = browser.get_by_role("slider").nth(0)  # base
+        here = config.presets["ready"]["base"]
+        wait_until(lambda: thumb.get_attribute("aria-valuenow") == f"{here:g}", 10, "on the arm")
+        thumb.focus()
+        thumb.press("End")
+        top = config.joints["base"].range_deg[1]
+        wait_until(
+            lambda: any(j.get("base") == top for j in commands.jogs), 10, "the jog to the end"
+        )
+        assert all(j.get("base") == top for j in commands.jogs), commands.jogs
+    finally:
+        gate.set()
+        for blocker in blockers:
+            blocker.result(10)
+        feeding.set()
+        feeder.join(5)
+        if browser is not None:
+            browser.close()
         page.close()
         server.stop()

@@ -57,6 +57,11 @@ class Jog:
         self.sent = False
         return dict(target)
 
+    def hold(self, now: float) -> None:
+        """A slider's new value has come and is not taken yet: the sliders do not follow the
+        arm meanwhile. One assignment: viser's event loop calls it without the page's lock."""
+        self.touched = now
+
     def end(self) -> None:
         """Another instruction, a stop: the jog's target is not sent again."""
         self.target = None

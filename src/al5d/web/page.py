@@ -16,6 +16,7 @@ import math
 import threading
 import time
 from collections.abc import Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, Protocol
 
 import viser
@@ -86,6 +87,8 @@ class Page:
         #: The jog: the sliders' targets, sent as set-points of the server's stream
         #: (`joint_commands`).
         self.jog = Jog({name: joint.speed_deg_s for name, joint in config.joints.items()})
+        #: Takes the sliders' values in the order they came (`_slider_handler`).
+        self._sliders = ThreadPoolExecutor(max_workers=1, thread_name_prefix="al5d-web-slider")
         #: The Target tab's input and its gizmo.
         self.target_tab = TargetTab(self)
         self.arrivals: list[float] = []
@@ -322,30 +325,40 @@ class Page:
             log.info("web: STOP clicked (sent by %s)", way)
 
     def _slider_handler(self, joint: str) -> Any:
-        def handler(event: Any) -> None:
+        async def handler(event: Any) -> None:
             if event.client is None:
                 return  # set by the page itself (following the arm), not by a user
-            with self._lock:
-                if self.lost:
-                    # The number box beside a slider cannot be disabled (viser 1.1.1):
-                    # what was typed there is undone, and nothing is sent.
-                    if self.degrees is not None and joint in self.degrees:
-                        self.panel.set_slider(joint, self.degrees[joint])
-                    return
-                jog = self.jog.take(joint, float(event.target.value), time.monotonic())
-                move = Instruction(
-                    Kind.MOVE, joints=tuple(jog.items()), time_ms=self.panel.time_ms()
-                )
-            # Judged while dragging, as the server will judge it: a set-point it would refuse
-            # is not sent (the arm stays at the last one it took), and the page says why.
-            reason = self.precheck(move)
-            with self._lock:
-                self.jog.refused = reason
-                self.panel.show_joints_status(
-                    f"will not be sent: {reason}" if reason else "jogging", not reason
-                )
+            # Read on viser's event loop as the value arrives. A handler in viser's thread
+            # pool read the slider whenever the pool got to it, and by then the page's loop
+            # could have put the arm's position back in it (the user's hand not yet taken,
+            # the sliders following the idle arm): the jog went to where the arm already
+            # was. The sliders stop following at once; the rest waits for a thread of its
+            # own, in order, as the event loop must not wait for the page's lock.
+            value = float(event.target.value)
+            self.jog.hold(time.monotonic())
+            self._sliders.submit(self._take_slider, joint, value).add_done_callback(_logged)
 
         return handler
+
+    def _take_slider(self, joint: str, value: float) -> None:
+        """The user moved `joint`'s slider to `value`: the jog goes there."""
+        with self._lock:
+            if self.lost:
+                # The number box beside a slider cannot be disabled (viser 1.1.1): what was
+                # typed there is undone, and nothing is sent.
+                if self.degrees is not None and joint in self.degrees:
+                    self.panel.set_slider(joint, self.degrees[joint])
+                return
+            jog = self.jog.take(joint, value, time.monotonic())
+            move = Instruction(Kind.MOVE, joints=tuple(jog.items()), time_ms=self.panel.time_ms())
+        # Judged while dragging, as the server will judge it: a set-point it would refuse
+        # is not sent (the arm stays at the last one it took), and the page says why.
+        reason = self.precheck(move)
+        with self._lock:
+            self.jog.refused = reason
+            self.panel.show_joints_status(
+                f"will not be sent: {reason}" if reason else "jogging", not reason
+            )
 
     def send_instruction(self, instr: Instruction) -> bool:
         """Send `instr` to the server; False when there is none to send it to."""
@@ -411,6 +424,13 @@ class Page:
     def close(self) -> None:
         self._running = False
         self._thread.join(2)
+        self._sliders.shutdown(wait=False, cancel_futures=True)
+
+
+def _logged(done: Future[None]) -> None:
+    """What a slider's thread raised, in the log (a future's error is otherwise lost)."""
+    if not done.cancelled() and (error := done.exception()) is not None:
+        log.error("web: a slider's value could not be taken", exc_info=error)
 
 
 def lost_text(ended: bool, age_s: float | None) -> str:
