@@ -27,6 +27,7 @@ from al5d.arm.config import ArmConfig, load_config
 from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_LATCHED
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import group_moves, written
+from al5d_rig.host import Shortage
 from al5d_rig.loadrig import Counter, proc_status
 from al5d_rig.proc import Proc, patient_config
 from al5d_rig.rospeer import Peer, wait_future, wait_until
@@ -392,6 +393,7 @@ def test_a_joint_trajectory_runs_its_points_in_order_as_one_instruction(
         ({"base": 10, "elbow": 70}, 1.8),
         ({"base": -10, "elbow": 90}, 2.4),
     )
+    short = Shortage()
     trajectories.publish(trajectory("t-good", *points))
     result = peer.result("t-good")  # one outcome, under the header's frame_id
     assert (result.outcome, result.instruction) == ("done", "trajectory")
@@ -404,10 +406,13 @@ def test_a_joint_trajectory_runs_its_points_in_order_as_one_instruction(
     # was seen beside two busy loops), while a step that ignored its own wire time (40
     # bytes, 42 ms at 9600 baud) would leave each point that much later than the one before:
     # the third 84 ms late, the last 126 ms. The rule itself: tests/test_arm_schedule.py.
+    # What the host was short of cores meanwhile is allowed on top (67 ms seen with six
+    # test workers on two cores).
+    bound = 0.06 + short.s
     for (pose, t), move, record in zip(points, moves, records, strict=True):
         assert move.time_ms is not None
         end = record.t_effect + move.time_ms / 1000
-        assert abs(end - records[0].t_effect - t) < 0.06, (t, end - records[0].t_effect)
+        assert abs(end - records[0].t_effect - t) < bound, (t, end - records[0].t_effect, bound)
         assert {c.channel: c.pulse_us for c in move.targets} == server.pulses_of(pose)
 
 
