@@ -87,8 +87,10 @@ class Page:
         #: The jog: the sliders' targets, sent as set-points of the server's stream
         #: (`joint_commands`).
         self.jog = Jog({name: joint.speed_deg_s for name, joint in config.joints.items()})
-        #: Takes the sliders' values in the order they came (`_slider_handler`).
+        #: Takes the sliders' values in the order they came (`_slider_handler`): the newest
+        #: of each slider not yet taken, set by viser's event loop.
         self._sliders = ThreadPoolExecutor(max_workers=1, thread_name_prefix="al5d-web-slider")
+        self._slider_due: dict[str, float] = {}
         #: The Target tab's input and its gizmo.
         self.target_tab = TargetTab(self)
         self.arrivals: list[float] = []
@@ -334,14 +336,18 @@ class Page:
             # the sliders following the idle arm): the jog went to where the arm already
             # was. The sliders stop following at once; the rest waits for a thread of its
             # own, in order, as the event loop must not wait for the page's lock.
-            value = float(event.target.value)
+            self._slider_due[joint] = float(event.target.value)
             self.jog.hold(time.monotonic())
-            self._sliders.submit(self._take_slider, joint, value).add_done_callback(_logged)
+            self._sliders.submit(self._take_slider, joint).add_done_callback(_logged)
 
         return handler
 
-    def _take_slider(self, joint: str, value: float) -> None:
-        """The user moved `joint`'s slider to `value`: the jog goes there."""
+    def _take_slider(self, joint: str) -> None:
+        """The user moved `joint`'s slider: the jog goes to its newest value (values that
+        came faster than they are judged are passed over)."""
+        value = self._slider_due.pop(joint, None)
+        if value is None:
+            return  # taken already, by the turn of an earlier value
         with self._lock:
             if self.lost:
                 # The number box beside a slider cannot be disabled (viser 1.1.1): what was
