@@ -23,10 +23,11 @@ from al5d_interfaces.msg import ArmInstruction
 
 from al5d import exits
 from al5d.arm.config import ArmConfig
-from al5d.ros.names import Names
+from al5d.ros.names import PING, Names
 from al5d.ros.qos import QOS_STREAM
+from al5d_rig.armrig import group_moves
 from al5d_rig.domains import alone
-from al5d_rig.proc import Proc
+from al5d_rig.proc import Proc, dies_with_parent
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import Served, served
 
@@ -165,8 +166,9 @@ def test_stop_and_release_go_by_the_services_and_lock_the_arm_between(
     wait_until(lambda: "stopped" in arm.states[seen:], STATE_S, "the state stopped")
     # The stop and the releases did not go on the topic (the answers above say by which
     # service each went). This test's reader may miss the script's moves: its client need
-    # not have heard of this reader yet when it sends (seen once beside two busy loops).
-    assert set(topic_words) <= {"move"}, topic_words
+    # not have heard of this reader yet when it sends (seen once beside two busy loops);
+    # the client's handshake (pings) is on the topic too.
+    assert set(topic_words) <= {"move", PING}, topic_words
 
 
 def test_al5d_send_stops_and_releases_by_the_services(arm: Served) -> None:
@@ -239,3 +241,48 @@ def test_the_readme_example_without_a_server_raises_no_server(tmp_path: Path) ->
     assert ended_normally(done) and done.returncode == 1, done.stderr
     assert "al5d.ros.client.NoServer: no al5d server answers" in done.stderr
     assert done.stdout == ""
+
+
+def test_a_ping_is_answered_at_once_without_the_arm(arm: Served) -> None:
+    """The client's handshake: `ping` is answered `done` whatever the arm's state (a stopped
+    arm too), and nothing reaches the board or the server's log."""
+    assert arm.peer.trigger("stop").success
+    wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
+    records, said = len(arm.emu.records), len(arm.proc.err.drain(0))
+    arm.peer.send("ping-1", PING)
+    answer = arm.peer.result("ping-1", STATE_S)
+    assert (answer.outcome, answer.instruction, answer.reason) == ("done", PING, "")
+    arm.peer.send("then-ready", "ready")  # the arm is stopped: refused, and said
+    assert arm.peer.result("then-ready", STATE_S).outcome == "refused"
+    assert not group_moves(arm.emu.records[records:])
+    assert not [line for line in arm.proc.err.drain(0.5)[said:] if "ping" in line]
+
+
+def test_the_first_instruction_waits_until_the_servers_answers_reach_the_client(
+    tmp_path: Path,
+) -> None:
+    """A server whose answers reach a new client only a second after its instructions reach
+    the server (its result writer has not matched the client's reader yet: on a loaded
+    host, seconds): the client sends its first instruction once a ping of its own has been
+    answered. It used to wait 0.1 s and send, and its outcome never came."""
+    env = alone()
+    server = subprocess.Popen(
+        [sys.executable, "-m", "al5d_rig.late_results", "1.0"],
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, **env},
+        preexec_fn=dies_with_parent,
+    )
+    try:
+        assert server.stdout is not None and server.stdout.readline() == "ready\n"
+        script = 'with Client(wait_s=30) as arm:\n    print(arm.execute("ready", timeout=10))\n'
+        done = run_script(tmp_path, "from al5d.ros.client import Client\n" + script, env)
+    finally:
+        server.terminate()
+        out, _ = server.communicate(timeout=30)
+    heard = [line.split()[1:] for line in out.splitlines() if line.startswith("heard ")]
+    assert ended_normally(done) and done.returncode == 0, (done.stderr, heard)
+    assert done.stdout.startswith("ready [") and ": done" in done.stdout, done.stdout
+    # The pings the server heard first went unanswered; the instruction came after one was.
+    assert heard[0] == [PING, "False"] and heard[-1] == ["ready", "True"], heard
+    assert [PING, "True"] in heard, heard

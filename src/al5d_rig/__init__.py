@@ -19,6 +19,8 @@ among its modules run as `python -m al5d_rig.NAME`. It sits above every subpacka
   trajectory goals (a process).
 - `faultrig`: faults injected at chosen moments into a driver, and what it made of them.
 - `watch_backlog`: a reader of the instruction topic that a flood outruns (a process).
+- `late_results`: a server's topics alone, whose answers reach a new client late (a
+  process).
 - `trajectories`: dense trajectories as MoveIt times them, and their goals.
 - `webrig`: `al5d web` in its own process, and a headless Chromium.
 - `calibuser`: the user of a calibration, who sees where a joint truly stands.

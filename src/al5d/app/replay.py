@@ -23,6 +23,8 @@ from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, SeekingReader
 from mcap_ros2.decoder import DecoderFactory
 
+from al5d.ros.names import PING
+
 INSTRUCTION_TYPE = "al5d_interfaces/msg/ArmInstruction"
 RATES = ("recorded", "fast")
 #: What a damaged file raises in the readers besides their own errors.
@@ -88,8 +90,10 @@ def _read(reader: SeekingReader | NonSeekingReader, found: list[Recorded]) -> No
                     f"{channel.topic}: messages encoded as {channel.message_encoding!r}, not CDR"
                 )
             decoders[schema.id] = decode
-        sent = message.publish_time or message.log_time
-        found.append(Recorded(sent, channel.topic, decode(message.data)))
+        msg = decode(message.data)
+        if msg.instruction == PING:  # a client's handshake with the server, no instruction
+            continue
+        found.append(Recorded(message.publish_time or message.log_time, channel.topic, msg))
 
 
 def _message(recorded: Recorded) -> Any:

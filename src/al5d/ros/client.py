@@ -30,13 +30,14 @@ from al5d.arm.instruction import (
     Instruction,
     Kind,
     Outcome,
+    new_id,
     parse_instruction,
 )
 from al5d.clock import Deadline
 from al5d.ros.convert import outcome_from_message, to_message
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
-from al5d.ros.names import NODE, Names
+from al5d.ros.names import NODE, PING, Names
 from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SERVICES, QOS_STREAM
 
 log = logging.getLogger("al5d")
@@ -51,9 +52,10 @@ class NoOutcome(TimeoutError):
     call: what became of the instruction is unknown."""
 
 
-#: How long the server's side of the match is given after ours: each side matches when it
-#: hears of the other, independently (a mitigation, not a proof: DDS offers none here).
-MATCH_SETTLE_S = 0.1
+#: The handshake's ping (`al5d.ros.names.PING`) is sent again this often until one is
+#: answered: a ping the server answered before its result writer had matched our reader
+#: reached nobody.
+PING_EVERY_S = 0.25
 #: How long the server's services may stay undiscovered once its topics are: after that a
 #: stop, a release or a shutdown goes on the instruction topic instead (and says so). The
 #: services are on the stop path's DDS participant, discovered apart from the topics':
@@ -145,6 +147,7 @@ class Client:
         self._watchers: dict[str, Callable[[Outcome], None]] = {}
         self._cv = threading.Condition()
         self._matched = False
+        self._ping_t = 0.0
         #: Seconds spent waiting for the server (its topics or services) to be discovered.
         self.discovery_s = 0.0
         #: Each service once found, and when its first call may go (`SERVICE_SETTLE_S`).
@@ -208,23 +211,42 @@ class Client:
             raise RuntimeError("this al5d client is closed")
 
     def wait_for_server(self, timeout: float) -> None:
-        """Until our instructions reach a server and its results reach us (both directions)."""
+        """Until our instructions reach a server and its results reach us: a ping of ours
+        answered. Each side of a topic matches the other when it hears of it, apart: our
+        reader can have matched the server's result writer long before that writer has
+        matched our reader, and a result published meanwhile reaches nobody (seen on a
+        loaded host: discovery took 9.6 s, then an outcome waited for 80 s and more)."""
         self._check_open()
         deadline = Deadline(timeout)
         start = time.monotonic()
+        pings: list[str] = []
         try:
             while not deadline.expired:
-                if self._server_seen():
-                    # Our reader has matched the server's result writer; that writer matches
-                    # our reader when the server hears of it, a moment apart, and a result
-                    # published before then would not reach us (not kept for late readers).
-                    time.sleep(MATCH_SETTLE_S)
-                    self._matched = True
-                    return
+                with self._cv:
+                    if any(p in self._outcomes for p in pings):
+                        self._matched = True
+                        return
+                if self._server_seen() and (
+                    not pings or time.monotonic() - self._ping_t >= PING_EVERY_S
+                ):
+                    pings.append(self._ping())
                 time.sleep(0.02)
             raise self._no_server(self.names.instruction, timeout)
         finally:
             self.discovery_s += time.monotonic() - start
+            with self._cv:  # an answer that comes later is not kept
+                for ping in pings:
+                    self._sent.discard(ping)
+                    self._outcomes.pop(ping, None)
+
+    def _ping(self) -> str:
+        """Send a ping; its id."""
+        msg = ArmInstruction(instruction=PING, id=new_id())
+        with self._cv:
+            self._sent.add(msg.id)
+        self._ping_t = time.monotonic()
+        self.pub.publish(msg)
+        return str(msg.id)
 
     def send(self, instr: Instruction) -> None:
         """Publish `instr` on the instruction topic; its outcome is kept for `outcome`."""

@@ -14,6 +14,10 @@ SAFETY_NODE = "al5d_safety"
 STOP_NODE = "al5d_stop"
 ACTIONS_NODE = "al5d_actions"
 ROBOT_NODE = "al5d_robot"
+#: The instruction a client's handshake sends on the instruction topic: the node answers
+#: it `done` on the result topic at once, without the arm (nothing written, nothing
+#: logged, whatever the arm's state). An answer says both ways of the topics work.
+PING = "ping"
 
 
 @dataclass(frozen=True)

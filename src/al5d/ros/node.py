@@ -57,7 +57,7 @@ from al5d.ros.convert import (
     trajectory_id,
 )
 from al5d.ros.executors import PublishThread
-from al5d.ros.names import ACTIONS_NODE, NODE, ROBOT_NODE, Names, pinned
+from al5d.ros.names import ACTIONS_NODE, NODE, PING, ROBOT_NODE, Names, pinned
 from al5d.ros.params import Settings
 from al5d.ros.qos import QOS_COMMANDS, QOS_INSTRUCTIONS, QOS_LATCHED, QOS_STREAM
 from al5d.ros.robot import RobotPublisher
@@ -215,6 +215,9 @@ class ArmNode(Node):
     def _on_instruction(self, msg: ArmInstruction, info: dict[str, int]) -> None:
         if self.trace is not None:
             self.trace.append((msg.id, "recv", time.monotonic_ns()))
+        if msg.instruction == PING:
+            self.results.put(Outcome(msg.id or new_id(), PING, Result.DONE))
+            return
         instr = from_message(msg, self.presets, self.driver.config.model, sent_ns(info))
         if isinstance(instr, str):
             self.driver.refuse(msg.id or new_id(), msg.instruction, instr)

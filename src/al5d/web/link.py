@@ -42,7 +42,7 @@ from al5d.ros.convert import (
 )
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
-from al5d.ros.names import Names
+from al5d.ros.names import PING, Names
 from al5d.ros.qos import QOS_COMMANDS, QOS_INSTRUCTIONS, QOS_LATCHED, QOS_SERVICES
 from al5d.ros.robot import QOS_TF_STATIC
 
@@ -143,6 +143,8 @@ class WebNode:
         self.listener.on_state(str(msg.data))
 
     def _on_result(self, msg: InstructionResult) -> None:
+        if msg.instruction == PING:  # a client's handshake: no news of the arm
+            return
         try:
             outcome = outcome_from_message(msg)
         except ValueError:  # an outcome word this page does not know: not the server's
