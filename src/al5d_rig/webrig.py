@@ -171,16 +171,19 @@ def wait_text(
     raise AssertionError(f"{selector}: {text!r} after {timeout_s} s")
 
 
-def watch_texts(page: Any, selector: str) -> Callable[[], list[str]]:
-    """Every text `selector` shows from now on, as the browser renders them: a text shown
-    for less than a poll of `wait_text` takes on a busy machine is kept too."""
-    key = "__texts_" + "".join(c if c.isalnum() else "_" for c in selector)
+def watch_texts(
+    page: Any, selector: str, index: int = 0, attribute: str = ""
+) -> Callable[[], list[str]]:
+    """Every text the `index`th element `selector` finds shows from now on (or every value
+    of its `attribute`), as the browser renders them: a text shown for less than a poll of
+    `wait_text` takes on a busy machine is kept too."""
+    key = "__texts_" + "".join(c if c.isalnum() else "_" for c in f"{selector}{index}{attribute}")
     page.evaluate(
-        """([selector, key]) => {
+        """([selector, key, index, attribute]) => {
         const seen = (window[key] = []);
         const look = () => {
-          const found = document.querySelector(selector);
-          const text = found ? found.innerText : "";
+          const found = document.querySelectorAll(selector)[index];
+          const text = !found ? "" : attribute ? found.getAttribute(attribute) : found.innerText;
           if (text && seen[seen.length - 1] !== text) seen.push(text);
         };
         look();
@@ -188,7 +191,7 @@ def watch_texts(page: Any, selector: str) -> Callable[[], list[str]]:
           subtree: true, childList: true, characterData: true, attributes: true,
         });
       }""",
-        [selector, key],
+        [selector, key, index, attribute],
     )
     return lambda: [str(t) for t in page.evaluate(f"window.{key}")]
 

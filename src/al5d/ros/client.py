@@ -147,7 +147,6 @@ class Client:
         self._watchers: dict[str, Callable[[Outcome], None]] = {}
         self._cv = threading.Condition()
         self._matched = False
-        self._ping_t = 0.0
         #: Seconds spent waiting for the server (its topics or services) to be discovered.
         self.discovery_s = 0.0
         #: Each service once found, and when its first call may go (`SERVICE_SETTLE_S`).
@@ -220,16 +219,16 @@ class Client:
         deadline = Deadline(timeout)
         start = time.monotonic()
         pings: list[str] = []
+        next_ping = 0.0
         try:
             while not deadline.expired:
                 with self._cv:
                     if any(p in self._outcomes for p in pings):
                         self._matched = True
                         return
-                if self._server_seen() and (
-                    not pings or time.monotonic() - self._ping_t >= PING_EVERY_S
-                ):
+                if self._server_seen() and time.monotonic() >= next_ping:
                     pings.append(self._ping())
+                    next_ping = time.monotonic() + PING_EVERY_S
                 time.sleep(0.02)
             raise self._no_server(self.names.instruction, timeout)
         finally:
@@ -244,7 +243,6 @@ class Client:
         msg = ArmInstruction(instruction=PING, id=new_id())
         with self._cv:
             self._sent.add(msg.id)
-        self._ping_t = time.monotonic()
         self.pub.publish(msg)
         return str(msg.id)
 
