@@ -14,6 +14,7 @@ teach and replay (named poses, sequences).
     panel.py   the widgets: STOP in a window of its own, the side panel
     page.py    the page: what it knows of the arm, its decisions, the user's input
     jog.py     the sliders' jog: when a set-point is due, sent again, given up (no viser)
+    sliders.py the sliders as the user moves them: read as they arrive, judged, into the jog
     viewhold.py  when the 3D view may change: a state goes to the browsers first
     target.py  the Target tab: the gizmo dragged, the numbers typed, `move_to` sent
     teach.py   the Teach tab: named poses, sequences built, saved, loaded and played

@@ -16,19 +16,19 @@ import math
 import threading
 import time
 from collections.abc import Mapping, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, Protocol
 
 import viser
 
 from al5d.arm.config import ArmConfig
-from al5d.arm.instruction import Instruction, Kind, Outcome, Result, preset
+from al5d.arm.instruction import Instruction, Outcome, Result, preset
 from al5d.model import JOINTS, ModelError
 from al5d.model.transforms import Transform
 from al5d.web.jog import Jog
 from al5d.web.panel import Panel
 from al5d.web.plan import JointHistory, OutcomeLog, Planner, Target
 from al5d.web.scene import ArmScene
+from al5d.web.sliders import SliderInput
 from al5d.web.target import TargetTab
 from al5d.web.viewhold import ViewHold, arrived
 
@@ -87,10 +87,8 @@ class Page:
         #: The jog: the sliders' targets, sent as set-points of the server's stream
         #: (`joint_commands`).
         self.jog = Jog({name: joint.speed_deg_s for name, joint in config.joints.items()})
-        #: Takes the sliders' values in the order they came (`_slider_handler`): the newest
-        #: of each slider not yet taken, set by viser's event loop.
-        self._sliders = ThreadPoolExecutor(max_workers=1, thread_name_prefix="al5d-web-slider")
-        self._slider_due: dict[str, float] = {}
+        #: The sliders' values as the user moves them, into the jog.
+        self.sliders = SliderInput(self)
         #: The Target tab's input and its gizmo.
         self.target_tab = TargetTab(self)
         self.arrivals: list[float] = []
@@ -111,7 +109,7 @@ class Page:
         panel.stop.on_click(self._on_stop)
         panel.release.on_click(self._on_release)
         for name, slider in panel.sliders.items():
-            slider.on_update(self._slider_handler(name))
+            slider.on_update(self.sliders.handler(name))
         panel.on_preset(self._on_preset)
         target = self.target_tab
         for number in (*panel.xyz_numbers.values(), *panel.tool_texts.values()):
@@ -326,46 +324,6 @@ class Page:
             way = self.commands.stop()
             log.info("web: STOP clicked (sent by %s)", way)
 
-    def _slider_handler(self, joint: str) -> Any:
-        async def handler(event: Any) -> None:
-            if event.client is None:
-                return  # set by the page itself (following the arm), not by a user
-            # Read on viser's event loop as the value arrives. A handler in viser's thread
-            # pool read the slider whenever the pool got to it, and by then the page's loop
-            # could have put the arm's position back in it (the user's hand not yet taken,
-            # the sliders following the idle arm): the jog went to where the arm already
-            # was. The sliders stop following at once; the rest waits for a thread of its
-            # own, in order, as the event loop must not wait for the page's lock.
-            self._slider_due[joint] = float(event.target.value)
-            self.jog.hold(time.monotonic())
-            self._sliders.submit(self._take_slider, joint).add_done_callback(_logged)
-
-        return handler
-
-    def _take_slider(self, joint: str) -> None:
-        """The user moved `joint`'s slider: the jog goes to its newest value (values that
-        came faster than they are judged are passed over)."""
-        value = self._slider_due.pop(joint, None)
-        if value is None:
-            return  # taken already, by the turn of an earlier value
-        with self._lock:
-            if self.lost:
-                # The number box beside a slider cannot be disabled (viser 1.1.1): what was
-                # typed there is undone, and nothing is sent.
-                if self.degrees is not None and joint in self.degrees:
-                    self.panel.set_slider(joint, self.degrees[joint])
-                return
-            jog = self.jog.take(joint, value, time.monotonic())
-            move = Instruction(Kind.MOVE, joints=tuple(jog.items()), time_ms=self.panel.time_ms())
-        # Judged while dragging, as the server will judge it: a set-point it would refuse
-        # is not sent (the arm stays at the last one it took), and the page says why.
-        reason = self.precheck(move)
-        with self._lock:
-            self.jog.refused = reason
-            self.panel.show_joints_status(
-                f"will not be sent: {reason}" if reason else "jogging", not reason
-            )
-
     def send_instruction(self, instr: Instruction) -> bool:
         """Send `instr` to the server; False when there is none to send it to."""
         if self.commands is None or self.lost:
@@ -430,13 +388,7 @@ class Page:
     def close(self) -> None:
         self._running = False
         self._thread.join(2)
-        self._sliders.shutdown(wait=False, cancel_futures=True)
-
-
-def _logged(done: Future[None]) -> None:
-    """What a slider's thread raised, in the log (a future's error is otherwise lost)."""
-    if not done.cancelled() and (error := done.exception()) is not None:
-        log.error("web: a slider's value could not be taken", exc_info=error)
+        self.sliders.close()
 
 
 def lost_text(ended: bool, age_s: float | None) -> str:
