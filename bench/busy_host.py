@@ -24,7 +24,7 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 from soak import log, p99, render  # noqa: E402
 
-from al5d_rig.contention import goals, run  # noqa: E402
+from al5d_rig.contention import SLOW_MS, goals, run  # noqa: E402
 from al5d_rig.falsefaults import run as false_faults  # noqa: E402
 
 OUT = HERE / "out"
@@ -61,6 +61,20 @@ def table(servers: dict[str, Any], flood: dict[str, Any], faults: dict[str, Any]
         )
         rows.append(stops_row("  ... stop by service p50 / p99", s["stop_service_ms"], missed))
         rows.append(stops_row("  ... stop by topic p50 / p99", s["stop_topic_ms"], 0))
+    # What no priority of ours gets past (the hypervisor, the kernel): the slow stops it
+    # explains are the host's, not the driver's.
+    host = servers["host"]
+    during = sum(s["host_stall_ms"] > 0 for s in host["slow_stops"])
+    longest = max(host["longest_stalls_ms"], default=0.0)
+    rows.append(
+        (
+            "  the host's stalls (a real-time probe): longest; steal; stops over "
+            f"{SLOW_MS:.0f} ms during one",
+            f"{longest:.1f} ms; {host['steal_s']:.2f} s; {during} of {len(host['slow_stops'])}",
+            "(said, not a target)",
+            "-",
+        )
+    )
     # The flood is only what it says if the client kept up with its rate (it once reached
     # about 20 goals a second of the 100 it was asked for).
     reached = flood["sent"] / flood["send_s"]

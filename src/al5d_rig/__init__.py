@@ -16,7 +16,8 @@ among its modules run as `python -m al5d_rig.NAME`. It sits above every subpacka
   (a process: `python -m al5d_rig.flood_client`).
 - `contention` and `falsefaults`: several servers beside busy loops, and false link
   faults on a busy host (both also run as processes); `goal_flood_client` floods with
-  trajectory goals (a process).
+  trajectory goals (a process); `result_counter` counts a flood's results at the
+  default priority, and `stallprobe` notes the host's own stalls (both processes).
 - `faultrig`: faults injected at chosen moments into a driver, and what it made of them.
 - `watch_backlog`: a reader of the instruction topic that a flood outruns (a process).
 - `late_results`: a server's topics alone, whose answers reach a new client late (a

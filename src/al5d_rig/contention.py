@@ -7,9 +7,11 @@ Each server is `al5d serve` in its own process on its own board (an emulator
 process on a pty) and its own ROS domain, flooded by its own client process
 (`flood_client.py`); one process per server (this module with `--arm I`) stops
 and releases it every quarter second, by service and by topic in turn, as a
-non-flooding peer, and counts every outcome (`loadrig.flood`). Busy loops
-(`python3 -c 'while True: pass'`) take what CPU is left. Prints one line of JSON
-per server and, from the main process, the whole as one JSON document.
+non-flooding peer (`loadrig.flood`), while `result_counter` counts every outcome
+at the default priority. Busy loops (`python3 -c 'while True: pass'`) take what
+CPU is left, and `stallprobe` notes the host's own stalls, matched to the slow
+stops. Prints one line of JSON per server and, from the main process, the whole
+as one JSON document.
 
 With `--goals`: one server at 9600 baud, a MoveIt-like client sending
 FollowJointTrajectory goals at `rate` a second, each preempting the last
@@ -32,6 +34,11 @@ from pathlib import Path
 from typing import Any
 
 from al5d_rig.proc import dies_with_parent
+from al5d_rig.result_counter import ResultCounter
+from al5d_rig.stallprobe import Stalls
+
+#: A stop slower than this is listed with the host's stalls around it.
+SLOW_MS = 40.0
 
 MODULE = "al5d_rig.contention"  # its arms run it: python -m MODULE --arm I
 BUSY_LOOP = "while True: pass"
@@ -56,7 +63,7 @@ def ended(procs: list[subprocess.Popen[Any]]) -> None:
 def arm(index: int, seconds: float, rate: float, stops_every_s: float) -> dict[str, Any]:
     """One server under its flood, measured by this process (in the server's ROS domain)."""
     from al5d_rig.boardproc import BoardProcess
-    from al5d_rig.loadrig import Counter, flood
+    from al5d_rig.loadrig import flood
     from al5d_rig.proc import Proc, patient_config
     from al5d_rig.rospeer import Peer
 
@@ -75,6 +82,9 @@ def arm(index: int, seconds: float, rate: float, stops_every_s: float) -> dict[s
         if not os.environ.get("AL5D_NONICE"):
             os.nice(-10)
     peer = Peer(results=False, name=f"al5d_contention_peer_{index}")
+    # The flood's results are counted at the default priority, as its client would count
+    # them; this process only stops, releases and reads the board.
+    counter = ResultCounter()
     try:
         server.err.wait_for("STATE: ready", 60)
         peer.wait_for_server()
@@ -82,7 +92,6 @@ def arm(index: int, seconds: float, rate: float, stops_every_s: float) -> dict[s
             peer.trigger(name)
         print(json.dumps({"ready": index}), flush=True)
         sys.stdin.readline()  # go: every server is ready
-        counter = Counter(peer)
         result = flood(
             board,
             peer,
@@ -95,7 +104,10 @@ def arm(index: int, seconds: float, rate: float, stops_every_s: float) -> dict[s
             diagnose=lambda: "\n".join(server.err.drain(0.5)[-15:]),
         )
         out = result.as_dict()
-        missing = [i for i in range(result.sent) if f"c{index}-{i}" not in counter.seen]
+        missing = [
+            int(i.rsplit("-", 1)[1])
+            for i in counter.missing([f"c{index}-{i}" for i in range(result.sent)])
+        ]
         out["missing"] = ranges(missing)
         if missing:  # did they reach the server? (its trace is written when it ends)
             server.popen.terminate()
@@ -106,8 +118,11 @@ def arm(index: int, seconds: float, rate: float, stops_every_s: float) -> dict[s
         # What the server said besides refusing moves (a flood's refusals are most of it).
         said = [line for line in server.err.drain(0.5) if "refused" not in line]
         out["server_said"] = said[-40:]
+        # The stop process's own account of its slow stops (when DDS handed it over).
+        out["late_stops"] = [line for line in said if "a stop written" in line][-20:]
         return out
     finally:
+        counter.close()
         peer.close()
         server.kill()
         board.close()
@@ -176,6 +191,32 @@ def goals(seconds: float, rate: float, busy: int, stops_every_s: float = 0.5) ->
         board.close()
 
 
+def host_stalls(stalls: Stalls, results: list[dict[str, Any]]) -> dict[str, Any]:
+    """What the stall probe saw, and each stop slower than `SLOW_MS` with the longest stall
+    of the host that overlapped it."""
+    slow = []
+    for i, r in enumerate(results):
+        for via, t, ms in r.get("stop_at", []):
+            if ms > SLOW_MS:
+                worst = stalls.during(t, ms / 1000)
+                slow.append(
+                    {
+                        "server": i,
+                        "via": via,
+                        "ms": round(ms, 1),
+                        "host_stall_ms": round(1000 * worst, 1),
+                    }
+                )
+    gaps = sorted(late for _, late in stalls.gaps)
+    return {
+        "scheduling": stalls.scheduling,
+        "steal_s": round(stalls.steal_s, 3),
+        "stalls_over_10_ms": sum(g >= 0.010 for g in gaps),
+        "longest_stalls_ms": [round(1000 * g, 1) for g in gaps[-5:]],
+        "slow_stops": slow,
+    }
+
+
 def ranges(xs: list[int]) -> list[tuple[int, int]]:
     """Consecutive runs of sorted numbers, as (first, last)."""
     out: list[tuple[int, int]] = []
@@ -214,19 +255,33 @@ def run(
             line = each.stdout.readline()
             if not line:
                 raise RuntimeError(f"an arm of the rig ended before it was ready: {each.args!r}")
+        probe = subprocess.Popen(
+            [sys.executable, "-m", "al5d_rig.stallprobe"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            preexec_fn=dies_with_parent,
+        )
+        arms.append(probe)  # ended with the rest if this fails
         t0 = time.monotonic()
-        for each in arms:
+        for each in arms[:-1]:
             assert each.stdin is not None
             each.stdin.write("go\n")
             each.stdin.flush()
         results = []
-        for each in arms:
+        for each in arms[:-1]:
             assert each.stdout is not None
             line = each.stdout.readline()
             results.append(json.loads(line) if line else {"error": "ended without a result"})
             each.wait(60)
         load = os.getloadavg()[0]
-        return {"servers": results, "seconds": time.monotonic() - t0, "load1": load}
+        stalls = Stalls.of(probe.communicate(timeout=60)[0])
+        return {
+            "servers": results,
+            "seconds": time.monotonic() - t0,
+            "load1": load,
+            "host": host_stalls(stalls, results),
+        }
     finally:
         ended([*arms, *loops])
 

@@ -62,6 +62,14 @@ def proc_status(pid: int) -> dict[str, int]:
     return out
 
 
+class Outcomes(Protocol):
+    """What a flood asks of the results it brings (`Counter`, `ResultCounter`)."""
+
+    def heard(self, prefix: str) -> bool: ...
+
+    def count(self, ids: list[str]) -> tuple[int, int]: ...
+
+
 class Counter:
     """Every result on /al5d/result, by id: how many came for each."""
 
@@ -103,6 +111,8 @@ class FloodResult:
     drained_s: float = 0.0
     stop_service_ms: list[float] = field(default_factory=list)
     stop_topic_ms: list[float] = field(default_factory=list)
+    #: Every measured stop as (via, when it was sent on the monotonic clock, ms).
+    stop_at: list[tuple[str, float, float]] = field(default_factory=list)
     stops_missed: int = 0
     #: The stops sent on the topic, and how many of them got one outcome, and more than one.
     stop_ids: list[str] = field(default_factory=list)
@@ -199,7 +209,7 @@ def default_priority() -> None:
 def flood(
     emu: Board,
     peer: Peer,
-    counter: Counter,
+    counter: Outcomes,
     server_pid: int,
     rate: float,
     seconds: float,
@@ -250,6 +260,7 @@ def flood(
             ident = f"{prefix}-stop-{len(result.stop_ids)}" if via == "topic" else ""
             if ident:
                 result.stop_ids.append(ident)
+            t_stop = time.monotonic()
             ms = stop_latency_ms(emu, peer, via, emu.baud, ident)
             if ms is None:
                 result.stops_missed += 1
@@ -260,6 +271,7 @@ def flood(
                 )
             else:
                 (result.stop_service_ms if via == "service" else result.stop_topic_ms).append(ms)
+                result.stop_at.append((via, t_stop, ms))
                 if ms > SLOW_STOP_MS:
                     result.notes.append(f"a stop via {via} took {ms:.0f} ms:\n{diagnose()}")
             wait_future(peer.services["release"].call_async(Trigger.Request()), 10)
