@@ -47,7 +47,7 @@ def test_a_board_in_a_busy_process_raises_no_false_fault() -> None:
 
 
 def test_a_stall_of_the_host_is_matched_to_the_stops_it_overlapped() -> None:
-    stalls = Stalls(gaps=[(10.0, 0.050), (20.0, 0.004)])
+    stalls = Stalls(gaps=((10.0, 0.050), (20.0, 0.004)))
     assert stalls.during(9.99, 0.02) == 0.050  # the stop began before the stall
     assert stalls.during(10.04, 0.1) == 0.050  # ...or during it
     assert stalls.during(10.06, 0.1) == 0.0  # after it ended

@@ -104,10 +104,9 @@ def arm(index: int, seconds: float, rate: float, stops_every_s: float) -> dict[s
             diagnose=lambda: "\n".join(server.err.drain(0.5)[-15:]),
         )
         out = result.as_dict()
-        missing = [
-            int(i.rsplit("-", 1)[1])
-            for i in counter.missing([f"c{index}-{i}" for i in range(result.sent)])
-        ]
+        ids = [f"c{index}-{i}" for i in range(result.sent)]
+        unanswered = set(counter.missing(ids))
+        missing = [i for i, ident in enumerate(ids) if ident in unanswered]
         out["missing"] = ranges(missing)
         if missing:  # did they reach the server? (its trace is written when it ends)
             server.popen.terminate()
@@ -235,6 +234,7 @@ def run(
     base = random.randint(20, 80) * 2
     loops = busy_loops(busy)
     arms: list[subprocess.Popen[str]] = []
+    probe: list[subprocess.Popen[str]] = []  # started once the arms are ready
     try:
         for i in range(servers):
             env = {**os.environ, "ROS_DOMAIN_ID": str(base + i)}
@@ -255,27 +255,28 @@ def run(
             line = each.stdout.readline()
             if not line:
                 raise RuntimeError(f"an arm of the rig ended before it was ready: {each.args!r}")
-        probe = subprocess.Popen(
-            [sys.executable, "-m", "al5d_rig.stallprobe"],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-            preexec_fn=dies_with_parent,
+        probe.append(
+            subprocess.Popen(
+                [sys.executable, "-m", "al5d_rig.stallprobe"],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                text=True,
+                preexec_fn=dies_with_parent,
+            )
         )
-        arms.append(probe)  # ended with the rest if this fails
         t0 = time.monotonic()
-        for each in arms[:-1]:
+        for each in arms:
             assert each.stdin is not None
             each.stdin.write("go\n")
             each.stdin.flush()
         results = []
-        for each in arms[:-1]:
+        for each in arms:
             assert each.stdout is not None
             line = each.stdout.readline()
             results.append(json.loads(line) if line else {"error": "ended without a result"})
             each.wait(60)
         load = os.getloadavg()[0]
-        stalls = Stalls.of(probe.communicate(timeout=60)[0])
+        stalls = Stalls.of(probe[0].communicate(timeout=60)[0])
         return {
             "servers": results,
             "seconds": time.monotonic() - t0,
@@ -283,7 +284,7 @@ def run(
             "host": host_stalls(stalls, results),
         }
     finally:
-        ended([*arms, *loops])
+        ended([*arms, *probe, *loops])
 
 
 def main() -> int:

@@ -96,6 +96,11 @@ class Counter:
             twice = sum(self.seen.get(i, 0) > 1 for i in ids)
         return got, twice
 
+    def missing(self, ids: list[str]) -> list[str]:
+        """The ids with no outcome."""
+        with self.lock:
+            return [i for i in ids if i not in self.seen]
+
 
 @dataclass
 class FloodResult:

@@ -71,37 +71,21 @@ class ResultCounter:
 
 
 def main() -> int:
-    from al5d_interfaces.msg import InstructionResult
-    from rclpy.node import Node
+    from al5d_rig.loadrig import Counter
+    from al5d_rig.rospeer import Peer
 
-    from al5d.ros.dds import start_context
-    from al5d.ros.executors import Spinner
-    from al5d_rig.loadrig import QOS_ALL
-
-    seen: dict[str, int] = {}
-    lock = threading.Lock()
-
-    def on_result(msg: InstructionResult) -> None:
-        with lock:
-            seen[msg.id] = seen.get(msg.id, 0) + 1
-
-    context = start_context()
-    node = Node("al5d_result_counter", context=context)
-    node.create_subscription(InstructionResult, "/al5d/result", on_result, QOS_ALL)
-    spinner = Spinner(node, context)
+    # The rig's own counter, read by a thread of its own as the server reads its inputs.
+    counter = Counter(Peer(results=False, name="al5d_result_counter"))
     print(json.dumps({"ready": True}), flush=True)
     for line in sys.stdin:
         question = json.loads(line)
-        with lock:
-            if "heard" in question:
-                answer: Any = any(i.startswith(question["heard"]) for i in seen)
-            elif "count" in question:
-                ids = question["count"]
-                answer = [sum(i in seen for i in ids), sum(seen.get(i, 0) > 1 for i in ids)]
-            else:
-                answer = [i for i in question["missing"] if i not in seen]
+        if "heard" in question:
+            answer: Any = counter.heard(question["heard"])
+        elif "count" in question:
+            answer = counter.count(question["count"])
+        else:
+            answer = counter.missing(question["missing"])
         print(json.dumps(answer), flush=True)
-    spinner.close()
     return 0
 
 

@@ -20,7 +20,7 @@ import os
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 #: A wake-up this late is a stall.
@@ -28,18 +28,18 @@ GAP_S = 0.003
 TICK_S = 0.001
 
 
-@dataclass
+@dataclass(frozen=True)
 class Stalls:
     """Stalls seen by a probe, as its JSON line gives them."""
 
-    gaps: list[tuple[float, float]] = field(default_factory=list)
+    gaps: tuple[tuple[float, float], ...] = ()
     steal_s: float = 0.0
     scheduling: str = ""
 
     @classmethod
     def of(cls, line: str) -> Stalls:
         d = json.loads(line)
-        return cls([(a, b) for a, b in d["gaps"]], d["steal_s"], d["scheduling"])
+        return cls(tuple((a, b) for a, b in d["gaps"]), d["steal_s"], d["scheduling"])
 
     def during(self, start: float, seconds: float) -> float:
         """The longest stall that overlapped [start, start + seconds], in seconds."""
