@@ -59,7 +59,13 @@ from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.names import SAFETY_NODE, STOP_NODE, Names, pinned
 from al5d.ros.qos import QOS_SERVICES, qos_watch
-from al5d.ros.workarounds import Reader, ReaderOnly, stamped_service, taken_by_reader
+from al5d.ros.workarounds import (
+    Reader,
+    ReaderOnly,
+    filter_content,
+    stamped_service,
+    taken_by_reader,
+)
 
 if TYPE_CHECKING:
     from al5d.model.arm import ArmModel
@@ -73,6 +79,10 @@ WATCH_BATCH = 1000
 _STOP = Kind.STOP.value
 #: Longer than this, the first field is not a stop whatever its blanks: the node judges it.
 _WORD_MAX = 256
+#: What DDS hands the watcher (`filter_content`): a first field with "stop" in it, in any
+#: case, among anything (`[\s\S]`: newlines too). More than `first_word` takes, which judges
+#: each; never less.
+STOP_FILTER = "instruction MATCH '[\\s\\S]*[sS][tT][oO][pP][\\s\\S]*'"
 
 
 def first_word(raw: bytes) -> str | None:
@@ -179,6 +189,9 @@ class StopNode(Node):
             callback_group=group,
             raw=True,
         )
+        # Only what could be a stop reaches this participant: a flood's moves never queue
+        # ahead of a stop here, nor take this process's interpreter.
+        filter_content(watched, STOP_FILTER)
         # A thread of its own takes what waits, up to `WATCH_BATCH` at a time, in one go:
         # under a flood, one GIL hand-over a message would leave the watcher behind.
         self.reader = Reader(

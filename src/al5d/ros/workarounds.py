@@ -6,6 +6,7 @@ Each workaround names what it works around and how to tell when it can go.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import functools
 import logging
 import os
@@ -23,6 +24,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.service import Service
+from rclpy.subscription import Subscription
 from rclpy.task import Future
 
 from al5d.priority import make_urgent
@@ -193,6 +195,90 @@ class Reader:
         self._running = False
         self._wake.trigger()
         self._thread.join(5)
+
+
+class _Allocator(ctypes.Structure):
+    _fields_ = [
+        (name, ctypes.c_void_p)
+        for name in ("allocate", "deallocate", "reallocate", "zero", "state")
+    ]
+
+
+class _Strings(ctypes.Structure):
+    _fields_ = [
+        ("size", ctypes.c_size_t),
+        ("data", ctypes.POINTER(ctypes.c_char_p)),
+        ("allocator", _Allocator),
+    ]
+
+
+class _FilterOptions(ctypes.Structure):
+    """rcl_subscription_content_filter_options_t (rmw's options inside: an expression and its
+    parameters)."""
+
+    _fields_ = [("expression", ctypes.c_char_p), ("parameters", _Strings)]
+
+
+@functools.cache
+def _rcl() -> ctypes.CDLL:
+    """librcl, as rclpy loaded it (its soname)."""
+    rcl = ctypes.CDLL("librcl.so")
+    rcl.rcl_get_zero_initialized_subscription_content_filter_options.restype = _FilterOptions
+    options = ctypes.POINTER(_FilterOptions)
+    rcl.rcl_subscription_content_filter_options_init.argtypes = [
+        ctypes.c_void_p,
+        ctypes.c_char_p,
+        ctypes.c_size_t,
+        ctypes.c_void_p,
+        options,
+    ]
+    rcl.rcl_subscription_set_content_filter.argtypes = [ctypes.c_void_p, options]
+    rcl.rcl_subscription_content_filter_options_fini.argtypes = [ctypes.c_void_p, options]
+    rcl.rcl_subscription_is_cft_enabled.argtypes = [ctypes.c_void_p]
+    rcl.rcl_subscription_is_cft_enabled.restype = ctypes.c_bool
+    return rcl
+
+
+def filter_content(sub: Subscription, expression: str) -> bool:
+    """Have DDS hand `sub` only the messages `expression` (DDS's SQL filter, as rcl takes it)
+    selects; False, said once, where it is refused (the subscription then gets every
+    message, as before).
+
+    With rmw_fastrtps the publishers filter for it: a message the filter refuses never
+    reaches this participant (a flood of 5,000 moves a second cost the stop watcher's
+    process a core's tenth in Python, and queued the stop behind it). rclpy 7.1 has no
+    content filter (ros2/rclpy#1504), so this calls rcl's (Humble on) through ctypes on
+    the subscription's rcl handle; set before the subscription is first taken from, as
+    rmw_fastrtps makes its reader again for the filter. It can go when the rclpy in use
+    takes `content_filter_options` in `create_subscription` (ros2/rclpy#1506, in Rolling);
+    until then it depends on rcl's C structures (checked by tests/test_ros_stop_watcher.py:
+    what the filter lets through)."""
+    try:
+        rcl = _rcl()
+        handle = ctypes.c_void_p(sub.handle.pointer)
+        options = rcl.rcl_get_zero_initialized_subscription_content_filter_options()
+        ret = rcl.rcl_subscription_content_filter_options_init(
+            handle, expression.encode(), 0, None, ctypes.byref(options)
+        )
+        if ret == 0:
+            ret = rcl.rcl_subscription_set_content_filter(handle, ctypes.byref(options))
+            rcl.rcl_subscription_content_filter_options_fini(handle, ctypes.byref(options))
+        if ret == 0 and rcl.rcl_subscription_is_cft_enabled(handle):
+            return True
+        why = f"rcl returned {ret}"
+    except (OSError, AttributeError) as e:
+        why = str(e)
+    if not _unfiltered.is_set():
+        _unfiltered.set()
+        log.warning(
+            "%s: DDS refused a content filter (%s); it reads every message on the topic",
+            sub.topic_name,
+            why,
+        )
+    return False
+
+
+_unfiltered = threading.Event()  # said once per process
 
 
 _RANGE = "ROS_AUTOMATIC_DISCOVERY_RANGE"
