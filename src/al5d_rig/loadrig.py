@@ -14,7 +14,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -76,12 +76,16 @@ class Counter:
     def __init__(self, peer: Peer) -> None:
         self.lock = threading.Lock()
         self.seen: dict[str, int] = {}
+        #: The ids with more than one outcome.
+        self.repeated: set[str] = set()
         self.reasons: dict[str, str] = {}
         peer.read(InstructionResult, "/al5d/result", self._on, QOS_ALL)
 
     def _on(self, msg: InstructionResult) -> None:
         with self.lock:
-            self.seen[msg.id] = self.seen.get(msg.id, 0) + 1
+            times = self.seen[msg.id] = self.seen.get(msg.id, 0) + 1
+            if times == 2:
+                self.repeated.add(msg.id)
             self.reasons[msg.id] = f"{msg.outcome}: {msg.reason}"
 
     def heard(self, prefix: str) -> bool:
@@ -93,10 +97,14 @@ class Counter:
         """(ids with an outcome, ids with more than one)."""
         with self.lock:
             got = sum(i in self.seen for i in ids)
-            twice = sum(self.seen.get(i, 0) > 1 for i in ids)
-        return got, twice
+        return got, self.repeated_among(set(ids))
 
-    def missing(self, ids: list[str]) -> list[str]:
+    def repeated_among(self, ids: set[str]) -> int:
+        """How many of `ids` had more than one outcome."""
+        with self.lock:
+            return sum(i in ids for i in self.repeated)
+
+    def missing(self, ids: Iterable[str]) -> list[str]:
         """The ids with no outcome."""
         with self.lock:
             return [i for i in ids if i not in self.seen]

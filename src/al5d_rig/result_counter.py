@@ -10,8 +10,14 @@ in a run of that rig); here it waits its turn like the flooding client.
 
 Asked by lines of JSON on stdin, it answers each with a line of JSON on stdout:
 `{"heard": PREFIX}` -> whether an outcome came for an id that begins with it;
-`{"count": [ids]}` -> [ids with an outcome, ids with more than one];
-`{"missing": [ids]}` -> the ids with none. It prints `{"ready": true}` first.
+`{"ids": [ids]}` -> true: the ids the next questions are about;
+`{"count": null}` -> [of those ids, those with an outcome, those with more than one];
+`{"missing": null}` -> those with none. It prints `{"ready": true}` first.
+The ids go once, and each count looks at those still without an outcome: a flood's
+200,000 ids, sent and counted whole at each half-second poll of the wait for its
+results, took about 0.2 s of CPU a poll (30 ms of it in the asking process, at the
+stop path's priority); the three counters took 260 CPU s in a run of the
+three-server rig.
 `ResultCounter` is the rig's side.
 """
 
@@ -38,6 +44,7 @@ class ResultCounter:
             preexec_fn=default_priority,  # killed with this process too
         )
         self._lock = threading.Lock()
+        self._ids: list[str] = []
         assert self._read().get("ready")
 
     def _read(self) -> Any:
@@ -57,12 +64,19 @@ class ResultCounter:
     def heard(self, prefix: str) -> bool:
         return bool(self._ask({"heard": prefix}))
 
+    def _about(self, ids: list[str]) -> None:
+        if ids != self._ids:
+            self._ask({"ids": ids})
+            self._ids = list(ids)
+
     def count(self, ids: list[str]) -> tuple[int, int]:
-        got, twice = self._ask({"count": ids})
+        self._about(ids)
+        got, twice = self._ask({"count": None})
         return int(got), int(twice)
 
     def missing(self, ids: list[str]) -> list[str]:
-        return list(self._ask({"missing": ids}))
+        self._about(ids)
+        return list(self._ask({"missing": None}))
 
     def close(self) -> None:
         if self.popen.poll() is None:
@@ -77,14 +91,22 @@ def main() -> int:
     # The rig's own counter, read by a thread of its own as the server reads its inputs.
     counter = Counter(Peer(results=False, name="al5d_result_counter"))
     print(json.dumps({"ready": True}), flush=True)
+    ids: list[str] = []
+    among: set[str] = set()
+    waiting: set[str] = set()  # of `ids`, those without an outcome when last looked
     for line in sys.stdin:
         question = json.loads(line)
         if "heard" in question:
             answer: Any = counter.heard(question["heard"])
-        elif "count" in question:
-            answer = counter.count(question["count"])
+        elif "ids" in question:
+            ids, answer = question["ids"], True
+            among, waiting = set(ids), set(ids)
         else:
-            answer = counter.missing(question["missing"])
+            waiting = set(counter.missing(waiting))
+            if "count" in question:
+                answer = [len(among) - len(waiting), counter.repeated_among(among)]
+            else:
+                answer = [i for i in ids if i in waiting]
         print(json.dumps(answer), flush=True)
     return 0
 
