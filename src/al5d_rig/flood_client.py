@@ -1,6 +1,6 @@
 """A client that floods `/al5d/instruction` at a steady rate: run as its own process.
 
-    python -m al5d_rig.flood_client RATE SECONDS PREFIX [--mix] [--keep-last]
+    python -m al5d_rig.flood_client RATE SECONDS PREFIX [--mix] [--keep-last] [--ack-s S]
 
 Publishes RATE moves a second for SECONDS, with ids PREFIX-0, PREFIX-1, ...,
 once a line comes on stdin (meanwhile it sends instructions PREFIX-probe-K, which
@@ -9,8 +9,8 @@ the server refuses, so that the rig can wait for one's outcome); with --mix, eve
 client's traffic). The writer keeps all it has not delivered (KEEP_ALL, as `al5d
 send` does), or with --keep-last the last 10,000 only (as clients before issue 9
 did). Prints one line of JSON when ready, and one when done: how many it sent, in
-how long, how many publishes were refused and sent again (the readers' back-pressure), and
-how many were given up.
+how long, how many publishes were refused and sent again (the readers' back-pressure), how
+many were given up, and whether every reader acknowledged all of it before it ended.
 """
 
 from __future__ import annotations
@@ -31,6 +31,12 @@ from al5d.ros.names import INSTRUCTION_TOPIC
 
 #: How long a refused publish is tried again before it counts as a loss.
 RETRY_S = 10.0
+#: How long the writer waits for its readers to acknowledge what it sent before the process
+#: ends (and its history with it), unless --ack-s says: the rig gives it its whole wait for
+#: the flood's outcomes. A flooded server on a busy host takes 100-200 moves a second, so
+#: the last thousands of a flood can take a minute; with 30 s, 660 of them once went with
+#: the process, the server taking them steadily until it ended.
+ACK_S = 30.0
 
 
 def main() -> int:
@@ -97,8 +103,9 @@ def main() -> int:
                 retried += 1
     elapsed = time.monotonic() - t0
     # Let the last samples leave before the writer goes away with the process.
-    pub.wait_for_all_acked(Duration(seconds=30))
-    done = {"sent": n, "seconds": elapsed, "failed": failed, "retried": retried}
+    ack_s = float(sys.argv[sys.argv.index("--ack-s") + 1]) if "--ack-s" in sys.argv else ACK_S
+    acked = pub.wait_for_all_acked(Duration(seconds=ack_s))
+    done = {"sent": n, "seconds": elapsed, "failed": failed, "retried": retried, "acked": acked}
     print(json.dumps(done), flush=True)
     spinner.close()
     return 0

@@ -15,7 +15,9 @@ backlog in DDS, and then behind the sender's own retries when that is full:
 0.2 to 3 s at 10,000 messages a second). So a node of its own reads the topic
 itself, best effort and without waiting for anyone (the stop watcher), looks
 at the first field of each message in its serialized form (no message is built
-for anything but a stop), and stops the arm as soon as it sees a stop. The
+for anything but a stop), and stops the arm as soon as it sees a stop. DDS hands
+it only messages that could be a stop (`STOP_FILTER`, a content filter that Fast
+DDS applies before Python sees anything): a flood's moves never queue in it. The
 node `al5d` reads the same stop later, in order; both submit it with the
 message's identity, and the driver obeys and answers it once (rule 3). What no
 reader here can see is a stop still queued in its sender (a client that floods

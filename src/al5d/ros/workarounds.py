@@ -244,9 +244,10 @@ def filter_content(sub: Subscription, expression: str) -> bool:
     selects; False, said once, where it is refused (the subscription then gets every
     message, as before).
 
-    With rmw_fastrtps the publishers filter for it: a message the filter refuses never
-    reaches this participant (a flood of 5,000 moves a second cost the stop watcher's
-    process a core's tenth in Python, and queued the stop behind it). rclpy 7.1 has no
+    Fast DDS applies it before anything reaches Python (its publishers filter for the
+    readers they know, or the reader's participant does on receipt): a message it refuses
+    never queues in the reader (the stop watcher's: a flood's moves queued ahead of a stop
+    there, and took its process's interpreter). rclpy 7.1 has no
     content filter (ros2/rclpy#1504), so this calls rcl's (Humble on) through ctypes on
     the subscription's rcl handle; set before the subscription is first taken from, as
     rmw_fastrtps makes its reader again for the filter. It can go when the rclpy in use
