@@ -33,7 +33,7 @@ from al5d.ros.names import INSTRUCTION_TOPIC
 RETRY_S = 10.0
 #: How long the writer waits for its readers to acknowledge what it sent before the process
 #: ends (and its history with it), unless --ack-s says: the rig gives it its whole wait for
-#: the flood's outcomes. A flooded server on a busy host takes 100-200 moves a second, so
+#: the flood's outcomes. A flooded server on a busy host takes 100-250 moves a second, so
 #: the last thousands of a flood can take a minute; with 30 s, 660 of them once went with
 #: the process, the server taking them steadily until it ended.
 ACK_S = 30.0

@@ -247,9 +247,9 @@ def filter_content(sub: Subscription, expression: str) -> bool:
     Fast DDS applies it before anything reaches Python (its publishers filter for the
     readers they know, or the reader's participant does on receipt): a message it refuses
     never queues in the reader (the stop watcher's: a flood's moves queued ahead of a stop
-    there, and took its process's interpreter). rclpy 7.1 has no
-    content filter (ros2/rclpy#1504), so this calls rcl's (Humble on) through ctypes on
-    the subscription's rcl handle; set before the subscription is first taken from, as
+    there, and took its process's interpreter). rclpy 7.1 has no content filter
+    (ros2/rclpy#1504), so this calls rcl's (Humble on) through ctypes on the
+    subscription's rcl handle; set before the subscription is first taken from, as
     rmw_fastrtps makes its reader again for the filter. It can go when the rclpy in use
     takes `content_filter_options` in `create_subscription` (ros2/rclpy#1506, in Rolling);
     until then it depends on rcl's C structures (checked by tests/test_ros_stop_watcher.py:
