@@ -74,7 +74,7 @@ def test_a_stop_behind_a_full_batch_is_obeyed_and_moves_never_reach_the_watcher(
         pub.publish(ArmInstruction(instruction="stop", id="fourth"))
         pub.publish(ArmInstruction(instruction="stop!", id="after"))
         wait_until(lambda: rig.driver.state is State.STOPPED, 10, "the stop obeyed")
-        wait_until(lambda: len(seen) == 5, 10, "the watcher's five")
+        wait_until(lambda: len(seen) >= 5, 10, "the watcher's five")
         assert seen == ["nonstop", "stopped", "unstoppable", "stop", "stop!"]
     finally:
         if watcher is not None:
