@@ -11,7 +11,8 @@ server's answers and on the emulated board's record:
 - nothing refused writes a byte: the server's trace names the instruction of every
   move it wrote, and none of them was refused (a refused trajectory or goal leaves
   the board's record unchanged);
-- no pulse outside the configured ranges ever reaches the wire;
+- no pulse outside the configured ranges ever reaches the wire (a line a stop's ESC cut,
+  which the board drops, may end in the first digits of one inside them);
 - the server lives on, and its memory stays bounded.
 """
 
