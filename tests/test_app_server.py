@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -104,3 +105,29 @@ def test_a_server_on_a_real_port_and_the_clients_never_load_the_emulator() -> No
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_our_processes_start_numpy_with_one_blas_thread_unless_the_user_said() -> None:
+    """`al5d` commands and the processes they start (the stop process, `al5d web`) import
+    the app package before numpy, which then starts no OpenBLAS pool of a thread a core."""
+    show = (
+        "import os, sys, al5d.app; import al5d.app.cli; "
+        "print(os.environ['OPENBLAS_NUM_THREADS'], 'numpy' in sys.modules)"
+    )
+    for given, expected in ((None, "1"), ("3", "3")):
+        env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+        if given is not None:
+            env["OPENBLAS_NUM_THREADS"] = given
+        out = subprocess.run(
+            [sys.executable, "-c", show], env=env, capture_output=True, text=True, timeout=60
+        )
+        assert out.stdout.split() == [expected, "True"], out.stderr
+    # The entry point (`al5d.app.cli:main`) imports the package al5d first: numpy must not
+    # come with it, or the setting above would come too late.
+    first = subprocess.run(
+        [sys.executable, "-c", "import sys, al5d; print('numpy' in sys.modules)"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert first.stdout.strip() == "False", first.stderr

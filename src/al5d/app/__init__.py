@@ -15,3 +15,11 @@
 
 The top layer: it may import every other part of al5d.
 """
+
+import os
+
+# Our processes multiply 4x4 matrices at most: OpenBLAS's thread pool (a thread a core,
+# started when numpy is imported) is no use to them, and starting it cost 0.16 CPU s of
+# each `al5d` command's 0.83 (median of 12 `al5d --help`, 2 cores). Before numpy's import
+# (al5d.arm.config below this package imports it); a value the user set is kept.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
