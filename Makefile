@@ -138,7 +138,10 @@ demo: runtime
 # On a machine already busy (a load average of 2 or more when it starts) two workers: four
 # beside two busy loops starved the boards emulated in the test processes (no answer for
 # 450 ms: a lost link) and a page's browser.
-WORKERS   ?= $(shell python3 -c 'import os; print(4 if os.getloadavg()[0] < 2 else 2)')
+# Read when make starts, before the install (whose message builds raise the load themselves).
+ifndef WORKERS
+WORKERS   := $(shell python3 -c 'import os; print(4 if os.getloadavg()[0] < 2 else 2)')
+endif
 DURATIONS ?= 12
 PART_S    ?= 1800
 # The files of the solo part, so that it collects those alone.
