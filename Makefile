@@ -135,13 +135,14 @@ demo: runtime
 # `make test WORKERS=2 DURATIONS=0` for another count and every test's time.
 # Each part is interrupted (pytest then reports what ran and what failed) long after it
 # should have ended: a CI run once waited out its 90 minutes on a stuck suite.
-# On a machine already busy (a load average of 2 or more when it starts) two workers: four
-# beside two busy loops starved the boards emulated in the test processes (no answer for
-# 450 ms: a lost link) and a page's browser.
-# Read when make starts, before the install (whose message builds raise the load themselves).
+# On a machine already busy two workers (.ci/workers says which): four beside two busy
+# loops starved the boards emulated in the test processes (no answer for 450 ms: a lost
+# link) and a page's browser. Read when make starts, before the install (whose message
+# builds make the machine look busy).
 ifndef WORKERS
-WORKERS   := $(shell python3 -c 'import os; print(4 if os.getloadavg()[0] < 2 else 2)')
+WORKERS   := $(shell python3 .ci/workers)
 endif
+export WORKERS  # the install's own makes then need not ask again
 DURATIONS ?= 12
 PART_S    ?= 1800
 # The files of the solo part, so that it collects those alone.

@@ -323,3 +323,26 @@ def test_the_makefiles_message_builds_are_c_and_python_only() -> None:
         )
         cpp = [line for line in installed if re.search(r"_cpp|\.hpp$", line)]
         assert not cpp, f"{manifest}: C++ installed: {cpp[:3]}"
+
+
+def test_make_test_takes_two_workers_on_a_machine_busy_just_now() -> None:
+    """`.ci/workers` counts a machine busy from what its CPU does now, not from the load
+    average alone, which lags by a minute (busy loops started just before `make test`
+    once got it four workers)."""
+    loops = [
+        subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        for _ in range(os.cpu_count() or 2)
+    ]
+    try:
+        said = subprocess.run(
+            [sys.executable, str(REPO / ".ci" / "workers")],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=True,
+        )
+    finally:
+        for loop in loops:
+            loop.kill()
+            loop.wait()
+    assert said.stdout.strip() == "2", said
