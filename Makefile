@@ -28,12 +28,22 @@ RUNTIME := $(VENV)/.installed-runtime
 # and Python only (interfaces/wheel_includes.cmake): 41 s here, 61 s with C++ as well. A
 # fresh clone's `make demo`: 96 s (pip 40, messages 42, the demo 14), 129 s with C++.
 MSGS := $(IFACES) $(STDMSGS) build/COLCON_IGNORE
+# What al5d's processes import (and, for `make install`, the tests), compiled once:
+# pip installs without compiling (.ci/compile_imported says why).
+BYTECODE_RUNTIME := $(VENV)/.bytecode-runtime
+BYTECODE := $(VENV)/.bytecode
 runtime: $(RUNTIME)
-	@$(MAKE) --no-print-directory --output-sync=target -j3 $(MSGS)
+	@$(MAKE) --no-print-directory --output-sync=target -j3 $(BYTECODE_RUNTIME)
 # The test tools' pip install (one core, much of it unpacking) and Chromium's apt install
 # run beside the message builds: they need only the runtime's packages.
 install: $(RUNTIME)
-	@$(MAKE) --no-print-directory --output-sync=target -j5 $(MSGS) $(STAMP) chromium
+	@$(MAKE) --no-print-directory --output-sync=target -j5 $(BYTECODE) chromium
+$(BYTECODE_RUNTIME): $(MSGS) .ci/compile_imported
+	$(BIN)/python .ci/compile_imported
+	touch $@
+$(BYTECODE): $(MSGS) $(STAMP) .ci/compile_imported
+	$(BIN)/python .ci/compile_imported --tests
+	touch $@
 
 # Every version is pinned: pyproject.toml pins what we use, constraints.txt
 # pins everything those bring along.

@@ -13,82 +13,30 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import pytest
-from rclpy.qos import QoSProfile
-from sensor_msgs.msg import JointState
 
 from al5d.arm.config import ArmConfig
 from al5d.ros.node import COMMAND_REFUSALS_EVERY_S
-from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import group_moves, group_pulses, pulses
-from al5d_rig.proc import Proc, patient_config
-from al5d_rig.rospeer import Peer, wait_until
+from al5d_rig.proc import patient_config
+from al5d_rig.rospeer import wait_until
+from al5d_rig.served import Commanded, commanded
 
 NAMESPACE = "cell"
 #: The joints of the AL5D's ros2_control tag, in its order (docs/moveit.md's xacro).
 COMMANDED = ("base", "shoulder", "elbow", "wrist", "wrist_rotate", "gripper")
 
 
-@dataclass
-class Served:
-    emu: Emulator
-    proc: Proc
-    peer: Peer
-    config: ArmConfig
-    commands: object  # the peer's publisher of joint commands
-
-    def command(
-        self, degrees: Mapping[str, float], ident: str = "", **raw: list[Any]
-    ) -> JointState:
-        """Publish a command for `degrees` (the arm's), as the hardware would: URDF values."""
-        values = self.config.model.to_urdf(dict(degrees))
-        msg = JointState()
-        msg.header.stamp = self.peer.node.get_clock().now().to_msg()
-        msg.header.frame_id = ident
-        msg.name = list(values)
-        msg.position = [float(v) for v in values.values()]
-        for field, value in raw.items():
-            setattr(msg, field, value)
-        self.commands.publish(msg)  # type: ignore[attr-defined]
-        return msg
-
-
 @pytest.fixture(scope="module")
-def served(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
-    link = tmp_path_factory.mktemp("commands") / "ssc32u"
-    emu = Emulator(config, link=link).start()
-    proc = Proc(
-        "serve",
-        "--port",
-        str(link),
-        "--config",
-        patient_config(),
-        "--log-level",
-        "INFO",
-        "--ros-args",
-        "-r",
-        f"__ns:=/{NAMESPACE}",
-    )
-    peer = Peer(name="al5d_hardware_peer", namespace=NAMESPACE)
-    # JointStateTopicSystem's publisher: rclcpp::QoS(1), reliable, volatile.
-    commands = peer.node.create_publisher(
-        JointState, peer.names.joint_commands, QoSProfile(depth=1)
-    )
-    try:
-        proc.err.wait_for("STATE: ready", 30)
-        peer.wait_for_server()
-        wait_until(lambda: commands.get_subscription_count() > 0, 20, "the server's reader")
-        yield Served(emu, proc, peer, config, commands)
-    finally:
-        peer.close()
-        proc.kill()
-        emu.close()
+def served(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Commanded]:
+    workdir = tmp_path_factory.mktemp("commands")
+    with commanded(config, workdir, "al5d_hardware_peer", NAMESPACE, patient_config()) as s:
+        yield s
 
 
-def settled(s: Served, degrees: Mapping[str, float], timeout: float = 20.0) -> None:
+def settled(s: Commanded, degrees: Mapping[str, float], timeout: float = 20.0) -> None:
     """Until the emulated servos stand at `degrees` and the joint states say so."""
     urdf = s.config.model.to_urdf(dict(degrees))
 
@@ -108,7 +56,7 @@ def settled(s: Served, degrees: Mapping[str, float], timeout: float = 20.0) -> N
         raise AssertionError(f"{e}: {said(s)}") from e
 
 
-def said(s: Served) -> str:
+def said(s: Commanded) -> str:
     """Where the servos are, what the server said last and where its threads are, for a
     failure's reader (seen once beside two busy loops: neither a command nor a move on the
     instruction topic moved the arm for 40 s, and the server said nothing)."""
@@ -118,7 +66,7 @@ def said(s: Served) -> str:
     )
 
 
-def test_a_joint_command_moves_the_arm_and_the_joint_states_say_where(served: Served) -> None:
+def test_a_joint_command_moves_the_arm_and_the_joint_states_say_where(served: Commanded) -> None:
     target = {"base": 20.0, "shoulder": 35.0, "elbow": 80.0, "wrist": -15.0}
     target |= {"wrist_rotate": 30.0, "gripper": 40.0}
     since = len(served.emu.records)
@@ -137,7 +85,7 @@ def test_a_joint_command_moves_the_arm_and_the_joint_states_say_where(served: Se
         assert math.isclose(value, urdf[name], abs_tol=1e-6), name
 
 
-def test_nan_is_no_command_for_that_joint(served: Served) -> None:
+def test_nan_is_no_command_for_that_joint(served: Commanded) -> None:
     """ros2_control's command interfaces are NaN until a controller sets them (the gripper's,
     while only the arm's controller runs): the other joints move, that one stays."""
     target = dict(served.emu.servo_degrees()) | {"base": -25.0, "wrist": 10.0}
@@ -153,7 +101,7 @@ def test_nan_is_no_command_for_that_joint(served: Served) -> None:
     assert served.config.joints["base"].channel in channels
 
 
-def test_a_bad_joint_command_is_refused_whole_and_writes_nothing(served: Served) -> None:
+def test_a_bad_joint_command_is_refused_whole_and_writes_nothing(served: Commanded) -> None:
     here = dict(served.emu.servo_degrees())
     good = {"base": -30.0, "elbow": 60.0}
     since = len(served.emu.records)
@@ -175,7 +123,7 @@ def test_a_bad_joint_command_is_refused_whole_and_writes_nothing(served: Served)
     assert group_moves(served.emu.records[since:]) == []
 
 
-def test_a_command_the_arm_is_at_or_going_to_writes_nothing_more(served: Served) -> None:
+def test_a_command_the_arm_is_at_or_going_to_writes_nothing_more(served: Commanded) -> None:
     target = dict(served.emu.servo_degrees()) | {"base": 45.0, "wrist": 20.0}
     since = len(served.emu.records)
     # A controller at 100 Hz holding one set-point (its hardware publishes while the state
@@ -193,7 +141,7 @@ def test_a_command_the_arm_is_at_or_going_to_writes_nothing_more(served: Served)
     assert group_pulses(moves[0]) == pulses(served.config, target)
 
 
-def test_the_latest_command_wins(served: Served) -> None:
+def test_the_latest_command_wins(served: Commanded) -> None:
     start = dict(served.emu.servo_degrees())
     since = len(served.emu.records)
     # A long move holds the arm; 60 set-points of a sweep meanwhile replace each other.
@@ -213,7 +161,7 @@ def test_the_latest_command_wins(served: Served) -> None:
     assert group_pulses(moves[-1]) == pulses(served.config, last)
 
 
-def test_a_refusal_sent_again_and_again_is_published_once_a_second(served: Served) -> None:
+def test_a_refusal_sent_again_and_again_is_published_once_a_second(served: Commanded) -> None:
     """A controller sends its refused command again at its rate: the result topic hears the
     reason again only after a second, not at the controller's rate."""
     here = dict(served.emu.servo_degrees())

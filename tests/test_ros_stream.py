@@ -16,48 +16,25 @@ import tempfile
 import threading
 import time
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 import yaml
-from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
 
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.emulator import Emulator, Record
+from al5d.ssc32u.emulator import Record
 from al5d_rig.armrig import group_moves, group_pulses, pulses
-from al5d_rig.proc import Proc, patient_config
-from al5d_rig.rospeer import Peer, wait_until
+from al5d_rig.proc import patient_config
+from al5d_rig.rospeer import wait_until
+from al5d_rig.served import Commanded, commanded
 
 NAMESPACE = "stream"
 #: The server's watchdog here (its ROS parameter).
 TIMEOUT_S = 0.3
 #: The elbow's top speed in the server's configuration: 135 degrees take 4.5 s.
 SLOW_ELBOW_DEG_S = 30.0
-
-
-@dataclass
-class Streamed:
-    emu: Emulator
-    proc: Proc
-    peer: Peer
-    config: ArmConfig
-    commands: object  # the peer's publisher of joint commands
-
-    def command(self, degrees: Mapping[str, float], ident: str = "") -> None:
-        """Publish a set-point for `degrees` (the arm's) in the URDF's values."""
-        values = self.config.model.to_urdf(dict(degrees))
-        msg = JointState()
-        msg.header.stamp = self.peer.node.get_clock().now().to_msg()
-        msg.header.frame_id = ident
-        msg.name = list(values)
-        msg.position = [float(v) for v in values.values()]
-        self.commands.publish(msg)  # type: ignore[attr-defined]
-
-    def records(self, since: int = 0) -> list[Record]:
-        return self.emu.records[since:]
 
 
 def _stops(records: list[Record]) -> list[Record]:
@@ -74,39 +51,14 @@ def _slow_elbow_config() -> str:
 
 
 @pytest.fixture(scope="module")
-def streamed(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Streamed]:
-    link = tmp_path_factory.mktemp("stream") / "ssc32u"
-    emu = Emulator(config, link=link).start()
-    proc = Proc(
-        "serve",
-        "--port",
-        str(link),
-        "--config",
-        _slow_elbow_config(),
-        "--log-level",
-        "INFO",
-        "--ros-args",
-        "-r",
-        f"__ns:=/{NAMESPACE}",
-        "-p",
-        f"server.stream_timeout_s:={TIMEOUT_S}",
-    )
-    peer = Peer(name="al5d_stream_peer", namespace=NAMESPACE)
-    commands = peer.node.create_publisher(
-        JointState, peer.names.joint_commands, QoSProfile(depth=1)
-    )
-    try:
-        proc.err.wait_for("STATE: ready", 30)
-        peer.wait_for_server()
-        wait_until(lambda: commands.get_subscription_count() > 0, 20, "the server's reader")
-        yield Streamed(emu, proc, peer, config, commands)
-    finally:
-        peer.close()
-        proc.kill()
-        emu.close()
+def streamed(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Commanded]:
+    workdir = tmp_path_factory.mktemp("stream")
+    ros = ("-p", f"server.stream_timeout_s:={TIMEOUT_S}")
+    with commanded(config, workdir, "al5d_stream_peer", NAMESPACE, _slow_elbow_config(), *ros) as s:
+        yield s
 
 
-def settled(s: Streamed, degrees: Mapping[str, float], timeout: float = 20.0) -> None:
+def settled(s: Commanded, degrees: Mapping[str, float], timeout: float = 20.0) -> None:
     wait_until(
         lambda: all(abs(s.emu.servo_degrees()[j] - d) < 0.2 for j, d in degrees.items()),
         timeout,
@@ -115,7 +67,7 @@ def settled(s: Streamed, degrees: Mapping[str, float], timeout: float = 20.0) ->
 
 
 def test_a_burst_of_1000_set_points_writes_a_handful_of_lines_the_last_the_newest(
-    streamed: Streamed,
+    streamed: Commanded,
 ) -> None:
     here = dict(streamed.emu.servo_degrees())
     since = len(streamed.emu.records)
@@ -132,7 +84,7 @@ def test_a_burst_of_1000_set_points_writes_a_handful_of_lines_the_last_the_newes
     assert not _stops(streamed.records(since))  # superseded mid-move, never halted
 
 
-def test_the_watchdog_holds_the_arm_when_the_stream_stops_mid_move(streamed: Streamed) -> None:
+def test_the_watchdog_holds_the_arm_when_the_stream_stops_mid_move(streamed: Commanded) -> None:
     here = dict(streamed.emu.servo_degrees())
     far = here | {"elbow": 130.0 if here["elbow"] < 65 else 5.0}
     since = len(streamed.emu.records)
@@ -151,7 +103,7 @@ def test_the_watchdog_holds_the_arm_when_the_stream_stops_mid_move(streamed: Str
     assert not any("STATE: stopped" in line for line in streamed.proc.err.all)
 
 
-def test_a_stop_during_a_stream_wins_and_the_stream_stays_held(streamed: Streamed) -> None:
+def test_a_stop_during_a_stream_wins_and_the_stream_stays_held(streamed: Commanded) -> None:
     here = dict(streamed.emu.servo_degrees())
     since = len(streamed.emu.records)
     streaming = threading.Event()

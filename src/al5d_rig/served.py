@@ -1,20 +1,27 @@
 """`al5d serve` in its own process on an emulated board in this one, with a ROS peer that
-follows the arm's state: the rig of the tests that talk to a server over real DDS."""
+follows the arm's state: the rig of the tests that talk to a server over real DDS.
+
+`served` gives the peer the arm's states; `commanded` gives it a writer on the server's
+`joint_commands`, as ros2_control's topic-based hardware has."""
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+from rclpy.publisher import Publisher
+from rclpy.qos import QoSProfile
+from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from al5d.arm.config import ArmConfig
 from al5d.ros.qos import QOS_LATCHED
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.emulator import Emulator
+from al5d.ssc32u.emulator import Emulator, Record
 from al5d.ssc32u.stopline import BACKSTOP_SAID
 from al5d_rig.proc import Proc, patient_config
 from al5d_rig.rospeer import Peer, wait_until
@@ -100,6 +107,67 @@ def served(config: ArmConfig, workdir: Path, name: str) -> Iterator[Served]:
         peer.wait_for_server()
         wait_until(lambda: states, 10, "the state")
         yield Served(proc, emu, config, peer, states)
+    finally:
+        peer.close()
+        proc.kill()
+        emu.close()
+
+
+@dataclass
+class Commanded:
+    """A server in a namespace, and a peer that publishes on its `joint_commands` as
+    ros-controls' topic-based hardware (`JointStateTopicSystem`) or a teleoperation node
+    does."""
+
+    emu: Emulator
+    proc: Proc
+    peer: Peer
+    config: ArmConfig
+    commands: Publisher
+
+    def command(
+        self, degrees: Mapping[str, float], ident: str = "", **raw: list[Any]
+    ) -> JointState:
+        """Publish a command for `degrees` (the arm's) as the hardware would: the URDF's
+        joint names and values, stamped; `raw` sets fields of the message as given."""
+        values = self.config.model.to_urdf(dict(degrees))
+        msg = JointState()
+        msg.header.stamp = self.peer.node.get_clock().now().to_msg()
+        msg.header.frame_id = ident
+        msg.name = list(values)
+        msg.position = [float(v) for v in values.values()]
+        for name, value in raw.items():
+            setattr(msg, name, value)
+        self.commands.publish(msg)
+        return msg
+
+    def records(self, since: int = 0) -> list[Record]:
+        return self.emu.records[since:]
+
+
+@contextmanager
+def commanded(
+    config: ArmConfig, workdir: Path, name: str, namespace: str, config_file: str, *ros: str
+) -> Iterator[Commanded]:
+    """`al5d serve` with `config_file` in `namespace` (and the ROS arguments `ros`) on a
+    board behind a link in `workdir`, ready, and a peer named `name` whose commands' writer
+    has matched the server's reader."""
+    link = workdir / "ssc32u"
+    emu = Emulator(config, link=link).start()
+    proc = Proc(
+        "serve", "--port", str(link), "--config", config_file, "--log-level", "INFO",
+        "--ros-args", "-r", f"__ns:=/{namespace}", *ros,
+    )  # fmt: skip
+    peer = Peer(name=name, namespace=namespace)
+    # JointStateTopicSystem's publisher: rclcpp::QoS(1), reliable, volatile.
+    commands = peer.node.create_publisher(
+        JointState, peer.names.joint_commands, QoSProfile(depth=1)
+    )
+    try:
+        proc.err.wait_for("STATE: ready", 30)
+        peer.wait_for_server()
+        wait_until(lambda: commands.get_subscription_count() > 0, 20, "the server's reader")
+        yield Commanded(emu, proc, peer, config, commands)
     finally:
         peer.close()
         proc.kill()
