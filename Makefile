@@ -3,8 +3,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 # --no-compile: pip compiled every installed file (6,527 here, 46 s of a fresh clone's 107 s
-# of pip); Python compiles what is imported when it is first imported (941 files for the
-# suite), into __pycache__ like our own sources (below).
+# of pip); .ci/compile_imported then compiles those that al5d and the tests import.
 PIP    := $(BIN)/python -m pip --disable-pip-version-check
 PIPI   := $(PIP) install --no-compile --quiet -c constraints.txt
 # Python caches what it compiles (our sources, the tests' rewritten asserts) in __pycache__,
