@@ -40,11 +40,7 @@ install: $(RUNTIME)
 $(BYTECODE_RUNTIME): $(MSGS) .ci/compile_imported
 	$(BIN)/python .ci/compile_imported
 	touch $@
-# Others' packages beside the message builds (most of the 20 s), then ours.
-$(BYTECODE)-theirs: $(STAMP) .ci/compile_imported
-	$(BIN)/python .ci/compile_imported --tests --theirs
-	touch $@
-$(BYTECODE): $(MSGS) $(BYTECODE)-theirs
+$(BYTECODE): $(MSGS) $(STAMP) .ci/compile_imported
 	$(BIN)/python .ci/compile_imported --tests
 	touch $@
 
