@@ -3,7 +3,8 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 # --no-compile: pip compiled every installed file (6,527 here, 46 s of a fresh clone's 107 s
-# of pip); .ci/compile_imported then compiles those that al5d and the tests import.
+# of pip); .ci/compile_imported then compiles those that al5d and the tests import (about
+# 1,000).
 PIP    := $(BIN)/python -m pip --disable-pip-version-check
 PIPI   := $(PIP) install --no-compile --quiet -c constraints.txt
 # Python caches what it compiles (our sources, the tests' rewritten asserts) in __pycache__,
@@ -25,7 +26,8 @@ STDMSGS := $(VENV)/.control_msgs $(VENV)/.tf2_msgs
 RUNTIME := $(VENV)/.installed-runtime
 # The three message builds side by side (their cmake configure steps use one core each), C
 # and Python only (interfaces/wheel_includes.cmake): 41 s here, 61 s with C++ as well. A
-# fresh clone's `make demo`: 96 s (pip 40, messages 42, the demo 14), 129 s with C++.
+# fresh clone's `make demo`: 96 s (pip 40, messages 42, the demo 14), 129 s with C++; with
+# pip's --no-compile and .ci/compile_imported 103 s (one run on a noisier day; 99 s before).
 MSGS := $(IFACES) $(STDMSGS) build/COLCON_IGNORE
 # What al5d's processes import (and, for `make install`, the tests), compiled once:
 # pip installs without compiling (.ci/compile_imported says why).
