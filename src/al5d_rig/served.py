@@ -89,28 +89,40 @@ class Served:
 
 
 @contextmanager
-def served(config: ArmConfig, workdir: Path, name: str) -> Iterator[Served]:
-    """A server on a board behind a link in `workdir`, ready, and a peer named `name` that
-    has matched it."""
+def _serving(
+    config: ArmConfig, workdir: Path, name: str, config_file: str, *args: str, namespace: str = ""
+) -> Iterator[tuple[Emulator, Proc, Peer]]:
+    """A board behind a link in `workdir`, `al5d serve` on it (not yet ready) with
+    `config_file` and `args`, and a peer named `name` in `namespace`; all closed after."""
     link = workdir / "ssc32u"
     emu = Emulator(config, link=link).start()
-    proc = Proc("serve", "--port", str(link), "--config", patient_config(), "--log-level", "INFO")
-    peer = Peer(name=name)
-    states: list[str] = []
-
-    def on_state(msg: String) -> None:
-        states.append(msg.data)
-
-    peer.node.create_subscription(String, "/al5d/state", on_state, QOS_LATCHED)
+    proc = Proc(
+        "serve", "--port", str(link), "--config", config_file, "--log-level", "INFO", *args
+    )  # fmt: skip
+    peer = Peer(name=name, namespace=namespace)
     try:
-        proc.err.wait_for("STATE: ready", 30)
-        peer.wait_for_server()
-        wait_until(lambda: states, 10, "the state")
-        yield Served(proc, emu, config, peer, states)
+        yield emu, proc, peer
     finally:
         peer.close()
         proc.kill()
         emu.close()
+
+
+@contextmanager
+def served(config: ArmConfig, workdir: Path, name: str) -> Iterator[Served]:
+    """A server on a board behind a link in `workdir`, ready, and a peer named `name` that
+    has matched it."""
+    with _serving(config, workdir, name, patient_config()) as (emu, proc, peer):
+        states: list[str] = []
+
+        def on_state(msg: String) -> None:
+            states.append(msg.data)
+
+        peer.node.create_subscription(String, "/al5d/state", on_state, QOS_LATCHED)
+        proc.err.wait_for("STATE: ready", 30)
+        peer.wait_for_server()
+        wait_until(lambda: states, 10, "the state")
+        yield Served(proc, emu, config, peer, states)
 
 
 @dataclass
@@ -152,23 +164,17 @@ def commanded(
     """`al5d serve` with `config_file` in `namespace` (and the ROS arguments `ros`) on a
     board behind a link in `workdir`, ready, and a peer named `name` whose commands' writer
     has matched the server's reader."""
-    link = workdir / "ssc32u"
-    emu = Emulator(config, link=link).start()
-    proc = Proc(
-        "serve", "--port", str(link), "--config", config_file, "--log-level", "INFO",
-        "--ros-args", "-r", f"__ns:=/{namespace}", *ros,
-    )  # fmt: skip
-    peer = Peer(name=name, namespace=namespace)
-    # JointStateTopicSystem's publisher: rclcpp::QoS(1), reliable, volatile.
-    commands = peer.node.create_publisher(
-        JointState, peer.names.joint_commands, QoSProfile(depth=1)
-    )
-    try:
+    ros_args = ("--ros-args", "-r", f"__ns:=/{namespace}", *ros)
+    with _serving(config, workdir, name, config_file, *ros_args, namespace=namespace) as (
+        emu,
+        proc,
+        peer,
+    ):
+        # JointStateTopicSystem's publisher: rclcpp::QoS(1), reliable, volatile.
+        commands = peer.node.create_publisher(
+            JointState, peer.names.joint_commands, QoSProfile(depth=1)
+        )
         proc.err.wait_for("STATE: ready", 30)
         peer.wait_for_server()
         wait_until(lambda: commands.get_subscription_count() > 0, 20, "the server's reader")
         yield Commanded(emu, proc, peer, config, commands)
-    finally:
-        peer.close()
-        proc.kill()
-        emu.close()
