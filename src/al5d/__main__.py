@@ -2,6 +2,6 @@
 
 import sys
 
-from al5d.app.cli import main
+from al5d.app.entry import main
 
 sys.exit(main())

@@ -21,6 +21,8 @@ NOT_PARKED: Final = 3
 BAD_INPUT: Final = 4
 #: No al5d server was found within `--wait` seconds: nothing was sent.
 NO_SERVER: Final = 5
+#: Ctrl-C: what the command sent was cancelled (as a shell's 128 + SIGINT).
+INTERRUPTED: Final = 130
 
 TABLE: Final = (
     (DONE, "done (doctor: every check passed)"),
@@ -29,6 +31,7 @@ TABLE: Final = (
     (NOT_PARKED, "serve: the arm could not be parked at the end"),
     (BAD_INPUT, "bad input: an instruction or sequence file not in the grammar; nothing sent"),
     (NO_SERVER, "no server found within --wait seconds; nothing sent"),
+    (INTERRUPTED, "Ctrl-C: what the command sent is cancelled (send, run)"),
 )
 
 

@@ -10,9 +10,9 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
 import pytest
+from al5d.arm.driver import ArmDriver
 
 from al5d.arm.config import ArmConfig
-from al5d.arm.driver import ArmDriver
 from al5d.arm.states import State
 from al5d.model import forward
 from al5d.model.transforms import Vec3

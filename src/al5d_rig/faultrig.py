@@ -16,9 +16,10 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from al5d.arm.driver import ArmDriver
+
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Outcome, Result
 from al5d.arm.states import State
 from al5d.ssc32u.driver import SSC32U

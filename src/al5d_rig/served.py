@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from al5d.ssc32u.stopline import BACKSTOP_SAID
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
@@ -22,7 +23,6 @@ from al5d.arm.config import ArmConfig
 from al5d.ros.qos import QOS_LATCHED
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator, Record
-from al5d.ssc32u.stopline import BACKSTOP_SAID
 from al5d_rig.proc import Proc, patient_config
 from al5d_rig.rospeer import Peer, wait_until
 

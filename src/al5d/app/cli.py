@@ -116,6 +116,7 @@ def _cmd_send(args: argparse.Namespace) -> int:
         timeout=args.timeout,
         namespace=args.namespace,
         verbose=args.verbose,
+        via=args.via,
     )
 
 
@@ -129,6 +130,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         namespace=args.namespace,
         verbose=args.verbose,
         poses=args.poses,
+        via=args.via,
     )
 
 
@@ -141,6 +143,7 @@ def _cmd_shell(args: argparse.Namespace) -> int:
         namespace=args.namespace,
         verbose=args.verbose,
         poses=args.poses,
+        via=args.via,
     )
 
 
@@ -289,6 +292,13 @@ def build_parser() -> argparse.ArgumentParser:
             action="store_true",
             help="say where the time went: ROS's start, the server's discovery (said anyway "
             "when over 1 s), in all",
+        )
+        cmd.add_argument(
+            "--via",
+            choices=("auto", "lane", "ros"),
+            default="auto",
+            help="auto: a server on this machine by its local lane, else ROS 2; lane or ros: "
+            "only that way",
         )
         cmd.set_defaults(func=func)
 

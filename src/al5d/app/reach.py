@@ -1,6 +1,6 @@
 """Measured quality of service per move: request to the arm at its target, against SA03's 2.3 s.
 
-Shared by the demo (DE02) and the benchmarks. The driver reports each move as
+Shared by the demo (DE02) and the benchmarks. The owner reports each move as
 it leaves for the board; the emulator's servo model says when every joint came
 within the tolerance of its target, after the fact and exactly (no polling).
 A motion instruction that never sent a move (refused, or cancelled while it
@@ -14,9 +14,9 @@ import threading
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import SAFETY, Instruction, Outcome, Result
 from al5d.arm.jobs import Sent
+from al5d.owner.loop import Owner
 from al5d.ssc32u.emulator import Emulator, Record
 
 SA03_BOUND_MS = 2300.0
@@ -65,11 +65,9 @@ def reach_time(
 
 
 class QoSRecorder:
-    """Listens to a driver running on an emulator and measures every move it sends."""
+    """Listens to the owner of an emulated board and measures every move it sends."""
 
-    def __init__(
-        self, driver: ArmDriver, emulator: Emulator, tol_deg: float = TOLERANCE_DEG
-    ) -> None:
+    def __init__(self, owner: Owner, emulator: Emulator, tol_deg: float = TOLERANCE_DEG) -> None:
         self.emulator = emulator
         self.tol_deg = tol_deg
         self._lock = threading.Lock()
@@ -81,9 +79,9 @@ class QoSRecorder:
         #: Every id once, when it was first submitted or sent (the start-up park is sent
         #: without being submitted): the table's order.
         self._order: dict[str, None] = {}
-        driver.motion_listeners.append(self._on_sent)
-        driver.outcome_listeners.append(self._on_outcome)
-        driver.submit_listeners.append(self._on_submit)
+        owner.motion_listeners.append(self._on_sent)
+        owner.outcome_listeners.append(self._on_outcome)
+        owner.submit_listeners.append(self._on_submit)
 
     def _on_submit(self, instr: Instruction) -> None:
         if instr.kind not in SAFETY:

@@ -1,8 +1,13 @@
-"""The server process: the arm driver on a real port or on the embedded emulator.
+"""`al5d serve`: the owner of the board on a real port or on the embedded emulator, with its
+ROS side beside it.
 
-`al5d serve` builds it. Without `--port` it starts an emulated SSC-32U in the
-same process, so anyone can run the server without an arm. SIGINT and SIGTERM
-park the arm first (D2), then the process exits 0.
+This process owns the board (`al5d.owner.Owner`: one thread writes to it) and serves
+its local lane; the ROS side runs in processes of its own, clients of the owner
+(`al5d.ros.processes`): the bridge, which also resolves the command line's ROS
+parameters into the settings this process runs with, and the stop's own process.
+Without `--port` it starts an emulated SSC-32U in this process, so anyone can run the
+server without an arm. SIGINT and SIGTERM park the arm first (D2), then the process
+exits 0.
 """
 
 from __future__ import annotations
@@ -10,26 +15,26 @@ from __future__ import annotations
 import atexit
 import logging
 import logging.handlers
-import os
 import queue
 import signal
 import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
 from al5d import exits
 from al5d.arm.config import ArmConfig, load_config
-from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import GrammarError, Instruction, Outcome, parse_instruction, shutdown
+from al5d.owner import lane
+from al5d.owner.loop import Owner
+from al5d.ssc32u.transport import SerialTransport
 
 if TYPE_CHECKING:
-    from al5d.app.record import ServerRecording
-    from al5d.ros.server import RosStart
+    from al5d.ros.processes import Child
     from al5d.ssc32u.emulator import Emulator
-    from al5d.ssc32u.wire import WriteTap
 
 log = logging.getLogger("al5d")
 
@@ -37,6 +42,8 @@ SWITCH_INTERVAL_S = 0.0005
 #: `al5d serve`'s exit code when the server ended without the arm in park.
 EXIT_NOT_PARKED = exits.NOT_PARKED
 LOG_FORMAT = "%(asctime)s.%(msecs)03d %(levelname)s %(message)s"
+#: How long the bridge may take to read the parameters (a busy host's imports and DDS).
+SETTINGS_S = 120.0
 
 
 def setup_logging(level: str) -> None:
@@ -72,10 +79,10 @@ class ServerOptions:
 
 @contextmanager
 def arm(
-    options: ServerOptions, config: ArmConfig | None = None, tap: WriteTap | None = None
-) -> Iterator[tuple[ArmDriver, Emulator | None]]:
-    """The driver on the given port, or on an embedded emulator; closed (parked) on exit.
-    `tap`: told of every write to the board (`al5d.ssc32u.wire.tap_writes`)."""
+    options: ServerOptions, config: ArmConfig | None = None, lane_path: Path | None = None
+) -> Iterator[tuple[Owner, Emulator | None]]:
+    """The owner on the given port, or on an embedded emulator; closed (parked) on exit. With
+    `lane_path`, its local lane is there."""
     config = config or load_config(options.config)
     baud = options.baud or config.server.baud
     emulator: Emulator | None = None
@@ -87,25 +94,19 @@ def arm(
         port = emulator.port
         link = emulator.usb.describe()
         log.info("no --port: using the embedded SSC-32U emulator on %s, %s", port, link)
-    if tap is not None:
-        from al5d.ssc32u.wire import tap_writes
-
-        tap_writes(port, tap)
-    driver = ArmDriver(config, port, baud)
+    owner = Owner(config, SerialTransport(port, baud), lane=lane_path)
     try:
-        driver.start()
-        yield driver, emulator
+        owner.start()
+        yield owner, emulator
     finally:
-        driver.close()
+        owner.close()
         if emulator is not None:
             emulator.close()
-        if tap is not None:
-            tap_writes(port, None)
 
 
-def _read_instructions(driver: ArmDriver, stream: TextIO, out: TextIO) -> None:
+def _read_instructions(owner: Owner, stream: TextIO, out: TextIO) -> None:
     """Instructions in the text grammar, one a line; each outcome printed when it comes."""
-    presets = tuple(driver.config.presets)
+    presets = tuple(owner.config.presets)
 
     def show(outcome: Outcome) -> None:
         print(outcome, file=out, flush=True)
@@ -119,14 +120,68 @@ def _read_instructions(driver: ArmDriver, stream: TextIO, out: TextIO) -> None:
         except GrammarError as e:
             print(f"error: {e}", file=out, flush=True)
             continue
-        driver.submit(instr).add_done_callback(lambda f: show(f.result()))
+        owner.submit(instr).add_done_callback(lambda f: show(f.result()))
+
+
+class RosSide:
+    """The ROS side's two processes, started at once (their imports and DDS start-up go on
+    beside the board's): the bridge, which reads the parameters, and the stop's own."""
+
+    def __init__(self, options: ServerOptions) -> None:
+        from al5d.ros.params import Flags
+        from al5d.ros.processes import Child, Setup
+
+        flags = Flags(options.config, options.port, options.baud, options.namespace, options.record)
+        setup = Setup(tuple(options.ros_args or ()), flags, options.trace)
+        self.stop: Child | None = Child("al5d.ros.stopproc", setup)
+        self.bridge = Child("al5d.ros.bridge", setup)
+        self._serving = False
+
+    def settings(self) -> object:
+        """What the bridge made of the parameters (`al5d.ros.params.Settings`), or the error."""
+        from al5d.ros.processes import receive
+
+        got = receive(self.bridge.ctrl, SETTINGS_S)
+        if got is None:
+            return "the ROS bridge ended before it read the parameters (see its log above)"
+        if got[0] == "error":
+            return str(got[1])
+        return got[1]
+
+    def serve(self, owner: Owner) -> None:
+        """Both on the owner's lane; the stop is the bridge's if its own process is gone."""
+        from al5d.ros.processes import send
+
+        owner.adopt(self.bridge.lane)
+        stop = self.stop
+        alive = stop is not None and stop.proc.poll() is None
+        if stop is not None:
+            owner.adopt(stop.lane)
+        send(self.bridge.ctrl, "go", not alive)
+        self._serving = True
+        if alive and stop is not None:
+            threading.Thread(target=self._watch_stop, args=(stop,), daemon=True).start()
+
+    def _watch_stop(self, stop: Child) -> None:
+        from al5d.ros.processes import send
+
+        code = stop.proc.wait()
+        if self._serving:
+            log.error("the stop process ended (exit code %s)", code)
+            send(self.bridge.ctrl, "serve-stop")
+
+    def close(self) -> None:
+        self._serving = False
+        self.bridge.close()
+        if self.stop is not None:
+            self.stop.close()
 
 
 def serve(options: ServerOptions) -> int:
     """Run until shutdown (instruction or signal); the arm is parked before the end.
 
     Exit 0 once the arm is parked; EXIT_NOT_PARKED when the final park could not be
-    done (the board was lost, or a stop came during it).
+    done (the board was lost, or a stop came during it); 2 for settings that cannot be.
     """
     stop_requested = threading.Event()
 
@@ -135,88 +190,41 @@ def serve(options: ServerOptions) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    # Threads here answer within milliseconds (the stop service, the move worker, the
-    # embedded board) while others may be busy (handing out a thousand outcomes): hand
-    # the GIL over every 0.5 ms, not every 5 ms, so that a busy one cannot hold up the rest.
     sys.setswitchinterval(SWITCH_INTERVAL_S)
-    # The parameters (and remaps) come before the arm: they may name its port and config.
-    start = _ros_start(options) if options.ros else None
-    config = None
-    if start is not None:
-        config = start.settings.config
-        options = replace(options, port=start.settings.port, record=start.settings.record)
-    recording = None
+    ros = RosSide(options) if options.ros else None
     try:
-        if options.record is not None:
-            recording = _recording(options.record)
-            if recording is None:
+        config = None
+        namespace = options.namespace or ""
+        if ros is not None:
+            settings = ros.settings()
+            if isinstance(settings, str):
+                log.error("%s", settings)
                 return 2
-        return _serve(options, config, start, stop_requested, recording)
-    finally:
-        if start is not None and start.context.ok():  # the server never took it over
-            start.close()
-        if recording is not None:
-            recording.close()
+            from al5d.ros.params import Settings
 
-
-def _recording(path: str) -> ServerRecording | None:
-    """The recording `--record` asks for; None (said at ERROR) when its file cannot be made."""
-    from al5d.app.record import RecordingError, ServerRecording
-
-    try:
-        return ServerRecording(path)
-    except RecordingError as e:
-        log.error("%s", e)
-        return None
-
-
-def _ros_start(options: ServerOptions) -> RosStart:
-    from al5d.ros.params import Flags
-    from al5d.ros.server import RosStart
-
-    flags = Flags(options.config, options.port, options.baud, options.namespace, options.record)
-    return RosStart(options.ros_args, flags)
-
-
-def _serve(
-    options: ServerOptions,
-    config: ArmConfig | None,
-    start: RosStart | None,
-    stop_requested: threading.Event,
-    recording: ServerRecording | None = None,
-) -> int:
-    namespace = start.names.namespace if start is not None else options.namespace
-    tap = recording.tap(namespace) if recording is not None else None
-    with arm(options, config, tap) as (driver, _):
-        ros_server = None
-        if start is not None:
-            from al5d.ros.server import RosServer
-
-            ros_server = RosServer(driver, trace=options.trace, start=start)
-            if recording is not None:
-                recording.follow(start.names, driver.config.server.instruction_backlog)
-            log.info(
-                "ROS 2 node %s up (ROS_DOMAIN_ID=%s)",
-                ros_server.node.get_fully_qualified_name(),
-                os.environ.get("ROS_DOMAIN_ID", "0"),
-            )
-        try:
+            assert isinstance(settings, Settings)
+            config, options.port = settings.config, settings.port
+            namespace = settings.namespace
+        elif options.namespace is None:
+            config = load_config(options.config)
+            namespace = config.server.namespace
+        with arm(options, config, lane.path(namespace)) as (owner, _):
+            if ros is not None:
+                ros.serve(owner)
             if options.stdin:
                 threading.Thread(
-                    target=_read_instructions, args=(driver, sys.stdin, sys.stdout), daemon=True
+                    target=_read_instructions, args=(owner, sys.stdin, sys.stdout), daemon=True
                 ).start()
-            while not driver.finished.is_set():
+            while not owner.finished.is_set():
                 if stop_requested.wait(0.1):
                     log.info("signal received: shutting down (park first)")
-                    driver.submit(shutdown(id="signal"))
-                    driver.finished.wait()
+                    owner.submit(shutdown(id="signal"))
+                    owner.finished.wait()
                     break
-        finally:
-            if ros_server is not None:
-                ros_server.close()
-            if recording is not None:
-                recording.close_ros()  # after the server's last messages reached it
-    if driver.parked_at_end is False:
+    finally:
+        if ros is not None:
+            ros.close()
+    if owner.parked_at_end is False:
         log.error("the arm was not parked: exit %d", EXIT_NOT_PARKED)
         return EXIT_NOT_PARKED
     return 0

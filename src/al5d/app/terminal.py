@@ -1,5 +1,6 @@
 """The client commands at the terminal: `al5d send`, `al5d run` and `al5d shell`, on
-`al5d.ros.client.Client`, and how they report.
+`al5d.ros.client.Client` (a local server by its lane, any other over ROS 2), and how they
+report.
 
 `al5d send` sends one instruction and waits for its outcome (a stop or a release
 goes by the server's service). `al5d run` runs a sequence file: each instruction
@@ -7,7 +8,9 @@ waits for its outcome before the next line, unless the line ends with `&` (then
 the client goes on at once, so that, say, a `stop` can land in the middle of a
 move); `wait <ms>` pauses. `al5d shell` reads instructions a line at a time and
 keeps its one connection: the server's discovery is paid once, not per command.
-Exit codes: `al5d.exits` (done, not done, bad input, no server).
+Ctrl-C on `al5d send` or `al5d run` cancels what the command sent and is still running or
+waiting, and says so (over ROS 2, which has no cancel by id, it says that the server was
+not told). Exit codes: `al5d.exits` (done, not done, bad input, no server, interrupted).
 """
 
 from __future__ import annotations
@@ -107,6 +110,26 @@ class Timing:
         print(f"{self.prog}: {text}", file=self.err, flush=True)
 
 
+#: `--via`: the local lane where a server's is here (auto), only the lane, or only ROS 2.
+VIA = {"auto": None, "lane": True, "ros": False}
+
+
+def interrupted(client: Client, report: Report, sent: list[Instruction]) -> int:
+    """Ctrl-C: what the command sent and is not over is cancelled, and said."""
+    pending = set(client.pending()) if client.lane is not None else {i.id for i in sent}
+    for instr in sent:
+        if instr.id not in pending:
+            continue
+        if client.lane is None:
+            report.line(
+                f"{instr.name} [{instr.id}]: Ctrl-C: not cancelled: ROS 2 has no cancel by id "
+                "(it may still run; `al5d send stop` halts the arm)"
+            )
+        elif client.cancel(instr.id, "cancelled by Ctrl-C"):
+            report.line(f"{instr.name} [{instr.id}]: cancelled (Ctrl-C)")
+    return exits.INTERRUPTED
+
+
 def _by_service(client: Client, instr: Instruction, timeout: float) -> Answer:
     """A stop or a release, by the server's service."""
     call = client.stop if instr.kind is Kind.STOP else client.release
@@ -122,6 +145,7 @@ def send(
     err: TextIO = sys.stderr,
     namespace: str | None = None,
     verbose: bool = False,
+    via: str = "auto",
 ) -> int:
     """Send one instruction and print its outcome; a stop or a release by the server's
     service (the topic only if the service is not there), printed with what carried it."""
@@ -131,7 +155,11 @@ def send(
         print(f"al5d send: {e}", file=err)
         return exits.BAD_INPUT
     timing = Timing("al5d send", verbose, err)
-    client = Client(namespace, wait_s=wait_s)
+    try:
+        client = Client(namespace, wait_s=wait_s, local=VIA[via])
+    except NoServer as e:
+        print(f"al5d send: {e}", file=err)
+        return exits.NO_SERVER
     timing.ros_started()
     report = Report(out)
     try:
@@ -154,6 +182,8 @@ def send(
     except NoServer as e:
         print(f"al5d send: {e}", file=err)
         return exits.NO_SERVER
+    except KeyboardInterrupt:
+        return interrupted(client, report, [instr])
     finally:
         client.close()
         timing.end()
@@ -169,6 +199,7 @@ def run(
     namespace: str | None = None,
     verbose: bool = False,
     poses: str | Path | None = None,
+    via: str = "auto",
 ) -> int:
     """Run a sequence file; 0 if every instruction was done, 1 if any was not.
 
@@ -190,20 +221,32 @@ def run(
         print(f"al5d run: nothing sent: {e}".replace("\n", "\nal5d run: "), file=err)
         return exits.BAD_INPUT
     timing = Timing("al5d run", verbose, err)
-    client = Client(namespace)
+    try:
+        client = Client(namespace, wait_s=wait_s, local=VIA[via])
+    except NoServer as e:
+        print(f"al5d run: {e}", file=err)
+        return exits.NO_SERVER
     timing.ros_started()
     report = Report(out)
+    sent: list[Instruction] = []
     try:
         client.wait_for_server(wait_s)
         timing.discovered(client)
         background: list[Instruction] = []
         for item, in_background in steps:
+            if isinstance(item, Instruction):
+                sent.append(item)
             _step(client, report, item, in_background, timeout, background)
         _drain(client, report, background, timeout)
         return exits.DONE if report.all_done else exits.NOT_DONE
     except NoServer as e:
         print(f"al5d run: {e}", file=err)
         return exits.NO_SERVER
+    except NoOutcome as e:
+        report.line(str(e))
+        return exits.NOT_DONE
+    except KeyboardInterrupt:
+        return interrupted(client, report, sent)
     finally:
         client.close()
         timing.end()
@@ -279,6 +322,7 @@ def shell(
     namespace: str | None = None,
     verbose: bool = False,
     poses: str | Path | None = None,
+    via: str = "auto",
 ) -> int:
     """Read instructions a line at a time (the grammar of a sequence file: `wait`, `&`, `#`,
     `pose <name>` of the file `poses`, by default `poses.yaml` here if there) and run each
@@ -296,7 +340,11 @@ def shell(
         return exits.BAD_INPUT
     interactive = inp.isatty()
     timing = Timing("al5d shell", verbose, err)
-    client = Client(namespace, wait_s=wait_s)
+    try:
+        client = Client(namespace, wait_s=wait_s, local=VIA[via])
+    except NoServer as e:
+        print(f"al5d shell: {e}", file=err)
+        return exits.NO_SERVER
     timing.ros_started()
     report = Report(out)
     bad = False

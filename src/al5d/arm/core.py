@@ -1,426 +1,448 @@
-"""The arm's protocol: the one owner of the driver's state, and every event that changes it.
+"""The arm's protocol as one transition: `step(core, input) -> (core, effects)`.
 
-Threads
--------
-Callers (a ROS executor, the command line, a Python program) submit, stop,
-release, cancel and shut down. One worker thread (`worker.Worker`) parks, runs
-the moves that wait, watches the link, reads the pose back and reconnects. None
-of them owns a field of the arm's state: `Core` does. Each public method of it
-is one event, handled whole under one lock: it asks the state table
-(`states.TABLE`) for the next state, updates the fields, and returns what its
-caller must do outside the lock (write a STOP, write a step, hand out outcomes).
-The lock is never held during serial I/O, and nothing outside this module
-writes a field of it. The fields and the small steps the events share are in
-`corestate`; what the events hand back, in `effects`; the sending times the order
-across channels is judged by, in `order`. The decisions are all here.
+The core is a value (`corestate.Core`, frozen) and `step` a function: no I/O, no
+thread, no lock, no clock inside. The owner (`al5d.owner`) is the one thread that
+holds the core: it hands it every input (a request, a cancel, the board's bytes, the
+port opened or failed, the time passing) with the time it took it, and carries out
+the effects in order (bytes to the board, outcomes to their requesters, the state's
+changes, log lines). This module holds the rules; `running` (a job as it runs) and
+`link` (the board's connection and its queries) hold the steps they are made of.
 
 The lanes
 ---------
-- **The stop** is taken first, whoever is doing what. `stop` ends the epoch
-  (every job of an older epoch is dropped and never written), locks the arm and
-  returns the STOP to write; its caller writes it at once, with no hand-over to
-  the worker: it waits only for this lock and for the board's write lock, each
-  held for microseconds. A step is written only if its job's epoch still holds
-  when the step has the board's write lock (`SSC32U.write_command`'s `unless`,
-  which reads `epoch` without this lock). So either a step goes out before the
-  STOP, which halts it, or it does not go out at all.
-- **Moves** are admitted (`admit`) in the order they come. An idle arm's move
-  is written at once by its caller (the fast path: no thread hand-over), which
-  then hands the job to the worker to see it through (`first_written`). Others
-  wait in the queue; the worker takes them one at a time (`next_task`), and a
-  job is the current one from the moment it is taken until it ends. Only the
-  current job's steps are written; whoever ends it (done, stop, cancel, fault,
-  shutdown) makes it not current, in one event.
-- **Set-points** (a stream such as ros2_control's joint commands, or the web
-  view's jog) are moves whose latest wins: a new one replaces the one of its
-  stream that waits (it ends cancelled, never written), and one where the arm
-  is heading already (within half a pulse microsecond) is done at once with
-  nothing written. One that finds the arm idle is written at once, like any
-  move. One that comes while a set-point of its stream runs, and nothing waits,
-  supersedes it (`_supersede`): in the same event the running one is cancelled
-  (none of its bytes still to go is written: its `cancel` is checked under the
-  write lock) and the new one becomes the current job, for the worker to write
-  (`Runner.NEXT`) once no caller's write is under way, so that what the
-  superseded one wrote is in the pose before the new one is planned from it.
-  The worker writes it when the wire is free (until then a newer one may still
-  take its place) and the board retargets mid-move. A set-point is done when
-  its time is over, without `Q`. The watchdog (`watchdog`, run by the worker
-  while a set-point's time runs): when no set-point of its stream has come for
-  `server.stream_timeout_s`, the arm is halted where it is as a cancelled move
-  is (no lock). A stop, a fault or a shutdown holds the streams: their
-  set-points are refused until one comes that is where the arm is (its source
-  has let go of the target it had before), so a target sent again and again is
-  not driven to after a release.
-- **The worker's own work** (`next_task`, in this order): the shutdown, the
-  recovery from a fault, the start-up park, a job the caller wrote, the
-  read-back of the pose after a halt, the next queued move, and a check of
-  the idle link. While a caller writes (a fast-path step, a STOP), the worker
-  waits for it: what comes next depends on what the write did.
+- **The stop** is taken first by the owner, whatever else waits, and here it ends the
+  epoch (every job of an older epoch is dropped and none of its bytes still to go is
+  written), locks the arm, and puts its STOP (ESC, then every channel, the moving
+  joints first) on the wire in the same step: nothing of a move that predates it
+  follows it to the board.
+- **Moves** are admitted in the order they come: refused, cancelled, queued, or, on an
+  idle arm, started at once (its first line in the same step). One job runs at a time
+  (`Core.run`); only its steps are written; whoever ends it (done, stop, cancel, fault,
+  shutdown) makes it not current, in one step.
+- **Set-points** (a stream such as ros2_control's joint commands, or the web view's
+  jog) are moves whose latest wins: a new one replaces the one of its stream that
+  waits (it ends cancelled, never written), and one where the arm is heading already
+  (within half a pulse microsecond) is done at once with nothing written. One that
+  comes while a set-point of its stream runs, and nothing waits, supersedes it: the
+  running one is cancelled (none of its bytes still to go is written) and the new one
+  runs, written when the wire is free, from where the superseded one has the arm
+  then (the board retargets a group move mid-move). A set-point is done when its time
+  is over, without `Q`. The watchdog: when no set-point of its stream has come for
+  `server.stream_timeout_s` during its time, the arm is held where it is, as a
+  cancelled move is (no lock). A stop, a fault or a shutdown holds the streams: their
+  set-points are refused until one comes that is where the arm is (its source has let
+  go of the target it had before), so a target sent again and again is not driven to
+  after a release.
+- **The core's own work**, in this order: the port opened and checked (and after a
+  fault, a move the board may still run halted and the pose read back), the shutdown
+  (halt, read back, park, end), the current run, the read-back of the pose after a
+  halt, the start-up park, the next queued move, and a check of the idle link.
 
 The order across channels
 -------------------------
-Stops, releases and moves come by several channels (the instruction topic, in
-order behind a flood; the services; the stop watcher; actions; Python calls),
-so a message can arrive after one sent later. Each instruction carries when it
-was sent (`Instruction.sent_ns`: a DDS message's source timestamp, on this
-host's CLOCK_REALTIME; when the driver took it, where the channel does not
-say). The order of sending, not of arriving, decides:
+Stops, releases and moves come by several channels (the instruction topic, in order
+behind a flood; the services; the stop watcher; actions; the local lane; Python
+calls), so a request can arrive after one sent later. Each instruction carries when it
+was sent (`Instruction.sent_ns`, CLOCK_REALTIME; when the owner took it, where the
+channel does not say), and the order of sending, not of arriving, decides:
 
-1. A release unlocks only if it was sent after every stop that holds the lock;
-   an older one is refused with a reason naming that stop. So a stop is never
-   undone by a release sent before it, whatever the channels.
-2. A move sent before the last event that dropped every pending move (a stop,
-   a fault, the shutdown) is cancelled by that event, as it would have been had
-   it waited in the queue; a move sent between a stop and the release that
-   unlocked the arm is refused, as it would have been had it arrived then.
-3. A stop that two readers of one topic both see (the node, in order; the stop
-   watcher, at once) is one stop: it is known by its message's identity
-   (`key`), obeyed once and answered once.
+1. A release unlocks only if it was sent after every stop that holds the lock; an
+   older one is refused with a reason naming that stop. So a stop is never undone by a
+   release sent before it, whatever the channels.
+2. A move sent before the last event that dropped every pending move (a stop, a fault,
+   the shutdown) is cancelled by that event, as it would have been had it waited in
+   the queue; a move sent between a stop and the release that unlocked the arm is
+   refused, as it would have been had it arrived then.
+3. A stop that two readers of one topic both see (the bridge's node, in order; the stop
+   watcher, at once) is one stop: it is known by its message's identity (`Ask.key`),
+   obeyed once and answered once.
 
-A fault, a board's reset and the shutdown are the driver's own events: they
-count as sent when the driver takes them. Clients on other machines are judged
-on their own clocks (the server is closed to the network by default).
+A fault, a board's reset and the shutdown are the owner's own events: they count as
+sent when the owner takes them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Hashable, Mapping
-from concurrent.futures import Future
+import logging
+import math
+from dataclasses import replace
 
-from al5d.arm.corestate import CoreState, Runner
-from al5d.arm.effects import Admission, Ended, Halt, Verdict, Work
-from al5d.arm.instruction import Outcome
-from al5d.arm.jobs import Job, Mode, Motion, Written
-from al5d.arm.states import (
-    Event,
-    State,
-    Task,
-    next_state,
-    refusal,
-    release_refusal,
-    stream_held,
+from al5d.arm import link as board
+from al5d.arm import running
+from al5d.arm.corestate import (
+    Ask,
+    Cancel,
+    Core,
+    Effect,
+    Failed,
+    Gone,
+    Input,
+    Next,
+    Open,
+    Opened,
+    Out,
+    Received,
+    Reply,
+    Resolve,
+    Run,
+    Tick,
+    cancel_all,
+    drop,
+    end_shutdown,
+    finish,
+    fire,
+    guards,
+    halt,
+    lock_arm,
+    lose,
+    posed,
+    say,
 )
-from al5d.clock import Deadline, now, wall_ns
-from al5d.ssc32u.driver import SSC32U
-from al5d.ssc32u.errors import BoardReset, SerialFault
+from al5d.arm.instruction import Instruction, Kind, Result
+from al5d.arm.jobs import Job, Mode, outcome
+from al5d.arm.states import Event, State, next_state, refusal, release_refusal, stream_held
+from al5d.arm.validate import Step, judge
 
 
-class Core(CoreState):
-    """One arm's protocol: every event that changes its state (the fields and the steps the
-    events are made of: `corestate.CoreState`)."""
+def step(c: Core, ev: Input) -> tuple[Core, tuple[Effect, ...]]:
+    """The core after `ev`, and what is to be done, in order."""
+    out: Out = []
+    if isinstance(ev, Ask):
+        c = _ask(c, ev, out)
+    elif isinstance(ev, Tick):
+        if ev.stalled != c.link.stalled:
+            c = replace(c, link=replace(c.link, stalled=ev.stalled))
+    elif isinstance(ev, Received):
+        c = board.received(c, ev, out)
+    elif isinstance(ev, Cancel):
+        c = _cancel(c, ev, out)
+    elif isinstance(ev, Opened):
+        c = board.opened(c, ev, out)
+    elif isinstance(ev, Failed):
+        if c.link.open:
+            c = lose(c, ev.error, ev.t, ev.wall, out)
+    elif isinstance(ev, Gone):
+        c = _gone(c, ev, out)
+    return _advance(c, ev.t, ev.wall, out), tuple(out)
 
-    # -- callers' events ----------------------------------------------------------------
 
-    def admit(self, job: Job) -> Admission:
-        """A validated move comes: it is cancelled, refused, queued, or written now. A
-        set-point of a stream (`Job.stream`) replaces the one of its stream that waits, and
-        is not written at all where the arm is heading already (the lane of set-points)."""
-        with self._lock:
-            cancelled = self._order.cancelled(job.sent_ns)
-            if cancelled:
-                return Admission(Verdict.CANCELLED, cancelled)
-            reason = (
-                "the server is shutting down"
-                if self._shutdown is not None
-                else refusal(self._state, self._fault)
-            ) or self._order.sent_while_locked(job.sent_ns)
-            if reason:
-                return Admission(Verdict.REFUSED, reason)
-            replaced = None
-            if job.stream:
-                self._stream_seen[job.stream] = now()
-                unchanged = self._unchanged(job)
-                if self._streams_held:
-                    if not unchanged:
-                        return Admission(Verdict.REFUSED, stream_held(self._streams_held))
-                    self._streams_held = ""  # the source holds where the arm is: it resumes
-                # The latest set-point wins: one that waits is replaced, never queued behind.
-                replaced = next((j for j in self._queue if j.stream == job.stream), None)
-                if replaced is not None:
-                    self._queue.remove(replaced)
-                if unchanged:
-                    if self._current is None and not self._queue and self._state is State.MOVING:
-                        self._fire(Event.MOVE_DONE)
-                    return Admission(Verdict.UNCHANGED, replaced=replaced)
-            job.epoch = self._epoch
-            superseded = self._supersede(job)
-            if superseded is not None:
-                return Admission(Verdict.SUPERSEDES, replaced=replaced, superseded=superseded)
-            if self._idle():
-                self._current, self._runner = job, Runner.CALLER
-                self._writes += 1
-                self._writing += 1
-                self._fire(Event.MOVE)
-                return Admission(Verdict.WRITE, board=self._board, replaced=replaced)
-            if len(self._queue) >= self._capacity:
-                return Admission(
-                    Verdict.REFUSED,
-                    f"the queue is full ({self._capacity} moves wait)",
-                    replaced=replaced,
-                )
-            self._queue.append(job)
-            if self._state is State.READY:
-                self._fire(Event.MOVE)
-            if len(self._queue) == 1:  # the worker may wait for one; it takes the rest in turn
-                self._cv.notify_all()
-            return Admission(Verdict.QUEUED, replaced=replaced)
+# -- requests ---------------------------------------------------------------------------
 
-    def first_written(
-        self, job: Job, written: Written | None, error: SerialFault | None = None
-    ) -> tuple[Motion | None, Ended]:
-        """The caller has written (or not) the first step of the job `admit` gave it: the
-        worker sees it through from here. The motion on the board, and what ended: a
-        fault's jobs, or this one, withheld for a stop another process wrote."""
-        with self._cv:
-            self._writing -= 1
-            self._cv.notify_all()
-            if error is not None:
-                return None, self._lose(error)
-            motion = self._written(job, written) if written is not None else None
-            if job is self._current:
-                if motion is not None:
-                    self._runner = Runner.HANDED
-                elif self._end_current(job) and written is None:
-                    # Nothing of it went out and nothing here ended it: the write was
-                    # withheld for a STOP the stop process wrote, which this server has not
-                    # obeyed yet; that stop would cancel it, so it ends so (its outcome is
-                    # the caller's to set, as an event's).
-                    return None, Ended((job,), "cancelled by stop")
-            return motion, Ended()
 
-    def stop(
-        self, future: Future[Outcome], sent_ns: int, key: Hashable | None = None
-    ) -> Halt | Future[Outcome]:
-        """The emergency stop (sent at `sent_ns`): drop everything, lock, and the STOP to write
-        at once. A stop already obeyed under the same `key` is not obeyed again: its future
-        comes back."""
-        with self._lock:
-            known = self._order.obeyed(key, future) if key is not None else None
-            if known is not None:
-                return known
-            ended = self._drop("cancelled by stop", sent_ns)
-            self._lock_arm("the stop", sent_ns)
-            halt = self._halt(ended)
-            self._fire(Event.STOP)
-            return halt
+def _ask(c: Core, ev: Ask, out: Out) -> Core:
+    kind = ev.instr.kind
+    if kind is Kind.STOP:
+        return _stop(c, ev, out)
+    if kind is Kind.RELEASE:
+        return _release(c, ev, out)
+    if kind is Kind.SHUTDOWN:
+        return _shutdown(c, ev, out)
+    return _admit(c, ev, out)
 
-    def halt_written(self, error: SerialFault | None) -> Ended:
-        """A STOP (a stop's or a cancel's) has been written, or could not be: a fault then."""
-        with self._cv:
-            self._writing -= 1
-            self._cv.notify_all()
-            if error is None or self._board is None:
-                return Ended()
-            return self._lose(error)
 
-    def release(self, sent_ns: int) -> str:
-        """Unlock (a release sent at `sent_ns`); the reason it cannot, or ""."""
-        with self._lock:
-            state = self._state
-            if next_state(state, Event.RELEASE, self._guards()) is None:
-                return release_refusal(state)
-            too_old = self._order.release_too_old(sent_ns)
-            if too_old:
-                return too_old
-            self._fire(Event.RELEASE)
-            self._locked = False
-            self._order.released(sent_ns)
-            return ""
+def _sent(ev: Ask) -> int:
+    """When the request was sent: where its channel does not say, when the owner took it."""
+    sent = ev.instr.sent_ns
+    return sent if sent is not None else ev.wall
 
-    def cancel(self, ident: str) -> Job | Halt | None:
-        """Cancel one move: a waiting one is dropped (it comes back); a running one is halted
-        where it is, without the lock (its STOP comes back). None if it is not here."""
-        with self._lock:
-            job = next((j for j in self._queue if j.instr.id == ident), None)
-            if job is not None:
-                self._queue.remove(job)
-                if self._current is None and not self._queue and self._state is State.MOVING:
-                    self._fire(Event.MOVE_DONE)
-                return job
-            job = self._current
-            if job is None or job.instr.id != ident or job.mode is not Mode.QUEUE:
-                return None
-            job.cancel.set()
-            halt = self._halt(Ended((job,)), urgent=False)
-            self._end_current(job)
-            return halt
 
-    def shutdown(self, job: Job) -> Ended | None:
-        """Park and end: everything pending ends; None if a shutdown is under way already."""
-        with self._lock:
-            if self._shutdown is not None:
-                return None
-            ended = self._drop("cancelled by shutdown", job.sent_ns)
-            job.epoch = self._epoch
-            self._shutdown = job
-            self._fire(Event.SHUTDOWN)
-            return ended
+def _refuse(ev: Ask, reason: str, out: Out, result: Result = Result.REFUSED) -> None:
+    out.append(Resolve(ev.ref, outcome(ev.instr, result, reason, ev.t, ev.t), ev.tell))
 
-    # -- the worker's events ------------------------------------------------------------
 
-    def next_task(self, watch_every: float) -> Work:
-        """The worker's next task (waits for one), in the order of the module's docstring;
-        WATCH when the arm has been idle on a board for `watch_every` seconds."""
-        idle = Deadline(watch_every)
-        with self._cv:
-            while True:
-                work = self._choose(idle.expired)
-                if work is not None:
-                    return work
-                if idle.expired:
-                    idle = Deadline(watch_every)
-                self._cv.wait(idle.left())
+def _stop(c: Core, ev: Ask, out: Out) -> Core:
+    """VE01/D4: halt at once, drop everything, lock. A stop obeyed already under the same
+    key is answered as it was, and nobody else hears of it again."""
+    if ev.key is not None:
+        known = c.order.stops.get(ev.key)
+        if known is not None:
+            out.append(Resolve(ev.ref, known, tell=False))
+            return c
+    sent = _sent(ev)
+    c, jobs = drop(c, "cancelled by stop", sent)
+    c = lock_arm(c, "the stop", sent)
+    board_open = c.link.open
+    c = fire(halt(c, ev.t, out), Event.STOP, out)
+    note = "" if board_open else f"the serial link is lost ({c.fault}); the arm is locked"
+    done = outcome(ev.instr, Result.DONE, note, ev.t, ev.t)
+    out.append(Resolve(ev.ref, done, ev.tell))
+    if ev.key is not None:
+        c = replace(c, order=c.order.obeyed(ev.key, done))
+    cancel_all(jobs, "cancelled by stop", ev.t, out)
+    if jobs:
+        say(out, logging.INFO, f"stop: {len(jobs)} move(s) cancelled")
+    if c.shutdown is not None and not c.ended:
+        return end_shutdown(
+            c, "stopped before the arm reached park: the arm is not parked", ev.t, out
+        )
+    posed(c, out)
+    return c
 
-    def _choose(self, idle: bool) -> Work | None:
-        if self._shutdown is not None and not self._shutdown_taken:
-            self._shutdown_taken = True
-            return Work(Task.SHUTDOWN, self._shutdown)
-        if self._state is State.FAULT:
-            return Work(Task.RECOVER)
-        if self._writing:
-            return None  # a caller writes: what it did decides what comes next
-        if self._current is not None:
-            if self._runner is Runner.NEXT:  # a set-point that took a running one's place
-                self._runner = Runner.WORKER
-                return Work(Task.MOVE, self._current)
-            if self._runner is not Runner.HANDED:
-                return None
-            self._runner = Runner.WORKER
-            return Work(Task.FOLLOW, self._current)
-        if self._state is State.INITIALIZING and not self._parked:
-            return Work(Task.STARTUP)
-        if self._readback:
-            return Work(Task.READBACK)
-        if self._queue and self._state is not State.INITIALIZING:
-            job = self._queue.popleft()
-            self._current, self._runner = job, Runner.WORKER
-            return Work(Task.MOVE, job)
-        if idle and self._board is not None:
-            return Work(Task.WATCH)
+
+def _release(c: Core, ev: Ask, out: Out) -> Core:
+    """Unlock, if the arm is locked and the release was sent after the stop that locked it."""
+    sent = _sent(ev)
+    if next_state(c.state, Event.RELEASE, guards(c)) is None:
+        _refuse(ev, release_refusal(c.state), out)
+        return c
+    too_old = c.order.release_too_old(sent)
+    if too_old:
+        _refuse(ev, too_old, out)
+        return c
+    c = fire(c, Event.RELEASE, out)
+    c = replace(c, locked=False, order=c.order.released(sent))
+    note = "unlocked; the serial link is still lost" if c.state is State.FAULT else ""
+    out.append(Resolve(ev.ref, outcome(ev.instr, Result.DONE, note, ev.t, ev.t), ev.tell))
+    return c
+
+
+def _shutdown(c: Core, ev: Ask, out: Out) -> Core:
+    """Park and end (D2): everything pending ends; the move the board may still run is
+    halted, the pose read back, then the arm parks."""
+    if c.shutdown is not None:
+        _refuse(ev, "the server is already shutting down", out)
+        return c
+    sent = _sent(ev)
+    c, jobs = drop(c, "cancelled by shutdown", sent)
+    park = (Step(dict(c.arm.config.presets["park"]), None),)
+    fraction = c.arm.settings.startup_speed_fraction
+    job = Job(ev.ref, ev.instr, park, ev.t, sent, c.epoch, fraction, Mode.SHUTDOWN, tell=ev.tell)
+    c = fire(replace(c, shutdown=job), Event.SHUTDOWN, out)
+    if c.link.checked:
+        c = replace(c, link=replace(c.link, next=Next.SHUTDOWN, halt_checked=False))
+    cancel_all(jobs, "cancelled by shutdown", ev.t, out)
+    return c
+
+
+def _admit(c: Core, ev: Ask, out: Out) -> Core:
+    """A motion instruction comes: judged whole (unless its ticket was), then cancelled,
+    refused, queued, or started now."""
+    instr = ev.instr
+    ticket = ev.ticket if ev.ticket is not None else judge(instr, c.arm.limits)
+    if isinstance(ticket, str):
+        _refuse(ev, ticket, out)
+        return c
+    sent = _sent(ev)
+    cancelled = c.order.cancelled(sent)
+    if cancelled:
+        _refuse(ev, cancelled, out, Result.CANCELLED)
+        return c
+    reason = (
+        "the server is shutting down" if c.shutdown is not None else refusal(c.state, c.fault)
+    ) or c.order.sent_while_locked(sent)
+    if reason:
+        _refuse(ev, reason, out)
+        return c
+    job = Job(
+        ev.ref,
+        instr,
+        ticket.steps,
+        ev.t,
+        sent,
+        c.epoch,
+        stream=ev.stream,
+        client=ev.client,
+        tell=ev.tell,
+        follow=ticket.follow,
+    )
+    replaced = None
+    if job.stream:
+        c = replace(c, stream_seen={**c.stream_seen, job.stream: ev.t})
+        unchanged = _unchanged(c, job)
+        if c.streams_held:
+            if not unchanged:
+                _refuse(ev, stream_held(c.streams_held), out)
+                return c
+            c = replace(c, streams_held="")  # the source holds where the arm is: it resumes
+        # The latest set-point wins: one that waits is replaced, never queued behind.
+        replaced = next((j for j in c.queue if j.stream == job.stream), None)
+        if replaced is not None:
+            c = replace(c, queue=tuple(j for j in c.queue if j is not replaced))
+            finish(replaced, Result.CANCELLED, f"replaced by set-point {instr.id}", ev.t, out)
+        if unchanged:
+            if c.run is None and not c.queue and c.state is State.MOVING:
+                c = fire(c, Event.MOVE_DONE, out)
+            finish(job, Result.DONE, "at this set-point, or on its way: nothing written", ev.t, out)
+            return c
+        superseded = c.run.job if c.run is not None else None
+        if _supersedes(c, job):
+            assert superseded is not None
+            link = c.link
+            if link.rest and not link.rest_is_halt:
+                link = replace(link, rest=b"", cut=True)
+            c = replace(c, run=Run(job, job.steps, retarget=True), link=link)
+            why = f"superseded by set-point {instr.id}"
+            finish(superseded, Result.CANCELLED, why, ev.t, out)
+            return c
+    if c.idle:
+        return running.start(fire(c, Event.MOVE, out), job, ev.t, out)
+    capacity = c.arm.settings.queue_capacity
+    if len(c.queue) >= capacity:
+        finish(job, Result.REFUSED, f"the queue is full ({capacity} moves wait)", ev.t, out)
+        return c
+    c = replace(c, queue=(*c.queue, job))
+    return fire(c, Event.MOVE, out) if c.state is State.READY else c
+
+
+def _heading(c: Core) -> dict[str, float | None] | None:
+    """Where the arm rests once the current job is done (the pose at rest when none runs);
+    None when that is not known yet: moves wait (a Cartesian one is planned from where the
+    arm is when it starts), or the pose is to be read back."""
+    if c.queue or c.readback:
         return None
+    run = c.run
+    if run is None:
+        return dict(c.book.pose)
+    if run.job.mode is not Mode.QUEUE or not run.steps:
+        return None
+    return c.book.heading(run.steps[-1].target)
 
-    def start(self, job: Job) -> SSC32U | None:
-        """The worker's own park (at start-up or shutdown) becomes the current job: the
-        board to run it on, or None if an event since it was made has ended it."""
-        with self._lock:
-            board = self._board
-            if job.epoch != self._epoch or job.cancel.is_set() or board is None:
-                return None
-            if self._state not in job.mode.states or self._current is not None:
-                return None
-            self._current, self._runner = job, Runner.WORKER
-            return board
 
-    def watchdog(self, job: Job, timeout: float, reason: str) -> Halt | None:
-        """No set-point of the running job's stream has come for `timeout` s: the arm is held
-        where it is, as a cancelled move is (its STOP comes back; no lock), and the job ends
-        with `reason`. None if it has ended, or a set-point came meanwhile."""
-        with self._lock:
-            if not job.stream or not self._holds(job) or self._quiet(job) < timeout:
-                return None
-            job.cancel.set()
-            halt = self._halt(Ended((job,), reason), urgent=False)
-            self._end_current(job)
-            return halt
+def _unchanged(c: Core, job: Job) -> bool:
+    """A one-step job whose target is where the arm is heading already."""
+    heading = _heading(c)
+    if heading is None or len(job.steps) != 1:
+        return False
+    for name, deg in job.steps[0].target.items():
+        there = heading.get(name)
+        if there is None or abs(deg - there) > c.arm.same_deg[name]:
+            return False
+    return True
 
-    def board_for(self, job: Job) -> SSC32U | None:
-        """The board to write the job's next step on; None if the job has been ended."""
-        with self._lock:
-            return self._board if self._holds(job) else None
 
-    def step_written(self, job: Job, written: Written) -> Motion | None:
-        """A step's bytes went out: the motion on the board, or None if the job was ended
-        meanwhile (then a STOP came after the bytes and halted them)."""
-        with self._lock:
-            return self._written(job, written)
+def _supersedes(c: Core, job: Job) -> bool:
+    """A set-point may take the place of the running one of its stream: nothing waits before
+    it, nothing is to be read back, a board is there and the arm moves."""
+    run = c.run
+    return (
+        run is not None
+        and run.job.stream == job.stream
+        and run.job.mode is Mode.QUEUE
+        and not c.queue
+        and not c.readback
+        and c.link.checked
+        and c.state is State.MOVING
+    )
 
-    def reached(self, job: Job, target: Mapping[str, float]) -> bool:
-        """A step's time is over (and, for the last, `Q` said done); False if ended meanwhile."""
-        with self._lock:
-            if job is not self._current or job.epoch != self._epoch:
-                return False
-            self._book.reached(target)
-            return True
 
-    def done(self, job: Job) -> bool:
-        """The job has completed (its outcome is DONE); False if it was ended meanwhile."""
-        with self._lock:
-            if not self._holds(job):
-                return False
-            self._book.at_rest()
-            return self._end_current(job, completed=True)
+def _cancel(c: Core, ev: Cancel, out: Out) -> Core:
+    """Cancel one move: a waiting one is dropped; a running one is halted where it is,
+    without the lock. Whether it was there is the answer."""
+    job = next((j for j in c.queue if j.instr.id == ev.ident), None)
+    if job is not None:
+        c = replace(c, queue=tuple(j for j in c.queue if j is not job))
+        if c.run is None and not c.queue and c.state is State.MOVING:
+            c = fire(c, Event.MOVE_DONE, out)
+        finish(job, Result.CANCELLED, ev.reason, ev.t, out)
+        out.append(Reply(ev.ref, True))
+        return c
+    run = c.run
+    if run is None or run.job.instr.id != ev.ident or run.job.mode is not Mode.QUEUE:
+        out.append(Reply(ev.ref, False))
+        return c
+    c = running.end_run(c, ev.reason, ev.t, out)
+    out.append(Reply(ev.ref, True))
+    return c
 
-    def let_go(self, job: Job) -> bool:
-        """The job ends without completing (refused at its start, or its runner found it
-        ended): no longer current. True if it still was (its outcome is then the caller's)."""
-        with self._lock:
-            return self._end_current(job)
 
-    def lose(self, error: SerialFault) -> Ended:
-        """A serial fault, seen by any thread: everything pending ends; the board is let go
-        (the caller closes it). Nothing more if the fault is known already."""
-        with self._lock:
-            if self._state is State.FAULT and self._board is None:
-                if isinstance(error, BoardReset) and not isinstance(self._fault, BoardReset):
-                    self._fault = error
-                return Ended()
-            return self._lose(error)
+def _gone(c: Core, ev: Gone, out: Out) -> Core:
+    """A client has gone without saying goodbye: what it commanded does not go on (its
+    waiting moves are cancelled, its running one is halted where it is)."""
+    why = f"lost contact with the client{f' ({ev.why})' if ev.why else ''}"
+    mine = [j for j in c.queue if j.client == ev.client]
+    if mine:
+        c = replace(c, queue=tuple(j for j in c.queue if j.client != ev.client))
+        cancel_all(mine, why, ev.t, out)
+        if c.run is None and not c.queue and c.state is State.MOVING:
+            c = fire(c, Event.MOVE_DONE, out)
+    run = c.run
+    if run is not None and run.job.client == ev.client and run.job.mode is Mode.QUEUE:
+        say(out, logging.WARNING, f"{run.job.instr.name} [{run.job.instr.id}]: {why}: halted")
+        c = running.end_run(c, why, ev.t, out)
+    return c
 
-    def connected(self, board: SSC32U) -> None:
-        with self._lock:
-            self._board = board
 
-    def unreachable(self, error: SerialFault) -> None:
-        """The board could not be reached (at start, or a device that is not a board at a
-        reconnect): the fault's reason, and the state `fault`."""
-        with self._lock:
-            self._fault = error
-            if self._state is not State.FAULT:
-                self._fire(Event.SERIAL_FAULT)
+# -- the core's own work ----------------------------------------------------------------
 
-    def reconnected(self, board: SSC32U, pose: Mapping[str, float | None], reset: bool) -> None:
-        """The board is back, its pose read; `reset`: it restarted while the link was down."""
-        with self._lock:
-            if reset:
-                self._lock_arm("the board's reset", wall_ns())
-                self._book.forget()
-            self._book.read_back(pose)
-            self._board = board
-            self._fault = None
-            self._readback = False
-            if self._state is State.FAULT:  # not if a shutdown came meanwhile: it parks now
-                self._fire(Event.RECONNECTED)
 
-    def read_back(self, pose: Mapping[str, float | None], token: int | None) -> bool:
-        """The pose read from the board, `token` taken by `write_token` before the read: it
-        stands only if no caller's write was under way then or began since (else read again)."""
-        with self._cv:
-            if not self._untouched(token):
-                return False
-            self._book.read_back(pose)
-            if self._current is None:
-                self._readback = False
-            self._cv.notify_all()
-            return True
+def _advance(c: Core, t: float, wall: int, out: Out) -> Core:
+    """Do what can be done now, in the order of the module's docstring, until nothing more."""
+    for _ in range(64):
+        after = _next(c, t, wall, out)
+        if after is c:
+            return c
+        c = after
+    return c
 
-    def wait_unless_shutdown(self, timeout: float) -> bool:
-        """Sleep `timeout` (a reconnect's interval); False if a shutdown came."""
-        with self._cv:
-            if self._shutdown is None:
-                self._cv.wait(timeout)
-            return self._shutdown is None
 
-    def worker_failed(self, error: SerialFault) -> Ended:
-        """The worker has died of a bug: everything pending ends (the shutdown too), so that
-        nothing waits for an outcome that would never come."""
-        with self._lock:
-            ended = self._lose(error)
-            shutdown = self._shutdown
-            if shutdown is not None and shutdown not in ended.jobs:
-                ended = Ended((*ended.jobs, shutdown), ended.reason, ended.board)
-            return ended
+def _next(c: Core, t: float, wall: int, out: Out) -> Core:
+    """One thing that can be done now; the core as it was if none."""
+    if c.ended:
+        return c
+    link = c.link
+    if not link.open:
+        if link.opening:
+            return c
+        if c.shutdown is not None:
+            why = f"the serial link is lost ({c.fault}): the arm is not parked"
+            return end_shutdown(c, why, t, out)
+        if t >= link.open_at:
+            out.append(Open())
+            return replace(c, link=replace(link, opening=True))
+        return c
+    if link.query is not None and t >= board.due(link.query, link.stalled):
+        return board.overdue(c, t, wall, out)
+    if link.rest:
+        after = running.pieces(c, t, out)
+        if after is not c:
+            return after
+    if not link.checked:
+        return c
+    if link.next is not None:
+        return board.settle(c, t, out)
+    if c.state is State.FAULT:
+        return c
+    if c.run is not None:
+        return running.progress(c, t, out)
+    if c.shutdown is not None:
+        if c.shutdown_taken:
+            return c
+        park = c.shutdown
+        return replace(c, shutdown_taken=True, run=Run(park, park.steps))
+    if c.readback:
+        return board.read_pose(c, t, out) if board.can_ask(c, t) else c
+    if c.state is State.INITIALIZING and not c.parked:
+        return running.start(c, _startup_park(c, t, wall), t, out)
+    if c.queue and c.state is not State.INITIALIZING:
+        job, rest = c.queue[0], c.queue[1:]
+        return running.start(replace(c, queue=rest), job, t, out)
+    if t >= link.watched + c.arm.settings.idle_check_interval_s and board.can_ask(c, t):
+        return board.watch(c, t, out)
+    return c
 
-    def worker_ended(self) -> None:
-        self.finished.set()
-        with self._cv:
-            self._cv.notify_all()
+
+def _startup_park(c: Core, t: float, wall: int) -> Job:
+    """D1, VE03: park once, at half speed where the board allows it, before `ready`."""
+    park = (Step(dict(c.arm.config.presets["park"]), None),)
+    fraction = c.arm.settings.startup_speed_fraction
+    instr = Instruction(Kind.PRESET, preset="park", id="startup")
+    return Job(0, instr, park, t, wall, c.epoch, fraction, Mode.STARTUP, tell=False)
+
+
+def wake_at(c: Core, t: float) -> float:
+    """When after `t` the core wants a `Tick` at the latest, whatever else comes (inf: only an
+    input wakes it). An early one is harmless: nothing is due, nothing is done; what is due
+    already but waits for something else (the wire, a query's answer) is woken by that."""
+    if c.ended:
+        return math.inf
+    link = c.link
+    if not link.open:
+        return math.inf if link.opening else max(link.open_at, t)
+    times = [link.watched + c.arm.settings.idle_check_interval_s, link.free_at]
+    if link.query is not None:
+        times.append(board.due(link.query, link.stalled))
+    if link.rest:
+        times.append(link.free_at - running.WIRE_HORIZON_S)
+    if c.run is not None:
+        times += running.wakes(c, c.run)
+    return min((x for x in times if x > t), default=math.inf)

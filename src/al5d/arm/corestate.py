@@ -1,354 +1,555 @@
-"""The fields of the arm's protocol, what may be read of them, and the steps its events are
-made of: the state behind `core.Core`, whose events (`core`) are the only writers.
+"""The core's vocabulary and its state: what comes in (inputs), what goes out (effects), and
+the value the protocol (`core.step`) turns one into the next.
 
-Everything with a leading underscore here is called by an event, under the core's lock.
+Data only (frozen). Times are CLOCK_MONOTONIC seconds (`al5d.clock.now`), sending times
+CLOCK_REALTIME ns (`al5d.clock.wall_ns`); every input carries both, as the owner read
+them when it took the input, and nothing here reads a clock.
 """
 
 from __future__ import annotations
 
-import math
-import threading
-from collections import deque
-from collections.abc import Callable
+import logging
+from collections.abc import Hashable, Mapping
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
-from al5d.arm.config import ArmConfig
-from al5d.arm.effects import Announcer, Ended, Halt, LinkView
-from al5d.arm.jobs import Job, Mode, Motion, Written, stop_order
-from al5d.arm.order import ChannelOrder
+from al5d.arm import jobs
+from al5d.arm.config import ArmConfig, ServerSettings
+from al5d.arm.instruction import Instruction, Outcome, Result
+from al5d.arm.jobs import Job, Mode, Sent, Written, stop_order
+from al5d.arm.order import Order
 from al5d.arm.pose import PoseBook
-from al5d.arm.states import (
-    Event,
-    Guards,
-    State,
-    TransitionError,
-    next_state,
-)
-from al5d.clock import now, wall_ns
-from al5d.ssc32u.driver import SSC32U
+from al5d.arm.states import Event, Guards, State, TransitionError, next_state
+from al5d.arm.translate import Translator
+from al5d.arm.validate import Limits, Steps, Ticket
+from al5d.ssc32u import protocol as p
 from al5d.ssc32u.errors import BoardReset, SerialFault
+from al5d.ssc32u.facts import LATENCY_TIMER_MS, LOW_LATENCY_TIMER_MS
+
+# -- inputs -----------------------------------------------------------------------------
 
 
-class Runner(Enum):
-    """Who runs the current job."""
+@dataclass(frozen=True, slots=True)
+class Input:
+    """Something the owner hands the core, at `t` (monotonic s) and `wall` (realtime ns)."""
 
-    CALLER = "its caller writes its first step"
-    HANDED = "written by its caller, for the worker to see through"
-    WORKER = "the worker"
-    NEXT = "took a running set-point's place: the worker writes it as soon as the wire allows"
+    t: float
+    wall: int
 
 
-class CoreState:
-    """Every field of one arm's driver (`core.Core` adds the events that change them).
+@dataclass(frozen=True, slots=True)
+class Ask(Input):
+    """A request: an instruction (or a ticket judged already), from client `client`, its
+    outcome to go to `ref`. `stream`: a set-point of that stream; `key`: a stop message's
+    identity where two readers may both see it (rule 3); `tell`: the outcome listeners
+    hear of its outcome too."""
 
-    What it owns besides its own fields, each written only under its lock: the pose
-    (`pose.PoseBook`), the sending times the order across channels is judged by
-    (`order.ChannelOrder`), and the transitions still to announce (`effects.Announcer`).
-    """
+    ref: int
+    instr: Instruction
+    ticket: Ticket | None = None
+    stream: str = ""
+    key: Hashable | None = None
+    client: int = 0
+    tell: bool = True
 
-    def __init__(self, config: ArmConfig, state_listeners: list[Callable[[State], None]]) -> None:
-        self._lock = threading.Lock()
-        self._cv = threading.Condition(self._lock)
-        self._channels = {name: j.channel for name, j in config.joints.items()}
-        #: Half a pulse microsecond per joint, in degrees: a set-point closer than this to
-        #: where a joint is going writes the same pulse, so it changes nothing.
-        self._same_deg = {name: 0.5 / abs(j.us_per_deg) for name, j in config.joints.items()}
-        self._capacity = config.server.queue_capacity
-        self._state = State.INITIALIZING
-        self._announcer = Announcer(state_listeners, self._state)
-        self._locked = False  # a stop (or a board's reset) and no release since
-        self._epoch = 0  # counts the events that dropped every pending move
-        # Why the streams of set-points are held (empty: they are not). A stream's source
-        # (ros2_control's hardware) sends its last target again and again while the arm is
-        # off it: after a stop, that target must not drive the arm once it is released.
-        self._streams_held = ""
-        #: When a set-point of each stream last came (CLOCK_MONOTONIC): the watchdog holds
-        #: the arm where it is once none has come for `server.stream_timeout_s`.
-        self._stream_seen: dict[str, float] = {}
-        self._queue: deque[Job] = deque()
-        self._current: Job | None = None
-        self._runner: Runner | None = None
-        self._board: SSC32U | None = None
-        self._fault: SerialFault | None = None
-        #: The pose is to be read back from the board (after a halt): nothing is written
-        #: until it has been, or the pose read would be a snapshot of a motion.
-        self._readback = False
-        self._shutdown: Job | None = None
-        self._shutdown_taken = False  # the worker has begun the shutdown
-        self._parked = False  # the start-up park has been done
-        self._book = PoseBook(config.joints)
-        self._order = ChannelOrder()
-        #: Writes from a caller's thread (a fast-path step, a STOP) begun, and under way: a
-        #: link check or a read-back judges what it reads only if none began meanwhile.
-        self._writes = 0
-        self._writing = 0
-        #: Set when the worker has ended (after the shutdown, or if it failed).
-        self.finished = threading.Event()
 
-    # -- reading (a snapshot each) -----------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class Cancel(Input):
+    """Cancel the move `ident`; whether it was there goes to `ref` (`Reply`)."""
 
-    @property
-    def state(self) -> State:
-        return self._state
+    ref: int
+    ident: str
+    reason: str = "cancelled by the client"
 
-    @property
-    def locked(self) -> bool:
-        return self._locked
 
-    @property
-    def epoch(self) -> int:
-        """Read without the lock (one int) by a step's last check under the write lock."""
-        return self._epoch
+@dataclass(frozen=True, slots=True)
+class Tick(Input):
+    """Time has passed. `stalled`: the seconds, so far, the owner's thread was not running
+    when it should have been, or the host was short of cores (a board's answer that came
+    that much late was late because of the host, not the board)."""
 
-    @property
-    def board(self) -> SSC32U | None:
-        return self._board
+    stalled: float = 0.0
 
-    @property
-    def fault(self) -> SerialFault | None:
-        return self._fault
 
-    @property
-    def shutdown_job(self) -> Job | None:
-        return self._shutdown
+@dataclass(frozen=True, slots=True)
+class Received(Input):
+    """Bytes from the board."""
 
-    def positions(self, t: float | None = None) -> dict[str, float]:
-        """Estimated joint angles (degrees; NaN where unknown since power-up)."""
-        with self._lock:
-            return self._book.positions(t)
+    data: bytes
 
-    def pose(self) -> dict[str, float | None]:
-        """The pose at rest, as a step is planned from it."""
-        with self._lock:
-            return self._book.pose
 
-    def start_pose(self, job: Job, t: float) -> dict[str, float | None]:
-        """The pose a job's step is planned from: the pose at rest, but for a set-point that
-        retargets a motion under way (the first step of a job while the board still runs
-        the set-point it superseded): where that motion has the arm at `t`, when the new
-        bytes take effect."""
-        with self._lock:
-            pose = self._book.pose
-            motion = self._book.motion
-            if job.step == 0 and job.stream and motion is not None:
-                pose.update(motion.at(t))
-            return pose
+@dataclass(frozen=True, slots=True)
+class Opened(Input):
+    """The port asked for by `Open`: opened (`error` None; `low_latency`: the USB chip
+    passes short answers on at once), or not."""
 
-    def stream_quiet(self, job: Job) -> float:
-        """Seconds since a set-point of the job's stream last came, or since the job was
-        written if that is later (one that waited behind other moves starts afresh)."""
-        with self._lock:
-            return self._quiet(job)
+    error: SerialFault | None = None
+    low_latency: bool = False
 
-    def progress(self, ident: str) -> float | None:
-        """0..1 of the running job `ident` (by its steps), or None if it is not running."""
-        with self._lock:
-            job, motion = self._current, self._book.motion
-            if job is None or motion is None or job.instr.id != ident or not job.steps:
-                return None
-            return (job.step + motion.progress(now())) / len(job.steps)
 
-    def q_believed(self) -> bool:
-        with self._lock:
-            return self._book.q_believed(now())
+@dataclass(frozen=True, slots=True)
+class Failed(Input):
+    """Reading or writing the open port failed."""
 
-    def link_view(self) -> LinkView | None:
-        """What the next link check reads back and judges (None: no pose is known)."""
-        with self._lock:
-            return self._book.link_view(now(), self._token())
+    error: SerialFault
 
-    def write_token(self) -> int | None:
-        """A token of the callers' writes so far, for `untouched` (None: one is under way)."""
-        with self._lock:
-            return self._token()
 
-    def untouched(self, token: int | None) -> bool:
-        """No caller's write began since `token` was taken (and none was under way then)."""
-        with self._lock:
-            return self._untouched(token)
+@dataclass(frozen=True, slots=True)
+class Gone(Input):
+    """Client `client` has gone (closed, ended, or lost: `why`)."""
 
-    # -- the state machine and its announcements -------------------------------------------
+    client: int
+    why: str = ""
 
-    def _guards(self) -> Guards:
-        running = self._current is not None and self._current.mode is Mode.QUEUE
-        return Guards(
-            queue_empty=not self._queue and not running, locked=self._locked, parked=self._parked
+
+# -- effects ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Send:
+    """Bytes for the board, to write now."""
+
+    data: bytes
+
+
+@dataclass(frozen=True, slots=True)
+class Open:
+    """Open the port (the owner answers with `Opened`)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Close:
+    """Close the port."""
+
+
+@dataclass(frozen=True, slots=True)
+class Resolve:
+    """The one outcome of request `ref`; `tell`: the outcome listeners hear of it too."""
+
+    ref: int
+    outcome: Outcome
+    tell: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class Reply:
+    """The answer to a `Cancel`: whether the move was there to cancel."""
+
+    ref: int
+    ok: bool
+
+
+@dataclass(frozen=True, slots=True)
+class Announce:
+    """A transition of the state machine (logged, and told to the state listeners)."""
+
+    event: Event
+    old: State
+    new: State
+
+
+@dataclass(frozen=True, slots=True)
+class Moved:
+    """A step's bytes are all out: the board runs its motion."""
+
+    sent: Sent
+
+
+@dataclass(frozen=True, slots=True)
+class Posed:
+    """What the core believes of the arm changed: where it is, where it goes, which step of
+    which instruction runs (for the clients that show or follow the arm)."""
+
+    book: PoseBook
+    running: tuple[str, int, int] | None  # (instruction id, step, steps)
+
+
+@dataclass(frozen=True, slots=True)
+class Say:
+    """A log line (logging's level)."""
+
+    level: int
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class End:
+    """The core has ended (after the shutdown); `parked`: the arm reached park."""
+
+    parked: bool
+
+
+Effect = Send | Open | Close | Resolve | Reply | Announce | Moved | Posed | Say | End
+
+
+# -- the state --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Arm:
+    """What the core knows of the arm and its board, which no input changes."""
+
+    config: ArmConfig
+    port: str
+    baud: int
+    limits: Limits
+    translator: Translator
+    channels: Mapping[str, int]
+    #: Half a pulse microsecond per joint, in degrees: a set-point closer than this to
+    #: where a joint is going writes the same pulse, so it changes nothing.
+    same_deg: Mapping[str, float]
+
+    @classmethod
+    def of(cls, config: ArmConfig, port: str, baud: int | None = None) -> Arm:
+        baud = baud or config.server.baud
+        return cls(
+            config,
+            port,
+            baud,
+            Limits.of(config, baud),
+            Translator(config),
+            {n: j.channel for n, j in config.joints.items()},
+            {n: 0.5 / abs(j.us_per_deg) for n, j in config.joints.items()},
         )
 
-    def _fire(self, event: Event) -> State:
-        old = self._state
-        new = next_state(old, event, self._guards())
-        if new is None:
-            raise TransitionError(f"no transition from {old.value} on {event.value}")
-        self._state = new
-        self._announcer.note(event, old, new)
-        self._cv.notify_all()
-        return new
+    @property
+    def settings(self) -> ServerSettings:
+        return self.config.server
 
-    def announce(self) -> None:
-        """Log the transitions made so far (INF01, INF02) and tell the listeners, in order."""
-        self._announcer.announce()
 
-    def wait_announced(self, state: State, timeout: float) -> None:
-        self._announcer.wait(state, timeout, lambda: self._state)
+class Purpose(Enum):
+    """What a query is asked for."""
+
+    VERSION = "VER: is it an SSC-32U"
+    POSE = "QP of every channel: where the servos are"
+    PROBE = "QP of one channel: the link, and that the board has not reset"
+    ALIVE = "Q: the link (no pose is known to probe)"
+    DONE = "Q: the last step has ended"
+    HALTED = "Q: is the board still running a move that was cancelled"
+
+
+@dataclass(frozen=True, slots=True)
+class Probe:
+    """A link check's `QP`: the channel it reads, and the pulses (us) it expects there."""
+
+    joint: str
+    channel: int
+    low_us: float
+    high_us: float
+
+
+@dataclass(frozen=True, slots=True)
+class Query:
+    """A query on its way: its bytes, how its answer ends (bytes each, or None: a CR), when
+    it is due, how often it was asked, and what had been written when it was asked."""
+
+    purpose: Purpose
+    data: bytes
+    n_answer: int | None
+    due: float
+    asks: int
+    writes: int
+    stalled: float
+    probe: Probe | None = None
+
+
+class Next(Enum):
+    """What comes after the pose is read from a board just opened (or at the shutdown)."""
+
+    STARTUP = "the start-up park"
+    RECONNECT = "back from a fault"
+    SHUTDOWN = "the shutdown's park"
+
+
+@dataclass(frozen=True, slots=True)
+class Link:
+    """The board's connection, the account of its wire, and the line and query on it."""
+
+    #: The port is open (it may still be checked); False: `Open` is due at `open_at`.
+    open: bool = False
+    opening: bool = False  # `Open` is out, `Opened` not back yet
+    checked: bool = False  # VER said SSC-32U
+    open_at: float = 0.0
+    #: The margin an answer may take beyond its wire time (the read timeout and the USB
+    #: chip's latency timer).
+    margin_s: float = 0.0
+    #: When the wire will have carried every byte written so far.
+    free_at: float = 0.0
+    #: A line going out in pieces: the bytes still to write, and what it is (a step of the
+    #: current run, or a halt).
+    rest: bytes = b""
+    rest_is_halt: bool = False
+    #: A line was cut short (its rest not written): the next bytes begin with ESC.
+    cut: bool = False
+    query: Query | None = None
+    received: bytes = b""
+    writes: int = 0  # lines (and stops) written so far: a QP's answer is judged if none since
+    watched: float = 0.0  # when the link was last checked
+    #: After the pose is read from a board just opened: what comes next; `halt_checked`:
+    #: a move the board may still run (cancelled without a halt) has been halted.
+    next: Next | None = None
+    halt_checked: bool = False
+    #: The host's stalls so far, as the last `Tick` said (queries' deadlines excuse them).
+    stalled: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class Run:
+    """The current job as it runs: its steps, the step now, and the step's write."""
+
+    job: Job
+    steps: Steps
+    k: int = 0
+    #: Step `k`'s write (None: it waits for the wire). Its time is over at `written.t_end`.
+    written: Written | None = None
+    #: When the step written last is due to end by the schedule: the timed steps after the
+    #: first keep to the schedule of the first, so that a late wake-up, or a point faster
+    #: than the servos, does not make every later point late too.
+    t_due: float = 0.0
+    expected_ms: float = 0.0
+    #: The last step's time is over: `Q` is asked (every `POLL_S`) until it says done.
+    confirming: bool = False
+    poll_at: float = 0.0
+    #: The step's line, planned: its bytes and its time (sent with the line's first piece).
+    line: bytes = b""
+    line_ms: int = 0
+    line_start: Mapping[str, float] = field(default_factory=dict)
+    t_write: float = 0.0
+    #: What the owner changed of what was asked (a time raised to what the servos can do),
+    #: said in the outcome.
+    notes: tuple[str, ...] = ()
+    #: A set-point that took a running one's place: planned from where that one has the
+    #: arm when its bytes take effect.
+    retarget: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Core:
+    """Everything the arm's protocol knows; `core.step` makes the next one from an input."""
+
+    arm: Arm
+    book: PoseBook
+    state: State = State.INITIALIZING
+    locked: bool = False  # a stop (or a board's reset) and no release since
+    epoch: int = 0  # counts the events that dropped every pending move
+    #: Why the streams of set-points are held (empty: they are not). A stream's source
+    #: (ros2_control's hardware) sends its last target again and again while the arm is
+    #: off it: after a stop, that target must not drive the arm once it is released.
+    streams_held: str = ""
+    #: When a set-point of each stream last came: the watchdog holds the arm where it is
+    #: once none has come for `server.stream_timeout_s`.
+    stream_seen: Mapping[str, float] = field(default_factory=dict)
+    queue: tuple[Job, ...] = ()
+    run: Run | None = None
+    link: Link = field(default_factory=Link)
+    fault: SerialFault | None = None
+    #: The pose is to be read back from the board (after a halt): nothing is written until
+    #: it has been, or the pose read would be a snapshot of a motion.
+    readback: bool = False
+    shutdown: Job | None = None
+    shutdown_taken: bool = False
+    parked: bool = False  # the start-up park has been done
+    order: Order = field(default_factory=Order)
+    ended: bool = False
+    firmware: str = ""  # what the board said to VER
+
+    @classmethod
+    def start(cls, arm: Arm, t: float = 0.0) -> Core:
+        """A core for `arm`, its port to open at `t`."""
+        return cls(arm, PoseBook.unknown(arm.config.joints), link=Link(open_at=t))
+
+    # -- reading -------------------------------------------------------------------------
+
+    def positions(self, t: float) -> dict[str, float]:
+        """Estimated joint angles at `t` (degrees; NaN where unknown since power-up)."""
+        return self.book.positions(t)
 
     @property
-    def announced(self) -> State:
-        return self._announcer.announced
-
-    # -- helpers (lock held) -----------------------------------------------------------
-
-    def _token(self) -> int | None:
-        return None if self._writing else self._writes
-
-    def _untouched(self, token: int | None) -> bool:
-        return token is not None and token == self._writes and not self._writing
-
-    def _holds(self, job: Job) -> bool:
-        """The job is still the current one, of this epoch, not cancelled."""
-        return job is self._current and job.epoch == self._epoch and not job.cancel.is_set()
-
-    def _idle(self) -> bool:
+    def idle(self) -> bool:
         """At rest on a board: nothing runs, is written, waits or is to be read back."""
         return (
-            self._state is State.READY
-            and self._board is not None
-            and self._current is None
-            and not self._queue
-            and not self._readback
-            and not self._writing
+            self.state is State.READY
+            and self.link.checked
+            and self.run is None
+            and not self.queue
+            and not self.readback
+            and not self.link.rest
         )
 
-    def _heading(self) -> dict[str, float | None] | None:
-        """Where the arm rests once the current job is done (the pose at rest when none
-        runs); None when that is not known yet: moves wait (a Cartesian one is planned
-        from where the arm is when it starts), or the pose is to be read back."""
-        if self._queue or self._readback:
-            return None
-        pose = self._book.pose
-        job = self._current
-        if job is not None:
-            if job.mode is not Mode.QUEUE or not job.steps:
-                return None
-            pose.update(job.steps[-1].target)
-        return pose
 
-    def _unchanged(self, job: Job) -> bool:
-        """A one-step job whose target is where the arm is heading already."""
-        heading = self._heading()
-        if heading is None or len(job.steps) != 1:
-            return False
-        for name, deg in job.steps[0].target.items():
-            there = heading.get(name)
-            if there is None or abs(deg - there) > self._same_deg[name]:
-                return False
-        return True
+def margin_s(settings: ServerSettings, low_latency: bool) -> float:
+    """How long an answer may take beyond its wire time: the read timeout, and the time a
+    short answer waits in the board's USB chip."""
+    timer_ms = LOW_LATENCY_TIMER_MS if low_latency else LATENCY_TIMER_MS
+    return settings.answer_timeout_s + timer_ms / 1000.0
 
-    def _quiet(self, job: Job) -> float:
-        seen = self._stream_seen.get(job.stream, -math.inf)
-        written = job.written.t_write if job.written is not None else -math.inf
-        return now() - max(seen, written)
 
-    def _supersede(self, job: Job) -> Job | None:
-        """A set-point takes the place of the running one of its stream, where nothing waits
-        before it and nothing is to be read back: that one ends (none of its bytes still to
-        go is written) and this one is the current job, for the worker to write as soon as
-        the wire allows; the board retargets a group move mid-move. The one it took the
-        place of; None where it may not (it is then admitted as any move)."""
-        running = self._current
-        if (
-            not job.stream
-            or running is None
-            or running.stream != job.stream
-            or running.mode is not Mode.QUEUE
-            or self._queue
-            or self._readback
-            or self._board is None
-            or self._state is not State.MOVING
-        ):
-            return None
-        running.superseded = True
-        running.cancel.set()
-        self._current, self._runner = job, Runner.NEXT
-        self._cv.notify_all()
-        return running
+# -- the steps the inputs share ---------------------------------------------------------
+#
+# Each takes the core and what it needs, adds what is to be done to `out` (in order), and
+# returns the new core.
 
-    def _drop(self, why: str, sent_ns: int) -> Ended:
-        """End the epoch: the current job and every waiting one are never to be written. The
-        shutdown's park is left to the worker, which reports it. `sent_ns`: when the event
-        that drops them was sent."""
-        self._epoch += 1
-        self._order.dropped(why, sent_ns)
-        self._streams_held = why
-        jobs = list(self._queue)
-        self._queue.clear()
-        current, self._current, self._runner = self._current, None, None
-        if current is not None:
-            current.cancel.set()
-            if current is not self._shutdown:
-                jobs.insert(0, current)
-        return Ended(tuple(jobs), why)
+Out = list[Effect]
 
-    def _halt(self, ended: Ended, urgent: bool = True) -> Halt:
-        """A STOP of every channel, the moving joints first (lock held; written outside);
-        `urgent` but for a cancelled move's."""
-        t = now()
-        channels = tuple(stop_order(self._book.motion, t, self._channels))
-        self._book.halted(t)
-        self._writes += 1
-        self._writing += 1
-        self._readback = True
-        return Halt(self._board, channels, ended, urgent)
 
-    def _lock_arm(self, by: str, sent_ns: int) -> None:
-        """Lock (or keep locked), by an event sent at `sent_ns`: a release must be sent later."""
-        self._order.locked(by, sent_ns, self._locked)
-        self._locked = True
+def guards(c: Core) -> Guards:
+    running = c.run is not None and c.run.job.mode is Mode.QUEUE
+    return Guards(queue_empty=not c.queue and not running, locked=c.locked, parked=c.parked)
 
-    def _lose(self, error: SerialFault) -> Ended:
-        """The fault: the link is gone (or the board reset); everything pending ends."""
-        reset = isinstance(error, BoardReset)
-        self._fault = error
-        t = wall_ns()
-        if reset:
-            # A safety event: nothing moves again until a person has looked at the arm.
-            self._lock_arm("the board's reset", t)
-            self._book.forget()
-        board, self._board = self._board, None
-        why = str(error) if reset else f"the serial link is lost: {error}"
-        ended = self._drop(why, t)
-        self._book.lost()
-        self._readback = False  # reconnecting reads the pose back
-        if self._state is not State.FAULT:
-            self._fire(Event.SERIAL_FAULT)
-        return Ended(ended.jobs, why, board)
 
-    def _end_current(self, job: Job, completed: bool = False) -> bool:
-        """The current job ends (completed: its last step is done); False if it was not
-        current (an event ended it before)."""
-        if job is not self._current:
-            return False
-        self._current, self._runner = None, None
-        if job.mode is Mode.STARTUP and completed:
-            self._parked = True
-            self._fire(Event.MOVE_DONE)
-        elif job.mode is Mode.QUEUE and self._state is State.MOVING:
-            self._fire(Event.MOVE_DONE)
-        self._cv.notify_all()
-        return True
+def fire(c: Core, event: Event, out: Out) -> Core:
+    """The state machine's transition on `event` (`states.TABLE`); announced."""
+    new = next_state(c.state, event, guards(c))
+    if new is None:
+        raise TransitionError(f"no transition from {c.state.value} on {event.value}")
+    out.append(Announce(event, c.state, new))
+    return replace(c, state=new)
 
-    def _written(self, job: Job, written: Written) -> Motion | None:
-        if not self._holds(job) and not (job.superseded and job.epoch == self._epoch):
-            # Q answers "moving" until this step's time is over, even halted (UG-38).
-            self._book.distrust_q(written.motion)
-            return None
-        # A superseded set-point's bytes that went out are the board's motion all the same:
-        # the one that took its place is written only after this is told (the worker waits
-        # for a caller's write; its own it reports first), and retargets it.
-        motion = self._book.moving(written.motion, written.t_write)
-        self._book.written(motion, written.t_end)
-        job.written = written
-        if self._board is not None and self._board.gated:  # for the stop process's STOP
-            order = stop_order(motion, written.t_write, self._channels)
-            self._board.plan_stops(order, motion.t0 + motion.duration_s)
-        return motion
+
+def say(out: Out, level: int, text: str) -> None:
+    out.append(Say(level, text))
+
+
+def finish(
+    job: Job, result: Result, reason: str, t: float, out: Out, expected: float = 0.0
+) -> None:
+    """The job's one outcome."""
+    outcome = jobs.outcome(job.instr, result, reason, job.t_submit, t, expected)
+    out.append(Resolve(job.ref, outcome, job.tell))
+
+
+def posed(c: Core, out: Out) -> None:
+    """Tell the clients that follow the arm what the core now believes."""
+    run = c.run
+    running = (run.job.instr.id, run.k, len(run.steps)) if run is not None and run.steps else None
+    out.append(Posed(c.book, running))
+
+
+def send(c: Core, data: bytes, t: float, out: Out, *, pulses: bool = True) -> Core:
+    """Bytes to the board now, on the wire's account; `pulses`: they may change what the
+    board puts out (a line, a STOP: not a query). After a line cut short, ESC first."""
+    link = c.link
+    if link.cut and not data.startswith(p.CANCEL):
+        data = p.CANCEL + data
+    out.append(Send(data))
+    free = max(t, link.free_at) + p.wire_time_s(len(data), c.arm.baud)
+    link = replace(link, free_at=free, cut=False, writes=link.writes + pulses)
+    return replace(c, link=link)
+
+
+def lock_arm(c: Core, by: str, sent_ns: int) -> Core:
+    """Lock (or keep locked), by an event sent at `sent_ns`: a release must be sent later."""
+    return replace(c, locked=True, order=c.order.locked(by, sent_ns, c.locked))
+
+
+def drop(c: Core, why: str, sent_ns: int) -> tuple[Core, list[Job]]:
+    """End the epoch: the current job and every waiting one are never to be written (their
+    outcomes are the caller's to set). A step's line still going out is cut; the shutdown's
+    own park is not among them. `sent_ns`: when the event that drops them was sent."""
+    jobs = list(c.queue)
+    run = c.run
+    if run is not None and run.job is not c.shutdown:
+        jobs.insert(0, run.job)
+    link = c.link
+    if link.rest and not link.rest_is_halt:
+        link = replace(link, rest=b"", cut=True)
+    c = replace(
+        c,
+        epoch=c.epoch + 1,
+        order=c.order.dropped(why, sent_ns),
+        streams_held=why,
+        queue=(),
+        run=None,
+        link=link,
+    )
+    return c, jobs
+
+
+def halt(c: Core, t: float, out: Out, urgent: bool = True) -> Core:
+    """A STOP of every channel, the moving joints first: an emergency stop's at once; a
+    cancelled move's (`urgent` False) on the wire's pace, in place of a line going out. The
+    pose is where the motion is now, until it is read back."""
+    order = stop_order(c.book.motion, t, c.arm.channels)
+    c = replace(c, book=c.book.halted(t), readback=True)
+    if not c.link.open:
+        return c
+    data = p.CANCEL + p.encode_stop(order)
+    if urgent:
+        # Its ESC cancels on the board whatever part of a line went out before it.
+        c = replace(c, link=replace(c.link, rest=b"", cut=False))
+        return send(c, data, t, out)
+    return replace(c, link=replace(c.link, rest=data, rest_is_halt=True, cut=False))
+
+
+def cancel_all(jobs: list[Job], why: str, t: float, out: Out) -> None:
+    for job in jobs:
+        finish(job, Result.CANCELLED, why, t, out)
+
+
+#: Said when a reset has locked the arm.
+RESET_LOCKED = "the arm is locked after the board's reset: send release to go on"
+
+
+def lose(c: Core, error: SerialFault, t: float, wall: int, out: Out) -> Core:
+    """The fault: the link is gone (or the board reset); everything pending ends, the port is
+    closed and opened again every `server.reconnect_interval_s`."""
+    reset = isinstance(error, BoardReset)
+    say(out, logging.ERROR, f"serial fault: {error}")
+    if reset:
+        # A safety event: nothing moves again until a person has looked at the arm.
+        c = replace(lock_arm(c, "the board's reset", wall), book=c.book.forget())
+        say(out, logging.WARNING, RESET_LOCKED)
+    why = str(error) if reset else f"the serial link is lost: {error}"
+    c, jobs = drop(c, why, wall)
+    if c.link.open or c.link.opening:
+        out.append(Close())
+    interval = c.arm.settings.reconnect_interval_s
+    c = replace(
+        c,
+        fault=error,
+        book=c.book.lost(),
+        readback=False,
+        link=Link(open_at=t + interval, watched=t),
+    )
+    if c.state is not State.FAULT:
+        c = fire(c, Event.SERIAL_FAULT, out)
+    cancel_all(jobs, why, t, out)
+    posed(c, out)
+    if c.shutdown is not None and not c.ended:
+        c = end_shutdown(c, f"the serial link is lost ({error}): the arm is not parked", t, out)
+    return c
+
+
+def end_shutdown(c: Core, why: str, t: float, out: Out) -> Core:
+    """The shutdown ends: parked (`why` empty) or not; the core has ended."""
+    job = c.shutdown
+    assert job is not None
+    if why:
+        say(out, logging.ERROR, f"shutdown: {why}")
+        finish(job, Result.CANCELLED, why, t, out)
+    else:
+        say(out, logging.INFO, "shutdown: parked")
+        finish(job, Result.DONE, "", t, out)
+    if c.link.open or c.link.opening:
+        out.append(Close())
+    out.append(End(parked=not why))
+    return replace(c, ended=True, run=None, link=replace(c.link, open=False, opening=False))
+
+
+def complete(c: Core, t: float, out: Out) -> Core:
+    """The current job has completed: its joints are where it sent them, its outcome is
+    done (with what the owner changed of what was asked), and the next may start."""
+    run = c.run
+    assert run is not None
+    job = run.job
+    c = replace(c, run=None, book=c.book.reached(run.steps[-1].target).at_rest())
+    if job.mode is Mode.STARTUP:
+        c = fire(replace(c, parked=True), Event.MOVE_DONE, out)
+    elif job.mode is Mode.SHUTDOWN:
+        return end_shutdown(c, "", t, out)
+    else:
+        finish(job, Result.DONE, "; ".join(run.notes), t, out, run.expected_ms)
+        if c.state is State.MOVING:
+            c = fire(c, Event.MOVE_DONE, out)
+    posed(c, out)
+    return c

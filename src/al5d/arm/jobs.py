@@ -1,27 +1,22 @@
-"""Moves on their way through the driver: the job, the motion it makes, and its one outcome.
+"""Moves on their way through the core: the job, the motion it makes, and its one outcome.
 
-Data handed between the caller's side (`driver`), the protocol (`core`) and the
-worker (`worker`), and the two helpers that make and set an outcome exactly once.
-A job belongs to the thread the protocol gives it to (the caller writing an idle
-arm's first step, then the worker): only that thread writes its running fields.
+Data only (frozen), handed between the protocol (`core`) and what it runs (`running`).
 """
 
 from __future__ import annotations
 
-import threading
-from collections.abc import Mapping
-from concurrent.futures import Future, InvalidStateError
-from dataclasses import dataclass, field, replace
+from collections.abc import Hashable, Mapping
+from dataclasses import dataclass, replace
 from enum import Enum
 
 from al5d.arm.instruction import MAX_ID, MAX_QUOTE, Instruction, Outcome, Result
+from al5d.arm.resample import Follow
 from al5d.arm.states import State
 from al5d.arm.validate import Steps
-from al5d.clock import now
 
 
 class Mode(Enum):
-    """Why the worker runs a move, and the states in which it may still be sent."""
+    """Why a move runs, and the states in which it may still be sent."""
 
     STARTUP = (State.INITIALIZING,)
     QUEUE = (State.READY, State.MOVING)
@@ -32,38 +27,32 @@ class Mode(Enum):
         return self.value  # type: ignore[no-any-return]
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class Job:
-    """A motion instruction on its way: its validated steps, its future, its epoch.
+    """A motion instruction on its way: its validated steps and who asked for it.
 
     A move or a preset is one step (one group move); a trajectory one per point; a
     Cartesian move has none until it is planned, from where the arm is when it starts.
     """
 
+    ref: int  # the owner's handle of the request (its outcome goes there)
     instr: Instruction
     steps: Steps
-    future: Future[Outcome]
-    epoch: int
     t_submit: float
+    #: When it was sent (CLOCK_REALTIME ns): the instruction's, or when the owner took it.
+    sent_ns: int
+    epoch: int = 0
     speed_fraction: float = 1.0
     mode: Mode = Mode.QUEUE
-    #: When it was sent (CLOCK_REALTIME ns): the instruction's, or when the driver took it.
-    sent_ns: int = 0
-    cancel: threading.Event = field(default_factory=threading.Event)
     #: A set-point of this stream (`joint_commands`): a newer one of the same stream
     #: replaces it while it waits ("" for every other move).
     stream: str = ""
-    #: A newer set-point of its stream took its place while it ran (`core`, the lane of
-    #: set-points): what it wrote stays the board's motion, which the newer one retargets.
-    superseded: bool = False
-    expected_ms: float = 0.0
-    step: int = 0  # the step running now
-    #: The step written last: the worker waits for its end (a step the caller wrote, too).
-    written: Written | None = None
-    #: When the step written last is due to end by the schedule (CLOCK_MONOTONIC): the timed
-    #: steps after the first keep to the schedule of the first, so that a late wake-up, or
-    #: a point faster than the servos, does not make every later point late too.
-    t_due: float = 0.0
+    #: Who sent it (the owner's handle of a client; 0: the owner itself).
+    client: int = 0
+    #: Its outcome is told to the outcome listeners too (a stream's set-points are not).
+    tell: bool = True
+    #: A trajectory's tolerances, as its sender gave them.
+    follow: Follow | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,10 +77,14 @@ class Motion:
         f = self.progress(t)
         return {j: s + (self.target.get(j, s) - s) * f for j, s in self.start.items()}
 
+    @property
+    def end(self) -> float:
+        return self.t0 + self.duration_s
+
     def moving(self, t: float) -> list[str]:
         """The joints still moving at `t`, the fastest (deg/s) first (those of the step
         the board is finishing, then this one's)."""
-        if self.duration_s <= 0 or t >= self.t0 + self.duration_s:
+        if self.duration_s <= 0 or t >= self.end:
             return []
         speed = {j: abs(self.target[j] - s) for j, s in self.start.items() if j in self.target}
         own = sorted((j for j, d in speed.items() if d > 0), key=lambda j: -speed[j])
@@ -103,7 +96,7 @@ class Motion:
     def after(self, previous: Motion | None, t: float) -> Motion:
         """This motion, knowing what the board runs until it takes effect (only the step
         just before matters: one link, so that a long trajectory makes no chain)."""
-        if previous is None or previous.t0 + previous.duration_s <= t:
+        if previous is None or previous.end <= t:
             return self
         return replace(self, before=replace(previous, before=None))
 
@@ -125,43 +118,37 @@ class Written:
     #: Its bytes' time on the wire: the next step is written this much before `t_end`, so
     #: that it takes effect as this one ends (the steps of a trajectory run back to back).
     wire_s: float
-    data: bytes = b""
-    t_write: float = 0.0  # when its bytes were written
+    data: bytes
+    t_write: float  # when its first bytes were written
 
 
 @dataclass(frozen=True, slots=True)
 class Sent:
-    """A move as it left for the board: for listeners that measure (the demo's QoS table)."""
+    """A step as it left for the board: for listeners that follow or measure motion (the
+    trajectory action's feedback, the demo's QoS table, the joint states' rate)."""
 
     instr: Instruction
     data: bytes
-    t_submit: float  # when the instruction reached the driver
+    t_submit: float  # when the instruction reached the owner
     t_write: float  # when its bytes were written
     motion: Motion
+    step: int = 0
+    steps: int = 1
 
 
-def outcome(job_or_instr: Job | Instruction, result: Result, reason: str, t0: float) -> Outcome:
-    instr = job_or_instr.instr if isinstance(job_or_instr, Job) else job_or_instr
-    expected = job_or_instr.expected_ms if isinstance(job_or_instr, Job) else 0.0
+def outcome(
+    instr: Instruction, result: Result, reason: str, t0: float, t: float, expected: float = 0.0
+) -> Outcome:
+    """The outcome of `instr`, timed from `t0` (when it came) to `t`."""
     return Outcome(
         id=instr.id[:MAX_ID],
         instruction=instr.name[:MAX_QUOTE],
         result=result,
         reason=reason,
-        elapsed_ms=(now() - t0) * 1000.0,
+        elapsed_ms=(t - t0) * 1000.0,
         expected_ms=expected,
     )
 
 
-def resolve(future: Future[Outcome], result: Outcome) -> bool:
-    """Set the one outcome; False if another thread was first (stop racing completion)."""
-    try:
-        future.set_result(result)
-    except InvalidStateError:
-        return False
-    return True
-
-
-def finish(job: Job, result: Result, reason: str = "") -> bool:
-    """Resolve a job's future with its outcome, timed from its submission."""
-    return resolve(job.future, outcome(job, result, reason, job.t_submit))
+#: A stop message's identity where two readers may both see it (`core`, rule 3).
+StopKey = Hashable

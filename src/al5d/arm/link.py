@@ -1,226 +1,408 @@
-"""The board's connection, kept by the worker: connect, watch the idle link, fault, reconnect.
+"""The board's link, as the core keeps it: open, check, ask, judge the answers, lose it.
 
-Everything here runs in the worker's thread (`al5d.arm.worker`) and does board
-I/O; what it learns it reports to the protocol (`al5d.arm.core`), which owns
-the state. A lost link, a silent or babbling board, or a board that has reset
-becomes the `fault` state: every pending move gets its outcome, and the link is
-tried again every `reconnect_interval_s` until the board answers; then the pose
-is read back and no cancelled move is replayed.
+Pure steps on the core's value (`corestate.Core`): the owner opens the port when told
+(`Open`), hands over what comes (`Opened`, `Received`, `Failed`), and writes what it is
+given (`Send`). A lost link, a silent or babbling board, or a board that has reset
+becomes the `fault` state: every pending move gets its outcome, and the port is opened
+again every `server.reconnect_interval_s` until the board answers; then a move the board
+may still run is halted, the pose is read back, and no cancelled move is replayed.
+
+One query is on its way at a time; it is written only when no line is going out and the
+wire is free (it cannot be cut), asked once more before a missing answer is a fault, and
+its deadline is the board's: the time the owner's thread was not running, or the host
+short of cores, is excused up to `EXCUSE_MAX_S`.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import replace
 
-from al5d.arm.config import ArmConfig
-from al5d.arm.core import Core
-from al5d.arm.effects import LinkView
-from al5d.arm.translate import Translator
-from al5d.ssc32u.driver import SSC32U
-from al5d.ssc32u.errors import BoardReset, Interrupted, NotAnSSC32U, SerialFault
-from al5d.ssc32u.facts import QP_RESOLUTION_US
+from al5d.arm.corestate import (
+    RESET_LOCKED,
+    Close,
+    Core,
+    Link,
+    Next,
+    Opened,
+    Out,
+    Probe,
+    Purpose,
+    Query,
+    Received,
+    complete,
+    fire,
+    halt,
+    lock_arm,
+    lose,
+    margin_s,
+    posed,
+    say,
+    send,
+)
+from al5d.arm.states import Event, State
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.errors import BoardReset, GarbageAnswer, NoAnswer, NotAnSSC32U, SerialFault
+from al5d.ssc32u.facts import FIRMWARE_PREFIX, QP_RESOLUTION_US
 
-log = logging.getLogger("al5d")
-RESET_LOCKED = "the arm is locked after the board's reset: send release to go on"
+#: At most this much is excused to one ask of a query: a silent board on a busy host is
+#: found that much later, at worst; on an idle one, not later at all. Beside two busy
+#: loops and a flood, a board's answer (an emulator at nice -10 in its own process) came
+#: 75 ms late twice in a row: the kernel's work that carries a pty's bytes waited for a core.
+EXCUSE_MAX_S = 0.15
+#: A VER answer's length, for its deadline (`SSC32-V2.50USB\r` is 15 bytes).
+VERSION_ANSWER_BYTES = 16
 #: How far a pulse read back may be from the one expected at rest: `QP` answers in steps
 #: of 10 us (rounded down), and a pose read back is itself one of those steps.
 REST_MARGIN_US = 2 * QP_RESOLUTION_US
-#: During a motion, how late (or early) the board may be on the driver's schedule: a
-#: step of a trajectory goes out one wire time before the one before ends, and a few
-#: bytes more or less on the wire are a few ms. The margin is this long at full speed.
+#: During a motion, how late (or early) the board may be on the owner's schedule: a step of
+#: a trajectory goes out one wire time before the one before ends, and a few bytes more or
+#: less on the wire are a few ms. The margin is this long at full speed.
 MOTION_SLACK_S = 0.02
 
 
-@dataclass(frozen=True, slots=True)
-class Probe:
-    """A link check's `QP`: the channel it reads, and the pulses (us) it expects there."""
-
-    joint: str
-    channel: int
-    low_us: float
-    high_us: float
-    #: The core's token when the check began: the answer is judged only if no caller's
-    #: write began until it came (`Core.untouched`).
-    token: int | None
+# -- opening ----------------------------------------------------------------------------
 
 
-class LinkKeeper:
-    """The worker's hold on the board: open it, check it, lose it, get it back."""
+def opened(c: Core, ev: Opened, out: Out) -> Core:
+    """The port asked for is open (then ESC, and VER: is it an SSC-32U), or it is not."""
+    link = replace(c.link, opening=False)
+    if ev.error is not None:
+        return not_reached(replace(c, link=link), ev.error, ev.t, out)
+    settings = c.arm.settings
+    link = replace(link, open=True, margin_s=margin_s(settings, ev.low_latency), free_at=ev.t)
+    c = send(replace(c, link=link), p.CANCEL, ev.t, out, pulses=False)
+    return ask(c, Purpose.VERSION, p.encode_version(), None, ev.t, out)
 
-    def __init__(self, config: ArmConfig, core: Core, port: str, baud: int) -> None:
-        self.config = config
-        self.core = core
-        self.port = port
-        self.baud = baud
-        self.settings = config.server
-        self.translator = Translator(config)
-        self.channels = config.channels
 
-    def _open(self) -> SSC32U:
-        return SSC32U(self.port, self.baud, read_timeout_s=self.settings.answer_timeout_s)
+def not_reached(c: Core, error: SerialFault, t: float, out: Out) -> Core:
+    """The board could not be reached (at start, or a device that is not a board at a
+    reconnect): tried again after the interval. At start, and for a device that is not a
+    board, said (once for the same answer) and the fault's reason."""
+    link = replace(c.link, open=False, open_at=t + c.arm.settings.reconnect_interval_s)
+    c = replace(c, link=link)
+    known = c.fault
+    first = c.state is not State.FAULT
+    if not first and not isinstance(error, NotAnSSC32U):
+        say(out, logging.DEBUG, f"reconnect failed: {error}")
+        return c
+    if isinstance(known, NotAnSSC32U) and getattr(error, "received", None) == known.received:
+        say(out, logging.DEBUG, f"reconnect failed: {error}")
+        return c
+    say(out, logging.ERROR if first else logging.WARNING, f"serial fault: {error}")
+    c = replace(c, fault=error)
+    return fire(c, Event.SERIAL_FAULT, out) if first else c
 
-    def connect(self) -> None:
+
+def _checked(c: Core, answer: bytes, t: float, wall: int, out: Out) -> Core:
+    """VER's answer: an SSC-32U, or not (closed and tried again)."""
+    port = c.arm.port
+    try:
+        firmware = p.parse_version(answer)
+    except p.ProtocolError:
+        firmware = ""
+    if not firmware.upper().startswith(FIRMWARE_PREFIX):
+        what = f"answered VER with {firmware!r}" if firmware else f"answered VER with {answer!r}"
+        error = NotAnSSC32U(port, f"{what}, which is not an SSC-32U; {NotAnSSC32U.advice}", answer)
+        return _close(c, error, t, out)
+    if c.state is State.FAULT:
+        following = Next.RECONNECT
+    elif c.state is State.SHUTTING_DOWN:
+        following = Next.SHUTDOWN
+    else:
+        following = Next.STARTUP
+        say(out, logging.INFO, f"connected to {firmware} on {port} at {c.arm.baud} baud")
+    link = replace(c.link, checked=True, next=following, halt_checked=following is Next.STARTUP)
+    return replace(c, link=link, firmware=firmware)
+
+
+def _close(c: Core, error: SerialFault, t: float, out: Out) -> Core:
+    """A port that is open but no board (or no board we can use): closed, tried again."""
+    out.append(Close())
+    c = replace(c, link=Link(watched=t))
+    return not_reached(c, error, t, out)
+
+
+# -- queries ----------------------------------------------------------------------------
+
+
+def can_ask(c: Core, t: float) -> bool:
+    """A query may be written now: none on its way, no line going out, the wire free."""
+    link = c.link
+    return link.open and link.query is None and not link.rest and link.free_at <= t
+
+
+def ask(
+    c: Core,
+    purpose: Purpose,
+    data: bytes,
+    n_answer: int | None,
+    t: float,
+    out: Out,
+    probe: Probe | None = None,
+    asks: int = 1,
+) -> Core:
+    """Write a query; its answer is due after our bytes on the wire (behind any before them),
+    the answer's own bytes back, and the margin."""
+    c = send(c, data, t, out, pulses=False)
+    link = c.link
+    back = p.wire_time_s(n_answer or VERSION_ANSWER_BYTES, c.arm.baud)
+    due = link.free_at + back + link.margin_s
+    writes = link.writes if asks == 1 or link.query is None else link.query.writes
+    query = Query(purpose, data, n_answer, due, asks, writes, link.stalled, probe)
+    keep = link.received if asks > 1 else b""  # a late first answer may still come
+    return replace(c, link=replace(link, query=query, received=keep))
+
+
+def _count(data: bytes, n_answer: int | None) -> int:
+    return data.count(p.CR) if n_answer is None else len(data) // n_answer
+
+
+def _last(data: bytes, n_answer: int | None) -> bytes:
+    """The last whole answer in `data` (which holds one at least)."""
+    if n_answer is None:
+        end = data.rindex(p.CR) + 1
+        return data[data.rfind(p.CR, 0, end - 1) + 1 : end]
+    end = len(data) // n_answer * n_answer
+    return data[end - n_answer : end]
+
+
+def received(c: Core, ev: Received, out: Out) -> Core:
+    """Bytes from the board: the answer of the query on its way, once whole (both answers
+    after a second ask: the board answers in order, so a late first answer comes before
+    the second, and is never left for the next query to take as its own)."""
+    query = c.link.query
+    if query is None:
+        return c  # nothing asked: not an answer of ours
+    data = c.link.received + ev.data
+    c = replace(c, link=replace(c.link, received=data))
+    if _count(data, query.n_answer) >= query.asks:
+        return _answered(c, query, _last(data, query.n_answer), ev.t, ev.wall, out)
+    return c
+
+
+def due(query: Query, stalled: float) -> float:
+    """When the query's answer is late: its deadline, moved on by the host's stalls since
+    it was asked, up to `EXCUSE_MAX_S`."""
+    return query.due + min(EXCUSE_MAX_S, max(0.0, stalled - query.stalled))
+
+
+def overdue(c: Core, t: float, wall: int, out: Out) -> Core:
+    """The query's deadline has passed: asked again once; then what came is taken (the
+    last answer), or no answer is the fault."""
+    query = c.link.query
+    assert query is not None
+    data = c.link.received
+    if _count(data, query.n_answer):
+        return _answered(c, query, _last(data, query.n_answer), t, wall, out)
+    if query.asks == 1:
+        c = replace(c, link=replace(c.link, query=None))
+        return ask(c, query.purpose, query.data, query.n_answer, t, out, query.probe, asks=2)
+    name = query.data.rstrip(p.CR).decode("ascii", "replace")[:8]
+    waited = (t - query.due) * 1000.0
+    got = f", got {data!r}" if data else ""
+    error = NoAnswer(c.arm.port, f"no answer to {name}, asked twice, {waited:.0f} ms late{got}")
+    if query.purpose is Purpose.VERSION:
+        bad = NotAnSSC32U(
+            c.arm.port,
+            f"does not answer like an SSC-32U at {c.arm.baud} baud ({error.what}); "
+            f"{NotAnSSC32U.advice}",
+            data,
+        )
+        return _close(replace(c, link=replace(c.link, query=None)), bad, t, out)
+    return lose(c, error, t, wall, out)
+
+
+def _garbage(c: Core, answer: bytes, e: Exception, t: float, wall: int, out: Out) -> Core:
+    error = GarbageAnswer(c.arm.port, f"not an SSC-32U answer: {e}", answer)
+    return lose(c, error, t, wall, out)
+
+
+def _answered(c: Core, query: Query, answer: bytes, t: float, wall: int, out: Out) -> Core:
+    """A whole answer to the query on its way, judged by what it was asked for."""
+    c = replace(c, link=replace(c.link, query=None, received=b"", watched=t))
+    purpose = query.purpose
+    if purpose is Purpose.VERSION:
+        return _checked(c, answer, t, wall, out)
+    if purpose is Purpose.POSE:
+        channels = list(c.arm.channels.values())
         try:
-            board = self._open()
-        except SerialFault as e:
-            log.error("serial fault: %s", e)
-            self.core.unreachable(e)
-            self.core.announce()
-            return
-        log.info("connected to %s on %s at %d baud", board.firmware, self.port, self.baud)
-        self.core.connected(board)
+            pulses = p.parse_pulses(answer, channels)
+        except p.ProtocolError as e:
+            return _garbage(c, answer, e, t, wall, out)
+        if c.link.writes != query.writes:
+            return c  # a line or a STOP went out meanwhile: the pose is asked again
+        return _pose(c, c.arm.translator.degrees(pulses), t, wall, out)
+    if purpose is Purpose.PROBE:
+        assert query.probe is not None
+        try:
+            pulse = p.parse_pulses(answer, [query.probe.channel])[query.probe.channel]
+        except p.ProtocolError as e:
+            return _garbage(c, answer, e, t, wall, out)
+        probe = query.probe
+        if c.link.writes == query.writes and not probe.low_us <= pulse <= probe.high_us:
+            return lose(c, _reset(c, probe.joint, pulse, probe), t, wall, out)
+        return c
+    try:
+        moving = p.parse_movement(answer)
+    except p.ProtocolError as e:
+        return _garbage(c, answer, e, t, wall, out)
+    if purpose is Purpose.HALTED:
+        if moving:
+            c = _halt_cancelled(c, t, out)
+        return replace(c, link=replace(c.link, halt_checked=True))
+    if purpose is Purpose.DONE:
+        return _confirmed(c, moving, t, wall, out)
+    return c  # ALIVE: the link lives
 
-    def check(self) -> None:
-        """An idle arm's link is checked too (`QP` of one channel and its answer are 5 bytes:
-        every 0.5 s is 1 % of the wire at 9600 baud), so that a pulled cable, a silent board
-        or a reset is a fault at once, not at the next move. A stop never waits for it (the
-        query lock is not the stop's)."""
-        board = self.core.board
-        if board is not None:
-            with contextlib.suppress(Interrupted):  # a stop flushed the answer: the link lives
-                self.watch(board)
 
-    def watch(self, board: SSC32U) -> None:
-        """Check the link, and that the board has not reset: `QP` of one channel (4 bytes,
-        as cheap as `Q`), the one of the joint written least recently (a move after a reset
-        restores only its own channels). A pulse other than the driver expects there is a
-        reset (the pulses of a board with none at power-up are 0, of one with power-up
-        pulses those), or something else has moved the servo: either way the board no
-        longer holds what the driver believes, and its next move would run at full speed.
+#: A move whose `Q` still says moving this long after its time is taken as a fault.
+COMPLETION_GRACE_S = 2.0
+#: How often `Q` is asked once a move's time is over.
+POLL_S = 0.002
 
-        A write from a caller's thread (the fast path, a stop, a cancel) that races the
-        query changes the pulse under it: such a check is a link check only."""
-        view = self.core.link_view()
-        if view is None:  # nothing known to have been lost: the link alone
-            board.is_done()
-            return
-        probe = self._probe(view)
-        pulse = board.read_pulses([probe.channel])[probe.channel]
-        if self.core.untouched(probe.token) and not probe.low_us <= pulse <= probe.high_us:
-            raise self._reset(board, probe.joint, pulse, probe)
 
-    def _probe(self, view: LinkView) -> Probe:
-        """The pulses the driver expects on the joint's channel: at rest the known pose's
-        pulse, during a motion (or just after one) anything on its way, with margins."""
-        joint = view.joint
-        config = self.config.joints[joint]
-        ends = [view.pose]
-        margin = float(REST_MARGIN_US)
-        motion = view.motion
-        if motion is not None and joint in motion.target:
-            ends += [motion.start.get(joint, view.pose), motion.target[joint]]
-        if view.way is not None:
-            ends += view.way
-        if len(ends) > 1:
-            margin += MOTION_SLACK_S * config.speed_us_s
-        pulses = [config.to_us(deg) for deg in ends]
-        return Probe(joint, config.channel, min(pulses) - margin, max(pulses) + margin, view.token)
-
-    def _reset(
-        self, board: SSC32U, joint: str, pulse: int = 0, probe: Probe | None = None
-    ) -> BoardReset:
-        channel = self.config.joints[joint].channel
-        if pulse == 0:
-            what = "has no pulse any more"
-        else:
-            assert probe is not None
-            expected = f"{probe.low_us:.0f}..{probe.high_us:.0f}"
-            what = f"puts out {pulse} us where the driver expects {expected} us"
-        return BoardReset(
-            board.port,
-            f"the board has reset: {joint} (channel {channel}) {what}, and the board has "
-            f"forgotten where every servo was; {BoardReset.advice}",
+def _confirmed(c: Core, moving: bool, t: float, wall: int, out: Out) -> Core:
+    """`Q` after the last step's time: done, asked again, or (too long after) the fault."""
+    run = c.run
+    if run is None or not run.confirming:
+        return c  # ended meanwhile (a stop, a cancel)
+    if not moving:
+        return complete(c, t, out)
+    written = run.written
+    assert written is not None
+    if t - written.t_end > COMPLETION_GRACE_S:
+        error = SerialFault(
+            c.arm.port, f"Q still says moving {COMPLETION_GRACE_S} s after the move's time"
         )
+        return lose(c, error, t, wall, out)
+    return replace(c, run=replace(run, poll_at=t + POLL_S))
 
-    def read_pose(self, board: SSC32U) -> dict[str, float | None] | None:
-        """Where the servos are, from the board; None if stops kept interrupting the read.
-        A joint of known pose with no pulse now is a reset (BoardReset)."""
-        for _ in range(3):
-            try:
-                pulses = board.read_pulses(self.channels)
-                break
-            except Interrupted:
-                continue  # another stop flushed the query: ask again
-        else:
-            return None
-        pose = self.translator.degrees(pulses)
-        known = self.core.pose()
-        lost = [j for j, v in pose.items() if v is None and known.get(j) is not None]
-        if lost:  # a reset between the last check and this read (during a stop, say)
-            raise self._reset(board, lost[0])
-        log.debug(
-            "read back: %s", {j: (None if v is None else round(v, 1)) for j, v in pose.items()}
+
+def _halt_cancelled(c: Core, t: float, out: Out) -> Core:
+    c = halt(c, t, out)
+    what = c.link.next.value if c.link.next is not None else "the link"
+    say(out, logging.WARNING, f"{what}: halted the move the board was still running (cancelled)")
+    return c
+
+
+def _reset(c: Core, joint: str, pulse: int = 0, probe: Probe | None = None) -> BoardReset:
+    channel = c.arm.channels[joint]
+    if pulse == 0:
+        what = "has no pulse any more"
+    else:
+        assert probe is not None
+        what = (
+            f"puts out {pulse} us where the driver expects "
+            f"{probe.low_us:.0f}..{probe.high_us:.0f} us"
         )
-        return pose
+    return BoardReset(
+        c.arm.port,
+        f"the board has reset: {joint} (channel {channel}) {what}, and the board has "
+        f"forgotten where every servo was; {BoardReset.advice}",
+    )
 
-    def read_back(self, board: SSC32U | None = None) -> bool:
-        """Learn where the servos are (after a stop, at start); False if a stop came while
-        reading (the pose is then still a guess: read it again)."""
-        board = board or self.core.board
-        if board is None:
-            return False
-        token = self.core.write_token()
-        pose = self.read_pose(board)
-        return pose is not None and self.core.read_back(pose, token)
 
-    def enter_fault(self, error: SerialFault) -> None:
-        """A serial fault (any thread may have seen it): everything pending ends."""
-        log.error("serial fault: %s", error)
-        ended = self.core.lose(error)
-        self.core.announce()
-        if isinstance(error, BoardReset):
-            log.warning(RESET_LOCKED)
-        ended.settle()
+# -- the pose ---------------------------------------------------------------------------
 
-    def recover(self) -> None:
-        """Reconnect every few tenths of a second; re-learn the positions; no stale move replays."""
-        interval = self.settings.reconnect_interval_s
-        while self.core.wait_unless_shutdown(interval):
-            try:
-                board = self._open()
-            except SerialFault as e:
-                self._reconnect_failed(e)
-                continue
-            reset = False
-            try:
-                self.halt_what_was_cancelled(board, "reconnect")
-                try:
-                    pose = self.read_pose(board)
-                except BoardReset as e:  # it restarted while the link was down
-                    log.error("serial fault: %s", e)
-                    log.warning(RESET_LOCKED)
-                    reset = True
-                    pose = self.translator.degrees(board.read_pulses(self.channels))
-                if pose is None:
-                    raise Interrupted("the read-back was interrupted")
-            except (SerialFault, Interrupted) as e:
-                log.debug("reconnect failed: %s", e)
-                board.close()  # it holds the port exclusively: the next try must open it
-                continue
-            self.core.reconnected(board, pose, reset)
-            self.core.announce()
-            log.info("reconnected to %s on %s", board.firmware, self.port)
-            return
 
-    def halt_what_was_cancelled(self, board: SSC32U, why: str) -> None:
-        """A board may still be running a move that was cancelled without a halt (when the
-        link went, or by a shutdown), and its client told so: it is halted here, and the pose
-        read back is where the arm stopped, not a snapshot of it on its way."""
-        if not self.core.q_believed() or not board.is_done():
-            board.stop(self.channels)
-            log.warning("%s: halted the move the board was still running (cancelled)", why)
+def _pose(c: Core, pose: Mapping[str, float | None], t: float, wall: int, out: Out) -> Core:
+    """The pose read back: after a halt, at start, at a reconnect or at the shutdown. A joint
+    of known pose with no pulse now is a reset (at a reconnect, the arm is locked)."""
+    known = c.book.pose
+    lost = [j for j, v in pose.items() if v is None and known.get(j) is not None]
+    following = c.link.next
+    if lost and following is not Next.RECONNECT:
+        return lose(c, _reset(c, lost[0]), t, wall, out)
+    say(
+        out,
+        logging.DEBUG,
+        f"read back: { {j: (None if v is None else round(v, 1)) for j, v in pose.items()} }",
+    )
+    if following is Next.RECONNECT:
+        c = _reconnected(c, pose, bool(lost), wall, out)
+    else:
+        c = replace(c, book=c.book.read_back(pose))
+        if c.run is None:
+            c = replace(c, readback=False)
+    c = replace(c, link=replace(c.link, next=None))
+    posed(c, out)
+    return c
 
-    def _reconnect_failed(self, error: SerialFault) -> None:
-        """Keep trying; but a device that is not a board is said clearly, once, and becomes
-        the fault's reason (a missing port is the usual unplugged cable: quiet)."""
-        known = self.core.fault
-        if not isinstance(error, NotAnSSC32U):
-            log.debug("reconnect failed: %s", error)
-            return
-        if isinstance(known, NotAnSSC32U) and known.received == error.received:
-            log.debug("reconnect failed: %s", error)
-            return
-        log.warning("reconnect: %s", error)
-        self.core.unreachable(error)
+
+def _reconnected(
+    c: Core, pose: Mapping[str, float | None], reset: bool, wall: int, out: Out
+) -> Core:
+    """The board is back, its pose read; `reset`: it restarted while the link was down."""
+    book = c.book
+    if reset:
+        say(out, logging.ERROR, f"serial fault: {_reset(c, next(iter(book.pose)))}")
+        say(out, logging.WARNING, RESET_LOCKED)
+        c = lock_arm(c, "the board's reset", wall)
+        book = book.forget()
+    c = replace(c, book=book.read_back(pose), fault=None, readback=False)
+    if c.state is State.FAULT:  # not if a shutdown came meanwhile: it parks now
+        c = fire(c, Event.RECONNECTED, out)
+    say(out, logging.INFO, f"reconnected to {c.firmware} on {c.arm.port}")
+    return c
+
+
+def settle(c: Core, t: float, out: Out) -> Core:
+    """A board just opened (or the shutdown's): a move it may still run (cancelled without a
+    halt, when the link went or by the shutdown) is halted, then the pose is read back, so
+    that it is where the arm stopped, not a snapshot of it on its way."""
+    if not can_ask(c, t):
+        return c
+    if not c.link.halt_checked:
+        if c.book.q_believed(t):
+            return ask(c, Purpose.HALTED, p.encode_query_movement(), 1, t, out)
+        c = _halt_cancelled(c, t, out)
+        return replace(c, link=replace(c.link, halt_checked=True))
+    return read_pose(c, t, out)
+
+
+def read_pose(c: Core, t: float, out: Out) -> Core:
+    """Ask where the servos are (`QP` of every channel)."""
+    channels = list(c.arm.channels.values())
+    return ask(c, Purpose.POSE, p.encode_query_pulse(channels), len(channels), t, out)
+
+
+# -- the link checks --------------------------------------------------------------------
+
+
+def watch(c: Core, t: float, out: Out) -> Core:
+    """Check the link, and that the board has not reset: `QP` of one channel (4 bytes, as
+    cheap as `Q`), the one of the joint written least recently (a move after a reset
+    restores only its own channels). A pulse other than the core expects there is a reset
+    (the pulses of a board with none at power-up are 0, of one with power-up pulses
+    those), or something else has moved the servo: either way the board no longer holds
+    what the core believes, and its next move would run at full speed. A line written
+    while the query is on its way changes the pulse under it: such a check is a link
+    check only."""
+    joint = c.book.stalest()
+    if joint is None:  # nothing known to have been lost: the link alone
+        return ask(c, Purpose.ALIVE, p.encode_query_movement(), 1, t, out)
+    probe = _probe(c, joint, t)
+    data = p.encode_query_pulse([probe.channel])
+    return ask(c, Purpose.PROBE, data, 1, t, out, probe)
+
+
+def _probe(c: Core, joint: str, t: float) -> Probe:
+    """The pulses the core expects on the joint's channel: at rest the known pose's pulse,
+    during a motion (or just after one) anything on its way, with margins."""
+    config = c.arm.config.joints[joint]
+    pose = c.book.pose[joint]
+    assert pose is not None
+    ends = [pose]
+    margin = float(REST_MARGIN_US)
+    motion = c.book.motion
+    if motion is not None and joint in motion.target:
+        ends += [motion.start.get(joint, pose), motion.target[joint]]
+    way = c.book.way(joint, t)
+    if way is not None:
+        ends += way
+    if len(ends) > 1:
+        margin += MOTION_SLACK_S * config.speed_us_s
+    pulses = [config.to_us(deg) for deg in ends]
+    return Probe(joint, config.channel, min(pulses) - margin, max(pulses) + margin)

@@ -1,17 +1,16 @@
-"""The order across channels: what the arm's protocol remembers to judge each instruction by
-when it was sent, not when it arrived (`core`, rules 1 to 3).
+"""The order across channels: what the core remembers to judge each instruction by when it
+was sent, not when it arrived (`core`, rules 1 to 3).
 
-`ChannelOrder` is owned by the core and called only under its lock. It keeps, in
-sending times (CLOCK_REALTIME ns), the last event that dropped every pending move
-(and why), the last stop (or reset) that holds the lock (and what it was), the last
-release, and the identities of the stops obeyed.
+`Order` is a value (frozen): each change returns a new one. It keeps, in sending
+times (CLOCK_REALTIME ns), the last event that dropped every pending move (and
+why), the last stop (or reset) that holds the lock (and what it was), the last
+release, and the outcomes of the stops obeyed, by their message's identity.
 """
 
 from __future__ import annotations
 
-from collections import OrderedDict
-from collections.abc import Hashable
-from concurrent.futures import Future
+from collections.abc import Hashable, Mapping
+from dataclasses import dataclass, field, replace
 
 from al5d.arm.instruction import Outcome
 
@@ -19,63 +18,64 @@ from al5d.arm.instruction import Outcome
 STOPS_REMEMBERED = 1024
 
 
-class ChannelOrder:
+@dataclass(frozen=True, slots=True)
+class Order:
     """The sending times the rules judge by, and the stops obeyed."""
 
-    def __init__(self) -> None:
-        self._dropped_ns = -1
-        self._dropped_why = ""
-        self._locked_ns = -1
-        self._locked_by = ""
-        self._released_ns = -1
-        self._stops: OrderedDict[Hashable, Future[Outcome]] = OrderedDict()
+    dropped_ns: int = -1
+    dropped_why: str = ""
+    locked_ns: int = -1
+    locked_by: str = ""
+    released_ns: int = -1
+    #: The stops obeyed by key, oldest first, with their outcomes.
+    stops: Mapping[Hashable, Outcome] = field(default_factory=dict)
 
     # -- what happened -------------------------------------------------------------------
 
-    def dropped(self, why: str, sent_ns: int) -> None:
+    def dropped(self, why: str, sent_ns: int) -> Order:
         """Every pending move was dropped by an event sent at `sent_ns`."""
-        if sent_ns >= self._dropped_ns:
-            self._dropped_ns, self._dropped_why = sent_ns, why
+        if sent_ns < self.dropped_ns:
+            return self
+        return replace(self, dropped_ns=sent_ns, dropped_why=why)
 
-    def locked(self, by: str, sent_ns: int, already: bool) -> None:
+    def locked(self, by: str, sent_ns: int, already: bool) -> Order:
         """The arm was locked (or `already` was) by an event sent at `sent_ns`: a release must
         be sent after the latest such event."""
-        if not already or sent_ns >= self._locked_ns:
-            self._locked_ns, self._locked_by = sent_ns, by
+        if already and sent_ns < self.locked_ns:
+            return self
+        return replace(self, locked_ns=sent_ns, locked_by=by)
 
-    def released(self, sent_ns: int) -> None:
-        self._released_ns = max(self._released_ns, sent_ns)
+    def released(self, sent_ns: int) -> Order:
+        return replace(self, released_ns=max(self.released_ns, sent_ns))
 
-    def obeyed(self, key: Hashable, future: Future[Outcome]) -> Future[Outcome] | None:
-        """Rule 3: the future of a stop obeyed already under `key`, or None (it is now)."""
-        known = self._stops.get(key)
-        if known is not None:
-            return known
-        self._stops[key] = future
-        if len(self._stops) > STOPS_REMEMBERED:
-            self._stops.popitem(last=False)
-        return None
+    def obeyed(self, key: Hashable, outcome: Outcome) -> Order:
+        """Rule 3: the stop known by `key` is obeyed, with `outcome`."""
+        stops = dict(self.stops)
+        stops[key] = outcome
+        while len(stops) > STOPS_REMEMBERED:
+            del stops[next(iter(stops))]
+        return replace(self, stops=stops)
 
     # -- the rules -----------------------------------------------------------------------
 
     def cancelled(self, sent_ns: int) -> str:
         """Rule 2: why a move sent at `sent_ns` is cancelled by an event since, or ""."""
-        return f"{self._dropped_why} (it was sent before)" if sent_ns < self._dropped_ns else ""
+        return f"{self.dropped_why} (it was sent before)" if sent_ns < self.dropped_ns else ""
 
     def sent_while_locked(self, sent_ns: int) -> str:
         """Rule 2: why a move sent at `sent_ns` between a stop and its release is refused."""
-        if sent_ns >= self._released_ns:
+        if sent_ns >= self.released_ns:
             return ""
         return (
-            f"it was sent while the arm was locked ({self._locked_by}), before the release: "
+            f"it was sent while the arm was locked ({self.locked_by}), before the release: "
             "send it again"
         )
 
     def release_too_old(self, sent_ns: int) -> str:
         """Rule 1: why a release sent at `sent_ns` may not unlock the arm, or ""."""
-        if sent_ns >= self._locked_ns:
+        if sent_ns >= self.locked_ns:
             return ""
         return (
-            f"this release was sent before {self._locked_by} that locked the arm: "
+            f"this release was sent before {self.locked_by} that locked the arm: "
             "the arm stays locked; send release again to unlock it"
         )

@@ -86,6 +86,8 @@ class Ticket:
 
     instr: Instruction
     steps: Steps
+    #: What its sender asked beyond its points (a trajectory's tolerances), if anything.
+    follow: Follow | None = None
 
 
 def judge(instr: Instruction, limits: Limits, follow: Follow | None = None) -> Ticket | str:
@@ -93,7 +95,7 @@ def judge(instr: Instruction, limits: Limits, follow: Follow | None = None) -> T
     a trajectory, a Cartesian target, a Python call): its ticket, or why it is refused.
     `follow`: what a trajectory's sender asks beyond its points (its tolerances)."""
     steps = check(instr, limits, follow)
-    return steps if isinstance(steps, str) else Ticket(instr, steps)
+    return steps if isinstance(steps, str) else Ticket(instr, steps, follow)
 
 
 def check(instr: Instruction, limits: Limits, follow: Follow | None = None) -> Steps | str:

@@ -18,11 +18,10 @@ from rclpy.action.server import CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.node import Node
 from rclpy.task import Future as RosFuture
 
-from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind, Outcome
-from al5d.arm.validate import Ticket
 from al5d.clock import wall_ns
 from al5d.model import ArmModel
+from al5d.owner.client import Judged, Remote
 from al5d.ros.convert import move_from_fields, tool_from_fields
 from al5d.ros.qos import QOS_SERVICES
 from al5d.ros.workarounds import IdentifiedActionServer
@@ -116,9 +115,9 @@ class GoalRunner:
     name = "goal"
     server: IdentifiedActionServer
 
-    def __init__(self, node: Node, driver: ArmDriver) -> None:
+    def __init__(self, node: Node, arm: Remote) -> None:
         self.node = node
-        self.driver = driver
+        self.arm = arm
         self.running: dict[str, Any] = {}
         #: Each accepted goal's judgement, until its execution takes it: a goal is converted
         #: and judged once, in its goal callback. Its instruction counts as sent when it was
@@ -126,6 +125,8 @@ class GoalRunner:
         self.judged: dict[str, Any] = {}
         #: Called when a goal starts to run (the node's feedback timer runs only then).
         self.started: Callable[[], object] | None = None
+        #: Publishes a rejected goal's reason on the result topic (the node `al5d`'s).
+        self.refuse: Callable[[str, str, str], None] | None = None
 
     def judge(self, goal: Any, ident: str, sent: int) -> Any:
         """What the goal asks for, ready to run, or the reason to reject it (a str)."""
@@ -135,7 +136,7 @@ class GoalRunner:
         ident = self.server.goal_id_now
         judged = self.judge(goal, ident, wall_ns())
         if isinstance(judged, str):
-            self.driver.refuse(ident, self.name, judged)
+            self.node_al5d_refuse(ident, judged)
             return GoalResponse.REJECT
         self.judged[ident] = judged
         return GoalResponse.ACCEPT
@@ -145,13 +146,18 @@ class GoalRunner:
         ident = bytes(handle.goal_id.uuid).hex()
         return ident, self.judged.pop(ident, None)
 
-    async def _run(self, ident: str, entry: Any, ticket: Ticket) -> Outcome:
+    def node_al5d_refuse(self, ident: str, reason: str) -> None:
+        """A rejected goal's reason on the result topic too, under the goal's UUID."""
+        if self.refuse is not None:
+            self.refuse(ident, self.name, reason)
+
+    async def _run(self, ident: str, entry: Any, ticket: Judged) -> Outcome:
         """Submit the goal's ticket and await its outcome, listed as running meanwhile."""
         self.running[ident] = entry
         if self.started is not None:
             self.started()
         try:
-            return await outcome_of(self.node, self.driver.submit(ticket))
+            return await outcome_of(self.node, self.arm.submit(ticket))
         finally:
             self.running.pop(ident, None)
 
@@ -159,22 +165,22 @@ class GoalRunner:
         ident = bytes(handle.goal_id.uuid).hex()
         if ident not in self.running:
             return CancelResponse.REJECT
-        return CancelResponse.ACCEPT if self.driver.cancel(ident) else CancelResponse.REJECT
+        return CancelResponse.ACCEPT if self.arm.cancel(ident) else CancelResponse.REJECT
 
 
 class MoveAction(GoalRunner):
     """`/al5d/move` on a node: validate in the goal callback, run, report, cancel."""
 
-    def __init__(self, node: Node, driver: ArmDriver, name: str) -> None:
-        super().__init__(node, driver)
-        self.joint_names = list(driver.config.joints)
+    def __init__(self, node: Node, arm: Remote, name: str) -> None:
+        super().__init__(node, arm)
+        self.joint_names = list(arm.config.joints)
         self.server = action_server(node, Move, name, self._execute, self._goal, self._cancel)
 
     name = "move"
 
-    def judge(self, goal: Any, ident: str, sent: int) -> Ticket | str:
-        instr = goal_instruction(goal, ident, self.driver.config.model, sent)
-        return instr if isinstance(instr, str) else self.driver.judge(instr)
+    def judge(self, goal: Any, ident: str, sent: int) -> Judged | str:
+        instr = goal_instruction(goal, ident, self.arm.config.model, sent)
+        return instr if isinstance(instr, str) else self.arm.judge(instr)
 
     async def _execute(self, handle: ServerGoalHandle) -> Move.Result:
         ident, ticket = self._take_judged(handle)
@@ -199,7 +205,7 @@ class MoveAction(GoalRunner):
     def feedback(self, degrees: dict[str, float]) -> None:
         """Current degrees and progress to every running goal (the joint-state rate)."""
         for ident, handle in list(self.running.items()):
-            progress = self.driver.progress(ident)
+            progress = self.arm.progress(ident)
             if progress is not None and handle.is_active:
                 fb = Move.Feedback()
                 fb.joints = self.joint_names

@@ -1,6 +1,8 @@
-"""The client of the server over ROS 2: instructions sent, their outcomes waited for, the
-stop, release and shutdown by the server's services (the terminal's commands on it:
-`al5d.app.terminal`).
+"""The client of the server: instructions sent, their outcomes waited for, the stop, release
+and shutdown (the terminal's commands on it: `al5d.app.terminal`).
+
+A server on this machine is reached by its local lane (`al5d.owner.client.Remote`: no
+discovery, no DDS); any other over ROS 2, its instruction topic and its services.
 
 `Client` is a context manager:
 
@@ -18,12 +20,11 @@ import threading
 import time
 import weakref
 from collections.abc import Callable
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any
-
-from al5d_interfaces.msg import ArmInstruction, InstructionResult
-from std_srvs.srv import Trigger
+from typing import TYPE_CHECKING, Any
 
 from al5d.arm.instruction import (
     PRESET_NAMES,
@@ -34,11 +35,15 @@ from al5d.arm.instruction import (
     parse_instruction,
 )
 from al5d.clock import Deadline
-from al5d.ros.convert import outcome_from_message, to_message
-from al5d.ros.dds import start_context
-from al5d.ros.executors import Spinner
+from al5d.owner import where
+from al5d.owner.client import LaneClosed, Remote
 from al5d.ros.names import NODE, PING, Names
-from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SERVICES, QOS_STREAM
+
+if TYPE_CHECKING:
+    from al5d_interfaces.msg import InstructionResult
+
+# rclpy and the messages are imported where the ROS 2 way is taken: a client of a local
+# server (its lane) starts without them (about half a second less).
 
 log = logging.getLogger("al5d")
 
@@ -111,20 +116,52 @@ def _close_open_clients() -> None:
 
 
 class Client:
-    """A ROS 2 node that publishes instructions and collects their outcomes by id, for the
-    server in `namespace` (none by default); `wait_s`: how long its first use waits for the
-    server.
+    """A client of the server in `namespace` (none by default): on this machine by its local
+    lane, else a ROS 2 node that publishes instructions and collects their outcomes by id;
+    `wait_s`: how long its first use waits for the server. `local`: True, the local lane
+    only; False, ROS 2 only; None, the lane where a server's is here.
 
     A context manager: leaving the `with` block closes it, and nothing else: the arm is
     never stopped by it, whatever the block raised. A client left open is closed when
     the interpreter exits.
     """
 
-    def __init__(self, namespace: str | None = None, *, wait_s: float = WAIT_S) -> None:
-        from rclpy.node import Node
-
+    def __init__(
+        self, namespace: str | None = None, *, wait_s: float = WAIT_S, local: bool | None = None
+    ) -> None:
         self.names = names = Names.of(namespace)
         self.wait_s = wait_s
+        #: Seconds spent waiting for the server (its topics or services) to be discovered.
+        self.discovery_s = 0.0
+        self._closing = threading.Lock()
+        self._closed = False
+        self.lane: Remote | None = None
+        self._futures: dict[str, Future[Outcome]] = {}
+        self._matched = False
+        if local is not False:
+            path = where.path(names.namespace)
+            try:
+                self.lane = Remote.connect(path, name=f"al5d-client-{os.getpid()}", watch=())
+            except LaneClosed as e:
+                if local:
+                    raise NoServer(f"no al5d server on this machine's lane: {e}") from None
+        if self.lane is not None:
+            self.via = f"the local lane {where.path(names.namespace)}"
+            self._matched = True
+            _open.add(self)
+            return
+        self._ros(names)
+
+    def _ros(self, names: Names) -> None:
+        from al5d_interfaces.msg import ArmInstruction, InstructionResult
+        from rclpy.node import Node
+        from std_srvs.srv import Trigger
+
+        from al5d.ros.dds import start_context
+        from al5d.ros.executors import Spinner
+        from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SERVICES, QOS_STREAM
+
+        self.via = "ROS 2"
         self.context = start_context()
         try:
             self.node = Node(
@@ -146,13 +183,8 @@ class Client:
         self._outcomes: dict[str, Outcome] = {}
         self._watchers: dict[str, Callable[[Outcome], None]] = {}
         self._cv = threading.Condition()
-        self._matched = False
-        #: Seconds spent waiting for the server (its topics or services) to be discovered.
-        self.discovery_s = 0.0
         #: Each service once found, and when its first call may go (`SERVICE_SETTLE_S`).
         self._settled: dict[Kind, Deadline] = {}
-        self._closing = threading.Lock()
-        self._closed = False
         # rclpy's Python executor: its events executor is now and then told of one message
         # too few, and the last one waits for the next; here that would be an outcome, or a
         # service's answer, waited for until the timeout (and the test peer's spin thread
@@ -172,6 +204,8 @@ class Client:
         self.close()
 
     def _on_result(self, msg: InstructionResult) -> None:
+        from al5d.ros.convert import outcome_from_message
+
         with self._cv:
             if msg.id not in self._sent and msg.id not in self._watchers:
                 return
@@ -216,6 +250,8 @@ class Client:
         matched our reader, and a result published meanwhile reaches nobody (seen on a
         loaded host: discovery took 9.6 s, then an outcome waited for 80 s and more)."""
         self._check_open()
+        if self.lane is not None:
+            return
         deadline = Deadline(timeout)
         start = time.monotonic()
         pings: list[str] = []
@@ -240,6 +276,8 @@ class Client:
 
     def _ping(self) -> str:
         """Send a ping; its id."""
+        from al5d_interfaces.msg import ArmInstruction
+
         msg = ArmInstruction(instruction=PING, id=new_id())
         with self._cv:
             self._sent.add(msg.id)
@@ -247,14 +285,29 @@ class Client:
         return str(msg.id)
 
     def send(self, instr: Instruction) -> None:
-        """Publish `instr` on the instruction topic; its outcome is kept for `outcome`."""
+        """Send `instr` (on the lane, or the instruction topic); its outcome is kept for
+        `outcome`."""
         self._check_open()
+        if self.lane is not None:
+            self._futures[instr.id] = self.lane.submit(instr)
+            return
+        from al5d.ros.convert import to_message
+
         with self._cv:
             self._sent.add(instr.id)
         self.pub.publish(to_message(instr))
 
     def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None:
         """Call `watcher` with the outcome of `ident` as soon as it comes (at once if it has)."""
+        future = self._futures.get(ident)
+        if future is not None:
+
+            def told(done: Future[Outcome]) -> None:
+                if done.exception() is None:
+                    watcher(done.result())
+
+            future.add_done_callback(told)
+            return
         with self._cv:
             outcome = self._outcomes.get(ident)
             if outcome is None:
@@ -263,6 +316,14 @@ class Client:
             watcher(outcome)
 
     def outcome(self, ident: str, timeout: float) -> Outcome | None:
+        future = self._futures.get(ident)
+        if future is not None:
+            try:
+                return future.result(timeout)
+            except FutureTimeout:
+                return None
+            except LaneClosed as e:
+                raise NoOutcome(f"[{ident}]: {e}: whether it ran is unknown") from None
         deadline = Deadline(timeout)
         with self._cv:
             while ident not in self._outcomes:
@@ -286,12 +347,29 @@ class Client:
             self.wait_for_server(self.wait_s)
         self.send(instr)
         outcome = self.outcome(instr.id, timeout)
-        with self._cv:
-            self._sent.discard(instr.id)
-            self._outcomes.pop(instr.id, None)
+        self.forget(instr.id)
         if outcome is None:
             raise NoOutcome(f"{instr.name} [{instr.id}]: no outcome within {timeout:g} s")
         return outcome
+
+    def forget(self, ident: str) -> None:
+        """The outcome of `ident` is not kept any more."""
+        self._futures.pop(ident, None)
+        if self.lane is None:
+            with self._cv:
+                self._sent.discard(ident)
+                self._outcomes.pop(ident, None)
+
+    def pending(self) -> list[str]:
+        """The ids of what this client sent whose outcome has not come (over the lane)."""
+        return [ident for ident, f in self._futures.items() if not f.done()]
+
+    def cancel(self, ident: str, reason: str = "cancelled by the client") -> bool:
+        """Cancel what this client sent; False when it has ended (or over ROS 2, which has no
+        cancel by id: the stop is the way there)."""
+        if self.lane is None:
+            return False
+        return self.lane.cancel(ident, reason)
 
     def stop(self, timeout: float = ANSWER_S) -> Answer:
         """The emergency stop, by the server's stop service: the arm halts and stays locked
@@ -311,6 +389,8 @@ class Client:
         """Call the server's service for `kind`; the instruction topic instead if the server
         is there but its service is not (`SERVICE_GRACE_S`)."""
         self._check_open()
+        if self.lane is not None:
+            return self._by_lane(kind, timeout)
         name, service = self._services[kind]
         if not self._find_service(kind, name, service):
             log.warning(
@@ -334,6 +414,21 @@ class Client:
                 "(whether the server obeyed is unknown)"
             )
         return Answer(kind.value, bool(response.success), str(response.message), name)
+
+    def _by_lane(self, kind: Kind, timeout: float) -> Answer:
+        assert self.lane is not None
+        instr = Instruction(kind)
+        try:
+            outcome = self.lane.submit(instr).result(timeout)
+        except FutureTimeout:
+            raise NoOutcome(
+                f"{kind.value}: no answer on the local lane within {timeout:g} s "
+                "(whether the server obeyed is unknown)"
+            ) from None
+        except LaneClosed as e:
+            raise NoOutcome(f"{kind.value}: {e} (whether the server obeyed is unknown)") from None
+        message = outcome.reason or f"{kind.value}: {outcome.result.value}"
+        return Answer(kind.value, outcome.ok, message, "the local lane")
 
     def _find_service(self, kind: Kind, name: str, service: Any) -> bool:
         """True once `service` is available; False if the server's topics are there and it is
@@ -361,6 +456,8 @@ class Client:
     def _call(self, service: Any, timeout: float, again: float | None) -> Any:
         """The service's response, or None if none came within `timeout`; the request is
         made anew every `again` seconds until one is answered."""
+        from std_srvs.srv import Trigger
+
         answered = threading.Event()
         futures: list[Any] = []
         deadline = Deadline(timeout)
@@ -388,4 +485,7 @@ class Client:
                 return
             self._closed = True
             _open.discard(self)
+            if self.lane is not None:
+                self.lane.close()
+                return
             self.spinner.close()

@@ -37,13 +37,12 @@ from rclpy.action.server import ServerGoalHandle
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectoryPoint
 
-from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result
 from al5d.arm.jobs import Sent
 from al5d.arm.resample import Follow
-from al5d.arm.states import State, refusal
-from al5d.arm.validate import Ticket
+from al5d.arm.states import refusal
 from al5d.model import ArmModel, ModelError
+from al5d.owner.client import Judged, Remote
 from al5d.ros.actions import GoalRunner, action_server, outcome_of
 from al5d.ros.convert import trajectory_from_message
 from al5d.ros.workarounds import preempted
@@ -79,10 +78,10 @@ def tolerances(given: Sequence[Any], joints: Sequence[str]) -> list[Tolerance] |
     return out
 
 
-def inactive(driver: ArmDriver) -> str:
+def inactive(arm: Remote) -> str:
     """Why the arm takes no moves now (stopped, faulted, shutting down), or "". Like an
     inactive ros2_controllers controller, the goal is then rejected, not aborted later."""
-    return refusal(driver.state, "see /al5d/state")
+    return refusal(arm.state, "see /al5d/state")
 
 
 @dataclass
@@ -131,10 +130,10 @@ class Running:
 
 
 @dataclass(frozen=True)
-class Judged:
-    """An accepted trajectory goal: its ticket and its tolerances."""
+class Accepted:
+    """An accepted trajectory goal: its ticket (the owner's) and its tolerances."""
 
-    ticket: Ticket
+    ticket: Judged
     path: list[Tolerance]
     end: list[Tolerance]
 
@@ -142,9 +141,9 @@ class Judged:
 class FollowTrajectoryAction(GoalRunner):
     """`arm_controller/follow_joint_trajectory` on a node, onto the arm driver."""
 
-    def __init__(self, node: Node, driver: ArmDriver, name: str) -> None:
-        super().__init__(node, driver)
-        self.model: ArmModel = driver.config.model
+    def __init__(self, node: Node, arm: Remote, name: str) -> None:
+        super().__init__(node, arm)
+        self.model: ArmModel = arm.config.model
         self.running: dict[str, Running] = {}
         #: Goals waiting for the goals they preempt to be halted, each with the goal that
         #: preempted it meanwhile ("": none has).
@@ -156,13 +155,13 @@ class FollowTrajectoryAction(GoalRunner):
         self.server = action_server(
             node, FollowJointTrajectory, name, self._execute, self._goal, self._cancel
         )
-        driver.motion_listeners.append(self._on_motion)
+        arm.motion_listeners.append(self._on_motion)
 
     # -- judging a goal ---------------------------------------------------------------
 
     name = "follow_joint_trajectory"
 
-    def judge(self, goal: Any, ident: str, sent: int) -> Judged | str:
+    def judge(self, goal: Any, ident: str, sent: int) -> Accepted | str:
         if len(goal.multi_dof_trajectory.points):
             return "multi-DOF trajectories are not supported: the AL5D has single-DOF joints"
         instr = trajectory_from_message(goal.trajectory, self.model)
@@ -176,28 +175,21 @@ class FollowTrajectoryAction(GoalRunner):
             if isinstance(t, str):
                 return t
         assert not isinstance(path, str) and not isinstance(end, str)
-        ticket = self.driver.judge(instr, self._follow(path, _seconds(goal.goal_time_tolerance)))
-        if isinstance(ticket, str):
-            return ticket
-        busy = inactive(self.driver)
+        busy = inactive(self.arm)
         if busy:
             return busy
-        return Judged(ticket, path, end)
+        ticket = self.arm.judge(instr, self._follow(path, _seconds(goal.goal_time_tolerance)))
+        if isinstance(ticket, str):
+            return ticket
+        return Accepted(ticket, path, end)
 
     def _follow(self, path: list[Tolerance], late_s: float) -> Follow:
-        """The goal's tolerances in the arm's degrees, and where the arm is (when it is at
-        rest: a moving arm's first step starts elsewhere), for the driver's judgement."""
+        """The goal's tolerances in the arm's degrees, for the owner's judgement (which knows
+        where the arm rests)."""
         degrees = {t.joint: self._degrees(t.joint, t.position) for t in path if t.position}
-        here = self.driver.positions()
-        start = (
-            {j: v for j, v in here.items() if not math.isnan(v)}
-            if self.driver.state is State.READY
-            else None
-        )
         return Follow(
             {j: d for j, d in degrees.items() if d is not None},
             late_s * 1000.0 if late_s > 0 else None,
-            start,
         )
 
     def _degrees(self, joint: str, tolerance: float) -> float | None:
@@ -236,7 +228,7 @@ class FollowTrajectoryAction(GoalRunner):
             [list(p.positions) for p in goal.trajectory.points],
             here,
             judged.path,
-            [s.point for s in judged.ticket.steps],
+            judged.ticket.knots,
         )
         outcome = await self._run(ident, run, judged.ticket)
         return self._finish(run, outcome, judged.end, goal)
@@ -255,7 +247,7 @@ class FollowTrajectoryAction(GoalRunner):
         self.starting[ident] = ""
         reason = f"preempted by trajectory goal {ident}"
         await outcome_of(
-            self.node, self._halts.submit(lambda: [self.driver.cancel(o, reason) for o in ended])
+            self.node, self._halts.submit(lambda: [self.arm.cancel(o, reason) for o in ended])
         )
         return self.starting.pop(ident)
 
@@ -319,7 +311,7 @@ class FollowTrajectoryAction(GoalRunner):
             run.late.append(end - (run.origin + run.times[run.knots[k]]))
 
     def _actual(self, names: Sequence[str]) -> list[float]:
-        values = self.model.to_urdf(self.driver.positions())
+        values = self.model.to_urdf(self.arm.positions())
         return [values[n] for n in names]
 
     # -- feedback ---------------------------------------------------------------------
@@ -350,7 +342,7 @@ class FollowTrajectoryAction(GoalRunner):
                         f"{tol.joint} was {abs(error[i]):.4g} off its path, "
                         f"tolerance {tol.position:g}"
                     )
-                    self.driver.cancel(ident, run.violated)
+                    self.arm.cancel(ident, run.violated)
 
 
 #: A point reached this much after its time_from_start is reported late: less is rounding
@@ -397,16 +389,16 @@ class GripperAction(GoalRunner):
 
     JOINT = "gripper"
 
-    def __init__(self, node: Node, driver: ArmDriver, name: str) -> None:
-        super().__init__(node, driver)
-        self.model: ArmModel = driver.config.model
+    def __init__(self, node: Node, arm: Remote, name: str) -> None:
+        super().__init__(node, arm)
+        self.model: ArmModel = arm.config.model
         self.server = action_server(
             node, GripperCommand, name, self._execute, self._goal, self._cancel
         )
 
     name = "gripper_cmd"
 
-    def judge(self, goal: Any, ident: str, sent: int) -> Ticket | str:
+    def judge(self, goal: Any, ident: str, sent: int) -> Judged | str:
         gap = goal.command.position
         if not math.isfinite(gap):
             return f"gripper position {gap} is not a number of metres"
@@ -415,10 +407,8 @@ class GripperAction(GoalRunner):
             return f"gripper gap {gap:.4g} m is outside {lo:g}..{hi:.4g} m"
         degrees = self.model.from_urdf({self.JOINT: gap})[self.JOINT]
         instr = Instruction(Kind.MOVE, joints=((self.JOINT, degrees),), id=ident, sent_ns=sent)
-        ticket = self.driver.judge(instr)
-        if isinstance(ticket, str):
-            return ticket
-        return inactive(self.driver) or ticket
+        busy = inactive(self.arm)
+        return busy or self.arm.judge(instr)
 
     async def _execute(self, handle: ServerGoalHandle) -> Any:
         ident, ticket = self._take_judged(handle)
@@ -443,7 +433,7 @@ class GripperAction(GoalRunner):
         return result
 
     def _gap(self) -> float:
-        return self.model.to_urdf(self.driver.positions()).get(self.JOINT, math.nan)
+        return self.model.to_urdf(self.arm.positions()).get(self.JOINT, math.nan)
 
     def feedback(self) -> None:
         if not self.running:

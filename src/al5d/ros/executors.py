@@ -114,6 +114,11 @@ class Spinner:
         self._thread: threading.Thread
         self._start()
 
+    def add(self, node: Node) -> None:
+        """Another node for this executor (and its thread)."""
+        self.more.append(node)
+        self.executor.add_node(node)
+
     def _spin(self) -> None:
         if self.urgent:
             make_urgent(self._thread.name)

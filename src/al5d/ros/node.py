@@ -1,23 +1,17 @@
-"""The server's ROS 2 nodes: topics, services and actions, mapped onto the arm driver.
+"""The bridge's ROS 2 nodes: topics and actions, mapped onto the owner of the board.
 
-A thin adapter: messages become `Instruction`s (`al5d.ros.convert`), stamped
-with when they were sent (the DDS sample's source timestamp, so that the
-driver can order what comes by different channels: `al5d.arm.core`), and
-outcomes become `InstructionResult`s. No callback waits for the arm. Services
-answer as soon as the driver has taken the instruction (stop and release are
-synchronous in the driver, a matter of microseconds). Five nodes, each with a
-thread of its own: `al5d` (the instruction, trajectory and joint-command topics,
-read with each message's info by a `workarounds.Reader`; the results and the
-state; the server's settings as ROS parameters, `al5d.ros.params`, whose
-services an executor of its own answers),
-`al5d_stop_watcher` (a stop on the instruction topic, obeyed at once; a
-`Reader` too), `al5d_safety` (the stop, release and shutdown services:
-`al5d.ros.safety`, on rclpy's Python executor), `al5d_actions` (the move action
-and MoveIt's two controllers, likewise: an action's execute callback is a
-coroutine that awaits the driver's outcome, so that a thousand waiting goals
-hold no thread) and `al5d_robot` (the robot's description, joint states and
-transforms, from timers on rclpy's events executor, whose idle tick is the
-cheaper).
+A thin adapter: messages become `Instruction`s (`al5d.ros.convert`), stamped with when
+they were sent (the DDS sample's source timestamp, so that the owner can order what
+comes by different channels: `al5d.arm.core`), handed to the owner over the lane, and
+outcomes become `InstructionResult`s. No callback waits for the arm. Three nodes, each
+with a thread of its own: `al5d` (the instruction, trajectory and joint-command topics,
+read with each message's info by a `workarounds.Reader`; the results and the state; the
+server's settings as ROS parameters, `al5d.ros.params`, whose services an executor of
+its own answers), `al5d_actions` (the move action and MoveIt's two controllers: an
+action's execute callback is a coroutine that awaits the owner's outcome, so that a
+thousand waiting goals hold no thread) and `al5d_robot` (the robot's description, joint
+states and transforms, from timers on rclpy's events executor, whose idle tick is the
+cheaper). The safety services are `al5d.ros.safety`'s.
 """
 
 from __future__ import annotations
@@ -39,11 +33,12 @@ from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
 from al5d.arm.config import ServerSettings
-from al5d.arm.driver import ArmDriver
-from al5d.arm.instruction import Kind, Outcome, Result, new_id
+from al5d.arm.instruction import MAX_ID, MAX_QUOTE, Kind, Outcome, Result, new_id
 from al5d.arm.jobs import Sent
 from al5d.arm.states import State
 from al5d.clock import now
+from al5d.owner.client import Remote
+from al5d.owner.teller import RefusalLog
 from al5d.ros import params
 from al5d.ros.actions import MoveAction
 from al5d.ros.controllers import FollowTrajectoryAction, GripperAction
@@ -95,7 +90,7 @@ class Repeats:
 
 class ArmNode(Node):
     """Node `al5d`: the server's settings as parameters (`declare`), then every topic of the
-    design on one driver, under `names` (`attach`)."""
+    design on the owner, under `names` (`attach`)."""
 
     def __init__(self, context: Context, names: Names) -> None:
         super().__init__(NODE, namespace=names.node_namespace, context=context)
@@ -147,11 +142,14 @@ class ArmNode(Node):
 
     # -- the arm --------------------------------------------------------------------
 
-    def attach(self, driver: ArmDriver) -> None:
-        """The topics, on the driver (once, after `declare`)."""
+    def attach(self, arm: Remote) -> None:
+        """The topics, on the owner (once, after `declare`)."""
         names = self.names
-        self.driver = driver
-        self.presets = tuple(driver.config.presets)
+        self.arm = arm
+        self.model = arm.config.model
+        self.presets = tuple(arm.config.presets)
+        self._refusals = RefusalLog()
+        self._refusals_lock = threading.Lock()
         self.result_pub = self.create_publisher(InstructionResult, names.result, QOS_STREAM)
         self.results: PublishThread[Outcome] = PublishThread(
             self.result_pub, outcome_message, "al5d-results"
@@ -193,14 +191,22 @@ class ArmNode(Node):
         # A controller sends a refused set-point again at its rate (held after a stop, or
         # out of range): the result topic hears each reason once a second, not 25 times.
         self._command_refusals = Repeats(COMMAND_REFUSALS_EVERY_S)
-        driver.outcome_listeners.append(self._publish_outcome)
-        driver.state_listeners.append(self._publish_state)
-        self._publish_state(driver.state)
+        arm.outcome_listeners.append(self._publish_outcome)
+        arm.state_listeners.append(self._publish_state)
+        self._publish_state(arm.state)
 
     def detach(self) -> None:
-        """Hear the driver no more (once, before the node is destroyed; the driver lives on)."""
-        self.driver.outcome_listeners.remove(self._publish_outcome)
-        self.driver.state_listeners.remove(self._publish_state)
+        """Hear the owner no more (once, before the node is destroyed)."""
+        self.arm.outcome_listeners.remove(self._publish_outcome)
+        self.arm.state_listeners.remove(self._publish_state)
+
+    def refuse(self, ident: str, name: str, reason: str) -> None:
+        """Refuse what never became an instruction (a malformed message): logged like any
+        refusal, and published."""
+        refused = Outcome(ident[:MAX_ID], name[:MAX_QUOTE], Result.REFUSED, reason)
+        with self._refusals_lock:
+            self._refusals.refused(refused.instruction, refused.id, reason, now())
+        self.results.put(refused)
 
     # -- outputs -------------------------------------------------------------------
 
@@ -218,35 +224,37 @@ class ArmNode(Node):
         if msg.instruction == PING:
             self.results.put(Outcome(msg.id or new_id(), PING, Result.DONE))
             return
-        instr = from_message(msg, self.presets, self.driver.config.model, sent_ns(info))
+        instr = from_message(msg, self.presets, self.model, sent_ns(info))
         if isinstance(instr, str):
-            self.driver.refuse(msg.id or new_id(), msg.instruction, instr)
+            self.refuse(msg.id or new_id(), msg.instruction, instr)
             return
         # A stop the stop watcher has obeyed already is the same message: obeyed once.
         key = stop_key(info) if instr.kind is Kind.STOP else None
-        self.driver.submit(instr, key=key)
+        self.arm.submit(instr, key=key)
 
     def _on_trajectory(self, msg: JointTrajectory, info: dict[str, int]) -> None:
         """A trajectory is one instruction: every point checked, then all run or none."""
-        instr = trajectory_from_message(msg, self.driver.config.model, sent_ns(info))
+        instr = trajectory_from_message(msg, self.model, sent_ns(info))
         if isinstance(instr, str):
-            self.driver.refuse(trajectory_id(msg), "trajectory", instr)
+            self.refuse(trajectory_id(msg), "trajectory", instr)
             return
-        self.driver.submit(instr)
+        self.arm.submit(instr)
 
     def _on_joint_command(self, msg: JointState, info: dict[str, int]) -> None:
         """A set-point of ros2_control's topic-based hardware: judged whole like any move, the
         latest wins. Only refusals are published: a stream of a hundred a second has a
         hundred outcomes a second, which would drown everyone else's on the result topic."""
-        instr = joint_command_from_message(msg, self.driver.config.model, sent_ns(info))
+        instr = joint_command_from_message(msg, self.model, sent_ns(info))
         if isinstance(instr, str):
             if self._command_refusals.news(instr):
-                self.driver.refuse(trajectory_id(msg), JOINT_COMMANDS, instr)
+                self.refuse(trajectory_id(msg), JOINT_COMMANDS, instr)
             return
-        future = self.driver.submit(instr, listeners=False, stream=JOINT_COMMANDS)
+        future = self.arm.submit(instr, listeners=False, stream=JOINT_COMMANDS)
         future.add_done_callback(self._publish_refusal)
 
     def _publish_refusal(self, future: Future[Outcome]) -> None:
+        if future.exception() is not None:
+            return  # the lane closed: the owner has ended
         outcome = future.result()
         if outcome.result is Result.REFUSED and self._command_refusals.news(outcome.reason):
             self.results.put(outcome)
@@ -258,15 +266,15 @@ class RobotNode(Node):
     on rclpy's events executor, whose idle tick costs a quarter of the Python executor's
     (the idle server's CPU is mostly these ticks)."""
 
-    def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
+    def __init__(self, arm: Remote, context: Context, names: Names) -> None:
         super().__init__(
             ROBOT_NODE, namespace=names.node_namespace, context=context, cli_args=pinned(ROBOT_NODE)
         )
-        self.driver = driver
-        self.robot = RobotPublisher(self, driver.config, names)
+        self.arm = arm
+        self.robot = RobotPublisher(self, arm.config, names)
         # Two timers, one running at a time: the moving rate's while the arm moves (a written
         # move starts it, a second at rest ends it), the idle rate's otherwise.
-        settings = driver.settings
+        settings = arm.settings
         self._rate_lock = threading.Lock()
         self._moving = False
         self._quiet = 0
@@ -276,7 +284,7 @@ class RobotNode(Node):
         self.idle_timer = self.create_timer(
             1.0 / settings.idle_joint_state_rate_hz, self._idle_tick
         )
-        driver.motion_listeners.append(self._on_motion)
+        arm.motion_listeners.append(self._on_motion)
 
     def set_rates(self, settings: ServerSettings) -> None:
         """The joint-state rates changed (a parameter, at run time): the timer running now
@@ -288,8 +296,8 @@ class RobotNode(Node):
             (self.moving_timer if self._moving else self.idle_timer).reset()
 
     def detach(self) -> None:
-        """Hear the driver no more (once, before the node is destroyed; the driver lives on)."""
-        self.driver.motion_listeners.remove(self._on_motion)
+        """Hear the owner no more (once, before the node is destroyed)."""
+        self.arm.motion_listeners.remove(self._on_motion)
 
     def _on_motion(self, _sent: Sent) -> None:
         self._speed_up()
@@ -304,7 +312,7 @@ class RobotNode(Node):
 
     def _tick(self) -> None:
         """/joint_states and /tf (radians, REP 103) at the moving rate, until a second at rest."""
-        changed = self.robot.publish(self.driver.positions())
+        changed = self.robot.publish(self.arm.positions())
         with self._rate_lock:
             self._quiet = 0 if changed else self._quiet + 1
             if self._quiet >= self._quiet_ticks:
@@ -316,7 +324,7 @@ class RobotNode(Node):
         """The same at the idle rate."""
         # A change that no written move announced (a stop's or a reconnection's read-back)
         # brings the moving rate back too.
-        if self.robot.publish(self.driver.positions()):
+        if self.robot.publish(self.arm.positions()):
             self._speed_up()
 
 
@@ -324,20 +332,20 @@ class ActionsNode(Node):
     """Node `al5d_actions`: the move action, FollowJointTrajectory and GripperCommand, with
     their feedback at the joint-state rate, under the server's namespace."""
 
-    def __init__(self, driver: ArmDriver, context: Context, names: Names) -> None:
+    def __init__(self, arm: Remote, context: Context, names: Names) -> None:
         super().__init__(
             ACTIONS_NODE,
             namespace=names.node_namespace,
             context=context,
             cli_args=pinned(ACTIONS_NODE),
         )
-        self.driver = driver
-        self.move_action = MoveAction(self, driver, names.move)
-        self.trajectory_action = FollowTrajectoryAction(self, driver, names.follow_joint_trajectory)
-        self.gripper_action = GripperAction(self, driver, names.gripper_command)
+        self.arm = arm
+        self.move_action = MoveAction(self, arm, names.move)
+        self.trajectory_action = FollowTrajectoryAction(self, arm, names.follow_joint_trajectory)
+        self.gripper_action = GripperAction(self, arm, names.gripper_command)
         # The timer runs only while a goal does: rclpy's Python executor rebuilds its wait set
         # at every tick, which an idle server should not pay at the joint-state rate.
-        self.timer = self.create_timer(1.0 / driver.settings.joint_state_rate_hz, self._feedback)
+        self.timer = self.create_timer(1.0 / arm.settings.joint_state_rate_hz, self._feedback)
         self.timer.cancel()
         for action in (self.move_action, self.trajectory_action, self.gripper_action):
             action.started = self.timer.reset
@@ -357,7 +365,7 @@ class ActionsNode(Node):
         # One instant for where the arm is and where a trajectory wants it: a thread switch
         # between two readings of the clock would show the arm behind its path.
         t = now()
-        degrees = self.driver.positions(t)
+        degrees = self.arm.positions(t)
         self.move_action.feedback(degrees)
         self.trajectory_action.feedback(degrees, t)
         self.gripper_action.feedback()

@@ -1,0 +1,376 @@
+"""A job as it runs, on the core's value: its steps planned, written on the wire's pace,
+waited for, confirmed; a stream's set-points watched.
+
+Pure steps (`corestate`'s conventions). The wire is not a queue: a step's line is
+written only when at most `WIRE_HORIZON_S` of earlier bytes are still on their way (a
+stream's set-point only when the wire is free, where a newer one may still take its
+place), and a line longer than `WIRE_PIECE_S` on the wire goes out in pieces, each
+when the horizon allows it, cut only between whole commands. So a stop finds at most
+the horizon and one piece ahead of it in the port, and a line it cuts short holds no
+partial number: its ESC cancels the whole commands the board has of it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import replace
+
+from al5d.arm.corestate import (
+    Core,
+    Moved,
+    Out,
+    Purpose,
+    Run,
+    complete,
+    finish,
+    fire,
+    halt,
+    posed,
+    say,
+    send,
+)
+from al5d.arm.instruction import Kind, Result
+from al5d.arm.jobs import Job, Mode, Motion, Sent, Written
+from al5d.arm.link import ask, can_ask, watch
+from al5d.arm.states import Event, State
+from al5d.arm.validate import from_start, planned
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.facts import BITS_PER_BYTE
+
+#: How much of earlier bytes' wire time a step may find still to go when it is written (the
+#: horizon a stop can find ahead of it, with the one piece written last).
+WIRE_HORIZON_S = 0.02
+#: A line longer than this on the wire goes out in pieces of about it (9 bytes at 9600
+#: baud, 115 at 115200: only the slow bauds' long lines are cut).
+WIRE_PIECE_S = 0.01
+#: A point of a trajectory whose line takes effect later than its schedule by more than
+#: this is judged against the path tolerance (less is the wire's and the host's jitter).
+LATE_JUDGED_S = 0.005
+
+
+def horizon(job: Job) -> float:
+    """How much of earlier bytes a job's line may find still on the wire: a stream's
+    set-point waits until the wire is free (at 9600 baud a line is 32 ms of wire, and a
+    50 Hz stream sends a newer one every 20 ms: one written behind the line on the wire
+    could no longer be superseded)."""
+    return 0.0 if job.stream else WIRE_HORIZON_S
+
+
+def piece(data: bytes, baud: int) -> int:
+    """How many bytes of `data` go in the next piece: about `WIRE_PIECE_S` of wire, ended
+    between two whole commands (before a `#` or a `T`, after a CR), or all of it."""
+    limit = max(1, int(baud / BITS_PER_BYTE * WIRE_PIECE_S))
+    if len(data) <= limit:
+        return len(data)
+    cut = 0
+    for i in range(1, len(data)):
+        if data[i] in b"#T" or data[i - 1] == p.CR[0]:
+            if i > limit and cut:
+                break
+            cut = i
+            if i > limit:
+                break
+    return cut or len(data)
+
+
+# -- starting ---------------------------------------------------------------------------
+
+
+def start(c: Core, job: Job, t: float, out: Out) -> Core:
+    """The job becomes the current run. A Cartesian move is planned when it starts, from where
+    the arm is then; any other move's path is judged against the table from there (the
+    owner's own parks are not: they are how the server makes the arm safe). Refused as
+    it starts if that fails: its outcome, and the next may start."""
+    steps = job.steps
+    reason = ""
+    pose = c.book.pose
+    limits = c.arm.limits
+    if not steps:
+        got = planned(job.instr, pose, limits, c.arm.translator)
+        if isinstance(got, str):
+            reason = got
+        else:
+            steps = got
+    elif job.mode is Mode.QUEUE:
+        reason = from_start(job.instr, steps, pose, limits)
+    if reason:
+        say(out, logging.WARNING, f"refused {job.instr.name} [{job.instr.id}]: {reason}")
+        finish(job, Result.REFUSED, reason, t, out)
+        if c.state is State.MOVING and not c.queue:
+            c = fire(c, Event.MOVE_DONE, out)
+        return c
+    return replace(c, run=Run(job, steps))
+
+
+# -- planning a step --------------------------------------------------------------------
+
+
+def _plan(c: Core, run: Run, t: float) -> Run:
+    """Step `k`'s line and time (ms), from where the arm is. A step after the first is timed
+    to end when the schedule says, its `time_ms` after the one before was due to end,
+    however early or late it takes effect; what the servos cannot do is said (INF03) and
+    noted for the outcome."""
+    job, k = run.job, run.k
+    step = run.steps[k]
+    tr = c.arm.translator
+    pose = dict(c.book.pose)
+    motion = c.book.motion
+    if k == 0 and run.retarget and motion is not None:
+        # It retargets the set-point it superseded mid-move: planned from where that one
+        # has the arm when these bytes take effect.
+        pose.update(motion.at(_arrival(c, len(tr.encode(step.target, 0)), t)))
+    notes = list(run.notes)
+    unknown = [j for j in step.target if pose.get(j) is None]
+    if unknown:
+        say_later = (
+            f"D1: {job.instr.name} [{job.instr.id}]: first command for {', '.join(unknown)} "
+            "since the board powered up (or reset): the board ignores speed and time for it, "
+            "so they go at full servo speed"
+        )
+        notes.append(say_later)
+    minimum = tr.minimum_ms(pose, step.target, job.speed_fraction)
+    min_ms = math.ceil(minimum - 1e-9)
+    requested = step.time_ms or 0
+    if requested and k > 0:
+        due = run.t_due + requested / 1000.0
+        length = len(tr.encode(step.target, requested))
+        requested = max(1, round((due - _arrival(c, length, t)) * 1000.0))
+    time_ms = max(requested, min_ms)
+    if job.instr.kind is Kind.MOVE_TO and len(run.steps) > 1:
+        if k == 0:
+            notes += _line_note(c, run, pose)
+    elif step.time_ms and requested < min_ms:
+        point = f" point {k}" if len(run.steps) > 1 else ""
+        left = "" if requested == step.time_ms else f" ({requested} ms left of its schedule)"
+        notes.append(
+            f"INF03: {job.instr.name} [{job.instr.id}]{point} cannot be done in the requested "
+            f"{step.time_ms} ms{left}; expected {time_ms} ms"
+        )
+    start = {j: v for j, v in pose.items() if v is not None}
+    line = tr.encode(step.target, time_ms)
+    return replace(run, line=line, line_ms=time_ms, line_start=start, notes=tuple(notes))
+
+
+def _line_note(c: Core, run: Run, pose: Mapping[str, float | None]) -> list[str]:
+    """INF03 once for a straight line whose `time` the servos cannot hold (not once per hop)."""
+    job = run.job
+    asked = job.instr.time_ms
+    if not asked:
+        return []
+    here: Mapping[str, float | None] = pose
+    expected = 0
+    for step in run.steps:
+        need = c.arm.translator.minimum_ms(here, step.target, job.speed_fraction)
+        expected += max(step.time_ms or 0, math.ceil(need - 1e-9))
+        here = {**here, **step.target}
+    if expected <= asked:
+        return []
+    return [
+        f"INF03: {job.instr.name} [{job.instr.id}] cannot be done in the requested "
+        f"{asked} ms; expected {expected} ms"
+    ]
+
+
+def _arrival(c: Core, n_bytes: int, t: float) -> float:
+    """When a line of `n_bytes` written now would have reached the board."""
+    return max(t, c.link.free_at) + p.wire_time_s(n_bytes, c.arm.baud)
+
+
+# -- writing a step ---------------------------------------------------------------------
+
+
+def _write(c: Core, run: Run, t: float, out: Out) -> Core:
+    """Step `k`'s line when the wire allows: its first piece now (the rest, piece by piece,
+    by `pieces`); once all of it is out, the step is written."""
+    if run.line or not c.link.checked or c.link.rest:
+        return c  # its pieces are going out, or a halt's are
+    if c.link.free_at - horizon(run.job) > t:
+        return c
+    told = len(run.notes)
+    run = _plan(c, run, t)
+    for note in run.notes[told:]:
+        say(out, logging.WARNING, note)
+    size = piece(run.line, c.arm.baud)
+    c = send(c, run.line[:size], t, out)
+    link = replace(c.link, rest=run.line[size:], rest_is_halt=False)
+    c = replace(c, link=link, run=replace(run, t_write=t))
+    return _written(c, t, out) if not link.rest else c
+
+
+def pieces(c: Core, t: float, out: Out) -> Core:
+    """The next piece of a line going out, when the horizon allows it; a step's line whose
+    last piece went is written."""
+    link = c.link
+    if not link.rest or link.free_at - WIRE_HORIZON_S > t:
+        return c
+    size = piece(link.rest, c.arm.baud)
+    was_halt = link.rest_is_halt
+    c = send(c, link.rest[:size], t, out)
+    c = replace(c, link=replace(c.link, rest=link.rest[size:]))
+    if not c.link.rest and not was_halt and c.run is not None:
+        return _written(c, t, out)
+    return c
+
+
+def _written(c: Core, t: float, out: Out) -> Core:
+    """A step's line is all out: the motion it makes on the board, when its time is over,
+    and the schedule; a trajectory's point that took effect too late for its path
+    tolerance ends the job."""
+    run = c.run
+    assert run is not None
+    job, k, step = run.job, run.k, run.steps[run.k]
+    t_sent = c.link.free_at  # the CR's arrival: the move starts then
+    t_end = t_sent + run.line_ms / 1000.0
+    if not step.time_ms:
+        t_due = t_end
+    elif k:
+        t_due = run.t_due + step.time_ms / 1000.0
+    else:
+        t_due = t_sent + step.time_ms / 1000.0
+    motion = Motion(run.line_start, step.target, t_sent, run.line_ms / 1000.0)
+    wire = p.wire_time_s(len(run.line), c.arm.baud)
+    book = c.book.moving(motion, run.t_write, t_end)
+    late = _off_path(c, run, t_sent) if k and step.time_ms else ""
+    run = replace(
+        run,
+        written=Written(motion, t_end, wire, run.line, run.t_write),
+        t_due=t_due,
+        expected_ms=run.expected_ms + run.line_ms,
+    )
+    c = replace(c, run=run, book=book)
+    steps = len(run.steps)
+    on_board = book.motion or motion
+    out.append(Moved(Sent(job.instr, run.line, job.t_submit, run.t_write, on_board, k, steps)))
+    if late:
+        return end_run(c, late, t, out)
+    posed(c, out)
+    return c
+
+
+def _off_path(c: Core, run: Run, t_sent: float) -> str:
+    """Why a trajectory's point `k` that takes effect at `t_sent` leaves the path beyond its
+    tolerance (""): until then the board holds the point before, while the path moves on."""
+    late = t_sent - run.t_due
+    if run.job.instr.kind is not Kind.TRAJECTORY or late <= LATE_JUDGED_S:
+        return ""
+    step, before = run.steps[run.k], run.steps[run.k - 1]
+    span = (step.time_ms or 1) / 1000.0
+    follow = run.job.follow
+    for joint, target in step.target.items():
+        off = abs(target - before.target.get(joint, target)) * min(1.0, late / span)
+        tolerance = c.arm.limits.path_tolerance_deg
+        if follow is not None:
+            tolerance = follow.tolerance.get(joint, tolerance)
+        if off > tolerance:
+            return (
+                f"point {step.point if step.point >= 0 else run.k} took effect "
+                f"{late * 1000.0:.0f} ms after its time: {joint} was {off:.2f} deg off its "
+                f"path, tolerance {tolerance:g} deg (the host or the link was late)"
+            )
+    return ""
+
+
+def wakes(c: Core, run: Run) -> list[float]:
+    """When the run has something to do next (`core.wake_at`)."""
+    written = run.written
+    if written is None:
+        return [c.link.free_at - horizon(run.job)]
+    if run.confirming:
+        return [run.poll_at]
+    times = [_until(run, written), _watch_at(c, written)]
+    if run.job.stream:
+        times.append(_quiet_at(c, run, written))
+    return times
+
+
+def _until(run: Run, written: Written) -> float:
+    """When the run moves on from its step: a wire time before its end (so that the next
+    takes effect as this one ends), or at its end for the last."""
+    last = run.k == len(run.steps) - 1
+    return written.t_end if last else written.t_end - written.wire_s
+
+
+def _watch_at(c: Core, written: Written) -> float:
+    """When the link is next checked during a step: every `moving_check_interval_s`, while
+    at least half of that is left of the step (inf: not during this one)."""
+    every = c.arm.settings.moving_check_interval_s
+    at = c.link.watched + every
+    return at if written.t_end - at > every / 2 else math.inf
+
+
+def _quiet_at(c: Core, run: Run, written: Written) -> float:
+    """When a set-point's stream has been quiet for `server.stream_timeout_s`."""
+    seen = c.stream_seen.get(run.job.stream, written.t_write)
+    return max(seen, written.t_write) + c.arm.settings.stream_timeout_s
+
+
+# -- waiting for a step -----------------------------------------------------------------
+
+
+def progress(c: Core, t: float, out: Out) -> Core:
+    """Drive the current run: write its step when the wire allows, move on to the next one a
+    wire time before this one ends (so that it takes effect as this one ends), confirm the
+    last with `Q`, check the link during long steps, and watch a stream's set-point."""
+    run = c.run
+    assert run is not None
+    written = run.written
+    if written is None:
+        return _write(c, run, t, out)
+    settings = c.arm.settings
+    if run.job.stream and _quiet_at(c, run, written) <= t < written.t_end:
+        return _hold(c, t, out)
+    last = run.k == len(run.steps) - 1
+    if t < _until(run, written):
+        if t >= _watch_at(c, written) and can_ask(c, t):
+            c = watch(c, t, out)
+        return c
+    if not last:
+        book = c.book.reached(run.steps[run.k].target)
+        after = Run(run.job, run.steps, run.k + 1, t_due=run.t_due, expected_ms=run.expected_ms)
+        return replace(c, book=book, run=replace(after, notes=run.notes))
+    if run.job.stream:
+        # A set-point is done when its time is over, without `Q`: its stream's next one,
+        # due any moment, must not wait for a query's answer. The link is still checked
+        # every `moving_check_interval_s` of a stream.
+        if t >= c.link.watched + settings.moving_check_interval_s and can_ask(c, t):
+            c = watch(c, t, out)
+        return complete(c, t, out)
+    if not run.confirming:
+        if not c.book.q_believed(t):
+            return complete(c, t, out)  # Q still counts a stopped move down: time alone
+        run = replace(run, confirming=True, poll_at=t)
+        c = replace(c, run=run)
+    if t >= run.poll_at and can_ask(c, t):
+        c = ask(c, Purpose.DONE, p.encode_query_movement(), 1, t, out)
+        c = replace(c, run=replace(run, poll_at=math.inf))
+    return c
+
+
+def _hold(c: Core, t: float, out: Out) -> Core:
+    """The watchdog: the stream of the running set-point has gone quiet mid-move (its source
+    stopped, or lost its link): the arm is held where it is, as a cancelled move is halted
+    (no lock: the next set-point moves it again)."""
+    run = c.run
+    assert run is not None
+    timeout = c.arm.settings.stream_timeout_s
+    reason = (
+        f"the stream {run.job.stream} went quiet (no set-point for {timeout:g} s, "
+        "server.stream_timeout_s): the arm is held where it is"
+    )
+    say(out, logging.WARNING, f"watchdog: {run.job.instr.name} [{run.job.instr.id}]: {reason}")
+    return end_run(c, reason, t, out)
+
+
+def end_run(c: Core, reason: str, t: float, out: Out) -> Core:
+    """The current run ends cancelled (`reason`), halted where it is on the wire's pace (no
+    lock); the next may start once the pose is read back."""
+    run = c.run
+    assert run is not None
+    c = halt(replace(c, run=None), t, out, urgent=False)
+    finish(run.job, Result.CANCELLED, reason, t, out)
+    if c.state is State.MOVING and run.job.mode is Mode.QUEUE:
+        c = fire(c, Event.MOVE_DONE, out)
+    posed(c, out)
+    return c

@@ -1,0 +1,339 @@
+"""A client of the owner over the local lane: `Remote`, with the owner's own API.
+
+The ROS bridges, the command line, the web view and the Python client reach a server
+on this machine through it: a request is a line on the lane's socket, its one outcome
+comes back under its ref, and what the client watches (the state, every outcome, the
+motion, the pose, the board's bytes) comes as it happens, read by a thread of its own.
+The arm's configuration is the server's, as its `welcome` says.
+
+    with Remote.connect(lane.path()) as arm:
+        print(arm.execute(move(base=30, time_ms=800)))
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import logging
+import math
+import socket
+import threading
+from collections.abc import Callable, Hashable, Iterable
+from concurrent.futures import Future
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from al5d.arm.config import ArmConfig, parse_config
+from al5d.arm.instruction import Instruction, Kind, Outcome, Result
+from al5d.arm.jobs import Motion, Sent
+from al5d.arm.resample import Follow
+from al5d.arm.states import State
+from al5d.clock import Deadline, now
+from al5d.owner import lane as ln
+from al5d.owner.teller import tell
+
+log = logging.getLogger("al5d")
+
+#: How long a client waits for the owner's welcome.
+WELCOME_S = 10.0
+
+
+class LaneClosed(ConnectionError):
+    """The owner is not there (any more): its lane is closed."""
+
+
+@dataclass(frozen=True, slots=True)
+class Judged:
+    """An instruction the owner has judged and keeps, to submit as it is (once)."""
+
+    instr: Instruction
+    name: str
+    #: A trajectory's points that go to the board, by index (a dense one is thinned).
+    knots: list[int]
+
+
+class Remote:
+    """The owner, over its lane (a connected socket): submit, cancel, judge, and what it tells."""
+
+    def __init__(
+        self,
+        sock: socket.socket,
+        *,
+        name: str = "al5d-client",
+        watch: Iterable[str] = ("state", "pose"),
+        timeout: float = WELCOME_S,
+    ) -> None:
+        self._sock = sock
+        sock.setblocking(True)
+        self._send_lock = threading.Lock()
+        self._refs = itertools.count(1)
+        self._futures: dict[int, Future[Any]] = {}
+        self.outcome_listeners: list[Callable[[Outcome], None]] = []
+        self.state_listeners: list[Callable[[State], None]] = []
+        self.motion_listeners: list[Callable[[Sent], None]] = []
+        self.pose_listeners: list[Callable[[], None]] = []
+        self.wire_listeners: list[Callable[[tuple[bytes, float, float]], None]] = []
+        #: Called once when the lane closes (the owner has ended, or the socket failed).
+        self.closed_listeners: list[Callable[[], None]] = []
+        self.closed = threading.Event()
+        self._state_cv = threading.Condition()
+        self._welcome: Future[dict[str, Any]] = Future()
+        self._pose: dict[str, float | None] = {}
+        self._motion: Motion | None = None
+        self._running: tuple[str, int, int] | None = None
+        self.state = State.INITIALIZING
+        self.locked = False
+        self._reader = threading.Thread(target=self._read, name=f"{name}-lane", daemon=True)
+        self._reader.start()
+        self._send({"op": "hello", "name": name, "watch": list(watch), "version": ln.VERSION})
+        try:
+            welcome = self._welcome.result(timeout)
+        except TimeoutError:
+            self.close()
+            raise LaneClosed(f"the owner did not answer hello within {timeout:g} s") from None
+        self.config: ArmConfig = parse_config(welcome["config"], "the server's configuration")
+        self.settings = self.config.server
+        self.port: str = welcome["port"]
+        self.baud: int = welcome["baud"]
+        self.client: int = welcome["client"]
+        self.pid: int = welcome["pid"]
+
+    @classmethod
+    def connect(cls, path: Path, **kwargs: Any) -> Remote:
+        """The owner on the lane at `path`. Raises LaneClosed where none is there."""
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            sock.connect(str(path))
+        except OSError as e:
+            sock.close()
+            raise LaneClosed(f"no al5d server on {path}: {e.strerror or e}") from None
+        return cls(sock, **kwargs)
+
+    def __enter__(self) -> Remote:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # -- requests ----------------------------------------------------------------------------
+
+    def _send(self, message: dict[str, Any]) -> None:
+        line = ln.dumps(message)
+        try:
+            with self._send_lock:
+                self._sock.sendall(line)
+        except OSError as e:
+            raise LaneClosed(f"the lane to the owner is closed: {e.strerror or e}") from None
+
+    def _request(self, message: dict[str, Any]) -> Future[Any]:
+        future: Future[Any] = Future()
+        if self.closed.is_set():
+            future.set_exception(LaneClosed("the lane to the owner is closed"))
+            return future
+        ref = next(self._refs)
+        self._futures[ref] = future
+        try:
+            self._send({**message, "ref": ref})
+        except LaneClosed as e:
+            self._futures.pop(ref, None)
+            future.set_exception(e)
+        return future
+
+    def submit(
+        self,
+        what: Instruction | Judged,
+        *,
+        key: Hashable | None = None,
+        stream: str = "",
+        listeners: bool = True,
+    ) -> Future[Outcome]:
+        """Hand over an instruction (or one judged already); its Future resolves to its one
+        outcome, or raises LaneClosed if the lane closes first."""
+        message: dict[str, Any] = {"op": "ask", "stream": stream, "tell": listeners}
+        if isinstance(what, Judged):
+            message["ticket"] = what.name
+        else:
+            message["instr"] = ln.instruction_out(what)
+        if key is not None:
+            message["key"] = key
+        return self._request(message)
+
+    def execute(self, instr: Instruction, timeout: float | None = None) -> Outcome:
+        return self.submit(instr).result(timeout)
+
+    def cancel(self, ident: str, reason: str = "cancelled by the client") -> bool:
+        """Cancel one move; False when it has already ended (or was never there)."""
+        ok: bool = self._request({"op": "cancel", "id": ident, "reason": reason}).result(30.0)
+        return ok
+
+    def judge(self, instr: Instruction, follow: Follow | None = None) -> Judged | str:
+        """The owner's judgement of a motion instruction: kept there to submit as it is, or
+        the reason to refuse it whole."""
+        message = {
+            "op": "judge",
+            "instr": ln.instruction_out(instr),
+            "follow": ln.follow_out(follow),
+        }
+        answer: dict[str, Any] = self._request(message).result(30.0)
+        if "ticket" in answer:
+            knots = [int(k) for k in answer.get("knots", ())]
+            return Judged(instr, str(answer["ticket"]), knots)
+        return str(answer.get("reason", "refused"))
+
+    def ping(self, timeout: float = 5.0) -> float:
+        """The owner's clock (CLOCK_MONOTONIC) when it answered."""
+        answer: dict[str, Any] = self._request({"op": "ping"}).result(timeout)
+        return float(answer["t"])
+
+    # -- what the owner tells ----------------------------------------------------------------
+
+    def positions(self, t: float | None = None) -> dict[str, float]:
+        """Estimated joint angles (degrees; NaN where unknown since power-up)."""
+        pose, motion = self._pose, self._motion
+        est = motion.at(now() if t is None else t) if motion is not None else {}
+        return {j: est.get(j, v if v is not None else math.nan) for j, v in pose.items()}
+
+    def progress(self, ident: str) -> float | None:
+        running, motion = self._running, self._motion
+        if running is None or motion is None or running[0] != ident or not running[2]:
+            return None
+        return (running[1] + motion.progress(now())) / running[2]
+
+    def wait_for_state(self, state: State, timeout: float = 10.0) -> None:
+        with self._state_cv:
+            if not self._state_cv.wait_for(lambda: self.state is state, timeout):
+                raise TimeoutError(f"state {state.value} not reached in {timeout} s")
+
+    def _read(self) -> None:
+        lines = ln.Lines()
+        try:
+            while True:
+                data = self._sock.recv(65536)
+                if not data:
+                    break
+                for message in lines.feed(data):
+                    self._dispatch(message)
+        except (OSError, ln.LaneError) as e:
+            log.debug("the lane to the owner failed: %s", e)
+        finally:
+            self._lost()
+
+    def _dispatch(self, m: dict[str, Any]) -> None:
+        op = m["op"]
+        if op == "outcome":
+            self._settle(m.get("ref"), ln.outcome_in(m["outcome"]))
+        elif op in ("reply",):
+            self._settle(m.get("ref"), bool(m.get("ok")))
+        elif op in ("judged", "pong"):
+            self._settle(m.get("ref"), m)
+        elif op == "told":
+            tell(self.outcome_listeners, ln.outcome_in(m["outcome"]), "outcome")
+        elif op == "state":
+            self._new_state(State(m["state"]), bool(m.get("locked")))
+        elif op == "posed":
+            self._posed(m)
+        elif op == "moved":
+            self._moved(m)
+        elif op == "wire":
+            data = str(m["data"]).encode("latin-1")
+            tell(self.wire_listeners, (data, float(m["t"]), float(m.get("free_at", 0))), "wire")
+        elif op == "welcome":
+            self._posed(m)
+            self._new_state(State(m["state"]), bool(m.get("locked")))
+            self._welcome.set_result(m)
+        elif op == "error":
+            future = self._futures.pop(m["ref"], None) if m.get("ref") is not None else None
+            error = ln.LaneError(str(m.get("error")))
+            if future is not None:
+                future.set_exception(error)
+            else:
+                log.warning("the owner says: %s", error)
+
+    def _settle(self, ref: Any, value: Any) -> None:
+        future = self._futures.pop(ref, None) if isinstance(ref, int) else None
+        if future is not None and not future.done():
+            future.set_result(value)
+
+    def _new_state(self, state: State, locked: bool) -> None:
+        with self._state_cv:
+            self.state, self.locked = state, locked
+            self._state_cv.notify_all()
+        tell(self.state_listeners, state, "state")
+
+    def _posed(self, m: dict[str, Any]) -> None:
+        pose = m.get("pose") or {}
+        self._pose = {str(k): (None if v is None else float(v)) for k, v in pose.items()}
+        motion = m.get("motion")
+        self._motion = None if motion is None else ln.motion_in(motion)
+        running = m.get("running")
+        self._running = (
+            None if running is None else (str(running[0]), int(running[1]), int(running[2]))
+        )
+        tell(self.pose_listeners, None, "pose")  # type: ignore[arg-type]
+
+    def _moved(self, m: dict[str, Any]) -> None:
+        instr = Instruction(Kind.MOVE, id=str(m["id"]))
+        sent = Sent(
+            instr,
+            str(m["data"]).encode("latin-1"),
+            float(m["t_submit"]),
+            float(m["t_write"]),
+            ln.motion_in(m["motion"]),
+            int(m["step"]),
+            int(m["steps"]),
+        )
+        tell(self.motion_listeners, sent, "motion")
+
+    def _lost(self) -> None:
+        if self.closed.is_set():
+            return
+        self.closed.set()
+        for ref, future in list(self._futures.items()):
+            if not future.done():
+                future.set_exception(LaneClosed("the lane to the owner closed"))
+            self._futures.pop(ref, None)
+        if not self._welcome.done():
+            self._welcome.set_exception(LaneClosed("the owner closed the lane"))
+        tell(self.closed_listeners, None, "closed")  # type: ignore[arg-type]
+
+    def close(self, bye: bool = True) -> None:
+        """Leave the lane; with `bye`, what this client commanded goes on (without, the owner
+        takes it for a lost client)."""
+        if bye and not self.closed.is_set():
+            with contextlib.suppress(LaneClosed):
+                self._send({"op": "bye"})
+        with contextlib.suppress(OSError):
+            self._sock.shutdown(socket.SHUT_RDWR)
+        self._sock.close()
+        if self._reader is not threading.current_thread():
+            self._reader.join(5)
+        self._lost()
+
+
+def outcome_refused(instr: Instruction, reason: str) -> Outcome:
+    return Outcome(instr.id, instr.name, Result.REFUSED, reason)
+
+
+def wait_lane(path: Path, timeout: float) -> bool:
+    """Until a server's lane accepts at `path`; False if none did within `timeout`."""
+    deadline = Deadline(timeout)
+    while True:
+        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            probe.connect(str(path))
+            return True
+        except OSError:
+            if deadline.expired:
+                return False
+        finally:
+            probe.close()
+        import time
+
+        time.sleep(0.05)

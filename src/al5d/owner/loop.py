@@ -1,0 +1,799 @@
+"""The owner of the board: one thread holds the arm's core and is the only one that writes to
+the board.
+
+`Owner` runs the core (`al5d.arm.core.step`) in a thread of its own, at the stop path's
+priority: it takes each input (a request from this process or from a client of its
+local lane, the board's bytes, the time passing), steps the core with it, and carries
+the effects out: bytes to the board through its `Transport`, outcomes and news to the
+lane's clients, and the rest (in-process futures, listeners, the log) to its teller
+thread, so that it never runs anyone else's code. Its inbox has two lanes: every stop
+waiting is taken before anything else, and goes to the wire in the same step.
+
+    owner = Owner(config, SerialTransport(port, baud)).start()
+    owner.execute(move(base=30, time_ms=800))      # an Outcome
+    owner.submit(stop())                           # a Future[Outcome]
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import logging
+import os
+import selectors
+import socket
+import threading
+from collections import deque
+from collections.abc import Callable, Hashable
+from concurrent.futures import Future
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from al5d.arm import instruction as ins
+from al5d.arm.config import ArmConfig
+from al5d.arm.core import step, wake_at
+from al5d.arm.corestate import (
+    Announce,
+    Arm,
+    Ask,
+    Cancel,
+    Close,
+    Core,
+    Effect,
+    End,
+    Failed,
+    Gone,
+    Input,
+    Moved,
+    Open,
+    Opened,
+    Posed,
+    Received,
+    Reply,
+    Resolve,
+    Say,
+    Send,
+    Tick,
+)
+from al5d.arm.instruction import Instruction, Kind, Outcome, Result
+from al5d.arm.jobs import Sent
+from al5d.arm.resample import Follow
+from al5d.arm.states import State
+from al5d.arm.validate import Ticket, judge
+from al5d.clock import now, wall_ns
+from al5d.owner import lane as ln
+from al5d.owner.teller import Teller, tell
+from al5d.priority import cpu_waited_s, make_urgent
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.errors import LinkLost
+from al5d.ssc32u.transport import Transport
+
+log = logging.getLogger("al5d")
+
+#: Requests other than stops taken in one turn, at most: a stop that comes meanwhile waits
+#: for no more than these.
+BATCH = 32
+#: A client's socket read at most this much in one turn (the stops in it are found first).
+READ_BYTES = 32 * 1024
+#: A client that reads nothing while this much waits for it is let go (a lost client).
+OUT_MAX = 64 * 1024 * 1024
+#: The longest the owner sleeps without looking (a lost wake-up is found then).
+SLEEP_MAX_S = 0.5
+#: A thread that woke this much later than it asked was not running: the host's stall.
+LATE_S = 0.002
+
+
+@dataclass(eq=False)
+class Conn:
+    """One client of the local lane."""
+
+    sock: socket.socket
+    ident: int
+    name: str = "?"
+    lines: ln.Lines = field(default_factory=ln.Lines)
+    out: bytearray = field(default_factory=bytearray)
+    watch: frozenset[str] = frozenset()
+    tickets: dict[str, Ticket] = field(default_factory=dict)
+    bye: bool = False
+    writing: bool = False
+
+
+class Owner:
+    """The board's one owner, on `transport`, for the arm of `config`. With `lane`, clients of
+    this machine reach it on that Unix socket (`al5d.owner.lane`)."""
+
+    def __init__(
+        self, config: ArmConfig, transport: Transport, *, lane: Path | None = None
+    ) -> None:
+        self.config = config
+        self.transport = transport
+        self.port = transport.port
+        self.baud = transport.baud
+        self.settings = config.server
+        self.arm = Arm.of(config, transport.port, transport.baud)
+        self._core = Core.start(self.arm, now())
+        self.outcome_listeners: list[Callable[[Outcome], None]] = []
+        self.state_listeners: list[Callable[[State], None]] = []
+        self.motion_listeners: list[Callable[[Sent], None]] = []
+        self.pose_listeners: list[Callable[[Posed], None]] = []
+        #: Every write to the board: (its bytes, when written, when its last byte arrives).
+        self.wire_listeners: list[Callable[[tuple[bytes, float, float]], None]] = []
+        #: Told every instruction as the owner takes it (from any client), before it is judged.
+        self.submit_listeners: list[Callable[[Instruction], None]] = []
+        self.finished = threading.Event()
+        self.ended: End | None = None
+        self._teller = Teller()
+        self._announced = State.INITIALIZING
+        self._announced_cv = threading.Condition()
+        self._refs = itertools.count(1)
+        self._futures: dict[int, Future[Any]] = {}
+        self._lane_refs: dict[int, tuple[Conn, Any]] = {}
+        self._stops: deque[tuple[int, Instruction, Ticket | None, str, Hashable, int, bool]] = (
+            deque()
+        )
+        self._others: deque[tuple[str, int, Any]] = deque()
+        self._pending: deque[Input] = deque()  # inputs the effects made (a port opened)
+        self._conns: dict[int, Conn] = {}
+        self._conn_ids = itertools.count(1)
+        self._selector = selectors.DefaultSelector()
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._selector.register(self._wake_r, selectors.EVENT_READ, "wake")
+        self._transport_fd: int | None = None
+        self._broken = False  # a write failed in this step: no more of its bytes
+        self._free_at = 0.0  # when the bytes written so far reach the board
+        self._stalled = 0.0
+        self._cpu_waited = cpu_waited_s()
+        self._lane_path = lane
+        self._listener: socket.socket | None = None
+        if lane is not None:
+            self._listener = _listen(lane)
+            if self._listener is not None:
+                self._selector.register(self._listener, selectors.EVENT_READ, "listen")
+        self._thread = threading.Thread(target=self._run, name="al5d-owner", daemon=True)
+        self._closing = False
+
+    # -- the public API (any thread) ---------------------------------------------------------
+
+    def start(self) -> Owner:
+        """Start the owner's thread: it opens the port, parks (D1, VE03), then the arm is
+        ready."""
+        log.info("STATE: %s", self._core.state.value)
+        self._thread.start()
+        return self
+
+    @property
+    def core(self) -> Core:
+        """The core as it is now (a value: safe to read from any thread)."""
+        return self._core
+
+    @property
+    def state(self) -> State:
+        return self._core.state
+
+    @property
+    def locked(self) -> bool:
+        return self._core.locked
+
+    @property
+    def lane(self) -> Path | None:
+        """The local lane's socket, where it could be made."""
+        return self._lane_path if self._listener is not None else None
+
+    def positions(self, t: float | None = None) -> dict[str, float]:
+        """Estimated joint angles (degrees; NaN where unknown since power-up)."""
+        return self._core.positions(now() if t is None else t)
+
+    def progress(self, ident: str) -> float | None:
+        """0..1 of the instruction `ident` if it is the one running (by its steps)."""
+        c = self._core
+        run, motion = c.run, c.book.motion
+        if run is None or motion is None or run.job.instr.id != ident or not run.steps:
+            return None
+        return (run.k + motion.progress(now())) / len(run.steps)
+
+    def judge(self, instr: Instruction, follow: Follow | None = None) -> Ticket | str:
+        """The one judgement of a motion instruction (D3): its ticket, to submit as it is, or
+        the reason to refuse it whole. `follow`: a trajectory's tolerances, where its sender
+        gives them; where the arm rests is known here."""
+        if follow is not None and follow.start is None and self._core.state is State.READY:
+            pose = self._core.book.pose
+            start = {j: v for j, v in pose.items() if v is not None}
+            follow = replace(follow, start=start)
+        return judge(instr, self.arm.limits, follow)
+
+    def submit(
+        self,
+        what: Instruction | Ticket,
+        *,
+        key: Hashable | None = None,
+        stream: str = "",
+        listeners: bool = True,
+        client: int = 0,
+    ) -> Future[Outcome]:
+        """Hand over an instruction (or a ticket of `judge`); its Future resolves to its one
+        outcome. `key` identifies a stop message that two readers may both see (obeyed and
+        answered once); `stream`: a set-point of that stream (the latest wins); with
+        `listeners` False the outcome listeners do not hear of it."""
+        instr = what.instr if isinstance(what, Ticket) else what
+        ticket = what if isinstance(what, Ticket) else None
+        future: Future[Outcome] = Future()
+        if self.finished.is_set():
+            reason = "the server has ended"
+            future.set_result(Outcome(instr.id, instr.name, Result.REFUSED, reason))
+            return future
+        ref = next(self._refs)
+        self._futures[ref] = future
+        self._put(ref, instr, ticket, stream, key, client, listeners)
+        return future
+
+    def execute(self, instr: Instruction, timeout: float | None = None) -> Outcome:
+        """Submit and wait for the outcome."""
+        return self.submit(instr).result(timeout)
+
+    def cancel(self, ident: str, reason: str = "cancelled by the client") -> bool:
+        """Cancel one move: drop it if it waits, halt the arm (without the lock) if it runs.
+        False when it has already ended (or was never here)."""
+        future: Future[bool] = Future()
+        ref = next(self._refs)
+        self._futures[ref] = future
+        self._others.append(("cancel", ref, (ident, reason)))
+        self._wake()
+        if threading.current_thread() is self._thread:
+            raise RuntimeError("cancel() from the owner's own thread would wait for itself")
+        return future.result(30.0)
+
+    def wait_for_state(self, state: State, timeout: float = 10.0) -> None:
+        """Until `state` has been entered and told (logged, listeners told)."""
+        with self._announced_cv:
+            if not self._announced_cv.wait_for(lambda: self._announced is state, timeout):
+                raise TimeoutError(
+                    f"state {state.value} not reached in {timeout} s (now {self._announced.value})"
+                )
+
+    @property
+    def parked_at_end(self) -> bool | None:
+        """After the shutdown: whether the arm reached park (None while it has not ended)."""
+        return None if self.ended is None else self.ended.parked
+
+    def close(self, timeout: float = 30.0) -> None:
+        """Shut down (park first) unless that has happened, and wait for the owner's end."""
+        if self._thread.is_alive() and not self._core.ended and self._core.shutdown is None:
+            self.submit(ins.shutdown())
+        if self._thread.is_alive():
+            self.finished.wait(timeout)
+        self._closing = True
+        self._wake()
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(5)
+        self._teller.close()
+        self.finished.set()
+
+    def adopt(self, sock: socket.socket) -> None:
+        """A lane connection made elsewhere (a socket pair with a bridge this process
+        started): a client like any other."""
+        sock.setblocking(False)
+        self._others.append(("adopt", 0, sock))
+        self._wake()
+
+    # -- taking inputs ---------------------------------------------------------------------
+
+    def _put(
+        self,
+        ref: int,
+        instr: Instruction,
+        ticket: Ticket | None,
+        stream: str,
+        key: Hashable | None,
+        client: int,
+        tell_: bool,
+    ) -> None:
+        item = (ref, instr, ticket, stream, key, client, tell_)
+        if instr.kind is Kind.STOP:
+            self._stops.append(item)
+        else:
+            self._others.append(("ask", ref, item))
+        self._wake()
+
+    def _wake(self) -> None:
+        with contextlib.suppress(BlockingIOError, OSError):
+            os.write(self._wake_w, b"!")
+
+    def _run(self) -> None:
+        make_urgent("al5d-owner")
+        try:
+            self._input(Tick(now(), wall_ns()))
+            while not self._core.ended and not self._closing:
+                self._turn()
+        except BaseException as e:
+            log.exception("the owner failed; the server ends")
+            self._fail_all(f"the owner failed: {e!r}")
+        finally:
+            self._end()
+
+    def _turn(self) -> None:
+        """One turn: wait for something (or the core's next wake), then take it all: the
+        board's bytes, every stop, the other requests (`BATCH` at most), the time."""
+        t = now()
+        wake = min(wake_at(self._core, t), t + SLEEP_MAX_S)
+        due = self.transport.due() if self._core.link.open else None
+        if due is not None:
+            wake = min(wake, due)
+        busy = self._stops or self._others or self._pending
+        timeout = 0.0 if busy else max(0.0, wake - t)
+        events = self._selector.select(timeout)
+        woke = now()
+        if not busy and woke - max(wake, t) > LATE_S:
+            self._stalled += woke - max(wake, t)
+        for key, mask in events:
+            self._event(key.data, mask)
+        self._read_board(woke)
+        while self._stops:
+            self._take_stop(self._stops.popleft())
+        for _ in range(BATCH):
+            if not self._others:
+                break
+            self._take(self._others.popleft())
+            if self._stops:
+                break
+        self._input(Tick(now(), wall_ns(), self._host_stalls()))
+
+    def _host_stalls(self) -> float:
+        """The owner's own stalls, and, while a query waits for its answer, the host's (the
+        time runnable tasks waited for a core: the kernel's work that carries the port's
+        bytes, and a board emulated on this host, wait their turn too)."""
+        if self._core.link.query is not None:
+            waited = cpu_waited_s()
+            if waited is not None and self._cpu_waited is not None:
+                self._stalled += max(0.0, waited - self._cpu_waited)
+            self._cpu_waited = waited
+        else:
+            self._cpu_waited = None
+        return self._stalled
+
+    def _event(self, data: Any, mask: int) -> None:
+        if data == "wake":
+            with contextlib.suppress(BlockingIOError, OSError):
+                os.read(self._wake_r, 4096)
+        elif data == "listen":
+            self._accept()
+        elif data == "board":
+            self._read_board(now(), ready=True)
+        elif isinstance(data, Conn):
+            if mask & selectors.EVENT_WRITE:
+                self._flush(data)
+            if mask & selectors.EVENT_READ:
+                self._read_conn(data)
+
+    def _read_board(self, t: float, ready: bool = False) -> None:
+        """What the board has sent: when its descriptor is `ready`, or (a transport with
+        none, an emulated board) when it is due."""
+        if not self._core.link.open:
+            return
+        if not ready:
+            due = self.transport.due()
+            if self._transport_fd is not None or due is None or due > t:
+                return
+        try:
+            data = self.transport.read()
+        except LinkLost as e:
+            self._input(Failed(now(), wall_ns(), e))
+            return
+        if data:
+            self._input(Received(now(), wall_ns(), data))
+
+    def _take_stop(self, item: tuple[Any, ...]) -> None:
+        self._ask(item)
+
+    def _ask(self, item: tuple[Any, ...]) -> None:
+        ref, instr, ticket, stream, key, client, tell_ = item
+        if self.submit_listeners and tell_:
+            self._teller.put(lambda: tell(self.submit_listeners, instr, "submit"))
+        self._input(Ask(now(), wall_ns(), ref, instr, ticket, stream, key, client, tell_))
+
+    def _take(self, entry: tuple[str, int, Any]) -> None:
+        what, ref, payload = entry
+        t, wall = now(), wall_ns()
+        if what == "ask":
+            self._ask(payload)
+        elif what == "cancel":
+            ident, reason = payload
+            self._input(Cancel(t, wall, ref, ident, reason))
+        elif what == "gone":
+            client, why = payload
+            self._input(Gone(t, wall, client, why))
+        elif what == "adopt":
+            self._connect(payload)
+
+    def _input(self, ev: Input) -> None:
+        """Step the core with `ev`, carry out its effects, then the inputs they made."""
+        self._pending.append(ev)
+        while self._pending:
+            self._core, effects = step(self._core, self._pending.popleft())
+            self._broken = False
+            for effect in effects:
+                self._carry(effect)
+
+    # -- effects ---------------------------------------------------------------------------
+
+    def _carry(self, effect: Effect) -> None:
+        if isinstance(effect, Send):
+            self._send(effect.data)
+        elif isinstance(effect, Resolve):
+            self._resolve(effect)
+        elif isinstance(effect, Posed):
+            self._posed(effect)
+        elif isinstance(effect, Moved):
+            self._moved(effect.sent)
+        elif isinstance(effect, Announce):
+            self._announce(effect)
+        elif isinstance(effect, Reply):
+            self._reply(effect.ref, effect.ok)
+        elif isinstance(effect, Say):
+            level, text = effect.level, effect.text
+            self._teller.put(lambda: log.log(level, "%s", text))
+        elif isinstance(effect, Open):
+            self._open()
+        elif isinstance(effect, Close):
+            self._close_board()
+        elif isinstance(effect, End):
+            self.ended = effect
+
+    def _send(self, data: bytes) -> None:
+        if self._broken:
+            return
+        t = now()
+        try:
+            self.transport.write(data)
+        except LinkLost as e:
+            self._broken = True
+            self._pending.append(Failed(now(), wall_ns(), e))
+            return
+        self._free_at = max(t, self._free_at) + p.wire_time_s(len(data), self.baud)
+        free_at = self._free_at
+        if self.wire_listeners:
+            self._teller.put(lambda: tell(self.wire_listeners, (data, t, free_at), "wire"))
+        if self._watching("wire"):
+            message = {"op": "wire", "data": data.decode("latin-1"), "t": t, "free_at": free_at}
+            self._lane_news("wire", message)
+
+    def _open(self) -> None:
+        t = now()
+        try:
+            low = self.transport.open()
+        except LinkLost as e:  # PortUnavailable too: a SerialFault
+            self._pending.append(Opened(t, wall_ns(), e))
+            return
+        except Exception as e:  # a transport's bug must not end the owner
+            self._pending.append(Opened(t, wall_ns(), LinkLost(self.port, f"cannot open: {e!r}")))
+            return
+        fd = self.transport.fileno()
+        if fd is not None:
+            self._selector.register(fd, selectors.EVENT_READ, "board")
+            self._transport_fd = fd
+        self._pending.append(Opened(now(), wall_ns(), low_latency=low))
+
+    def _close_board(self) -> None:
+        if self._transport_fd is not None:
+            with contextlib.suppress(KeyError, ValueError):
+                self._selector.unregister(self._transport_fd)
+            self._transport_fd = None
+        self.transport.close()
+
+    def _resolve(self, effect: Resolve) -> None:
+        outcome = effect.outcome
+        if outcome.result is Result.REFUSED:
+            t = now()
+            self._teller.put(
+                lambda: self._teller.refusals.refused(
+                    outcome.instruction, outcome.id, outcome.reason, t
+                )
+            )
+        future = self._futures.pop(effect.ref, None)
+        if future is not None:
+            self._teller.put(lambda: _set(future, outcome))
+        else:
+            routed = self._lane_refs.pop(effect.ref, None)
+            if routed is not None:
+                conn, their = routed
+                message = {"op": "outcome", "ref": their, "outcome": ln.outcome_out(outcome)}
+                self._write(conn, ln.dumps(message))
+        if effect.tell:
+            if self.outcome_listeners:
+                self._teller.put(lambda: tell(self.outcome_listeners, outcome, "outcome"))
+            self._lane_news("outcomes", {"op": "told", "outcome": ln.outcome_out(outcome)})
+
+    def _reply(self, ref: int, ok: bool) -> None:
+        future = self._futures.pop(ref, None)
+        if future is not None:
+            self._teller.put(lambda: _set(future, ok))
+            return
+        routed = self._lane_refs.pop(ref, None)
+        if routed is not None:
+            conn, their = routed
+            self._write(conn, ln.dumps({"op": "reply", "ref": their, "ok": ok}))
+
+    def _announce(self, effect: Announce) -> None:
+        new, old, event = effect.new, effect.old, effect.event
+        locked = self._core.locked
+
+        def told() -> None:
+            log.debug("EVENT: %s", event.value)
+            if new is not old:
+                log.info("STATE: %s", new.value)
+                tell(self.state_listeners, new, "state")
+            with self._announced_cv:
+                self._announced = new
+                self._announced_cv.notify_all()
+
+        self._teller.put(told)
+        if new is not old:
+            message = {"op": "state", "state": new.value, "locked": locked}
+            self._lane_news("state", message)
+
+    def _moved(self, sent: Sent) -> None:
+        if self.motion_listeners:
+            self._teller.put(lambda: tell(self.motion_listeners, sent, "motion"))
+        if self._watching("motion"):
+            message = {
+                "op": "moved",
+                "id": sent.instr.id,
+                "name": sent.instr.name,
+                "step": sent.step,
+                "steps": sent.steps,
+                "data": sent.data.decode("latin-1"),
+                "t_submit": sent.t_submit,
+                "t_write": sent.t_write,
+                "motion": ln.motion_out(sent.motion),
+            }
+            self._lane_news("motion", message)
+
+    def _posed(self, effect: Posed) -> None:
+        if self.pose_listeners:
+            self._teller.put(lambda: tell(self.pose_listeners, effect, "pose"))
+        if self._watching("pose"):
+            book = effect.book
+            message = {
+                "op": "posed",
+                "pose": book.pose,
+                "motion": None if book.motion is None else ln.motion_out(book.motion),
+                "running": effect.running,
+            }
+            self._lane_news("pose", message)
+
+    # -- the lane ----------------------------------------------------------------------------
+
+    def _watching(self, what: str) -> bool:
+        return any(what in conn.watch for conn in self._conns.values())
+
+    def _lane_news(self, what: str, message: dict[str, Any]) -> None:
+        line = b""
+        for conn in list(self._conns.values()):
+            if what in conn.watch:
+                line = line or ln.dumps(message)
+                self._write(conn, line)
+
+    def _accept(self) -> None:
+        assert self._listener is not None
+        for _ in range(16):
+            try:
+                sock, _ = self._listener.accept()
+            except (BlockingIOError, OSError):
+                return
+            sock.setblocking(False)
+            self._connect(sock)
+
+    def _connect(self, sock: socket.socket) -> None:
+        conn = Conn(sock, next(self._conn_ids))
+        self._conns[conn.ident] = conn
+        self._selector.register(sock, selectors.EVENT_READ, conn)
+
+    def _read_conn(self, conn: Conn) -> None:
+        try:
+            data = conn.sock.recv(READ_BYTES)
+        except BlockingIOError:
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self._drop(conn, "" if conn.bye else "its connection closed")
+            return
+        try:
+            for message in conn.lines.feed(data):
+                self._message(conn, message)
+        except ln.LaneError as e:
+            self._write(conn, ln.dumps({"op": "error", "error": str(e)}))
+            conn.lines = ln.Lines()  # what followed the bad line is lost with it
+
+    def _message(self, conn: Conn, m: dict[str, Any]) -> None:
+        """One request of a lane client; a bad one is answered with an `error`."""
+        op = m["op"]
+        ref = m.get("ref")
+        try:
+            if op == "ask":
+                self._lane_ask(conn, ref, m)
+            elif op == "judge":
+                self._lane_judge(conn, ref, m)
+            elif op == "cancel":
+                ident, reason = m.get("id"), m.get("reason") or "cancelled by the client"
+                if not isinstance(ident, str) or not isinstance(reason, str):
+                    raise ln.LaneError("cancel: id and reason must be text")
+                ours = next(self._refs)
+                self._lane_refs[ours] = (conn, ref)
+                self._others.append(("cancel", ours, (ident, reason[:200])))
+            elif op == "hello":
+                self._hello(conn, m)
+            elif op == "ping":
+                self._write(conn, ln.dumps({"op": "pong", "ref": ref, "t": now()}))
+            elif op == "bye":
+                conn.bye = True
+            else:
+                raise ln.LaneError(f"no op {op[:40]!r}")
+        except ln.LaneError as e:
+            self._write(conn, ln.dumps({"op": "error", "ref": ref, "error": str(e)}))
+
+    def _hello(self, conn: Conn, m: dict[str, Any]) -> None:
+        watch = m.get("watch") or []
+        if not isinstance(watch, list) or not set(watch) <= set(ln.WATCHES):
+            raise ln.LaneError(f"hello: watch is a list of {', '.join(ln.WATCHES)}")
+        conn.name = str(m.get("name", "?"))[:80]
+        conn.watch = frozenset(watch)
+        c = self._core
+        welcome = {
+            "op": "welcome",
+            "version": ln.VERSION,
+            "config": self.config.model_dump(mode="json"),
+            "port": self.port,
+            "baud": self.baud,
+            "pid": os.getpid(),
+            "client": conn.ident,
+            "state": c.state.value,
+            "locked": c.locked,
+            "pose": c.book.pose,
+            "motion": None if c.book.motion is None else ln.motion_out(c.book.motion),
+            "t": now(),
+            "wall": wall_ns(),
+        }
+        self._write(conn, ln.dumps(welcome))
+
+    def _lane_ask(self, conn: Conn, ref: Any, m: dict[str, Any]) -> None:
+        ticket = None
+        if "ticket" in m:
+            ticket = conn.tickets.pop(str(m["ticket"]), None)
+            if ticket is None:
+                raise ln.LaneError(f"ask: no ticket {str(m['ticket'])[:40]!r} (judged once each)")
+            instr = ticket.instr
+        else:
+            instr = ln.instruction_in(m.get("instr"))
+        stream = m.get("stream", "")
+        if not isinstance(stream, str):
+            raise ln.LaneError("ask: stream must be text")
+        key = _hashable(m.get("key"))
+        ours = next(self._refs)
+        self._lane_refs[ours] = (conn, ref)
+        tell_ = bool(m.get("tell", True))
+        self._put(ours, instr, ticket, stream, key, conn.ident, tell_)
+
+    def _lane_judge(self, conn: Conn, ref: Any, m: dict[str, Any]) -> None:
+        instr = ln.instruction_in(m.get("instr"))
+        follow = ln.follow_in(m.get("follow"))
+        got = self.judge(instr, follow)
+        if isinstance(got, str):
+            self._write(conn, ln.dumps({"op": "judged", "ref": ref, "reason": got}))
+            return
+        name = f"{conn.ident}-{ref}"
+        conn.tickets[name] = got
+        while len(conn.tickets) > 10_000:  # judged and never asked: the oldest go
+            del conn.tickets[next(iter(conn.tickets))]
+        knots = [step.point for step in got.steps]
+        self._write(conn, ln.dumps({"op": "judged", "ref": ref, "ticket": name, "knots": knots}))
+
+    def _write(self, conn: Conn, line: bytes) -> None:
+        if conn.ident not in self._conns:
+            return
+        conn.out += line
+        if not conn.writing:
+            self._flush(conn)
+
+    def _flush(self, conn: Conn) -> None:
+        try:
+            sent = conn.sock.send(conn.out)
+        except BlockingIOError:
+            sent = 0
+        except OSError:
+            self._drop(conn, "its connection failed")
+            return
+        del conn.out[:sent]
+        waiting = bool(conn.out)
+        if waiting != conn.writing:
+            conn.writing = waiting
+            events = selectors.EVENT_READ | (selectors.EVENT_WRITE if waiting else 0)
+            self._selector.modify(conn.sock, events, conn)
+        if len(conn.out) > OUT_MAX:
+            self._drop(conn, f"it read nothing while {OUT_MAX} bytes waited for it")
+
+    def _drop(self, conn: Conn, why: str) -> None:
+        """A client has gone: said goodbye (`why` empty), or lost."""
+        if self._conns.pop(conn.ident, None) is None:
+            return
+        with contextlib.suppress(KeyError, ValueError):
+            self._selector.unregister(conn.sock)
+        conn.sock.close()
+        for ref, (c, _) in list(self._lane_refs.items()):
+            if c is conn:
+                del self._lane_refs[ref]
+        if why:
+            self._others.append(("gone", 0, (conn.ident, f"{conn.name}: {why}")))
+
+    # -- the end -------------------------------------------------------------------------------
+
+    def _fail_all(self, why: str) -> None:
+        for ref, future in list(self._futures.items()):
+            if not future.done():
+                self._teller.put(
+                    lambda f=future: _set(f, Outcome("?", "?", Result.CANCELLED, why))  # type: ignore[misc]
+                )
+            del self._futures[ref]
+
+    def _end(self) -> None:
+        for conn in list(self._conns.values()):
+            with contextlib.suppress(OSError):
+                conn.sock.setblocking(True)
+                conn.sock.settimeout(1.0)
+                conn.sock.sendall(conn.out)
+            conn.sock.close()
+        self._conns.clear()
+        self._close_board()
+        if self._listener is not None:
+            self._listener.close()
+            if self._lane_path is not None:
+                with contextlib.suppress(OSError):
+                    self._lane_path.unlink()
+        for fd in (self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self._teller.put(self.finished.set)
+        self._teller.close()
+        self.finished.set()
+
+
+def _set(future: Future[Any], value: Any) -> None:
+    if not future.done():
+        future.set_result(value)
+
+
+def _hashable(value: Any) -> Hashable | None:
+    if isinstance(value, list):
+        return tuple(_hashable(v) for v in value)
+    if value is None or isinstance(value, str | int | float | bool):
+        return value
+    raise ln.LaneError("key: not a JSON value")
+
+
+def _listen(lane: Path) -> socket.socket | None:
+    """The lane's socket, in a folder that is the user's alone; None (said) where another
+    server holds it already."""
+    lane.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    with contextlib.suppress(OSError):
+        os.chmod(lane.parent, 0o700)
+    if lane.exists():
+        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            probe.connect(str(lane))
+        except OSError:
+            lane.unlink(missing_ok=True)  # a server that ended without removing it
+        else:
+            probe.close()
+            log.warning(
+                "another al5d server holds the local lane %s: this one is reached over ROS only",
+                lane,
+            )
+            return None
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    sock.bind(str(lane))
+    os.chmod(lane, 0o600)
+    sock.listen(64)
+    sock.setblocking(False)
+    return sock

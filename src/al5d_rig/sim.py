@@ -1,0 +1,223 @@
+"""The core against an emulated board in virtual time: no pty, no process, no thread, no sleep.
+
+`Sim` plays the owner's part for tests: it hands the pure core (`al5d.arm.core.step`)
+each input and carries its effects out against a `VirtualWire` (the board's logic on
+a virtual wire), and moves time on from one wake to the next (the core's, or the
+board's), so a test of a few seconds of the arm runs in milliseconds and the same
+every time.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from al5d.arm.config import ArmConfig
+from al5d.arm.core import step, wake_at
+from al5d.arm.corestate import (
+    Announce,
+    Arm,
+    Ask,
+    Cancel,
+    Close,
+    Core,
+    Effect,
+    End,
+    Failed,
+    Gone,
+    Input,
+    Moved,
+    Open,
+    Opened,
+    Received,
+    Reply,
+    Resolve,
+    Say,
+    Send,
+    Tick,
+)
+from al5d.arm.instruction import Instruction, Outcome
+from al5d.arm.states import State
+from al5d.arm.validate import Ticket
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator.board import Board, Fault, Record
+from al5d.ssc32u.emulator.usb import USB, LinkModel
+from al5d.ssc32u.emulator.virtual import VirtualWire
+from al5d.ssc32u.errors import LinkLost, PortUnavailable
+
+#: Virtual time starts here (CLOCK_MONOTONIC-like seconds), sending times at WALL0 ns.
+T0 = 1000.0
+WALL0 = 1_700_000_000_000_000_000
+
+
+@dataclass
+class Sim:
+    """One arm's core on one emulated board, in virtual time."""
+
+    config: ArmConfig
+    baud: int = 115_200
+    usb: LinkModel = USB
+    board: Board = field(init=False)
+    wire: VirtualWire = field(init=False)
+    core: Core = field(init=False)
+    t: float = T0
+    outcomes: dict[int, Outcome] = field(default_factory=dict)
+    told: list[Outcome] = field(default_factory=list)  # what the outcome listeners hear
+    replies: dict[int, bool] = field(default_factory=dict)
+    states: list[State] = field(default_factory=list)
+    said: list[Say] = field(default_factory=list)
+    moved: list[Moved] = field(default_factory=list)
+    sent: list[tuple[float, bytes]] = field(default_factory=list)
+    writers: set[int] = field(default_factory=set)
+    ended: End | None = None
+    steps: int = 0
+    #: Called with every input and the effects it made (a model-based test's check).
+    watch: Callable[[Input, tuple[Effect, ...]], None] | None = None
+
+    def __post_init__(self) -> None:
+        self.board = Board(self.config, baud=self.baud)
+        self.wire = VirtualWire(self.board, self.usb)
+        self.core = Core.start(Arm.of(self.config, "virtual", self.baud), self.t)
+        self._refs = itertools.count(1)
+        self._open = False
+        self.states.append(self.core.state)
+
+    # -- the owner's part ------------------------------------------------------------------
+
+    @property
+    def wall(self) -> int:
+        return WALL0 + round((self.t - T0) * 1e9)
+
+    def put(self, ev: Input) -> None:
+        """Hand the core one input, and carry out what it says."""
+        self.core, effects = step(self.core, ev)
+        self.steps += 1
+        if self.watch is not None:
+            self.watch(ev, effects)
+        for effect in effects:
+            self._carry(effect)
+
+    def _carry(self, effect: Effect) -> None:
+        if isinstance(effect, Send):
+            self.writers.add(threading.get_native_id())
+            if not self._open or self.board.has_fault(Fault.DISCONNECT):
+                self.put(Failed(self.t, self.wall, LinkLost("virtual", "write failed: unplugged")))
+                return
+            self.wire.write(effect.data, self.t)
+            self.sent.append((self.t, effect.data))
+        elif isinstance(effect, Open):
+            if self.board.has_fault(Fault.DISCONNECT):
+                error = PortUnavailable("virtual", "cannot open: unplugged")
+                self.put(Opened(self.t, self.wall, error))
+            else:
+                self._open = True
+                self.put(Opened(self.t, self.wall, low_latency=self.usb.low_latency))
+        elif isinstance(effect, Close):
+            self._open = False
+        elif isinstance(effect, Resolve):
+            assert effect.ref not in self.outcomes or effect.ref == 0, f"two outcomes for {effect}"
+            self.outcomes[effect.ref] = effect.outcome
+            if effect.tell:
+                self.told.append(effect.outcome)
+        elif isinstance(effect, Reply):
+            self.replies[effect.ref] = effect.ok
+        elif isinstance(effect, Announce):
+            if effect.new is not effect.old:
+                self.states.append(effect.new)
+        elif isinstance(effect, Moved):
+            self.moved.append(effect)
+        elif isinstance(effect, Say):
+            self.said.append(effect)
+        elif isinstance(effect, End):
+            self.ended = effect
+
+    # -- requests --------------------------------------------------------------------------
+
+    def ask(
+        self,
+        instr: Instruction | Ticket,
+        *,
+        stream: str = "",
+        key: object = None,
+        client: int = 0,
+        tell: bool = True,
+    ) -> int:
+        """Submit an instruction now; its ref (its outcome comes in `outcomes[ref]`)."""
+        ref = next(self._refs)
+        ticket = instr if isinstance(instr, Ticket) else None
+        plain = instr.instr if isinstance(instr, Ticket) else instr
+        self.put(Ask(self.t, self.wall, ref, plain, ticket, stream, key, client, tell))
+        return ref
+
+    def cancel(self, ident: str, reason: str = "cancelled by the client") -> int:
+        ref = next(self._refs)
+        self.put(Cancel(self.t, self.wall, ref, ident, reason))
+        return ref
+
+    def gone(self, client: int, why: str = "") -> None:
+        self.put(Gone(self.t, self.wall, client, why))
+
+    # -- time ----------------------------------------------------------------------------
+
+    def next_wake(self) -> float:
+        """The next time after now that the core or the board wants to be woken."""
+        times = [wake_at(self.core, self.t)]
+        due = self.wire.due() if self._open else None
+        if due is not None:
+            times.append(max(due, self.t + 1e-6))
+        return min(times)
+
+    def advance(self, until: float) -> None:
+        """Let time pass until `until`: every wake of the core and the board on the way."""
+        while not self.core.ended:
+            wake = self.next_wake()
+            if wake > until:
+                break
+            self.t = wake
+            self._wake()
+        self.t = max(self.t, until)
+        self._wake()
+
+    def _wake(self) -> None:
+        if self._open and not self.board.has_fault(Fault.DISCONNECT):
+            data = self.wire.read(self.t)
+            if data:
+                self.put(Received(self.t, self.wall, data))
+        elif self._open and self.core.link.open:
+            self.put(Failed(self.t, self.wall, LinkLost("virtual", "read failed: unplugged")))
+        self.put(Tick(self.t, self.wall))
+
+    def run(self, seconds: float) -> None:
+        self.advance(self.t + seconds)
+
+    def until(self, done: Callable[[], bool], limit_s: float = 60.0) -> bool:
+        """Let time pass until `done()` (checked at every wake), at most `limit_s`."""
+        end = self.t + limit_s
+        while not done():
+            if self.t >= end or self.core.ended:
+                return done()
+            self.t = min(self.next_wake(), end)
+            self._wake()
+        return True
+
+    def ready(self, limit_s: float = 30.0) -> Sim:
+        assert self.until(lambda: self.core.state is State.READY and self.core.idle, limit_s)
+        return self
+
+    def outcome(self, ref: int, limit_s: float = 60.0) -> Outcome:
+        assert self.until(lambda: ref in self.outcomes, limit_s), f"no outcome for {ref}"
+        return self.outcomes[ref]
+
+    # -- what the board saw ------------------------------------------------------------------
+
+    @property
+    def records(self) -> list[Record]:
+        return list(self.board.records)
+
+    def lines(self) -> list[bytes]:
+        return [r.raw for r in self.board.records]
+
+    def group_moves(self) -> list[p.GroupMove]:
+        return [c for r in self.board.records for c in r.commands if isinstance(c, p.GroupMove)]
