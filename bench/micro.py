@@ -1,4 +1,4 @@
-"""In-process figures: translation, the serial write call, and driver throughput."""
+"""In-process figures: translation, the serial write call, and the owner's throughput."""
 
 from __future__ import annotations
 
@@ -14,8 +14,10 @@ from stats import figure
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.arm.driver import ArmDriver
 from al5d.arm.states import State
+from al5d.arm.translate import Translator
+from al5d.arm.validate import Limits, judge
+from al5d.owner.loop import Owner
 from al5d.ssc32u.driver import SSC32U
 from al5d_rig.proc import Proc
 
@@ -24,7 +26,7 @@ WARMUP = 2000
 
 def translation(config: ArmConfig, n: int = 20000) -> dict[str, Any]:
     """Instruction -> bytes: validation, the time model and the encoding of a 6-joint move."""
-    driver = ArmDriver(config, "unused")  # not started: only its pure parts are timed
+    limits, translator = Limits.of(config), Translator(config)
     pose = dict(config.presets["park"])
     instrs = [
         ins.move(
@@ -42,11 +44,11 @@ def translation(config: ArmConfig, n: int = 20000) -> dict[str, Any]:
     for i in range(n + WARMUP):
         instr = instrs[i % 64]
         t0 = clock()
-        ticket = driver.judge(instr)
+        ticket = judge(instr, limits)
         assert not isinstance(ticket, str)
         target = ticket.steps[0].target
-        minimum = driver.translator.minimum_ms(pose, target)
-        data = driver.translator.encode(target, max(instr.time_ms or 0, math.ceil(minimum)))
+        minimum = translator.minimum_ms(pose, target)
+        data = translator.encode(target, max(instr.time_ms or 0, math.ceil(minimum)))
         t1 = clock()
         if i >= WARMUP:
             samples.append((t1 - t0) / 1e6)
@@ -81,9 +83,9 @@ def serial_write(workdir: Path, n: int = 2000, baud: int = 115200) -> dict[str, 
     with emulator_process(workdir, baud) as port, SSC32U(port, baud) as board:
         # The driver's own pyserial port (not public): a second open of the pty is refused
         # (the driver holds it exclusively).
-        bare = board._ser
+        bare = board.transport._ser  # type: ignore[attr-defined]
         for i in range(n + 100):
-            for write, samples in ((board.write_command, ours), (bare.write, floor)):
+            for write, samples in ((board.write, ours), (bare.write, floor)):
                 t0 = clock()
                 write(data)
                 t1 = clock()
@@ -96,12 +98,13 @@ def serial_write(workdir: Path, n: int = 2000, baud: int = 115200) -> dict[str, 
 
 
 def throughput_in_process(config: ArmConfig, workdir: Path, n: int = 50000) -> dict[str, Any]:
-    """Instructions per second the driver accepts (validated and queued), and none lost."""
+    """Instructions per second the owner accepts (taken, judged and queued: until `sync`
+    says it has taken the last), and none lost."""
     big = config.model_copy(
         update={"server": config.server.model_copy(update={"queue_capacity": n + 10})}
     )
     with emulator_process(workdir) as port:
-        driver = ArmDriver(big, port, 115200)
+        driver = Owner.on_port(big, port, 115200)
         driver.start()
         driver.wait_for_state(State.READY, 10)
         instrs = [ins.move(base=(i % 170) - 85, elbow=60 + i % 50) for i in range(n)]
@@ -112,6 +115,7 @@ def throughput_in_process(config: ArmConfig, workdir: Path, n: int = 50000) -> d
         instrs = [ins.move(base=(i % 170) - 85, elbow=60 + i % 50) for i in range(n)]
         t0 = time.perf_counter()
         futures = [driver.submit(instr) for instr in instrs]
+        driver.sync(60)
         elapsed = time.perf_counter() - t0
         driver.execute(ins.stop(), 5)
         outcomes = [f.result(30) for f in futures]

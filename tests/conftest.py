@@ -19,8 +19,8 @@ os.environ["ROS_DOMAIN_ID"] = str(domains.claim())
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 from al5d.arm.config import ArmConfig, load_config
-from al5d.arm.driver import ArmDriver
 from al5d.arm.states import State
+from al5d.owner.loop import Owner
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import Rig, make_rig
@@ -53,11 +53,11 @@ def rig(config: ArmConfig, caplog: pytest.LogCaptureFixture) -> Iterator[Rig]:
 
 
 @pytest.fixture
-def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, ArmDriver]]:
+def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, Owner]]:
     """A driver on an emulator behind a link, so that the board can be unplugged and back."""
     link = f"{tmp_path}/ssc32u"
     with Emulator(config, link=link) as emu:
-        driver = ArmDriver(config, link)
+        driver = Owner.on_port(config, link)
         driver.start()
         try:
             driver.wait_for_state(State.READY, 10)

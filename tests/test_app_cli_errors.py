@@ -208,12 +208,13 @@ def test_ctrl_c_in_the_shell_stops_the_arm(arm: Served) -> None:
         shell.out.wait_for("> move base=80 time=5000", CMD_S)
         wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
         shell.popen.send_signal(signal.SIGINT)
-        assert shell.out.wait_for("Ctrl-C: stop: ", CMD_S) == "Ctrl-C: stop: done (by /al5d/stop)"
+        said = shell.out.wait_for("Ctrl-C: stop: ", CMD_S)
+        assert said == "Ctrl-C: stop: done (by the local lane)"
         assert "cancelled" in shell.out.wait_for("move [", CMD_S)
         wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
         assert abs(arm.emu.servo_degrees()["base"] - 80) > 5  # halted on its way
         shell.send("release")
-        assert shell.out.wait_for("release: ", CMD_S) == "release: done (by /al5d/release)"
+        assert shell.out.wait_for("release: ", CMD_S) == "release: done (by the local lane)"
         shell.send("exit")
         code, _, err = ended(shell)
     finally:

@@ -183,7 +183,7 @@ def test_record_then_replay_reproduces_the_boards_bytes(tmp_path: Path) -> None:
         server.err.wait_for("STATE: ready", 30)
         recorder.out.wait_for("recording to", 30)
         peer.wait_for_server()
-        with Client() as client:
+        with Client(local=False) as client:
             wait_for_recorders(client, [server.err, recorder.out])
             assert run_sequence(client, SEQUENCE) == OUTCOMES
         goal_sent = time.monotonic()

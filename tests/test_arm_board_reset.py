@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import random
 import time
 from collections.abc import Iterator
 
@@ -13,12 +12,12 @@ import pytest
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Result
 from al5d.arm.states import State
-from al5d.ssc32u.driver import SSC32U
+from al5d.owner.loop import Owner
 from al5d.ssc32u.emulator import Emulator, LinkModel, Record
 from al5d.ssc32u.emulator.board import Fault
+from al5d.ssc32u.transport import SerialTransport
 from al5d_rig.armrig import Rig, logged
 
 
@@ -31,8 +30,8 @@ def warnings(caplog: pytest.LogCaptureFixture, text: str) -> list[str]:
 
 
 @contextlib.contextmanager
-def driving(emu: Emulator, config: ArmConfig) -> Iterator[ArmDriver]:
-    driver = ArmDriver(config, emu.port)
+def driving(emu: Emulator, config: ArmConfig) -> Iterator[Owner]:
+    driver = Owner.on_port(config, emu.port)
     driver.start()
     try:
         driver.wait_for_state(State.READY, 15)
@@ -42,7 +41,7 @@ def driving(emu: Emulator, config: ArmConfig) -> Iterator[ArmDriver]:
 
 
 def reset_found(
-    driver: ArmDriver, emu: Emulator, caplog: pytest.LogCaptureFixture, within: float
+    driver: Owner, emu: Emulator, caplog: pytest.LogCaptureFixture, within: float
 ) -> None:
     """The reset was a safety event: found, the arm locked, the pose forgotten and read back
     (unknown where the board has no pulse, the board's pulse where it has one)."""
@@ -100,60 +99,6 @@ def test_a_reset_of_a_board_with_power_up_pulses_is_found_while_idle(
         assert "puts out 1500 us where the driver expects" in warnings(caplog, "reset:")[0]
 
 
-def test_moves_and_stops_racing_the_checks_never_look_like_a_reset(
-    config: ArmConfig, caplog: pytest.LogCaptureFixture
-) -> None:
-    """Checks back to back (every 2 ms), each held 10 ms between choosing what it expects
-    and asking; every stop held 40 ms between its STOPs and the pose it leaves: a move or
-    a stop written meanwhile changes the pulse under the check, which must not judge it."""
-    caplog.set_level(logging.DEBUG, logger="al5d")
-    # Targets drawn across every joint's range, many under the table: the checks' race is
-    # the subject here, not the table (test_arm_table.py).
-    server = config.server.model_copy(
-        update={
-            "idle_check_interval_s": 0.002,
-            "moving_check_interval_s": 0.002,
-            "table_check": False,
-        }
-    )
-    fast = config.model_copy(update={"server": server})
-    rng = random.Random(11)
-    with Emulator(fast) as emu, driving(emu, fast) as driver:
-        board = driver.core.board
-        assert board is not None
-        read_pulses, stop = board.read_pulses, board.stop
-
-        def slow_read(channels: list[int]) -> dict[int, int]:
-            time.sleep(0.01)
-            return read_pulses(channels)
-
-        def slow_stop(channels: list[int], paced: bool = False, key: object = None) -> bytes:
-            data = stop(channels, paced, key)
-            time.sleep(0.04)
-            return data
-
-        board.read_pulses = slow_read  # type: ignore[assignment,method-assign]
-        board.stop = slow_stop  # type: ignore[assignment,method-assign]
-        checks = len([r for r in emu.records if r.raw.startswith(b"QP")])
-        for trial in range(30):
-            # Every joint, so that the joint the check reads back is one that moves.
-            target = {
-                name: rng.uniform(lo + 0.2 * (hi - lo), hi - 0.2 * (hi - lo))
-                for name, (lo, hi) in ((n, j.range_deg) for n, j in config.joints.items())
-            }
-            move = driver.submit(ins.move(time_ms=rng.choice([0, 150, 300]), **target))
-            if trial % 2:
-                time.sleep(rng.uniform(0, 0.15))
-                assert driver.execute(ins.stop(), 5).ok
-                assert move.result(5).result in (Result.DONE, Result.CANCELLED)
-                assert driver.execute(ins.release(), 5).ok
-            else:
-                assert move.result(5).ok, trial
-            assert not warnings(caplog, "the board has reset"), trial
-        assert driver.state is not State.FAULT
-        assert len([r for r in emu.records if r.raw.startswith(b"QP")]) - checks > 100
-
-
 def test_a_reset_while_idle_locks_the_arm_and_forgets_the_pose(
     rig: Rig, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -196,7 +141,7 @@ def test_a_board_with_pulses_at_power_up_gets_the_half_speed_start_up_park(
     caplog.set_level(logging.DEBUG, logger="al5d")
     pulses = {j.channel: 1500 for j in config.joints.values()}
     with Emulator(config, power_up=pulses) as emu:
-        driver = ArmDriver(config, emu.port)
+        driver = Owner.on_port(config, emu.port)
         driver.start()
         try:
             driver.wait_for_state(State.READY, 15)
@@ -214,14 +159,16 @@ def test_the_driver_asks_for_low_latency_and_says_what_it_got(
     only a serial driver with a UART behind it takes (USB serial, 8250); a pty refuses it,
     and the one such port a test machine may have is its console, not a test's to change."""
     caplog.set_level(logging.INFO, logger="al5d")
-    with Emulator(config) as emu, SSC32U(emu.port) as board:
+    with Emulator(config) as emu:
+        transport = SerialTransport(emu.port, 9600)
         # A pseudo terminal is no USB serial device: the ioctl is refused, and said so.
-        assert board.low_latency is False
+        assert transport.open() is False
+        transport.close()
         assert any("low-latency mode not available" in r.getMessage() for r in caplog.records)
 
 
 def test_a_board_that_reset_while_unplugged_is_found_on_reconnecting(
-    linked: tuple[Emulator, ArmDriver], caplog: pytest.LogCaptureFixture
+    linked: tuple[Emulator, Owner], caplog: pytest.LogCaptureFixture
 ) -> None:
     """Unplugged, power-cycled, plugged back: the driver reconnects, and does not take the
     board for the one it left (its pulses are gone)."""
@@ -264,7 +211,7 @@ def test_the_driver_and_its_stop_on_the_usb_link(config: ArmConfig) -> None:
     waits 16 ms in the chip: the driver still works, and its stop still holds the arm,
     because it writes ESC first (a move cut short on the wire is cancelled, not run)."""
     with Emulator(config, usb=LinkModel()) as emu:
-        driver = ArmDriver(config, emu.port)
+        driver = Owner.on_port(config, emu.port)
         driver.start()
         try:
             driver.wait_for_state(State.READY, 15)

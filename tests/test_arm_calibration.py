@@ -25,11 +25,11 @@ from al5d.arm.calibration import (
     references,
 )
 from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
-from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Result
 from al5d.arm.states import State
 from al5d.arm.validate import Limits
 from al5d.arm.validate import judge as judge_instruction
+from al5d.owner.loop import Owner
 from al5d.ssc32u.emulator import Emulator, Mechanics
 from al5d_rig.calibuser import User, truth
 
@@ -42,7 +42,7 @@ class Arm:
     def __init__(self, config: ArmConfig, mechanics: Mapping[str, Mechanics]) -> None:
         self.config = config
         self.emu = Emulator(config, mechanics=mechanics).start()
-        self.driver = ArmDriver(config, self.emu.port)
+        self.driver = Owner.on_port(config, self.emu.port)
         self.driver.start()
         self.driver.wait_for_state(State.READY, OUTCOME_S)
 
@@ -140,7 +140,7 @@ def test_the_procedure_finds_each_joints_offset_within_a_step(
     write_calibration(path, procedure.results)
     calibrated = load_config(path)
     arm.driver.close()
-    driver = ArmDriver(calibrated, arm.emu.port)
+    driver = Owner.on_port(calibrated, arm.emu.port)
     driver.start()
     try:
         driver.wait_for_state(State.READY, OUTCOME_S)

@@ -1,99 +1,376 @@
-"""The core's bookkeeping of writes from callers' threads survives what goes wrong in them.
+"""The arm's core, driven directly in virtual time against an emulated board (`al5d_rig.sim`):
+no pty, no process, no thread, no sleep; every figure here is the board's own record.
 
-Found by the model-based test (`test_arm_model.py`, at `make soak`'s scale): a board
-pulled, then two stops at once; the first stop's failed write let go of the board and
-closed it while the second was writing, pyserial raised a TypeError on the half-closed
-port, and the core never heard that the second write was over: the worker waited for it
-for ever, and every later move waited in `moving`.
+The cases the model-based test (`test_arm_model.py`) found, or that the issue names, are
+written out here as examples.
 """
 
 from __future__ import annotations
 
-import tempfile
-import threading
-import time
-from pathlib import Path
+import logging
+from dataclasses import replace
 
 import pytest
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.arm.driver import ArmDriver
+from al5d.arm.instruction import Point, Result
 from al5d.arm.states import State
-from al5d.ssc32u.driver import SSC32U
-from al5d.ssc32u.emulator import Emulator, Fault
-from al5d.ssc32u.errors import LinkLost
+from al5d.ssc32u import protocol as p
+from al5d.ssc32u.emulator.board import Fault
+from al5d_rig.sim import Sim
+
+#: Two moves from the shipped configuration: the second is judged fine when it comes (its
+#: target is above the table) but, from where the first leaves the arm, its path goes
+#: under the table at its very end: it is refused as it starts.
+FIRST = ins.move(base=0, shoulder=0, elbow=130, wrist=30, gripper=0, wrist_rotate=0)
+SECOND = {"base": 0, "shoulder": 40, "elbow": 110, "wrist": 30}
 
 
-def test_a_port_closed_under_a_write_is_a_lost_link(config: ArmConfig) -> None:
-    with Emulator(config) as emu, SSC32U(emu.port) as board:
-        # Another thread is closing it: its descriptor is gone, `is_open` not yet false (as
-        # pyserial's `close` leaves it between its two steps).
-        board._wire.closed = True
-        fd, board._ser.fd = board._ser.fd, None
-        try:
-            with pytest.raises(LinkLost, match="the port was closed"):
-                board.stop(range(6))
-            with pytest.raises(LinkLost, match="the port was closed"):
-                board.move({0: 1500})
-        finally:
-            board._ser.fd = fd
+@pytest.fixture
+def sim(config: ArmConfig) -> Sim:
+    return Sim(config, baud=9600).ready()
 
 
-def test_a_failing_stop_write_still_frees_the_arm_for_the_next_move(rig: object) -> None:
-    from al5d_rig.armrig import Rig
+def whole_commands(sim: Sim) -> list[bytes]:
+    """Every line the board received cut short by an ESC, where it holds anything but whole
+    group-move commands (a pulse out of the board's range is a number cut in the middle, a
+    `T` one whose CR never came)."""
+    channels = set(sim.config.channels)
+    bad = []
+    for record in sim.records:
+        if record.ignored != "cancelled by ESC" or not record.raw:
+            continue
+        parsed = p.parse_line(record.raw)
+        if isinstance(parsed, p.Unrecognized) or b"T" in record.raw:
+            bad.append(record.raw)
+            continue
+        for cmd in parsed:
+            if not isinstance(cmd, p.GroupMove) or any(
+                t.channel not in channels or not 500 <= t.pulse_us <= 2500 for t in cmd.targets
+            ):
+                bad.append(record.raw)
+    return bad
 
-    assert isinstance(rig, Rig)
-    board = rig.driver.core.board
-    assert board is not None
-    stop = board.stop
 
-    def broken(channels: object, paced: bool = False, key: object = None) -> bytes:
-        raise RuntimeError("a bug in the write")
-
-    board.stop = broken  # type: ignore[assignment,method-assign]
-    with pytest.raises(RuntimeError):
-        rig.driver.submit(ins.stop())
-    board.stop = stop  # type: ignore[method-assign]
-    # A fault (the board let go of and closed), then back: locked, as a stop came.
-    rig.driver.wait_for_state(State.STOPPED, 10)
-    if rig.driver.locked:
-        assert rig.driver.execute(ins.release(), 5).ok
-    assert rig.driver.execute(ins.move(base=5), 10).ok
+def test_start_up_parks_at_half_speed_then_the_arm_is_ready(sim: Sim) -> None:
+    assert sim.states == [State.INITIALIZING, State.READY]
+    park = sim.config.presets["park"]
+    assert sim.core.positions(sim.t) == pytest.approx(dict(park))
+    assert sim.writers and len(sim.writers) == 1
 
 
-def test_stops_racing_on_a_pulled_board_never_wedge_the_arm(config: ArmConfig) -> None:
+def test_a_move_is_done_when_its_time_is_over_and_q_says_so(sim: Sim) -> None:
+    ref = sim.ask(ins.move(base=30, elbow=90, time_ms=800))
+    outcome = sim.outcome(ref)
+    assert outcome.result is Result.DONE
+    assert 800 <= outcome.elapsed_ms <= 900
+    assert sim.degrees()["base"] == pytest.approx(30, abs=0.5)
+    assert sim.core.state is State.READY
+
+
+def test_a_move_refused_as_it_starts_leaves_the_arm_ready_with_its_outcome(sim: Sim) -> None:
+    """The state said `moving` for seconds after the last outcome when a queued move was
+    refused as it started (found from outside by a model-based tester, 5 of 5)."""
+    first = sim.ask(FIRST)
+    second = sim.ask(ins.move(**SECOND))
+    assert sim.core.state is State.MOVING
+    outcome = sim.outcome(second)
+    assert sim.outcomes[first].result is Result.DONE
+    assert outcome.result is Result.REFUSED
+    assert "below the table" in outcome.reason
+    assert sim.core.state is State.READY  # in the same step as the outcome
+    third = sim.ask(ins.move(base=10))
+    assert sim.outcome(third, 2.0).result is Result.DONE
+
+
+def test_a_stop_mid_line_cuts_it_between_whole_commands_only(config: ArmConfig) -> None:
+    """At 9600 baud a six-joint line goes in pieces; a stop between two of them ends it with
+    its ESC, and the board never holds half a number (63 such lines were seen in one run)."""
+    cut = 0
+    for delay_ms in range(1, 60, 3):
+        sim = Sim(config, baud=9600).ready()
+        six = ins.move(base=40, shoulder=30, elbow=80, wrist=-40, gripper=20, wrist_rotate=30)
+        ref = sim.ask(six)
+        sim.run(delay_ms / 1000)
+        sim.ask(ins.stop())
+        assert sim.outcome(ref).result is Result.CANCELLED
+        sim.run(0.2)
+        cut += sum(r.ignored == "cancelled by ESC" and bool(r.raw) for r in sim.records)
+        assert whole_commands(sim) == [], f"a stop {delay_ms} ms into the line"
+    assert cut >= 3  # the stops did come between pieces
+
+
+def test_nothing_of_a_move_follows_its_stop(sim: Sim) -> None:
+    refs = [sim.ask(ins.move(base=b, time_ms=300)) for b in (30, -30, 20, -20)]
+    sim.run(0.1)
+    stop = sim.ask(ins.stop())
+    stopped_at = sim.t
+    sim.run(1.0)
+    assert [sim.outcomes[r].result for r in refs] == [Result.CANCELLED] * 4
+    assert sim.outcomes[stop].result is Result.DONE
+    moves_after = [t for t, data in sim.sent if t > stopped_at and data.startswith(b"#")]
+    assert moves_after == []
+    assert sim.core.state is State.STOPPED
+
+
+def test_a_release_sent_before_the_stop_is_refused_one_sent_after_unlocks(sim: Sim) -> None:
+    early = ins.release()
+    early_sent = sim.wall
+    sim.run(0.01)
+    sim.ask(ins.stop())
+    late = sim.ask(ins.Instruction(ins.Kind.RELEASE, sent_ns=early_sent))
+    assert sim.outcomes[late].result is Result.REFUSED
+    assert "sent before the stop" in sim.outcomes[late].reason
+    assert early.kind is ins.Kind.RELEASE
+    sim.run(0.01)
+    ok = sim.ask(ins.release())
+    assert sim.outcomes[ok].result is Result.DONE
+    assert sim.core.state is State.READY
+
+
+def test_a_stop_seen_twice_is_obeyed_and_answered_once(sim: Sim) -> None:
+    told = len(sim.told)
+    first = sim.ask(ins.stop(id="s"), key=("stamp", 1))
+    second = sim.ask(ins.stop(id="s"), key=("stamp", 1))
+    assert sim.outcomes[first] == sim.outcomes[second]
+    assert len(sim.told) - told == 1
+    bursts = [data for _, data in sim.sent if data.startswith(p.CANCEL + b"STOP")]
+    assert len(bursts) == 1
+
+
+def test_the_stop_writes_the_moving_joints_first(sim: Sim) -> None:
+    sim.ask(ins.move(elbow=60, time_ms=1000))
+    sim.run(0.3)
+    sim.ask(ins.stop())
+    burst = next(data for _, data in reversed(sim.sent) if data.startswith(p.CANCEL))
+    elbow = sim.config.joints["elbow"].channel
+    assert burst.startswith(p.CANCEL + f"STOP{elbow}\r".encode())
+
+
+def test_cancel_halts_the_running_move_without_the_lock(sim: Sim) -> None:
+    move = ins.move(base=60, time_ms=2000)
+    ref = sim.ask(move)
+    sim.run(0.5)
+    cancel = sim.cancel(move.id)
+    assert sim.replies[cancel] is True
+    assert sim.outcomes[ref].result is Result.CANCELLED
+    sim.run(0.2)
+    assert sim.core.state is State.READY
+    assert not sim.core.locked
+    assert 5 < sim.degrees()["base"] < 40  # halted on its way
+
+
+def test_a_lost_client_s_motion_is_halted_and_its_waiting_moves_cancelled(sim: Sim) -> None:
+    running = sim.ask(ins.move(base=60, time_ms=2000), client=7)
+    waiting = sim.ask(ins.move(base=-60, time_ms=2000), client=7)
+    other = sim.ask(ins.move(elbow=80), client=8)
+    sim.run(0.3)
+    sim.gone(7, "its connection closed")
+    assert sim.outcomes[running].result is Result.CANCELLED
+    assert "lost contact with the client" in sim.outcomes[running].reason
+    assert sim.outcomes[waiting].result is Result.CANCELLED
+    assert sim.outcome(other).result is Result.DONE
+
+
+def test_a_newer_set_point_replaces_the_one_that_waits(sim: Sim) -> None:
+    sim.ask(ins.move(base=40, time_ms=500))
+    a = sim.ask(ins.move(elbow=80), stream="joint_commands", tell=False)
+    b = sim.ask(ins.move(elbow=70), stream="joint_commands", tell=False)
+    assert sim.outcomes[a].result is Result.CANCELLED
+    assert "replaced by set-point" in sim.outcomes[a].reason
+    assert sim.outcome(b).result is Result.DONE
+
+
+def test_the_watchdog_holds_the_arm_when_the_stream_goes_quiet(config: ArmConfig) -> None:
+    sim = Sim(config, baud=115_200).ready()
+    ref = sim.ask(ins.move(base=60, time_ms=3000), stream="joint_commands", tell=False)
+    outcome = sim.outcome(ref)
+    assert outcome.result is Result.CANCELLED
+    assert "went quiet" in outcome.reason
+    assert outcome.elapsed_ms == pytest.approx(config.server.stream_timeout_s * 1000, abs=30)
+    assert not sim.core.locked
+
+
+def test_a_pulled_board_is_a_fault_its_moves_cancelled_and_none_replayed(sim: Sim) -> None:
+    ref = sim.ask(ins.move(base=60, time_ms=2000))
+    queued = sim.ask(ins.move(base=-60))
+    sim.run(0.3)
+    sim.board.inject(Fault.DISCONNECT)
+    assert sim.until(lambda: sim.core.state is State.FAULT, 2.0)
+    assert sim.outcomes[ref].result is Result.CANCELLED
+    assert sim.outcomes[queued].result is Result.CANCELLED
+    refused = sim.ask(ins.move(base=10))
+    assert "serial link is lost" in sim.outcomes[refused].reason
+    sim.board.clear(Fault.DISCONNECT)
+    assert sim.until(lambda: sim.core.state is State.READY, 5.0)
+    sim.run(1.0)
+    base = sim.config.joints["base"]
+    moves = sim.group_moves()
+    targets = {t.pulse_us for m in moves for t in m.targets if t.channel == base.channel}
+    assert round(base.to_us(-60)) not in targets  # never replayed
+
+
+def test_a_silent_board_is_a_fault_found_within_a_second(sim: Sim) -> None:
+    sim.board.inject(Fault.NO_ANSWER)
+    t0 = sim.t
+    assert sim.until(lambda: sim.core.state is State.FAULT, 2.0)
+    assert sim.t - t0 < 1.0
+    assert any("no answer" in s.text for s in sim.said if s.level >= logging.ERROR)
+
+
+def test_a_reset_locks_the_arm_and_forgets_the_pose(sim: Sim) -> None:
+    sim.board.inject(Fault.RESET)
+    assert sim.until(lambda: sim.core.state is State.FAULT, 2.0)
+    assert sim.core.locked
+    assert sim.until(lambda: sim.core.state is State.STOPPED, 5.0)
+    refused = sim.ask(ins.move(base=10))
+    assert "stopped" in sim.outcomes[refused].reason
+
+
+def test_shutdown_parks_then_ends(sim: Sim) -> None:
+    sim.ask(ins.move(base=40, elbow=60))
+    ref = sim.ask(ins.shutdown())
+    assert sim.outcome(ref).result is Result.DONE
+    assert sim.ended is not None and sim.ended.parked
+    assert sim.degrees()["elbow"] == pytest.approx(125, abs=1)
+
+
+def test_a_stop_during_the_shutdown_park_ends_it_not_parked(sim: Sim) -> None:
+    sim.ask(ins.move(elbow=30, time_ms=200))
+    sim.run(0.3)
+    ref = sim.ask(ins.shutdown())
+    sim.run(0.1)
+    sim.ask(ins.stop())
+    assert sim.outcomes[ref].result is Result.CANCELLED
+    assert sim.ended is not None and not sim.ended.parked
+
+
+def test_a_trajectory_whose_point_took_effect_too_late_ends_with_the_reason(
+    config: ArmConfig,
+) -> None:
+    """The owner knows when each line left: a point that took effect so late that the board
+    left the path by more than its tolerance ends the goal, never done (a busy host)."""
+    sim = Sim(config, baud=115_200).ready()
+    points = tuple(Point((("base", 4.0 * (k + 1)),), 20.0 * (k + 1)) for k in range(10))
+    ref = sim.ask(ins.trajectory(points))
+    sim.run(0.045)
+    sim.stall(0.08)  # the owner's thread does not run for 80 ms
+    outcome = sim.outcome(ref)
+    assert outcome.result is Result.CANCELLED
+    assert "off its path" in outcome.reason
+
+
+def test_a_trajectory_on_time_is_done(config: ArmConfig) -> None:
+    sim = Sim(config, baud=115_200).ready()
+    points = tuple(Point((("base", 4.0 * (k + 1)),), 20.0 * (k + 1)) for k in range(10))
+    outcome = sim.outcome(sim.ask(ins.trajectory(points)))
+    assert outcome.result is Result.DONE, outcome.reason
+    assert 200 <= outcome.elapsed_ms <= 230  # its last point's time, then Q's answer
+
+
+def test_a_move_right_after_a_cancel_waits_for_the_pose_to_be_read_back(sim: Sim) -> None:
+    """A cancel halts the arm and has its pose read back; a move asked at once is written
+    only after that read, or the read would be a snapshot of the new move and the core's
+    estimate of where the arm is would freeze there."""
+    for trial in range(3):
+        first = ins.move(base=80 if trial % 2 == 0 else -80, time_ms=1500)
+        sim.ask(first)
+        sim.run(0.3)
+        assert sim.replies[sim.cancel(first.id)]
+        second = sim.ask(ins.move(base=0, elbow=60 + 10 * trial, time_ms=800))
+        sim.run(0.4)  # about half-way
+        estimate, board = sim.core.positions(sim.t), sim.degrees()
+        for joint in ("base", "elbow"):
+            assert abs(estimate[joint] - board[joint]) < 1, (trial, joint, estimate, board)
+        assert sim.outcome(second).ok
+
+
+def test_a_move_sent_before_a_stop_and_taken_after_it_is_cancelled(sim: Sim) -> None:
+    """An action accepts a goal, then runs it a little later (or a move waits on a topic
+    behind a flood): a stop in between cancels it, as it cancels every move that waits,
+    even once the arm is released again."""
+    sent = sim.wall
+    sim.run(0.01)
+    sim.ask(ins.stop())
+    sim.ask(ins.release())
+    n = len(sim.group_moves())
+    late = sim.outcome(sim.ask(replace(ins.move(base=30), sent_ns=sent)))
+    assert late.result is Result.CANCELLED
+    assert "cancelled by stop (it was sent before)" in late.reason
+    sim.run(0.1)
+    assert len(sim.group_moves()) == n
+    assert sim.outcome(sim.ask(ins.move(base=30))).ok
+
+
+def test_a_move_sent_while_the_arm_was_locked_and_taken_after_the_release_is_refused(
+    sim: Sim,
+) -> None:
+    sim.ask(ins.stop())
+    sim.run(0.01)
+    sent = sim.wall
+    sim.run(0.01)
+    sim.ask(ins.release())
+    late = sim.outcome(sim.ask(replace(ins.move(base=30), sent_ns=sent)))
+    assert late.result is Result.REFUSED and "sent while the arm was locked" in late.reason
+
+
+def test_a_line_behind_another_move_starts_where_that_one_ends(sim: Sim) -> None:
+    """A straight line is planned when it starts, from where the move before it left the arm."""
+    assert sim.outcome(sim.ask(ins.preset("ready"))).ok
+    before = ins.move(base=30, time_ms=300)
+    line = ins.move_to(150.0, -200.0, 150.0, pitch=-30, line=True)
+    other, ref = sim.ask(before), sim.ask(line)
+    assert sim.outcome(other).ok
+    assert sim.outcome(ref).ok
+    first_hop = next(m.sent for m in sim.moved if m.sent.instr.id == line.id)
+    assert first_hop.motion.start["base"] == pytest.approx(30, abs=0.01)
+
+
+def test_moves_and_stops_racing_the_checks_never_look_like_a_reset(config: ArmConfig) -> None:
+    """Link checks back to back (every 2 ms), moves of every joint across its range and stops
+    among them: a line or a STOP written while a check's answer is on its way changes the
+    pulse under the check, which must not judge it (no reset is ever seen)."""
+    import random
+
     server = config.server.model_copy(
-        update={"answer_timeout_s": 0.5, "reconnect_interval_s": 0.05}
+        update={
+            "idle_check_interval_s": 0.002,
+            "moving_check_interval_s": 0.002,
+            "table_check": False,
+        }
     )
     fast = config.model_copy(update={"server": server})
-    link = Path(tempfile.mkdtemp(prefix="al5d-core-")) / "ssc32u"
-    with Emulator(fast, baud=115200, link=link, initial_pose=fast.presets["park"]) as emu:
-        driver = ArmDriver(fast, str(link), 115200)
-        driver.start()
-        try:
-            driver.wait_for_state(State.READY, 20)
-            for trial in range(40):
-                emu.inject(Fault.DISCONNECT)
-                time.sleep(0.01 * (trial % 5))
-                go = threading.Barrier(2)
+    sim = Sim(fast, baud=9600).ready()
+    rng = random.Random(11)
+    checks = sum(r.raw.startswith(b"QP") for r in sim.records)
+    for trial in range(30):
+        target = {
+            name: rng.uniform(lo + 0.2 * (hi - lo), hi - 0.2 * (hi - lo))
+            for name, (lo, hi) in ((n, j.range_deg) for n, j in fast.joints.items())
+        }
+        move = sim.ask(ins.move(time_ms=rng.choice([0, 150, 300]), **target))
+        if trial % 2:
+            sim.run(rng.uniform(0, 0.15))
+            sim.ask(ins.stop())
+            assert sim.outcome(move).result in (Result.DONE, Result.CANCELLED)
+            sim.run(rng.uniform(0, 0.05))
+            assert sim.outcome(sim.ask(ins.release())).ok
+        else:
+            assert sim.outcome(move).ok, trial
+        assert not [s for s in sim.said if "the board has reset" in s.text], trial
+    assert sim.core.state is not State.FAULT
+    assert sum(r.raw.startswith(b"QP") for r in sim.records) - checks > 100
 
-                def stop(go: threading.Barrier = go) -> None:
-                    go.wait(5)
-                    driver.submit(ins.stop())
 
-                threads = [threading.Thread(target=stop) for _ in range(2)]
-                for t in threads:
-                    t.start()
-                for t in threads:
-                    t.join(10)
-                emu.reconnect()
-                deadline = time.monotonic() + 10
-                while driver.state not in (State.READY, State.STOPPED):
-                    assert time.monotonic() < deadline, f"trial {trial}: {driver.state}"
-                    time.sleep(0.01)
-                if driver.locked:
-                    assert driver.execute(ins.release(), 5).ok
-                assert driver.execute(ins.move(base=2 if trial % 2 else -2), 10).ok, trial
-        finally:
-            driver.close(10)
+def test_an_answer_late_while_the_host_stalled_is_excused(config: ArmConfig) -> None:
+    """A link check's answer 0.2 s late: a lost link on a host that ran everything in time,
+    no fault where the host says it was short of cores meanwhile (the excuse, up to
+    EXCUSE_MAX_S an ask)."""
+    for stalled, fault in ((False, True), (True, False)):
+        sim = Sim(config, baud=9600).ready()
+        sim.board.answer_delay_s = 0.2
+        if stalled:
+            sim.stalling = 1.0  # each second of virtual time, a second of the host's stalls
+        sim.run(2 * config.server.idle_check_interval_s + 0.5)
+        assert (sim.core.state is State.FAULT) is fault, (stalled, sim.said[-3:])

@@ -1,4 +1,4 @@
-"""The high-level driver against the emulator over a real pty, judged by what reached the board."""
+"""The owner of the board against the emulator over a real pty, judged by what reached the board."""
 
 from __future__ import annotations
 
@@ -14,14 +14,12 @@ import pytest
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Outcome, Result
 from al5d.arm.states import TRANSITIONS, State
+from al5d.owner.loop import Owner
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator, Fault
-from al5d.ssc32u.stopline import _STOPS, StopGate
-from al5d.ssc32u.wire import gate_port
 from al5d_rig.armrig import (
     Rig,
     group_pulses,
@@ -61,7 +59,7 @@ class TestStartup:
                 board.move(pulses(config, straight))
                 emu.wait_for(lambda rs: any(r.raw.startswith(b"#0P") for r in rs))
             emu.clear_records()
-            driver = ArmDriver(config, emu.port)
+            driver = Owner.on_port(config, emu.port)
             driver.start()
             try:
                 driver.wait_for_state(State.READY, 10)
@@ -305,7 +303,7 @@ class TestFault:
     ) -> None:
         caplog.set_level(logging.DEBUG, logger="al5d")
         with Emulator(config, baud=115200) as emu:
-            driver = ArmDriver(config, emu.port, 9600)
+            driver = Owner.on_port(config, emu.port, 9600)
             driver.start()
             try:
                 driver.wait_for_state(State.FAULT, 5)
@@ -326,7 +324,7 @@ class TestFault:
     def test_a_device_that_is_not_a_board_at_reconnect_is_a_warning_and_the_fault_reason(
         self,
         config: ArmConfig,
-        linked: tuple[Emulator, ArmDriver],
+        linked: tuple[Emulator, Owner],
         caplog: pytest.LogCaptureFixture,
     ) -> None:
         caplog.set_level(logging.DEBUG, logger="al5d")
@@ -350,7 +348,7 @@ class TestFault:
         assert driver.execute(ins.move(base=5), 10).ok
 
     def test_disconnect_during_a_move_then_recovery(
-        self, config: ArmConfig, linked: tuple[Emulator, ArmDriver]
+        self, config: ArmConfig, linked: tuple[Emulator, Owner]
     ) -> None:
         emu, driver = linked
         running = driver.submit(ins.move(base=80, time_ms=2000))
@@ -375,7 +373,7 @@ class TestFault:
         assert driver.execute(ins.move(base=5), 10).ok
 
     def test_stop_during_a_fault_keeps_the_arm_locked_after_reconnect(
-        self, linked: tuple[Emulator, ArmDriver]
+        self, linked: tuple[Emulator, Owner]
     ) -> None:
         emu, driver = linked
         emu.inject(Fault.DISCONNECT)
@@ -390,7 +388,7 @@ class TestFault:
         self, config: ArmConfig, tmp_path: object
     ) -> None:
         link = f"{tmp_path}/ssc32u"
-        driver = ArmDriver(config, link)
+        driver = Owner.on_port(config, link)
         driver.start()
         try:
             driver.wait_for_state(State.FAULT, 5)
@@ -492,22 +490,3 @@ def test_every_instruction_gets_exactly_one_outcome(rig: Rig) -> None:
     assert sorted(o.id for o in outcomes) == sorted(ids)
     assert sorted(o.id for o in seen if o.id in set(ids)) == sorted(ids)  # once each, no more
     assert {o.result for o in outcomes} == {Result.DONE, Result.REFUSED, Result.CANCELLED}
-
-
-def test_a_move_withheld_for_a_stop_not_yet_obeyed_gets_its_outcome(rig: Rig) -> None:
-    """The stop process has written a STOP the driver has not obeyed yet (its notice is
-    late): an idle arm's move, written from the caller's thread, is withheld, and still
-    gets one outcome (it was ended silently: seen as a flood's first move never answered
-    in the sequences over DDS)."""
-    gate = StopGate()
-    gate_port(rig.driver.port, gate)
-    try:
-        n = len(rig.moves())
-        gate._shared.add(_STOPS)  # the other end's count (`StopEnd.stop`): one stop more
-        future = rig.driver.submit(ins.move(base=20))
-        outcome = future.result(10)
-        assert outcome.result is Result.CANCELLED, outcome
-        assert len(rig.moves()) == n  # nothing of it reached the board
-    finally:
-        gate_port(rig.driver.port, None)
-        gate.close()

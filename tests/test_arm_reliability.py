@@ -18,12 +18,13 @@ import pytest
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig, load_config
-from al5d.arm.driver import ArmDriver
 from al5d.arm.instruction import Result
 from al5d.arm.jobs import Sent
+from al5d.arm.link import EXCUSE_MAX_S
 from al5d.arm.states import State
+from al5d.owner.loop import Owner
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.driver import EXCUSE_MAX_S, SSC32U
+from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator, Fault
 from al5d_rig.armrig import Rig, group_pulses, logged, min_ms, pulses, state_lines
 
@@ -35,7 +36,7 @@ def slow_to_give_up(answer_timeout_s: float) -> ArmConfig:
     return config.model_copy(update={"server": server})
 
 
-def time_to_state(driver: ArmDriver, state: State, timeout: float = 5.0) -> float:
+def time_to_state(driver: Owner, state: State, timeout: float = 5.0) -> float:
     t0 = time.monotonic()
     driver.wait_for_state(state, timeout)
     return time.monotonic() - t0
@@ -44,7 +45,7 @@ def time_to_state(driver: ArmDriver, state: State, timeout: float = 5.0) -> floa
 class TestIdleLink:
     @pytest.mark.parametrize("fault", [Fault.DISCONNECT, Fault.NO_ANSWER, Fault.GARBAGE])
     def test_a_fault_while_idle_is_seen_within_a_second(
-        self, linked: tuple[Emulator, ArmDriver], fault: Fault
+        self, linked: tuple[Emulator, Owner], fault: Fault
     ) -> None:
         emu, driver = linked
         time.sleep(0.2)
@@ -55,7 +56,7 @@ class TestIdleLink:
         assert refused.result is Result.REFUSED and "serial link is lost" in refused.reason
 
     def test_a_replugged_board_is_reconnected_while_idle(
-        self, config: ArmConfig, linked: tuple[Emulator, ArmDriver]
+        self, config: ArmConfig, linked: tuple[Emulator, Owner]
     ) -> None:
         emu, driver = linked
         emu.inject(Fault.DISCONNECT)
@@ -71,7 +72,7 @@ class TestIdleLink:
     # is told apart from a busy machine's scheduling by seconds, not by milliseconds.
     @pytest.mark.parametrize("config", [slow_to_give_up(1.0)])
     def test_the_idle_check_is_one_qp_and_a_stop_is_not_held_by_it(
-        self, config: ArmConfig, linked: tuple[Emulator, ArmDriver]
+        self, config: ArmConfig, linked: tuple[Emulator, Owner]
     ) -> None:
         emu, driver = linked
         emu.clear_records()
@@ -112,7 +113,7 @@ class TestStartupPark:
                 emu.wait_for(lambda rs: any(r.raw.startswith(b"#0P") for r in rs))
             emu.inject(Fault.DISCONNECT)  # and is not plugged in when the server starts
             emu.clear_records()
-            driver = ArmDriver(config, link)
+            driver = Owner.on_port(config, link)
             driver.start()
             try:
                 driver.wait_for_state(State.FAULT, 5)
@@ -142,7 +143,7 @@ class TestStartupPark:
 
 class TestShutdown:
     def test_a_shutdown_whose_park_fails_says_so_and_shows_the_fault(
-        self, config: ArmConfig, linked: tuple[Emulator, ArmDriver]
+        self, config: ArmConfig, linked: tuple[Emulator, Owner]
     ) -> None:
         emu, driver = linked
         assert driver.execute(ins.preset("straight_up"), 10).ok
@@ -263,7 +264,7 @@ def test_a_slow_link_is_a_fault_unless_its_answers_are_given_the_time(
         config = config.model_copy(update={"server": server})
     link = f"{tmp_path}/ssc32u"
     with Emulator(config, link=link, answer_delay_s=1.0):
-        driver = ArmDriver(config, link)
+        driver = Owner.on_port(config, link)
         driver.start()
         try:
             if answer_timeout_s is None:

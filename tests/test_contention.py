@@ -37,6 +37,7 @@ def test_a_goal_flood_at_9600_baud_leaves_every_stop_written_and_every_goal_answ
     assert got["faults"] == []
     assert got["sent"] == 800 and got["answered"] == got["sent"], got
     assert got["results"] == got["accepted"] > 0, got
+    assert got["writers"] == 1, got  # one thread wrote every byte to the board
 
 
 @pytest.mark.timeout(300)

@@ -11,6 +11,7 @@ target, checked in `make soak`: within 50 ms of the quiet figure at p99).
 from __future__ import annotations
 
 import json
+import signal
 import statistics
 from collections.abc import Iterator
 from pathlib import Path
@@ -119,6 +120,20 @@ def test_a_flood_loses_nothing_and_the_stop_gets_through(
     assert result.after["Threads"] == result.before["Threads"]
     assert result.after["VmRSS"] - result.before["VmRSS"] < 30_000  # kB: flat, not growing
     assert server.popen.poll() is None
+
+
+def test_one_thread_wrote_every_byte_of_the_floods(
+    loaded: tuple[BoardProcess, Proc, Peer],
+) -> None:
+    """The owner's transport records the threads that write to it; the server says so as it
+    ends: every write of the floods, stops and all, came from one thread."""
+    _, server, _ = loaded
+    server.popen.send_signal(signal.SIGINT)  # parks, then ends
+    assert server.wait(60) == 0
+    said = [line for line in server.err.all if "board: " in line and "writes, by" in line]
+    assert len(said) == 1, server.err.all[-20:]
+    writes = int(said[0].split("board: ")[1].split()[0])
+    assert writes > 1000 and said[0].endswith("by 1 thread"), said
 
 
 def test_write_the_figures() -> None:

@@ -1,9 +1,9 @@
-"""The stop process (`al5d.ros.stopproc`, `al5d.ssc32u.stopline`): the STOP is written by a
-process of its own, whatever the server's threads are doing; the server then obeys the
-stop as any other, and no move of its own reaches the board after that STOP.
+"""The stop's own process (`al5d.ros.stopproc`): a stop by ROS reaches the owner of the board,
+which writes it before anything else, whatever the ROS bridge is doing; no move reaches
+the board after that STOP.
 
-The server is frozen with SIGSTOP to stand for the worst a busy host can do to it (its
-threads never scheduled): the stop must reach the board all the same."""
+The bridge is frozen with SIGSTOP to stand for the worst a flood and a busy host can do to
+it (its threads never scheduled): the stop must reach the board all the same."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ import pytest
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator, Record
-from al5d_rig.proc import Proc, patient_config
+from al5d_rig.proc import Proc, family, patient_config
 from al5d_rig.rospeer import Peer, wait_until
 from al5d_rig.served import StopBursts
 
@@ -35,17 +35,20 @@ class Served:
     def pid(self) -> int:
         return self.proc.popen.pid
 
-    def stop_process(self) -> int:
-        """The pid of the server's stop process."""
-        for entry in Path("/proc").iterdir():
-            if not entry.name.isdigit():
-                continue
+    def child(self, module: bytes) -> int:
+        """The pid of the server's process running `module` (its bridge, its stop process)."""
+        for pid in family(self.pid):
             with contextlib.suppress(OSError):
-                cmdline = (entry / "cmdline").read_bytes().split(b"\0")
-                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
-                if ppid == self.pid and b"al5d.ros.stopproc" in cmdline:
-                    return int(entry.name)
-        raise AssertionError("the server has no stop process")
+                if module in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0"):
+                    return pid
+        raise AssertionError(f"the server has no {module.decode()} process")
+
+    @property
+    def bridge(self) -> int:
+        return self.child(b"al5d.ros.bridge")
+
+    def stop_process(self) -> int:
+        return self.child(b"al5d.ros.stopproc")
 
     def stops_since(self, n: int) -> list[bytes]:
         return [r.raw for r in self.emu.records[n:] if r.raw.startswith(b"STOP")]
@@ -73,8 +76,9 @@ def served(config: ArmConfig, tmp_path: Path) -> Iterator[Served]:
         peer.first_stop_answer()
         yield Served(emu, proc, peer)
     finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(proc.popen.pid, signal.SIGCONT)
+        for pid in family(proc.popen.pid):
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGCONT)
         peer.close()
         proc.kill()
         emu.close()
@@ -95,25 +99,25 @@ def long_move_running(served: Served, ident: str) -> int:
     return at + 1
 
 
-def test_a_frozen_server_is_stopped_by_its_stop_process(served: Served) -> None:
-    """SIGSTOP the server mid-move: the stop service is answered, and the STOP written, by
-    the stop process alone; once the server runs again it has obeyed that stop: the move
-    cancelled by it, the arm locked, no move of its own after the STOP, one burst of STOPs."""
+def test_a_frozen_bridge_does_not_hold_the_stop(served: Served) -> None:
+    """SIGSTOP the bridge mid-move: the stop service is answered by the stop's process and
+    the STOP written by the owner; once the bridge runs again, the moves it takes that were
+    sent before the stop are cancelled by it, the arm is locked, no move after the STOP."""
     n = long_move_running(served, "long")
-    os.kill(served.pid, signal.SIGSTOP)
+    bridge = served.bridge
+    os.kill(bridge, signal.SIGSTOP)
     try:
         # Moves sent while it is frozen wait in DDS for it; sent before the stop, they are
-        # cancelled by it (rule 2) once the server reads them.
+        # cancelled by it (rule 2) once the bridge hands them over.
         for i in range(5):
             served.peer.send(f"behind-{i}", "move", base=-40 + i)
         bursts = StopBursts(served.peer, served.proc)
         answer = served.peer.trigger("stop")
         assert answer.success, answer.message
         served.emu.wait_for(lambda rs: any(r.raw.startswith(b"STOP") for r in rs[n:]), 10)
-        # Still frozen: nothing but the stop process can have written that.
-        assert Path(f"/proc/{served.pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "T"
+        assert Path(f"/proc/{bridge}/stat").read_text().rsplit(")", 1)[1].split()[0] == "T"
     finally:
-        os.kill(served.pid, signal.SIGCONT)
+        os.kill(bridge, signal.SIGCONT)
     assert served.peer.result("long").reason == "cancelled by stop"
     served.wait_stopped()
     for i in range(5):
@@ -121,9 +125,8 @@ def test_a_frozen_server_is_stopped_by_its_stop_process(served: Served) -> None:
         assert outcome.outcome in ("cancelled", "refused"), outcome
     served.peer.send("locked", "move", base=0)
     assert "send release first" in served.peer.result("locked").reason
-    time.sleep(0.5)  # whatever the server might still write, it has written by now
+    time.sleep(0.5)  # whatever the owner might still write, it has written by now
     assert served.moves_after_first_stop(n) == []
-    # One burst a stop: the server did not write it again.
     bursts.check(lambda: len(served.stops_since(n)))
 
 
@@ -142,9 +145,10 @@ def test_a_stop_on_the_topic_is_written_once_whoever_sees_it_first(served: Serve
         assert served.peer.trigger("release").success
 
 
-def test_when_the_stop_process_ends_the_server_serves_the_stop_itself(served: Served) -> None:
+def test_when_the_stop_process_ends_the_bridge_serves_the_stop(served: Served) -> None:
     os.kill(served.stop_process(), signal.SIGKILL)
     served.proc.err.wait_for("the stop process ended", 20)
+    served.proc.err.wait_for("the stop is served by the bridge from now on", 20)
     n = long_move_running(served, "after")
     deadline = time.monotonic() + 20
     while True:  # the server's own stop service may take a moment to be found
@@ -160,20 +164,21 @@ def test_when_the_stop_process_ends_the_server_serves_the_stop_itself(served: Se
 
 
 def test_a_release_sent_after_the_stop_is_judged_after_it(served: Served) -> None:
-    """The stop process answers a stop before the server has obeyed it. A release (or a move)
-    the server takes in that moment waits for that stop: the release unlocks the arm (it
-    is not refused as "nothing to release" and then undone by the stop), a move sent in
-    between is refused. Frozen, the server takes them all at once when it runs again."""
+    """A stop comes by its own process while the bridge is frozen; a move and a release sent
+    after it reach the owner later, by the bridge: the release unlocks the arm (it is not
+    refused as "nothing to release", nor undone by the stop), the move sent in between is
+    refused. Frozen, the bridge hands them over at once when it runs again."""
     from std_srvs.srv import Trigger
 
-    os.kill(served.pid, signal.SIGSTOP)
+    bridge = served.bridge
+    os.kill(bridge, signal.SIGSTOP)
     try:
         assert served.peer.trigger("stop").success
         served.peer.send("between", "move", base=10)
         release = served.peer.services["release"].call_async(Trigger.Request())
-        time.sleep(0.5)  # the release is in the server's socket before it runs again
+        time.sleep(0.5)  # the release waits in DDS for the bridge
     finally:
-        os.kill(served.pid, signal.SIGCONT)
+        os.kill(bridge, signal.SIGCONT)
     wait_until(release.done, 20, "the release's answer")
     answer = release.result()
     assert answer.success, answer.message

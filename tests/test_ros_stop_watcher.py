@@ -23,7 +23,7 @@ from al5d.ros import safety
 from al5d.ros.dds import start_context
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_INSTRUCTIONS
-from al5d.ros.safety import STOP_FILTER, first_word, stop_here
+from al5d.ros.safety import STOP_FILTER, StopNode, first_word
 from al5d.ros.workarounds import filter_content
 from al5d_rig.armrig import Rig
 from al5d_rig.rospeer import wait_until
@@ -64,8 +64,9 @@ def test_a_stop_behind_a_full_batch_is_obeyed_and_moves_never_reach_the_watcher(
     monkeypatch.setattr(safety.StopNode, "_watch", spied)
     context = start_context()
     watcher = None
+    arm = rig.remote(name="watcher-test")
     try:
-        watcher = stop_here(rig.driver, context, Names())
+        watcher = StopNode(arm, context, Names())
         sender = Node("al5d_watch_test", context=context)
         pub = sender.create_publisher(ArmInstruction, Names().instruction, QOS_INSTRUCTIONS)
         wait_until(lambda: pub.get_subscription_count() > 0, 10, "the watcher's reader")
@@ -80,6 +81,7 @@ def test_a_stop_behind_a_full_batch_is_obeyed_and_moves_never_reach_the_watcher(
         if watcher is not None:
             watcher.close()
         context.try_shutdown()
+        arm.close()
 
 
 #: The stop filter as Python's `re` reads it (the same pattern: Fast DDS's MATCH is a

@@ -4,10 +4,11 @@ The layers, each importing only those below it:
 
     al5d.app      the applications: `al5d` command line, server process, demo, MoveIt files
     al5d.web      `al5d web`: the live view, a ROS 2 client serving one page
-    al5d.ros      ROS 2: the nodes, message mapping, the control actions, the client
-    al5d.arm      the arm: config, instructions, validation, state machine, driver
+    al5d.ros      ROS 2: the bridges (nodes, message mapping, the control actions), the client
+    al5d.owner    the board's one owner: its thread, its inbox, the local lane and its clients
+    al5d.arm      the arm: config, instructions, validation, state machine, the core (pure)
     al5d.model    the robot model: geometry, kinematics, URDF, straight lines (pure)
-    al5d.ssc32u   the board: facts, protocol bytes, low-level driver, emulator
+    al5d.ssc32u   the board: facts, protocol bytes, the transport, a tool driver, emulator
     al5d.clock    one clock and deadlines, for all of them
     al5d.exits    the command line's exit codes, one table, for all of them
     al5d.priority threads ahead of the rest (the stop path), where the OS allows it

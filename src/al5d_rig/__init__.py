@@ -7,8 +7,10 @@ among its modules run as `python -m al5d_rig.NAME`. It sits above every subpacka
 
 - `proc`: `al5d` commands as processes of their own, their output read as it comes.
 - `boardproc`: `al5d emulator` in a process of its own, its records streamed back.
-- `armrig`: a driver on an emulated board in this process, and what tests read of the
+- `armrig`: an owner on an emulated board in this process, and what tests read of the
   board's records (`group_moves`, `written`, `group_pulses`).
+- `sim`: the arm's core against an emulated board in virtual time: no pty, no process,
+  no thread, no sleep.
 - `served`: `al5d serve` on an emulated board, with a peer that follows its state.
 - `rospeer`: a ROS 2 peer of the server: publishes, calls, listens.
 - `domains`: the ROS domains of a test run, a pair claimed by each pytest process.

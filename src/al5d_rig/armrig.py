@@ -5,24 +5,27 @@ from __future__ import annotations
 import logging
 import math
 import re
+import socket
 import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import pytest
-from al5d.arm.driver import ArmDriver
 
 from al5d.arm.config import ArmConfig
 from al5d.arm.states import State
 from al5d.model import forward
 from al5d.model.transforms import Vec3
+from al5d.owner.client import Remote
+from al5d.owner.loop import Owner
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator, Record
 
 
 @dataclass
 class Rig:
-    driver: ArmDriver
+    driver: Owner
     emu: Emulator
     config: ArmConfig
 
@@ -33,6 +36,13 @@ class Rig:
         cmd = self.moves()[-1].commands[0]
         assert isinstance(cmd, p.GroupMove)
         return cmd
+
+    def remote(self, **kwargs: Any) -> Remote:
+        """A client of the rig's owner over a lane of its own (a socket pair), as the ROS
+        bridges are."""
+        ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.driver.adopt(ours)
+        return Remote(theirs, **kwargs)
 
     def wait_move_count(self, n: int, timeout: float = 5.0) -> None:
         self.emu.wait_for(
@@ -75,7 +85,7 @@ def min_ms(
 
 def make_rig(config: ArmConfig) -> Iterator[Rig]:
     emu = Emulator(config).start()
-    driver = ArmDriver(config, emu.port)
+    driver = Owner.on_port(config, emu.port)
     driver.start()
     try:
         driver.wait_for_state(State.READY, 10)

@@ -26,6 +26,7 @@ import contextlib
 import json
 import os
 import random
+import signal
 import subprocess
 import sys
 import tempfile
@@ -33,7 +34,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from al5d_rig.proc import dies_with_parent
+from al5d_rig.proc import Proc, dies_with_parent
 from al5d_rig.result_counter import ResultCounter
 from al5d_rig.stallprobe import Stalls
 
@@ -182,12 +183,27 @@ def goals(seconds: float, rate: float, busy: int, stops_every_s: float = 0.5) ->
         out["faults"] = [line for line in log if "serial fault" in line][:5]
         out["server_alive"] = server.popen.poll() is None
         out["load1"] = os.getloadavg()[0]
+        out["writers"] = board_writers(server)
         return out
     finally:
         ended([client, *loops])
         peer.close()
         server.kill()
         board.close()
+
+
+def board_writers(server: Proc) -> int | None:
+    """How many threads wrote to the board, as the server says when it ends (SIGINT: it
+    parks, then ends); None if it did not say."""
+    server.popen.send_signal(signal.SIGINT)
+    try:
+        server.popen.wait(60)
+    except subprocess.TimeoutExpired:
+        return None
+    said = [line for line in server.err.drain(0.5) if "board: " in line and "writes, by" in line]
+    if not said:
+        said = [line for line in server.err.all if "board: " in line and "writes, by" in line]
+    return int(said[-1].rsplit("by ", 1)[1].split()[0]) if said else None
 
 
 def host_stalls(stalls: Stalls, results: list[dict[str, Any]]) -> dict[str, Any]:

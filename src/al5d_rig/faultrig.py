@@ -16,12 +16,11 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from al5d.arm.driver import ArmDriver
-
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Outcome, Result
 from al5d.arm.states import State
+from al5d.owner.loop import Owner
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator, Fault
 from al5d_rig.armrig import pulses
@@ -52,10 +51,10 @@ def _moves(emu: Emulator, after: float) -> list[bytes]:
     return [r.raw for r in emu.records if r.t_effect > after and r.raw.startswith(b"#")]
 
 
-def _await(driver: ArmDriver, states: tuple[State, ...], timeout: float) -> float:
+def _await(driver: Owner, states: tuple[State, ...], timeout: float) -> float:
     """Seconds until one of `states` is announced (raises TimeoutError after `timeout`)."""
     t0 = time.monotonic()
-    while driver.core.announced not in states:
+    while driver.announced not in states:
         if time.monotonic() - t0 > timeout:
             raise TimeoutError(f"none of {[s.value for s in states]} in {timeout} s")
         time.sleep(0.002)
@@ -72,7 +71,7 @@ def run_trial(
             with SSC32U(str(link)) as board:  # a board in use: the start-up park takes time
                 board.move(pulses(config, config.presets["straight_up"]))
             emu.wait_for(lambda rs: any(r.raw.startswith(b"#0P") for r in rs))
-        driver = ArmDriver(config, str(link))
+        driver = Owner.on_port(config, str(link))
         driver.start()
         futures: list[Future[Outcome]] = []
         try:

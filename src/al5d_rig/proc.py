@@ -197,6 +197,17 @@ class Proc:
             self.popen.wait(5)
 
 
+def family(pid: int) -> list[int]:
+    """Process `pid` and every process it started, and theirs (`al5d serve`: the owner, the
+    ROS bridge and the stop's process)."""
+    found = [pid]
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        with contextlib.suppress(OSError):
+            for child in (task / "children").read_text().split():
+                found += family(int(child))
+    return found
+
+
 def thread_nices(pid: int) -> list[int]:
     """The nice value of every thread of process `pid` (/proc/PID/task/TID/stat, field 19)."""
     nices = []

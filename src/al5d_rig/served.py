@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from al5d.ssc32u.stopline import BACKSTOP_SAID
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
@@ -30,37 +29,31 @@ from al5d_rig.rospeer import Peer, wait_until
 class StopBursts:
     """The bursts of STOPs the board should get for the stops `peer` asks of the server in
     `proc` from now on: one per stop request sent (`Peer.trigger` asks again after a second
-    unanswered), and one more per backstop the stop process said it wrote (when it could not
-    take the port's lock at once and the server wrote meanwhile: a busy host)."""
+    unanswered)."""
 
     def __init__(self, peer: Peer, proc: Proc) -> None:
         self.peer, self.proc = peer, proc
         self.asked = peer.stops_asked
-        self.said = len(proc.err.drain(0))
 
-    def expected(self, on_topic: int = 0) -> tuple[int, str]:
-        """The bursts due so far with `on_topic` stops sent on the instruction topic, and
-        why, for a failure's message."""
-        again = sum(BACKSTOP_SAID in line for line in self.proc.err.drain(0.2)[self.said :])
-        asked = self.peer.stops_asked - self.asked + on_topic
-        return asked + again, f"{asked} stop(s) sent, {again} backstop(s)"
+    def expected(self, on_topic: int = 0) -> int:
+        """The bursts due so far with `on_topic` stops sent on the instruction topic."""
+        return self.peer.stops_asked - self.asked + on_topic
 
     def check(self, stops: Callable[[], int], on_topic: int = 0, timeout_s: float = 5.0) -> None:
         """`stops()` (the STOP commands on the board since the first of these stops) is six
-        to each burst due, no more, no fewer. Compared again for a while: the stop process
-        says a backstop on the server's stderr, which on a busy host reaches this process
-        after the backstop's STOPs have reached the board."""
+        to each burst due, no more, no fewer: compared again for a while, as a burst may
+        still be on its way to the board."""
         deadline = time.monotonic() + timeout_s
         while True:
-            due, why = self.expected(on_topic)
+            due = self.expected(on_topic)
             got = stops()
             if got == 6 * due:
                 return
             if time.monotonic() > deadline:
-                said = self.proc.err.drain(0)[self.said :]
+                said = self.proc.err.drain(0)
                 raise AssertionError(
-                    f"{got} STOPs on the board, {6 * due} due ({why}); the server said:\n"
-                    + "\n".join(said[-20:])
+                    f"{got} STOPs on the board, {6 * due} due ({due} stop(s) sent); the "
+                    "server said:\n" + "\n".join(said[-20:])
                 )
             time.sleep(0.2)
 

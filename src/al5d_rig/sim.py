@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -47,8 +48,8 @@ from al5d.ssc32u.emulator.usb import USB, LinkModel
 from al5d.ssc32u.emulator.virtual import VirtualWire
 from al5d.ssc32u.errors import LinkLost, PortUnavailable
 
-#: Virtual time starts here (CLOCK_MONOTONIC-like seconds), sending times at WALL0 ns.
-T0 = 1000.0
+#: Sending times (CLOCK_REALTIME ns) at the virtual time's start. Virtual time starts at
+#: the real CLOCK_MONOTONIC (the board's model reads it once, at its power-up).
 WALL0 = 1_700_000_000_000_000_000
 
 
@@ -62,7 +63,7 @@ class Sim:
     board: Board = field(init=False)
     wire: VirtualWire = field(init=False)
     core: Core = field(init=False)
-    t: float = T0
+    t: float = field(default_factory=time.monotonic)
     outcomes: dict[int, Outcome] = field(default_factory=dict)
     told: list[Outcome] = field(default_factory=list)  # what the outcome listeners hear
     replies: dict[int, bool] = field(default_factory=dict)
@@ -75,29 +76,40 @@ class Sim:
     steps: int = 0
     #: Called with every input and the effects it made (a model-based test's check).
     watch: Callable[[Input, tuple[Effect, ...]], None] | None = None
+    #: How much of each second the host is short of cores, as the owner tells the core.
+    stalling: float = 0.0
 
     def __post_init__(self) -> None:
+        self.t0 = self.t
         self.board = Board(self.config, baud=self.baud)
         self.wire = VirtualWire(self.board, self.usb)
         self.core = Core.start(Arm.of(self.config, "virtual", self.baud), self.t)
         self._refs = itertools.count(1)
         self._open = False
+        self._made: list[Input] = []
         self.states.append(self.core.state)
 
     # -- the owner's part ------------------------------------------------------------------
 
     @property
     def wall(self) -> int:
-        return WALL0 + round((self.t - T0) * 1e9)
+        return WALL0 + round((self.t - self.t0) * 1e9)
 
     def put(self, ev: Input) -> None:
-        """Hand the core one input, and carry out what it says."""
-        self.core, effects = step(self.core, ev)
-        self.steps += 1
-        if self.watch is not None:
-            self.watch(ev, effects)
-        for effect in effects:
-            self._carry(effect)
+        """Hand the core one input and carry out what it says; then, as the owner does, the
+        inputs its effects made (a port opened, a write that failed)."""
+        self._made.append(ev)
+        if len(self._made) > 1:
+            return  # an effect's: taken once the effects before it are carried out
+        while self._made:
+            ev = self._made[0]
+            self.core, effects = step(self.core, ev)
+            self.steps += 1
+            for effect in effects:
+                self._carry(effect)
+            if self.watch is not None:
+                self.watch(ev, effects)
+            self._made.pop(0)
 
     def _carry(self, effect: Effect) -> None:
         if isinstance(effect, Send):
@@ -143,13 +155,17 @@ class Sim:
         key: object = None,
         client: int = 0,
         tell: bool = True,
+        ref: int | None = None,
     ) -> int:
         """Submit an instruction now; its ref (its outcome comes in `outcomes[ref]`)."""
-        ref = next(self._refs)
+        ref = ref if ref is not None else self.next_ref()
         ticket = instr if isinstance(instr, Ticket) else None
         plain = instr.instr if isinstance(instr, Ticket) else instr
         self.put(Ask(self.t, self.wall, ref, plain, ticket, stream, key, client, tell))
         return ref
+
+    def next_ref(self) -> int:
+        return next(self._refs)
 
     def cancel(self, ident: str, reason: str = "cancelled by the client") -> int:
         ref = next(self._refs)
@@ -187,7 +203,12 @@ class Sim:
                 self.put(Received(self.t, self.wall, data))
         elif self._open and self.core.link.open:
             self.put(Failed(self.t, self.wall, LinkLost("virtual", "read failed: unplugged")))
-        self.put(Tick(self.t, self.wall))
+        self.put(Tick(self.t, self.wall, self.stalling * (self.t - self.t0)))
+
+    def stall(self, seconds: float) -> None:
+        """Time passes and nobody looks (the owner's thread was not running): what was due
+        meanwhile is done late, at the next wake."""
+        self.t += seconds
 
     def run(self, seconds: float) -> None:
         self.advance(self.t + seconds)
@@ -211,6 +232,10 @@ class Sim:
         return self.outcomes[ref]
 
     # -- what the board saw ------------------------------------------------------------------
+
+    def degrees(self) -> dict[str, float]:
+        """Where the emulated servos are now (virtual time)."""
+        return self.board.servo_degrees(self.t)
 
     @property
     def records(self) -> list[Record]:

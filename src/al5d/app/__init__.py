@@ -1,10 +1,13 @@
 """The applications: the command line, the server process, and the tools around them.
 
+- `entry`: the `al5d` command's entry: a plain `al5d send stop` by the local lane before
+  anything is imported; everything else by `cli`.
 - `cli`: `al5d serve | emulator | send | run | shell | doctor | demo | urdf | moveit | web |
   record | replay | calibrate`, and the exit codes' table in `--help`.
 - `emulator`: `al5d emulator`, a standalone emulated SSC-32U on a pseudo terminal.
 - `terminal`: `al5d send`, `al5d run`, `al5d shell`, the client's commands at the terminal.
-- `server`: `al5d serve`, the arm driver on a port or on the embedded emulator, with ROS.
+- `server`: `al5d serve`, the owner of the board on a port or on the embedded emulator,
+  with the ROS side's processes beside it.
 - `demo`: DE01 on the embedded emulator, with the DE02 table of `reach`.
 - `reach`: how soon each move reached its target (the demo's and the benchmarks' table).
 - `doctor`: `al5d doctor`, what stands between this computer and its SSC-32U.

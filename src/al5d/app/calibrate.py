@@ -300,7 +300,11 @@ def calibrate_command(
     client = Client(namespace, wait_s=wait_s)
     try:
         client.wait_for_server(wait_s)
-        served = served_config_file(client.node, client.names, ANSWER_S)
+        served: Path | None
+        if client.lane is not None:
+            served = client.lane.config_file
+        else:
+            served = served_config_file(client.node, client.names, ANSWER_S)
         path, problem = server_config(served, config_path)
         if path is None:
             print(f"al5d calibrate: {problem}", file=err)

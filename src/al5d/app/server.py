@@ -26,13 +26,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
 from al5d import exits
-from al5d.arm.config import ArmConfig, load_config
+from al5d.arm.config import ArmConfig, ConfigError, load_config
 from al5d.arm.instruction import GrammarError, Instruction, Outcome, parse_instruction, shutdown
 from al5d.owner import lane
 from al5d.owner.loop import Owner
 from al5d.ssc32u.transport import SerialTransport
 
 if TYPE_CHECKING:
+    from al5d.app.record import ServerRecording
     from al5d.ros.processes import Child
     from al5d.ssc32u.emulator import Emulator
 
@@ -44,6 +45,9 @@ EXIT_NOT_PARKED = exits.NOT_PARKED
 LOG_FORMAT = "%(asctime)s.%(msecs)03d %(levelname)s %(message)s"
 #: How long the bridge may take to read the parameters (a busy host's imports and DDS).
 SETTINGS_S = 120.0
+#: How long the bridge may take to end once the owner has (its last results published, a
+#: trace or a recording written, on a busy host).
+CLOSE_S = 60.0
 
 
 def setup_logging(level: str) -> None:
@@ -79,7 +83,10 @@ class ServerOptions:
 
 @contextmanager
 def arm(
-    options: ServerOptions, config: ArmConfig | None = None, lane_path: Path | None = None
+    options: ServerOptions,
+    config: ArmConfig | None = None,
+    lane_path: Path | None = None,
+    config_file: str | None = None,
 ) -> Iterator[tuple[Owner, Emulator | None]]:
     """The owner on the given port, or on an embedded emulator; closed (parked) on exit. With
     `lane_path`, its local lane is there."""
@@ -94,7 +101,9 @@ def arm(
         port = emulator.port
         link = emulator.usb.describe()
         log.info("no --port: using the embedded SSC-32U emulator on %s, %s", port, link)
-    owner = Owner(config, SerialTransport(port, baud), lane=lane_path)
+    given = config_file if config_file is not None else options.config
+    source = Path(given) if given else None
+    owner = Owner(config, SerialTransport(port, baud), lane=lane_path, config_file=source)
     try:
         owner.start()
         yield owner, emulator
@@ -144,6 +153,8 @@ class RosSide:
         got = receive(self.bridge.ctrl, SETTINGS_S)
         if got is None:
             return "the ROS bridge ended before it read the parameters (see its log above)"
+        if got[0] == "config-error":  # said as every bad configuration is (`al5d.app.cli`)
+            raise ConfigError(str(got[1]))
         if got[0] == "error":
             return str(got[1])
         return got[1]
@@ -172,9 +183,24 @@ class RosSide:
 
     def close(self) -> None:
         self._serving = False
-        self.bridge.close()
+        self.bridge.close(CLOSE_S)
         if self.stop is not None:
             self.stop.close()
+
+
+def _recording(options: ServerOptions) -> ServerRecording | None:
+    """`--record` without ROS: the board's bytes, written by this process (with ROS the
+    bridge records, the topics too); None (said) where the file cannot be made."""
+    from al5d.app.record import RecordingError, ServerRecording
+
+    assert options.record is not None
+    try:
+        recording = ServerRecording(options.record)
+    except RecordingError as e:
+        log.error("%s", e)
+        return None
+    recording.tap(options.namespace)
+    return recording
 
 
 def serve(options: ServerOptions) -> int:
@@ -192,8 +218,10 @@ def serve(options: ServerOptions) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     ros = RosSide(options) if options.ros else None
+    recording: ServerRecording | None = None
     try:
         config = None
+        config_file = options.config
         namespace = options.namespace or ""
         if ros is not None:
             settings = ros.settings()
@@ -205,10 +233,18 @@ def serve(options: ServerOptions) -> int:
             assert isinstance(settings, Settings)
             config, options.port = settings.config, settings.port
             namespace = settings.namespace
+            config_file = settings.config_file
         elif options.namespace is None:
             config = load_config(options.config)
             namespace = config.server.namespace
-        with arm(options, config, lane.path(namespace)) as (owner, _):
+        if options.record and ros is None:
+            recording = _recording(options)
+            if recording is None:
+                return 2
+        with arm(options, config, lane.path(namespace), config_file) as (owner, _):
+            if recording is not None:
+                tap = recording.file.board_tap
+                owner.wire_listeners.append(lambda w: tap(*w))
             if ros is not None:
                 ros.serve(owner)
             if options.stdin:
@@ -224,6 +260,8 @@ def serve(options: ServerOptions) -> int:
     finally:
         if ros is not None:
             ros.close()
+        if recording is not None:
+            recording.close()
     if owner.parked_at_end is False:
         log.error("the arm was not parked: exit %d", EXIT_NOT_PARKED)
         return EXIT_NOT_PARKED

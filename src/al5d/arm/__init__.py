@@ -14,20 +14,20 @@
 - `translate`: degrees to pulse widths, move times and the bytes of a group move.
 - `cartesian`: `move_to`'s target checked, and planned into group moves by the model.
 - `states`: the state machine as a table (state, event) -> next state.
-- `core`: the protocol: the one owner of the arm's state, its events and their rules
-  (the lanes, the order across channels); read this first.
-- `corestate`: the core's fields and the steps its events share.
-- `effects`: what the core's events hand back to do outside its lock; the announcements.
-- `order`: the sending times the order across channels is judged by.
-- `pose`: what the driver believes the board holds (the pose, the motion), the core's.
-- `jobs`: a move on its way (its steps, its outcome) and the motion it makes.
-- `driver`: `ArmDriver`, the caller's side: submit, stop, release, cancel, shutdown.
-- `worker`: the thread that parks, runs each move until done, and parks at the end.
-- `writer`: one step of a move onto the wire, by the same rule from either thread.
-- `link`: the worker's hold on the board: connect, watch the idle link, fault, reconnect.
+- `core`: the protocol as one pure transition, `step(core, input) -> (core, effects)`:
+  the lanes, the order across channels; read this first.
+- `corestate`: the core's inputs and effects, its value, and the steps its inputs share.
+- `running`: a job as it runs: its steps planned and written on the wire's pace, waited
+  for, confirmed; a stream's set-points watched.
+- `link`: the board's connection as the core keeps it: open, check, ask, judge the answers.
+- `order`: the sending times the order across channels is judged by (a value).
+- `pose`: what the core believes the board holds (the pose, the motion; a value).
+- `jobs`: a move on its way (its steps, who asked) and the motion it makes.
 
-The emergency stop's path is `driver.ArmDriver._stop` -> `core.Core.stop` (the decision)
--> `ssc32u.driver.SSC32U.stop` (the bytes).
+The emergency stop's path is `core._stop` (the decision) -> `corestate.halt` (the bytes,
+`al5d.ssc32u.protocol`); the owner (`al5d.owner`) writes them.
+
 This layer imports `al5d.model`, `al5d.ssc32u` (never its emulator) and `al5d.clock`;
-nothing here knows ROS.
+nothing here knows ROS, and nothing here does I/O but reading files (the configuration,
+poses, calibrations).
 """

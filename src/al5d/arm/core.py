@@ -101,7 +101,7 @@ from al5d.arm.corestate import (
 from al5d.arm.instruction import Instruction, Kind, Result
 from al5d.arm.jobs import Job, Mode, outcome
 from al5d.arm.states import Event, State, next_state, refusal, release_refusal, stream_held
-from al5d.arm.validate import Step, judge
+from al5d.arm.validate import Step, from_start, judge
 
 
 def step(c: Core, ev: Input) -> tuple[Core, tuple[Effect, ...]]:
@@ -267,6 +267,14 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
         superseded = c.run.job if c.run is not None else None
         if _supersedes(c, job):
             assert superseded is not None
+            # Judged against the table from where the running one has the arm now (again
+            # when its bytes go: `running`).
+            motion = c.book.motion
+            here = {**c.book.pose, **(motion.at(ev.t) if motion is not None else {})}
+            reason = from_start(instr, job.steps, here, c.arm.limits)
+            if reason:
+                _refuse(ev, reason, out)
+                return c
             link = c.link
             if link.rest and not link.rest_is_halt:
                 link = replace(link, rest=b"", cut=True)

@@ -321,6 +321,10 @@ class Run:
     #: A set-point that took a running one's place: planned from where that one has the
     #: arm when its bytes take effect.
     retarget: bool = False
+    #: When step `k` (after the first) was due to be written: a wire time before the step
+    #: ahead of it ended. Written later than that, the board holds the point before while
+    #: the path moves on (a host that did not run the owner in time).
+    write_due: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

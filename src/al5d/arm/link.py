@@ -90,7 +90,10 @@ def not_reached(c: Core, error: SerialFault, t: float, out: Out) -> Core:
     if isinstance(known, NotAnSSC32U) and getattr(error, "received", None) == known.received:
         say(out, logging.DEBUG, f"reconnect failed: {error}")
         return c
-    say(out, logging.ERROR if first else logging.WARNING, f"serial fault: {error}")
+    if first:
+        say(out, logging.ERROR, f"serial fault: {error}")
+    else:
+        say(out, logging.WARNING, f"reconnect: {error}")
     c = replace(c, fault=error)
     return fire(c, Event.SERIAL_FAULT, out) if first else c
 
@@ -204,10 +207,11 @@ def overdue(c: Core, t: float, wall: int, out: Out) -> Core:
     got = f", got {data!r}" if data else ""
     error = NoAnswer(c.arm.port, f"no answer to {name}, asked twice, {waited:.0f} ms late{got}")
     if query.purpose is Purpose.VERSION:
+        received = f"received {data!r}" if data else "received nothing"
         bad = NotAnSSC32U(
             c.arm.port,
             f"does not answer like an SSC-32U at {c.arm.baud} baud ({error.what}); "
-            f"{NotAnSSC32U.advice}",
+            f"{received}; {NotAnSSC32U.advice}",
             data,
         )
         return _close(replace(c, link=replace(c.link, query=None)), bad, t, out)

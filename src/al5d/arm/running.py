@@ -96,7 +96,6 @@ def start(c: Core, job: Job, t: float, out: Out) -> Core:
     elif job.mode is Mode.QUEUE:
         reason = from_start(job.instr, steps, pose, limits)
     if reason:
-        say(out, logging.WARNING, f"refused {job.instr.name} [{job.instr.id}]: {reason}")
         finish(job, Result.REFUSED, reason, t, out)
         if c.state is State.MOVING and not c.queue:
             c = fire(c, Event.MOVE_DONE, out)
@@ -107,7 +106,7 @@ def start(c: Core, job: Job, t: float, out: Out) -> Core:
 # -- planning a step --------------------------------------------------------------------
 
 
-def _plan(c: Core, run: Run, t: float) -> Run:
+def plan(c: Core, run: Run, t: float) -> Run:
     """Step `k`'s line and time (ms), from where the arm is. A step after the first is timed
     to end when the schedule says, its `time_ms` after the one before was due to end,
     however early or late it takes effect; what the servos cannot do is said (INF03) and
@@ -189,7 +188,13 @@ def _write(c: Core, run: Run, t: float, out: Out) -> Core:
     if c.link.free_at - horizon(run.job) > t:
         return c
     told = len(run.notes)
-    run = _plan(c, run, t)
+    run = plan(c, run, t)
+    if run.retarget and run.k == 0:
+        # It takes a running set-point's place mid-move: its path is judged against the
+        # table from where that one has the arm when these bytes take effect.
+        reason = from_start(run.job.instr, run.steps, run.line_start, c.arm.limits)
+        if reason:
+            return end_run(c, reason, t, out, Result.REFUSED)
     for note in run.notes[told:]:
         say(out, logging.WARNING, note)
     size = piece(run.line, c.arm.baud)
@@ -232,7 +237,7 @@ def _written(c: Core, t: float, out: Out) -> Core:
     motion = Motion(run.line_start, step.target, t_sent, run.line_ms / 1000.0)
     wire = p.wire_time_s(len(run.line), c.arm.baud)
     book = c.book.moving(motion, run.t_write, t_end)
-    late = _off_path(c, run, t_sent) if k and step.time_ms else ""
+    late = _off_path(c, run, t_sent - wire) if k and step.time_ms else ""
     run = replace(
         run,
         written=Written(motion, t_end, wire, run.line, run.t_write),
@@ -249,10 +254,13 @@ def _written(c: Core, t: float, out: Out) -> Core:
     return c
 
 
-def _off_path(c: Core, run: Run, t_sent: float) -> str:
-    """Why a trajectory's point `k` that takes effect at `t_sent` leaves the path beyond its
-    tolerance (""): until then the board holds the point before, while the path moves on."""
-    late = t_sent - run.t_due
+def _off_path(c: Core, run: Run, t_wired: float) -> str:
+    """Why a trajectory's point `k`, whose line left (its wire time before it took effect)
+    at `t_wired`, leaves the path beyond its tolerance (""): written later than it was due
+    (a host that did not run the owner in time), the board holds the point before while the
+    path moves on. (A point the servos cannot reach in its time slips the schedule, not the
+    path: that is the trajectory's lateness, which its result reports.)"""
+    late = t_wired - run.write_due
     if run.job.instr.kind is not Kind.TRAJECTORY or late <= LATE_JUDGED_S:
         return ""
     step, before = run.steps[run.k], run.steps[run.k - 1]
@@ -265,9 +273,10 @@ def _off_path(c: Core, run: Run, t_sent: float) -> str:
             tolerance = follow.tolerance.get(joint, tolerance)
         if off > tolerance:
             return (
-                f"point {step.point if step.point >= 0 else run.k} took effect "
-                f"{late * 1000.0:.0f} ms after its time: {joint} was {off:.2f} deg off its "
-                f"path, tolerance {tolerance:g} deg (the host or the link was late)"
+                f"point {step.point if step.point >= 0 else run.k} left "
+                f"{late * 1000.0:.0f} ms late for the board: {joint} was {off:.2f} deg off "
+                f"its path, tolerance {tolerance:g} deg (the host did not run the owner in "
+                "time)"
             )
     return ""
 
@@ -328,8 +337,16 @@ def progress(c: Core, t: float, out: Out) -> Core:
         return c
     if not last:
         book = c.book.reached(run.steps[run.k].target)
-        after = Run(run.job, run.steps, run.k + 1, t_due=run.t_due, expected_ms=run.expected_ms)
-        return replace(c, book=book, run=replace(after, notes=run.notes))
+        after = Run(
+            run.job,
+            run.steps,
+            run.k + 1,
+            t_due=run.t_due,
+            expected_ms=run.expected_ms,
+            notes=run.notes,
+            write_due=_until(run, written),
+        )
+        return replace(c, book=book, run=after)
     if run.job.stream:
         # A set-point is done when its time is over, without `Q`: its stream's next one,
         # due any moment, must not wait for a query's answer. The link is still checked
@@ -363,13 +380,14 @@ def _hold(c: Core, t: float, out: Out) -> Core:
     return end_run(c, reason, t, out)
 
 
-def end_run(c: Core, reason: str, t: float, out: Out) -> Core:
-    """The current run ends cancelled (`reason`), halted where it is on the wire's pace (no
-    lock); the next may start once the pose is read back."""
+def end_run(c: Core, reason: str, t: float, out: Out, result: Result = Result.CANCELLED) -> Core:
+    """The current run ends (cancelled, or refused as it was to be written: `reason`), the
+    arm halted where it is on the wire's pace (no lock); the next may start once the pose
+    is read back."""
     run = c.run
     assert run is not None
     c = halt(replace(c, run=None), t, out, urgent=False)
-    finish(run.job, Result.CANCELLED, reason, t, out)
+    finish(run.job, result, reason, t, out)
     if c.state is State.MOVING and run.job.mode is Mode.QUEUE:
         c = fire(c, Event.MOVE_DONE, out)
     posed(c, out)

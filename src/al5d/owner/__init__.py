@@ -5,8 +5,8 @@ its inbox's lanes, and the local lane by which clients on this machine reach it.
   effects carried out (bytes to the board, outcomes and news to the clients).
 - `teller`: the thread that tells in-process futures, listeners and the log, so that the
   owner's thread never runs anyone else's code.
-- `lane`: the local lane's protocol (a Unix socket, one JSON object a line) and where its
-  socket is.
+- `lane`: the local lane's protocol (a Unix socket, one JSON object a line); `where`:
+  where each server's socket is.
 - `client`: `Remote`, a client of the owner over the lane: the ROS bridges, the command
   line, the web view and the Python client reach a local server through it.
 - `quick`: `al5d send stop` without its imports: the stop by the lane, from a bare

@@ -18,14 +18,15 @@ import logging
 import math
 import socket
 import threading
+import time
 from collections.abc import Callable, Hashable, Iterable
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from al5d.arm.config import ArmConfig, parse_config
+from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, parse_config
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result
 from al5d.arm.jobs import Motion, Sent
 from al5d.arm.resample import Follow
@@ -95,6 +96,10 @@ class Remote:
             raise LaneClosed(f"the owner did not answer hello within {timeout:g} s") from None
         self.config: ArmConfig = parse_config(welcome["config"], "the server's configuration")
         self.settings = self.config.server
+        #: The file the server read its configuration from (the shipped one if it said none).
+        self.config_file: Path = (
+            Path(welcome["config_file"]) if welcome.get("config_file") else DEFAULT_CONFIG
+        )
         self.port: str = welcome["port"]
         self.baud: int = welcome["baud"]
         self.client: int = welcome["client"]
@@ -160,6 +165,8 @@ class Remote:
         if isinstance(what, Judged):
             message["ticket"] = what.name
         else:
+            if what.sent_ns is None:  # sent now (the owner's clock is this machine's)
+                what = replace(what, sent_ns=time.time_ns())
             message["instr"] = ln.instruction_out(what)
         if key is not None:
             message["key"] = key
@@ -195,7 +202,8 @@ class Remote:
     # -- what the owner tells ----------------------------------------------------------------
 
     def positions(self, t: float | None = None) -> dict[str, float]:
-        """Estimated joint angles (degrees; NaN where unknown since power-up)."""
+        """Estimated joint angles (degrees; NaN where unknown since power-up), as the owner
+        told them last: kept up to date where "pose" is among what this client watches."""
         pose, motion = self._pose, self._motion
         est = motion.at(now() if t is None else t) if motion is not None else {}
         return {j: est.get(j, v if v is not None else math.nan) for j, v in pose.items()}
@@ -219,6 +227,8 @@ class Remote:
                 if not data:
                     break
                 for message in lines.feed(data):
+                    if isinstance(message, ln.LaneError):
+                        raise message
                     self._dispatch(message)
         except (OSError, ln.LaneError) as e:
             log.debug("the lane to the owner failed: %s", e)
@@ -334,6 +344,4 @@ def wait_lane(path: Path, timeout: float) -> bool:
                 return False
         finally:
             probe.close()
-        import time
-
         time.sleep(0.05)

@@ -19,7 +19,6 @@ from collections.abc import Iterator, Mapping
 from typing import TYPE_CHECKING, Any
 
 from al5d.arm.instruction import (
-    MAX_ID,
     Instruction,
     Kind,
     Outcome,
@@ -57,20 +56,29 @@ class Lines:
 
     def __init__(self) -> None:
         self._buf = bytearray()
+        self._skipping = False
 
-    def feed(self, data: bytes) -> Iterator[dict[str, Any]]:
-        """The messages `data` completes, in order. Raises LaneError for a line that is no
-        JSON object, or too long."""
+    def feed(self, data: bytes) -> Iterator[dict[str, Any] | LaneError]:
+        """The messages `data` completes, in order; a line that is no JSON object, or too
+        long, is a LaneError in its place (the lines after it are read as ever)."""
         self._buf += data
         while True:
             end = self._buf.find(b"\n")
             if end < 0:
                 if len(self._buf) > MAX_LINE:
-                    raise LaneError(f"a line longer than {MAX_LINE} bytes")
+                    self._buf.clear()  # up to the next line's end, lost with the error
+                    self._skipping = True
+                    yield LaneError(f"a line longer than {MAX_LINE} bytes")
                 return
             line = bytes(self._buf[:end])
             del self._buf[: end + 1]
-            yield loads(line)
+            if self._skipping:  # the end of the line too long
+                self._skipping = False
+                continue
+            try:
+                yield loads(line)
+            except LaneError as e:
+                yield e
 
 
 def loads(line: bytes) -> dict[str, Any]:
@@ -141,8 +149,8 @@ def instruction_in(data: Any) -> Instruction:
     except ValueError:
         raise LaneError(f"instr: no kind {str(data.get('kind'))[:40]!r}") from None
     ident = data.get("id", "")
-    if not isinstance(ident, str) or len(ident) > MAX_ID:
-        raise LaneError(f"instr: the id must be text of at most {MAX_ID} characters")
+    if not isinstance(ident, str):
+        raise LaneError("instr: the id must be text")  # a long one is judged (and refused)
     preset = data.get("preset", "")
     if not isinstance(preset, str):
         raise LaneError("instr: preset is not text")

@@ -26,6 +26,7 @@ import threading
 from collections import deque
 from collections.abc import Callable, Hashable
 from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -59,15 +60,15 @@ from al5d.arm.corestate import (
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result
 from al5d.arm.jobs import Sent
 from al5d.arm.resample import Follow
-from al5d.arm.states import State
+from al5d.arm.states import Event, State
 from al5d.arm.validate import Ticket, judge
-from al5d.clock import now, wall_ns
+from al5d.clock import Deadline, now, wall_ns
 from al5d.owner import lane as ln
 from al5d.owner.teller import Teller, tell
 from al5d.priority import cpu_waited_s, make_urgent
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.errors import LinkLost
-from al5d.ssc32u.transport import Transport
+from al5d.ssc32u.errors import LinkLost, SerialFault
+from al5d.ssc32u.transport import SerialTransport, Transport
 
 log = logging.getLogger("al5d")
 
@@ -104,9 +105,16 @@ class Owner:
     this machine reach it on that Unix socket (`al5d.owner.lane`)."""
 
     def __init__(
-        self, config: ArmConfig, transport: Transport, *, lane: Path | None = None
+        self,
+        config: ArmConfig,
+        transport: Transport,
+        *,
+        lane: Path | None = None,
+        config_file: Path | None = None,
     ) -> None:
         self.config = config
+        #: The file the configuration was read from (None: the shipped one, or none).
+        self.config_file = config_file
         self.transport = transport
         self.port = transport.port
         self.baud = transport.baud
@@ -144,16 +152,27 @@ class Owner:
         self._transport_fd: int | None = None
         self._broken = False  # a write failed in this step: no more of its bytes
         self._free_at = 0.0  # when the bytes written so far reach the board
+        self._writes = 0
         self._stalled = 0.0
         self._cpu_waited = cpu_waited_s()
         self._lane_path = lane
         self._listener: socket.socket | None = None
+        self._lane_inode: int | None = None
         if lane is not None:
             self._listener = _listen(lane)
             if self._listener is not None:
+                self._lane_inode = lane.stat().st_ino
                 self._selector.register(self._listener, selectors.EVENT_READ, "listen")
         self._thread = threading.Thread(target=self._run, name="al5d-owner", daemon=True)
         self._closing = False
+
+    @classmethod
+    def on_port(
+        cls, config: ArmConfig, port: str, baud: int | None = None, *, lane: Path | None = None
+    ) -> Owner:
+        """The owner of the board at `port` (a serial device or a pty) at `baud` (the
+        config's by default)."""
+        return cls(config, SerialTransport(port, baud or config.server.baud), lane=lane)
 
     # -- the public API (any thread) ---------------------------------------------------------
 
@@ -161,6 +180,7 @@ class Owner:
         """Start the owner's thread: it opens the port, parks (D1, VE03), then the arm is
         ready."""
         log.info("STATE: %s", self._core.state.value)
+        log.debug("EVENT: %s", Event.START.value)
         self._thread.start()
         return self
 
@@ -172,6 +192,11 @@ class Owner:
     @property
     def state(self) -> State:
         return self._core.state
+
+    @property
+    def announced(self) -> State:
+        """The state last told (logged, and to the state listeners)."""
+        return self._announced
 
     @property
     def locked(self) -> bool:
@@ -219,6 +244,12 @@ class Owner:
         `listeners` False the outcome listeners do not hear of it."""
         instr = what.instr if isinstance(what, Ticket) else what
         ticket = what if isinstance(what, Ticket) else None
+        if instr.sent_ns is None:
+            # Sent now, as the caller asks: a stop asked later but taken first (the stop's
+            # lane) must not take this for a request sent after it.
+            instr = replace(instr, sent_ns=wall_ns())
+            if ticket is not None:
+                ticket = replace(ticket, instr=instr)
         future: Future[Outcome] = Future()
         if self.finished.is_set():
             reason = "the server has ended"
@@ -244,6 +275,22 @@ class Owner:
         if threading.current_thread() is self._thread:
             raise RuntimeError("cancel() from the owner's own thread would wait for itself")
         return future.result(30.0)
+
+    def sync(self, timeout: float = 10.0) -> None:
+        """Until the owner has taken every request handed to it so far and told what they
+        made (outcomes, listeners): for tests that check what a request did at once."""
+        future: Future[bool] = Future()
+        self._others.append(("barrier", 0, future))
+        self._wake()
+        deadline = Deadline(timeout)
+        while not future.done():
+            if not self._thread.is_alive():
+                return  # it has ended: it takes nothing more
+            try:
+                future.result(min(0.1, deadline.left()))
+            except FutureTimeout:
+                if deadline.expired:
+                    raise
 
     def wait_for_state(self, state: State, timeout: float = 10.0) -> None:
         """Until `state` has been entered and told (logged, listeners told)."""
@@ -406,6 +453,8 @@ class Owner:
             self._input(Gone(t, wall, client, why))
         elif what == "adopt":
             self._connect(payload)
+        elif what == "barrier":
+            self._teller.put(lambda: _set(payload, True))
 
     def _input(self, ev: Input) -> None:
         """Step the core with `ev`, carry out its effects, then the inputs they made."""
@@ -413,6 +462,9 @@ class Owner:
         while self._pending:
             self._core, effects = step(self._core, self._pending.popleft())
             self._broken = False
+            for effect in effects:
+                if isinstance(effect, End):  # known before its shutdown's outcome is told
+                    self.ended = effect
             for effect in effects:
                 self._carry(effect)
 
@@ -438,8 +490,6 @@ class Owner:
             self._open()
         elif isinstance(effect, Close):
             self._close_board()
-        elif isinstance(effect, End):
-            self.ended = effect
 
     def _send(self, data: bytes) -> None:
         if self._broken:
@@ -447,6 +497,7 @@ class Owner:
         t = now()
         try:
             self.transport.write(data)
+            self._writes += 1
         except LinkLost as e:
             self._broken = True
             self._pending.append(Failed(now(), wall_ns(), e))
@@ -463,7 +514,7 @@ class Owner:
         t = now()
         try:
             low = self.transport.open()
-        except LinkLost as e:  # PortUnavailable too: a SerialFault
+        except SerialFault as e:  # PortUnavailable, most often: a board unplugged
             self._pending.append(Opened(t, wall_ns(), e))
             return
         except Exception as e:  # a transport's bug must not end the owner
@@ -600,12 +651,11 @@ class Owner:
         if not data:
             self._drop(conn, "" if conn.bye else "its connection closed")
             return
-        try:
-            for message in conn.lines.feed(data):
+        for message in conn.lines.feed(data):
+            if isinstance(message, ln.LaneError):
+                self._write(conn, ln.dumps({"op": "error", "error": str(message)}))
+            else:
                 self._message(conn, message)
-        except ln.LaneError as e:
-            self._write(conn, ln.dumps({"op": "error", "error": str(e)}))
-            conn.lines = ln.Lines()  # what followed the bad line is lost with it
 
     def _message(self, conn: Conn, m: dict[str, Any]) -> None:
         """One request of a lane client; a bad one is answered with an `error`."""
@@ -645,6 +695,7 @@ class Owner:
             "op": "welcome",
             "version": ln.VERSION,
             "config": self.config.model_dump(mode="json"),
+            "config_file": str(self.config_file) if self.config_file is not None else "",
             "port": self.port,
             "baud": self.baud,
             "pid": os.getpid(),
@@ -738,6 +789,12 @@ class Owner:
             del self._futures[ref]
 
     def _end(self) -> None:
+        writers = len(self.transport.writers)
+        self._teller.put(
+            lambda: log.info(
+                "board: %d writes, by %d thread%s", self._writes, writers, "s"[: writers != 1]
+            )
+        )
         for conn in list(self._conns.values()):
             with contextlib.suppress(OSError):
                 conn.sock.setblocking(True)
@@ -748,9 +805,12 @@ class Owner:
         self._close_board()
         if self._listener is not None:
             self._listener.close()
-            if self._lane_path is not None:
+            # Only our own: a server started meanwhile on the same name may have taken the
+            # path (it found no one listening), and its lane must stay.
+            if self._lane_path is not None and self._lane_inode is not None:
                 with contextlib.suppress(OSError):
-                    self._lane_path.unlink()
+                    if self._lane_path.stat().st_ino == self._lane_inode:
+                        self._lane_path.unlink()
         for fd in (self._wake_r, self._wake_w):
             with contextlib.suppress(OSError):
                 os.close(fd)
@@ -796,4 +856,5 @@ def _listen(lane: Path) -> socket.socket | None:
     os.chmod(lane, 0o600)
     sock.listen(64)
     sock.setblocking(False)
+    log.info("local lane: %s", lane)
     return sock

@@ -45,6 +45,7 @@ class RefusalLog:
         self._seen: dict[str, tuple[float, int]] = {}
 
     def refused(self, name: str, ident: str, reason: str, t: float) -> None:
+        log.debug("EVENT: refused")
         self.flush(t)
         seen = self._seen.get(reason)
         if seen is None:

@@ -1,4 +1,5 @@
-"""ROS 2: the server's nodes, the mapping of messages to instructions, and the client.
+"""ROS 2: the server's bridges to the owner, the mapping of messages to instructions, and the
+client.
 
 - `names`: every public name of an arm's server (nodes, topics, services, actions) under
   its namespace; no rclpy.
@@ -9,19 +10,19 @@
   can go.
 - `convert`: ROS messages <-> instructions and outcomes (pure).
 - `params`: the node's ROS parameters, validated by the configuration's own code.
-- `node`: the nodes on an `ArmDriver`: `ArmNode` (`al5d`: the instruction topic, results,
+- `processes`: the ROS side's processes as the owner starts them (no rclpy there).
+- `bridge`: the bridge's process: the parameters read (`RosStart`), then the nodes on
+  the owner's lane (`Bridge`).
+- `node`: the nodes on the owner: `ArmNode` (`al5d`: the instruction topic, results,
   state, parameters), `RobotNode` (`al5d_robot`) and `ActionsNode` (`al5d_actions`).
 - `safety`: node `al5d_safety` (the release and shutdown services) and node `al5d_stop`
-  (the stop service, and a stop on the instruction topic obeyed at once), on DDS
-  participants of their own.
-- `stopproc`: the stop process: node `al5d_stop` in a process of its own that writes the
-  STOP itself, whatever the server's threads are doing.
+  (the stop service, and a stop on the instruction topic obeyed at once).
+- `stopproc`: the stop's own process: node `al5d_stop`, ahead of the rest.
 - `robot`: the robot's description, joint states and transforms (`RobotNode`'s).
 - `actions`: the move action; `controllers`: MoveIt's FollowJointTrajectory and
   GripperCommand (both `ActionsNode`'s).
-- `server`: `RosStart` and `RosServer`, which put the nodes together for `al5d serve`.
-- `client`: `Client`, a ROS client of the server (the terminal's commands on it are
-  `al5d.app.terminal`'s).
+- `client`: `Client`, a client of the server: a local one by its lane, any other over
+  ROS 2 (the terminal's commands on it are `al5d.app.terminal`'s).
 
-This layer imports `al5d.arm` (never the board's emulator) and rclpy.
+This layer imports `al5d.owner`, `al5d.arm` (never the board's emulator) and rclpy.
 """

@@ -156,7 +156,11 @@ class Bridge:
         self.actions.gripper_action.refuse = self.node.refuse
         self.trace_path = trace
         if trace is not None:
-            self.node.trace = []
+            self.node.trace = events = []
+            # ...and when each move's bytes were written: the server's share of the path.
+            arm.motion_listeners.append(
+                lambda sent: events.append((sent.instr.id, "write", int(sent.t_write * 1e9)))
+            )
         # The release and shutdown services on a participant of their own, every thread of
         # it at the stop path's priority: the flood the node `al5d` takes, its results and
         # the actions' traffic never stand in the same queues as a safety request.
@@ -214,7 +218,7 @@ def main(argv: list[str]) -> int:
     try:
         start = RosStart(setup.args, setup.flags)
     except ConfigError as e:
-        send(ctrl, "error", str(e))
+        send(ctrl, "config-error", str(e))
         return 2
     recording = None
     if start.settings.record is not None:

@@ -137,6 +137,7 @@ class Client:
         self._closed = False
         self.lane: Remote | None = None
         self._futures: dict[str, Future[Outcome]] = {}
+        self._watchers: dict[str, Callable[[Outcome], None]] = {}
         self._matched = False
         if local is not False:
             path = where.path(names.namespace)
@@ -181,7 +182,6 @@ class Client:
         #: Only the outcomes of what this client sent are kept: every client's come by.
         self._sent: set[str] = set()
         self._outcomes: dict[str, Outcome] = {}
-        self._watchers: dict[str, Callable[[Outcome], None]] = {}
         self._cv = threading.Condition()
         #: Each service once found, and when its first call may go (`SERVICE_SETTLE_S`).
         self._settled: dict[Kind, Deadline] = {}
@@ -289,7 +289,10 @@ class Client:
         `outcome`."""
         self._check_open()
         if self.lane is not None:
-            self._futures[instr.id] = self.lane.submit(instr)
+            future = self._futures[instr.id] = self.lane.submit(instr)
+            watcher = self._watchers.pop(instr.id, None)
+            if watcher is not None:
+                self._watch(future, watcher)
             return
         from al5d.ros.convert import to_message
 
@@ -301,12 +304,10 @@ class Client:
         """Call `watcher` with the outcome of `ident` as soon as it comes (at once if it has)."""
         future = self._futures.get(ident)
         if future is not None:
-
-            def told(done: Future[Outcome]) -> None:
-                if done.exception() is None:
-                    watcher(done.result())
-
-            future.add_done_callback(told)
+            self._watch(future, watcher)
+            return
+        if self.lane is not None:  # watched before it is sent: told once it is
+            self._watchers[ident] = watcher
             return
         with self._cv:
             outcome = self._outcomes.get(ident)
@@ -314,6 +315,14 @@ class Client:
                 self._watchers[ident] = watcher
         if outcome is not None:
             watcher(outcome)
+
+    @staticmethod
+    def _watch(future: Future[Outcome], watcher: Callable[[Outcome], None]) -> None:
+        def told(done: Future[Outcome]) -> None:
+            if done.exception() is None:
+                watcher(done.result())
+
+        future.add_done_callback(told)
 
     def outcome(self, ident: str, timeout: float) -> Outcome | None:
         future = self._futures.get(ident)

@@ -38,6 +38,7 @@ from al5d.arm.jobs import Sent
 from al5d.arm.states import State
 from al5d.clock import now
 from al5d.owner.client import Remote
+from al5d.owner.lane import LaneError
 from al5d.owner.teller import RefusalLog
 from al5d.ros import params
 from al5d.ros.actions import MoveAction
@@ -230,7 +231,7 @@ class ArmNode(Node):
             return
         # A stop the stop watcher has obeyed already is the same message: obeyed once.
         key = stop_key(info) if instr.kind is Kind.STOP else None
-        self.arm.submit(instr, key=key)
+        self._submitted(self.arm.submit(instr, key=key), instr.id, instr.name)
 
     def _on_trajectory(self, msg: JointTrajectory, info: dict[str, int]) -> None:
         """A trajectory is one instruction: every point checked, then all run or none."""
@@ -238,7 +239,7 @@ class ArmNode(Node):
         if isinstance(instr, str):
             self.refuse(trajectory_id(msg), "trajectory", instr)
             return
-        self.arm.submit(instr)
+        self._submitted(self.arm.submit(instr), instr.id, instr.name)
 
     def _on_joint_command(self, msg: JointState, info: dict[str, int]) -> None:
         """A set-point of ros2_control's topic-based hardware: judged whole like any move, the
@@ -251,6 +252,16 @@ class ArmNode(Node):
             return
         future = self.arm.submit(instr, listeners=False, stream=JOINT_COMMANDS)
         future.add_done_callback(self._publish_refusal)
+
+    def _submitted(self, future: Future[Outcome], ident: str, name: str) -> None:
+        """A request the owner could not take (what the lane refuses) is refused here."""
+
+        def check(done: Future[Outcome]) -> None:
+            error = done.exception()
+            if isinstance(error, LaneError):
+                self.refuse(ident, name, str(error))
+
+        future.add_done_callback(check)
 
     def _publish_refusal(self, future: Future[Outcome]) -> None:
         if future.exception() is not None:

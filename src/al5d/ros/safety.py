@@ -57,9 +57,12 @@ from al5d.ros.workarounds import (
 log = logging.getLogger("al5d")
 #: Messages the watcher takes in one call, at most.
 WATCH_BATCH = 1000
-#: How long a service waits for the owner's answer (a shutdown's is at once: the park's
-#: outcome follows on the result topic).
+#: How long a service waits for the owner's answer.
 ANSWER_S = 5.0
+#: A shutdown is answered at once (the park's outcome follows on the result topic): only a
+#: refusal (one under way already) is waited for, this long.
+SHUTDOWN_REFUSAL_S = 0.05
+PARKING = "shutting down: parking, then the server ends"
 
 #: The word of a stop, as both readers compare it (after strip and lower).
 _STOP = Kind.STOP.value
@@ -89,13 +92,15 @@ def answered(arm: Remote, kind: Kind, sent: int | None) -> tuple[bool, str]:
     delivered only once the owner has answered it."""
     future = arm.submit(Instruction(kind, sent_ns=sent or None))
     try:
-        outcome = future.result(ANSWER_S if kind is not Kind.SHUTDOWN else 0.5)
+        outcome = future.result(ANSWER_S if kind is not Kind.SHUTDOWN else SHUTDOWN_REFUSAL_S)
     except FutureTimeout:
-        if kind is Kind.SHUTDOWN:  # parking takes a while; the outcome follows on the results
-            return True, "shutting down: parking, then the server ends"
+        if kind is Kind.SHUTDOWN:
+            return True, PARKING
         return False, f"{kind.value}: the server did not answer within {ANSWER_S:g} s"
     except LaneClosed as e:
         return False, f"{kind.value}: the server has ended ({e})"
+    if kind is Kind.SHUTDOWN and outcome.ok:
+        return True, PARKING
     return outcome.ok, outcome.reason or f"{kind.value}: {outcome.result.value}"
 
 

@@ -1,14 +1,15 @@
-"""The SSC-32U servo controller: its facts, its protocol, a driver and an emulator.
+"""The SSC-32U servo controller: its facts, its protocol, its transport, a driver and an
+emulator.
 
 - `facts`: the board's numbers as data (bauds, pulse limits, timings, firmware name).
 - `protocol`: the bytes of every command and answer, as pure functions.
 - `errors`: what can go wrong on the serial link, named for what the user must check.
-- `driver`: `SSC32U`, one method per board function; serial I/O stays inside.
-- `wire`: the port's writes: one at a time, a stop's never waiting, moves paced to the
-  wire (no more than a short horizon ahead of a stop), a recording's tap.
-- `stopline`: the emergency stop written by another process: the port handed over, and
-  both processes' writes kept in order.
-- `emulator`: an SSC-32U on a pseudo terminal (a pure board model and its pty link).
+- `transport`: the board behind one small interface (`Transport`: bytes in, bytes out,
+  who wrote them); `SerialTransport`, a port through pyserial.
+- `driver`: `SSC32U`, one method per board function, for tools (`al5d doctor`, tests);
+  the arm's server writes through its owner instead.
+- `emulator`: an SSC-32U on a pseudo terminal, or in process on a virtual wire (a pure
+  board model and its links).
 
 This layer knows channels and pulse widths, never joints or degrees of an arm.
 It imports nothing of al5d but `al5d.clock`; the emulator is imported only where

@@ -5,7 +5,9 @@ registers, answers, records) on its serial link (`pty.PtyLink`: a pty at the
 client's baud, through the USB chip or a plain UART, `usb.LinkModel`). The modules:
 `board` (the board's logic), `servo` (each servo's travel), `inputs` (the input
 pins), `records` (every line received) and `measure` (what observers read of the
-servos), `pty` and `usb` (the link), `settings` (`al5d emulator`'s values as text).
+servos), `pty` and `usb` (the link), `virtual` (the board in this process on a virtual wire, for
+the owner's core in virtual time, and `VirtualTransport`), `settings` (`al5d emulator`'s
+values as text).
 Use it as a context manager, or `start()` and `close()`:
 
     with Emulator(config, baud=9600) as emu:

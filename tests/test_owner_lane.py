@@ -1,0 +1,183 @@
+"""The local lane: clients on this machine reach the owner of the board on a Unix socket of
+the user's, without ROS 2 discovery; a client that goes without a word leaves nothing
+moving; Ctrl-C cancels what a command sent; bad lines get clear errors and lose nothing."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import stat
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from al5d import exits
+from al5d.arm import instruction as ins
+from al5d.arm.config import ArmConfig
+from al5d.owner import where
+from al5d.owner.client import Remote
+from al5d_rig.proc import AL5D, Proc
+from al5d_rig.rospeer import wait_until
+from al5d_rig.served import Served, served
+
+CMD_S = 60.0
+
+
+@pytest.fixture(scope="module")
+def arm(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    with served(config, tmp_path_factory.mktemp("lane"), "al5d_lane_peer") as s:
+        yield s
+
+
+def halted_on_its_way(arm: Served, target: float) -> bool:
+    time.sleep(0.3)
+    return abs(arm.emu.servo_degrees()["base"] - target) > 5
+
+
+def test_the_lane_is_the_users_alone(arm: Served) -> None:
+    path = where.path()
+    assert stat.S_IMODE(path.parent.stat().st_mode) == 0o700
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600
+    assert stat.S_ISSOCK(path.stat().st_mode)
+
+
+def test_send_goes_by_the_lane_and_stop_needs_no_import(arm: Served) -> None:
+    arm.ready()
+    moved = Proc("send", "move", "base=20", "time=300")
+    assert moved.wait(CMD_S) == 0
+    assert any(": done" in line for line in moved.out.drain())
+    # A stop from a bare interpreter: none of al5d's heavy imports (a -X importtime trace).
+    env = {**os.environ, "PYTHONPROFILEIMPORTTIME": "1"}
+    done = subprocess.run([AL5D, "send", "stop"], capture_output=True, text=True, env=env)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().endswith("done (by the local lane)")
+    imported = {line.split("|")[-1].strip() for line in done.stderr.splitlines() if "|" in line}
+    assert not imported & {"rclpy", "numpy", "pydantic", "al5d.arm.config", "serial"}, imported
+    wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped")
+    assert Proc("send", "release").wait(CMD_S) == 0
+
+
+def test_ctrl_c_on_send_cancels_what_it_sent(arm: Served) -> None:
+    arm.ready()
+    send = Proc("send", "move", "base=80", "time=4000")
+    wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
+    send.popen.send_signal(signal.SIGINT)
+    assert send.wait(CMD_S) == exits.INTERRUPTED
+    out = send.out.drain()
+    assert any(line.endswith("cancelled (Ctrl-C)") for line in out), out
+    assert not any("Traceback" in line for line in send.err.drain())
+    wait_until(lambda: arm.states[-1] == "ready", CMD_S, "ready: halted, not locked")
+    assert halted_on_its_way(arm, 80)
+
+
+def test_ctrl_c_on_run_cancels_the_line_running_and_those_in_the_background(
+    arm: Served, tmp_path: Path
+) -> None:
+    arm.ready()
+    seq = tmp_path / "long.seq"
+    seq.write_text("move elbow=40 time=4000 &\nmove base=-80 time=4000\n")
+    run = Proc("run", str(seq))
+    wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
+    time.sleep(0.3)
+    run.popen.send_signal(signal.SIGINT)
+    assert run.wait(CMD_S) == exits.INTERRUPTED
+    out = run.out.drain()
+    assert sum(line.endswith("cancelled (Ctrl-C)") for line in out) == 2, out
+    wait_until(lambda: arm.states[-1] == "ready", CMD_S, "ready")
+
+
+def test_a_client_killed_mid_move_leaves_nothing_moving(arm: Served) -> None:
+    """A client that goes without a word (killed, or hung up) is a lost client: its motion is
+    halted where it is and its waiting moves cancelled, with the reason."""
+    arm.ready()
+    script = (
+        "import time\n"
+        "from al5d.arm import instruction as ins\n"
+        "from al5d.owner import where\n"
+        "from al5d.owner.client import Remote\n"
+        "arm = Remote.connect(where.path())\n"
+        "arm.submit(ins.move(base=-80, time_ms=4000, id='lost-1'))\n"
+        "arm.submit(ins.move(base=80, time_ms=4000, id='lost-2'))\n"
+        "print('sent', flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    client = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        assert client.stdout is not None and client.stdout.readline().strip() == "sent"
+        wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
+        time.sleep(0.3)
+        client.kill()
+        client.wait(10)
+        results = arm.peer.results_now
+        wait_until(lambda: {"lost-1", "lost-2"} <= set(results()), CMD_S, "their outcomes")
+        for ident in ("lost-1", "lost-2"):
+            outcome = results()[ident]
+            assert outcome.outcome == "cancelled" and "lost contact with the client" in (
+                outcome.reason
+            ), outcome
+        wait_until(lambda: arm.states[-1] == "ready", CMD_S, "ready")
+        assert halted_on_its_way(arm, -80)
+    finally:
+        client.kill()
+
+
+def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:
+    arm.ready()
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    sock.connect(str(where.path()))
+    sock.settimeout(CMD_S)
+    lines = [
+        b"not json\n",
+        b"[1, 2]\n",
+        b'{"op": "frobnicate", "ref": 1}\n',
+        b'{"op": "ask", "ref": 2, "instr": {"kind": "wave"}}\n',
+        b'{"op": "ask", "ref": 3, "instr": {"kind": "move", "joints": [["base", "x"]]}}\n',
+        b'{"op": "ask", "ref": 4, "instr": {"kind": "move", "joints": [["base", 500]]}}\n',
+        b'{"op": "ask", "ref": 5, "instr": {"kind": "move", "joints": [["base", 3]]}}\n',
+    ]
+    sock.sendall(b"".join(lines))
+    got: dict[object, dict[str, object]] = {}
+    errors: list[str] = []
+    buf = b""
+    while 5 not in got:
+        buf += sock.recv(65536)
+        while b"\n" in buf:
+            line, buf = buf.split(b"\n", 1)
+            message = json.loads(line)
+            if message["op"] == "error":
+                errors.append(str(message["error"]))
+                if message.get("ref") is not None:
+                    got[message["ref"]] = message
+            elif message["op"] == "outcome":
+                got[message["ref"]] = message
+    sock.close()
+    assert any(e.startswith("not JSON") for e in errors), errors
+    assert any('not an object with an "op"' in e for e in errors), errors
+    assert "no op 'frobnicate'" in str(got[1]["error"])
+    assert "no kind 'wave'" in str(got[2]["error"])
+    assert "'x' is not a number" in str(got[3]["error"])
+    four, five = got[4]["outcome"], got[5]["outcome"]
+    assert isinstance(four, dict) and four["result"] == "refused", four
+    assert "outside the range" in str(four["reason"])
+    assert isinstance(five, dict) and five["result"] == "done", five
+    assert arm.proc.popen.poll() is None
+
+
+def test_a_remote_reads_the_server_and_hears_what_happens(arm: Served) -> None:
+    arm.ready()
+    watch = ("state", "outcomes", "motion", "pose")
+    with Remote.connect(where.path(), watch=watch) as remote:
+        assert remote.config.joints.keys() == arm.config.joints.keys()
+        told: list[str] = []
+        remote.outcome_listeners.append(lambda o: told.append(o.id))
+        outcome = remote.execute(ins.move(base=10, time_ms=200, id="remote-1"), CMD_S)
+        assert outcome.ok
+        wait_until(lambda: "remote-1" in told, CMD_S, "the outcome told")
+        assert remote.positions()["base"] == pytest.approx(10, abs=0.5)
+        assert remote.cancel("no-such-move") is False
