@@ -70,12 +70,12 @@ TYPES = {
 
 def motion_lines(chunks: list[bytes]) -> list[bytes]:
     """The group moves and STOPs among bytes written or received (ESC and queries left out:
-    the link checks come when a timer says, not when an instruction does)."""
+    the link checks come when a timer says, not when an instruction does). A long line goes
+    to the board in pieces, a write each: the bytes are read as one stream."""
     lines = []
-    for chunk in chunks:
-        for line in chunk.replace(b"\x1b", b"").split(b"\r"):
-            if line.startswith((b"#", b"STOP")):
-                lines.append(line)
+    for line in b"".join(chunks).replace(b"\x1b", b"").split(b"\r"):
+        if line.startswith((b"#", b"STOP")):
+            lines.append(line)
     return lines
 
 

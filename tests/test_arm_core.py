@@ -374,3 +374,31 @@ def test_an_answer_late_while_the_host_stalled_is_excused(config: ArmConfig) -> 
             sim.stalling = 1.0  # each second of virtual time, a second of the host's stalls
         sim.run(2 * config.server.idle_check_interval_s + 0.5)
         assert (sim.core.state is State.FAULT) is fault, (stalled, sim.said[-3:])
+
+
+@pytest.mark.parametrize("spread_s", [0.0, 2.0])
+def test_a_burst_of_set_points_writes_a_line_a_wire_time_the_last_the_newest(
+    config: ArmConfig, spread_s: float
+) -> None:
+    """A thousand set-points at once, or over two seconds: at most one line for each wire
+    time they span (and the first), the last the newest; the rest superseded or replaced."""
+    sim = Sim(config, baud=9600).ready()
+    n = len(sim.group_moves())
+    refs = []
+    for k in range(1000):
+        target = {"base": -40 + 0.08 * k, "elbow": 60 + 0.02 * k}
+        refs.append(sim.ask(ins.move(**target), stream="joint_commands", tell=False))
+        sim.run(spread_s / 1000)
+    assert sim.outcome(refs[-1]).ok
+    sim.run(0.2)
+    lines = sim.group_moves()[n:]
+    wire = p.wire_time_s(len(b"#0P1100#2P1500\r"), 9600)
+    assert 1 <= len(lines) <= spread_s / wire + 2, len(lines)
+    newest = {"base": -40 + 0.08 * 999, "elbow": 60 + 0.02 * 999}
+    targets = {t.channel: t.pulse_us for t in lines[-1].targets}
+    assert targets == {
+        config.joints[j].channel: round(config.joints[j].to_us(d)) for j, d in newest.items()
+    }
+    cancelled = [sim.outcomes[r] for r in refs[:-1] if sim.outcomes[r].result is Result.CANCELLED]
+    assert len(cancelled) >= 1000 - 1 - len(lines)
+    assert all("set-point" in o.reason for o in cancelled)

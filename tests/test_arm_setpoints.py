@@ -156,24 +156,6 @@ def test_a_newer_set_point_retargets_the_running_one_as_soon_as_the_wire_allows(
     assert not any(isinstance(c, p.Stop) for r in rig.emu.records for c in r.commands)
 
 
-def test_a_burst_of_set_points_writes_a_handful_of_lines_the_last_the_newest(rig: Rig) -> None:
-    driver = rig.driver
-    before = len(rig.moves())
-    futures = [
-        driver.submit(ins.move(base=-40 + 0.08 * k, elbow=60 + 0.02 * k), stream=STREAM)
-        for k in range(1000)
-    ]
-    outcomes = [f.result(10) for f in futures]
-    assert outcomes[-1].ok, outcomes[-1]
-    lines = rig.moves()[before:]
-    assert 1 <= len(lines) <= 20, len(lines)  # one per wire time (40 ms) at most, not 1,000
-    newest = {"base": -40 + 0.08 * 999, "elbow": 60 + 0.02 * 999}
-    assert group_pulses(lines[-1].commands[0]) == pulses(rig.config, newest)
-    superseded = [o for o in outcomes[:-1] if o.result is Result.CANCELLED]
-    assert len(superseded) >= 1000 - 1 - len(lines)
-    assert all("set-point" in o.reason for o in superseded)
-
-
 def test_the_watchdog_holds_the_arm_when_the_stream_goes_quiet_mid_move(
     rig: Rig, caplog: pytest.LogCaptureFixture
 ) -> None:

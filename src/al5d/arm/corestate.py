@@ -325,6 +325,9 @@ class Run:
     #: ahead of it ended. Written later than that, the board holds the point before while
     #: the path moves on (a host that did not run the owner in time).
     write_due: float = 0.0
+    #: When step `k`'s line would take effect had every piece of it gone out when due (the
+    #: wire's pace allowing): the yardstick of a point's lateness.
+    due_effect: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -197,10 +197,15 @@ def _write(c: Core, run: Run, t: float, out: Out) -> Core:
             return end_run(c, reason, t, out, Result.REFUSED)
     for note in run.notes[told:]:
         say(out, logging.WARNING, note)
+    # Where the host ran the owner in time, the line took effect at `due_effect`: written
+    # when due, or when the wire's pace first allowed it.
+    free = c.link.free_at
+    due = max(run.write_due, free - horizon(run.job))
+    due_effect = max(due, free) + p.wire_time_s(len(run.line), c.arm.baud)
     size = piece(run.line, c.arm.baud)
     c = send(c, run.line[:size], t, out)
     link = replace(c.link, rest=run.line[size:], rest_is_halt=False)
-    c = replace(c, link=link, run=replace(run, t_write=t))
+    c = replace(c, link=link, run=replace(run, t_write=t, due_effect=due_effect))
     return _written(c, t, out) if not link.rest else c
 
 
@@ -237,7 +242,7 @@ def _written(c: Core, t: float, out: Out) -> Core:
     motion = Motion(run.line_start, step.target, t_sent, run.line_ms / 1000.0)
     wire = p.wire_time_s(len(run.line), c.arm.baud)
     book = c.book.moving(motion, run.t_write, t_end)
-    late = _off_path(c, run, t_sent - wire) if k and step.time_ms else ""
+    late = _off_path(c, run, t_sent) if k and step.time_ms else ""
     run = replace(
         run,
         written=Written(motion, t_end, wire, run.line, run.t_write),
@@ -254,13 +259,13 @@ def _written(c: Core, t: float, out: Out) -> Core:
     return c
 
 
-def _off_path(c: Core, run: Run, t_wired: float) -> str:
-    """Why a trajectory's point `k`, whose line left (its wire time before it took effect)
-    at `t_wired`, leaves the path beyond its tolerance (""): written later than it was due
-    (a host that did not run the owner in time), the board holds the point before while the
-    path moves on. (A point the servos cannot reach in its time slips the schedule, not the
-    path: that is the trajectory's lateness, which its result reports.)"""
-    late = t_wired - run.write_due
+def _off_path(c: Core, run: Run, t_sent: float) -> str:
+    """Why a trajectory's point `k`, whose line took effect at `t_sent`, leaves the path
+    beyond its tolerance (""): later than it would have had the host run the owner in time
+    (`Run.due_effect`), the board holds the point before while the path moves on. (A point
+    the servos cannot reach in its time slips the schedule, not the path: that is the
+    trajectory's lateness, which its result reports.)"""
+    late = t_sent - run.due_effect
     if run.job.instr.kind is not Kind.TRAJECTORY or late <= LATE_JUDGED_S:
         return ""
     step, before = run.steps[run.k], run.steps[run.k - 1]
@@ -273,10 +278,9 @@ def _off_path(c: Core, run: Run, t_wired: float) -> str:
             tolerance = follow.tolerance.get(joint, tolerance)
         if off > tolerance:
             return (
-                f"point {step.point if step.point >= 0 else run.k} left "
-                f"{late * 1000.0:.0f} ms late for the board: {joint} was {off:.2f} deg off "
-                f"its path, tolerance {tolerance:g} deg (the host did not run the owner in "
-                "time)"
+                f"point {step.point if step.point >= 0 else run.k} took effect "
+                f"{late * 1000.0:.0f} ms late: {joint} was {off:.2f} deg off its path, "
+                f"tolerance {tolerance:g} deg (the host did not run the owner in time)"
             )
     return ""
 

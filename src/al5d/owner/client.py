@@ -27,7 +27,7 @@ from types import TracebackType
 from typing import Any
 
 from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, parse_config
-from al5d.arm.instruction import Instruction, Kind, Outcome, Result
+from al5d.arm.instruction import Instruction, Kind, Outcome
 from al5d.arm.jobs import Motion, Sent
 from al5d.arm.resample import Follow
 from al5d.arm.states import State
@@ -286,7 +286,7 @@ class Remote:
         self._running = (
             None if running is None else (str(running[0]), int(running[1]), int(running[2]))
         )
-        tell(self.pose_listeners, None, "pose")  # type: ignore[arg-type]
+        _call(self.pose_listeners, "pose")
 
     def _moved(self, m: dict[str, Any]) -> None:
         instr = Instruction(Kind.MOVE, id=str(m["id"]))
@@ -311,7 +311,7 @@ class Remote:
             self._futures.pop(ref, None)
         if not self._welcome.done():
             self._welcome.set_exception(LaneClosed("the owner closed the lane"))
-        tell(self.closed_listeners, None, "closed")  # type: ignore[arg-type]
+        _call(self.closed_listeners, "closed")
 
     def close(self, bye: bool = True) -> None:
         """Leave the lane; with `bye`, what this client commanded goes on (without, the owner
@@ -327,8 +327,13 @@ class Remote:
         self._lost()
 
 
-def outcome_refused(instr: Instruction, reason: str) -> Outcome:
-    return Outcome(instr.id, instr.name, Result.REFUSED, reason)
+def _call(listeners: list[Callable[[], None]], what: str) -> None:
+    """Call each listener; one that raises is logged and the rest still hear."""
+    for listener in list(listeners):
+        try:
+            listener()
+        except Exception:
+            log.exception("%s listener %r failed", what, listener)
 
 
 def wait_lane(path: Path, timeout: float) -> bool:

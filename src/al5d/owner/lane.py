@@ -99,20 +99,38 @@ def instruction_out(instr: Instruction) -> dict[str, Any]:
     if instr.preset:
         out["preset"] = instr.preset
     if instr.joints:
-        out["joints"] = [[n, v] for n, v in instr.joints]
+        out["joints"] = [[n, _num(v)] for n, v in instr.joints]
     if instr.time_ms is not None:
         out["time_ms"] = instr.time_ms
     if instr.points:
-        out["points"] = [[[[n, v] for n, v in pt.joints], pt.at_ms] for pt in instr.points]
+        out["points"] = [
+            [[[n, _num(v)] for n, v in pt.joints], _num(pt.at_ms)] for pt in instr.points
+        ]
     if instr.tool is not None:
         t = instr.tool
-        out["tool"] = [t.x_m, t.y_m, t.z_m, t.pitch_deg, t.roll_deg, t.gripper_deg, t.line]
+        maybe = [t.pitch_deg, t.roll_deg, t.gripper_deg]
+        out["tool"] = [
+            *(_num(v) for v in (t.x_m, t.y_m, t.z_m)),
+            *(None if v is None else _num(v) for v in maybe),
+            t.line,
+        ]
     if instr.sent_ns is not None:
         out["sent_ns"] = instr.sent_ns
     return out
 
 
+#: JSON has no NaN or infinity: they travel as these words (and are judged, as any value).
+_NOT_FINITE = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
+
+
+def _num(value: float) -> float | str:
+    """A number for the lane: itself, or the word of a NaN or an infinity."""
+    return value if math.isfinite(value) else str(value)
+
+
 def _number(value: Any, what: str) -> float:
+    if isinstance(value, str) and value in _NOT_FINITE:
+        return _NOT_FINITE[value]
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise LaneError(f"{what}: {value!r} is not a number")
     return float(value)
@@ -252,7 +270,8 @@ def motion_in(data: Any) -> Motion:
 def follow_out(follow: Follow | None) -> dict[str, Any] | None:
     if follow is None:
         return None
-    return {"tolerance": dict(follow.tolerance), "late_ms": follow.late_ms}
+    late = None if follow.late_ms is None else _num(follow.late_ms)
+    return {"tolerance": {k: _num(v) for k, v in follow.tolerance.items()}, "late_ms": late}
 
 
 def follow_in(data: Any) -> Follow | None:
