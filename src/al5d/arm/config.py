@@ -379,7 +379,9 @@ class ArmConfig(_Frozen):
         return {name: j.speed_deg_s for name, j in self.joints.items()}
 
 
-def _describe(err: ValidationError, source: str, names: Mapping[str, str]) -> str:
+def describe_errors(err: ValidationError, source: str, names: Mapping[str, str]) -> str:
+    """pydantic's errors as lines `SOURCE: the.key: why (value: ...)`, a key known to the user
+    by another name (a ROS parameter's) given by `names`."""
     lines = []
     for e in err.errors():
         loc = ".".join(str(x) for x in e["loc"]) or "(top level)"
@@ -401,7 +403,7 @@ def parse_config(
     try:
         return ArmConfig.model_validate(data)
     except ValidationError as e:
-        raise ConfigError(_describe(e, source, names or {})) from None
+        raise ConfigError(describe_errors(e, source, names or {})) from None
 
 
 def with_changes(

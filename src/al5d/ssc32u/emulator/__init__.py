@@ -15,6 +15,7 @@ Use it as a context manager, or `start()` and `close()`:
         emu.set_input("A", 0)    # a switch on input A closes
         emu.inject(Fault.RESET)  # a brown-out
         emu.joint_degrees()      # the joints' true angles (`mechanics=`: a misaligned arm)
+        emu.observe_pulses(f)    # f(channel, Pulse) at each change of what the servos get
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from al5d.ssc32u.emulator.board import (
     BoardSettings,
     Fault,
     Mechanics,
+    Pulse,
     Record,
     ServoJoint,
 )
@@ -52,6 +54,7 @@ __all__ = [
     "Fault",
     "LinkModel",
     "Mechanics",
+    "Pulse",
     "Record",
     "ServoJoint",
     "Transport",
