@@ -7,7 +7,9 @@ camera at 10 Hz at 320 x 240 (the shipped scene), as fast as it computes. The re
 factor is the seconds simulated over the seconds it took; a frame is 20 ms of physics
 (the servos' pulse period), with the camera's picture when one is due.
 
-Run alone: .venv/bin/python bench/twin_bench.py [--seconds 20]
+Run alone: .venv/bin/python bench/twin_bench.py [--seconds 20]; with `--picture FILE`, the
+picture of docs/physics.md instead: the twin's camera (at 640 x 480) as the arm carries
+the cup toward its goal.
 """
 
 from __future__ import annotations
@@ -125,11 +127,45 @@ def rows(r: dict[str, Any]) -> list[tuple[str, str, str, str, bool | None]]:
     ]
 
 
+def picture(path: Path) -> None:
+    """The shipped scene's camera, 640 x 480, mid-carry: the cup picked and on its way."""
+    from matplotlib import image
+
+    from al5d.arm.config import load_config
+    from al5d.model import solve
+    from al5d.twin.camera import Camera
+    from al5d.twin.scene import load_scene
+    from al5d_rig.twinrig import TwinRig
+
+    config = load_config()
+    scene = load_scene()
+    assert scene.camera is not None
+    settings = scene.camera.model_copy(update={"width": 640, "height": 480})
+    scene = scene.model_copy(update={"camera": settings})
+    rig = TwinRig(config, scene)
+    rig.move(dict(config.presets["ready"]))
+    rig.settle(1.5)
+    rig.move_to((200, -100, 100), time_ms=1200, gripper=0)
+    rig.move_to((200, -100, 20), time_ms=300, steps=6, gripper=0)
+    rig.move({"gripper": 45}, 600)
+    rig.settle(1.0)
+    rig.move_to((200, -100, 100), time_ms=300, steps=6)
+    rig.move(solve(config.model, 0.2, 0.11, 0.1, -90.0), 2500)  # carried to its goal...
+    rig.run(1.1)  # ...and on its way there
+    camera = Camera(rig.twin.model, settings)
+    image.imsave(path, camera.render(rig.twin.data))
+    camera.close()
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--seconds", type=float, default=SECONDS)
+    parser.add_argument("--picture", type=Path, help="write docs/physics.md's picture there")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.picture is not None:
+        picture(args.picture)
+        return 0
     if args.child:
         print(json.dumps(child(args.seconds)))
         return 0

@@ -23,6 +23,11 @@ from al5d.twin.scene import Scene, load_scene, parse_scene
 from al5d_rig.twinrig import TwinRig
 
 READY = {"base": 0, "shoulder": 30, "elbow": 90, "wrist": 0, "gripper": 0, "wrist_rotate": 0}
+#: The forearm hanging down, the gripper down holding a cup close in; then out to full reach.
+CLOSE_IN = {"base": 0, "shoulder": 45, "elbow": 135, "wrist": 0, "gripper": 40, "wrist_rotate": 0}
+OUT = {"shoulder": 70, "elbow": 40, "wrist": -70}
+#: A table behind the arm only.
+BEHIND = {"center_mm": [-250, 0], "size_mm": [200, 200]}
 
 
 def scene_with(**objects: dict[str, Any]) -> Scene:
@@ -46,9 +51,9 @@ def ready(rig: TwinRig) -> None:
     rig.settle(1.5)
 
 
-def pick(rig: TwinRig, x: float, y: float, lift_z: float = 110.0) -> None:
+def pick(rig: TwinRig, x: float, y: float, lift_z: float = 100.0) -> None:
     """The cup at (x, y) picked from above and lifted to `lift_z` (mm)."""
-    rig.move_to((x, y, 110), time_ms=1200, gripper=0)
+    rig.move_to((x, y, 100), time_ms=1200, gripper=0)
     rig.move_to((x, y, 20), time_ms=300, steps=6, gripper=0)
     rig.move({"gripper": 45}, 600)
     rig.settle(1.0)
@@ -88,18 +93,19 @@ def test_a_servo_turns_at_its_datasheet_speed_and_no_faster(config: ArmConfig) -
     motor's back-EMF holds it at its no-load speed, 333 deg/s for the HS-485HB."""
     rig = TwinRig(config, scene_with())
     ready(rig)
-    before = rig.twin.joint_degrees()["base"]
-    rig.move({"base": 80})  # no time: the servo's own speed
+    rig.move({"base": -85})
+    rig.settle(1.0)
+    last = rig.twin.joint_degrees()["base"]
+    rig.move({"base": 85})  # no time: the pulse jumps, the servo turns at its own speed
     speeds = []
-    last = before
-    for _ in range(30):
+    for _ in range(40):
         rig.run(FRAME_S)
         now = rig.twin.joint_degrees()["base"]
         speeds.append(abs(now - last) / FRAME_S)
         last = now
     top = config.joints["base"].speed_deg_s
-    assert max(speeds) == pytest.approx(top, rel=0.08)
-    assert rig.twin.joint_degrees()["base"] == pytest.approx(80, abs=1.0)
+    assert top * 0.85 < max(speeds) <= top * 1.02, (top, speeds)
+    assert rig.twin.joint_degrees()["base"] == pytest.approx(85, abs=1.0)
 
 
 def test_the_cup_is_held_by_friction_between_the_fingers_and_lifted(config: ArmConfig) -> None:
@@ -121,16 +127,20 @@ def test_the_cup_is_held_by_friction_between_the_fingers_and_lifted(config: ArmC
 def test_a_cup_too_heavy_for_the_shoulder_holds_it_short_and_the_twin_says_so(
     config: ArmConfig,
 ) -> None:
-    """1 kg, carried from near the base to full reach: the HS-805BB's 24.7 kg cm cannot hold
-    it there; the shoulder lags by more than 5 degrees and the twin says what was needed."""
-    heavy = {**CUP, "mass_g": 1000, "xyz_mm": [150, 0, 0], "friction": 1.5}
-    rig = TwinRig(config, scene_with(cup=heavy))
-    ready(rig)
-    pick(rig, 150, 0, lift_z=140)
-    assert rig.twin.objects()["cup"].lifted_m > 0.03  # it was lifted: the gripper holds it
-    rig.move({"shoulder": 75, "elbow": 40, "wrist": -25}, 1500)  # out to full reach
+    """1 kg in the gripper (the arm lifts about 370 g at full reach, Lynxmotion says), taken
+    out to full reach: the HS-805BB's 24.7 kg cm cannot hold it there; the shoulder lags by
+    more than 5 degrees and the twin says what it would need."""
+    heavy = {key: v for key, v in CUP.items() if key != "xyz_mm"}
+    cup = {**heavy, "mass_g": 1000, "in_gripper": True}
+    # The table behind the arm: nothing under its reach for the cup to come to rest on.
+    scene = parse_scene({"camera": None, "table": BEHIND, "objects": {"cup": cup}}, "test")
+    rig = TwinRig(config, scene)
+    rig.move(CLOSE_IN)
+    rig.settle(1.5)
+    assert not rig.held  # here, the cup close in, it holds it up
+    rig.move(OUT, 1500)  # out to full reach
     rig.settle(2.5)
-    lag = 75 - rig.twin.joint_degrees()["shoulder"]
+    lag = abs(OUT["shoulder"] - rig.twin.joint_degrees()["shoulder"])
     assert lag > 5, rig.twin.joint_degrees()
     shoulder = [h for h in rig.held if h.joint == "shoulder"]
     assert shoulder, [h.text for h in rig.held]
@@ -138,9 +148,9 @@ def test_a_cup_too_heavy_for_the_shoulder_holds_it_short_and_the_twin_says_so(
     assert said.against is None and said.needed_kg_cm is not None
     assert said.needed_kg_cm > said.stall_kg_cm == pytest.approx(24.7)
     assert said.short_deg > 5
-    assert said.text.startswith("shoulder held ") and "kg cm needed, the servo gives 24.7" in (
-        said.text
-    )
+    # Its weight carried it down past its target, to its end of travel.
+    assert said.past and said.text.startswith(f"shoulder held {said.short_deg:.0f} deg past its")
+    assert said.text.endswith(" kg cm needed, the servo gives 24.7")
 
 
 def test_a_move_into_an_object_stops_against_it_and_says_which_joint(config: ArmConfig) -> None:
@@ -148,8 +158,9 @@ def test_a_move_into_an_object_stops_against_it_and_says_which_joint(config: Arm
     box 60 mm tall; the arm stops on the box, sinking into it no more than 2 mm."""
     box = {"shape": "box", "size_mm": [60, 80, 60], "mass_g": 2000, "xyz_mm": [230, 0, 0]}
     rig = TwinRig(config, scene_with(box=box))
-    ready(rig)
-    rig.move_to((230, 0, 120), time_ms=1200)
+    rig.move(config.presets["straight_up"])  # clear of the box on the way
+    rig.settle(1.5)
+    rig.move_to((230, 0, 100), time_ms=1200)
     rig.move_to((230, 0, 20), time_ms=1200)
     rig.settle(1.5)
     assert rig.twin.deepest.get("box", 0.0) <= 0.002, rig.twin.deepest

@@ -49,6 +49,8 @@ FINGER_FRICTION: Final = 1.2
 #: A cup's wall is this many flat pieces.
 CUP_SEGMENTS: Final = 12
 TABLE_THICKNESS: Final = 0.02
+#: An object in the gripper (`in_gripper`) has its bottom this far beyond the fingers' tips.
+IN_GRIPPER_BELOW: Final = 0.01
 #: The room's floor, under the table.
 FLOOR_DEPTH: Final = 0.75
 #: Where each servo sits (the link that carries it, its box's centre in that link's frame
@@ -72,7 +74,8 @@ class Drive:
     speed_rad_s: float
     #: Position gain: stall torque at FULL_TORQUE_AT_DEG from the target.
     kp: float
-    #: Its controller's damping (within the stall torque): near critical with the rotor.
+    #: Its controller's damping (within the stall torque): critical with the rotor alone;
+    #: the twin tunes it to the arm it moves (`al5d.twin.physics.Twin`).
     kv: float
     #: The motor's back-EMF: stall torque / no-load speed.
     damping: float
@@ -113,7 +116,7 @@ def drives(config: ArmConfig) -> dict[str, Drive]:
 
 
 def _f(values: Iterable[float]) -> str:
-    return " ".join(f"{v:.6g}" for v in values)
+    return " ".join(f"{v:.10g}" for v in values)
 
 
 def _wxyz(rpy: tuple[float, float, float]) -> str:
@@ -171,16 +174,25 @@ def _servos(config: ArmConfig, bodies: Mapping[str, ET.Element], chain: Chain) -
     _servo_geom(bodies["wrist_rotate"], servo_of(config, "gripper"), hand_block.center, False)
 
 
-def _object(world: ET.Element, name: str, obj: SceneObject, table_z: float) -> None:
-    x, y, z = (v / 1000 for v in obj.xyz_mm)
-    body = ET.SubElement(
-        world,
-        "body",
-        name=name,
-        pos=_f((x, y, table_z + z)),
-        quat=_wxyz((0.0, 0.0, math.radians(obj.yaw_deg))),
-    )
-    ET.SubElement(body, "freejoint", name=name)
+def _object(
+    world: ET.Element, hand: ET.Element, tip: float, name: str, obj: SceneObject, table_z: float
+) -> None:
+    """The object standing in the world, or fixed in the `hand` between the fingers (its
+    bottom `IN_GRIPPER_BELOW` beyond the tip at `tip`, upright when the gripper points down)."""
+    if obj.xyz_mm is None:
+        body = ET.SubElement(
+            hand, "body", name=name, pos=_f((0, 0, tip + IN_GRIPPER_BELOW)), quat="0 1 0 0"
+        )
+    else:
+        x, y, z = (v / 1000 for v in obj.xyz_mm)
+        body = ET.SubElement(
+            world,
+            "body",
+            name=name,
+            pos=_f((x, y, table_z + z)),
+            quat=_wxyz((0.0, 0.0, math.radians(obj.yaw_deg))),
+        )
+        ET.SubElement(body, "freejoint", name=name)
     pieces: list[dict[str, str]] = []
     volume = 0.0
     if obj.size_mm is not None:
@@ -379,7 +391,7 @@ def mjcf(config: ArmConfig, scene: Scene) -> str:
     _servos(config, by_joint, chain)
 
     for name, obj in scene.objects.items():
-        _object(world, name, obj, table_z)
+        _object(world, by_joint["wrist_rotate"], g.gripper, name, obj, table_z)
 
     grip = servos["gripper"]
     lever = gripper_lever(config)

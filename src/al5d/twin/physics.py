@@ -28,7 +28,7 @@ from al5d.model import ARM_JOINTS
 from al5d.model.joints import GRIPPER_FINGERS, joint_from_urdf, joint_to_urdf
 from al5d.model.transforms import Quat, Vec3
 from al5d.ssc32u.emulator import Mechanics, Pulse
-from al5d.twin.mjcf import KG_CM, WORLD_BIT, Drive, drives, gripper_lever, mjcf
+from al5d.twin.mjcf import KG_CM, Drive, drives, gripper_lever, mjcf
 from al5d.twin.scene import Scene
 
 #: The servo pulses' period: a servo sees a new target every 20 ms.
@@ -41,6 +41,8 @@ SATURATED: Final = 0.9
 STILL_DEG_S: Final = 5.0
 #: ...for this long, is held there.
 HOLD_S: Final = 0.3
+#: A finger's contact whose normal is within about 45 deg of the gap's axis squeezes.
+SQUEEZE_COS: Final = 0.7
 #: The arm's joints, the gripper last: the actuators' order.
 DRIVEN: Final = (*ARM_JOINTS, "gripper")
 
@@ -57,10 +59,12 @@ class Held:
     against: str | None = None
     #: When it was found (the board's clock).
     t: float = 0.0
+    #: Carried past its target (a load that pulled it there), not held short of it.
+    past: bool = False
 
     @property
     def text(self) -> str:
-        short = f"{self.short_deg:.0f} deg short of its target"
+        short = f"{self.short_deg:.0f} deg {'past' if self.past else 'short of'} its target"
         if self.joint == "gripper" and self.against is not None:
             return (
                 f"gripper holds the {self.against}: {short}, squeezing with its "
@@ -108,6 +112,7 @@ class _Ids:
     subtree: dict[str, set[int]] = field(default_factory=dict)
     objects: dict[str, int] = field(default_factory=dict)
     arm_bodies: set[int] = field(default_factory=set)
+    hand: int = 0
 
 
 class Twin:
@@ -138,6 +143,7 @@ class Twin:
         self.pulses: dict[int, Pulse] = {}
         self.channels = {name: config.joints[name].channel for name in DRIVEN}
         self._ids = self._find_ids()
+        self._tune(config.presets["ready"])
         self._gains = {
             name: (
                 self.model.actuator_gainprm[i].copy(),
@@ -146,6 +152,8 @@ class Twin:
             for name, i in self._ids.actuator.items()
         }
         self._on: dict[str, bool] = {}
+        #: Where each joint was when its pulses last changed: whence it went to its target.
+        self._origin: dict[str, float] = {}
         self._watch = {name: _Watch() for name in DRIVEN}
         self.deepest: dict[str, float] = {}
         self._lifted: dict[str, float] = dict.fromkeys(self._ids.objects, 0.0)
@@ -189,9 +197,29 @@ class Twin:
             int(m.jnt_bodyid[named(mujoco.mjtObj.mjOBJ_JOINT, f)]) for f in GRIPPER_FINGERS
         }
         ids.arm_bodies = ids.subtree["base"] | {named(mujoco.mjtObj.mjOBJ_BODY, "base_link")}
+        ids.hand = int(m.jnt_bodyid[named(mujoco.mjtObj.mjOBJ_JOINT, "wrist_rotate")])
         for name in self.scene.objects:
             ids.objects[name] = named(mujoco.mjtObj.mjOBJ_BODY, name)
         return ids
+
+    def _tune(self, pose: Mapping[str, float]) -> None:
+        """Each arm servo's controller damping, critical for what it turns at `pose` (its rotor
+        and the links beyond it): with the rotor's alone, the base overshot its target by
+        20 deg with the arm stretched out, where a real servo stops."""
+        m, s = self.model, self._scratch
+        for name in ARM_JOINTS:
+            s.qpos[self._ids.qpos[name]] = joint_to_urdf(name, pose.get(name, 0.0))
+        mujoco.mj_forward(m, s)
+        unit, column = np.zeros(m.nv), np.zeros(m.nv)
+        for name in ARM_JOINTS:
+            dof = self._ids.dof[name]
+            unit[:] = 0
+            unit[dof] = 1
+            mujoco.mj_mulM(m, s, column, unit)
+            inertia = float(column[dof])  # the mass matrix's diagonal: the armature included
+            d = self.drives[name]
+            kv = max(0.0, 2 * math.sqrt(d.kp * inertia) - d.damping)
+            m.actuator_biasprm[self._ids.actuator[name], 2] = -kv
 
     # -- the arm's units ---------------------------------------------------------------
 
@@ -256,6 +284,9 @@ class Twin:
     def follow(self, channel: int, pulse: Pulse) -> None:
         """What `channel` puts out from now on (the board's `observe_pulses`)."""
         self.pulses[channel] = pulse
+        for name, ch in self.channels.items():
+            if ch == channel:
+                self._origin[name] = self._actual(name)
 
     def _limp(self, name: str, limp: bool) -> None:
         if self._on.get(name) is (not limp):
@@ -381,25 +412,44 @@ class Twin:
             speed = abs(float(self.data.qvel[self._ids.dof[name]]))
         return math.degrees(speed) < STILL_DEG_S
 
+    def _gripped(self, touching: list[tuple[int, int, int]]) -> set[int]:
+        """The objects both fingers squeeze: touched by each on its inner face (the contact's
+        normal across the gap, along the hand's y), not only resting on their tips."""
+        fingers = self._ids.subtree["gripper"]
+        across = self.data.xmat[self._ids.hand].reshape(3, 3)[:, 1]
+        by_object: dict[int, set[int]] = {}
+        for index, arm, other in touching:
+            normal = np.asarray(self.data.contact[index].frame[:3])
+            if arm in fingers and other in self._ids.objects.values():
+                if abs(float(normal @ across)) > SQUEEZE_COS:
+                    by_object.setdefault(other, set()).add(arm)
+        return {o for o, touched in by_object.items() if touched == fingers}
+
     def _why(self, name: str, touching: list[tuple[int, int, int]]) -> Held:
         i = self._ids.actuator[name]
         short = self._span_deg(name, float(self.data.ctrl[i]), self._actual(name))
         stall = self.drives[name].stall_kg_cm
-        carried = self._carried(touching)
+        carried = self._carried(touching) | self._gripped(touching)
         subtree = self._ids.subtree[name]
-        against = [other for _, arm, other in touching if arm in subtree and other not in carried]
         if name == "gripper":
-            objects = [o for _, arm, o in touching if arm in subtree and o in self._ids.objects.values()]
-            against = objects or against
+            against = [o for _, arm, o in touching if arm in subtree and o != 0]
+        else:
+            against = [o for _, arm, o in touching if arm in subtree and o not in carried]
+        target, actual = float(self.data.ctrl[i]), self._actual(name)
+        origin = self._origin.get(name, actual)
+        past = (actual - target) * (origin - target) < 0  # beyond it, seen from whence it came
         if against:
-            return Held(name, short, stall, against=self._name_of_body(against[0]), t=self.t)
-        needed = self._needed(name, [c for c in touching if c[2] in carried])
-        return Held(name, short, stall, needed_kg_cm=needed / KG_CM, t=self.t)
+            what = self._name_of_body(against[0])
+            return Held(name, short, stall, against=what, t=self.t, past=past)
+        if name == "gripper":  # closing on nothing, yet short: its fingers' own stops
+            return Held(name, short, stall, t=self.t, past=past)
+        needed = self._needed(name, carried)
+        return Held(name, short, stall, needed_kg_cm=needed / KG_CM, t=self.t, past=past)
 
-    def _needed(self, name: str, payload: list[tuple[int, int, int]]) -> float:
-        """The torque (N m) the joint needs to hold the arm at its targets, with what it
-        carries: gravity on the links there, and the carried objects' push on the links
-        (as they push now, moved with the links)."""
+    def _needed(self, name: str, carried: set[int]) -> float:
+        """The torque (N m) the joint needs to hold the arm at its targets with what it
+        carries: gravity on the links there, and the weight of what the gripper holds,
+        moved with the hand."""
         m, d, s = self.model, self.data, self._scratch
         s.qpos[:] = d.qpos
         s.qvel[:] = 0
@@ -407,29 +457,14 @@ class Twin:
             if self._on.get(joint):
                 s.qpos[self._ids.qpos[joint]] = d.ctrl[self._ids.actuator[joint]]
         mujoco.mj_forward(m, s)
-        dof = self._ids.dof[name] if name != "gripper" else self._ids.dof[GRIPPER_FINGERS[0]]
+        dof = self._ids.dof[name]
         load = float(s.qfrc_bias[dof])
-        wrench = np.zeros(6)
+        hand = self._ids.hand
         jac = np.zeros((3, m.nv))
-        for index, arm, _ in payload:
-            c = d.contact[index]
-            mujoco.mj_contactForce(m, d, index, wrench)
-            on_geom2 = np.asarray(c.frame).reshape(3, 3).T @ wrench[:3]
-            force = on_geom2 if int(m.geom_bodyid[c.geom2]) == arm else -on_geom2
-            local = d.xmat[arm].reshape(3, 3).T @ (np.asarray(c.pos) - d.xpos[arm])
-            point = s.xpos[arm] + s.xmat[arm].reshape(3, 3) @ local
-            mujoco.mj_jac(m, s, jac, None, point, arm)
-            load -= float(jac[:, dof] @ force)
+        for body in carried:
+            local = d.xmat[hand].reshape(3, 3).T @ (d.xipos[body] - d.xpos[hand])
+            point = s.xpos[hand] + s.xmat[hand].reshape(3, 3) @ local
+            mujoco.mj_jac(m, s, jac, None, point, hand)
+            weight = np.array([0.0, 0.0, float(m.body_subtreemass[body]) * m.opt.gravity[2]])
+            load -= float(jac[:, dof] @ weight)
         return abs(load)
-
-    # -- for the scene's frames -----------------------------------------------------------
-
-    def world_contacts(self) -> int:
-        """How many contacts the world's bodies have among themselves (objects resting)."""
-        m, d = self.model, self.data
-        return sum(
-            1
-            for i in range(d.ncon)
-            if int(m.geom_contype[d.contact[i].geom1]) == WORLD_BIT
-            and int(m.geom_contype[d.contact[i].geom2]) == WORLD_BIT
-        )

@@ -119,7 +119,10 @@ class SceneObject(_Frozen):
     #: Sliding friction against whatever it touches (the larger of the two applies).
     friction: Friction = 0.8
     #: The centre of its bottom; z above the table's top (0: standing on it).
-    xyz_mm: tuple[Mm, Mm, Mm]
+    xyz_mm: tuple[Mm, Mm, Mm] | None = None
+    #: It starts in the gripper, fixed to the hand between the fingers, upright when the
+    #: gripper points down (a payload: a tool, or a cup handed to the arm); no `xyz_mm`.
+    in_gripper: bool = Field(default=False, strict=True)
     yaw_deg: float = Field(default=0.0, ge=-360, le=360, allow_inf_nan=False)
     colour: Colour = "#1971c2"
     #: Where it is meant to go (x, y on the table): `al5d demo --physics` measures against it.
@@ -137,6 +140,10 @@ class SceneObject(_Frozen):
         extra = [k for k in sizes if k not in needs[self.shape] and getattr(self, k) is not None]
         if extra:
             raise ValueError(f"a {self.shape} has no {', '.join(extra)}")
+        if self.in_gripper == (self.xyz_mm is not None):
+            raise ValueError(
+                "an object in the gripper has no xyz_mm" if self.in_gripper else "xyz_mm: missing"
+            )
         if self.shape == "cup" and self.wall_mm is not None and self.radius_mm is not None:
             if self.wall_mm >= self.radius_mm:
                 raise ValueError(f"wall_mm {self.wall_mm:g} must be thinner than radius_mm")
@@ -179,6 +186,8 @@ class Scene(_Frozen):
                 )
             if name in RESERVED:
                 raise ValueError(f"objects.{name}: the name of a frame of the arm or the scene")
+            if obj.xyz_mm is None:
+                continue  # in the gripper
             x, y, z = obj.xyz_mm
             if not self.table.holds(x, y):
                 raise ValueError(
@@ -195,7 +204,9 @@ class Scene(_Frozen):
                 )
             if math.hypot(x, y) < BASE_RADIUS_MM + obj.footprint_mm and z < 70:
                 raise ValueError(f"objects.{name}.xyz_mm: it stands in the arm's base")
-        names = list(self.objects)
+        if sum(obj.in_gripper for obj in self.objects.values()) > 1:
+            raise ValueError("objects: only one object fits in the gripper")
+        names = [name for name, obj in self.objects.items() if obj.xyz_mm is not None]
         for i, a in enumerate(names):
             for b in names[i + 1 :]:
                 if _overlap(self.objects[a], self.objects[b]):
@@ -205,6 +216,7 @@ class Scene(_Frozen):
 
 def _overlap(a: SceneObject, b: SceneObject) -> bool:
     """Do the two objects' bounding cylinders meet?"""
+    assert a.xyz_mm is not None and b.xyz_mm is not None
     (ax, ay, az), (bx, by, bz) = a.xyz_mm, b.xyz_mm
     apart = math.hypot(ax - bx, ay - by) >= a.footprint_mm + b.footprint_mm
     return not apart and az < bz + b.height and bz < az + a.height
