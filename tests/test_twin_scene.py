@@ -39,10 +39,22 @@ def test_the_shipped_scene_is_valid_with_a_cup_a_camera_and_a_2_ms_step() -> Non
         (objects(cup={**CUP, "size_mm": [1, 2, 3]}), "objects.cup: a cup has no size_mm"),
         (objects(cup={**CUP, "colour": "red"}), "objects.cup.colour: a colour is written #rrggbb"),
         (objects(cup={**CUP, "wall_mm": 20}), "wall_mm 20 must be thinner than radius_mm"),
-        (objects(cup={**CUP, "xyz_mm": [900, 0, 0]}), "objects.cup.xyz_mm: (900, 0) is off the table"),
-        (objects(cup={**CUP, "xyz_mm": [200, 0, -3]}), "objects.cup.xyz_mm: z -3 is below the table"),
-        (objects(cup={**CUP, "goal_mm": [0, 900]}), "objects.cup.goal_mm: (0, 900) is off the table"),
-        (objects(cup={**CUP, "xyz_mm": [10, 0, 0]}), "objects.cup.xyz_mm: it stands in the arm's base"),
+        (
+            objects(cup={**CUP, "xyz_mm": [900, 0, 0]}),
+            "objects.cup.xyz_mm: (900, 0) is off the table",
+        ),
+        (
+            objects(cup={**CUP, "xyz_mm": [200, 0, -3]}),
+            "objects.cup.xyz_mm: z -3 is below the table",
+        ),
+        (
+            objects(cup={**CUP, "goal_mm": [0, 900]}),
+            "objects.cup.goal_mm: (0, 900) is off the table",
+        ),
+        (
+            objects(cup={**CUP, "xyz_mm": [10, 0, 0]}),
+            "objects.cup.xyz_mm: it stands in the arm's base",
+        ),
         (objects(cup={**CUP, "shape": "sphere"}), "objects.cup.shape: Input should be 'box'"),
         (objects(cup={**CUP, "weight": 3}), "objects.cup.weight: Extra inputs are not permitted"),
         (objects(tool0=CUP), "objects.tool0: the name of a frame of the arm or the scene"),

@@ -11,7 +11,8 @@ from collections.abc import Mapping
 
 from al5d.arm.config import ArmConfig
 from al5d.model import forward, solve
-from al5d.ssc32u.emulator import Board, Mechanics
+from al5d.ssc32u.emulator import Mechanics
+from al5d.ssc32u.emulator.board import Board
 from al5d.ssc32u.protocol import ChannelTarget, encode_group_move
 from al5d.twin.physics import FRAME_S, Held, Twin
 from al5d.twin.scene import Scene

@@ -365,8 +365,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument(
         "--physics",
-        **{**PHYSICS, "help": "the pick-and-place demo on a physical twin in SCENE (default: "
-           "the shipped scene): the QoS table, then where the cup ended against its goal"},
+        **{
+            **PHYSICS,
+            "help": "the pick-and-place demo on a physical twin in SCENE (default: "
+            "the shipped scene): the QoS table, then where the cup ended against its goal",
+        },
     )
     demo.set_defaults(func=_cmd_demo)
 

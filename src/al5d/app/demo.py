@@ -53,7 +53,7 @@ class Placement:
         return self.off_mm <= GOAL_MM and self.lifted_mm >= LIFT_MM
 
     def line(self) -> str:
-        x, y, z = self.ended
+        x, y, z = (round(v, 1) + 0.0 for v in self.ended)  # no "-0.0"
         gx, gy = self.goal
         verdict = "held" if self.held else "MISSED"
         return (

@@ -173,9 +173,7 @@ def _twin(emulator: Emulator, config: ArmConfig, scene: str) -> TwinLink:
 
     from al5d.twin.link import TwinLink
 
-    logging.basicConfig(
-        level=logging.INFO, format="al5d emulator: %(message)s", stream=sys.stderr
-    )
+    logging.basicConfig(level=logging.INFO, format="al5d emulator: %(message)s", stream=sys.stderr)
     return TwinLink(emulator, config, scene or None)
 
 

@@ -10,6 +10,7 @@ twin and without: the twin only listens.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import queue
@@ -24,7 +25,8 @@ from typing import Any
 
 from al5d.arm.config import ArmConfig
 from al5d.clock import now
-from al5d.ssc32u.emulator import Board, Pulse
+from al5d.ssc32u.emulator import Pulse
+from al5d.ssc32u.emulator.board import Board
 from al5d.twin.run import Start, pulse_line
 from al5d.twin.scene import Scene, load_scene
 
@@ -107,7 +109,9 @@ class TwinLink:
         self._writer = threading.Thread(target=self._write, name="twin-writer", daemon=True)
         self._writer.start()
         with self._changed:
-            self._changed.wait_for(lambda: self.ready is not None or self.ended is not None, READY_S)
+            self._changed.wait_for(
+                lambda: self.ready is not None or self.ended is not None, READY_S
+            )
         if self.ready is None:
             self.close()
             raise TwinFailed(
@@ -191,10 +195,8 @@ class TwinLink:
         self._pulses.put(None)
         self._writer.join(timeout)
         if self._proc.stdin is not None:
-            try:
+            with contextlib.suppress(OSError):
                 self._proc.stdin.close()
-            except OSError:
-                pass
         try:
             self._proc.wait(timeout)
         except subprocess.TimeoutExpired:

@@ -197,7 +197,9 @@ def _object(
     volume = 0.0
     if obj.size_mm is not None:
         sx, sy, sz = (v / 1000 for v in obj.size_mm)
-        pieces.append({"type": "box", "size": _f((sx / 2, sy / 2, sz / 2)), "pos": _f((0, 0, sz / 2))})
+        pieces.append(
+            {"type": "box", "size": _f((sx / 2, sy / 2, sz / 2)), "pos": _f((0, 0, sz / 2))}
+        )
         volume = sx * sy * sz
     else:
         assert obj.radius_mm is not None and obj.height_mm is not None
@@ -208,7 +210,9 @@ def _object(
         else:
             assert obj.wall_mm is not None
             wall = obj.wall_mm / 1000
-            pieces.append({"type": "cylinder", "size": _f((r, wall / 2)), "pos": _f((0, 0, wall / 2))})
+            pieces.append(
+                {"type": "cylinder", "size": _f((r, wall / 2)), "pos": _f((0, 0, wall / 2))}
+            )
             volume = math.pi * r * r * wall
             mid = r - wall / 2
             width = 2 * mid * math.tan(math.pi / CUP_SEGMENTS) + wall / 2
@@ -404,8 +408,8 @@ def mjcf(config: ArmConfig, scene: Scene) -> str:
         armature=f"{grip.armature:.6g}",
         frictionloss=f"{grip.frictionloss:.6g}",
     )
-    for finger in GRIPPER_FINGERS:
-        ET.SubElement(fixed, "joint", joint=finger, coef=f"{1 / lever:.6g}")
+    for finger_joint in GRIPPER_FINGERS:
+        ET.SubElement(fixed, "joint", joint=finger_joint, coef=f"{1 / lever:.6g}")
     equality = ET.SubElement(root, "equality")
     ET.SubElement(
         equality,
@@ -416,20 +420,20 @@ def mjcf(config: ArmConfig, scene: Scene) -> str:
         solref="0.004 1",
     )
     actuator = ET.SubElement(root, "actuator")
-    for joint, d in servos.items():
-        if joint == "gripper":
+    for servo_joint, d in servos.items():
+        if servo_joint == "gripper":
             lo, hi = 0.0, config.model.geometry.gripper_open / lever
             target = {"tendon": "gripper"}
         else:
-            limit = chain.joint(joint).limit
+            limit = chain.joint(servo_joint).limit
             assert limit is not None
             lo, hi = limit.lower, limit.upper
-            target = {"joint": joint}
+            target = {"joint": servo_joint}
         ET.SubElement(
             actuator,
             "position",
             target,
-            name=joint,
+            name=servo_joint,
             kp=f"{d.kp:.6g}",
             kv=f"{d.kv:.6g}",
             ctrlrange=_f((lo, hi)),

@@ -177,7 +177,7 @@ class TwinNode:
         return info
 
     def close(self) -> None:
-        self.node.destroy_node()  # type: ignore[no-untyped-call]
+        self.node.destroy_node()
         self.context.try_shutdown()
 
 

@@ -420,9 +420,9 @@ class Twin:
         by_object: dict[int, set[int]] = {}
         for index, arm, other in touching:
             normal = np.asarray(self.data.contact[index].frame[:3])
-            if arm in fingers and other in self._ids.objects.values():
-                if abs(float(normal @ across)) > SQUEEZE_COS:
-                    by_object.setdefault(other, set()).add(arm)
+            squeezed = abs(float(normal @ across)) > SQUEEZE_COS
+            if arm in fingers and other in self._ids.objects.values() and squeezed:
+                by_object.setdefault(other, set()).add(arm)
         return {o for o, touched in by_object.items() if touched == fingers}
 
     def _why(self, name: str, touching: list[tuple[int, int, int]]) -> Held:

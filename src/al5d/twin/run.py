@@ -73,7 +73,9 @@ class Loop:
         config = parse_config(start.config, "the twin's configuration")
         self.scene = parse_scene(start.scene, "the twin's scene")
         mechanics = {k: Mechanics(off, rev) for k, (off, rev) in start.mechanics.items()}
-        self.twin = Twin(config, self.scene, start=start.start, pose=start.pose, mechanics=mechanics)
+        self.twin = Twin(
+            config, self.scene, start=start.start, pose=start.pose, mechanics=mechanics
+        )
         self.camera = None
         cam = self.scene.camera
         if cam is not None and cam.rate_hz > 0:
@@ -109,7 +111,9 @@ class Loop:
         for line in stream:
             data = json.loads(line)
             on, start_us, end_us, t0, t1, offset = data["pulse"]
-            self.pulses.put((int(data["ch"]), Pulse(bool(on), start_us, end_us, t0, t1, int(offset))))
+            self.pulses.put(
+                (int(data["ch"]), Pulse(bool(on), start_us, end_us, t0, t1, int(offset)))
+            )
         self.done.set()
 
     def run(self) -> None:
@@ -119,6 +123,10 @@ class Loop:
 
         twin = self.twin
         cam = self.scene.camera
+        if self.camera is not None:
+            self.camera.render(twin.data)  # the first picture sets the renderer up (0.3 s)
+        # Real time from here: what the board put out meanwhile is followed from now on.
+        twin.t = max(twin.t, now())
         self.say(
             "ready",
             {
@@ -146,7 +154,9 @@ class Loop:
                 behind = t - twin.t - FRAME_S
                 self.skipped_s += behind
                 twin.t += behind
-                self.say("behind", {"skipped_s": round(behind, 3), "total_s": round(self.skipped_s, 3)})
+                self.say(
+                    "behind", {"skipped_s": round(behind, 3), "total_s": round(self.skipped_s, 3)}
+                )
             for held in twin.advance_to(t):
                 self.say("held", {**asdict(held), "text": held.text})
                 if self.node is not None:
@@ -184,7 +194,11 @@ class Loop:
         for name, s in states.items():
             key = (*s.position, s.lifted_m)
             last = self._reported.get(name)
-            if force or last is None or max(abs(a - b) for a, b in zip(key, last, strict=True)) > MOVED_M:
+            if (
+                force
+                or last is None
+                or max(abs(a - b) for a, b in zip(key, last, strict=True)) > MOVED_M
+            ):
                 self._reported[name] = key
                 moved[name] = {
                     "xyz": [round(v, 5) for v in s.position],

@@ -76,7 +76,6 @@ class Table(_Frozen):
     friction: Friction = 0.7
     colour: Colour = "#b89b72"
 
-
     def holds(self, x: float, y: float) -> bool:
         """Is the point (mm) over the table's top?"""
         (w, d), (cx, cy) = self.size_mm, self.center_mm
@@ -127,7 +126,6 @@ class SceneObject(_Frozen):
     colour: Colour = "#1971c2"
     #: Where it is meant to go (x, y on the table): `al5d demo --physics` measures against it.
     goal_mm: tuple[Mm, Mm] | None = None
-
 
     @model_validator(mode="after")
     def _sizes_of_its_shape(self) -> SceneObject:

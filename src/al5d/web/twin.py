@@ -3,8 +3,8 @@ objects and the twin's arm in the 3D view beside the commanded one, the camera's
 and the twin's words in a tab of their own.
 
 Its own node and executor thread in the page's ROS context, its subscriptions best effort
-and the newest only (nothing here can hold the twin up); each shown under the page's lock. Nothing of it shows until the
-twin speaks: a page of a server without a twin is as it was.
+and the newest only (nothing here can hold the twin up); each shown under the page's lock.
+Nothing of it shows until the twin speaks: a page of a server without a twin is as it was.
 """
 
 from __future__ import annotations
@@ -70,19 +70,20 @@ class TwinView:
             urdf = self.page.scene.urdf_text
             if urdf is None:
                 return  # the arm's description has not come yet
-            if urdf != self.urdf:
-                if self.robot is not None:
-                    self.robot.remove()
+            robot = self.robot
+            if robot is None or urdf != self.urdf:
+                if robot is not None:
+                    robot.remove()
                 self.urdf = urdf
-                self.robot = ViserUrdf(
+                self.robot = robot = ViserUrdf(
                     self.server,
                     load_urdf(urdf),
                     root_node_name=f"{ROOT}/twin/arm",
                     mesh_color_override=TWIN_RGBA,
                 )
             values = dict(zip(msg.name, msg.position, strict=False))
-            names = self.robot.get_actuated_joint_names()
-            self.robot.update_cfg(np.array([values.get(n, 0.0) for n in names]))
+            names = robot.get_actuated_joint_names()
+            robot.update_cfg(np.array([values.get(n, 0.0) for n in names]))
 
     def _on_objects(self, msg: MarkerArray) -> None:
         with self.page.lock, self.server.atomic():
