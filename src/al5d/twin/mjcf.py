@@ -396,6 +396,20 @@ def mjcf(config: ArmConfig, scene: Scene) -> str:
 
     for name, obj in scene.objects.items():
         _object(world, by_joint["wrist_rotate"], g.gripper, name, obj, table_z)
+        if obj.goal_mm is not None:  # where it is meant to go: a mark on the table, no body
+            gx, gy = (v / 1000 for v in obj.goal_mm)
+            r, gr, b, _ = rgba(obj.colour)
+            ET.SubElement(
+                world,
+                "geom",
+                name=f"{name}_goal",
+                type="cylinder",
+                size=_f((obj.footprint_mm / 1000 + 0.006, 0.0005)),
+                pos=_f((gx, gy, table_z + 0.0005)),
+                rgba=_f((r, gr, b, 0.35)),
+                contype="0",
+                conaffinity="0",
+            )
 
     grip = servos["gripper"]
     lever = gripper_lever(config)

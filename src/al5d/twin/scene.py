@@ -90,8 +90,8 @@ class Camera(_Frozen):
     """`camera`: where it is, where it looks, its picture and how often it takes one
     (`rate_hz` 0: no camera; the picture is rendered in software)."""
 
-    position_mm: tuple[Mm, Mm, Mm] = (560.0, -330.0, 360.0)
-    look_at_mm: tuple[Mm, Mm, Mm] = (170.0, 0.0, 60.0)
+    position_mm: tuple[Mm, Mm, Mm] = (500.0, -330.0, 280.0)
+    look_at_mm: tuple[Mm, Mm, Mm] = (170.0, 0.0, 70.0)
     width: int = Field(default=320, ge=16, le=1920)
     height: int = Field(default=240, ge=16, le=1080)
     #: The vertical field of view.
