@@ -93,6 +93,7 @@ class TwinLink:
             namespace=config.server.namespace if namespace is None else namespace,
             ros=ros,
         )
+        self._started = now()
         self._proc = subprocess.Popen(
             [sys.executable, "-m", "al5d.twin.run"],
             stdin=subprocess.PIPE,
@@ -203,3 +204,14 @@ class TwinLink:
             self._proc.kill()
             self._proc.wait()
         self._reader.join(timeout)
+        if self.ended:
+            ran = now() - self._started
+            log.info(
+                "twin: ended after %.1f s: its loop busy %.1f s (%.0f %% of a core), %d "
+                "pictures, %.2f s skipped behind real time",
+                ran,
+                self.ended["busy_s"],
+                100 * self.ended["busy_s"] / max(ran, 1e-9),
+                self.ended["pictures"],
+                self.ended["skipped_s"],
+            )

@@ -15,6 +15,7 @@ held short of its target (`Held`: by its load, or against something).
 
 from __future__ import annotations
 
+import collections
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -140,7 +141,9 @@ class Twin:
         self.lever = gripper_lever(config)
         self.t = start
         self.steps_per_frame = max(1, round(FRAME_S / self.model.opt.timestep))
+        #: What each channel puts out now, and what it will from a later time.
         self.pulses: dict[int, Pulse] = {}
+        self._coming: dict[int, collections.deque[Pulse]] = {}
         self.channels = {name: config.joints[name].channel for name in DRIVEN}
         self._ids = self._find_ids()
         self._tune(config.presets["ready"])
@@ -235,7 +238,7 @@ class Twin:
 
     def _target(self, name: str, t: float) -> float | None:
         """The actuator's target for what the board puts out at `t` (None: no pulses)."""
-        pulse = self.pulses.get(self.channels[name])
+        pulse = self._pulse(name, t)
         us = pulse.at(t) if pulse is not None else 0.0
         if us <= 0:
             return None
@@ -282,11 +285,18 @@ class Twin:
     # -- the board's pulses ---------------------------------------------------------------
 
     def follow(self, channel: int, pulse: Pulse) -> None:
-        """What `channel` puts out from now on (the board's `observe_pulses`)."""
-        self.pulses[channel] = pulse
-        for name, ch in self.channels.items():
-            if ch == channel:
-                self._origin[name] = self._actual(name)
+        """What `channel` puts out from the pulse's time on (the board's `observe_pulses`,
+        in order): a servo sees it at its first frame from then."""
+        self._coming.setdefault(channel, collections.deque()).append(pulse)
+
+    def _pulse(self, name: str, t: float) -> Pulse | None:
+        """What the joint's channel puts out at `t` (None: never anything yet)."""
+        channel = self.channels[name]
+        coming = self._coming.get(channel)
+        while coming and coming[0].t0 <= t + 1e-9:
+            self.pulses[channel] = coming.popleft()
+            self._origin[name] = self._actual(name)
+        return self.pulses.get(channel)
 
     def _limp(self, name: str, limp: bool) -> None:
         if self._on.get(name) is (not limp):

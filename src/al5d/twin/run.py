@@ -32,8 +32,12 @@ from al5d.clock import now
 PUBLISH_HZ = 25.0
 #: The objects' poses to the board's process, a second (while they move).
 REPORT_HZ = 5.0
-#: Further behind real time than this, the twin skips ahead (and says so).
-MAX_BEHIND_S = 0.25
+#: Behind real time by more than this (its process was not scheduled: a busy host), the
+#: twin catches up without pictures, its physics alone (about 30 times real time)...
+CATCH_UP_S = 0.06
+#: ...and further behind than this, it skips ahead (and says so): the arm's pulses have
+#: moved on meanwhile, and the twin follows them from now.
+MAX_BEHIND_S = 1.0
 #: An object that moved less than this since it was last reported is not reported again.
 MOVED_M = 0.0005
 
@@ -167,7 +171,8 @@ class Loop:
                     stamp = self.node.stamp()
                     self.node.publish_joints(twin.urdf_values(), stamp)
                     self.node.publish_objects(twin.objects(), stamp)
-            if self.camera is not None and twin.t >= next_picture:
+            catching_up = now() - twin.t > CATCH_UP_S
+            if self.camera is not None and twin.t >= next_picture and not catching_up:
                 next_picture = max(next_picture + self.camera.period_s, twin.t)
                 picture = self.camera.render(twin.data)
                 self.pictures += 1
