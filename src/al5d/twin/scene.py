@@ -15,10 +15,9 @@ import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from al5d.arm.config import ConfigError, describe_errors
+from al5d.arm.config import ConfigError, describe_errors, read_yaml
 from al5d.model.chain import BASE_LINK, LINK_OF_JOINT, TOOL_LINK
 
 DEFAULT_SCENE = Path(__file__).resolve().parent.parent / "data" / "scene.yaml"
@@ -235,12 +234,4 @@ def parse_scene(data: Any, source: str = "<scene>") -> Scene:
 def load_scene(path: str | Path | None = None) -> Scene:
     """Read and validate a scene file (the shipped default when `path` is None)."""
     p = Path(path) if path is not None else DEFAULT_SCENE
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as e:
-        raise SceneError(f"{p}: cannot read the scene: {e.strerror}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise SceneError(f"{p}: not valid YAML: {e}") from None
-    return parse_scene(data, str(p))
+    return parse_scene(read_yaml(p, "the scene", SceneError), str(p))
