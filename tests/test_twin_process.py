@@ -105,8 +105,11 @@ def test_a_heavy_cup_holds_the_shoulder_short_and_the_board_hears_the_same_bytes
     finally:
         peer.close()
     without, _ = run_board(tmp_path, config, None)
-    assert with_twin == without  # the board's record of the bytes: a twin only listens
-    assert len([raw for raw, _ in with_twin if raw.startswith("#")]) == len(sequence(config))
+    # The board's record of the moves, byte for byte: a twin only listens. (The queries are
+    # left out: a busy host can make the client ask VER or Q twice in one run, not the other.)
+    moves = [(raw, why) for raw, why in with_twin if raw.startswith("#")]
+    assert moves == [(raw, why) for raw, why in without if raw.startswith("#")]
+    assert len(moves) == len(sequence(config))
 
     held = [line for line in said if "twin: shoulder held" in line]
     assert held, "\n".join(said[-20:])
