@@ -20,7 +20,7 @@ IFSRC  := interfaces/wheel_includes.cmake $(wildcard interfaces/al5d_interfaces/
 # controllers, tf2_msgs for /tf), one stamp each.
 STDMSGS := $(VENV)/.control_msgs $(VENV)/.tf2_msgs
 
-.PHONY: runtime install chromium demo test bench soak lint clean
+.PHONY: runtime install chromium gl demo test bench soak lint clean
 
 # What the server, the client and the demo need (`make demo`); `make test` adds the rest.
 RUNTIME := $(VENV)/.installed-runtime
@@ -34,11 +34,11 @@ MSGS := $(IFACES) $(STDMSGS) build/COLCON_IGNORE
 BYTECODE_RUNTIME := $(VENV)/.bytecode-runtime
 BYTECODE := $(VENV)/.bytecode
 runtime: $(RUNTIME)
-	@$(MAKE) --no-print-directory --output-sync=target -j3 $(BYTECODE_RUNTIME)
+	@$(MAKE) --no-print-directory --output-sync=target -j3 $(BYTECODE_RUNTIME) gl
 # The test tools' pip install (one core, much of it unpacking) and Chromium's apt install
 # run beside the message builds: they need only the runtime's packages.
 install: $(RUNTIME)
-	@$(MAKE) --no-print-directory --output-sync=target -j5 $(BYTECODE) chromium
+	@$(MAKE) --no-print-directory --output-sync=target -j5 $(BYTECODE) chromium gl
 $(BYTECODE_RUNTIME): $(MSGS) .ci/compile_imported
 	$(BIN)/python .ci/compile_imported
 	touch $@
@@ -51,11 +51,11 @@ $(BYTECODE): $(MSGS) $(STAMP) .ci/compile_imported
 $(RUNTIME): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(PIP) install --quiet --upgrade pip==26.3
-	$(PIPI) -e '.[ros,rosbuild]'
+	$(PIPI) -e '.[ros,rosbuild,physics]'
 	touch $@
 # The tests', the web view's, colcon's and the benchmarks' packages.
 $(STAMP): $(RUNTIME)
-	$(PIPI) -e '.[dev,ros,rosbuild,colcon,bench,web]'
+	$(PIPI) -e '.[dev,ros,rosbuild,colcon,bench,web,physics]'
 	touch $(STAMP)
 
 # The ROS messages and action, built with rosidl into the venv's prefix so that
@@ -127,6 +127,19 @@ chromium:
 	  echo "chromium: installing $$version (apt-get)"; \
 	  DEBIAN_FRONTEND=noninteractive $(APT_GET) install -y -qq \
 	    --no-install-recommends "chromium=$$version" >/dev/null; }
+
+# The physical twin's camera (al5d.twin) renders offscreen through EGL with Debian's Mesa on
+# the CPU (llvmpipe): no display, no GPU. Installed when missing, the versions apt offers
+# (Mesa's security releases replace them); GL_LIBDIR and APT_GET to try it without apt.
+GL_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0
+GL_LIBDIR ?= /usr/lib/x86_64-linux-gnu
+gl:
+	@if [ -e $(GL_LIBDIR)/libEGL_mesa.so.0 ] && [ -e $(GL_LIBDIR)/dri/swrast_dri.so ] && \
+	    [ -e $(GL_LIBDIR)/libOpenGL.so.0 ] && [ -e $(GL_LIBDIR)/libEGL.so.1 ]; then :; else \
+	  $(APT_GET) update -qq || exit 1; \
+	  echo "gl: installing $(GL_PACKAGES) (apt-get)"; \
+	  DEBIAN_FRONTEND=noninteractive $(APT_GET) install -y -qq --no-install-recommends \
+	    $(GL_PACKAGES) >/dev/null; fi
 
 # The demo needs no browser, no test tools and no colcon: it runs once the runtime is in.
 demo: runtime

@@ -33,6 +33,7 @@ import rosbench  # noqa: E402
 import stream_budget  # noqa: E402
 import tables  # noqa: E402
 import trajectory_budget  # noqa: E402
+import twin_bench  # noqa: E402
 import webbench  # noqa: E402
 
 from al5d.arm.config import load_config  # noqa: E402
@@ -332,6 +333,7 @@ def main() -> int:
     results["stream"] = stream_budget.run(config, log)
     log("the web view (a real headless browser)")
     results["web"] = webbench.run(log)
+    results["twin"] = twin_bench.run(log)
     results["elapsed_s"] = time.monotonic() - started
     tolerance = math.radians(config.server.trajectory_path_tolerance_deg)
     budget = trajectory_budget.rows(results["trajectory_budget"], tolerance)
@@ -340,6 +342,7 @@ def main() -> int:
         + [(f"trajectory {case}", ours, "", target, held) for case, ours, target, held in budget]
         + stream_budget.rows(results["stream"])
         + webbench.rows(results["web"])
+        + twin_bench.rows(results["twin"])
     )
     OUT.mkdir(exist_ok=True)
     (OUT / "results.json").write_text(json.dumps(results, indent=1))

@@ -103,6 +103,9 @@ def pytest_terminal_summary(terminalreporter: Any) -> None:
 #: near the end and keeps the run going alone (test_web.py, collected last, did).
 LONGEST_FIRST = (
     "test_web.py",
+    # The physical twin's: a demo of 30 s and two boards of 20 s, each waiting on real time.
+    "test_twin_demo.py",
+    "test_twin_process.py",
     "test_docs.py",
     "test_ros_e2e.py",
     "test_ros_client.py",

@@ -4,6 +4,7 @@ The layers, each importing only those below it:
 
     al5d.app      the applications: `al5d` command line, server process, demo, MoveIt files
     al5d.web      `al5d web`: the live view, a ROS 2 client serving one page
+    al5d.twin     the physical twin (`--physics`): a MuJoCo arm the emulated board drives
     al5d.ros      ROS 2: the bridges (nodes, message mapping, the control actions), the client
     al5d.owner    the board's one owner: its thread, its inbox, the local lane and its clients
     al5d.arm      the arm: config, instructions, validation, state machine, the core (pure)

@@ -28,6 +28,8 @@ among its modules run as `python -m al5d_rig.NAME`. It sits above every subpacka
 - `webrig`: `al5d web` in its own process, and a headless Chromium.
 - `calibuser`: the user of a calibration, who sees where a joint truly stands.
 - `model_support`: the shipped arm's ranges, speeds and presets for the model's tests.
+- `twinrig`: a board and its physical twin (`al5d.twin`) in this process, on a clock of
+  the test's own.
 - `fuzzcount`: how many cases each fuzz suite ran.
 - `host`: how short of cores the host was over a stretch of a test (its timing excused).
 

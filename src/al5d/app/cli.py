@@ -50,8 +50,32 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         namespace=args.namespace,
         ros_args=args.ros_args,
         record=args.record,
+        physics=args.physics,
     )
+    if args.physics is not None:
+        return with_twin(lambda: serve(options))
     return serve(options)
+
+
+def with_twin(run: Callable[[], int]) -> int:
+    """`run()`; a physical twin that cannot start is said in a line (exit 2), not a traceback."""
+    from al5d.twin.link import TwinFailed
+
+    try:
+        return run()
+    except TwinFailed as e:
+        print(f"al5d: {e}", file=sys.stderr)
+        return exits.USAGE
+
+
+#: `--physics [SCENE]`: the physical twin (docs/physics.md).
+PHYSICS: dict[str, Any] = {
+    "nargs": "?",
+    "const": "",
+    "metavar": "SCENE",
+    "help": "drive a physical twin (MuJoCo) in SCENE, a scene file; default: the shipped "
+    "scene (a cup on the table); docs/physics.md",
+}
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -59,6 +83,12 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from al5d.app.server import setup_logging
 
     setup_logging(args.log_level)
+
+    def demo() -> int:
+        if args.physics is not None:
+            return with_twin(lambda: run_demo(baud=args.baud, physics=args.physics))
+        return run_demo(baud=args.baud)
+
     if args.web:
         import random
 
@@ -67,8 +97,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         # One domain for the demo's server and the web view's process.
         os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))
         with web_beside(args.web_port):
-            return run_demo(baud=args.baud)
-    return run_demo(baud=args.baud)
+            return demo()
+    return demo()
 
 
 def _cmd_web(args: argparse.Namespace) -> int:
@@ -250,6 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument(
         "--record", metavar="FILE.mcap", help="record what happens, the board's bytes too (MCAP)"
     )
+    srv.add_argument("--physics", **PHYSICS)
     srv.set_defaults(func=_cmd_serve)
 
     add_emulator(sub)
@@ -341,6 +372,14 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--web", action="store_true", help="with the web view open (al5d web)")
     demo.add_argument(
         "--web-port", type=int, default=8080, help="the web view's port; default 8080 (0: any)"
+    )
+    demo.add_argument(
+        "--physics",
+        **{
+            **PHYSICS,
+            "help": "the pick-and-place demo on a physical twin in SCENE (default: "
+            "the shipped scene): the QoS table, then where the cup ended against its goal",
+        },
     )
     demo.set_defaults(func=_cmd_demo)
 

@@ -12,10 +12,14 @@ import signal
 import sys
 import threading
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from al5d.ssc32u.emulator import Emulator
+    from al5d.twin.link import TwinLink
 
 from al5d import exits
-from al5d.arm.config import load_config
+from al5d.arm.config import ArmConfig, load_config
 from al5d.ssc32u.facts import BAUDS, FACTORY_BAUD, LATENCY_TIMER_MS
 
 
@@ -94,6 +98,14 @@ def add_emulator(sub: Any) -> None:
         help="an arm other than its config says (to try `al5d calibrate` on): the joint "
         "stands US off its calibration, or turns the other way (repeat)",
     )
+    emu.add_argument(
+        "--physics",
+        nargs="?",
+        const="",
+        metavar="SCENE",
+        help="the board's pulses drive a physical twin (MuJoCo) in SCENE, a scene file; "
+        "default: the shipped scene (a cup on the table); docs/physics.md",
+    )
     emu.set_defaults(func=_run)
 
 
@@ -102,6 +114,10 @@ def _run(args: argparse.Namespace) -> int:
     from al5d.ssc32u.emulator import Emulator, LinkModel, Transport, serve_forever
 
     config = load_config(args.config)
+    if args.physics:  # a bad scene file is said before the board starts
+        from al5d.twin.scene import load_scene
+
+        load_scene(args.physics)
     usb = LinkModel(Transport(args.transport), args.latency_timer, args.low_latency)
     unknown = [name for name, _ in args.misalign if name not in config.joints]
     if unknown:
@@ -128,14 +144,37 @@ def _run(args: argparse.Namespace) -> int:
         mechanics=dict(args.misalign),
     )
     print(f"al5d emulator: SSC-32U at {args.baud} baud, {usb.describe()}", file=sys.stderr)
-    if args.record is None:
-        serve_forever(emulator, _until_signal())
-    elif args.record == "-":
-        serve_forever(emulator, _until_signal(), sys.stdout)
-    else:
-        with open(args.record, "w", encoding="utf-8") as record:
-            serve_forever(emulator, _until_signal(), record)
+    twin = None
+    if args.physics is not None:
+        from al5d.twin.link import TwinFailed
+
+        try:
+            twin = _twin(emulator, config, args.physics)
+        except TwinFailed as e:
+            print(f"al5d emulator: {e}", file=sys.stderr)
+            return exits.USAGE
+    try:
+        if args.record is None:
+            serve_forever(emulator, _until_signal())
+        elif args.record == "-":
+            serve_forever(emulator, _until_signal(), sys.stdout)
+        else:
+            with open(args.record, "w", encoding="utf-8") as record:
+                serve_forever(emulator, _until_signal(), record)
+    finally:
+        if twin is not None:
+            twin.close()
     return exits.DONE
+
+
+def _twin(emulator: Emulator, config: ArmConfig, scene: str) -> TwinLink:
+    """The physical twin of the board (`al5d.twin`), its words on stderr."""
+    import logging
+
+    from al5d.twin.link import TwinLink
+
+    logging.basicConfig(level=logging.INFO, format="al5d emulator: %(message)s", stream=sys.stderr)
+    return TwinLink(emulator, config, scene or None)
 
 
 def _until_signal() -> threading.Event:

@@ -9,7 +9,9 @@ them (their serialized bytes, never decoded and encoded again), with the time th
 received (log time) and sent (publish time), as rosbag2 does.
 
 What is recorded: the instructions, their results, the state, the joint states, the
-trajectories and set-points, and the status of each action's goals (`/_action/status`).
+trajectories and set-points, and the status of each action's goals (`/_action/status`);
+with a physical twin (`--physics`), its joints, objects and words, and its camera's
+pictures with their `CameraInfo`.
 Not the actions' feedback: its types (`Move_FeedbackMessage`) have names that
 mcap-ros2-support's reader refuses, and one such message would stop it reading the
 whole file. A server's own recording also has the bytes it wrote to the board, each
@@ -132,6 +134,13 @@ def topics(names: Names, instruction_depth: int = 1000) -> list[Topic]:
         Topic(f"{names.move}/_action/status", status, reliable(100)),
         Topic(f"{names.follow_joint_trajectory}/_action/status", status, reliable(100)),
         Topic(f"{names.gripper_command}/_action/status", status, reliable(100)),
+        # The physical twin's (al5d.twin), when one runs: what the body did, and what its
+        # camera saw (a few pictures deep: each is 230 kB at 320 x 240).
+        Topic(names.twin_joint_states, "sensor_msgs/msg/JointState", reliable(100)),
+        Topic(names.twin_objects, "visualization_msgs/msg/MarkerArray", reliable(100)),
+        Topic(names.twin_held, "std_msgs/msg/String", reliable(100)),
+        Topic(names.camera_image, "sensor_msgs/msg/Image", reliable(10)),
+        Topic(names.camera_info, "sensor_msgs/msg/CameraInfo", reliable(10)),
     ]
 
 

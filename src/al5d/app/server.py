@@ -79,6 +79,9 @@ class ServerOptions:
     ros_args: list[str] | None = None
     #: An MCAP file to record what happened in, the board's bytes too; None: none.
     record: str | None = None
+    #: The embedded board drives a physical twin in this scene file ("": the shipped one);
+    #: None: no twin (docs/physics.md).
+    physics: str | None = None
 
 
 @contextmanager
@@ -93,11 +96,16 @@ def arm(
     config = config or load_config(options.config)
     baud = options.baud or config.server.baud
     emulator: Emulator | None = None
+    twin = None
     port = options.port
     if port is None:
         from al5d.ssc32u.emulator import Emulator  # only where an emulated board is wanted
 
         emulator = Emulator(config, baud=baud).start()
+        if options.physics is not None:  # the twin follows the board's pulses (al5d.twin)
+            from al5d.twin.link import TwinLink
+
+            twin = TwinLink(emulator, config, options.physics or None, options.namespace)
         port = emulator.port
         link = emulator.usb.describe()
         log.info("no --port: using the embedded SSC-32U emulator on %s, %s", port, link)
@@ -109,6 +117,8 @@ def arm(
         yield owner, emulator
     finally:
         owner.close()
+        if twin is not None:
+            twin.close()
         if emulator is not None:
             emulator.close()
 

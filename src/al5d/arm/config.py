@@ -379,7 +379,9 @@ class ArmConfig(_Frozen):
         return {name: j.speed_deg_s for name, j in self.joints.items()}
 
 
-def _describe(err: ValidationError, source: str, names: Mapping[str, str]) -> str:
+def describe_errors(err: ValidationError, source: str, names: Mapping[str, str]) -> str:
+    """pydantic's errors as lines `SOURCE: the.key: why (value: ...)`, a key known to the user
+    by another name (a ROS parameter's) given by `names`."""
     lines = []
     for e in err.errors():
         loc = ".".join(str(x) for x in e["loc"]) or "(top level)"
@@ -401,7 +403,7 @@ def parse_config(
     try:
         return ArmConfig.model_validate(data)
     except ValidationError as e:
-        raise ConfigError(_describe(e, source, names or {})) from None
+        raise ConfigError(describe_errors(e, source, names or {})) from None
 
 
 def with_changes(
@@ -424,15 +426,22 @@ def with_changes(
     return parse_config(data, source, names)
 
 
+def read_yaml(
+    path: Path, what: str = "the configuration", error: type[ConfigError] = ConfigError
+) -> Any:
+    """A YAML file's data; `error` says, naming the file, why it cannot be read (`what` it
+    was to be) or is not YAML."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise error(f"{path}: cannot read {what}: {e.strerror}") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise error(f"{path}: not valid YAML: {e}") from None
+
+
 def load_config(path: str | Path | None = None) -> ArmConfig:
     """Read and validate a configuration file (the shipped default when `path` is None)."""
     p = Path(path) if path is not None else DEFAULT_CONFIG
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as e:
-        raise ConfigError(f"{p}: cannot read the configuration: {e.strerror}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise ConfigError(f"{p}: not valid YAML: {e}") from None
-    return parse_config(data, str(p))
+    return parse_config(read_yaml(p), str(p))

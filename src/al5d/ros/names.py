@@ -14,6 +14,8 @@ SAFETY_NODE = "al5d_safety"
 STOP_NODE = "al5d_stop"
 ACTIONS_NODE = "al5d_actions"
 ROBOT_NODE = "al5d_robot"
+#: The physical twin's node, in a process of its own (`al5d.twin`).
+TWIN_NODE = "al5d_twin"
 #: The instruction a client's handshake sends on the instruction topic: the node answers
 #: it `done` on the result topic at once, without the arm (nothing written, nothing
 #: logged, whatever the arm's state). An answer says both ways of the topics work.
@@ -101,6 +103,31 @@ class Names:
     @property
     def gripper_command(self) -> str:
         return self.shared("gripper_controller/gripper_cmd")
+
+    @property
+    def twin_joint_states(self) -> str:
+        """The physical twin's joints (`al5d emulator --physics`): where the body is, which
+        differs from `joint_states` (what the board is told) under a load or a contact."""
+        return self.private("twin/joint_states")
+
+    @property
+    def twin_objects(self) -> str:
+        """The twin's scene objects (visualization_msgs/MarkerArray: shape, size, colour, pose)."""
+        return self.private("twin/objects")
+
+    @property
+    def twin_held(self) -> str:
+        """The twin's word when a joint is held short of its target (std_msgs/String)."""
+        return self.private("twin/held")
+
+    @property
+    def camera_image(self) -> str:
+        """The twin's camera (sensor_msgs/Image, rgb8), as a ROS camera driver names it."""
+        return self.shared("camera/image_raw")
+
+    @property
+    def camera_info(self) -> str:
+        return self.shared("camera/camera_info")
 
     @property
     def services(self) -> dict[str, Kind]:

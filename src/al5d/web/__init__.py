@@ -20,6 +20,7 @@ teach and replay (named poses, sequences).
     teach.py   the Teach tab: named poses, sequences built, saved, loaded and played
     player.py  a sequence played step by step, each outcome waited for (no viser, no ROS)
     calibrate.py  the Calibrate tab: the guided calibration (`al5d.arm.calibration`)
+    twin.py    a physical twin's objects and arm in the 3D view, its camera and words (a tab)
     app.py     `al5d web`: the page on a port, until SIGINT/SIGTERM
 
 Imports al5d.arm, al5d.model, al5d.ros (the public names, QoS, conversions),

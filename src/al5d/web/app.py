@@ -54,6 +54,7 @@ class WebView:
         from al5d.web.link import WebNode
         from al5d.web.page import Page
         from al5d.web.teach import Listeners, Teach
+        from al5d.web.twin import TwinView
 
         # The websocket library's INFO lines (each connection) would drown the page's own.
         logging.getLogger("websockets").setLevel(logging.WARNING)
@@ -81,6 +82,7 @@ class WebView:
         listeners = Listeners(self.page, self.teach)
         self.link = WebNode(self.names, listeners, config.model, tuple(config.presets))
         self.page.commands = self.link
+        self.twin = TwinView(self.page, self.link.context, self.names)  # a twin's, when one runs
         calibrate.attach(
             self.page,
             Path(options.config) if options.config else DEFAULT_CONFIG,
@@ -96,6 +98,7 @@ class WebView:
 
     def close(self) -> None:
         self.teach.player.halt("the web view's end")
+        self.twin.close()
         self.link.close()
         self.page.close()
         with contextlib.redirect_stdout(sys.stderr):

@@ -17,6 +17,7 @@ Use it as a context manager, or `start()` and `close()`:
         emu.set_input("A", 0)    # a switch on input A closes
         emu.inject(Fault.RESET)  # a brown-out
         emu.joint_degrees()      # the joints' true angles (`mechanics=`: a misaligned arm)
+        emu.observe_pulses(f)    # f(channel, Pulse) at each change of what the servos get
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from al5d.ssc32u.emulator.board import (
     BoardSettings,
     Fault,
     Mechanics,
+    Pulse,
     Record,
     ServoJoint,
 )
@@ -54,6 +56,7 @@ __all__ = [
     "Fault",
     "LinkModel",
     "Mechanics",
+    "Pulse",
     "Record",
     "ServoJoint",
     "Transport",

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import enum
 import threading
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, TypedDict
 
 if TYPE_CHECKING:
@@ -22,7 +22,7 @@ from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator.inputs import Pin, input_level
 from al5d.ssc32u.emulator.measure import ArmDescription, Mechanics, ServoJoint, ServoObserver
 from al5d.ssc32u.emulator.records import RESET, SERIAL, STARTUP, Answer, Record, RecordLog
-from al5d.ssc32u.emulator.servo import DEFAULT_SPEED_US_S, Servo
+from al5d.ssc32u.emulator.servo import DEFAULT_SPEED_US_S, Pulse, Servo
 
 __all__ = [
     "DEFAULT_ANSWER_DELAY_S",
@@ -36,6 +36,7 @@ __all__ = [
     "Fault",
     "InputValue",
     "Mechanics",
+    "Pulse",
     "Record",
     "ServoJoint",
 ]
@@ -130,6 +131,9 @@ class Board(RecordLog, ServoObserver):
         self._lock = threading.RLock()  # the board's model
         self._faults: set[Fault] = set()
         self._servos: dict[int, Servo] = {}
+        #: Told of each change of a channel's pulses (`observe_pulses`), and what they were told.
+        self._pulse_listeners: list[Callable[[int, Pulse], None]] = []
+        self._told: dict[int, Pulse] = {}
         self._pins = {pin: Pin() for pin in facts.ANALOG_PINS}
         for name, value in (settings.get("inputs") or {}).items():
             pin, level = input_level(name, value)
@@ -203,6 +207,7 @@ class Board(RecordLog, ServoObserver):
             answers = self._power_up(t)
             if announce and (sent := self._answer(self._startup_answer(), t)) is not None:
                 answers.append(sent)
+            self._tell_pulses()
         return answers
 
     def _power_up(self, t: float) -> list[Answer]:
@@ -238,6 +243,29 @@ class Board(RecordLog, ServoObserver):
             for command in self._startup.split(facts.STARTUP_END)[:-1]:
                 answers += self._execute(command.encode("latin-1"), t, STARTUP)
         return answers
+
+    # -- what the servos are sent (the physical twin follows it) ---------------------
+
+    def observe_pulses(self, listener: Callable[[int, Pulse], None]) -> None:
+        """Tell `listener` (channel, `Pulse`) what every channel puts out now, then every
+        change of it, in order. It runs in the board's thread under its lock, as each line
+        takes effect: it must only hand the pulse on (what the board answers is the same
+        with a listener and without)."""
+        with self._lock:
+            self._pulse_listeners.append(listener)
+            self._told = {ch: servo.pulse() for ch, servo in self._servos.items()}
+            for ch, pulse in self._told.items():
+                listener(ch, pulse)
+
+    def _tell_pulses(self) -> None:
+        if not self._pulse_listeners:
+            return
+        for ch, servo in self._servos.items():
+            pulse = servo.pulse()
+            if self._told.get(ch) != pulse:
+                self._told[ch] = pulse
+                for listener in self._pulse_listeners:
+                    listener(ch, pulse)
 
     # -- inputs, registers and the startup string (observers and tests) ---------
 
@@ -300,6 +328,7 @@ class Board(RecordLog, ServoObserver):
             if isinstance(cmd, p.DefaultRegisters):
                 delay = facts.DEFAULTS_TIME_S  # "may take over a second" before its OK
         self.note(Record(t, raw, tuple(parsed), "; ".join(notes) if notes else None, source))
+        self._tell_pulses()
         sent = self._answer(bytes(data), t, delay) if data else None
         return [sent] if sent is not None else []
 

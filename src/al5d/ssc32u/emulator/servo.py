@@ -39,6 +39,33 @@ def follow(x: float, c: float, r: float, v: float, d: float) -> float:
     return x
 
 
+@dataclass(frozen=True, slots=True)
+class Pulse:
+    """What a channel puts out from `t0` on, as a servo on it sees it: nothing (`on`
+    False: the servo is limp), or a pulse from `start_us` at `t0` to `end_us` at `t1` in a
+    straight line, then staying, plus the channel's offset. The board tells observers
+    (`Board.observe_pulses`) each new one; times are the board's clock (`al5d.clock`)."""
+
+    on: bool
+    start_us: float
+    end_us: float
+    t0: float
+    t1: float
+    offset_us: int = 0
+
+    def at(self, t: float) -> float:
+        """The pulse width (us, the offset included) at `t`; 0 when off."""
+        if not self.on:
+            return 0.0
+        if t >= self.t1 or self.t1 <= self.t0:
+            us = self.end_us
+        elif t <= self.t0:
+            us = self.start_us
+        else:
+            us = self.start_us + (self.end_us - self.start_us) * (t - self.t0) / (self.t1 - self.t0)
+        return us + self.offset_us
+
+
 @dataclass
 class Servo:
     """One channel: its commanded pulse ramp and the physical servo following it."""
@@ -64,6 +91,11 @@ class Servo:
         if t <= self.t0:
             return self.start_us
         return self.start_us + (self.end_us - self.start_us) * (t - self.t0) / (self.t1 - self.t0)
+
+    def pulse(self) -> Pulse:
+        """What the channel puts out, as one record (`Pulse`)."""
+        on = self.on and self.output_high is None
+        return Pulse(on, self.start_us, self.end_us, self.t0, self.t1, self.offset_us)
 
     def position_at(self, t: float) -> float:
         """The physical position at `t` >= the last update (pure)."""

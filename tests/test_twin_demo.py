@@ -1,0 +1,64 @@
+"""`al5d demo --physics` (issue 47), as a user runs it from a fresh clone: the sequence
+picks the scene's cup, lifts it at least 50 mm and sets it down within 10 mm of its
+goal; the demo prints its QoS table and where the cup ended. `al5d record` beside it
+holds the camera's pictures beside the joint states, read back with the `mcap` reader."""
+
+from __future__ import annotations
+
+import re
+import signal
+from collections import Counter
+from pathlib import Path
+
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from al5d.ros.names import Names
+from al5d_rig.proc import Proc
+
+
+def test_the_demo_picks_the_cup_and_sets_it_down_at_its_goal_recorded(tmp_path: Path) -> None:
+    names = Names()
+    path = tmp_path / "demo.mcap"
+    recorder = Proc("record", str(path))
+    try:
+        recorder.out.wait_for("recording to", 60)
+        demo = Proc("demo", "--physics")
+        code = demo.wait(400)
+        out = demo.out.drain(1.0)
+        text = "\n".join(out)
+        # 0, or 1 when a move's QoS missed SA03's bound on a busy host (the table says MISSED):
+        # the cup's measures below are what this test is about.
+        assert code == 0 or (code == 1 and "MISSED" in text), (
+            text + "\n" + "\n".join(demo.err.drain(0.5)[-30:])
+        )
+        recorder.out.wait_for(f"{names.camera_image}: 1 writer", 5)
+        recorder.popen.send_signal(signal.SIGINT)
+        assert recorder.wait(60) == 0
+    finally:
+        recorder.kill()
+
+    assert "QoS achieved per move (DE02):" in text
+    placed = [line for line in out if line.startswith("cup: lifted")]
+    assert placed, text
+    found = re.search(r"lifted (\d+) mm at most; .*?, ([\d.]+) mm from its goal", placed[0])
+    assert found, placed[0]
+    assert int(found.group(1)) >= 50
+    assert float(found.group(2)) <= 10
+    assert placed[0].split(": ")[-2].endswith("held") or ": held (" in placed[0]
+
+    counts: Counter[str] = Counter()
+    picture = None
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, channel, _, decoded in reader.iter_decoded_messages():
+            counts[channel.topic] += 1
+            if channel.topic == names.camera_image and picture is None:
+                picture = decoded
+    assert counts[names.camera_image] >= 50, counts  # 10 a second through a 15 s demo
+    assert counts[names.camera_info] >= 50
+    assert counts[names.joint_states] >= 100 and counts[names.twin_joint_states] >= 100
+    assert counts[names.twin_objects] > 0
+    assert picture is not None
+    assert (picture.width, picture.height, picture.encoding) == (320, 240, "rgb8")
+    assert len(picture.data) == 320 * 240 * 3
