@@ -17,6 +17,8 @@
 - `stopproc`: the stop process: node `al5d_stop` in a process of its own that writes the
   STOP itself, whatever the server's threads are doing.
 - `robot`: the robot's description, joint states and transforms (`RobotNode`'s).
+- `physical`: where the joints physically stand, where something knows it (an emulated
+  arm's true angles): published beside the server, read by the web view and `al5d calibrate`.
 - `actions`: the move action; `controllers`: MoveIt's FollowJointTrajectory and
   GripperCommand (both `ActionsNode`'s).
 - `server`: `RosStart` and `RosServer`, which put the nodes together for `al5d serve`.

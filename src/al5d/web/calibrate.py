@@ -70,6 +70,10 @@ class CalibrationTab:
         self.waiting: str | None = None
         self.results: dict[str, JointCalibration] = {}
         self.notes: list[str] = []
+        #: Where the arm physically stands, where an emulated arm says it (None: not said),
+        #: and the status's last note (shown again when that changes).
+        self.physical: dict[str, float] | None = None
+        self._said: tuple[str, bool | None] = ("", None)
         gui = page.server.gui
         with tabs.add_tab("Calibrate", viser.Icon.RULER_MEASURE):
             self.joint = gui.add_dropdown("joint", tuple(page.config.joints))
@@ -98,6 +102,27 @@ class CalibrationTab:
         if self.procedure is None or self.procedure.step is Awaiting.DONE:
             return None
         return self.procedure.reference_pose()
+
+    def on_physical(self, degrees: dict[str, float] | None) -> None:
+        """Where the emulated arm truly stands (None: nothing says any more): the status
+        says how far the joint is off the ghost, so that the nudges visibly close it."""
+        before = self._physical_line()
+        self.physical = degrees
+        if self._physical_line() != before:
+            self._show(*self._said)
+
+    def _physical_line(self) -> str:
+        procedure = self.procedure
+        if self.physical is None or procedure is None or procedure.step is not Awaiting.NUDGE:
+            return ""
+        joint, ref = procedure.joint.name, procedure.reference
+        true = self.physical.get(joint)
+        if true is None:
+            return ""
+        return (
+            f"The emulated arm (orange) truly stands at {true:.1f} deg: "
+            f"{true - ref.deg:+.1f} deg off the ghost."
+        )
 
     def on_outcome(self, outcome: Outcome) -> None:
         if self.procedure is None or outcome.id != self.waiting:
@@ -206,6 +231,7 @@ class CalibrationTab:
             self._show("not sent: no contact with the server", ok=False)
 
     def _show(self, note: str = "", ok: bool | None = None) -> None:
+        self._said = (note, ok)
         procedure = self.procedure
         lines = []
         if procedure is not None and procedure.step is Awaiting.NUDGE:
@@ -216,6 +242,9 @@ class CalibrationTab:
                 f"{ref.looks} (the ghost). At {procedure.pulse} us ({offset:+.0f} us from the "
                 f"config's {ref.deg:g} deg): nudge until the arm matches the ghost."
             )
+            physical = self._physical_line()
+            if physical:
+                lines.append(physical)
         if note:
             lines.append(note)
         colour = {True: "#2b8a3e", False: "#c92a2a", None: "#495057"}[ok]
