@@ -27,6 +27,8 @@ log = logging.getLogger("al5d.web")
 GHOST_RGBA = (0.25, 0.55, 1.0, 0.35)
 #: The arm as it physically stands (`physical_joint_states`: an emulated arm's truth).
 PHYSICAL_RGBA = (1.0, 0.5, 0.05, 0.6)
+#: The needles of a joint being calibrated: where the ghost has it, where it truly stands.
+NEEDLE_COLOURS = {"ghost": (64, 140, 255), "physical": (255, 128, 13)}
 #: Where a new page's camera looks from, as a direction from the arm (front right, above),
 #: and how much of its field of view (viser's, 75 degrees high) the arm may take at most.
 VIEW_FROM: Vec3 = (0.62, -0.53, 0.5)
@@ -73,10 +75,23 @@ class ArmScene:
         self.path = scene.add_line_segments(
             f"{ROOT}/path", np.zeros((1, 2, 3)), (230, 120, 0), thickness=0.004, visible=False
         )
+        # A joint's direction, as the ghost has it and as the arm truly stands (calibration).
+        self.needles = {
+            which: scene.add_line_segments(
+                f"{ROOT}/needle_{which}",
+                np.zeros((1, 2, 3)),
+                colour,
+                thickness=0.003,
+                visible=False,
+            )
+            for which, colour in NEEDLE_COLOURS.items()
+        }
         self.target = scene.add_transform_controls(
             f"{ROOT}/target", scale=0.09, disable_rotations=True, depth_test=False, visible=False
         )
         self.target_enabled = True
+        #: Where base_link stands in the world (the grid's frame): its mount.
+        self.mount_pose = Transform()
 
     def on_target_drag(self, handler: Callable[[Any], None]) -> None:
         self.target.on_update(handler)
@@ -107,6 +122,7 @@ class ArmScene:
     def place_arm(self, mount: Transform) -> None:
         """base_link where its mount puts it in the world (the grid's frame); a new page's
         camera looks at the arm there."""
+        self.mount_pose = mount
         x, y, z, w = mount.rotation
         with self.server.atomic():
             self.mount.position = mount.translation
@@ -117,6 +133,16 @@ class ArmScene:
     def _cfg(self, urdf: ViserUrdf, degrees: Mapping[str, float]) -> npt.NDArray[np.float64]:
         values = self.model.to_urdf(degrees)
         return np.array([values.get(n, 0.0) for n in urdf.get_actuated_joint_names()])
+
+    def aim(self, client: viser.ClientHandle, look_at: Vec3, position: Vec3) -> None:
+        """One browser's camera at `position`, looking at `look_at` (both in base_link)."""
+        camera = client.camera
+        try:
+            with client.atomic():
+                camera.position = self.mount_pose.apply(position)
+                camera.look_at = self.mount_pose.apply(look_at)
+        except (AssertionError, ValueError):  # a browser that has not said its camera yet
+            log.info("web: client %s: its camera is not known yet: left as it is", client)
 
     def show_arm(self, degrees: Mapping[str, float]) -> None:
         if self.robot is not None:
@@ -146,6 +172,18 @@ class ArmScene:
         with self.server.atomic():
             self.physical.update_cfg(self._cfg(self.physical, degrees))
             self.physical_root.visible = True
+
+    def show_needles(self, needles: Mapping[str, tuple[Vec3, Vec3]]) -> None:
+        """Each needle (`ghost`, `physical`) from its first point to its second; one not
+        given is hidden."""
+        with self.server.atomic():
+            for which, handle in self.needles.items():
+                needle = needles.get(which)
+                if needle is None:
+                    handle.visible = False
+                else:
+                    handle.points = np.array([needle])
+                    handle.visible = True
 
     @property
     def target_position(self) -> Vec3:
