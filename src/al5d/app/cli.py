@@ -138,11 +138,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _check(path: str, poses: str | None) -> int:
     """`al5d run --check`: the file judged whole as `al5d run` judges it; nothing sent."""
     from al5d.arm.poses import PosesError, beside, load_poses
-    from al5d.arm.sequence import SequenceJudge, served_config
+    from al5d.arm.sequence import judge_sequence, served_config
 
     try:
         book = load_poses(beside(path) if poses is None else poses, required=poses is not None)
-        judged = SequenceJudge(served_config()).judge(Path(path).read_bytes(), path, book)
+        judged = judge_sequence(Path(path).read_bytes(), served_config(), path, book)
     except OSError as e:
         print(f"al5d run: cannot read {path}: {e.strerror}", file=sys.stderr)
         return exits.BAD_INPUT
