@@ -263,13 +263,22 @@ WATCH_STATE = """() => {
 }"""
 
 
-def shown_at(page: Any, text: str, since_ms: float, timeout_s: float = 5.0) -> float | None:
-    """The page's wall-clock ms when its watched element first showed `text` after
-    `since_ms` (page wall clock); None if it did not within `timeout_s`."""
+def shown_so_far(page: Any) -> int:
+    """How many texts the watched element has shown (`WATCH_STATE`): where to look from for
+    what the next change shows."""
+    return int(page.evaluate("window.__states.length"))
+
+
+def shown_at(page: Any, text: str, since: int, timeout_s: float = 5.0) -> float | None:
+    """The page's wall-clock ms when its watched element first showed `text` among what it
+    showed after its first `since` texts (`shown_so_far`); None if it did not within
+    `timeout_s`. By the page's own order, not by the time: a time mapped from this process's
+    clock is only as good as the offset (half a round trip to a busy browser: 18 ms), and a
+    state shown within it of the send was taken for one shown before it, never shown."""
     deadline = time.monotonic() + timeout_s
     while True:
-        for t, shown in page.evaluate("window.__states"):
-            if t >= since_ms and shown == text:
+        for t, shown in page.evaluate("window.__states")[since:]:
+            if shown == text:
                 return float(t)
         if time.monotonic() > deadline:
             return None
@@ -290,7 +299,7 @@ def state_lag(
         offset, err = clock_offset(page, 5)
         worst = max(worst, err)
         n0 = len(state.times)
-        since = time.monotonic() * 1000 + offset
+        since = shown_so_far(page)
         peer.send(f"web-lag-{trial}", "move", 300, base=20 if trial % 2 else -20)
         assert peer.result(f"web-lag-{trial}", 30).outcome == "done"
         state.wait_for("ready", 5)
@@ -325,10 +334,11 @@ def bare_viser_lag(browser: Any, trials: int = 40) -> tuple[list[float], float]:
         for trial in range(1, trials + 1):
             offset, err = clock_offset(page, 5)
             worst = max(worst, err)
+            since = shown_so_far(page)
             t0 = time.monotonic() * 1000 + offset
             element.content = f'<div id="bare">{trial}</div>'
             server.flush()  # at once, as the page sends a state (not in viser's next window)
-            shown = shown_at(page, str(trial), t0)
+            shown = shown_at(page, str(trial), since)
             assert shown is not None, "the bare page did not show its content in 5 s"
             lags.append(shown - t0)
             time.sleep(0.1 + random.random() * 0.1)

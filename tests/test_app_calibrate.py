@@ -15,6 +15,8 @@ import pytest
 from al5d import exits
 from al5d.app.calibrate import Command, parse_command
 from al5d.arm.config import ArmConfig, load_config
+from al5d.ros.names import Names
+from al5d.ros.physical import PhysicalPublisher
 from al5d.ssc32u.emulator import Emulator, Mechanics
 from al5d_rig.calibuser import User, truth
 from al5d_rig.proc import AL5D, Lines, Proc, patient_config_text
@@ -127,6 +129,39 @@ def test_calibrate_through_its_stdin_finds_the_offsets_and_writes_the_file(
         if a != b
     ]
     assert len(changed) == 2 and all("calibration:" in a for a, _ in changed)
+
+
+TRULY = re.compile(r"the emulated arm's base truly stands at -?[\d.]+ deg: ([+-][\d.]+) deg off")
+
+
+def test_an_emulated_arm_says_how_far_the_joint_truly_is_off(
+    config: ArmConfig, server: Emulator, arm_file: Path
+) -> None:
+    """Where the emulated arm truly stands is published (as `al5d emulator --misalign`
+    does): each nudge says how far the joint is off its reference, and the nudges close it."""
+    physical = PhysicalPublisher(Names(), config.model).start(server.joint_degrees)
+    cal = Proc(
+        *("calibrate", "--joints", "base", "--time", "300", "--wait", "30"),
+        *("--config", str(arm_file)),
+        stdin=True,
+    )
+    try:
+        line = cal.out.wait_for("truly stands at", 60)
+        found = TRULY.search(line)
+        assert found is not None, line
+        assert 3.0 < abs(float(found[1])) < 5.0, line  # 42 us: about 4 degrees
+        cal.out.wait_for(PROMPT, 60)
+        cal.send("+8")  # 40 us: within 2 us of the truth
+        line = cal.out.wait_for("truly stands at", 60)
+        found = TRULY.search(line)
+        assert found is not None, line
+        assert abs(float(found[1])) < 0.5, line
+        cal.out.wait_for(PROMPT, 60)
+        cal.send("quit")
+        assert cal.wait(60) == exits.NOT_DONE
+    finally:
+        cal.kill()
+        physical.close()
 
 
 def test_quitting_writes_nothing(server: Emulator, arm_file: Path) -> None:

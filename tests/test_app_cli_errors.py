@@ -75,7 +75,16 @@ def test_a_usage_error_is_argparses_own_code(args: tuple[str, ...]) -> None:
     ("words", "error"),
     [
         (("move", "base=x"), "al5d send: word 2 'base=x': 'x' is not a number of degrees"),
-        (("dance",), "al5d send: word 1 'dance': unknown instruction"),
+        (("dance",), "al5d send: word 1 'dance': unknown instruction; expected park | ready"),
+        (
+            ("mvoe", "base=30"),
+            "al5d send: word 1 'mvoe': unknown instruction; did you mean 'move'? expected park",
+        ),
+        (
+            ("wait", "100"),
+            "al5d send: word 1 'wait': wait <ms> pauses a sequence file or al5d shell between "
+            "instructions; the server has no pause to send it",
+        ),
         (
             ("move_to", "x=0.25", "y=0", "z=0.12"),
             "al5d send: word 2 'x=0.25': x=0.25 y=0 z=0.12 look like metres; move_to takes "
@@ -118,6 +127,59 @@ def test_a_sequence_files_errors_are_said_all_at_once_and_nothing_is_sent(
     ]
     assert len(group_moves(arm.emu.records)) == moves
     assert arm.states[-1] == "ready"
+
+
+#: One problem of each kind the server would refuse, and a pose that is not saved; good
+#: lines between them, which are not sent either.
+JUDGED = (
+    "ready\n"
+    "move elbo=20\n"
+    "move base=200 time=500\n"
+    "move base=10\n"
+    "move shoulder=90 elbow=90\n"
+    "pose above_cpu\n"
+    "park\n"
+)
+
+
+def test_a_sequence_the_server_would_refuse_is_judged_whole_and_nothing_is_sent(
+    arm: Served, tmp_path: Path
+) -> None:
+    (tmp_path / "poses.yaml").write_text("above_cup: {base: -35, shoulder: 40, elbow: 80}\n")
+    seq = tmp_path / "judged.seq"
+    seq.write_text(JUDGED)
+    n0 = len(arm.emu.records)
+    outcomes = len(arm.peer.results_now())
+    code, out, err = ended(Proc("run", str(seq)))
+    assert code == exits.BAD_INPUT, err
+    assert out == []
+    lines = [line.removeprefix("al5d run: ").removeprefix("nothing sent: ") for line in err]
+    assert [line.split(": ", 1)[0] for line in lines] == [f"{seq}:{n}" for n in (2, 3, 5, 6)], err
+    assert lines[0].startswith(f"{seq}:2: unknown joint 'elbo'; did you mean 'elbow'?"), err
+    assert lines[1] == f"{seq}:3: base: 200 deg is outside the range -90..90", err
+    assert "below the table" in lines[2] or "under the table" in lines[2], err
+    assert lines[3].startswith(f"{seq}:6: word 2 'above_cpu': no saved pose named 'above_cpu'; "), (
+        err
+    )
+    # No move reached the board, and the server heard of nothing: no outcome of any line.
+    time.sleep(1.0)
+    assert group_moves(arm.emu.records[n0:]) == []
+    assert len(arm.peer.results_now()) == outcomes
+
+
+def test_check_judges_a_file_without_a_server(tmp_path: Path) -> None:
+    (tmp_path / "poses.yaml").write_text("above_cup: {base: -35, shoulder: 40, elbow: 80}\n")
+    seq = tmp_path / "judged.seq"
+    seq.write_text(JUDGED)
+    code, out, err = ended(Proc("run", "--check", str(seq), env=alone()))
+    assert code == exits.BAD_INPUT, err
+    assert out == []
+    assert [line.split(": ")[1] for line in err] == [f"{seq}:{n}" for n in (2, 3, 5, 6)], err
+    good = tmp_path / "good.seq"
+    good.write_text("ready\nmove base=10 &\nwait 100\npose above_cup time=800\npark\n")
+    code, out, err = ended(Proc("run", "--check", str(good), env=alone()))
+    assert code == exits.DONE, err
+    assert out == [f"{good}: 5 steps, none the server would refuse; nothing sent"], out
 
 
 def test_a_file_that_cannot_be_read_is_bad_input(tmp_path: Path) -> None:

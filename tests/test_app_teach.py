@@ -87,8 +87,8 @@ def test_an_unknown_pose_or_a_bad_poses_file_sends_nothing(arm: Served, tmp_path
     assert run.wait(CMD_S) == exits.BAD_INPUT
     assert run.out.drain() == []
     assert run.err.drain() == [
-        f"al5d run: nothing sent: {seq}:2: word 2 'cupp': no saved pose named 'cupp' "
-        f"(in {tmp_path / 'poses.yaml'}: home, cup)"
+        f"al5d run: nothing sent: {seq}:2: word 2 'cupp': no saved pose named 'cupp'; did you "
+        f"mean 'cup'? (in {tmp_path / 'poses.yaml'}: home, cup)"
     ]
     (tmp_path / "poses.yaml").write_text("home: {base: 0, elbow: ninety}\n")
     run = Proc("run", str(seq))

@@ -64,6 +64,16 @@ def test_parse(
         ("move base=10 time=5 time=6", r"word 4 'time=6': time given twice"),
         ("stop now=1", r"word 2 'now=1': stop takes no arguments"),
         ("park base=3", r"word 2 'base=3': a preset takes only time=<ms>"),
+        # The word that is wrong is the first: named with the nearest instruction.
+        ("mvoe base=30", r"word 1 'mvoe': unknown instruction; did you mean 'move'\? expected "),
+        ("moveto x=250 y=0 z=120", r"word 1 'moveto': unknown instruction; did you mean 'move_to'"),
+        (
+            "Strait_up time=9",
+            r"word 1 'Strait_up': unknown instruction; did you mean 'straight_up'",
+        ),
+        # Words of sequence files only: said where they belong.
+        ("wait 100", r"word 1 'wait': wait <ms> pauses a sequence file or al5d shell"),
+        ("pose home", r"word 1 'pose': pose <name> moves to a pose saved in a poses file"),
     ],
 )
 def test_grammar_errors_point_at_the_word(text: str, message: str) -> None:

@@ -130,7 +130,8 @@ def test_pose_lines_errors_name_the_line_and_the_word_and_nothing_runs() -> None
     with pytest.raises(SequenceErrors) as e:
         parse_sequence(text, "pick.seq", poses=book)
     assert e.value.errors == (
-        "pick.seq:2: word 2 'hom': no saved pose named 'hom' (in /arm/poses.yaml: home, cup)",
+        "pick.seq:2: word 2 'hom': no saved pose named 'hom'; did you mean 'home'? "
+        "(in /arm/poses.yaml: home, cup)",
         "pick.seq:3: word 1 'pose': name a saved pose: pose <name> [time=<ms>]",
         "pick.seq:4: word 3 'speed=3': a pose takes only time=<ms>",
         "pick.seq:5: word 4 'time=2': time given twice",

@@ -10,8 +10,14 @@ before a block changes how it runs, visibly in the page's source:
     <!-- example: server -->          run while `al5d serve` (embedded emulator) runs;
                                       one server for every such block, started once
     <!-- example: exit N -->         the block must end with exit code N (default 0)
-    <!-- example: output -->         (on a `text` block) every line of it is in what the
-                                      example before it printed
+    <!-- example: output -->         (on a `text` block) every line of it is a whole line of
+                                      what the example before it printed (an instruction's
+                                      id and a time in ms stand for any: `[4d33-1]`, `(311 ms)`)
+    <!-- example: synopsis -->       (on a `text` block) a command's options: each is one of
+                                      the command's own (its `--help`)
+
+A `text` block right after an example, in the same section, shows what it printed: it is
+marked `output` (or, a command's options, `synopsis`).
 
 Shell blocks run in bash with `set -e -o pipefail`, Python blocks in the venv's Python;
 the blocks of one page share a working directory (with `config/` of the repository), in
@@ -58,7 +64,8 @@ class Block:
     line: int
     lang: str
     code: str
-    #: The marker's words: "skip (...)", "server", "exit 1", "output"; "" without one.
+    #: The marker's words: "skip (...)", "server", "exit 1", "output", "synopsis"; "" without
+    #: one.
     marker: str
 
     @property
@@ -114,7 +121,7 @@ def test_every_block_says_what_it_is() -> None:
 
 
 def test_every_marker_is_understood() -> None:
-    words = {"server", "output"}
+    words = {"server", "output", "synopsis"}
     bad = [
         f"{b.name}: {b.marker!r}"
         for b in ALL
@@ -122,7 +129,57 @@ def test_every_marker_is_understood() -> None:
         and b.skip_reason() is None
         and not all(w in words or re.fullmatch(r"exit \d+", w) for w in b.words())
     ]
-    assert not bad, "markers are 'skip (why)', 'server', 'exit N', 'output':\n" + "\n".join(bad)
+    assert not bad, (
+        "markers are 'skip (why)', 'server', 'exit N', 'output', 'synopsis':\n" + "\n".join(bad)
+    )
+
+
+def follows_an_example(block: Block) -> bool:
+    """Whether `block` comes right after an example, in the same section (no heading between)."""
+    text = block.page.read_text()
+    found = [m for m in FENCE.finditer(text) if text.count("\n", 0, m.start()) + 1 < block.line]
+    if not found or found[-1].group(1) not in RUN:
+        return False
+    end = sum(len(line) + 1 for line in text.splitlines()[: block.line - 1])
+    return re.search(r"^#+ ", text[found[-1].end() : end], re.M) is None
+
+
+def test_what_an_example_printed_is_checked() -> None:
+    """A `text` block right after an example shows its output: it is compared with what the
+    example printed (or it is the command's synopsis, checked against its options)."""
+    unmarked = [
+        b.name
+        for b in ALL
+        if b.lang == "text" and follows_an_example(b) and not {"output", "synopsis"} & b.words()
+    ]
+    assert not unmarked, "mark these `output` (or `synopsis`):\n" + "\n".join(unmarked)
+
+
+SYNOPSES = [b for b in ALL if "synopsis" in b.words()]
+
+
+@pytest.mark.parametrize("block", SYNOPSES, ids=[b.name for b in SYNOPSES])
+def test_a_synopsis_names_only_the_commands_options(block: Block) -> None:
+    """Each `al5d COMMAND` of the block (a line of its own, and the lines that go on with it)
+    names only options of that command's `--help`."""
+    commands: list[tuple[str, str]] = []
+    for line in block.code.splitlines():
+        found = re.match(r"al5d ([\w-]+)", line)
+        if found:
+            commands.append((found.group(1), line))
+        elif commands:
+            commands[-1] = (commands[-1][0], commands[-1][1] + "\n" + line)
+    assert commands, f"{block.name}: a synopsis starts with `al5d COMMAND`"
+    unknown = []
+    for command, text in commands:
+        done = subprocess.run(
+            [str(BIN / "al5d"), command, "--help"], capture_output=True, text=True, timeout=60
+        )
+        assert done.returncode == 0, f"{block.name}: al5d {command} --help\n{done.stderr}"
+        for option in sorted(set(re.findall(r"(?<![\w-])--[\w-]+", text))):
+            if not re.search(rf"(?<![\w-]){option}(?![\w-])", done.stdout):
+                unknown.append(f"al5d {command} {option}")
+    assert not unknown, f"{block.name}: no such options: {unknown}"
 
 
 def test_the_markers_are_found() -> None:
@@ -231,8 +288,30 @@ def test_shown_output_is_what_the_example_printed(block: Block) -> None:
     printed = PRINTED.get(before[-1].name)
     if printed is None:
         pytest.fail(f"{block.name}: the example before it did not run")
-    missing = [ln for ln in block.code.splitlines() if ln.strip() and ln.strip() not in printed]
-    assert not missing, f"{block.name}: not printed: {missing}\n--- printed\n{printed}"
+    lines = {normalised(ln) for ln in printed.splitlines()}
+    missing = [ln for ln in block.code.splitlines() if ln.strip() and normalised(ln) not in lines]
+    assert not missing, f"{block.name}: not printed as shown: {missing}\n--- printed\n{printed}"
+
+
+#: What differs from run to run in a line the docs show: an instruction's id (the process's id
+#: in hex, a count) and a time in ms. Each stands for any.
+VARYING = ((re.compile(r"\[[0-9a-f]+-\d+\]"), "[ID]"), (re.compile(r"\(\d+ ms\)"), "(N ms)"))
+
+
+def normalised(line: str) -> str:
+    for pattern, placeholder in VARYING:
+        line = pattern.sub(placeholder, line)
+    return line.strip()
+
+
+def test_a_shown_line_must_be_a_whole_printed_line() -> None:
+    """The comparison: a part of a line is not the line, and what varies stands for any."""
+    printed = {normalised("move [4d33-1]: refused: elbow: 150 deg is outside the range 0..135")}
+    assert normalised("move [77a-12]: refused: elbow: 150 deg is outside the range 0..135") in (
+        printed
+    )
+    assert normalised("refused: elbow: 150 deg is outside the range 0..135") not in printed
+    assert normalised("park [1-2]: done (1210 ms)") == normalised("park [ab-7]: done (3 ms)")
 
 
 LINK = re.compile(r"\]\(([^)\s]+)\)")

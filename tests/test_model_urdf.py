@@ -161,9 +161,11 @@ def test_every_body_has_visual_and_collision_geometry(robot: yourdfpy.URDF) -> N
     for name, link in robot.link_map.items():
         if name in ("tool0", "gripper_link"):  # frames without a body: the tip, the gap
             continue
-        assert len(link.visuals) == 1 and len(link.collisions) == 1, name
-        geometry = link.collisions[0].geometry
-        assert (geometry.box is not None) or (geometry.cylinder is not None)
+        # Looks of several parts (`model.looks`); one body for collisions and the table.
+        assert len(link.visuals) >= 1 and len(link.collisions) == 1, name
+        for part in (*link.visuals, link.collisions[0]):
+            geometry = part.geometry
+            assert (geometry.box is not None) or (geometry.cylinder is not None)
 
 
 def test_the_xml_is_plain_and_numbers_are_exact() -> None:

@@ -187,6 +187,8 @@ class Listener:
     def on_mount(self, parent: str, mount: Transform) -> None:
         self.mounts.append((parent, mount))
 
+    def on_physical(self, degrees: dict[str, float]) -> None: ...
+
 
 def test_the_web_view_shows_its_arm_where_its_mount_puts_it(
     arms: list[Arm], config: ArmConfig

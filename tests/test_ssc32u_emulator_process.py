@@ -203,3 +203,35 @@ def test_standalone_takes_a_misaligned_arm() -> None:
     wrong = Proc("emulator", "--misalign", "knee=10")
     assert wrong.wait(30) == exits.USAGE
     assert "--misalign knee: no such joint" in wrong.err.wait_for("al5d emulator:", 5)
+
+
+def test_a_misaligned_arm_says_where_it_truly_stands(config: ArmConfig, tmp_path: Path) -> None:
+    """`--misalign` publishes the arm's true angles on ROS (physical_joint_states), for the web
+    view and `al5d calibrate` to show: the base at the config's 0 deg stands 40 us off."""
+    from rclpy.node import Node
+
+    from al5d.ros.dds import start_context
+    from al5d.ros.executors import Spinner
+    from al5d.ros.names import Names
+    from al5d.ros.physical import PhysicalReader
+
+    board = Standalone(tmp_path, "--misalign", "base=40")
+    context = start_context()
+    node = Node("al5d_test_physical", context=context)
+    reader = PhysicalReader(node, Names(), config.model)
+    spinner = Spinner(node, context)
+    try:
+        base = config.joints["base"]
+        board.port.write(f"#{base.channel}P{round(base.to_us(0))}\r".encode())
+        want = base.to_deg(base.to_us(0) - 40)  # where the servo truly stands (`Mechanics`)
+        deadline = time.monotonic() + 30  # DDS's discovery, on a busy host
+        seen = None
+        while time.monotonic() < deadline:
+            seen = reader.next(1.0)
+            if seen is not None and abs(seen["base"] - want) < 0.05:
+                break
+        assert seen is not None and abs(seen["base"] - want) < 0.05, (seen, want)
+        assert abs(want) > 3  # 40 us is about 4 degrees: the misalignment is there to see
+    finally:
+        spinner.close()
+        assert "where the arm truly stands goes on /physical_joint_states" in board.close()

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import os
-import re
 import shutil
 import signal
 import threading
@@ -23,6 +22,7 @@ from typing import Any
 
 import pytest
 import viser
+from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
@@ -47,6 +47,7 @@ from al5d_rig.webrig import (
     VIEWPORT,
     StateWatch,
     WebProc,
+    arm_box,
     arm_pixels,
     chromium,
     clickable,
@@ -144,6 +145,55 @@ def test_the_page_draws_the_arm(rig: Rig, tmp_path: Path) -> None:
         shutil.copyfile(shot, DOCS / "web.png")
     tool = rig.page.inner_text("#al5d-tool")
     assert "tool (mm)" in tool and "joint states" in tool
+
+
+#: How far (pixels) the arm's parts keep from the 3D view's edges, the side panel and the STOP
+#: window in a new page's view.
+VIEW_MARGIN_PX = 8
+
+
+def test_a_new_page_sees_the_whole_arm_at_every_preset(rig: Rig, tmp_path: Path) -> None:
+    """The default camera frames the arm at park, ready and straight up (the screenshots of
+    docs/web.md), the panel and STOP over none of it."""
+    page = rig.browser.new_page(viewport=VIEWPORT)
+    try:
+        page.goto(rig.web.url)
+        page.wait_for_selector("#al5d-tool", timeout=PAGE_LOAD_S * 1000)
+        dismiss_notifications(page)
+        canvas = page.locator("canvas").first
+        view = canvas.bounding_box()
+        covers = [
+            page.locator("#al5d-state").locator("xpath=ancestor::*[@data-dock-group][1]"),
+            page.get_by_role("button", name="STOP"),
+        ]
+        boxes = [b for b in (c.first.bounding_box() for c in covers) if b is not None]
+        for preset in ("park", "ready", "straight_up"):
+            rig.peer.send(f"web-frame-{preset}", preset)
+            assert rig.peer.result(f"web-frame-{preset}").outcome == "done"
+            wait_text(page, "#al5d-state", lambda t: t == "READY")
+            time.sleep(0.5)  # the move's last joint states drawn
+            png = wait_for_arm(page)
+            box = arm_box(png)
+            assert box is not None
+            left, top, right, bottom = box
+            m = VIEW_MARGIN_PX
+            assert m <= left and right <= view["width"] - m, (preset, box, view)
+            assert m <= top and bottom <= view["height"] - m, (preset, box, view)
+            for cover in boxes:  # in page pixels; the canvas's are offset by its corner
+                x0, y0 = cover["x"] - view["x"], cover["y"] - view["y"]
+                apart = (
+                    right < x0 - m
+                    or left > x0 + cover["width"] + m
+                    or bottom < y0 - m
+                    or top > y0 + cover["height"] + m
+                )
+                assert apart, (preset, box, cover)
+            shot = tmp_path / f"arm-{preset}.png"
+            shot.write_bytes(png)
+            if UPDATE_DOCS:
+                shutil.copyfile(shot, DOCS / shot.name)
+    finally:
+        page.close()
 
 
 def test_a_long_slider_drag_follows_live_and_leaves_no_queue(rig: Rig) -> None:
@@ -373,9 +423,44 @@ def test_the_target_tab_moves_the_tool_with_pitch_roll_gripper_and_time(rig: Rig
 
 
 def field(page: Any, label: str) -> Any:
-    """The input of the panel's row labelled `label` (viser ties no label to a text box)."""
-    row = page.locator(".mantine-Flex-root").filter(has_text=re.compile(f"^{re.escape(label)}$"))
-    return row.locator("input").last
+    """The input labelled `label` (of the tab shown)."""
+    return page.get_by_label(label, exact=True).filter(visible=True)
+
+
+#: Every input, text box and slider of the side panel shown, with the text of its row's label.
+INPUTS = r"""() => {
+  const panel = document.querySelector("#al5d-state").closest("[data-dock-group]");
+  const out = [];
+  for (const e of panel.querySelectorAll("input:not([type=hidden]), textarea, [role=slider]")) {
+    if (!e.getClientRects().length) continue;  // another tab's
+    const row = e.closest(".mantine-Flex-root:has(label)");
+    const label = row ? row.querySelector("label").textContent.trim() : "";
+    e.dataset.al5dProbe = String(out.length);
+    out.push(label);
+  }
+  return out;
+}"""
+
+
+def test_every_input_of_every_tab_is_found_by_its_label(rig: Rig) -> None:
+    """A screen reader, and a test, finds each input by the label beside it: the text boxes
+    too, which viser 1.1.1 leaves unnamed, and the number box beside each slider."""
+    page = rig.page
+    found = 0
+    for tab in ("Joints", "Target", "History", "Teach", "Calibrate"):
+        page.get_by_role("tab", name=tab).click()
+        time.sleep(0.3)  # the tab's rows drawn, and named
+        labels = page.evaluate(INPUTS)
+        for i, label in enumerate(labels):
+            assert label, f"{tab}: input {i} has no label beside it"
+            named = f"{label} (number)" if i > 0 and labels[i - 1] == label else label
+            hit = page.get_by_label(named, exact=True).filter(visible=True)
+            assert hit.count() == 1, f"{tab}: {named!r} names {hit.count()} inputs"
+            assert hit.get_attribute("data-al5d-probe") == str(i), f"{tab}: {named!r}"
+            found += 1
+    # The sliders and their number boxes, the Target tab's point, the Teach tab's boxes...
+    assert found >= 25, found
+    page.get_by_role("tab", name="Joints").click()
 
 
 def test_the_page_says_the_server_has_ended(rig: Rig) -> None:
@@ -747,6 +832,8 @@ def test_the_demo_waits_for_a_page_then_runs(rig: Rig) -> None:
 
 
 class Recorder:
+    jog_prefix = "test-jog-"
+
     def __init__(self) -> None:
         self.sent: list[Any] = []
         self.jogs: list[dict[str, float]] = []
@@ -767,6 +854,109 @@ class Recorder:
     def jog(self, degrees: Any) -> bool:
         self.jogs.append(dict(degrees))
         return True
+
+
+def test_after_a_stop_mid_jog_the_sliders_show_where_the_arm_stopped(rig: Rig) -> None:
+    """A jog on its way (a slow base: 4.5 s across its range), STOP: the sliders go to where
+    the arm stopped (its joint states, within a degree), the status says it is stopped, and
+    a slider moved then sends nothing until a release."""
+    page = rig.page
+    states: list[dict[str, float]] = []
+    sub = rig.peer.node.create_subscription(
+        JointState,
+        "/joint_states",
+        lambda m: states.append(
+            rig.config.model.from_urdf(dict(zip(m.name, m.position, strict=True)))
+        ),
+        10,
+    )
+    rig.server.popen.kill()
+    rig.server.wait(10)
+    wait_until(lambda: page.locator("#al5d-banner").count() > 0, 20, "the banner shown")
+    rig.server = serve(rig.link, (("base", 40.0),))
+    try:
+        wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
+        rig.state.wait_for("ready", 10)
+        rig.peer.wait_for_server()
+        rig.peer.wait_for_topics("web-stop-jog-probe-")
+        rig.peer.send("web-stop-jog-start", "move", base=-90)
+        assert rig.peer.result("web-stop-jog-start", 20).outcome == "done"
+        page.get_by_role("tab", name="Joints").click()
+        thumb = page.get_by_role("slider").nth(0)  # base
+        wait_until(lambda: thumb.get_attribute("aria-valuenow") == "-90", 10, "the slider at -90")
+        thumb.focus()
+
+        def to_the_end() -> bool:
+            thumb.press("End")
+            return thumb.get_attribute("aria-valuenow") == "90"
+
+        wait_until(to_the_end, 10, "the slider at 90")
+        wait_until(lambda: rig.emu.servo_degrees()["base"] > -60, 20, "the jog on its way")
+        page.get_by_role("button", name="STOP").click()
+        rig.state.wait_for("stopped", 5)
+        status = page.locator("#al5d-joints-status")
+        wait_text(page, "#al5d-joints-status", lambda t: t.startswith("stopped: the sliders"))
+        assert "jogging" not in status.inner_text()
+        stopped = rig.emu.servo_degrees()["base"]
+        assert -60 < stopped < 85, stopped  # halted on its way
+
+        def near() -> bool:
+            here = states[-1]["base"] if states else math.nan
+            shown = float(thumb.get_attribute("aria-valuenow") or "nan")
+            return abs(shown - here) <= 1.0 and abs(here - stopped) <= 1.0
+
+        wait_until(near, 10, "the base's slider within 1 degree of its joint state")
+        # Stopped: a slider moved sends nothing, says why, and goes back to the arm.
+        n0 = len(rig.emu.records)
+        thumb.press("Home")
+        wait_text(page, "#al5d-joints-status", lambda t: "release it first" in t)
+        wait_until(near, 10, "the slider back at the arm")
+        time.sleep(1.0)
+        assert group_moves(rig.emu.records[n0:]) == []
+        assert rig.peer.trigger("release").success
+        rig.state.wait_for("ready", 10)
+        wait_text(page, "#al5d-joints-status", lambda t: t == "drag a slider to move")
+    finally:
+        rig.peer.node.destroy_subscription(sub)
+        rig.server.popen.kill()
+        rig.server.wait(10)
+        rig.server = serve(rig.link)
+        wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
+    rig.state.wait_for("ready", 10)
+
+
+def test_a_jog_the_server_refuses_puts_the_sliders_back(config: ArmConfig) -> None:
+    """A set-point of the page's jog refused by the server (its id is the page's): the jog
+    ends, the sliders go back to the arm, and the status says why."""
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    page = Page(server, config, "al5d test")
+    commands = Recorder()
+    page.commands = commands
+    try:
+        ready = config.presets["ready"]
+        values = config.model.to_urdf(ready)
+        page.on_joints(list(values), list(values.values()), time.monotonic())
+        page.on_state("ready")
+        with page.lock:
+            page.jog.take("base", 40.0, time.monotonic())
+            page.panel.sliders["base"].value = 40.0
+        refusal = instruction.Outcome(
+            f"{Recorder.jog_prefix}7", "move", instruction.Result.REFUSED, "a reason"
+        )
+        page.on_outcome(refusal)
+        assert page.jog.target is None
+        assert page.panel.sliders["base"].value == ready["base"]
+        assert "refused: a reason (the sliders show where the arm is)" in (
+            page.panel.joints_status.content
+        )
+        # Another client's refusal is not the jog's.
+        with page.lock:
+            page.jog.take("base", 40.0, time.monotonic())
+        page.on_outcome(instruction.Outcome("other-1", "move", instruction.Result.REFUSED, "x"))
+        assert page.jog.target == {"base": 40.0}
+    finally:
+        page.close()
+        server.stop()
 
 
 def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:

@@ -50,6 +50,8 @@ class Quiet:
 
     def on_mount(self, parent: str, mount: Transform) -> None: ...
 
+    def on_physical(self, degrees: dict[str, float]) -> None: ...
+
 
 @contextlib.contextmanager
 def reader() -> Iterator[subprocess.Popen[str]]:

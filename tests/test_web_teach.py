@@ -37,6 +37,7 @@ STATUS = "#al5d-teach-status"
 #: Two poses well above the table, apart in every joint.
 A = {"base": -30, "shoulder": 40, "elbow": 80, "wrist": -10, "gripper": 20, "wrist_rotate": 0}
 B = {"base": 30, "shoulder": 20, "elbow": 70, "wrist": 10, "gripper": 0, "wrist_rotate": 15}
+C = {"base": 10, "shoulder": 30, "elbow": 75, "wrist": 0, "gripper": 10, "wrist_rotate": -10}
 
 
 @dataclass
@@ -108,9 +109,7 @@ def type_into(rig: Rig, label: str, text: str, echo: str) -> None:
     """`text` typed into the box `label`, once the page's server has it (its echo in the
     status): viser's client sends a panel's changes through one sender that keeps only the
     latest of those 50 ms apart, so a click right after could take the typing's place."""
-    # viser 1.1.1 gives a text box no id for its label's `for`: found by the label's row.
-    row = f"//label[normalize-space()='{label}']/ancestor::div[contains(@class,'Flex-root')][1]"
-    rig.page.locator(f"xpath={row}//*[self::input or self::textarea]").first.fill(text)
+    rig.page.get_by_label(label, exact=True).fill(text)
     wait_text(rig.page, STATUS, lambda t: echo in t)
 
 
@@ -225,14 +224,66 @@ def test_a_sequence_written_by_hand_plays_and_stop_halfway_ends_it(rig: Rig) -> 
 def test_a_step_the_server_would_refuse_plays_nothing(rig: Rig) -> None:
     write_poses(rig)
     rig.ready()
-    type_into(rig, "steps", "pose b\nmove elbow=200", "2 steps")
+    # Judged as it is typed, as `al5d run` judges a file: every line the server would refuse.
+    type_into(
+        rig, "steps", "pose b\nmove elbow=200\nmove elbo=20", "line 2 (move elbow=200): elbow"
+    )
+    said = rig.page.inner_text(STATUS)
+    assert "; line 3 (move elbo=20): unknown joint 'elbo'; did you mean 'elbow'?" in said, said
     n0 = len(rig.arm.emu.records)
     text = click(rig, "play", "nothing played")
-    assert "step 2 (move elbow=200) would be refused: elbow: 200 deg is outside" in text, text
+    assert "line 2 (move elbow=200): elbow: 200 deg is outside" in text, text
     type_into(rig, "steps", "pose b\npose c", "no saved pose named 'c'")
     text = click(rig, "play", "nothing played")
     assert "word 2 'c': no saved pose named 'c'" in text, text
     assert rig.moves(n0) == []
+
+
+def choose(rig: Rig, label: str, option: str) -> None:
+    rig.page.get_by_label(label, exact=True).click()
+    rig.page.get_by_role("option", name=option, exact=True).click()
+
+
+def test_saving_over_a_saved_pose_asks_first(rig: Rig) -> None:
+    write_poses(rig)
+    rig.ready()
+    put_arm_at(rig, "c", C)
+    type_into(rig, "pose name", "a", "pose 'a' is saved: save pose asks before it replaces it")
+    # Kept: the file as it was.
+    click(rig, "save pose", "pose 'a' is saved already: replace it, or keep it?")
+    dialog = rig.page.get_by_role("dialog")
+    assert "Replace pose 'a'?" in dialog.inner_text()
+    assert "base -30" in dialog.inner_text()  # what would go
+    dialog.get_by_role("button", name="keep it").click()
+    wait_text(rig.page, STATUS, lambda t: t == "not saved: pose 'a' kept as it was")
+    pose = load_poses(rig.folder / "poses.yaml").find("a")
+    assert pose is not None and dict(pose.joints) == pytest.approx(A)
+    # Replaced, once the user said so.
+    click(rig, "save pose", "pose 'a' is saved already")
+    rig.page.get_by_role("dialog").get_by_role("button", name="replace").click()
+    wait_text(rig.page, STATUS, lambda t: t.startswith("replaced pose 'a'"))
+    pose = load_poses(rig.folder / "poses.yaml").find("a")
+    assert pose is not None and dict(pose.joints) == pytest.approx(C, abs=0.11)
+
+
+def test_a_pose_renamed_or_deleted_says_which_sequences_still_name_it(rig: Rig) -> None:
+    write_poses(rig, "lone: {base: 5}\nshared: {base: 6}\n")
+    (rig.folder / "onlylone.seq").write_text("pose lone\n")
+    for name in ("shared1", "shared2"):
+        (rig.folder / f"{name}.seq").write_text("pose shared time=300\n")
+    try:
+        type_into(rig, "pose name", "lone2", "pose 'lone2': a new name")
+        choose(rig, "pose", "lone")
+        rig.page.get_by_role("button", name="rename", exact=True).click()
+        text = wait_text(rig.page, STATUS, lambda t: t.startswith("renamed pose 'lone'"))
+        assert text.endswith("; onlylone.seq still names it: edit it"), text
+        choose(rig, "pose", "shared")
+        rig.page.get_by_role("button", name="delete", exact=True).click()
+        text = wait_text(rig.page, STATUS, lambda t: t.startswith("deleted pose 'shared'"))
+        assert text.endswith("shared1.seq and shared2.seq still name it: edit them"), text
+    finally:
+        for name in ("onlylone", "shared1", "shared2"):
+            (rig.folder / f"{name}.seq").unlink()
 
 
 class Arm:

@@ -117,6 +117,17 @@ def arm_pixels(png: bytes) -> int:
     return int(np.count_nonzero(rgb.max(axis=2) < 100))
 
 
+def arm_box(png: bytes) -> tuple[int, int, int, int] | None:
+    """Where the arm's dark parts are in a screenshot: (left, top, right, bottom) in pixels,
+    None if none is drawn. Every link has some (its servos, the base, the fingers), so the
+    box is the whole arm's."""
+    rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.int16)
+    ys, xs = np.nonzero(rgb.max(axis=2) < 100)
+    if len(xs) == 0:
+        return None
+    return int(xs.min()), int(ys.min()), int(xs.max()), int(ys.max())
+
+
 def wait_for_arm(page: Any, timeout_s: float = 20.0, at_least: int = 300) -> bytes:
     """A screenshot of the 3D view once the arm is drawn in it."""
     canvas = page.locator("canvas").first

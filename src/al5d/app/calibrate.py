@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import sys
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol, TextIO
@@ -40,6 +40,8 @@ if TYPE_CHECKING:
 #: A move to a reference pose takes at least this long (the server may take longer): the
 #: arm goes there at a walk, not at the servos' top speed.
 REFERENCE_MOVE_MS = 1500
+#: How long a nudge's report waits for where an emulated arm truly stands after the move.
+WITNESS_WAIT_S = 0.5
 #: Keys at a terminal -> the line they stand for.
 KEYS = {
     "+": "+",
@@ -92,6 +94,15 @@ class Mover(Protocol):
     def move(self, pose: Mapping[str, float], time_ms: int | None) -> Outcome: ...
 
 
+#: Where the arm physically stands, if something says it (an emulated arm's true angles:
+#: `al5d.ros.physical`); None for a real arm, which nothing measures.
+Witness = Callable[[], Mapping[str, float] | None]
+
+
+def _no_witness() -> Mapping[str, float] | None:
+    return None
+
+
 class Keys:
     """The user's answers: single keys at a terminal, lines otherwise."""
 
@@ -133,9 +144,11 @@ def run_procedure(
     keys: Keys,
     out: TextIO,
     reference_ms: int = REFERENCE_MOVE_MS,
+    witness: Witness = _no_witness,
 ) -> bool:
     """Guide the user through every joint of `procedure`; False if they quit (or the input
-    ended) before the end."""
+    ended) before the end. With a `witness` that says where the arm truly stands (an
+    emulated arm), each nudge says how far the joint is off the reference."""
 
     def say(text: str) -> None:
         print(text, file=out, flush=True)
@@ -163,6 +176,12 @@ def run_procedure(
             go(reference_ms)
         offset = procedure.pulse - joint.to_us(ref.deg)
         where = "at" if procedure.at == procedure.pulse else "not yet at"
+        true = (witness() or {}).get(joint.name)
+        if true is not None:
+            say(
+                f"  the emulated arm's {joint.name} truly stands at {true:.1f} deg: "
+                f"{true - ref.deg:+.1f} deg off {ref.deg:g} deg"
+            )
         say(
             f"  {joint.name} {where} {procedure.pulse} us ({offset:+.0f} us from the config's "
             f"{ref.deg:g} deg); nudge until it is there, then ok"
@@ -209,6 +228,7 @@ def calibrate(
     out: TextIO = sys.stdout,
     yes: bool = False,
     reference_ms: int = REFERENCE_MOVE_MS,
+    witness: Witness = _no_witness,
 ) -> int:
     """The whole procedure, then the file written (if the user agrees): the exit code."""
 
@@ -218,7 +238,7 @@ def calibrate(
     keys = Keys(inp, inp.isatty())
     try:
         with keys.raw():
-            if not run_procedure(procedure, mover, keys, out, reference_ms):
+            if not run_procedure(procedure, mover, keys, out, reference_ms, witness):
                 say("calibration ended early: nothing written; the arm stays where it is")
                 return exits.NOT_DONE
             for line in summary(procedure):
@@ -296,6 +316,7 @@ def calibrate_command(
     from al5d.arm.config import load_config
     from al5d.ros.client import ANSWER_S, Client, NoOutcome, NoServer
     from al5d.ros.params import served_config_file
+    from al5d.ros.physical import PhysicalReader
 
     client = Client(namespace, wait_s=wait_s)
     try:
@@ -316,6 +337,14 @@ def calibrate_command(
             print(f"al5d calibrate: {e}", file=err)
             return exits.USAGE
         print(f"al5d calibrate: {path}, joints {', '.join(procedure.joints)}", file=out)
+        physical = PhysicalReader(client.node, client.names, config.model)
+
+        def witness() -> Mapping[str, float] | None:
+            # A sample taken after the move's outcome, where an emulated arm says any.
+            if physical.degrees() is None:
+                return None
+            return physical.next(WITNESS_WAIT_S) or physical.degrees()
+
         return calibrate(
             procedure,
             ServerMover(client, timeout),
@@ -324,6 +353,7 @@ def calibrate_command(
             out=out,
             yes=yes,
             reference_ms=reference_ms,
+            witness=witness,
         )
     except NoServer as e:
         print(f"al5d calibrate: {e}", file=err)

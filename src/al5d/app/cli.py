@@ -7,6 +7,7 @@ import argparse
 import os
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 from al5d import exits
@@ -153,6 +154,8 @@ def _cmd_send(args: argparse.Namespace) -> int:
 def _cmd_run(args: argparse.Namespace) -> int:
     from al5d.app.terminal import run
 
+    if args.check:
+        return _check(args.file, args.poses)
     return run(
         args.file,
         wait_s=args.wait,
@@ -162,6 +165,28 @@ def _cmd_run(args: argparse.Namespace) -> int:
         poses=args.poses,
         via=args.via,
     )
+
+
+def _check(path: str, poses: str | None) -> int:
+    """`al5d run --check`: the file judged whole as `al5d run` judges it; nothing sent."""
+    from al5d.arm.poses import PosesError, beside, load_poses
+    from al5d.arm.sequence import judge_sequence, served_config
+
+    try:
+        book = load_poses(beside(path) if poses is None else poses, required=poses is not None)
+        judged = judge_sequence(Path(path).read_bytes(), served_config(), path, book)
+    except OSError as e:
+        print(f"al5d run: cannot read {path}: {e.strerror}", file=sys.stderr)
+        return exits.BAD_INPUT
+    except PosesError as e:
+        print(f"al5d run: {e}", file=sys.stderr)
+        return exits.BAD_INPUT
+    for problem in judged.problems:
+        print(f"al5d run: {problem.at(path)}", file=sys.stderr)
+    if not judged.ok:
+        return exits.BAD_INPUT
+    print(f"{path}: {len(judged.lines)} steps, none the server would refuse; nothing sent")
+    return exits.DONE
 
 
 def _cmd_shell(args: argparse.Namespace) -> int:
@@ -306,6 +331,11 @@ def build_parser() -> argparse.ArgumentParser:
         elif name == "run":
             cmd.add_argument(
                 "file", help="one instruction a line; wait <ms>; # comments; & = go on"
+            )
+            cmd.add_argument(
+                "--check",
+                action="store_true",
+                help="judge the whole file as the server would, say every problem, send nothing",
             )
         if name in ("run", "shell"):
             where = "beside the sequence file" if name == "run" else "in this directory"

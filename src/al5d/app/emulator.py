@@ -14,13 +14,14 @@ import threading
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-if TYPE_CHECKING:
-    from al5d.ssc32u.emulator import Emulator
-    from al5d.twin.link import TwinLink
-
 from al5d import exits
 from al5d.arm.config import ArmConfig, load_config
 from al5d.ssc32u.facts import BAUDS, FACTORY_BAUD, LATENCY_TIMER_MS
+
+if TYPE_CHECKING:
+    from al5d.ros.physical import PhysicalPublisher
+    from al5d.ssc32u.emulator import Emulator
+    from al5d.twin.link import TwinLink
 
 
 def add_emulator(sub: Any) -> None:
@@ -96,7 +97,12 @@ def add_emulator(sub: Any) -> None:
         default=[],
         type=_emulator_setting("misalign_setting"),
         help="an arm other than its config says (to try `al5d calibrate` on): the joint "
-        "stands US off its calibration, or turns the other way (repeat)",
+        "stands US off its calibration, or turns the other way (repeat); where it truly "
+        "stands goes on ROS (physical_joint_states), for al5d web and al5d calibrate to show",
+    )
+    emu.add_argument(
+        "--namespace",
+        help="the ROS namespace of the arm's server, for physical_joint_states; default: config",
     )
     emu.add_argument(
         "--physics",
@@ -127,6 +133,18 @@ def _run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return exits.USAGE
+    physical = None
+    if args.misalign:
+        from al5d.arm.config import namespace_problem
+
+        ns = config.server.namespace if args.namespace is None else args.namespace
+        problem = namespace_problem(ns)
+        if problem:
+            print(f"al5d emulator: --namespace: {problem}", file=sys.stderr)
+            return exits.USAGE
+        # Before the board is made urgent: the publisher's threads (and DDS's) keep the
+        # default priority, behind the board's.
+        physical = _physical(config, ns)
     # A board answers in its own time whatever the computer does: the emulated one runs
     # ahead of the host's load (every thread it starts inherits this), where the OS allows.
     # Once its arguments are good: a caller's thread (`main` in a test) keeps its own.
@@ -153,6 +171,8 @@ def _run(args: argparse.Namespace) -> int:
         except TwinFailed as e:
             print(f"al5d emulator: {e}", file=sys.stderr)
             return exits.USAGE
+    if physical is not None:
+        physical.start(emulator.joint_degrees)
     try:
         if args.record is None:
             serve_forever(emulator, _until_signal())
@@ -164,6 +184,8 @@ def _run(args: argparse.Namespace) -> int:
     finally:
         if twin is not None:
             twin.close()
+        if physical is not None:
+            physical.close()
     return exits.DONE
 
 
@@ -175,6 +197,19 @@ def _twin(emulator: Emulator, config: ArmConfig, scene: str) -> TwinLink:
 
     logging.basicConfig(level=logging.INFO, format="al5d emulator: %(message)s", stream=sys.stderr)
     return TwinLink(emulator, config, scene or None)
+
+
+def _physical(config: ArmConfig, namespace: str) -> PhysicalPublisher:
+    """The publisher of where the misaligned arm truly stands (ROS is imported only here)."""
+    from al5d.ros.names import Names
+    from al5d.ros.physical import PhysicalPublisher
+
+    names = Names.of(namespace)
+    print(
+        f"al5d emulator: where the arm truly stands goes on {names.physical_joint_states}",
+        file=sys.stderr,
+    )
+    return PhysicalPublisher(names, config.model)
 
 
 def _until_signal() -> threading.Event:

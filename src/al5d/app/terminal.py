@@ -35,10 +35,9 @@ from al5d.arm.instruction import (
     SequenceStep,
     Wait,
     parse_instruction,
-    parse_sequence,
-    parse_sequence_step,
 )
 from al5d.arm.poses import PosesError, beside, load_poses
+from al5d.arm.sequence import SequenceJudge, judged_steps, served_config
 from al5d.ros.client import (
     Answer,
     Client,
@@ -210,7 +209,7 @@ def run(
     """
     try:
         book = load_poses(beside(path) if poses is None else poses, required=poses is not None)
-        steps = parse_sequence(Path(path).read_bytes(), str(path), PRESET_NAMES, book)
+        steps = judged_steps(Path(path).read_bytes(), str(path), book)
     except OSError as e:
         print(f"al5d run: cannot read {path}: {e.strerror}", file=err)
         return exits.BAD_INPUT
@@ -338,6 +337,7 @@ def shell(
     except PosesError as e:
         print(f"al5d shell: {e}", file=err)
         return exits.BAD_INPUT
+    judge = SequenceJudge(served_config())
     interactive = inp.isatty()
     timing = Timing("al5d shell", verbose, err)
     try:
@@ -361,7 +361,7 @@ def shell(
             if line.strip().lower() in SHELL_QUIT:
                 break
             try:
-                step = parse_sequence_step(line, PRESET_NAMES, book)
+                step = judge.judge_line(line, book)
             except GrammarError as e:
                 print(f"al5d shell: {e}", file=err, flush=True)
                 bad = True

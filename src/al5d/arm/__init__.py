@@ -9,6 +9,8 @@
 - `instruction`: instructions and outcomes as data, and their text grammar.
 - `poses`: the named poses file (`pose <name>` in sequence files), and sequence files.
 - `validate`: whether an instruction can run, judged whole (pure).
+- `sequence`: a sequence judged whole before its first instruction is sent (pure): the
+  grammar, then each step as the server will judge it (`al5d run`, `al5d shell`, the Teach tab).
 - `resample`: a trajectory at the link's budget: the points thinned to what the wire
   carries within the path tolerance, or the limit it meets (pure).
 - `translate`: degrees to pulse widths, move times and the bytes of a group move.

@@ -18,6 +18,7 @@ to reach at given times, from ROS) is one instruction with one outcome.
 
 from __future__ import annotations
 
+import difflib
 import enum
 import itertools
 import math
@@ -319,15 +320,18 @@ def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Ins
     if not words:
         raise GrammarError("empty instruction: expected a word such as move, ready or stop")
     head = words[0].lower()
+    known = (*presets, "move", "move_to", *(kind.value for kind in SAFETY))
+    if head not in known:
+        raise GrammarError(f"word 1 {quote(words[0])}: {_unknown(head, known)}")
     time_ms: int | None = None
     joints: list[tuple[str, float]] = []
     tool_words: dict[str, tuple[int, str]] = {}
     for i, word in enumerate(words[1:], start=1):
+        if head not in (*presets, "move", "move_to"):
+            raise GrammarError(f"{_where(words, i)}: {head} takes no arguments")
         key, eq, value = word.partition("=")
         if not eq or not key or not value:
             raise GrammarError(f"{_where(words, i)}: expected <name>=<value>")
-        if head not in (*presets, "move", "move_to"):
-            raise GrammarError(f"{_where(words, i)}: {head} takes no arguments")
         key = key.lower()
         if key == "time":
             if time_ms is not None:
@@ -351,11 +355,26 @@ def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Ins
         return Instruction(Kind.MOVE, joints=tuple(joints), time_ms=time_ms)
     if head == "move_to":
         return Instruction(Kind.MOVE_TO, tool=_tool(words, tool_words), time_ms=time_ms)
-    for kind in SAFETY:
-        if head == kind.value:
-            return Instruction(kind)
-    known = " | ".join((*presets, "move", "move_to", "stop", "release", "shutdown"))
-    raise GrammarError(f"word 1 {quote(words[0])}: unknown instruction; expected {known}")
+    return Instruction(next(kind for kind in SAFETY if head == kind.value))
+
+
+#: The words of a sequence file (and `al5d shell`) that are no instruction of the server's:
+#: what each is, for the message that meets one anywhere else.
+SEQUENCE_ONLY = {
+    "wait": "wait <ms> pauses a sequence file or al5d shell between instructions; the "
+    "server has no pause to send it",
+    "pose": "pose <name> moves to a pose saved in a poses file, which sequence files, "
+    "al5d shell and the web view read; the server knows no pose names",
+}
+
+
+def _unknown(head: str, known: tuple[str, ...]) -> str:
+    """Why `head` is no instruction: a word of sequence files only, or the nearest there is."""
+    if head in SEQUENCE_ONLY:
+        return SEQUENCE_ONLY[head]
+    near = difflib.get_close_matches(head, (*known, *SEQUENCE_ONLY), n=1, cutoff=0.6)
+    hint = f"did you mean {near[0]!r}? " if near else ""
+    return f"unknown instruction; {hint}expected {' | '.join(known)}"
 
 
 def _pose_move(words: list[str], poses: NamedPoses | None) -> Instruction:
@@ -445,7 +464,7 @@ def parse_sequence(
     more = 0
     for number, raw in enumerate(data.splitlines(), start=1):
         try:
-            step = _sequence_line(raw, presets, poses)
+            step = sequence_line(raw, presets, poses)
         except GrammarError as e:
             if len(errors) < MAX_SEQUENCE_ERRORS:
                 errors.append(f"{name}:{number}: {e}")
@@ -459,9 +478,11 @@ def parse_sequence(
     return steps
 
 
-def _sequence_line(
-    raw: bytes, presets: tuple[str, ...], poses: NamedPoses | None
+def sequence_line(
+    raw: bytes, presets: tuple[str, ...] = PRESET_NAMES, poses: NamedPoses | None = None
 ) -> SequenceStep | None:
+    """One line of a sequence file as its bytes (`parse_sequence_step`); text that is not
+    UTF-8 is a GrammarError naming the byte."""
     try:
         line = raw.decode("utf-8")
     except UnicodeDecodeError as e:

@@ -16,6 +16,7 @@ and the joint; ranges are the server's to judge, as for every move.
 
 from __future__ import annotations
 
+import difflib
 import math
 import os
 import re
@@ -84,7 +85,9 @@ class NamedPoses:
             return f"no saved pose named {_quote(name)} (no poses file at {self.path})"
         if not self.poses:
             return f"no saved pose named {_quote(name)} ({self.path} holds none)"
-        return f"no saved pose named {_quote(name)} (in {self.path}: {', '.join(self.names)})"
+        near = difflib.get_close_matches(name, self.names, n=1, cutoff=0.6)
+        hint = f"; did you mean {near[0]!r}?" if near else ""
+        return f"no saved pose named {_quote(name)}{hint} (in {self.path}: {', '.join(self.names)})"
 
     def with_pose(self, name: str, degrees: dict[str, float]) -> NamedPoses:
         """This book with `name` at `degrees` (rounded to 0.1 degree): replaced where it

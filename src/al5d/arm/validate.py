@@ -9,6 +9,7 @@ range, or the point of a trajectory and what is wrong with it.
 
 from __future__ import annotations
 
+import difflib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -230,7 +231,9 @@ def _joint_problems(joints: tuple[tuple[str, float], ...], limits: Limits) -> li
     for name, deg in joints:
         r = ranges.get(name)
         if r is None:
-            problems.append(f"unknown joint {quote(name)}; joints are {', '.join(ranges)}")
+            near = difflib.get_close_matches(name.lower(), ranges, n=1, cutoff=0.6)
+            hint = f"did you mean {near[0]!r}? " if near else ""
+            problems.append(f"unknown joint {quote(name)}; {hint}joints are {', '.join(ranges)}")
         elif name in seen:
             problems.append(f"{name} is given twice")
         elif not math.isfinite(deg):

@@ -4,6 +4,8 @@
 - `joints`: the one table arm degrees <-> URDF values (`CONVENTIONS`, `GripperMap`).
 - `transforms`: rigid transforms as tuples (quaternions, matrices, RPY).
 - `chain`: the links and joints, and their poses; `urdf`: the URDF made from it.
+- `looks`: what the links look like (servos, brackets, tubes, the base, the gripper), from
+  the geometry: the URDF's visuals.
 - `kinematics`: closed-form forward and inverse kinematics.
 - `lines`: a straight line of the tool cut into the fewest group moves.
 - `table`: whether the arm's bodies stay above the table, at a pose and along a move.

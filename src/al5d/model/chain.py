@@ -15,6 +15,7 @@ from typing import Final, Literal
 from al5d.model.arm import ArmModel
 from al5d.model.errors import InvalidInput
 from al5d.model.joints import ARM_JOINTS, CONVENTIONS, GRIPPER_FINGERS, JOINTS
+from al5d.model.looks import Shape, link_looks
 from al5d.model.transforms import Transform, Vec3, quat_from_axis_angle, quat_from_rpy
 
 #: Default `effort` limit (N m, N for the fingers). URDF requires one; nothing here
@@ -46,23 +47,14 @@ _WRIST_BLOCK = 0.025  # wrist rotate servo, along the gripper axis
 
 
 @dataclass(frozen=True)
-class Shape:
-    """A link's visual and collision primitive, in the link's frame (no rotation)."""
-
-    kind: Literal["box", "cylinder"]
-    #: box: full sizes x, y, z; cylinder: (radius, length along z, 0).
-    size: Vec3
-    #: Centre of the primitive in the link frame.
-    center: Vec3
-    material: str
-
-
-@dataclass(frozen=True)
 class Link:
-    """A URDF link; `shape` None for a frame without a body (tool0)."""
+    """A URDF link; `shape` its collision body (one, unturned: the table check and MoveIt use
+    it), None for a frame without a body (tool0); `visuals` what it looks like
+    (`looks`; none: the collision body)."""
 
     name: str
     shape: Shape | None
+    visuals: tuple[Shape, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -182,31 +174,49 @@ def build_chain(
     hand_len = max(g.gripper - finger_len - hand_start, 0.005)
     fw, ft = _FINGER[0], _FINGER[1]
 
+    looks = link_looks(g, finger_len, (fw, ft))
     links = (
-        Link(root, Shape("cylinder", (_BASE_RADIUS, housing, 0.0), (0, 0, housing / 2), "dark")),
+        Link(
+            root,
+            Shape("cylinder", (_BASE_RADIUS, housing, 0.0), (0, 0, housing / 2), "dark"),
+            looks["root"],
+        ),
         Link(
             n["base"],
             Shape("box", (0.06, 0.07, pedestal), (0, 0, housing + pedestal / 2), "dark"),
+            looks["base"],
         ),
-        Link(n["shoulder"], Shape("box", (0.025, 0.06, upper), (0, 0, g.humerus / 2), "metal")),
-        Link(n["elbow"], Shape("box", (0.024, 0.035, fore), (0, 0, g.ulna / 2), "metal")),
+        Link(
+            n["shoulder"],
+            Shape("box", (0.025, 0.06, upper), (0, 0, g.humerus / 2), "metal"),
+            looks["shoulder"],
+        ),
+        Link(
+            n["elbow"],
+            Shape("box", (0.024, 0.035, fore), (0, 0, g.ulna / 2), "metal"),
+            looks["elbow"],
+        ),
         Link(
             n["wrist"],
             Shape("box", (0.03, 0.04, wrist_len), (0, 0, _CLEARANCE + wrist_len / 2), "dark"),
+            looks["wrist"],
         ),
         Link(
             n["wrist_rotate"],
             Shape("box", (0.03, 0.06, hand_len), (0, 0, hand_start + hand_len / 2), "metal"),
+            looks["wrist_rotate"],
         ),
         # The gap itself: a frame without a body, moved by `gripper`; the fingers mimic it.
         Link(n["gripper"], None),
         Link(
             n[GRIPPER_FINGERS[0]],
             Shape("box", (fw, ft, finger_len), (0, ft / 2, finger_len / 2), "dark"),
+            looks["left"],
         ),
         Link(
             n[GRIPPER_FINGERS[1]],
             Shape("box", (fw, ft, finger_len), (0, -ft / 2, finger_len / 2), "dark"),
+            looks["right"],
         ),
         Link(tool, None),
     )

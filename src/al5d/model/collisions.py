@@ -16,7 +16,8 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from al5d.model.chain import Chain, Joint, Link, Shape
+from al5d.model.chain import Chain, Joint, Link
+from al5d.model.looks import Shape
 from al5d.model.transforms import matrix_from_quat, quat_from_rpy
 
 Array = NDArray[np.float64]

@@ -34,9 +34,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from al5d.model.arm import ArmModel
-from al5d.model.chain import LINK_OF_JOINT, Shape, build_chain
+from al5d.model.chain import LINK_OF_JOINT, build_chain
 from al5d.model.errors import BelowTable, InvalidInput
 from al5d.model.joints import GRIPPER_FINGERS, JOINTS
+from al5d.model.looks import Shape
 
 Array = NDArray[np.float64]
 

@@ -7,13 +7,15 @@ from collections.abc import Mapping
 from typing import Final
 
 from al5d.model.arm import ArmModel
-from al5d.model.chain import DEFAULT_EFFORT, Chain, Shape, build_chain
+from al5d.model.chain import DEFAULT_EFFORT, Chain, build_chain
+from al5d.model.looks import Shape
 from al5d.model.transforms import Mount
 
-#: RGBA of the two materials the shapes use.
+#: RGBA of the materials the shapes use: servo bodies and the base, aluminium, horns.
 MATERIALS: Final[Mapping[str, tuple[float, float, float, float]]] = {
     "dark": (0.15, 0.15, 0.17, 1.0),
     "metal": (0.72, 0.74, 0.78, 1.0),
+    "white": (0.93, 0.93, 0.9, 1.0),
 }
 
 
@@ -33,7 +35,7 @@ def _approx(values: tuple[float, ...]) -> str:
 
 
 def _geometry(parent: ET.Element, shape: Shape) -> None:
-    ET.SubElement(parent, "origin", xyz=_approx(shape.center), rpy="0 0 0")
+    ET.SubElement(parent, "origin", xyz=_approx(shape.center), rpy=_approx(shape.rpy))
     geometry = ET.SubElement(parent, "geometry")
     if shape.kind == "box":
         ET.SubElement(geometry, "box", size=_approx(shape.size))
@@ -62,9 +64,10 @@ def urdf_from_chain(chain: Chain, robot_name: str = "al5d", mount: Mount | None 
         element = ET.SubElement(robot, "link", name=link.name)
         if link.shape is None:
             continue
-        visual = ET.SubElement(element, "visual")
-        _geometry(visual, link.shape)
-        ET.SubElement(visual, "material", name=link.shape.material)
+        for shape in link.visuals or (link.shape,):
+            visual = ET.SubElement(element, "visual")
+            _geometry(visual, shape)
+            ET.SubElement(visual, "material", name=shape.material)
         _geometry(ET.SubElement(element, "collision"), link.shape)
     if mount is not None:
         element = ET.SubElement(robot, "joint", name=MOUNT_JOINT, type="fixed")

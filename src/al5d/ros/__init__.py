@@ -19,6 +19,8 @@ client.
   (the stop service, and a stop on the instruction topic obeyed at once).
 - `stopproc`: the stop's own process: node `al5d_stop`, ahead of the rest.
 - `robot`: the robot's description, joint states and transforms (`RobotNode`'s).
+- `physical`: where the joints physically stand, where something knows it (an emulated
+  arm's true angles): published beside the server, read by the web view and `al5d calibrate`.
 - `actions`: the move action; `controllers`: MoveIt's FollowJointTrajectory and
   GripperCommand (both `ActionsNode`'s).
 - `client`: `Client`, a client of the server: a local one by its lane, any other over

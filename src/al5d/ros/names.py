@@ -93,6 +93,12 @@ class Names:
         return self.shared("joint_commands")
 
     @property
+    def physical_joint_states(self) -> str:
+        """Where the joints physically stand, where something knows it (an emulated arm's
+        true angles: `al5d.ros.physical`), as /joint_states (the URDF's names and values)."""
+        return self.shared("physical_joint_states")
+
+    @property
     def robot_description(self) -> str:
         return self.shared("robot_description")
 

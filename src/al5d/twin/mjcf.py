@@ -24,8 +24,9 @@ from typing import Final
 from al5d.arm.config import ArmConfig
 from al5d.arm.servos import SERVOS, USUAL_SERVO, ServoModel
 from al5d.model import ARM_JOINTS, build_chain
-from al5d.model.chain import Chain, Shape
+from al5d.model.chain import Chain
 from al5d.model.joints import GRIPPER_FINGERS
+from al5d.model.looks import Shape
 from al5d.model.transforms import quat_from_rpy
 from al5d.model.urdf import MATERIALS
 from al5d.twin.scene import Scene, SceneObject, rgba

@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import html
 import logging
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -33,6 +34,8 @@ from al5d.arm.calibration import (
     Procedure,
 )
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result
+from al5d.model import ArmModel, ModelError, joint_positions
+from al5d.model.transforms import Vec3
 
 if TYPE_CHECKING:
     from al5d.web.page import Page
@@ -70,6 +73,10 @@ class CalibrationTab:
         self.waiting: str | None = None
         self.results: dict[str, JointCalibration] = {}
         self.notes: list[str] = []
+        #: Where the arm physically stands, where an emulated arm says it (None: not said),
+        #: and the status's last note (shown again when that changes).
+        self.physical: dict[str, float] | None = None
+        self._said: tuple[str, bool | None] = ("", None)
         gui = page.server.gui
         with tabs.add_tab("Calibrate", viser.Icon.RULER_MEASURE):
             self.joint = gui.add_dropdown("joint", tuple(page.config.joints))
@@ -80,7 +87,7 @@ class CalibrationTab:
             self.cancel = gui.add_button("cancel", icon=viser.Icon.X)
             self.results_html = gui.add_html(_html(RESULTS, ""))
             self.write = gui.add_button("write", icon=viser.Icon.DEVICE_FLOPPY, disabled=True)
-        self.start.on_click(lambda _: self._on_start())
+        self.start.on_click(lambda event: self._on_start(event.client))
         self.nudge.on_click(lambda event: self._on_nudge(int(str(event.target.value))))
         self.accept.on_click(lambda _: self._on_accept())
         self.cancel.on_click(lambda _: self._on_cancel())
@@ -99,6 +106,42 @@ class CalibrationTab:
             return None
         return self.procedure.reference_pose()
 
+    def on_physical(self, degrees: dict[str, float] | None) -> None:
+        """Where the emulated arm truly stands (None: nothing says any more): the status
+        says how far the joint is off the ghost, and a needle shows it beside the ghost's,
+        so that the nudges visibly close it."""
+        before = self._physical_line()
+        self.physical = degrees
+        if self._physical_line() != before:
+            self._show(*self._said)
+        else:
+            self._show_needles()
+
+    def _show_needles(self) -> None:
+        procedure = self.procedure
+        shown: dict[str, tuple[Vec3, Vec3]] = {}
+        if procedure is not None and procedure.step is Awaiting.NUDGE:
+            ghost = procedure.reference_pose()
+            name = procedure.joint.name
+            for which, pose in (("ghost", ghost), ("physical", self.physical)):
+                needle = None if pose is None else joint_needle(self.page.model, pose, name)
+                if needle is not None:
+                    shown[which] = needle
+        self.page.scene.show_needles(shown)
+
+    def _physical_line(self) -> str:
+        procedure = self.procedure
+        if self.physical is None or procedure is None or procedure.step is not Awaiting.NUDGE:
+            return ""
+        joint, ref = procedure.joint.name, procedure.reference
+        true = self.physical.get(joint)
+        if true is None:
+            return ""
+        return (
+            f"The emulated arm (orange) truly stands at {true:.1f} deg: "
+            f"{true - ref.deg:+.1f} deg off the ghost."
+        )
+
     def on_outcome(self, outcome: Outcome) -> None:
         if self.procedure is None or outcome.id != self.waiting:
             return
@@ -112,12 +155,18 @@ class CalibrationTab:
 
     # -- the user's input (viser's threads) ------------------------------------------
 
-    def _on_start(self) -> None:
+    def _on_start(self, client: Any) -> None:
         with self.lock:
             name = str(self.joint.value)
             self.procedure = Procedure(self.page.config, (name,), DEFAULT_STEP_US)
             self.results.pop(name, None)
             self._go(REFERENCE_MOVE_MS)
+            if client is not None:
+                # The view turns to the joint, from where its turn shows best.
+                look_at, position = joint_view(
+                    self.page.model, self.procedure.reference_pose(), name
+                )
+                self.page.scene.aim(client, look_at, position)
 
     def _on_nudge(self, steps: int) -> None:
         with self.lock:
@@ -206,6 +255,7 @@ class CalibrationTab:
             self._show("not sent: no contact with the server", ok=False)
 
     def _show(self, note: str = "", ok: bool | None = None) -> None:
+        self._said = (note, ok)
         procedure = self.procedure
         lines = []
         if procedure is not None and procedure.step is Awaiting.NUDGE:
@@ -216,11 +266,15 @@ class CalibrationTab:
                 f"{ref.looks} (the ghost). At {procedure.pulse} us ({offset:+.0f} us from the "
                 f"config's {ref.deg:g} deg): nudge until the arm matches the ghost."
             )
+            physical = self._physical_line()
+            if physical:
+                lines.append(physical)
         if note:
             lines.append(note)
         colour = {True: "#2b8a3e", False: "#c92a2a", None: "#495057"}[ok]
         body = "<br>".join(html.escape(line) for line in lines)
         self.status.content = _html(STATUS, body, colour)
+        self._show_needles()
 
     def _show_results(self, diff: str = "") -> None:
         lines = [r.describe() for r in self.results.values()] + self.notes
@@ -231,6 +285,64 @@ class CalibrationTab:
             )
         self.results_html.content = _html(RESULTS, body)
         self.write.disabled = not self.results
+
+
+#: From where each joint's turn shows best, as an offset (metres, base_link) from the middle
+#: of its needle (the hand's: from its tool): the base from above, the pitch joints from the
+#: side, the hand from above it.
+VIEWS: dict[str, Vec3] = {
+    "base": (-0.05, -0.2, 0.42),
+    "shoulder": (0.02, -0.5, 0.05),
+    "elbow": (0.02, -0.5, 0.05),
+    "wrist": (0.02, -0.5, 0.05),
+    "wrist_rotate": (0.05, -0.07, 0.28),
+    "gripper": (0.08, -0.2, 0.12),
+}
+
+
+def joint_view(model: ArmModel, pose: dict[str, float], joint: str) -> tuple[Vec3, Vec3]:
+    """The point to look at `joint` of the arm at `pose` (its needle's middle, or the
+    tool), and where from."""
+    needle = joint_needle(model, pose, joint)
+    if needle is None:
+        at = joint_positions(model.geometry, pose)["tool0"]
+    else:
+        (ax, ay, az), (bx, by, bz) = needle
+        at = ((ax + bx) / 2, (ay + by) / 2, (az + bz) / 2)
+    dx, dy, dz = VIEWS.get(joint, VIEWS["wrist_rotate"])
+    return at, (at[0] + dx, at[1] + dy, at[2] + dz)
+
+
+#: A needle's length (metres): long enough that a degree shows (5 mm at its tip).
+NEEDLE_M = 0.3
+#: The base's needle lies on the turntable, this high (metres).
+BASE_NEEDLE_Z = 0.045
+#: The pitch joints' needles run from the joint to the next joint's point.
+NEXT_POINT = {"shoulder": "elbow", "elbow": "wrist", "wrist": "tool0"}
+
+
+def joint_needle(
+    model: ArmModel, pose: Mapping[str, float], joint: str
+) -> tuple[Vec3, Vec3] | None:
+    """Where `joint` of the arm at `pose` points: a needle from its axis NEEDLE_M long (the
+    base's across the turntable, a pitch joint's along its link); None for a joint whose
+    turn no needle shows (the wrist rotate, the gripper)."""
+    if joint == "base" and "base" in pose:
+        angle = math.radians(-pose["base"])  # +deg turns right, toward -y
+        start = (0.0, 0.0, BASE_NEEDLE_Z)
+        return start, (NEEDLE_M * math.cos(angle), NEEDLE_M * math.sin(angle), BASE_NEEDLE_Z)
+    if joint not in NEXT_POINT:
+        return None
+    try:
+        points = joint_positions(model.geometry, pose)
+    except ModelError:
+        return None
+    (ax, ay, az), (bx, by, bz) = points[joint], points[NEXT_POINT[joint]]
+    length = math.dist((ax, ay, az), (bx, by, bz))
+    if length == 0:
+        return None
+    k = NEEDLE_M / length
+    return (ax, ay, az), (ax + (bx - ax) * k, ay + (by - ay) * k, az + (bz - az) * k)
 
 
 def attach(page: Page, path: Path, served: Callable[[], Path | None]) -> CalibrationTab:

@@ -66,6 +66,11 @@ class Jog:
         """Another instruction, a stop: the jog's target is not sent again."""
         self.target = None
 
+    def let_go(self) -> None:
+        """The jog is over whatever the user's hand does (the arm stopped, or the server
+        refused it): nothing more is sent, and the sliders may follow the arm at once."""
+        self.target, self.refused, self.touched, self.short_t = None, "", -math.inf, None
+
     def unread(self) -> None:
         """Nobody read the set-point sent: it is due again at the next tick."""
         self.sent, self.short_t = False, None

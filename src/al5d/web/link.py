@@ -14,6 +14,7 @@ are on no topic: the page shows no ghost for them, only their outcomes.
 
 from __future__ import annotations
 
+import itertools
 import os
 import time
 from collections.abc import Mapping, Sequence
@@ -43,6 +44,7 @@ from al5d.ros.convert import (
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.names import PING, Names
+from al5d.ros.physical import PhysicalReader
 from al5d.ros.qos import QOS_COMMANDS, QOS_INSTRUCTIONS, QOS_LATCHED, QOS_SERVICES
 from al5d.ros.robot import QOS_TF_STATIC
 
@@ -89,6 +91,8 @@ class Listener(Protocol):
 
     def on_mount(self, parent: str, mount: Transform) -> None: ...
 
+    def on_physical(self, degrees: dict[str, float]) -> None: ...
+
 
 class WebNode:
     """The web process's node: subscriptions to the server's outputs, the instruction topic,
@@ -106,6 +110,9 @@ class WebNode:
             f"al5d_web_{os.getpid()}", namespace=names.node_namespace, context=self.context
         )
         self.pub = node.create_publisher(ArmInstruction, names.instruction, QOS_INSTRUCTIONS)
+        #: The ids of this page's set-points start with it.
+        self.jog_prefix = f"web-jog-{os.getpid():x}-"
+        self._jog_ids = itertools.count(1)
         # Readers of the jog ever matched and ever gone (the matched event's counts), and
         # both when the page last lost the server (`server_lost`).
         self._jog_seen = self._jog_mark = (0, 0)
@@ -124,6 +131,8 @@ class WebNode:
         )
         node.create_subscription(JointTrajectory, names.trajectory, self._on_trajectory, QOS_LATEST)
         node.create_subscription(TFMessage, "/tf_static", self._on_static, QOS_TF_STATIC)
+        # Where an emulated arm truly stands, if one says (`al5d emulator --misalign`).
+        PhysicalReader(node, names, model, listener.on_physical)
         by_kind = {kind: name for name, kind in names.services.items()}
         self.stop_client = node.create_client(Trigger, by_kind[Kind.STOP], qos_profile=QOS_SERVICES)
         self.release_client = node.create_client(
@@ -188,6 +197,9 @@ class WebNode:
         values = self.model.to_urdf(dict(degrees))
         msg = JointState(name=list(values), position=[float(v) for v in values.values()])
         msg.header.stamp = self.node.get_clock().now().to_msg()
+        # The set-point's id on the result topic (`convert.trajectory_id`): the page knows
+        # its own jog's refusals by it.
+        msg.header.frame_id = f"{self.jog_prefix}{next(self._jog_ids)}"
         self.jog_pub.publish(msg)
         (matched, gone), (matched_then, gone_then) = self._jog_seen, self._jog_mark
         changed = matched > matched_then or gone > gone_then

@@ -25,7 +25,7 @@ from al5d.arm.instruction import Instruction, Outcome, Result, preset
 from al5d.model import JOINTS, ModelError
 from al5d.model.transforms import Transform
 from al5d.web.jog import Jog
-from al5d.web.panel import Panel
+from al5d.web.panel import RELEASABLE, STATE_WORDS, Panel
 from al5d.web.plan import JointHistory, OutcomeLog, Planner, Target
 from al5d.web.scene import ArmScene
 from al5d.web.sliders import SliderInput
@@ -41,10 +41,15 @@ LOST_AFTER_S = 1.0
 LOOP_S = 0.05
 #: The plot is redrawn this often (each redraw sends the whole window of samples).
 PLOT_EVERY_S = 0.25
+#: The arm as it physically stands is hidden once nothing has said it for this long.
+PHYSICAL_FRESH_S = 1.0
 
 
 class Commands(Protocol):
     """What the page asks of the server (the ROS link)."""
+
+    #: The ids of the jog's set-points start with it (their refusals come back by it).
+    jog_prefix: str
 
     def send(self, instr: Instruction) -> None: ...
 
@@ -96,7 +101,12 @@ class Page:
         #: When the 3D view may change, and what it has to show then.
         self.hold = ViewHold(server)
         self.arm_due = self.ghost_due = False
-        self.scene = ArmScene(server, self.model)
+        #: Where the arm physically stands (an emulated arm's truth), when that is said, and
+        #: since when; whether the 3D view has yet to show it.
+        self.physical: dict[str, float] | None = None
+        self.physical_t = -math.inf
+        self.physical_due = False
+        self.scene = ArmScene(server, self.model, config.presets.values())
         self.panel = Panel(server, config, title)
         self.panel.show_outcomes(self.outcomes)
         self._wire()
@@ -155,12 +165,24 @@ class Page:
 
     def on_state(self, state: str) -> None:
         with self._lock:
-            self.state = state
+            before, self.state = self.state, state
             self._show_state(state)
             if state in ("stopped", "fault", "shutting_down"):
                 # Nothing queued survives these: a stop cancels all, a fault too.
                 self.pending.clear()
                 self._show_ghost()
+            if state in RELEASABLE and before not in RELEASABLE:
+                # The jog is over (the server refuses every move until a release): the
+                # sliders go to where the arm stopped, and follow it from there.
+                self.jog.let_go()
+                self.panel.show_joints_status(
+                    f"{STATE_WORDS.get(state, state)}: the sliders show where the arm is; "
+                    "release it to move it again",
+                    False,
+                )
+                self._follow(force=True)
+            elif before in RELEASABLE and state not in RELEASABLE:
+                self.panel.show_joints_status("drag a slider to move", None)
 
     def on_outcome(self, outcome: Outcome) -> None:
         with self._lock:
@@ -171,6 +193,18 @@ class Page:
                 self._show_ghost()
             if self.calibration is not None:
                 self.calibration.on_outcome(outcome)
+            if (
+                outcome.result is Result.REFUSED
+                and self.commands is not None
+                and outcome.id.startswith(self.commands.jog_prefix)
+                and self.jog.target is not None
+            ):
+                # The server refused the jog: the sliders go back to where the arm is.
+                self.jog.let_go()
+                self.panel.show_joints_status(
+                    f"refused: {outcome.reason} (the sliders show where the arm is)", False
+                )
+                self._follow(force=True)
             if outcome.id == self.page_move_to:
                 ok = outcome.result is Result.DONE
                 self.panel.show_status(f"server: {outcome}", ok)
@@ -188,6 +222,20 @@ class Page:
                 self.hold.hold()
                 self.pending[instr.id] = (f"{instr.name} [{instr.id}]", target)
                 self._show_ghost()
+
+    def on_physical(self, degrees: dict[str, float]) -> None:
+        """Where the arm physically stands, as an emulated arm says (`physical_joint_states`):
+        drawn beside the arm the model believes in, and told to the Calibrate tab."""
+        with self._lock:
+            before = self.physical or {}
+            self.physical_t = time.monotonic()
+            if before and all(abs(v - before.get(j, math.inf)) < 0.05 for j, v in degrees.items()):
+                return  # at rest it repeats 20 times a second: nothing to redraw
+            self.physical = dict(degrees)
+            self.physical_due = True
+            self._show_scene()
+            if self.calibration is not None:
+                self.calibration.on_physical(self.physical)
 
     def on_mount(self, parent: str, mount: Transform) -> None:
         """Where the arm's base_link stands in `parent` (its mount, on /tf_static)."""
@@ -223,8 +271,10 @@ class Page:
                 self.scene.show_arm(self.degrees)
             if self.ghost_due:
                 self.scene.show_ghost(self._ghost())
+            if self.physical_due:
+                self.scene.show_physical(self.physical)
             self._show_tool()
-        self.arm_due = self.ghost_due = False
+        self.arm_due = self.ghost_due = self.physical_due = False
         # Sent now, not in viser's next window (1/60 s): a state that comes a moment later
         # would share that window, and wait with the pose for a frame.
         self.server.flush()
@@ -232,7 +282,7 @@ class Page:
     def _show_held(self) -> None:
         """The ghost, and what the 3D view held back while a state went out (the page's
         loop)."""
-        if (self.arm_due or self.ghost_due) and not self.hold.held():
+        if (self.arm_due or self.ghost_due or self.physical_due) and not self.hold.held():
             self._show_scene()
 
     def _show_tool(self) -> None:
@@ -363,6 +413,10 @@ class Page:
                     age = now - self.last_joints_t
                     if age > LOST_AFTER_S and (not self.lost or int(age) != int(age - LOOP_S)):
                         self._set_lost(True, age)
+                if self.physical is not None and now - self.physical_t > PHYSICAL_FRESH_S:
+                    self.physical, self.physical_due = None, True  # nothing says it any more
+                    if self.calibration is not None:
+                        self.calibration.on_physical(None)
                 self._show_held()
                 moving = self.state == "moving"
                 jog, said = (None, "") if self.lost else self.jog.due(now, moving, self.degrees)

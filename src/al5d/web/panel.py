@@ -75,6 +75,42 @@ PAGE_STYLE = """<style id="al5d-stop-style">
 </style>"""
 
 
+#: viser 1.1.1 labels an input with `<label for=UUID>`, but gives a text box (`add_text`) no
+#: such id, a slider's id to a <div> (which a label cannot name) and the number box beside a
+#: slider no label at all: none of those has an accessible name. This names each, from its
+#: row's label, whenever the panel's rows come and go (a tab opened, a row redrawn). It runs
+#: as an image's `onload`: viser's HTML elements run no <script>.
+NAME_INPUTS_JS = """if (!window.al5dNames) { window.al5dNames = true;
+  const name = () => {
+    for (const label of document.querySelectorAll("label[for]")) {
+      const target = document.getElementById(label.htmlFor);
+      if (target && target.labels && target.labels.length) continue;
+      const row = label.closest(".mantine-Flex-root");
+      if (!row) continue;
+      const text = label.textContent.trim();
+      const controls = row.querySelectorAll("input:not([type=hidden]), textarea, [role=slider]");
+      controls.forEach((control, i) => {
+        const said = i === 0 ? text : `${text} (number)`;
+        if (control.getAttribute("aria-label") !== said) control.setAttribute("aria-label", said);
+      });
+    }
+  };
+  let due = false;
+  new MutationObserver(() => {
+    if (!due) { due = true; queueMicrotask(() => { due = false; name(); }); }
+  }).observe(document.body, { childList: true, subtree: true });
+  name();
+}"""
+#: A transparent pixel, to carry the script.
+PIXEL = "data:image/gif;base64,R0lGODlhAQABAIAAAAAAAP///yH5BAEAAAAALAAAAAABAAEAAAIBRAA7"
+
+
+def names_html() -> str:
+    """The element that names the panel's inputs (`NAME_INPUTS_JS`)."""
+    script = html.escape(NAME_INPUTS_JS, quote=True)
+    return f'<img id="al5d-names" alt="" hidden src="{PIXEL}" onload="{script}">'
+
+
 def phone_style(stop_id: str) -> str:
     """On a phone, STOP (its element's id) pinned over the top of the screen, big, above
     everything: one tap, whatever the bottom sheet shows. There its window is a section
@@ -159,6 +195,7 @@ class Panel:
                 "STOP", color="red", icon=viser.Icon.HAND_STOP, hint="emergency stop (any state)"
             )
             gui.add_html(phone_style(self.stop._impl.uuid))
+            gui.add_html(names_html())
         self.stop_window.float(x=STOP_MARGIN_PX, y=-STOP_MARGIN_PX, width=STOP_WIDTH_PX)
         self.stop_window.expand()  # a phone's sheet draws it as a section, collapsed
         self.state_html = gui.add_html(state_html("unknown"))

@@ -13,6 +13,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 from al5d.arm.instruction import Instruction, Kind
+from al5d.web.panel import RELEASABLE
 
 if TYPE_CHECKING:
     from al5d.web.page import Page
@@ -60,6 +61,18 @@ class SliderInput:
                 # typed there is undone, and nothing is sent.
                 if page.degrees is not None and joint in page.degrees:
                     page.panel.set_slider(joint, page.degrees[joint])
+                return
+            if page.state in RELEASABLE:
+                # The server refuses every move until a release: nothing is sent, and the
+                # slider goes back to where the arm is.
+                page.jog.let_go()
+                if page.degrees is not None and joint in page.degrees:
+                    page.panel.set_slider(joint, page.degrees[joint])
+                page.panel.show_joints_status(
+                    f"not sent: the arm is {page.state}; release it first (the sliders "
+                    "show where it is)",
+                    False,
+                )
                 return
             jog = page.jog.take(joint, value, time.monotonic())
             move = Instruction(Kind.MOVE, joints=tuple(jog.items()), time_ms=page.panel.time_ms())

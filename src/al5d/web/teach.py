@@ -22,7 +22,7 @@ from typing import Any
 
 import viser
 
-from al5d.arm.instruction import GrammarError, Instruction, Outcome, SequenceStep, Wait
+from al5d.arm.instruction import Instruction, Outcome
 from al5d.arm.poses import (
     SEQUENCE_SUFFIX,
     NamedPoses,
@@ -36,6 +36,7 @@ from al5d.arm.poses import (
     sequence_names,
     used_by,
 )
+from al5d.arm.sequence import Line, SequenceJudge
 from al5d.model.transforms import Transform
 from al5d.web.page import Page
 from al5d.web.panel import status_html
@@ -61,6 +62,8 @@ class Teach:
         self._shown: tuple[Pose, ...] | None = None
         book = load_poses(poses_path, required=False)  # a bad file: PosesError, at start
         self.player = Player(self._send, lambda: page.lost, self._show)
+        #: A sequence judged whole before anything of it is sent, as `al5d run` judges one.
+        self.judge = SequenceJudge(page.config)
         config = page.config
         self.gui = gui = page.server.gui
         tabs: Any = page.panel.tabs
@@ -77,10 +80,10 @@ class Teach:
                     "steps", "", multiline=True, hint="one step a line, as in a sequence file"
                 )
                 self.move_ms = gui.add_number(
-                    "move time (ms)", 1000, min=0, max=config.server.max_move_time_ms, step=100
+                    "step time (ms)", 1000, min=0, max=config.server.max_move_time_ms, step=100
                 )
                 lo, hi = config.joints["gripper"].range_deg
-                self.gripper = gui.add_number("gripper (deg)", lo, min=lo, max=hi, step=1)
+                self.gripper = gui.add_number("step gripper (deg)", lo, min=lo, max=hi, step=1)
                 self.wait_ms = gui.add_number("wait (ms)", 500, min=0, max=60_000, step=100)
                 self.add = gui.add_button_group("add", ADD_STEPS)
                 self.play = gui.add_button("play", color="green", icon=viser.Icon.PLAYER_PLAY)
@@ -101,8 +104,8 @@ class Teach:
 
     def _wire(self) -> None:
         self.page.panel.stop.on_click(self._on_stop)
+        self.save_pose.on_click(_by_user(lambda e: self._save_pose(e.client)))
         handlers: list[tuple[Any, Callable[[], None]]] = [
-            (self.save_pose, self._save_pose),
             (self.play, self._play),
             (self.save_sequence, self._save_sequence),
             (self.load, self._load),
@@ -169,7 +172,9 @@ class Teach:
         self._show_poses(book, selected)
         self._show(said, True)
 
-    def _save_pose(self) -> None:
+    def _save_pose(self, client: Any, replace: bool = False) -> None:
+        """Where the arm is, under the name typed; a name saved already is replaced only once
+        the user who clicked has said so (`replace`)."""
         name = str(self.pose_name.value).strip()
         degrees = self.page.degrees
         book = self._book()
@@ -183,8 +188,43 @@ class Teach:
         except PosesError as e:
             self._show(f"not saved: {e}", False)
             return
+        if book.find(name) is not None and not replace:
+            self._ask_replace(client, name)
+            return
         verb = "replaced" if book.find(name) is not None else "saved"
         self._changed(new, f"{verb} pose {name!r} in {self.path}", name)
+
+    def _ask_replace(self, client: Any, name: str) -> None:
+        """Ask the user who clicked whether the pose saved as `name` goes (a window over the
+        page, theirs alone)."""
+        pose = self._shown_pose(name)
+        self._show(f"pose {name!r} is saved already: replace it, or keep it?", None)
+        gui = client.gui if client is not None else self.gui
+        with gui.add_modal(f"Replace pose {name!r}?") as modal:
+            gui.add_html(
+                '<div style="font-size:0.9em;padding:0 0.6em">'
+                f"{html.escape(pose)}<br>would become where the arm is now.</div>"
+            )
+            replace = gui.add_button("replace", color="red", icon=viser.Icon.DEVICE_FLOPPY)
+            keep = gui.add_button("keep it", icon=viser.Icon.X)
+
+        def answered(replacing: bool) -> None:
+            modal.close()
+            if replacing:
+                self._save_pose(client, replace=True)
+            else:
+                self._show(f"not saved: pose {name!r} kept as it was", None)
+
+        replace.on_click(_by_user(lambda _: answered(True)))
+        keep.on_click(_by_user(lambda _: answered(False)))
+
+    def _shown_pose(self, name: str) -> str:
+        with self._lock:
+            pose = next((p for p in self._shown or () if p.name == name), None)
+        if pose is None:
+            return f"The pose {name!r}"
+        angles = ", ".join(f"{j} {v:g}" for j, v in pose.joints)
+        return f"The pose {name!r} ({angles})"
 
     def _pose_named(self) -> None:
         """What `save pose` would do with the name typed."""
@@ -196,7 +236,7 @@ class Teach:
         if problem:
             self._show(problem, False)
         elif book.find(name) is not None:
-            self._show(f"pose {name!r} is saved: save pose replaces it", None)
+            self._show(f"pose {name!r} is saved: save pose asks before it replaces it", None)
         else:
             self._show(f"pose {name!r}: a new name", None)
 
@@ -250,7 +290,10 @@ class Teach:
         using = used_by(self.folder, name)
         if not using:
             return ""
-        return f"; {', '.join(f'{s}.seq' for s in using)} still name it: edit them"
+        files = [f"{s}{SEQUENCE_SUFFIX}" for s in using]
+        if len(files) == 1:
+            return f"; {files[0]} still names it: edit it"
+        return f"; {', '.join(files[:-1])} and {files[-1]} still name it: edit them"
 
     # -- the sequence --------------------------------------------------------------
 
@@ -270,12 +313,13 @@ class Teach:
             self.steps.value = text
         self._check(text)
 
-    def _parse(self, text: str, book: NamedPoses) -> list[SequenceStep] | str:
-        """The steps of `text`, or why it cannot be played (every bad line)."""
-        try:
-            return parse_text(text, book)
-        except GrammarError as e:
-            return str(e).replace("\n", "; ")
+    def _parse(self, text: str, book: NamedPoses) -> tuple[Line, ...] | str:
+        """The steps of `text` judged whole as `al5d run` judges a file, from where the arm
+        is (`al5d.arm.sequence`), or why it cannot be played (every problem, with its line)."""
+        judged = self.judge.judge_text(text, "steps", book, self.page.degrees)
+        if judged.ok:
+            return judged.lines
+        return "; ".join(f"line {p.number} ({p.text}): {p.reason}" for p in judged.problems)
 
     def _check(self, text: str) -> None:
         """Say whether `text` would play, as it is typed."""
@@ -296,6 +340,12 @@ class Teach:
         book = self._book()
         if book is None:
             return
+        if self.page.lost:
+            self._show("nothing played: no contact with the server", False)
+            return
+        if self.page.degrees is None:
+            self._show("nothing played: the arm's pose is not known yet", False)
+            return
         steps = self._parse(text, book)
         if isinstance(steps, str):
             self._show(f"nothing played: {steps}", False)
@@ -303,31 +353,8 @@ class Teach:
         if not steps:
             self._show("nothing to play: add steps first", False)
             return
-        lines = [kept for raw in text.splitlines() if (kept := raw.split("#", 1)[0].strip())]
-        problem = self._precheck(steps, lines)
-        if problem:
-            self._show(f"nothing played: {problem}", False)
-            return
-        if not self.player.start(list(zip(lines, steps, strict=True))):
+        if not self.player.start([(line.text, line.step) for line in steps]):
             self._show("a sequence is playing: STOP ends it", False)
-
-    def _precheck(self, steps: list[SequenceStep], lines: list[str]) -> str:
-        """Why a step would be refused, judged from where the arm is as the server will
-        judge it (each step from where the one before leaves the arm), or ""."""
-        if self.page.lost:
-            return "no contact with the server"
-        start = self.page.degrees
-        if start is None:
-            return "the arm's pose is not known yet"
-        for k, ((item, _), line) in enumerate(zip(steps, lines, strict=True), start=1):
-            if isinstance(item, Wait):
-                continue
-            target = self.page.planner.target_of(item, start)
-            if isinstance(target, str):
-                return f"step {k} ({line}) would be refused: {target}"
-            if target is not None:
-                start = target.degrees
-        return ""
 
     def _saved_sequences(self) -> None:
         """The list of saved sequences as the folder has it now (an editor may add some)."""
@@ -456,3 +483,6 @@ class Listeners:
 
     def on_mount(self, parent: str, mount: Transform) -> None:
         self.page.on_mount(parent, mount)
+
+    def on_physical(self, degrees: dict[str, float]) -> None:
+        self.page.on_physical(degrees)
