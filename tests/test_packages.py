@@ -410,11 +410,11 @@ def test_the_venvs_activate_puts_it_on_the_ament_prefix_path_and_deactivate_take
     venv = REPO / ".venv"
     done = fresh_shell(
         tmp_path,
-        'export AMENT_PREFIX_PATH=/opt/before\n'
+        "export AMENT_PREFIX_PATH=/opt/before\n"
         f'. "{venv}/bin/activate"\necho "$AMENT_PREFIX_PATH"\n'
         f'. "{venv}/bin/activate"\necho "$AMENT_PREFIX_PATH"\n'  # again: once on the path
         'deactivate\necho "$AMENT_PREFIX_PATH"\n'
-        'unset AMENT_PREFIX_PATH\n'
+        "unset AMENT_PREFIX_PATH\n"
         f'. "{venv}/bin/activate"\ndeactivate\necho "${{AMENT_PREFIX_PATH-unset}}"\n',
     )
     assert done.returncode == 0, done.stderr

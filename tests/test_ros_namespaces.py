@@ -154,7 +154,7 @@ def test_each_arms_control_actions_move_that_arm_only(arms: list[Arm], config: A
     try:
         assert fjt.wait_for_server(timeout_sec=10) and gripper.wait_for_server(timeout_sec=10)
         goal = FollowJointTrajectory.Goal()
-        goal.trajectory.joint_names = ["elbow"]
+        goal.trajectory.joint_names = ["left_elbow"]  # the namespace's joint prefix
         elbow = config.model.to_urdf({"elbow": 60.0})["elbow"]
         goal.trajectory.points = [
             JointTrajectoryPoint(positions=[elbow], time_from_start=Duration(nanosec=300_000_000))

@@ -228,7 +228,9 @@ class ArmNode(Node):
 
     def _on_trajectory(self, msg: JointTrajectory, info: dict[str, int]) -> None:
         """A trajectory is one instruction: every point checked, then all run or none."""
-        instr = trajectory_from_message(msg, self.driver.config.model, sent_ns(info))
+        config = self.driver.config
+        prefix = config.server.joint_name_prefix
+        instr = trajectory_from_message(msg, config.model, sent_ns(info), prefix)
         if isinstance(instr, str):
             self.driver.refuse(trajectory_id(msg), "trajectory", instr)
             return
@@ -238,7 +240,9 @@ class ArmNode(Node):
         """A set-point of ros2_control's topic-based hardware: judged whole like any move, the
         latest wins. Only refusals are published: a stream of a hundred a second has a
         hundred outcomes a second, which would drown everyone else's on the result topic."""
-        instr = joint_command_from_message(msg, self.driver.config.model, sent_ns(info))
+        config = self.driver.config
+        prefix = config.server.joint_name_prefix
+        instr = joint_command_from_message(msg, config.model, sent_ns(info), prefix)
         if isinstance(instr, str):
             if self._command_refusals.news(instr):
                 self.driver.refuse(trajectory_id(msg), JOINT_COMMANDS, instr)

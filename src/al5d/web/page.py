@@ -68,7 +68,9 @@ class Page:
     #: The Calibrate tab (`web.calibrate`) once attached: its ghost and its moves' outcomes.
     calibration: Any = None
 
-    def __init__(self, server: viser.ViserServer, config: ArmConfig, title: str) -> None:
+    def __init__(
+        self, server: viser.ViserServer, config: ArmConfig, title: str, joint_prefix: str = ""
+    ) -> None:
         self.server = server
         self.config = config
         self.model = config.model
@@ -96,7 +98,7 @@ class Page:
         #: When the 3D view may change, and what it has to show then.
         self.hold = ViewHold(server)
         self.arm_due = self.ghost_due = False
-        self.scene = ArmScene(server, self.model)
+        self.scene = ArmScene(server, self.model, joint_prefix)
         self.panel = Panel(server, config, title)
         self.panel.show_outcomes(self.outcomes)
         self._wire()

@@ -35,9 +35,11 @@ TARGET_OFF_OPACITY = 0.25
 class ArmScene:
     """The arm, its ghost, the path and the target gizmo on one viser server."""
 
-    def __init__(self, server: viser.ViserServer, model: ArmModel) -> None:
+    def __init__(self, server: viser.ViserServer, model: ArmModel, joint_prefix: str = "") -> None:
         self.server = server
         self.model = model
+        #: Before the joint names of the URDF the server describes (`server.joint_prefix`).
+        self.joint_prefix = joint_prefix
         self.urdf_text: str | None = None
         self.robot: ViserUrdf | None = None
         self.ghost: ViserUrdf | None = None
@@ -93,7 +95,7 @@ class ArmScene:
         self.server.initial_camera.look_at = mount.apply(LOOK_AT)
 
     def _cfg(self, urdf: ViserUrdf, degrees: Mapping[str, float]) -> npt.NDArray[np.float64]:
-        values = self.model.to_urdf(degrees)
+        values = {self.joint_prefix + n: v for n, v in self.model.to_urdf(degrees).items()}
         return np.array([values.get(n, 0.0) for n in urdf.get_actuated_joint_names()])
 
     def show_arm(self, degrees: Mapping[str, float]) -> None:
