@@ -20,13 +20,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from al5d.app.moveit import write_moveit_config
-from al5d.arm.config import DEFAULT_CONFIG, load_config
+from al5d.app.moveit import Arm, moveit_files_of_arms, write_files, write_moveit_config
+from al5d.arm.config import DEFAULT_CONFIG, load_config, with_changes
 from al5d.ros import params
 
 REPO = Path(__file__).resolve().parent.parent
 BIN = Path(sys.executable).parent
-PACKAGES = ("al5d", "al5d_moveit_config")
+PACKAGES = ("al5d", "al5d_moveit_config", "al5d_arms_moveit_config")
 EXECUTABLES = ("al5d", "server", "web", "emulator")
 XML = (".xml", ".srdf", ".urdf", ".xacro")
 YAML = (".yaml", ".rviz", ".setup_assistant")
@@ -57,11 +57,17 @@ def colcon(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
 @pytest.fixture(scope="module")
 def install(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A workspace with the driver's package (a link into this repository, as a user links
-    a clone) and a package freshly written by `al5d moveit`, built; its install/."""
+    a clone) and two packages freshly written by `al5d moveit`, one arm's and two arms'
+    (`--arms`), built; its install/."""
     ws = tmp_path_factory.mktemp("ws")
     (ws / "src").mkdir()
     (ws / "src" / "al5d").symlink_to(REPO / "ros" / "al5d")
     write_moveit_config(ws / "src" / "al5d_moveit_config", load_config(None), "left")
+    arms = [
+        Arm(ns, with_changes(load_config(None), {"server.mount": {"xyz": [0.0, y, 0.0]}}))
+        for ns, y in (("left", 0.3), ("right", -0.3))
+    ]
+    write_files(ws / "src" / PACKAGES[2], moveit_files_of_arms(arms, PACKAGES[2]))
     done = colcon(
         "build",
         "--executor",

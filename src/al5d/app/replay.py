@@ -237,6 +237,11 @@ class _Reader:
         return found
 
 
+def survey(path: str | Path, partial: bool = False) -> Survey:
+    """Every instruction of a recording checked, counted by topic (`_Reader.survey`)."""
+    return _Reader(path).survey(partial)
+
+
 def read_instructions(path: str | Path, topic: str | None = None) -> list[Recorded]:
     """The checked instructions of a recording, in the file's order (every arm's, or those
     on `topic`). BadRecording when the file cannot be read whole."""
