@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import struct
 import sys
 import threading
 import time
@@ -30,7 +29,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, TextIO
 
-from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader
 from mcap.records import Channel, Message, Schema
 
@@ -50,21 +48,11 @@ RECORD_LIMIT = 64 * 2**20
 #: it whole to the server (a megabyte joint name never reached it), and no instruction of
 #: the grammar is near it.
 MAX_MESSAGE_BYTES = 64 * 2**10
-#: What a damaged or foreign file raises in the reader and the decoder.
-_DAMAGED = (
-    McapError,
-    struct.error,
-    ValueError,
-    TypeError,
-    KeyError,
-    IndexError,
-    AttributeError,
-    EOFError,
-    OSError,
-    UnicodeDecodeError,
-    NotImplementedError,
-    RecursionError,
-)
+#: What a damaged or foreign file raises in the reader, the schema's parser and the
+#: decoder: anything. Their errors are many and undocumented (lz4's and zstandard's,
+#: rosidl's parser's, struct's, a missing attribute of a foreign message), and whatever
+#: they raise, the file is the cause: it is reported as the file's, with its type.
+_DAMAGED = (Exception,)
 
 
 class BadRecording(Exception):
@@ -322,6 +310,25 @@ class _Outcomes:
             InstructionResult, client.names.result, self._on_result, QOS_STREAM
         )
 
+    def handshake(self, client: Any, timeout: float) -> bool:
+        """Until a ping of ours is answered on this reader: the server's writer of results
+        has matched it (the client's own reader having matched says nothing of this one);
+        False if none is within `timeout`."""
+        from al5d_interfaces.msg import ArmInstruction
+
+        from al5d.arm.instruction import new_id
+
+        answered = threading.Event()
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            ping = new_id()
+            self.expect(ping, lambda _: answered.set())
+            client.pub.publish(ArmInstruction(instruction=PING, id=ping))
+            if answered.wait(min(0.5, max(0.0, deadline - time.monotonic()))):
+                return True
+            self.forget(ping)
+        return False
+
     def expect(self, ident: str, then: Callable[[Any], None]) -> None:
         with self._cv:
             self._waiting[ident] = then
@@ -427,8 +434,10 @@ def _send(
     report = Report(out)
     sent = 0
     try:
-        client.wait_for_server(wait_s)
         outcomes = _Outcomes(client)
+        client.wait_for_server(wait_s)
+        if not outcomes.handshake(client, wait_s):
+            raise NoServer(f"the server's results do not reach this replay within {wait_s:g} s")
         started = time.monotonic()
         first: int | None = None
         before: int | None = None
