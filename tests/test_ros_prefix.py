@@ -111,7 +111,9 @@ def test_trajectories_and_joint_commands_name_the_arms_joints(config: ArmConfig)
     assert "left_base" in refused
     far = trajectory_from_message(_trajectory(["left_elbow"], [9.0]), model, prefix="left_")
     assert isinstance(far, str) and far.startswith("point 0: left_elbow: 9 rad is outside")
-    finger = trajectory_from_message(_trajectory(["left_gripper_left"], [0.0]), model, "left_")
+    finger = trajectory_from_message(
+        _trajectory(["left_gripper_left"], [0.0]), model, prefix="left_"
+    )
     assert isinstance(finger, str) and "command left_gripper" in finger
 
     command = JointState(name=["left_base", "left_elbow"], position=[0.1, elbow])
