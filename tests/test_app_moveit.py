@@ -158,7 +158,8 @@ def test_a_mounted_arm_plans_in_its_mounts_frame(tmp_path: Path) -> None:
     mount = config.server.mount
     assert mount is not None
     degrees = dict(config.presets["ready"])
-    robot.update_cfg(config.model.to_urdf(degrees))
+    # Its joints carry the namespace's prefix, as its server's joint states do.
+    robot.update_cfg({f"left_{j}": v for j, v in config.model.to_urdf(degrees).items()})
     theirs = robot.get_transform("left/tool0", "world")[:3, 3]
     ours = mount.frame().transform.apply(forward(config.model.geometry, degrees).position)
     assert max(abs(a - b) for a, b in zip(theirs, ours, strict=True)) < 1e-9
@@ -198,7 +199,8 @@ def test_the_ros2_control_urdf_puts_the_topic_hardware_on_the_servers_topics(
     for joint in joints:
         assert [c.get("name") for c in joint.findall("command_interface")] == ["position"]
         initial = joint.findtext("state_interface[@name='position']/param[@name='initial_value']")
-        assert math.isclose(float(initial or "nan"), park[joint.get("name", "")], abs_tol=1e-12)
+        name = joint.get("name", "").removeprefix("left_")  # the namespace's joint prefix
+        assert math.isclose(float(initial or "nan"), park[name], abs_tol=1e-12)
 
     # The controllers command those joints; MoveIt's ros2_control set-up names them.
     controllers = yaml.safe_load((tmp_path / "config" / "ros2_controllers.yaml").read_text())
