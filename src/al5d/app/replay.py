@@ -19,6 +19,7 @@ place in the file), so that each gets its own outcome where the file repeats an 
 from __future__ import annotations
 
 import contextlib
+import io
 import itertools
 import sys
 import threading
@@ -155,7 +156,9 @@ class _Reader:
             from mcap_ros2._dynamic import generate_dynamic
 
             try:
-                decoders = generate_dynamic(schema.name, schema.data.decode())
+                # rosidl's parser prints its own words on a bad definition; ours say it.
+                with contextlib.redirect_stderr(io.StringIO()):
+                    decoders = generate_dynamic(schema.name, schema.data.decode())
                 decode = decoders[schema.name]
             except _DAMAGED as e:
                 raise BadRecording(
