@@ -19,6 +19,7 @@ place in the file), so that each gets its own outcome where the file repeats an 
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import itertools
 import sys
@@ -366,9 +367,10 @@ class _Outcomes:
         with self._cv:
             return list(self._waiting)
 
-    def waiting(self, ident: str) -> bool:
+    def arrived(self, ident: str) -> bool:
+        """Whether the outcome of `ident` has come (or was never awaited)."""
         with self._cv:
-            return ident in self._waiting
+            return ident not in self._waiting
 
     def forget(self, ident: str) -> None:
         with self._cv:
@@ -483,9 +485,8 @@ def _send(
             client.pub.publish(to_message(instr))
             sent += 1
             last_sent = time.monotonic()
-            if rate != "recorded" and not outcomes.wait(
-                lambda i=instr.id: not outcomes.waiting(i), timeout
-            ):
+            arrived = functools.partial(outcomes.arrived, instr.id)
+            if rate != "recorded" and not outcomes.wait(arrived, timeout):
                 outcomes.forget(instr.id)
                 report.outcome(None, instr=instr)
         if not outcomes.wait(

@@ -123,8 +123,8 @@ def srdf_of_arms(
         state(arm.gripper_group, "closed", {arm.gripper_joint: gm.gap_from_deg(gm.closed_deg)})
         for name, preset in arm.presets.items():
             if name not in ("open", "closed"):
-                values = _preset_state(arm.model, name, preset, ("gripper",))
-                state(arm.gripper_group, name, named(values))
+                gripper = _preset_state(arm.model, name, preset, ("gripper",))
+                state(arm.gripper_group, name, named(gripper))
         ET.SubElement(
             robot,
             "end_effector",
