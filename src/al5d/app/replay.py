@@ -41,6 +41,8 @@ INSTRUCTION_TYPE = "al5d_interfaces/msg/ArmInstruction"
 #: An arm's instruction topic ends so (`Names.instruction`: `<ns>/al5d/instruction`).
 INSTRUCTION_TOPIC = f"/{NODE}/instruction"
 RATES = ("recorded", "fast")
+#: An MCAP file's first bytes (the format's magic: 0x89 `MCAP0` CR LF).
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 #: A gap between two instructions longer than this, at the recorded rate, is cut to it.
 MAX_GAP_S = 10.0
 #: The largest record the reader loads (a chunk of the recorder's is 1 MiB): a damaged
@@ -92,10 +94,18 @@ class Survey:
     damage: str = ""
 
 
-def _where(path: str | Path, channel: Channel | None, message: Message | None, n: int) -> str:
+def _after(channel: Channel | None, message: Message | None, n: int) -> str:
+    """Where the reading of a file stopped: after its `n`th message, the one given."""
     if channel is None or message is None:
-        return f"{path}: after {n} messages"
-    return f"{path}: message {n + 1} (on {channel.topic}, log time {message.log_time})"
+        return "before its first message"
+    return f"after its message {n} (on {channel.topic}, log time {message.log_time})"
+
+
+def _named(e: BaseException) -> str:
+    """An error, by its type's name and its words (`struct.error`, not `error`)."""
+    kind = type(e)
+    name = kind.__name__ if kind.__name__ != "error" else f"{kind.__module__}.error"
+    return f"{name}: {e}" if str(e) else name
 
 
 def _checked(msg: Any) -> Fields:
@@ -168,7 +178,7 @@ class _Reader:
             except _DAMAGED as e:
                 raise BadRecording(
                     f"{self.path}: {channel.topic}: the schema {schema.name} cannot be read: "
-                    f"{type(e).__name__}: {e}"
+                    f"{_named(e)}"
                 ) from None
             self._decoders[schema.id] = decode
         return decode
@@ -189,10 +199,11 @@ class _Reader:
             except BadRecording:
                 raise
             except _DAMAGED as e:
-                what = "is not an MCAP recording" if n == 0 else "is damaged or cut short"
+                f.seek(0)
+                mcap = f.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+                what = "is damaged or cut short" if mcap else "is not an MCAP recording"
                 raise BadRecording(
-                    f"{self.path} {what} ({_where(self.path, channel, message, n)}: "
-                    f"{type(e).__name__}: {e})"
+                    f"{self.path} {what} ({_after(channel, message, n)}: {_named(e)})"
                 ) from None
 
     def instructions(self, topic: str | None = None) -> Iterator[Recorded]:
@@ -212,8 +223,8 @@ class _Reader:
                 fields = _checked(decode(message.data))
             except _DAMAGED as e:
                 raise BadRecording(
-                    f"{_where(self.path, channel, message, count)}: cannot be read as "
-                    f"{INSTRUCTION_TYPE}: {type(e).__name__}: {e}"
+                    f"{self.path}: instruction {count + 1} (on {channel.topic}, log time "
+                    f"{message.log_time}): cannot be read as {INSTRUCTION_TYPE}: {_named(e)}"
                 ) from None
             count += 1
             if fields.instruction == PING:  # a client's handshake, no instruction
