@@ -34,11 +34,11 @@ MSGS := $(IFACES) $(STDMSGS) build/COLCON_IGNORE
 BYTECODE_RUNTIME := $(VENV)/.bytecode-runtime
 BYTECODE := $(VENV)/.bytecode
 runtime: $(RUNTIME)
-	@$(MAKE) --no-print-directory --output-sync=target -j3 $(BYTECODE_RUNTIME) gl
+	@$(MAKE) --no-print-directory --output-sync=target -j3 $(BYTECODE_RUNTIME) $(AMENT_HOOK) gl
 # The test tools' pip install (one core, much of it unpacking) and Chromium's apt install
 # run beside the message builds: they need only the runtime's packages.
 install: $(RUNTIME)
-	@$(MAKE) --no-print-directory --output-sync=target -j5 $(BYTECODE) chromium gl
+	@$(MAKE) --no-print-directory --output-sync=target -j5 $(BYTECODE) $(AMENT_HOOK) chromium gl
 $(BYTECODE_RUNTIME): $(MSGS) .ci/compile_imported
 	$(BIN)/python .ci/compile_imported
 	touch $@
@@ -70,6 +70,18 @@ $(IFACES): $(RUNTIME) $(IFSRC)
 	cmake --install build/al5d_interfaces > build/install.log 2>&1 || (tail -20 build/install.log; exit 1)
 	$(BIN)/python -c "import al5d_interfaces.msg, al5d_interfaces.action"
 	touch $(IFACES)
+
+# The venv as an ament prefix (docs/moveit.md, without a ROS install): local_setup scripts
+# as a ROS install has them, and its activate sourcing them, so that colcon builds against
+# the venv with nothing else to source or export, and a workspace's install/setup.*
+# chains it. Written again when the hooks change (the activate's part between its markers).
+AMENT_HOOK := $(VENV)/.ament-prefix
+$(AMENT_HOOK): ros/venv/local_setup.sh ros/venv/activate.sh $(RUNTIME)
+	sed 's|@PREFIX@|$(abspath $(VENV))|' ros/venv/local_setup.sh > $(VENV)/local_setup.sh
+	for shell in bash zsh; do echo '. "$(abspath $(VENV))/local_setup.sh"' > $(VENV)/local_setup.$$shell; done
+	sed -i '/^# >>> al5d/,/^# <<< al5d/d' $(BIN)/activate
+	cat ros/venv/activate.sh >> $(BIN)/activate
+	touch $@
 
 # The cmake builds above are no packages: a colcon workspace that holds this repository
 # (src/al5d) must not take their generated setup.py and CMakeLists.txt for some.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import io
 import math
 import random
@@ -157,7 +158,8 @@ def test_a_mounted_arm_plans_in_its_mounts_frame(tmp_path: Path) -> None:
     mount = config.server.mount
     assert mount is not None
     degrees = dict(config.presets["ready"])
-    robot.update_cfg(config.model.to_urdf(degrees))
+    # Its joints carry the namespace's prefix, as its server's joint states do.
+    robot.update_cfg({f"left_{j}": v for j, v in config.model.to_urdf(degrees).items()})
     theirs = robot.get_transform("left/tool0", "world")[:3, 3]
     ours = mount.frame().transform.apply(forward(config.model.geometry, degrees).position)
     assert max(abs(a - b) for a, b in zip(theirs, ours, strict=True)) < 1e-9
@@ -197,7 +199,8 @@ def test_the_ros2_control_urdf_puts_the_topic_hardware_on_the_servers_topics(
     for joint in joints:
         assert [c.get("name") for c in joint.findall("command_interface")] == ["position"]
         initial = joint.findtext("state_interface[@name='position']/param[@name='initial_value']")
-        assert math.isclose(float(initial or "nan"), park[joint.get("name", "")], abs_tol=1e-12)
+        name = joint.get("name", "").removeprefix("left_")  # the namespace's joint prefix
+        assert math.isclose(float(initial or "nan"), park[name], abs_tol=1e-12)
 
     # The controllers command those joints; MoveIt's ros2_control set-up names them.
     controllers = yaml.safe_load((tmp_path / "config" / "ros2_controllers.yaml").read_text())
@@ -275,3 +278,119 @@ def test_without_a_park_preset_ros2_control_starts_mid_range() -> None:
     for joint in chain.movable:
         lo, hi = CONFIG.model.urdf_limits(joint)
         assert math.isclose(start[joint], (lo + hi) / 2, abs_tol=1e-12), joint
+
+
+#: Two arms on a table, as `al5d moveit --arms` takes them: each its config with its mount.
+ARMS = {"left": (0.0, 0.3, 0.0), "right": (0.05, -0.3, 0.0)}
+
+
+def arm_configs(folder: Path) -> dict[str, Path]:
+    files = {}
+    for name, xyz in ARMS.items():
+        data = yaml.safe_load(DEFAULT_CONFIG.read_text())
+        data["server"]["mount"] = {"parent": "world", "xyz": list(xyz), "rpy": [0.0, 0.0, 0.0]}
+        files[name] = folder / f"{name}.yaml"
+        files[name].write_text(yaml.safe_dump(data))
+    return files
+
+
+def test_al5d_moveit_arms_writes_one_robot_of_both(tmp_path: Path) -> None:
+    files = arm_configs(tmp_path)
+    spec = ",".join(f"{name}={path}" for name, path in files.items())
+    out = tmp_path / "out"
+    proc = Proc("moveit", str(out), "--arms", spec, "--name", "al5d_arms_moveit_config")
+    assert proc.wait(30) == 0, proc.err.drain()
+    config = out / "config"
+    urdf = (config / "al5d.urdf").read_text()
+    robot = yourdfpy.URDF.load(io.StringIO(urdf), load_meshes=False)
+    assert robot.validate() and robot.base_link == "world"
+    joints = [j.name for j in robot.robot.joints]
+    assert len(joints) == len(set(joints)), "a joint name twice"
+    assert {"left_mount", "right_mount", "left_base", "right_gripper"} <= set(joints)
+    # Each tool where its mount and the kinematics put it.
+    degrees = dict(CONFIG.presets["ready"])
+    values = CONFIG.model.to_urdf(degrees)
+    robot.update_cfg({f"{arm}_{j}": v for arm in ARMS for j, v in values.items()})
+    for arm, xyz in ARMS.items():
+        theirs = robot.get_transform(f"{arm}/tool0", "world")[:3, 3]
+        tool = forward(CONFIG.model.geometry, degrees).position
+        ours = [a + b for a, b in zip(tool, xyz, strict=True)]
+        assert max(abs(a - b) for a, b in zip(theirs, ours, strict=True)) < 1e-9, arm
+
+    srdf = ET.fromstring((config / "al5d.srdf").read_text())
+    groups = {g.get("name"): g for g in srdf.findall("group")}
+    assert set(groups) == {"left_arm", "left_gripper", "right_arm", "right_gripper", "arms"}
+    assert [g.get("name") for g in groups["arms"].findall("group")] == ["left_arm", "right_arm"]
+    chain = groups["left_arm"].find("chain")
+    assert chain is not None and chain.get("tip_link") == "left/tool0"
+    both = srdf.find("group_state[@name='ready'][@group='arms']")
+    assert both is not None
+    assert {j.get("name") for j in both.findall("joint")} == {
+        f"{arm}_{j}" for arm in ARMS for j in ("base", "shoulder", "elbow", "wrist", "wrist_rotate")
+    }
+    for pair in srdf.findall("disable_collisions"):  # within one arm, never across
+        assert pair.get("link1", "").split("/")[0] == pair.get("link2", "").split("/")[0]
+
+    limits = yaml.safe_load((config / "joint_limits.yaml").read_text())["joint_limits"]
+    movable = {j.name for j in robot.robot.joints if j.type != "fixed" and j.mimic is None}
+    assert set(limits) == movable and len(movable) == 12
+    assert set(yaml.safe_load((config / "kinematics.yaml").read_text())) == {
+        "left_arm",
+        "right_arm",
+    }
+    manager = yaml.safe_load((config / "moveit_controllers.yaml").read_text())[
+        "moveit_simple_controller_manager"
+    ]
+    assert manager["controller_names"] == [
+        "left_arm_controller",
+        "left_gripper_controller",
+        "right_arm_controller",
+        "right_gripper_controller",
+    ]
+    assert manager["right_gripper_controller"]["joints"] == ["right_gripper"]
+    assert set(manager["left_arm_controller"]["joints"]) == {
+        j for j in movable if j.startswith("left_") and j != "left_gripper"
+    }
+    # Each server's configuration, as it runs in its namespace, with its mount.
+    for arm, xyz in ARMS.items():
+        served = load_config(config / "arms" / f"{arm}.yaml")
+        assert served.server.namespace == arm and served.server.joint_name_prefix == f"{arm}_"
+        assert served.server.mount is not None and served.server.mount.xyz == xyz
+    # move_group reaches each server's actions through its remappings.
+    move_group = (out / "launch" / "move_group.launch.py").read_text()
+    tree = ast.parse(move_group)
+    remaps = next(
+        ast.literal_eval(n.value)
+        for n in tree.body
+        if isinstance(n, ast.Assign) and getattr(n.targets[0], "id", None) == "REMAPPINGS"
+    )
+    assert [
+        "/left_arm_controller/follow_joint_trajectory",
+        "/left/arm_controller/follow_joint_trajectory",
+    ] in remaps
+    assert [
+        "/right_gripper_controller/gripper_cmd/_action/send_goal",
+        "/right/gripper_controller/gripper_cmd/_action/send_goal",
+    ] in remaps
+    for launch in (out / "launch").iterdir():
+        compile(launch.read_text(), str(launch), "exec")
+
+
+def test_al5d_moveit_arms_refuses_what_cannot_be_one_robot(tmp_path: Path) -> None:
+    files = arm_configs(tmp_path)
+    cases = {
+        "has no server.mount": ["--arms", "left,right"],  # the shipped config: no mount
+        "two arms at least": ["--arms", f"left={files['left']}"],
+        "named twice": ["--arms", f"left={files['left']},left={files['right']}"],
+        "no --namespace": [
+            "--arms",
+            f"left={files['left']},right={files['right']}",
+            "--namespace",
+            "x",
+        ],
+    }
+    for said, args in cases.items():
+        proc = Proc("moveit", str(tmp_path / "out"), *args)
+        assert proc.wait(30) == 2, said
+        assert any(said in line for line in proc.err.drain()), said
+    assert not (tmp_path / "out").exists()

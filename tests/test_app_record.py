@@ -10,6 +10,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+import pytest
 from al5d_interfaces.msg import ArmInstruction
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -22,7 +23,7 @@ from al5d.app.record import (
     RecordFile,
     board_write_cdr,
 )
-from al5d.app.replay import read_instructions
+from al5d.app.replay import BadRecording, read_instructions, survey
 from al5d.arm.config import load_config
 from al5d.arm.instruction import PRESET_NAMES, Wait, parse_sequence
 from al5d.ros.client import Client
@@ -65,6 +66,13 @@ TYPES = {
     "/al5d/move/_action/status": "action_msgs/msg/GoalStatusArray",
     "/arm_controller/follow_joint_trajectory/_action/status": "action_msgs/msg/GoalStatusArray",
     "/gripper_controller/gripper_cmd/_action/status": "action_msgs/msg/GoalStatusArray",
+    "/robot_description": "std_msgs/msg/String",
+    "/al5d/tool_pose": "geometry_msgs/msg/PoseStamped",
+    "/al5d/goals/move": "al5d_interfaces/msg/ArmInstruction",
+    "/al5d/goals/follow_joint_trajectory": "trajectory_msgs/msg/JointTrajectory",
+    "/al5d/goals/gripper_cmd": "sensor_msgs/msg/JointState",
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
 }
 
 
@@ -259,7 +267,7 @@ def test_bad_files_are_clear_errors(tmp_path: Path) -> None:
     text.write_text("not a recording\n")
     bad = Proc("replay", str(text))
     assert bad.wait(30) == exits.BAD_INPUT
-    assert "is not a readable MCAP recording" in bad.err.wait_for("al5d replay:", 5)
+    assert "is not an MCAP recording" in bad.err.wait_for("al5d replay:", 5)
 
     # A recording without instructions (only a state, say).
     empty = tmp_path / "empty.mcap"
@@ -283,8 +291,9 @@ def test_bad_files_are_clear_errors(tmp_path: Path) -> None:
     assert "param.mcap: No such file" in param.err.wait_for("ERROR", 10)
 
 
-def test_a_recording_cut_short_replays_what_it_holds(tmp_path: Path) -> None:
-    """A recorder killed before it closed its file: the instructions before the cut."""
+def test_a_recording_cut_short_is_an_error_or_with_partial_what_it_holds(tmp_path: Path) -> None:
+    """A recorder killed before it closed its file: an error naming the damage, nothing
+    sent; with --partial, the instructions before the cut."""
     whole = tmp_path / "whole.mcap"
     file = RecordFile(whole)
     channel = file.channel("/al5d/instruction", "al5d_interfaces/msg/ArmInstruction")
@@ -293,14 +302,19 @@ def test_a_recording_cut_short_replays_what_it_holds(tmp_path: Path) -> None:
         msg.id = f"m{i}"
         file.put(channel, serialize_message(msg), 1000 + i, 1000 + i, i)
     file.close()
-    found, warning = read_instructions(whole)
-    assert [r.msg.id for r in found] == [f"m{i}" for i in range(200)] and not warning
+    found = read_instructions(whole)
+    assert [r.fields.id for r in found] == [f"m{i}" for i in range(200)]
     cut = tmp_path / "cut.mcap"
     data = whole.read_bytes()
     cut.write_bytes(data[: len(data) - 200])  # the summary and footer gone
-    found, warning = read_instructions(cut)
-    assert "damaged or cut short" in warning
-    assert [r.msg.id for r in found] == [f"m{i}" for i in range(len(found))]
+    with pytest.raises(BadRecording, match="is damaged or cut short"):
+        read_instructions(cut)
+    partial = survey(cut, partial=True)
+    assert "is damaged or cut short" in partial.damage
+    assert 0 < partial.instructions["/al5d/instruction"] <= 200
+    refused = Proc("replay", str(cut), "--wait", "1")
+    assert refused.wait(30) == exits.BAD_INPUT
+    assert "cut.mcap is damaged or cut short" in refused.err.wait_for("al5d replay:", 5)
 
 
 def test_a_recording_that_fails_never_stops_the_arm(tmp_path: Path) -> None:
@@ -330,3 +344,15 @@ def test_the_board_write_type_is_the_interface_and_its_bytes_are_rosidls() -> No
     msg.arrival.sec, msg.arrival.nanosec = 1_790_000_001, 5
     stamp, arrival = 1_790_000_000_123_456_789, 1_790_000_001_000_000_005
     assert serialize_message(msg) == board_write_cdr(b"\x1bSTOP0\rSTOP1\r", stamp, arrival)
+
+
+def test_a_recorder_that_finds_no_arm_says_so(tmp_path: Path) -> None:
+    """In a namespace no server has, nothing matches: said after a few seconds."""
+    recorder = Proc("record", str(tmp_path / "none.mcap"), "--namespace", "nobody_here")
+    try:
+        warning = recorder.out.wait_for("warning: no writer matched", 30)
+        assert "nobody_here" in warning
+        recorder.popen.send_signal(signal.SIGINT)
+        assert recorder.wait(30) == 0
+    finally:
+        recorder.kill()

@@ -20,13 +20,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from al5d.app.moveit import write_moveit_config
-from al5d.arm.config import DEFAULT_CONFIG, load_config
+from al5d.app.moveit import Arm, moveit_files_of_arms, write_files, write_moveit_config
+from al5d.arm.config import DEFAULT_CONFIG, load_config, with_changes
 from al5d.ros import params
 
 REPO = Path(__file__).resolve().parent.parent
 BIN = Path(sys.executable).parent
-PACKAGES = ("al5d", "al5d_moveit_config")
+PACKAGES = ("al5d", "al5d_moveit_config", "al5d_arms_moveit_config")
 EXECUTABLES = ("al5d", "server", "web", "emulator")
 XML = (".xml", ".srdf", ".urdf", ".xacro")
 YAML = (".yaml", ".rviz", ".setup_assistant")
@@ -57,11 +57,17 @@ def colcon(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
 @pytest.fixture(scope="module")
 def install(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A workspace with the driver's package (a link into this repository, as a user links
-    a clone) and a package freshly written by `al5d moveit`, built; its install/."""
+    a clone) and two packages freshly written by `al5d moveit`, one arm's and two arms'
+    (`--arms`), built; its install/."""
     ws = tmp_path_factory.mktemp("ws")
     (ws / "src").mkdir()
     (ws / "src" / "al5d").symlink_to(REPO / "ros" / "al5d")
     write_moveit_config(ws / "src" / "al5d_moveit_config", load_config(None), "left")
+    arms = [
+        Arm(ns, with_changes(load_config(None), {"server.mount": {"xyz": [0.0, y, 0.0]}}))
+        for ns, y in (("left", 0.3), ("right", -0.3))
+    ]
+    write_files(ws / "src" / PACKAGES[2], moveit_files_of_arms(arms, PACKAGES[2]))
     done = colcon(
         "build",
         "--executor",
@@ -346,3 +352,81 @@ def test_make_test_takes_two_workers_on_a_machine_busy_just_now() -> None:
             loop.kill()
             loop.wait()
     assert said.stdout.strip() == "2", said
+
+
+def pypi_route_steps() -> str:
+    """docs/moveit.md's steps for a workspace without a ROS install, as the page has them."""
+    page = (REPO / "docs" / "moveit.md").read_text()
+    section = page.split("### Without a ROS install", 1)[1]
+    found = re.search(r"^```sh\n(.*?)^```$", section, re.S | re.M)
+    assert found, "docs/moveit.md: no steps under 'Without a ROS install'"
+    return found.group(1)
+
+
+def fresh_shell(home: Path, script: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    """`script` in a new bash (no profile, no rc) whose environment is a new login's: no
+    venv, no AMENT_PREFIX_PATH, nothing of this test's process."""
+    env = {"HOME": str(home), "PATH": "/usr/local/bin:/usr/bin:/bin", "LANG": "C.UTF-8"}
+    return subprocess.run(
+        ["bash", "--noprofile", "--norc", "-e", "-o", "pipefail", "-c", script],
+        cwd=home,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def test_the_pypi_route_workspace_builds_as_docs_moveit_md_says(tmp_path: Path) -> None:
+    """Issue 46: the steps, word for word, with only the venv activated: colcon builds
+    al5d_interfaces and al5d against the venv, install/setup.bash (and setup.zsh) exist
+    and are sourced, and the installed executables run from the workspace."""
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "al5d").symlink_to(REPO)  # the clone, where the steps say it is
+    done = fresh_shell(home, pypi_route_steps())
+    said = f"--- stdout\n{done.stdout[-3000:]}--- stderr\n{done.stderr[-3000:]}"
+    assert done.returncode == 0, said
+    for package in ("al5d_interfaces", "al5d"):
+        assert f"Finished <<< {package}" in done.stdout, said
+    install = home / "ws" / "install"
+    assert (install / "setup.bash").is_file() and (install / "setup.zsh").is_file()
+    lines = done.stdout.splitlines()
+    assert lines[-2] == str(install / "al5d"), said  # the package found in the workspace
+    assert lines[-1].startswith("usage: al5d serve"), said
+    assert "AMENT_PREFIX_PATH" not in done.stderr, said  # colcon had no word to say of it
+
+    # The sourced workspace chains the venv as it would chain a ROS install, so that a new
+    # shell that sources only install/setup.bash finds both, and runs the executables.
+    sourced = fresh_shell(
+        home,
+        ". ~/ws/install/setup.bash && echo $AMENT_PREFIX_PATH && "
+        "~/ws/install/al5d/lib/al5d/al5d urdf --namespace left",
+    )
+    assert sourced.returncode == 0, sourced.stderr
+    prefixes = sourced.stdout.splitlines()[0].split(os.pathsep)
+    assert str(install / "al5d") in prefixes and str(REPO / ".venv") in prefixes, prefixes
+    assert 'link name="left/base_link"' in sourced.stdout
+    assert not sourced.stderr, sourced.stderr  # no "not found" of a chained prefix
+
+
+def test_the_venvs_activate_puts_it_on_the_ament_prefix_path_and_deactivate_takes_it_off(
+    tmp_path: Path,
+) -> None:
+    venv = REPO / ".venv"
+    done = fresh_shell(
+        tmp_path,
+        "export AMENT_PREFIX_PATH=/opt/before\n"
+        f'. "{venv}/bin/activate"\necho "$AMENT_PREFIX_PATH"\n'
+        f'. "{venv}/bin/activate"\necho "$AMENT_PREFIX_PATH"\n'  # again: once on the path
+        'deactivate\necho "$AMENT_PREFIX_PATH"\n'
+        "unset AMENT_PREFIX_PATH\n"
+        f'. "{venv}/bin/activate"\ndeactivate\necho "${{AMENT_PREFIX_PATH-unset}}"\n',
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == [
+        f"{venv}:/opt/before",
+        f"{venv}:/opt/before",
+        "/opt/before",
+        "unset",
+    ]

@@ -32,7 +32,9 @@ COMMANDED = ("base", "shoulder", "elbow", "wrist", "wrist_rotate", "gripper")
 @pytest.fixture(scope="module")
 def served(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Commanded]:
     workdir = tmp_path_factory.mktemp("commands")
-    with commanded(config, workdir, "al5d_hardware_peer", NAMESPACE, patient_config()) as s:
+    # The model's joint names, without the namespace's prefix (test_ros_prefix has it).
+    none = ("-p", "server.joint_prefix:=''")
+    with commanded(config, workdir, "al5d_hardware_peer", NAMESPACE, patient_config(), *none) as s:
         yield s
 
 

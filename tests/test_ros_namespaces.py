@@ -110,6 +110,9 @@ def test_each_server_moves_its_own_arm_only(arms: list[Arm]) -> None:
 def test_each_arm_has_its_joint_states_controllers_and_prefixed_frames(arms: list[Arm]) -> None:
     for arm in arms:
         wait_until(lambda a=arm: a.peer.joint_states, 5, f"{arm.name} joint states")
+        # Its joints carry its namespace's prefix: two arms' names never meet in one robot.
+        joints = list(arm.peer.joint_states[-1].name)
+        assert joints and all(j.startswith(f"{arm.name}_") for j in joints), joints
         names = arm.peer.names
         assert arm.peer.node.count_publishers(names.robot_description) == 1
         client = arm.peer.node.create_client(
@@ -154,7 +157,7 @@ def test_each_arms_control_actions_move_that_arm_only(arms: list[Arm], config: A
     try:
         assert fjt.wait_for_server(timeout_sec=10) and gripper.wait_for_server(timeout_sec=10)
         goal = FollowJointTrajectory.Goal()
-        goal.trajectory.joint_names = ["elbow"]
+        goal.trajectory.joint_names = ["left_elbow"]  # the namespace's joint prefix
         elbow = config.model.to_urdf({"elbow": 60.0})["elbow"]
         goal.trajectory.points = [
             JointTrajectoryPoint(positions=[elbow], time_from_start=Duration(nanosec=300_000_000))
@@ -169,6 +172,14 @@ def test_each_arms_control_actions_move_that_arm_only(arms: list[Arm], config: A
         assert wait_future(handle.get_result_async(), 10).status == GoalStatus.STATUS_SUCCEEDED
         assert len(group_moves(left.emu.records)) == 1 and len(group_moves(right.emu.records)) == 1
         assert abs(left.emu.servo_degrees()["elbow"] - 60) < 0.5
+        # The other arm's joints, or none's, are no joints of the left arm: rejected.
+        for names in (["right_elbow"], ["elbow"]):
+            goal.trajectory.joint_names = names
+            handle = wait_future(fjt.send_goal_async(goal))
+            assert not handle.accepted
+        reason = left.peer.result(bytes(handle.goal_id.uuid).hex()).reason
+        assert "'elbow' is not a joint of this arm" in reason, reason
+        assert len(group_moves(left.emu.records)) == 1
     finally:
         left.peer.destroy(fjt, gripper)
 

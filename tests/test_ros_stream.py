@@ -53,7 +53,8 @@ def _slow_elbow_config() -> str:
 @pytest.fixture(scope="module")
 def streamed(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Commanded]:
     workdir = tmp_path_factory.mktemp("stream")
-    ros = ("-p", f"server.stream_timeout_s:={TIMEOUT_S}")
+    # The model's joint names, without the namespace's prefix (test_ros_prefix has it).
+    ros = ("-p", f"server.stream_timeout_s:={TIMEOUT_S}", "-p", "server.joint_prefix:=''")
     with commanded(config, workdir, "al5d_stream_peer", NAMESPACE, _slow_elbow_config(), *ros) as s:
         yield s
 

@@ -130,12 +130,40 @@ def _package_name(text: str) -> str:
 
 
 def _cmd_moveit(args: argparse.Namespace) -> int:
-    from al5d.app.moveit import write_moveit_config
+    from al5d.app.moveit import Arm, moveit_files_of_arms, write_files, write_moveit_config
 
-    config = load_config(args.config)
-    for path in write_moveit_config(args.out, config, args.namespace, args.name):
+    if args.arms is None:
+        config = load_config(args.config)
+        for path in write_moveit_config(args.out, config, args.namespace, args.name):
+            print(path)
+        return exits.DONE
+    if args.namespace is not None:
+        print("al5d moveit: --arms names each arm's namespace: no --namespace", file=sys.stderr)
+        return exits.USAGE
+    arms = [Arm(ns, load_config(file or args.config)) for ns, file in args.arms]
+    try:
+        files = moveit_files_of_arms(arms, args.name)
+    except ValueError as e:
+        print(f"al5d moveit: {e}", file=sys.stderr)
+        return exits.USAGE
+    for path in write_files(args.out, files):
         print(path)
     return exits.DONE
+
+
+def _arms(text: str) -> list[tuple[str, str | None]]:
+    """`left,right` or `left=left.yaml,right=right.yaml`: each arm's namespace and its
+    configuration file (None: --config's), or argparse's error naming why not."""
+    from al5d.arm.config import namespace_problem
+
+    arms: list[tuple[str, str | None]] = []
+    for item in text.split(","):
+        ns, _, file = item.strip().partition("=")
+        problem = namespace_problem(ns) if ns.strip("/") else f"{item!r}: a namespace first"
+        if problem:
+            raise argparse.ArgumentTypeError(problem)
+        arms.append((ns.strip("/"), file or None))
+    return arms
 
 
 def _cmd_send(args: argparse.Namespace) -> int:
@@ -389,6 +417,13 @@ def build_parser() -> argparse.ArgumentParser:
     moveit.add_argument("--config", help="arm configuration file; default: the shipped one")
     moveit.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: config")
     moveit.add_argument(
+        "--arms",
+        type=_arms,
+        metavar="NS[=FILE],NS[=FILE]...",
+        help="several arms as one robot, each by its namespace and its configuration (default: "
+        "--config's), each with its server.mount",
+    )
+    moveit.add_argument(
         "--name",
         type=_package_name,
         default="al5d_moveit_config",
@@ -448,16 +483,26 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         timeout=args.timeout,
         namespace=args.namespace,
         config=args.config,
+        arm=args.arm,
+        max_gap_s=args.max_gap,
+        partial=args.partial,
     )
 
 
 def _add_recordings(sub: Any) -> None:
     """`al5d record` and `al5d replay` (docs/ros.md, Recordings)."""
     rec = sub.add_parser(
-        "record", help="record the arm's topics in an MCAP file (rosbag2's format) until Ctrl-C"
+        "record",
+        help="record the arms and their transforms in an MCAP file (rosbag2's format) until Ctrl-C",
     )
     rec.add_argument("file", help="the MCAP file to write, e.g. run.mcap (replaced if there)")
-    rec.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
+    rec.add_argument(
+        "--namespace",
+        type=_namespace,
+        action="append",
+        help="the arm to record, by its ROS namespace (again for more); default: every arm "
+        "found, as it is found",
+    )
     rec.add_argument("--duration", type=float, help="seconds to record; default: until Ctrl-C")
     rec.set_defaults(func=_cmd_record)
 
@@ -470,11 +515,46 @@ def _add_recordings(sub: Any) -> None:
         help="recorded (default): each at its recorded time after the first; fast: each as "
         "soon as the one before has its outcome",
     )
-    rep.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
+    rep.add_argument(
+        "--namespace",
+        type=_namespace,
+        help="the arm to send to: " + NAMESPACE_HELP + "; default: none",
+    )
+    rep.add_argument(
+        "--from",
+        dest="arm",
+        type=_namespace,
+        metavar="NS",
+        help="the recorded arm whose instructions are sent (a file of several arms); default: "
+        "the file's one arm, or --namespace's",
+    )
+    rep.add_argument(
+        "--max-gap",
+        type=_seconds,
+        default=10.0,
+        help="at the recorded rate, a longer gap between two instructions is cut to this "
+        "(and said); default %(default)s s",
+    )
+    rep.add_argument(
+        "--partial",
+        action="store_true",
+        help="a file cut short (its recorder killed): replay the instructions before the cut",
+    )
     rep.add_argument("--config", help="arm configuration (presets, geometry); default: shipped")
     rep.add_argument("--wait", type=float, default=10.0, help="seconds to find the server")
     rep.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for an outcome")
     rep.set_defaults(func=_cmd_replay)
+
+
+def _seconds(text: str) -> float:
+    """A number of seconds above 0, or argparse's error saying so."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"{text}: give a number of seconds above 0")
+    return value
 
 
 def _split_ros_args(argv: list[str]) -> tuple[list[str], list[str] | None]:

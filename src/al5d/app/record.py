@@ -1,4 +1,4 @@
-"""Recordings: what happened around an arm, written as rosbag2's MCAP (`al5d record`,
+"""Recordings: what happened around the arms, written as rosbag2's MCAP (`al5d record`,
 `al5d serve --record`).
 
 A recording is an MCAP file of the `ros2` profile, as `ros2 bag record -s mcap` writes one:
@@ -8,14 +8,17 @@ the `mcap` tools open it without this package. Messages are recorded as DDS deli
 them (their serialized bytes, never decoded and encoded again), with the time they were
 received (log time) and sent (publish time), as rosbag2 does.
 
-What is recorded: the instructions, their results, the state, the joint states, the
-trajectories and set-points, and the status of each action's goals (`/_action/status`);
-with a physical twin (`--physics`), its joints, objects and words, and its camera's
-pictures with their `CameraInfo`.
-Not the actions' feedback: its types (`Move_FeedbackMessage`) have names that
-mcap-ros2-support's reader refuses, and one such message would stop it reading the
-whole file. A server's own recording also has the bytes it wrote to the board, each
-write with its times (`BOARD_WRITES`, an `al5d_interfaces/msg/BoardWrite`).
+What is recorded, the whole scene: `/tf` and `/tf_static`, and of each arm (every arm
+`al5d record` finds, or the namespaces it is given; a server's own) its robot
+description, joint states and tool pose, the instructions and their results, the state,
+the trajectories and set-points, each action's goals with their contents (the server
+publishes each on `~/goals/<action>`: a goal is a service request, which no subscriber
+sees) and their status (`/_action/status`); with a physical twin (`--physics`), its
+joints, objects and words, and its camera's pictures with their `CameraInfo`. Not the
+actions' feedback: its types (`Move_FeedbackMessage`) have names that mcap-ros2-support's
+reader refuses, and one such message would stop it reading the whole file. A server's
+own recording also has the bytes it wrote to the board, each write with its times
+(`BOARD_WRITES`, an `al5d_interfaces/msg/BoardWrite`).
 
 The file is written by a thread of its own: whoever hands a message over (the DDS reader,
 the board's write, the emergency stop's among them) only puts it in a queue. A recording
@@ -27,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import logging
+import os
 import queue
 import re
 import struct
@@ -34,7 +38,7 @@ import sys
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -106,31 +110,42 @@ class Topic:
     qos: Any  # rclpy QoSProfile
 
 
+def _reliable(depth: int, latched: bool = False) -> Any:
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    durability = DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE
+    return QoSProfile(  # type: ignore[no-untyped-call]
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=durability,
+    )
+
+
 def topics(names: Names, instruction_depth: int = 1000) -> list[Topic]:
     """What a recording of the arm named by `names` subscribes to. `instruction_depth`: the
     instruction reader's history (within a server, its DDS profile bounds every reader
     of that topic to `server.instruction_backlog`)."""
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-    def reliable(depth: int, latched: bool = False) -> QoSProfile:
-        durability = DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE
-        return QoSProfile(  # type: ignore[no-untyped-call]
-            history=HistoryPolicy.KEEP_LAST,
-            depth=depth,
-            reliability=ReliabilityPolicy.RELIABLE,
-            durability=durability,
-        )
-
     status = "action_msgs/msg/GoalStatusArray"
+    reliable = _reliable
     return [
         Topic(names.instruction, "al5d_interfaces/msg/ArmInstruction", reliable(instruction_depth)),
         Topic(names.result, "al5d_interfaces/msg/InstructionResult", reliable(10_000)),
         # The state's writer keeps the last only (latched): a reader a state behind would
         # miss one (a stop's "stopped" and a release's "ready" a millisecond apart).
         Topic(names.state, "std_msgs/msg/String", reliable(100, latched=True)),
+        Topic(names.robot_description, "std_msgs/msg/String", reliable(1, latched=True)),
         Topic(names.joint_states, "sensor_msgs/msg/JointState", reliable(100)),
+        Topic(names.tool_pose, "geometry_msgs/msg/PoseStamped", reliable(100)),
         Topic(names.trajectory, "trajectory_msgs/msg/JointTrajectory", reliable(1000)),
         Topic(names.joint_commands, "sensor_msgs/msg/JointState", reliable(1000)),
+        Topic(names.goals("move"), "al5d_interfaces/msg/ArmInstruction", reliable(1000)),
+        Topic(
+            names.goals("follow_joint_trajectory"),
+            "trajectory_msgs/msg/JointTrajectory",
+            reliable(1000),
+        ),
+        Topic(names.goals("gripper_cmd"), "sensor_msgs/msg/JointState", reliable(1000)),
         Topic(f"{names.move}/_action/status", status, reliable(100)),
         Topic(f"{names.follow_joint_trajectory}/_action/status", status, reliable(100)),
         Topic(f"{names.gripper_command}/_action/status", status, reliable(100)),
@@ -142,6 +157,13 @@ def topics(names: Names, instruction_depth: int = 1000) -> list[Topic]:
         Topic(names.camera_image, "sensor_msgs/msg/Image", reliable(10)),
         Topic(names.camera_info, "sensor_msgs/msg/CameraInfo", reliable(10)),
     ]
+
+
+def scene_topics() -> list[Topic]:
+    """The transforms every arm shares: /tf at the arms' joint-state rate, and /tf_static,
+    each server's latched (with the mount that puts its arm in the shared frame)."""
+    tf = "tf2_msgs/msg/TFMessage"
+    return [Topic("/tf", tf, _reliable(1000)), Topic("/tf_static", tf, _reliable(100, True))]
 
 
 def _share_dir(package: str) -> Path:
@@ -341,9 +363,10 @@ class RecordFile:
 
 
 class Recorder:
-    """Subscribes to `topics` on a node of its own in `context` and hands every message, as
-    DDS delivered it, to `file`; one thread takes them (`al5d.ros.workarounds.Reader`, which
-    has each message's info: when it was sent and its sequence number).
+    """Subscribes to topics on a node of its own in `context` and hands every message, as
+    DDS delivered it, to `file`; each group of topics (`add`: the scene's, an arm's) is
+    taken by a thread of its own (`al5d.ros.workarounds.Reader`, which has each message's
+    info: when it was sent and its sequence number).
 
     Like rosbag2's, a recorder misses what a writer published before the two had matched,
     and discovery on a busy host can take seconds. So it says, through `say`, each time the
@@ -354,38 +377,57 @@ class Recorder:
         self,
         context: Any,
         file: RecordFile,
-        recorded: Iterable[Topic],
+        recorded: Iterable[Topic] = (),
         namespace: str = "/",
         say: Callable[[str], None] | None = None,
     ) -> None:
         from rclpy.node import Node
 
-        from al5d.ros.workarounds import Reader, ReaderOnly, taken_by_reader
-
         self.file = file
         self.node = Node("al5d_recorder", namespace=namespace, context=context)
+        self.inputs: list[tuple[Any, Any]] = []
+        self._readers: list[Any] = []
+        self._lock = threading.Lock()  # the groups, added while the writers are counted
+        self._say = say or (lambda text: log.info("recording %s: %s", file.path, text))
+        self._ended = threading.Event()
+        self.add(recorded)
+        self._counter = threading.Thread(target=self._count_writers, name="al5d-record-writers")
+        self._counter.start()
+
+    def add(self, recorded: Iterable[Topic]) -> None:
+        """Record these topics too, from now on (a thread of their own takes them)."""
+        from al5d.ros.workarounds import Reader, ReaderOnly, taken_by_reader
+
         group = ReaderOnly()
         inputs: list[tuple[Any, Any]] = []
         for topic in recorded:
-            channel = file.channel(topic.name, topic.type)
+            channel = self.file.channel(topic.name, topic.type)
             package, kind, name = topic.type.split("/")
             msg_type = getattr(importlib.import_module(f"{package}.{kind}"), name)
             sub = self.node.create_subscription(
                 msg_type, topic.name, taken_by_reader, topic.qos, callback_group=group, raw=True
             )
             inputs.append((sub, self._handler(channel)))
-        self.inputs = inputs
-        self.reader = Reader(self.node, inputs, "al5d-record-reader", group=group)
-        self._say = say or (lambda text: log.info("recording %s: %s", file.path, text))
-        self._ended = threading.Event()
-        self._counter = threading.Thread(target=self._count_writers, name="al5d-record-writers")
-        self._counter.start()
+        if not inputs:
+            return
+        reader = Reader(self.node, inputs, f"al5d-record-{len(self._readers)}", group=group)
+        with self._lock:
+            self.inputs += inputs
+            self._readers.append(reader)
+
+    def writers(self) -> int:
+        """How many writers the recorder has matched, over every topic."""
+        with self._lock:
+            inputs = list(self.inputs)
+        return sum(sub.get_publisher_count() for sub, _ in inputs)
 
     def _count_writers(self) -> None:
         """Says each topic's number of matched writers whenever it changes."""
         said: dict[str, int] = {}
         while not self._ended.wait(WRITERS_EVERY_S):
-            for sub, _ in self.inputs:
+            with self._lock:
+                inputs = list(self.inputs)
+            for sub, _ in inputs:
                 try:
                     n = sub.get_publisher_count()
                 except Exception:  # the node is being destroyed
@@ -405,12 +447,15 @@ class Recorder:
         return handle
 
     def close(self) -> None:
-        """End the reader, then record what DDS delivered meanwhile (a server's last results,
-        acknowledged to this reader before its nodes closed)."""
+        """End the readers, then record what DDS delivered meanwhile (a server's last
+        results, acknowledged to this reader before its nodes closed)."""
         self._ended.set()
         self._counter.join()
-        self.reader.close()
-        for sub, handle in self.inputs:
+        with self._lock:
+            readers, inputs = list(self._readers), list(self.inputs)
+        for reader in readers:
+            reader.close()
+        for sub, handle in inputs:
             while True:
                 with sub.handle:
                     taken = sub.handle.take_message(sub.msg_type, sub.raw)
@@ -420,10 +465,43 @@ class Recorder:
         self.node.destroy_node()  # type: ignore[no-untyped-call]
 
 
+class ArmFinder:
+    """Finds the arms a recorder records: every server's node `al5d` the ROS graph shows,
+    by its namespace, each told to `found` once (a thread that looks every `every_s`)."""
+
+    def __init__(self, node: Any, found: Callable[[str], None], every_s: float = 0.2) -> None:
+        self._node = node
+        self._found = found
+        self._every_s = every_s
+        self.namespaces: list[str] = []
+        self._ended = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="al5d-record-finder", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        from al5d.ros.names import NODE
+
+        while not self._ended.is_set():
+            try:
+                seen = self._node.get_node_names_and_namespaces()
+            except Exception:  # the node is being destroyed
+                return
+            for name, namespace in seen:
+                if name == NODE and namespace not in self.namespaces:
+                    self.namespaces.append(namespace)
+                    self._found(namespace)
+            self._ended.wait(self._every_s)
+
+    def close(self) -> None:
+        self._ended.set()
+        self._thread.join()
+
+
 class ServerRecording:
     """`al5d serve --record`: the file, the board's writes (`tap`), and the topics of the
-    server's arm read by a DDS participant of its own (`follow`), which outlives the
-    server's nodes so that their last messages (the shutdown's result) are recorded."""
+    server's arm and the transforms, read by a DDS participant of its own (`follow`),
+    which outlives the server's nodes so that their last messages (the shutdown's result)
+    are recorded."""
 
     def __init__(self, path: str) -> None:
         self.file = RecordFile(path)
@@ -443,7 +521,10 @@ class ServerRecording:
         try:
             self._context = start_context()
             self._recorder = Recorder(
-                self._context, self.file, topics(names, instruction_depth), names.node_namespace
+                self._context,
+                self.file,
+                [*scene_topics(), *topics(names, instruction_depth)],
+                names.node_namespace,
             )
         except Exception as e:  # the arm goes on; its board's bytes are still recorded
             log.error("recording %s: the topics cannot be recorded (%s)", self.file.path, e)
@@ -466,37 +547,63 @@ class ServerRecording:
             log.info("recorded %s", self.file.summary())
 
 
-def record(path: str, namespace: str | None, duration: float | None) -> int:
-    """`al5d record`: record until SIGINT or SIGTERM (or `duration` seconds); 0, or 2 when
-    the file cannot be written."""
+#: `al5d record` warns when it has matched no writer at all this long after its start.
+NO_WRITERS_S = 5.0
+
+
+def record(path: str, namespaces: Sequence[str] | None, duration: float | None) -> int:
+    """`al5d record`: the scene and every arm found (or the arms in `namespaces`), until
+    SIGINT or SIGTERM (or `duration` seconds); 0, or 2 when the file cannot be written."""
     import signal
 
     from al5d import exits
     from al5d.ros.dds import start_context
+    from al5d.ros.names import Names
 
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, frame: done.set())
-    from al5d.ros.names import Names
 
-    names = Names.of(namespace)
+    def say(text: str) -> None:
+        print(f"al5d record: {text}", flush=True)
+
     try:
         file = RecordFile(path)
     except RecordingError as e:
         print(f"al5d record: {e}", file=sys.stderr)
         return exits.USAGE
     context = start_context()
-    recorder = Recorder(
-        context,
-        file,
-        topics(names),
-        names.node_namespace,
-        say=lambda text: print(f"al5d record: {text}", flush=True),
-    )
+    recorder = Recorder(context, file, scene_topics(), say=say)
+
+    def arm(namespace: str) -> None:
+        names = Names.of(namespace)
+        say(f"recording the arm in {names.node_namespace}")
+        recorder.add(topics(names))
+
+    finder = None
+    if namespaces:
+        for namespace in dict.fromkeys(Names.of(ns).node_namespace for ns in namespaces):
+            arm(namespace)
+    else:
+        finder = ArmFinder(recorder.node, arm)
     print(f"al5d record: recording to {path} (Ctrl-C ends it)", flush=True)
     try:
-        done.wait(duration)
+        first = NO_WRITERS_S if duration is None else min(duration, NO_WRITERS_S)
+        if not done.wait(first):
+            if first >= NO_WRITERS_S and recorder.writers() == 0:
+                domain = os.environ.get("ROS_DOMAIN_ID", "0")
+                if namespaces:
+                    where = f"the arms in {', '.join(namespaces)} running"
+                else:
+                    where = "an al5d server running (none found)"
+                say(
+                    f"warning: no writer matched in {NO_WRITERS_S:g} s: is {where}, in "
+                    f"ROS_DOMAIN_ID={domain}? Recording goes on"
+                )
+            done.wait(None if duration is None else max(0.0, duration - first))
     finally:
+        if finder is not None:
+            finder.close()
         recorder.close()
         context.try_shutdown()
         file.close()

@@ -1,34 +1,62 @@
 """`al5d replay`: the instructions of a recording (`al5d record`, `al5d serve --record`) sent
 again, as `al5d run` sends a sequence file's, each with its outcome.
 
-The instructions are read from the file's `al5d_interfaces/msg/ArmInstruction` messages,
-decoded with mcap-ros2-support from the schema the file holds, and sent on the instruction
-topic by the client (`al5d.ros.client.Client`): the server judges each as it judges any
-(a refused one writes nothing). `rate`: `recorded` sends each at its recorded time after
-the first (when its sender sent it), whatever the outcomes; `fast` sends each as soon as the
-one before has its outcome.
+The instructions are the file's `al5d_interfaces/msg/ArmInstruction` messages on an arm's
+instruction topic (`<ns>/al5d/instruction`; one arm's, when the file holds several),
+decoded from the schema the file holds, and sent on the instruction topic by the client:
+the server judges each as it judges any (a refused one writes nothing). `rate`:
+`recorded` sends each at its recorded time after the first (when its sender sent it),
+whatever the outcomes, with a gap longer than `max_gap_s` cut to it (and said); `fast`
+sends each as soon as the one before has its outcome.
+
+The file is read as a stream, twice: once whole, to check every instruction in it (a
+damaged or foreign file, or a field that cannot be read, is an error naming the file and
+the message, and nothing is sent), then again to send them. Memory does not grow with
+the file. Each instruction is sent under an id of its own (its recorded id and its
+place in the file), so that each gets its own outcome where the file repeats an id.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
-import struct
+import io
+import itertools
 import sys
+import threading
 import time
+from collections import Counter
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, TextIO
 
-from mcap.exceptions import McapError
-from mcap.reader import NonSeekingReader, SeekingReader
-from mcap_ros2.decoder import DecoderFactory
+from mcap.reader import NonSeekingReader
+from mcap.records import Channel, Message, Schema
 
-from al5d.ros.names import PING
+from al5d.arm.instruction import MAX_ID, TIME_FIELD_MAX_MS, quote
+from al5d.ros.names import NODE, PING
 
 INSTRUCTION_TYPE = "al5d_interfaces/msg/ArmInstruction"
+#: An arm's instruction topic ends so (`Names.instruction`: `<ns>/al5d/instruction`).
+INSTRUCTION_TOPIC = f"/{NODE}/instruction"
 RATES = ("recorded", "fast")
-#: What a damaged file raises in the readers besides their own errors.
-_DAMAGED = (McapError, struct.error, ValueError, EOFError, UnicodeDecodeError)
+#: An MCAP file's first bytes (the format's magic: 0x89 `MCAP0` CR LF).
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+#: A gap between two instructions longer than this, at the recorded rate, is cut to it.
+MAX_GAP_S = 10.0
+#: The largest record the reader loads (a chunk of the recorder's is 1 MiB): a damaged
+#: length is an error, not an allocation of gigabytes.
+RECORD_LIMIT = 64 * 2**20
+#: An instruction whose strings come to more than this is not sent: DDS would not carry
+#: it whole to the server (a megabyte joint name never reached it), and no instruction of
+#: the grammar is near it.
+MAX_MESSAGE_BYTES = 64 * 2**10
+#: What a damaged or foreign file raises in the reader, the schema's parser and the
+#: decoder: anything. Their errors are many and undocumented (lz4's and zstandard's,
+#: rosidl's parser's, struct's, a missing attribute of a foreign message), and whatever
+#: they raise, the file is the cause: it is reported as the file's, with its type.
+_DAMAGED = (Exception,)
 
 
 class BadRecording(Exception):
@@ -36,76 +64,328 @@ class BadRecording(Exception):
 
 
 @dataclass(frozen=True)
-class Recorded:
-    """One instruction message of a recording, and when it was sent (CLOCK_REALTIME ns)."""
+class Fields:
+    """One recorded instruction's fields, checked: what `ArmInstruction` holds."""
 
+    instruction: str
+    joints: tuple[str, ...]
+    degrees: tuple[float, ...]
+    time_ms: int
+    id: str
+
+
+@dataclass(frozen=True)
+class Recorded:
+    """One instruction message of a recording: its place among the arm's instructions, when
+    it was sent (CLOCK_REALTIME ns), its topic and its fields."""
+
+    index: int
     sent_ns: int
     topic: str
-    msg: Any  # the decoded message: instruction, joints, degrees, time_ms, id
+    fields: Fields
 
 
-def read_instructions(path: str | Path) -> tuple[list[Recorded], str]:
-    """The instruction messages of a recording in the order they were sent, and a warning
-    ("" when none) if the file ends early (a recorder killed before it closed it): those
-    read before the damage are replayed. BadRecording when none can be read."""
-    try:
-        f = open(path, "rb")  # noqa: SIM115 (closed below)
-    except OSError as e:
-        raise BadRecording(f"cannot read {path}: {e.strerror}") from e
-    with f:
-        found: list[Recorded] = []
+@dataclass
+class Survey:
+    """What the first reading found: every arm's instructions (topic -> how many), and the
+    damage where the file stops being readable ("" none)."""
+
+    instructions: Counter[str]
+    damage: str = ""
+
+
+def _after(channel: Channel | None, message: Message | None, n: int) -> str:
+    """Where the reading of a file stopped: after its `n`th message, the one given."""
+    if channel is None or message is None:
+        return "before its first message"
+    return f"after its message {n} (on {channel.topic}, log time {message.log_time})"
+
+
+def _named(e: BaseException) -> str:
+    """An error, by its type's name and its words (`struct.error`, not `error`)."""
+    kind = type(e)
+    name = kind.__name__ if kind.__name__ != "error" else f"{kind.__module__}.error"
+    return f"{name}: {e}" if str(e) else name
+
+
+def _checked(msg: Any) -> Fields:
+    """The fields of a decoded message, or ValueError naming the one that is not what
+    `ArmInstruction` says (a foreign message under its name)."""
+
+    def text(name: str, value: Any) -> str:
+        if not isinstance(value, str):
+            raise ValueError(f"field {name}: {type(value).__name__}, not a string")
+        return value
+
+    def listed(name: str, value: Any) -> list[Any]:
+        if isinstance(value, (str, bytes)) or not hasattr(value, "__len__"):
+            raise ValueError(f"field {name}: {type(value).__name__}, not an array")
+        return list(value)
+
+    joints = [text("joints[]", j) for j in listed("joints", msg.joints)]
+    degrees = []
+    for d in listed("degrees", msg.degrees):
+        if isinstance(d, bool) or not isinstance(d, (int, float)):
+            raise ValueError(f"field degrees[]: {type(d).__name__}, not a number")
+        degrees.append(float(d))
+    time_ms = msg.time_ms
+    if isinstance(time_ms, bool) or not isinstance(time_ms, int):
+        raise ValueError(f"field time_ms: {type(time_ms).__name__}, not a whole number")
+    if not 0 <= time_ms <= TIME_FIELD_MAX_MS:
+        raise ValueError(f"field time_ms: {time_ms} is outside 0..{TIME_FIELD_MAX_MS}")
+    return Fields(
+        text("instruction", msg.instruction),
+        tuple(joints),
+        tuple(degrees),
+        time_ms,
+        text("id", msg.id),
+    )
+
+
+class _Reader:
+    """The instruction messages of one file, read as a stream."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = path
+        self._decoders: dict[int, Callable[[bytes], Any]] = {}
+
+    def _open(self) -> IO[bytes]:
         try:
-            _read(SeekingReader(f), found)
-            warning = ""
-        except _DAMAGED as e:
-            found.clear()
-            f.seek(0)
-            try:
-                _read(NonSeekingReader(f), found)
-            except _DAMAGED as again:
-                if not found:
-                    raise BadRecording(f"{path} is not a readable MCAP recording: {e}") from again
-                warning = (
-                    f"{path} is damaged or cut short ({again}): replaying the {len(found)} "
-                    "instructions read before that"
-                )
-            else:
-                warning = ""
-    found.sort(key=lambda r: r.sent_ns)
-    return found, warning
+            return open(self.path, "rb")
+        except OSError as e:
+            raise BadRecording(f"cannot read {self.path}: {e.strerror}") from e
 
-
-def _read(reader: SeekingReader | NonSeekingReader, found: list[Recorded]) -> None:
-    factory = DecoderFactory()
-    decoders: dict[int, Any] = {}
-    order = isinstance(reader, SeekingReader)
-    for schema, channel, message in reader.iter_messages(log_time_order=order):
-        if schema is None or schema.name != INSTRUCTION_TYPE:
-            continue
-        decode = decoders.get(schema.id)
+    def _decoder(self, schema: Schema, channel: Channel) -> Callable[[bytes], Any]:
+        decode = self._decoders.get(schema.id)
         if decode is None:
-            decode = factory.decoder_for(channel.message_encoding, schema)
-            if decode is None:
+            if channel.message_encoding != "cdr" or schema.encoding != "ros2msg":
                 raise BadRecording(
-                    f"{channel.topic}: messages encoded as {channel.message_encoding!r}, not CDR"
+                    f"{self.path}: {channel.topic}: messages encoded as "
+                    f"{channel.message_encoding!r} ({schema.encoding!r} schema), not CDR of a "
+                    "ros2msg schema"
                 )
-            decoders[schema.id] = decode
-        msg = decode(message.data)
-        if msg.instruction == PING:  # a client's handshake with the server, no instruction
-            continue
-        found.append(Recorded(message.publish_time or message.log_time, channel.topic, msg))
+            from mcap_ros2._dynamic import generate_dynamic
+
+            # The schema's own decoder (mcap-ros2-support's, in Python), whatever the schema:
+            # it reads a damaged message's lengths without trusting them, where rclpy's would
+            # allocate what a damaged length asks for; and it is the faster here (6 us a
+            # message against 8 us).
+            try:
+                # rosidl's parser prints its own words on a bad definition; ours say it.
+                with contextlib.redirect_stderr(io.StringIO()):
+                    decoders = generate_dynamic(schema.name, schema.data.decode())
+                decode = decoders[schema.name]
+            except _DAMAGED as e:
+                raise BadRecording(
+                    f"{self.path}: {channel.topic}: the schema {schema.name} cannot be read: "
+                    f"{_named(e)}"
+                ) from None
+            self._decoders[schema.id] = decode
+        return decode
+
+    def messages(self) -> Iterator[tuple[Schema | None, Channel, Message]]:
+        """Every message of the file in its order; BadRecording (naming where) when the
+        file stops being an MCAP recording."""
+        n = 0
+        channel: Channel | None = None
+        message: Message | None = None
+        with self._open() as f:
+            reader = NonSeekingReader(f, validate_crcs=True, record_size_limit=RECORD_LIMIT)
+            try:
+                # In the file's order: in log-time order this reader sorts the whole file in memory.
+                for schema, channel, message in reader.iter_messages(log_time_order=False):
+                    yield schema, channel, message
+                    n += 1
+            except BadRecording:
+                raise
+            except _DAMAGED as e:
+                f.seek(0)
+                mcap = f.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+                what = "is damaged or cut short" if mcap else "is not an MCAP recording"
+                raise BadRecording(
+                    f"{self.path} {what} ({_after(channel, message, n)}: {_named(e)})"
+                ) from None
+
+    def instructions(self, topic: str | None = None) -> Iterator[Recorded]:
+        """The instruction messages on `topic` (None: every arm's), checked, in the file's
+        order; BadRecording naming the message that cannot be read."""
+        count = 0
+        for schema, channel, message in self.messages():
+            if not channel.topic.endswith(INSTRUCTION_TOPIC) or (topic and channel.topic != topic):
+                continue
+            if schema is None or schema.name != INSTRUCTION_TYPE:
+                raise BadRecording(
+                    f"{self.path}: {channel.topic} holds "
+                    f"{schema.name if schema else 'schemaless'} messages, not {INSTRUCTION_TYPE}"
+                )
+            decode = self._decoder(schema, channel)
+            try:
+                fields = _checked(decode(message.data))
+            except _DAMAGED as e:
+                raise BadRecording(
+                    f"{self.path}: instruction {count + 1} (on {channel.topic}, log time "
+                    f"{message.log_time}): cannot be read as {INSTRUCTION_TYPE}: {_named(e)}"
+                ) from None
+            count += 1
+            if fields.instruction == PING:  # a client's handshake, no instruction
+                continue
+            yield Recorded(count, message.publish_time or message.log_time, channel.topic, fields)
+
+    def survey(self, partial: bool) -> Survey:
+        """Every instruction checked, counted by topic; with `partial`, damage ends the
+        count instead (`Survey.damage` says where)."""
+        found = Survey(Counter())
+        try:
+            for each in self.instructions():
+                found.instructions[each.topic] += 1
+        except BadRecording as e:
+            if not partial or "is damaged or cut short" not in str(e):
+                raise
+            found.damage = str(e)
+        return found
 
 
-def _message(recorded: Recorded) -> Any:
+def survey(path: str | Path, partial: bool = False) -> Survey:
+    """Every instruction of a recording checked, counted by topic (`_Reader.survey`)."""
+    return _Reader(path).survey(partial)
+
+
+def read_instructions(path: str | Path, topic: str | None = None) -> list[Recorded]:
+    """The checked instructions of a recording, in the file's order (every arm's, or those
+    on `topic`). BadRecording when the file cannot be read whole."""
+    return list(_Reader(path).instructions(topic))
+
+
+def choose_topic(path: str, found: Counter[str], arm: str | None, namespace: str | None) -> str:
+    """The instruction topic to replay: the recorded arm's (`arm`, a namespace), the one
+    arm's the file holds, or the one of `namespace` (the server sent to); BadRecording
+    when the file holds none, or several and neither says which."""
+    from al5d.ros.names import Names
+
+    if not found:
+        raise BadRecording(f"{path} holds no instructions ({INSTRUCTION_TYPE})")
+    if arm is not None:
+        topic = Names.of(arm).instruction
+        if topic not in found:
+            held = ", ".join(sorted(found))
+            raise BadRecording(f"{path} holds no instructions on {topic} (it holds {held})")
+        return topic
+    if len(found) == 1:
+        return next(iter(found))
+    mine = Names.of(namespace).instruction
+    if mine in found:
+        return mine
+    arms = " and ".join(t.removesuffix(INSTRUCTION_TOPIC) or "/" for t in sorted(found))
+    raise BadRecording(
+        f"{path} holds the instructions of several arms ({arms}): choose one with --from NS"
+    )
+
+
+def _message(fields: Fields, ident: str) -> Any:
     from al5d_interfaces.msg import ArmInstruction
 
     msg = ArmInstruction()
-    msg.instruction = recorded.msg.instruction
-    msg.joints = list(recorded.msg.joints)
-    msg.degrees = [float(d) for d in recorded.msg.degrees]
-    msg.time_ms = int(recorded.msg.time_ms)
-    msg.id = recorded.msg.id
+    msg.instruction = fields.instruction
+    msg.joints = list(fields.joints)
+    msg.degrees = list(fields.degrees)
+    msg.time_ms = fields.time_ms
+    msg.id = ident
     return msg
+
+
+def _unsendable(fields: Fields) -> str:
+    """Why an instruction is not sent at all ("": it is): what the server would refuse
+    without it reaching it whole."""
+    size = len(fields.instruction) + len(fields.id) + sum(len(j) for j in fields.joints)
+    size += 8 * len(fields.degrees)
+    if size > MAX_MESSAGE_BYTES:
+        return (
+            f"the message holds {size} bytes of fields, more than the {MAX_MESSAGE_BYTES} an "
+            "instruction is sent with"
+        )
+    if len(fields.id) > MAX_ID:
+        return f"the id is {len(fields.id)} characters long; at most {MAX_ID}"
+    return ""
+
+
+def _sent_id(recorded: Recorded) -> str:
+    """The id an instruction is sent under: its recorded id and its place in the file, so
+    that a file that repeats an id has an outcome for each."""
+    suffix = f"#{recorded.index}"
+    return recorded.fields.id[: MAX_ID - len(suffix)] + suffix
+
+
+class _Outcomes:
+    """The outcomes of what the replay sent, by id, each handed to its waiter once; kept only
+    while awaited (memory does not grow with the instructions sent)."""
+
+    def __init__(self, client: Any) -> None:
+        from al5d_interfaces.msg import InstructionResult
+
+        from al5d.ros.qos import QOS_STREAM
+
+        self._cv = threading.Condition()
+        self._waiting: dict[str, Callable[[Any], None]] = {}
+        self._sub = client.node.create_subscription(
+            InstructionResult, client.names.result, self._on_result, QOS_STREAM
+        )
+
+    def handshake(self, client: Any, timeout: float) -> bool:
+        """Until a ping of ours is answered on this reader: the server's writer of results
+        has matched it (the client's own reader having matched says nothing of this one);
+        False if none is within `timeout`."""
+        from al5d_interfaces.msg import ArmInstruction
+
+        from al5d.arm.instruction import new_id
+
+        answered = threading.Event()
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            ping = new_id()
+            self.expect(ping, lambda _: answered.set())
+            client.pub.publish(ArmInstruction(instruction=PING, id=ping))
+            if answered.wait(min(0.5, max(0.0, deadline - time.monotonic()))):
+                return True
+            self.forget(ping)
+        return False
+
+    def expect(self, ident: str, then: Callable[[Any], None]) -> None:
+        with self._cv:
+            self._waiting[ident] = then
+
+    def _on_result(self, msg: Any) -> None:
+        from al5d.ros.convert import outcome_from_message
+
+        with self._cv:
+            then = self._waiting.pop(msg.id, None)
+            self._cv.notify_all()
+        if then is not None:
+            with contextlib.suppress(ValueError):  # an outcome word no server says
+                then(outcome_from_message(msg))
+
+    def wait(self, idents: Callable[[], bool], timeout: float) -> bool:
+        """Until `idents()` says the awaited outcomes have come, or `timeout` seconds."""
+        deadline = time.monotonic() + timeout
+        with self._cv:
+            while not idents():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cv.wait(left)
+            return True
+
+    def pending(self) -> list[str]:
+        with self._cv:
+            return list(self._waiting)
+
+    def arrived(self, ident: str) -> bool:
+        """Whether the outcome of `ident` has come (or was never awaited)."""
+        with self._cv:
+            return ident not in self._waiting
+
+    def forget(self, ident: str) -> None:
+        with self._cv:
+            self._waiting.pop(ident, None)
 
 
 def replay(
@@ -116,59 +396,137 @@ def replay(
     timeout: float,
     namespace: str | None = None,
     config: str | None = None,
+    arm: str | None = None,
+    max_gap_s: float = MAX_GAP_S,
+    partial: bool = False,
     out: TextIO = sys.stdout,
     err: IO[str] = sys.stderr,
 ) -> int:
     """Send a recording's instructions again; the exit code (`al5d.exits`): done, not done
-    (any one refused, cancelled or unanswered), bad input (a file that cannot be replayed:
-    nothing sent) or no server."""
+    (any one refused, cancelled or unanswered, or Ctrl-C), bad input (a file that cannot be
+    replayed: nothing sent) or no server."""
+    from al5d import exits
+
+    reader = _Reader(path)
+    try:
+        survey = reader.survey(partial)
+        topic = choose_topic(path, survey.instructions, arm, namespace)
+    except BadRecording as e:
+        print(f"al5d replay: {e}", file=err)
+        return exits.BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"al5d replay: interrupted (Ctrl-C) while reading {path}: nothing sent", file=err)
+        return exits.NOT_DONE
+    total = survey.instructions[topic]
+    if survey.damage:
+        print(
+            f"al5d replay: warning: {survey.damage}: replaying the {total} instructions before "
+            "that (--partial)",
+            file=err,
+        )
+    return _send(
+        reader, topic, total, rate, wait_s, timeout, namespace, config, max_gap_s, out, err
+    )
+
+
+def _send(
+    reader: _Reader,
+    topic: str,
+    total: int,
+    rate: str,
+    wait_s: float,
+    timeout: float,
+    namespace: str | None,
+    config: str | None,
+    max_gap_s: float,
+    out: TextIO,
+    err: IO[str],
+) -> int:
     from al5d import exits
     from al5d.app.terminal import Report
     from al5d.arm.config import load_config
     from al5d.arm.instruction import Instruction
     from al5d.ros.client import Client, NoServer
-    from al5d.ros.convert import from_message
+    from al5d.ros.convert import from_message, to_message
 
-    try:
-        recorded, warning = read_instructions(path)
-    except BadRecording as e:
-        print(f"al5d replay: {e}", file=err)
-        return exits.BAD_INPUT
-    if warning:
-        print(f"al5d replay: warning: {warning}", file=err)
-    if not recorded:
-        print(f"al5d replay: {path} holds no instructions ({INSTRUCTION_TYPE})", file=err)
-        return exits.BAD_INPUT
     arm = load_config(config)
     presets = tuple(arm.presets)
     client = Client(namespace)
     report = Report(out)
+    sent = 0
     try:
+        outcomes = _Outcomes(client)
         client.wait_for_server(wait_s)
+        if not outcomes.handshake(client, wait_s):
+            raise NoServer(f"the server's results do not reach this replay within {wait_s:g} s")
         started = time.monotonic()
-        first = recorded[0].sent_ns
-        sent: list[Instruction] = []
-        for each in recorded:
-            instr = from_message(_message(each), presets, arm.model)
+        first: int | None = None
+        before: int | None = None
+        cut_s = 0.0  # the gaps cut so far
+        last_sent = time.monotonic()
+        # The first `total`: a --partial replay stops before the damage.
+        for each in itertools.islice(reader.instructions(topic), total):
+            fields = each.fields
+            why = _unsendable(fields)
+            instr: Instruction | str = why or from_message(
+                _message(fields, _sent_id(each)), presets, arm.model
+            )
             if isinstance(instr, str):  # as the server would refuse it: nothing is sent
                 report.all_done = False
-                report.line(f"> {each.msg.instruction!r} [{each.msg.id}]: refused: {instr}")
+                shown = f"{quote(fields.instruction)} [{quote(fields.id, 60)}]"
+                report.line(f"> {shown}: refused: {instr}")
                 continue
             if rate == "recorded":
-                time.sleep(max(0.0, started + (each.sent_ns - first) / 1e9 - time.monotonic()))
+                first = each.sent_ns if first is None else first
+                gap_s = (each.sent_ns - (before if before is not None else each.sent_ns)) / 1e9
+                before = each.sent_ns
+                if gap_s > max_gap_s:
+                    cut_s += gap_s - max_gap_s
+                    print(
+                        f"al5d replay: a gap of {gap_s:.6g} s before instruction {each.index} "
+                        f"is cut to {max_gap_s:g} s (--max-gap)",
+                        file=err,
+                        flush=True,
+                    )
+                due = started + (each.sent_ns - first) / 1e9 - cut_s
+                time.sleep(max(0.0, due - time.monotonic()))
             report.line(f"> {instr}")
-            if rate == "recorded":
-                client.watch(instr.id, functools.partial(report.outcome, instr=instr))
-                sent.append(instr)
-            client.send(instr)
-            if rate != "recorded":
-                report.outcome(client.outcome(instr.id, timeout), instr=instr)
-        for instr in sent:
-            if client.outcome(instr.id, timeout) is None:
+            outcome_of = _reporter(report, instr)
+            outcomes.expect(instr.id, outcome_of)
+            client.pub.publish(to_message(instr))
+            sent += 1
+            last_sent = time.monotonic()
+            arrived = functools.partial(outcomes.arrived, instr.id)
+            if rate != "recorded" and not outcomes.wait(arrived, timeout):
+                outcomes.forget(instr.id)
                 report.outcome(None, instr=instr)
+        if not outcomes.wait(
+            lambda: not outcomes.pending(), timeout - (time.monotonic() - last_sent)
+        ):
+            for ident in outcomes.pending():
+                outcomes.forget(ident)
+                report.line(f"[{ident}]: no outcome (timed out)")
+            report.all_done = False
         return exits.DONE if report.all_done else exits.NOT_DONE
     except NoServer as e:
         print(f"al5d replay: {e}", file=err)
         return exits.NO_SERVER
+    except BadRecording as e:  # the file changed since it was checked
+        print(f"al5d replay: {e}", file=err)
+        return exits.BAD_INPUT
+    except KeyboardInterrupt:
+        print(
+            f"al5d replay: interrupted (Ctrl-C) after {sent} of {total} instructions sent; "
+            "those sent go on (al5d send stop halts the arm)",
+            file=err,
+        )
+        return exits.NOT_DONE
     finally:
         client.close()
+
+
+def _reporter(report: Any, instr: Any) -> Callable[[Any], None]:
+    def told(outcome: Any) -> None:
+        report.outcome(outcome, instr=instr)
+
+    return told

@@ -15,7 +15,7 @@ points found are the joint's new `calibration` (they set offset, scale and direc
   loads and validates with the configuration's own code.
 
 Pure: the arm is moved by the caller (`al5d calibrate` through the server, a test through
-`ArmDriver`), which hands each pulse's outcome back; `al5d.arm.calfile` writes the file.
+the board's owner), which hands each pulse's outcome back; `al5d.arm.calfile` writes the file.
 """
 
 from __future__ import annotations

@@ -154,6 +154,26 @@ def frame_problem(frame: str) -> str | None:
     return None
 
 
+def joint_prefix_problem(prefix: str) -> str | None:
+    """Why `prefix` cannot start the URDF's joint names ("" is none), or None: letters,
+    digits and underscores, a letter first, so that every joint name stays one MoveIt and
+    ros2_control take as a YAML key and a parameter name."""
+    if prefix and not _NAME_SEGMENT.fullmatch(prefix):
+        return (
+            f"joint_prefix {prefix[:40]!r}: letters, digits and underscores, starting with a "
+            "letter (e.g. left_), or '' for none"
+        )
+    return None
+
+
+def default_joint_prefix(namespace: str) -> str:
+    """The joints' prefix of an arm in `namespace` that names none: the namespace's parts
+    joined by underscores, and one after (`left` -> `left_`, `/lab/left` -> `lab_left_`);
+    none without a namespace."""
+    ns = namespace.strip("/")
+    return f"{ns.replace('/', '_')}_" if ns else ""
+
+
 #: A mount's offset, metres: a lab's size, not a typo's (an x of 5e3 is a unit mistaken).
 MOUNT_REACH_M = 100.0
 Metres = Annotated[float, Field(allow_inf_nan=False, ge=-MOUNT_REACH_M, le=MOUNT_REACH_M)]
@@ -227,6 +247,22 @@ class ServerSettings(_Frozen):
     namespace: str = ""
     #: Where the arm stands in a shared frame (None: nowhere said; base_link is a root).
     mount: Mount | None = None
+    #: Put before every URDF joint name (/joint_states, the trajectory and gripper actions,
+    #: joint_commands, the URDF), so that several arms make one robot (`left_base`): None
+    #: takes the namespace's (`default_joint_prefix`), "" none.
+    joint_prefix: str | None = None
+
+    @property
+    def joint_name_prefix(self) -> str:
+        """The prefix the URDF's joint names carry: `joint_prefix`, or the namespace's."""
+        return self.joint_prefix_in(self.namespace)
+
+    def joint_prefix_in(self, namespace: str) -> str:
+        """The joints' prefix of this arm served in `namespace` (a `--namespace` that
+        overrides the file's): `joint_prefix`, or that namespace's."""
+        if self.joint_prefix is not None:
+            return self.joint_prefix
+        return default_joint_prefix(namespace)
 
     @model_validator(mode="after")
     def _idle_rate_not_above_moving(self) -> ServerSettings:
@@ -250,6 +286,14 @@ class ServerSettings(_Frozen):
                 "hangs the arm from a frame outside it (e.g. world)"
             )
         return self
+
+    @field_validator("joint_prefix")
+    @classmethod
+    def _joint_prefix(cls, v: str | None) -> str | None:
+        problem = None if v is None else joint_prefix_problem(v)
+        if problem:
+            raise ValueError(problem)
+        return v
 
     @field_validator("namespace")
     @classmethod

@@ -60,7 +60,7 @@ from al5d.model.lines import (
     segment_deviation,
 )
 from al5d.model.moveit import controllers, joint_limits, kinematics, moveit_config, srdf
-from al5d.model.urdf import urdf, urdf_from_chain
+from al5d.model.urdf import urdf, urdf_from_chain, urdf_of_arms
 
 __all__ = [
     "ARM_JOINTS",
@@ -106,4 +106,5 @@ __all__ = [
     "tool_quaternion",
     "urdf",
     "urdf_from_chain",
+    "urdf_of_arms",
 ]

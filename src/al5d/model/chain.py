@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Final, Literal
 
 from al5d.model.arm import ArmModel
@@ -111,6 +111,17 @@ class Chain:
     #: Prefixed names of the root (base_link) and the tool frame (tool0).
     root: str
     tool: str
+    #: Put before every joint name (`left_` makes `left_base`): several arms in one robot.
+    joint_prefix: str = ""
+
+    def key(self, joint: str) -> str:
+        """The model's name of a joint of the chain (`left_base` -> `base`), as the values
+        of `ArmModel.to_urdf` are keyed."""
+        return joint[len(self.joint_prefix) :] if joint.startswith(self.joint_prefix) else joint
+
+    def named(self, values: Mapping[str, float]) -> dict[str, float]:
+        """Values keyed by the model's names (`base`), keyed by the chain's (`left_base`)."""
+        return {self.joint_prefix + name: value for name, value in values.items()}
 
     def joint(self, name: str) -> Joint:
         """A joint by name."""
@@ -149,12 +160,14 @@ def build_chain(
     speeds_deg_s: Mapping[str, float],
     *,
     prefix: str = "",
+    joint_prefix: str = "",
     effort: float = DEFAULT_EFFORT,
 ) -> Chain:
     """The AL5D's tree from its geometry, ranges and servo speeds (deg/s per joint).
 
     `prefix` (e.g. "left/") is put before every link name, as robot_state_publisher's
-    frame_prefix does to frames; joint names stay as they are.
+    frame_prefix does to frames; `joint_prefix` (e.g. "left_") before every joint name,
+    so that two arms' joints never share a name in one URDF.
     """
     speeds = _speeds(speeds_deg_s)
     if not (math.isfinite(effort) and effort > 0):
@@ -289,16 +302,25 @@ def build_chain(
             (0.0, 0.0, 1.0),
         ),
     ]
-    return Chain(links, tuple(joints), prefix, root, tool)
+    if joint_prefix:
+        joints = [_prefixed(joint, joint_prefix) for joint in joints]
+    return Chain(links, tuple(joints), prefix, root, tool, joint_prefix)
 
 
-def _value(joint: Joint, values: Mapping[str, float]) -> float:
+def _prefixed(joint: Joint, prefix: str) -> Joint:
+    mimic = joint.mimic
+    if mimic is not None:
+        mimic = Mimic(prefix + mimic.joint, mimic.multiplier, mimic.offset)
+    return replace(joint, name=prefix + joint.name, mimic=mimic)
+
+
+def _value(chain: Chain, joint: Joint, values: Mapping[str, float]) -> float:
     if joint.type == "fixed":
         return 0.0
     if joint.mimic is not None:
         m = joint.mimic
-        return m.multiplier * _value_of(m.joint, values) + m.offset
-    return _value_of(joint.name, values)
+        return m.multiplier * _value_of(chain.key(m.joint), values) + m.offset
+    return _value_of(chain.key(joint.name), values)
 
 
 def _value_of(name: str, values: Mapping[str, float]) -> float:
@@ -311,19 +333,20 @@ def _value_of(name: str, values: Mapping[str, float]) -> float:
 
 
 def joint_transforms(chain: Chain, values: Mapping[str, float]) -> dict[str, Transform]:
-    """For /tf: {joint name: child frame in parent frame} for URDF values (rad, m).
+    """For /tf: {joint name: child frame in parent frame} for URDF values (rad, m), keyed
+    by the model's joint names (`ArmModel.to_urdf`'s, without the chain's joint prefix).
 
     Fixed joints are included (they belong on /tf_static); mimic joints follow
     their master, so `values` needs only `Chain.movable`.
     """
-    return {j.name: j.transform(_value(j, values)) for j in chain.joints}
+    return {j.name: j.transform(_value(chain, j, values)) for j in chain.joints}
 
 
 def link_poses(chain: Chain, values: Mapping[str, float]) -> dict[str, Transform]:
     """Every link's frame in the root frame (base_link) for URDF values."""
     poses = {chain.root: Transform()}
     for j in chain.joints:  # parents come before children by construction
-        poses[j.child] = poses[j.parent] * j.transform(_value(j, values))
+        poses[j.child] = poses[j.parent] * j.transform(_value(chain, j, values))
     return poses
 
 

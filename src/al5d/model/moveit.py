@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any, Final
 
 from al5d.model.arm import ArmModel
@@ -21,6 +22,8 @@ from al5d.model.urdf import num
 
 ARM_GROUP: Final = "arm"
 GRIPPER_GROUP: Final = "gripper"
+#: The group of every arm, in a robot of several.
+ARMS_GROUP: Final = "arms"
 ARM_CONTROLLER: Final = "arm_controller"
 GRIPPER_CONTROLLER: Final = "gripper_controller"
 KDL_PLUGIN: Final = "kdl_kinematics_plugin/KDLKinematicsPlugin"
@@ -46,6 +49,35 @@ def _preset_state(
     return model.to_urdf({j: preset[j] for j in joints})
 
 
+@dataclass(frozen=True)
+class MoveItArm:
+    """One arm of a MoveIt robot: its model, its chain (its frames' and joints' prefixes),
+    its presets, and the prefix of its groups and controllers ("" in a robot of one arm:
+    groups `arm` and `gripper`; `left_` gives `left_arm`, `left_gripper`)."""
+
+    model: ArmModel
+    chain: Chain
+    presets: Mapping[str, Mapping[str, float]]
+    group_prefix: str = ""
+
+    @property
+    def arm_group(self) -> str:
+        return self.group_prefix + ARM_GROUP
+
+    @property
+    def gripper_group(self) -> str:
+        return self.group_prefix + GRIPPER_GROUP
+
+    @property
+    def gripper_joint(self) -> str:
+        return self.chain.joint_prefix + "gripper"
+
+    @property
+    def arm_joints(self) -> list[str]:
+        """The arm's joints as the URDF names them, the gripper left out."""
+        return [self.chain.joint_prefix + j for j in ARM_JOINTS]
+
+
 def srdf(
     model: ArmModel,
     chain: Chain,
@@ -57,37 +89,66 @@ def srdf(
     """The SRDF: groups `arm` (chain base_link -> tool0) and `gripper`, the presets as
     named states (arm joints in group `arm`, the gripper in `gripper`, which also gets
     `open` and `closed`), the end effector, and the disabled collision pairs."""
+    arm = MoveItArm(model, chain, presets)
+    return srdf_of_arms([arm], robot_name=robot_name, collision_samples=collision_samples)
+
+
+def srdf_of_arms(
+    arms: Sequence[MoveItArm],
+    *,
+    robot_name: str = "al5d",
+    collision_samples: int = DEFAULT_SAMPLES,
+) -> str:
+    """The SRDF of one robot of `arms`: each arm's groups, named states and end effector as
+    `srdf` gives one arm's (behind its group prefix); with several arms, group `arms` of
+    every arm's group, and a named state of it for each preset they all have. Collisions
+    are disabled within each arm only: one arm's links against another's are checked."""
     robot = ET.Element("robot", name=robot_name)
-    arm = ET.SubElement(robot, "group", name=ARM_GROUP)
-    ET.SubElement(arm, "chain", base_link=chain.root, tip_link=chain.tool)
-    hand = ET.SubElement(robot, "group", name=GRIPPER_GROUP)
-    ET.SubElement(hand, "joint", name="gripper")
 
     def state(group: str, name: str, values: Mapping[str, float]) -> None:
         element = ET.SubElement(robot, "group_state", name=name, group=group)
         for joint, value in values.items():
             ET.SubElement(element, "joint", name=joint, value=num(value))
 
-    for name, preset in presets.items():
-        state(ARM_GROUP, name, _preset_state(model, name, preset, ARM_JOINTS))
-    gm = model.gripper_map
-    state(GRIPPER_GROUP, "open", {"gripper": gm.gap_from_deg(gm.open_deg)})
-    state(GRIPPER_GROUP, "closed", {"gripper": gm.gap_from_deg(gm.closed_deg)})
-    for name, preset in presets.items():
-        if name not in ("open", "closed"):
-            state(GRIPPER_GROUP, name, _preset_state(model, name, preset, ("gripper",)))
-    ET.SubElement(
-        robot,
-        "end_effector",
-        name="hand",
-        parent_link=chain.tool,
-        group=GRIPPER_GROUP,
-        parent_group=ARM_GROUP,
-    )
-    for pair in disabled_pairs(chain, samples=collision_samples):
+    for arm in arms:
+        group = ET.SubElement(robot, "group", name=arm.arm_group)
+        ET.SubElement(group, "chain", base_link=arm.chain.root, tip_link=arm.chain.tool)
+        hand = ET.SubElement(robot, "group", name=arm.gripper_group)
+        ET.SubElement(hand, "joint", name=arm.gripper_joint)
+        named = arm.chain.named
+        for name, preset in arm.presets.items():
+            state(arm.arm_group, name, named(_preset_state(arm.model, name, preset, ARM_JOINTS)))
+        gm = arm.model.gripper_map
+        state(arm.gripper_group, "open", {arm.gripper_joint: gm.gap_from_deg(gm.open_deg)})
+        state(arm.gripper_group, "closed", {arm.gripper_joint: gm.gap_from_deg(gm.closed_deg)})
+        for name, preset in arm.presets.items():
+            if name not in ("open", "closed"):
+                gripper = _preset_state(arm.model, name, preset, ("gripper",))
+                state(arm.gripper_group, name, named(gripper))
         ET.SubElement(
-            robot, "disable_collisions", link1=pair.link1, link2=pair.link2, reason=pair.reason
+            robot,
+            "end_effector",
+            name=arm.group_prefix + "hand",
+            parent_link=arm.chain.tool,
+            group=arm.gripper_group,
+            parent_group=arm.arm_group,
         )
+    if len(arms) > 1:
+        every = ET.SubElement(robot, "group", name=ARMS_GROUP)
+        for arm in arms:
+            ET.SubElement(every, "group", name=arm.arm_group)
+        shared = [p for p in arms[0].presets if all(p in arm.presets for arm in arms)]
+        for name in shared:
+            values: dict[str, float] = {}
+            for arm in arms:
+                preset = _preset_state(arm.model, name, arm.presets[name], ARM_JOINTS)
+                values |= arm.chain.named(preset)
+            state(ARMS_GROUP, name, values)
+    for arm in arms:
+        for pair in disabled_pairs(arm.chain, samples=collision_samples):
+            ET.SubElement(
+                robot, "disable_collisions", link1=pair.link1, link2=pair.link2, reason=pair.reason
+            )
     ET.indent(robot, space="  ")
     return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
 
@@ -95,18 +156,26 @@ def srdf(
 def joint_limits(chain: Chain, *, ramp_s: float | None = DEFAULT_RAMP_S) -> dict[str, Any]:
     """joint_limits.yaml: every movable joint's velocity limit from the URDF (the servo
     speeds); acceleration = velocity / ramp_s, or no acceleration limit if ramp_s is None."""
+    return joint_limits_of([chain], ramp_s=ramp_s)
+
+
+def joint_limits_of(
+    chains: Sequence[Chain], *, ramp_s: float | None = DEFAULT_RAMP_S
+) -> dict[str, Any]:
+    """`joint_limits` of every arm's chain in one file."""
     if ramp_s is not None and not (math.isfinite(ramp_s) and ramp_s > 0):
         raise InvalidInput(f"ramp_s must be finite and > 0, or None, not {ramp_s}")
     limits: dict[str, Any] = {}
-    for name in chain.movable:
-        lim = chain.joint(name).limit
-        assert lim is not None  # every movable joint of the chain has one
-        limits[name] = {
-            "has_velocity_limits": True,
-            "max_velocity": lim.velocity,
-            "has_acceleration_limits": ramp_s is not None,
-            "max_acceleration": 0.0 if ramp_s is None else lim.velocity / ramp_s,
-        }
+    for chain in chains:
+        for name in chain.movable:
+            lim = chain.joint(name).limit
+            assert lim is not None  # every movable joint of the chain has one
+            limits[name] = {
+                "has_velocity_limits": True,
+                "max_velocity": lim.velocity,
+                "has_acceleration_limits": ramp_s is not None,
+                "max_acceleration": 0.0 if ramp_s is None else lim.velocity / ramp_s,
+            }
     return {
         "default_velocity_scaling_factor": DEFAULT_SCALING,
         "default_acceleration_scaling_factor": DEFAULT_SCALING,
@@ -115,44 +184,57 @@ def joint_limits(chain: Chain, *, ramp_s: float | None = DEFAULT_RAMP_S) -> dict
 
 
 def kinematics(
-    *, position_only_ik: bool = True, timeout_s: float = 0.05, resolution: float = 0.005
+    *,
+    position_only_ik: bool = True,
+    timeout_s: float = 0.05,
+    resolution: float = 0.005,
+    groups: Sequence[str] = (ARM_GROUP,),
 ) -> dict[str, Any]:
-    """kinematics.yaml: KDL for group `arm`.
+    """kinematics.yaml: KDL for group `arm` (or each arm's group of `groups`).
 
     Position-only by default: five joints cannot meet an arbitrary 6-D pose, so
     with full poses KDL fails on almost every goal an interactive marker gives.
     """
     return {
-        ARM_GROUP: {
+        group: {
             "kinematics_solver": KDL_PLUGIN,
             "kinematics_solver_search_resolution": resolution,
             "kinematics_solver_timeout": timeout_s,
             "position_only_ik": position_only_ik,
         }
+        for group in groups
     }
 
 
-def controllers() -> dict[str, Any]:
-    """moveit_controllers.yaml for MoveIt's simple controller manager and our two actions."""
+def controllers(arms: Sequence[MoveItArm] | None = None) -> dict[str, Any]:
+    """moveit_controllers.yaml for MoveIt's simple controller manager and our two actions;
+    with `arms`, each arm's two, named behind its group prefix (`left_arm_controller`) and
+    commanding its joints (without: one arm, the model's joint names)."""
+    names: list[str] = []
+    manager: dict[str, Any] = {"controller_names": names}
+    for prefix, arm_joints, gripper in (
+        [(a.group_prefix, a.arm_joints, a.gripper_joint) for a in arms]
+        if arms
+        else [("", list(ARM_JOINTS), "gripper")]
+    ):
+        names += [prefix + ARM_CONTROLLER, prefix + GRIPPER_CONTROLLER]
+        manager[prefix + ARM_CONTROLLER] = {
+            "type": "FollowJointTrajectory",
+            "action_ns": "follow_joint_trajectory",
+            "default": True,
+            "joints": arm_joints,
+        }
+        manager[prefix + GRIPPER_CONTROLLER] = {
+            "type": "GripperCommand",
+            "action_ns": "gripper_cmd",
+            "default": True,
+            "joints": [gripper],
+        }
     return {
         "moveit_controller_manager": (
             "moveit_simple_controller_manager/MoveItSimpleControllerManager"
         ),
-        "moveit_simple_controller_manager": {
-            "controller_names": [ARM_CONTROLLER, GRIPPER_CONTROLLER],
-            ARM_CONTROLLER: {
-                "type": "FollowJointTrajectory",
-                "action_ns": "follow_joint_trajectory",
-                "default": True,
-                "joints": list(ARM_JOINTS),
-            },
-            GRIPPER_CONTROLLER: {
-                "type": "GripperCommand",
-                "action_ns": "gripper_cmd",
-                "default": True,
-                "joints": ["gripper"],
-            },
-        },
+        "moveit_simple_controller_manager": manager,
     }
 
 
@@ -164,11 +246,16 @@ def moveit_config(
     robot_name: str = "al5d",
 ) -> dict[str, Any]:
     """All four, keyed by the file name a MoveIt config package gives them."""
+    return moveit_config_of([MoveItArm(model, chain, presets)], robot_name=robot_name)
+
+
+def moveit_config_of(arms: Sequence[MoveItArm], *, robot_name: str = "al5d") -> dict[str, Any]:
+    """`moveit_config` of a robot of several arms (or one)."""
     return {
-        f"{robot_name}.srdf": srdf(model, chain, presets, robot_name=robot_name),
-        "joint_limits.yaml": joint_limits(chain),
-        "kinematics.yaml": kinematics(),
-        "moveit_controllers.yaml": controllers(),
+        f"{robot_name}.srdf": srdf_of_arms(arms, robot_name=robot_name),
+        "joint_limits.yaml": joint_limits_of([arm.chain for arm in arms]),
+        "kinematics.yaml": kinematics(groups=[arm.arm_group for arm in arms]),
+        "moveit_controllers.yaml": controllers(arms),
     }
 
 
@@ -207,13 +294,14 @@ def initial_positions(
 
     The `park` preset where there is one, since the server parks the arm when it starts;
     otherwise the middle of each joint's range."""
+    keys = [chain.key(j) for j in chain.movable]
     if "park" in presets:
         values = _preset_state(model, "park", presets["park"], (*ARM_JOINTS, "gripper"))
     else:
-        middle = {j: (model.ranges.of(j).lo + model.ranges.of(j).hi) / 2 for j in chain.movable}
+        middle = {j: (model.ranges.of(j).lo + model.ranges.of(j).hi) / 2 for j in keys}
         values = model.to_urdf(middle)
     # + 0.0: no negative zero in the file
-    return {"initial_positions": {j: float(values[j]) + 0.0 for j in chain.movable}}
+    return {"initial_positions": chain.named({j: float(values[j]) + 0.0 for j in keys})}
 
 
 def command_threshold(model: ArmModel, us_per_deg: Mapping[str, float]) -> float:
@@ -242,7 +330,8 @@ def ros2_controllers(chain: Chain, *, update_rate_hz: int, namespace: str = "") 
     echoed copy on the topic the hardware reads. The parameter sections name each node
     with its namespace, so that they apply to the nodes of an arm in one."""
     prefix = f"/{namespace.strip('/')}/" if namespace.strip("/") else ""
-    arm = [j for j in chain.movable if j != "gripper"]
+    gripper = chain.joint_prefix + "gripper"
+    arm = [j for j in chain.movable if j != gripper]
     return {
         f"{prefix}controller_manager": {
             "ros__parameters": {
@@ -260,14 +349,14 @@ def ros2_controllers(chain: Chain, *, update_rate_hz: int, namespace: str = "") 
                 "state_interfaces": ["position"],
             }
         },
-        f"{prefix}{ROS2_GRIPPER_CONTROLLER}": {"ros__parameters": {"joint": "gripper"}},
+        f"{prefix}{ROS2_GRIPPER_CONTROLLER}": {"ros__parameters": {"joint": gripper}},
     }
 
 
-def ros2_control_controllers() -> dict[str, Any]:
+def ros2_control_controllers(arm: MoveItArm | None = None) -> dict[str, Any]:
     """MoveIt's controllers when ros2_control drives the arm: its two controllers' actions,
     through the same simple controller manager."""
-    config = controllers()
+    config = controllers([arm] if arm else None)
     manager = config["moveit_simple_controller_manager"]
     manager["controller_names"] = [ROS2_ARM_CONTROLLER, ROS2_GRIPPER_CONTROLLER]
     manager[ROS2_ARM_CONTROLLER] = manager.pop(ARM_CONTROLLER)

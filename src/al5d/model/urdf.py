@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Final
 
 from al5d.model.arm import ArmModel
 from al5d.model.chain import DEFAULT_EFFORT, Chain, build_chain
+from al5d.model.errors import InvalidInput
 from al5d.model.looks import Shape
 from al5d.model.transforms import Mount
 
@@ -51,15 +52,53 @@ MOUNT_JOINT: Final = "mount"
 
 def urdf_from_chain(chain: Chain, robot_name: str = "al5d", mount: Mount | None = None) -> str:
     """The URDF XML (a string, with declaration) of a chain; with a `mount`, the mount's
-    parent is the root link and a fixed joint `mount` holds the chain's root in it (what
-    MoveIt needs to plan in a frame shared by several arms: an SRDF's fixed virtual joint
-    has no origin, so it could only put the arm at the parent's origin)."""
+    parent is the root link and a fixed joint `mount` (behind the chain's joint prefix)
+    holds the chain's root in it (what MoveIt needs to plan in a frame shared by several
+    arms: an SRDF's fixed virtual joint has no origin, so it could only put the arm at the
+    parent's origin)."""
+    return urdf_of_arms([(chain, mount)], robot_name)
+
+
+def urdf_of_arms(arms: Sequence[tuple[Chain, Mount | None]], robot_name: str = "al5d") -> str:
+    """One URDF of several arms, each hung from its mount's parent frame (one link however
+    many arms share it); one arm may go without a mount, as `urdf_from_chain`. Each arm's
+    links and joints carry their own prefixes: a name twice is refused (InvalidInput)."""
+    if len(arms) > 1 and any(mount is None for _, mount in arms):
+        raise InvalidInput("several arms in one URDF: each needs a mount (its parent frame)")
     robot = ET.Element("robot", name=robot_name)
     for name, rgba in MATERIALS.items():
         material = ET.SubElement(robot, "material", name=name)
         ET.SubElement(material, "color", rgba=_vec(rgba))
-    if mount is not None:
-        ET.SubElement(robot, "link", name=mount.parent)
+    parents = list(dict.fromkeys(mount.parent for _, mount in arms if mount is not None))
+    links = parents + [link.name for chain, _ in arms for link in chain.links]
+    joints = [
+        *(chain.joint_prefix + MOUNT_JOINT for chain, mount in arms if mount is not None),
+        *(joint.name for chain, _ in arms for joint in chain.joints),
+    ]
+    for kind, names in (("link", links), ("joint", joints)):
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise InvalidInput(
+                f"{kind} names given twice: {', '.join(twice)} (each arm needs prefixes of its own)"
+            )
+    for parent in parents:
+        ET.SubElement(robot, "link", name=parent)
+    for chain, _ in arms:
+        _links(robot, chain)
+    for chain, mount in arms:
+        if mount is not None:
+            element = ET.SubElement(
+                robot, "joint", name=chain.joint_prefix + MOUNT_JOINT, type="fixed"
+            )
+            ET.SubElement(element, "parent", link=mount.parent)
+            ET.SubElement(element, "child", link=chain.root)
+            ET.SubElement(element, "origin", xyz=_vec(mount.xyz), rpy=_vec(mount.rpy))
+        _joints(robot, chain)
+    ET.indent(robot, space="  ")
+    return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
+
+
+def _links(robot: ET.Element, chain: Chain) -> None:
     for link in chain.links:
         element = ET.SubElement(robot, "link", name=link.name)
         if link.shape is None:
@@ -69,11 +108,9 @@ def urdf_from_chain(chain: Chain, robot_name: str = "al5d", mount: Mount | None 
             _geometry(visual, shape)
             ET.SubElement(visual, "material", name=shape.material)
         _geometry(ET.SubElement(element, "collision"), link.shape)
-    if mount is not None:
-        element = ET.SubElement(robot, "joint", name=MOUNT_JOINT, type="fixed")
-        ET.SubElement(element, "parent", link=mount.parent)
-        ET.SubElement(element, "child", link=chain.root)
-        ET.SubElement(element, "origin", xyz=_vec(mount.xyz), rpy=_vec(mount.rpy))
+
+
+def _joints(robot: ET.Element, chain: Chain) -> None:
     for joint in chain.joints:
         element = ET.SubElement(robot, "joint", name=joint.name, type=joint.type)
         ET.SubElement(element, "parent", link=joint.parent)
@@ -101,8 +138,6 @@ def urdf_from_chain(chain: Chain, robot_name: str = "al5d", mount: Mount | None 
                 multiplier=num(m.multiplier),
                 offset=num(m.offset),
             )
-    ET.indent(robot, space="  ")
-    return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
 
 
 def urdf(
@@ -111,8 +146,11 @@ def urdf(
     *,
     robot_name: str = "al5d",
     prefix: str = "",
+    joint_prefix: str = "",
     effort: float = DEFAULT_EFFORT,
 ) -> str:
     """The AL5D's URDF from the model and the servos' speeds (deg/s per joint)."""
-    chain = build_chain(model, speeds_deg_s, prefix=prefix, effort=effort)
+    chain = build_chain(
+        model, speeds_deg_s, prefix=prefix, joint_prefix=joint_prefix, effort=effort
+    )
     return urdf_from_chain(chain, robot_name)

@@ -4,6 +4,10 @@ Like ros2_controllers' trajectory controller, the goal callback validates the
 whole goal and rejects a bad one before accepting it; the reason is also
 published on `/al5d/result`, with the goal's UUID (hex) as the id, so that a
 client can match it. An accepted goal's instruction carries the same id.
+
+Every goal of every action, as it comes, is also published on `~/goals/<action>`
+(its contents under its UUID in hex), so that a recording holds what each goal asked:
+a goal is a service request, which no subscriber sees.
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ from dataclasses import replace
 from typing import Any, TypeVar
 
 from al5d_interfaces.action import Move
+from al5d_interfaces.msg import ArmInstruction
 from rclpy.action.server import CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.node import Node
 from rclpy.task import Future as RosFuture
@@ -23,7 +28,8 @@ from al5d.clock import wall_ns
 from al5d.model import ArmModel
 from al5d.owner.client import Judged, Remote
 from al5d.ros.convert import move_from_fields, tool_from_fields
-from al5d.ros.qos import QOS_SERVICES
+from al5d.ros.names import Names
+from al5d.ros.qos import QOS_SERVICES, QOS_STREAM
 from al5d.ros.workarounds import IdentifiedActionServer
 
 #: How long a finished goal's result is kept for its client to fetch (rclpy keeps them
@@ -114,9 +120,13 @@ class GoalRunner:
     #: The instruction name a rejected goal's refusal carries on the result topic.
     name = "goal"
     server: IdentifiedActionServer
+    #: The message a goal's contents are published as (`goal_message`), on `~/goals/<name>`.
+    goal_type: Any = ArmInstruction
 
     def __init__(self, node: Node, arm: Remote) -> None:
         self.node = node
+        topic = Names.of(node.get_namespace()).goals(self.name)
+        self.goals = node.create_publisher(self.goal_type, topic, QOS_STREAM)
         self.arm = arm
         self.running: dict[str, Any] = {}
         #: Each accepted goal's judgement, until its execution takes it: a goal is converted
@@ -132,8 +142,13 @@ class GoalRunner:
         """What the goal asks for, ready to run, or the reason to reject it (a str)."""
         raise NotImplementedError
 
+    def goal_message(self, goal: Any, ident: str) -> Any:
+        """The goal's contents as `goal_type`, under its id."""
+        raise NotImplementedError
+
     def _goal(self, goal: Any) -> GoalResponse:
         ident = self.server.goal_id_now
+        self.goals.publish(self.goal_message(goal, ident))
         judged = self.judge(goal, ident, wall_ns())
         if isinstance(judged, str):
             self.node_al5d_refuse(ident, judged)
@@ -177,6 +192,14 @@ class MoveAction(GoalRunner):
         self.server = action_server(node, Move, name, self._execute, self._goal, self._cancel)
 
     name = "move"
+
+    def goal_message(self, goal: Any, ident: str) -> ArmInstruction:
+        """The goal as the instruction it is (`ArmInstruction`'s words and units)."""
+        word = goal.preset or ("move_to" if {"x", "y", "z"} & set(goal.joints) else "move")
+        msg = ArmInstruction(instruction=word, joints=list(goal.joints), id=ident)
+        msg.degrees = list(goal.degrees)
+        msg.time_ms = goal.time_ms
+        return msg
 
     def judge(self, goal: Any, ident: str, sent: int) -> Judged | str:
         instr = goal_instruction(goal, ident, self.arm.config.model, sent)

@@ -35,7 +35,8 @@ from typing import Any
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from rclpy.action.server import ServerGoalHandle
 from rclpy.node import Node
-from trajectory_msgs.msg import JointTrajectoryPoint
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result
 from al5d.arm.jobs import Sent
@@ -66,15 +67,18 @@ class Tolerance:
     position: float | None
 
 
-def tolerances(given: Sequence[Any], joints: Sequence[str]) -> list[Tolerance] | str:
-    """The goal's tolerances for our joints (0: the default, none; -1: no limit), or why not."""
+def tolerances(
+    given: Sequence[Any], joints: Sequence[str], prefix: str = ""
+) -> list[Tolerance] | str:
+    """The goal's tolerances for our joints (0: the default, none; -1: no limit), or why not;
+    each by the model's name of its joint (the URDF's, `joints`, behind `prefix`)."""
     out: list[Tolerance] = []
     for t in given:
         if t.name not in joints:
             return f"a tolerance names {t.name[:40]!r}, which is not a joint of the trajectory"
         if not math.isfinite(t.position):
             return f"{t.name}: tolerance {t.position} is not a number"
-        out.append(Tolerance(t.name, t.position if t.position > 0 else None))
+        out.append(Tolerance(t.name[len(prefix) :], t.position if t.position > 0 else None))
     return out
 
 
@@ -139,11 +143,13 @@ class Accepted:
 
 
 class FollowTrajectoryAction(GoalRunner):
-    """`arm_controller/follow_joint_trajectory` on a node, onto the arm driver."""
+    """`arm_controller/follow_joint_trajectory` on a node, onto the board's owner."""
 
     def __init__(self, node: Node, arm: Remote, name: str) -> None:
         super().__init__(node, arm)
         self.model: ArmModel = arm.config.model
+        #: Before every joint name of a goal and its feedback (`server.joint_prefix`).
+        self.prefix = arm.config.server.joint_name_prefix
         self.running: dict[str, Running] = {}
         #: Goals waiting for the goals they preempt to be halted, each with the goal that
         #: preempted it meanwhile ("": none has).
@@ -160,17 +166,27 @@ class FollowTrajectoryAction(GoalRunner):
     # -- judging a goal ---------------------------------------------------------------
 
     name = "follow_joint_trajectory"
+    goal_type = JointTrajectory
+
+    def goal_message(self, goal: Any, ident: str) -> JointTrajectory:
+        """The goal's trajectory, its header's frame the goal's id (as the trajectory topic's
+        outcomes are named)."""
+        trajectory = goal.trajectory
+        msg = JointTrajectory(joint_names=trajectory.joint_names, points=trajectory.points)
+        msg.header.stamp = trajectory.header.stamp
+        msg.header.frame_id = ident
+        return msg
 
     def judge(self, goal: Any, ident: str, sent: int) -> Accepted | str:
         if len(goal.multi_dof_trajectory.points):
             return "multi-DOF trajectories are not supported: the AL5D has single-DOF joints"
-        instr = trajectory_from_message(goal.trajectory, self.model)
+        instr = trajectory_from_message(goal.trajectory, self.model, prefix=self.prefix)
         if isinstance(instr, str):
             return instr
         instr = Instruction(Kind.TRAJECTORY, points=instr.points, id=ident, sent_ns=sent)
         names = list(goal.trajectory.joint_names)
-        path = tolerances(goal.path_tolerance, names)
-        end = tolerances(goal.goal_tolerance, names)
+        path = tolerances(goal.path_tolerance, names, self.prefix)
+        end = tolerances(goal.goal_tolerance, names, self.prefix)
         for t in (path, end):
             if isinstance(t, str):
                 return t
@@ -219,7 +235,8 @@ class FollowTrajectoryAction(GoalRunner):
         if by := await self._preempt(ident):
             preempted(handle)
             return _preempted_result(by)
-        names = list(goal.trajectory.joint_names)
+        # The model's names (the goal's carry the arm's joint prefix, as its feedback does).
+        names = [n[len(self.prefix) :] for n in goal.trajectory.joint_names]
         here = self._actual(names)
         run = Running(
             handle,
@@ -285,7 +302,8 @@ class FollowTrajectoryAction(GoalRunner):
                 handle.abort()
                 return _result(
                     FJT.GOAL_TOLERANCE_VIOLATED,
-                    f"{t.joint} ended {miss:.4g} from its goal, tolerance {t.position:g}",
+                    f"{self.prefix}{t.joint} ended {miss:.4g} from its goal, "
+                    f"tolerance {t.position:g}",
                 )
         handle.succeed()
         return _result(FJT.SUCCESSFUL, note)
@@ -329,7 +347,7 @@ class FollowTrajectoryAction(GoalRunner):
             error = [d - a for d, a in zip(desired, actual, strict=True)]
             fb = FollowJointTrajectory.Feedback()
             fb.header.stamp = stamp
-            fb.joint_names = run.names
+            fb.joint_names = [self.prefix + n for n in run.names]
             fb.desired = JointTrajectoryPoint(positions=desired)
             fb.actual = JointTrajectoryPoint(positions=actual)
             fb.error = JointTrajectoryPoint(positions=error)
@@ -339,7 +357,7 @@ class FollowTrajectoryAction(GoalRunner):
                 i = run.names.index(tol.joint)
                 if tol.position is not None and abs(error[i]) > tol.position and not run.violated:
                     run.violated = (
-                        f"{tol.joint} was {abs(error[i]):.4g} off its path, "
+                        f"{self.prefix}{tol.joint} was {abs(error[i]):.4g} off its path, "
                         f"tolerance {tol.position:g}"
                     )
                     self.arm.cancel(ident, run.violated)
@@ -397,6 +415,17 @@ class GripperAction(GoalRunner):
         )
 
     name = "gripper_cmd"
+    goal_type = JointState
+
+    def goal_message(self, goal: Any, ident: str) -> JointState:
+        """The gap asked for as the gripper joint's position (its max_effort as its effort),
+        as a joint command names it."""
+        prefix = self.arm.config.server.joint_name_prefix
+        msg = JointState(name=[prefix + self.JOINT], position=[goal.command.position])
+        msg.effort = [goal.command.max_effort]
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.header.frame_id = ident
+        return msg
 
     def judge(self, goal: Any, ident: str, sent: int) -> Judged | str:
         gap = goal.command.position

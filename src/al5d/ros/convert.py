@@ -181,8 +181,24 @@ def trajectory_id(msg: JointTrajectory | JointState) -> str:
     return f"{stamp.sec}.{stamp.nanosec:09d}"
 
 
+def model_joint(name: str, prefix: str) -> str | None:
+    """The model's name of a joint the URDF names `name` behind the arm's joint `prefix`
+    (`left_base` -> `base`); None when `name` does not carry the prefix."""
+    if not name.startswith(prefix):
+        return None
+    return name[len(prefix) :]
+
+
+def not_this_arms(name: str, prefix: str) -> str:
+    """Why a joint named without the arm's prefix is none of its joints."""
+    return (
+        f"{quote(name[:60])} is not a joint of this arm: its joints are named {prefix}base, "
+        f"{prefix}shoulder... (server.joint_prefix {prefix!r})"
+    )
+
+
 def joint_command_from_message(
-    msg: JointState, model: ArmModel, sent: int | None = None
+    msg: JointState, model: ArmModel, sent: int | None = None, prefix: str = ""
 ) -> Instruction | str:
     """The move a joint command asks for (sensor_msgs/JointState, as ros2_control's
     topic-based hardware publishes its position commands: the URDF's names and values), or
@@ -190,7 +206,8 @@ def joint_command_from_message(
     number or is outside its limits, refuses it all. NaN is ros2_control's "no command"
     (a command interface no controller has set yet, such as the gripper's while only the
     arm's controller runs): that joint is left where it is. The fingers, mimics of
-    `gripper`, are left out: their commands are the hardware's own."""
+    `gripper`, are left out: their commands are the hardware's own. Every name carries
+    the arm's joint `prefix` (`server.joint_prefix`)."""
     names = list(msg.name)
     positions = list(msg.position)
     if len(msg.velocity) or len(msg.effort):
@@ -204,10 +221,13 @@ def joint_command_from_message(
             "position (in ros2_control, a position command interface)"
         )
     joints: list[tuple[str, float]] = []
-    for name, value in zip(names, positions, strict=True):
+    for given, value in zip(names, positions, strict=True):
+        name = model_joint(given, prefix)
+        if name is None:
+            return not_this_arms(given, prefix)
         if name in GRIPPER_FINGERS or (math.isnan(value) and _urdf_limits(model, name) is not None):
             continue
-        outside = outside_urdf_limits(model, name, value)
+        outside = outside_urdf_limits(model, name, value, prefix)
         if outside:
             return outside
         joints.append((name, arm_degrees(model, name, value)))
@@ -220,18 +240,24 @@ def joint_command_from_message(
 
 
 def trajectory_from_message(
-    msg: JointTrajectory, model: ArmModel, sent: int | None = None
+    msg: JointTrajectory, model: ArmModel, sent: int | None = None, prefix: str = ""
 ) -> Instruction | str:
     """The trajectory of a message (the URDF's joint values to the arm's degrees, times to
     ms), or why it is not one. The points' joints and times are judged by the driver's
-    validation, whole; a name the URDF does not have is kept for it to name."""
-    names = list(msg.joint_names)
-    for name in names:
+    validation, whole; a name the URDF does not have is kept for it to name. Every name
+    carries the arm's joint `prefix` (`server.joint_prefix`)."""
+    names: list[str] = []
+    for given in msg.joint_names:
+        name = model_joint(given, prefix)
+        if name is None:
+            return not_this_arms(given, prefix)
         if name in GRIPPER_FINGERS:
             return (
-                f"{name} is a finger of the URDF's gripper, which follows the joint gripper "
-                "(a mimic): command gripper, the gap between the fingers in metres"
+                f"{given} is a finger of the URDF's gripper, which follows the joint "
+                f"{prefix}gripper (a mimic): command {prefix}gripper, the gap between the "
+                "fingers in metres"
             )
+        names.append(name)
     points: list[Point] = []
     before = 0.0
     for i, point in enumerate(msg.points):
@@ -249,7 +275,7 @@ def trajectory_from_message(
             return late
         before = at_ms
         for name, value in zip(names, point.positions, strict=True):
-            outside = outside_urdf_limits(model, name, value)
+            outside = outside_urdf_limits(model, name, value, prefix)
             if outside:
                 return f"point {i}: {outside}"
         degrees = [
@@ -273,10 +299,11 @@ def _urdf_limits(model: ArmModel, joint: str) -> tuple[float, float] | None:
         return None
 
 
-def outside_urdf_limits(model: ArmModel, joint: str, value: float) -> str:
+def outside_urdf_limits(model: ArmModel, joint: str, value: float, prefix: str = "") -> str:
     """Why a URDF joint value is outside its limits, in the sender's units (radians, or
-    metres for the gripper's gap); "" if it is inside, or not a URDF joint (the driver's
-    validation names those)."""
+    metres for the gripper's gap) and names (the model's `joint` behind the arm's joint
+    `prefix`); "" if it is inside, or not a URDF joint (the driver's validation names
+    those)."""
     limits = _urdf_limits(model, joint)
     if limits is None:
         return ""
@@ -284,7 +311,7 @@ def outside_urdf_limits(model: ArmModel, joint: str, value: float) -> str:
     if math.isfinite(value) and lo - URDF_SLACK <= value <= hi + URDF_SLACK:
         return ""
     unit = "m" if joint == "gripper" else "rad"
-    return f"{joint}: {value:g} {unit} is outside its URDF limits {lo:.4g}..{hi:.4g} {unit}"
+    return f"{prefix}{joint}: {value:g} {unit} is outside its URDF limits {lo:.4g}..{hi:.4g} {unit}"
 
 
 def arm_degrees(model: ArmModel, joint: str, value: float) -> float:

@@ -82,6 +82,11 @@ class Names:
     def tool_pose(self) -> str:
         return self.private("tool_pose")
 
+    def goals(self, action: str) -> str:
+        """What each goal of `action` (`move`, `follow_joint_trajectory`, `gripper_cmd`) asked,
+        as it came: a service request is no topic, so a recorder could not see it."""
+        return self.private(f"goals/{action}")
+
     @property
     def joint_states(self) -> str:
         return self.shared("joint_states")

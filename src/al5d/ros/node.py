@@ -62,7 +62,7 @@ from al5d.ros.workarounds import Reader, ReaderOnly, taken_by_reader
 log = logging.getLogger("al5d")
 
 
-#: The stream of set-points the joint commands are (`ArmDriver.submit`'s `stream`).
+#: The stream of set-points the joint commands are (`Remote.submit`'s `stream`).
 JOINT_COMMANDS = "joint_commands"
 
 
@@ -235,7 +235,9 @@ class ArmNode(Node):
 
     def _on_trajectory(self, msg: JointTrajectory, info: dict[str, int]) -> None:
         """A trajectory is one instruction: every point checked, then all run or none."""
-        instr = trajectory_from_message(msg, self.model, sent_ns(info))
+        config = self.arm.config
+        prefix = config.server.joint_name_prefix
+        instr = trajectory_from_message(msg, config.model, sent_ns(info), prefix)
         if isinstance(instr, str):
             self.refuse(trajectory_id(msg), "trajectory", instr)
             return
@@ -245,7 +247,9 @@ class ArmNode(Node):
         """A set-point of ros2_control's topic-based hardware: judged whole like any move, the
         latest wins. Only refusals are published: a stream of a hundred a second has a
         hundred outcomes a second, which would drown everyone else's on the result topic."""
-        instr = joint_command_from_message(msg, self.model, sent_ns(info))
+        config = self.arm.config
+        prefix = config.server.joint_name_prefix
+        instr = joint_command_from_message(msg, config.model, sent_ns(info), prefix)
         if isinstance(instr, str):
             if self._command_refusals.news(instr):
                 self.refuse(trajectory_id(msg), JOINT_COMMANDS, instr)

@@ -120,6 +120,9 @@ class Settings:
         for key, value in server:
             if key not in _NOT_SERVER:
                 out[f"server.{key}"] = value
+        # What the arm's joints carry, the namespace's when none was given (a parameter
+        # holds no None).
+        out["server.joint_prefix"] = server.joint_name_prefix
         out["server.mount.parent"] = mount.parent if mount else ""
         out["server.mount.xyz"] = [float(v) for v in (mount.xyz if mount else (0, 0, 0))]
         out["server.mount.rpy"] = [float(v) for v in (mount.rpy if mount else (0, 0, 0))]

@@ -2,8 +2,8 @@
 
 - `/robot_description` (std_msgs/String, reliable, transient local, depth 1): the
   URDF generated from the configuration, as robot_state_publisher offers it.
-- `/joint_states`: the URDF's joint names, REP 103 values (radians, the gap in
-  metres for `gripper`), at the joint-state rate.
+- `/joint_states`: the URDF's joint names (behind `server.joint_prefix`: `left_base`),
+  REP 103 values (radians, the gap in metres for `gripper`), at the joint-state rate.
 - `/tf` at the same rate and `/tf_static` once (latched), base_link to tool0; with a
   mount (`server.mount`), `/tf_static` also holds base_link in the mount's parent frame
   (`world`), so that several arms are one tree.
@@ -64,13 +64,20 @@ class RobotPublisher:
     def __init__(self, node: Node, config: ArmConfig, names: Names) -> None:
         self.node = node
         self.model = config.model
-        self.chain = build_chain(self.model, config.speeds_deg_s, prefix=names.frame_prefix)
+        self.chain = build_chain(
+            self.model,
+            config.speeds_deg_s,
+            prefix=names.frame_prefix,
+            joint_prefix=config.server.joint_name_prefix,
+        )
         self.description = node.create_publisher(String, names.robot_description, QOS_LATCHED)
         self.joint_states = node.create_publisher(JointState, names.joint_states, 10)
         self.tf = node.create_publisher(TFMessage, "/tf", 100)
         self.tf_static = node.create_publisher(TFMessage, "/tf_static", QOS_TF_STATIC)
         self.tool_pose = node.create_publisher(PoseStamped, names.tool_pose, 10)
+        #: The joints of /joint_states, as the URDF names them (behind the joint prefix).
         self.names = list(self.chain.movable)
+        self._keys = [self.chain.key(n) for n in self.names]
         self._last_degrees: dict[str, float] | None = None
         self._states_msg = JointState()
         self._tf_msg = TFMessage()
@@ -80,7 +87,7 @@ class RobotPublisher:
         self._fixed = [j for j in self.chain.joints if j.type == "fixed"]
         self.description.publish(String(data=urdf_from_chain(self.chain, "al5d")))
         stamp = node.get_clock().now().to_msg()
-        steps = joint_transforms(self.chain, dict.fromkeys(self.names, 0.0))
+        steps = joint_transforms(self.chain, dict.fromkeys(self._keys, 0.0))
         static = [_transform(j.parent, j.child, steps[j.name], stamp) for j in self._fixed]
         mount = config.server.mount
         if mount is not None:
@@ -110,7 +117,7 @@ class RobotPublisher:
         msg = JointState()
         msg.header.stamp = stamp
         msg.name = self.names
-        msg.position = [values[n] for n in self.names]
+        msg.position = [values[k] for k in self._keys]
         steps = joint_transforms(self.chain, values)
         transforms = [_transform(j.parent, j.child, steps[j.name], stamp) for j in self._moving]
         pose = tool_pose(self.chain, values)

@@ -79,10 +79,12 @@ class WebView:
             )
         host = options.host if ":" not in options.host else f"[{options.host}]"
         self.url = f"http://{host}:{port}/"
-        self.page = Page(self.server, config, f"al5d {self.names.namespace or ''}".strip())
+        prefix = config.server.joint_prefix_in(ns)
+        title = f"al5d {self.names.namespace or ''}".strip()
+        self.page = Page(self.server, config, title, prefix)
         self.teach = Teach(self.page, poses)
         listeners = Listeners(self.page, self.teach)
-        self.link = WebNode(self.names, listeners, config.model, tuple(config.presets))
+        self.link = WebNode(self.names, listeners, config.model, tuple(config.presets), prefix)
         self.page.commands = self.link
         self.twin = TwinView(self.page, self.link.context, self.names)  # a twin's, when one runs
         calibrate.attach(

@@ -99,9 +99,16 @@ class WebNode:
     and the stop and release services."""
 
     def __init__(
-        self, names: Names, listener: Listener, model: ArmModel, presets: tuple[str, ...]
+        self,
+        names: Names,
+        listener: Listener,
+        model: ArmModel,
+        presets: tuple[str, ...],
+        joint_prefix: str = "",
     ) -> None:
         self.names = names
+        #: Before the URDF's joint names on the server's topics (`server.joint_prefix`).
+        self.joint_prefix = joint_prefix
         self.listener = listener
         self.model = model
         self.presets = presets
@@ -146,7 +153,9 @@ class WebNode:
         self.listener.on_description(str(msg.data))
 
     def _on_joints(self, msg: JointState) -> None:
-        self.listener.on_joints(list(msg.name), list(msg.position), time.monotonic())
+        prefix = len(self.joint_prefix)
+        names = [n[prefix:] if n.startswith(self.joint_prefix) else n for n in msg.name]
+        self.listener.on_joints(names, list(msg.position), time.monotonic())
 
     def _on_state(self, msg: String) -> None:
         self.listener.on_state(str(msg.data))
@@ -175,7 +184,7 @@ class WebNode:
                 self.listener.on_mount(str(t.header.frame_id), mount)
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:
-        instr = trajectory_from_message(msg, self.model)
+        instr = trajectory_from_message(msg, self.model, prefix=self.joint_prefix)
         if not isinstance(instr, str):
             self.listener.on_instruction(instr)
 
@@ -195,7 +204,8 @@ class WebNode:
         matched before the page noticed the loss (a busy host), and then counts once the
         killed one's has gone."""
         values = self.model.to_urdf(dict(degrees))
-        msg = JointState(name=list(values), position=[float(v) for v in values.values()])
+        msg = JointState(position=[float(v) for v in values.values()])
+        msg.name = [self.joint_prefix + n for n in values]
         msg.header.stamp = self.node.get_clock().now().to_msg()
         # The set-point's id on the result topic (`convert.trajectory_id`): the page knows
         # its own jog's refusals by it.

@@ -73,7 +73,9 @@ class Page:
     #: The Calibrate tab (`web.calibrate`) once attached: its ghost and its moves' outcomes.
     calibration: Any = None
 
-    def __init__(self, server: viser.ViserServer, config: ArmConfig, title: str) -> None:
+    def __init__(
+        self, server: viser.ViserServer, config: ArmConfig, title: str, joint_prefix: str = ""
+    ) -> None:
         self.server = server
         self.config = config
         self.model = config.model
@@ -106,7 +108,7 @@ class Page:
         self.physical: dict[str, float] | None = None
         self.physical_t = -math.inf
         self.physical_due = False
-        self.scene = ArmScene(server, self.model, config.presets.values())
+        self.scene = ArmScene(server, self.model, config.presets.values(), joint_prefix)
         self.panel = Panel(server, config, title)
         self.panel.show_outcomes(self.outcomes)
         self._wire()

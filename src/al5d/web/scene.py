@@ -50,10 +50,13 @@ class ArmScene:
         server: viser.ViserServer,
         model: ArmModel,
         presets: Iterable[Mapping[str, float]] = (),
+        joint_prefix: str = "",
     ) -> None:
         self.server = server
         self.model = model
         self.camera, self.look_at = framing(model, presets)
+        #: Before the joint names of the URDF the server describes (`server.joint_prefix`).
+        self.joint_prefix = joint_prefix
         self.urdf_text: str | None = None
         self.robot: ViserUrdf | None = None
         self.ghost: ViserUrdf | None = None
@@ -131,7 +134,7 @@ class ArmScene:
         self.server.initial_camera.look_at = mount.apply(self.look_at)
 
     def _cfg(self, urdf: ViserUrdf, degrees: Mapping[str, float]) -> npt.NDArray[np.float64]:
-        values = self.model.to_urdf(degrees)
+        values = {self.joint_prefix + n: v for n, v in self.model.to_urdf(degrees).items()}
         return np.array([values.get(n, 0.0) for n in urdf.get_actuated_joint_names()])
 
     def aim(self, client: viser.ClientHandle, look_at: Vec3, position: Vec3) -> None:
