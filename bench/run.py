@@ -29,6 +29,7 @@ import floors  # noqa: E402
 import micro  # noqa: E402
 import model_bench  # noqa: E402
 import plot  # noqa: E402
+import quickstop  # noqa: E402
 import rosbench  # noqa: E402
 import stream_budget  # noqa: E402
 import tables  # noqa: E402
@@ -334,6 +335,7 @@ def main() -> int:
     log("the web view (a real headless browser)")
     results["web"] = webbench.run(log)
     results["twin"] = twin_bench.run(log)
+    results["quickstop"] = quickstop.run(config, log)
     results["elapsed_s"] = time.monotonic() - started
     tolerance = math.radians(config.server.trajectory_path_tolerance_deg)
     budget = trajectory_budget.rows(results["trajectory_budget"], tolerance)
@@ -343,6 +345,7 @@ def main() -> int:
         + stream_budget.rows(results["stream"])
         + webbench.rows(results["web"])
         + twin_bench.rows(results["twin"])
+        + [quickstop.row(label, figures) for label, figures in results["quickstop"].items()]
     )
     OUT.mkdir(exist_ok=True)
     (OUT / "results.json").write_text(json.dumps(results, indent=1))

@@ -222,7 +222,7 @@ def test_record_then_replay_reproduces_the_boards_bytes(tmp_path: Path) -> None:
     assert [m.sequence for m, _ in by_topic["/al5d/board_writes"]] == list(
         range(1, len(writes) + 1)
     )
-    received = [r.raw for r in emu_a.records]
+    received = [r.raw + b"\r" for r in emu_a.records]  # each line the board took, its CR
     assert motion_lines([bytes(w.data) for w in writes]) == motion_lines(received)
     assert all((w.arrival.sec, w.arrival.nanosec) >= (w.stamp.sec, w.stamp.nanosec) for w in writes)
     # The client's recording: the same messages, and no bytes of the board.
@@ -232,7 +232,7 @@ def test_record_then_replay_reproduces_the_boards_bytes(tmp_path: Path) -> None:
 
     # The replay, on a fresh server and board: the same bytes as the board received before
     # the goal (which the replay does not send: goals are no instructions).
-    before_goal = motion_lines([r.raw for r in emu_a.records if r.t_effect < goal_sent])
+    before_goal = motion_lines([r.raw + b"\r" for r in emu_a.records if r.t_effect < goal_sent])
     link_b = tmp_path / "board-b"
     emu_b = Emulator(config, link=link_b).start()
     server_b = Proc("serve", "--port", str(link_b), "--config", patient_config())
@@ -243,7 +243,7 @@ def test_record_then_replay_reproduces_the_boards_bytes(tmp_path: Path) -> None:
         outcomes = [line.split("]: ")[1].split()[0] for line in fast.out.drain() if "]: " in line]
         assert [o.rstrip(":") for o in outcomes] == OUTCOMES
         time.sleep(0.5)  # the last move's bytes are in effect
-        assert motion_lines([r.raw for r in emu_b.records]) == before_goal
+        assert motion_lines([r.raw + b"\r" for r in emu_b.records]) == before_goal
         # As recorded: each sent at its recorded time, each with one outcome. Not always the
         # same outcomes: on a host slower now than when it was recorded, the stop sent at
         # its time can find the move before it still running, and cancel it.

@@ -8,6 +8,7 @@ written out here as examples.
 from __future__ import annotations
 
 import logging
+import re
 from dataclasses import replace
 
 import pytest
@@ -402,3 +403,36 @@ def test_a_burst_of_set_points_writes_a_line_a_wire_time_the_last_the_newest(
     cancelled = [sim.outcomes[r] for r in refs[:-1] if sim.outcomes[r].result is Result.CANCELLED]
     assert len(cancelled) >= 1000 - 1 - len(lines)
     assert all("set-point" in o.reason for o in cancelled)
+
+
+def test_a_held_stream_at_100_hz_for_10_s_is_a_few_log_lines(
+    sim: Sim, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Issue 46: after a stop and a release, ros2_control's stream is held until it is
+    re-activated; its set-points, a hundred a second, are each refused, and the owner's log
+    of refusals (`RefusalLog`, as its teller keeps it) says so once a second with a count,
+    not a hundred times. Each set-point still has its outcome."""
+    from al5d.owner.teller import RefusalLog
+
+    stream = "joint_commands"
+    sim.ask(ins.move(elbow=80), stream=stream, tell=False)
+    sim.run(0.1)
+    sim.ask(ins.stop())
+    sim.ask(ins.release())
+    refusals = RefusalLog()
+    refs = []
+    with caplog.at_level(logging.WARNING, logger="al5d"):
+        for k in range(1000):  # 10 s at 100 Hz, in the sim's time
+            ref = sim.ask(ins.move(elbow=70 + k % 5), stream=stream, tell=False)
+            refs.append(ref)
+            outcome = sim.outcomes[ref]
+            assert outcome.result is Result.REFUSED, outcome
+            refusals.refused(outcome.instruction, outcome.id, outcome.reason, sim.t)
+            sim.run(0.01)
+        refusals.flush(sim.t, every=True)
+    lines = [r.getMessage() for r in caplog.records if "held" in r.getMessage()]
+    assert 2 <= len(lines) <= 11, lines
+    # Every refusal counted: the ones a line names, and the counts of those it did not say.
+    named = sum(bool(re.match(r"refused move \[", m)) for m in lines)
+    counted = [re.search(r"(\d+) more", m) for m in lines]
+    assert named + sum(int(c.group(1)) for c in counted if c) == len(refs), lines

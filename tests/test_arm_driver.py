@@ -128,6 +128,9 @@ class TestMoves:
             if r.levelno == logging.WARNING and "INF03" in r.getMessage()
         ]
         assert warnings and f"requested 50 ms; expected {expected} ms" in warnings[-1]
+        # The outcome itself says what the server changed (issue 45), not only the log.
+        assert f"requested 50 ms; expected {expected} ms" in outcome.reason
+        assert str(outcome).endswith(f"expected {expected} ms ({outcome.elapsed_ms:.0f} ms)")
 
     def test_joints_arrive_together_and_no_faster_than_the_servos(self, rig: Rig) -> None:
         target = {"base": -60, "shoulder": 60, "elbow": 30, "wrist": 45, "gripper": 80}

@@ -228,10 +228,13 @@ def test_al5d_send_stop_without_a_server_is_the_no_server_exit() -> None:
 def test_the_readme_example_runs_as_written(arm: Served, tmp_path: Path) -> None:
     done = run_script(tmp_path, readme_example())
     assert ended_normally(done) and done.returncode == 0, done.stderr
-    moved, stop, locked, release = done.stdout.splitlines()
-    assert moved.startswith("move [") and ": done (" in moved
+    moved, state, tool, stop, cancelled, locked, release = done.stdout.splitlines()
+    assert moved.startswith("move_to [") and ": done (" in moved
+    assert state == "ready elbow 132 deg"
+    assert re.fullmatch(r"x=\S+ y=\S+ z=\S+ pitch=\S+ roll=\S+", tool), tool
     # A server on this machine: the client reaches it by its local lane.
     assert stop == "stop: done (by the local lane)"
+    assert cancelled.startswith("move [") and cancelled.endswith(": cancelled: cancelled by stop")
     assert locked.startswith("ready [") and "refused: the arm is stopped" in locked
     assert release == "release: done (by the local lane)"
     wait_until(lambda: arm.states[-1] == "ready", STATE_S, "ready after the release")
@@ -287,3 +290,68 @@ def test_the_first_instruction_waits_until_the_servers_answers_reach_the_client(
     # The pings the server heard first went unanswered; the instruction came after one was.
     assert heard[0] == [PING, "False"] and heard[-1] == ["ready", "True"], heard
     assert [PING, "True"] in heard, heard
+
+
+READS = """
+import time
+from al5d.ros.client import Client
+
+seen = []
+with Client(local={local}) as arm:
+    print(arm.via)
+    print(arm.execute("move_to x=200 y=0 z=100 pitch=-30 time=600"))
+    reading = arm.read()
+    print("state", reading.state, reading.locked)
+    print("tool", reading.tool)
+    print("base", round(arm.joints()["base"], 1) + 0.0)
+    arm.on_change(lambda r: seen.append(r.state))
+    long = arm.send("move base=60 time=4000")
+    print("moving", arm.wait_for_state("moving", 30).state)
+    time.sleep(0.5)  # on its way: 15 deg a second
+    print(arm.stop())
+    print("stopped", arm.wait_for_state("stopped", 30).locked)
+    print(arm.outcome(long.id, 30))
+    stopped_at = arm.joints()["base"]
+    print("stopped short", 0.5 < stopped_at < 59.5)
+    print(arm.release())
+    print("ready", arm.wait_for_state("ready", 30).locked)
+    print("heard", "moving" in seen and "stopped" in seen and seen[-1] == "ready")
+    try:
+        arm.wait_for_state("fault", 0.5)
+    except TimeoutError as e:
+        print("timeout", e)
+    print(arm.execute("ready time=10"))
+"""
+
+
+@pytest.mark.parametrize("local", [False, True], ids=["over DDS", "over the lane"])
+def test_the_client_reads_the_arm(arm: Served, tmp_path: Path, local: bool) -> None:
+    """Issue 45: the client reads the state, the joints and the tool's pose, waits for a state
+    and hears each change, over ROS 2 (DDS) as over the local lane."""
+    done = run_script(tmp_path, READS.format(local=local))
+    assert ended_normally(done) and done.returncode == 0, done.stdout + done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0].startswith("the local lane ") if local else lines[0] == "ROS 2", lines[0]
+    assert ": done (" in lines[1]
+    assert lines[2] == "state ready False"
+    # The tool where move_to put it, told back from the joints the board was given.
+    tool = dict(w.split("=") for w in lines[3].removeprefix("tool ").split())
+    assert abs(float(tool["x"]) - 200) < 1.5 and abs(float(tool["y"])) < 1.5, lines[3]
+    assert abs(float(tool["z"]) - 100) < 1.5 and abs(float(tool["pitch"]) + 30) < 1, lines[3]
+    assert lines[4] == "base 0.0"
+    assert lines[5] == "moving moving"
+    assert lines[6].startswith("stop: done")
+    assert lines[7] == "stopped True"
+    assert ": cancelled" in lines[8]
+    assert lines[9] == "stopped short True"
+    assert lines[10].startswith("release: done")
+    assert lines[11] == "ready False"
+    assert lines[12] == "heard True"
+    assert lines[13] == "timeout the arm was not fault within 0.5 s (it is 'ready')"
+    # What the server changed is in the outcome the client prints (issue 45).
+    raised = re.fullmatch(
+        r"ready \[\S+\]: done: INF03: ready \[\S+\] cannot be done in the requested 10 ms; "
+        r"expected (\d+) ms \((\d+) ms\)",
+        lines[14],
+    )
+    assert raised and int(raised.group(1)) > 10, lines[14]

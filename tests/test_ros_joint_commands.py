@@ -181,3 +181,27 @@ def test_a_refusal_sent_again_and_again_is_published_once_a_second(served: Comma
     # At most one a second of the 40 (sent within `took` seconds).
     took = time.monotonic() - t0
     assert len(told) <= 1 + took / COMMAND_REFUSALS_EVERY_S, (told, took)
+
+
+def test_alternating_refusals_are_each_published_once_a_second(served: Commanded) -> None:
+    """Issue 46: two bad commands in turn are two reasons, each published once a second at
+    most whatever the order they come in (each used to be news after the other: every one
+    was published)."""
+    here = dict(served.emu.servo_degrees())
+    # Values no other test sends: a reason told in the last second is not told again.
+    bad = (
+        {"name": list(COMMANDED), "position": [3.1, *[0.0] * 5]},
+        {"name": list(COMMANDED), "position": [0.0] * 5 + [8.0]},
+    )
+    t0 = time.monotonic()
+    for i in range(40):
+        served.command(here, f"turn-{i}", **bad[i % 2])
+        time.sleep(0.005)
+    sentinel = {"name": list(COMMANDED), "position": [0.0, 3.1, *[0.0] * 4]}
+    served.command(here, "turn-sentinel", **sentinel)
+    assert served.peer.result("turn-sentinel", 20).outcome == "refused"
+    took = time.monotonic() - t0
+    told = [i for i in range(40) if f"turn-{i}" in served.peer.results]
+    # The stream keeps the newest command only: the server may not read every one.
+    assert told, told
+    assert len(told) <= 2 * (1 + took / COMMAND_REFUSALS_EVERY_S), (told, took)

@@ -143,7 +143,19 @@ def test_the_command_line_client_takes_the_namespace(arms: list[Arm], tmp_path: 
     assert group_moves(right.emu.records) and group_moves(left.emu.records) == []
     lost = Proc("send", "--namespace", "middle", "--wait", "1", "ready")
     assert lost.wait(30) == exits.NO_SERVER
-    assert "/middle/al5d/instruction" in "\n".join(lost.err.drain())
+    said = "\n".join(lost.err.drain())
+    assert "/middle/al5d/instruction" in said
+    # Issue 46: the servers it can see under other names are named.
+    assert "found /left and /right: --namespace left?" in said, said
+
+
+@pytest.mark.parametrize("via", ["ros", "lane"])
+def test_with_only_namespaced_servers_a_client_names_them(arms: list[Arm], via: str) -> None:
+    """Over ROS 2 the graph shows them, over the lane this machine's lanes do."""
+    lost = Proc("send", "--via", via, "--wait", "3", "ready")
+    assert lost.wait(30) == exits.NO_SERVER
+    said = "\n".join(lost.err.drain())
+    assert "found /left and /right: --namespace left?" in said, said
 
 
 def test_each_arms_control_actions_move_that_arm_only(arms: list[Arm], config: ArmConfig) -> None:

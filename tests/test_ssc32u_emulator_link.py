@@ -97,6 +97,11 @@ def _flood_then_flush(emu: Emulator, port: serial.Serial) -> list[bytes]:
     for i in range(20):
         port.write(f"#0P{1000 + i * 10}\r".encode())
     emu.wait_for(lambda rs: any(r.raw == b"#0P1000" for r in rs), 2)
+    # On a busy host the link's reader can be late to read the pty: until it has, what is
+    # still in the pty is the pty's to drop.
+    deadline = time.monotonic() + 10
+    while port.out_waiting and time.monotonic() < deadline:
+        time.sleep(0.001)
     port.reset_output_buffer()
     port.write(b"\x1bSTOP0\r")
     emu.wait_for(lambda rs: any(r.raw == b"STOP0" for r in rs), 5)

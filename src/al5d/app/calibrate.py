@@ -316,9 +316,10 @@ def calibrate_command(
     from al5d.arm.config import load_config
     from al5d.ros.client import ANSWER_S, Client, NoOutcome, NoServer
     from al5d.ros.params import served_config_file
-    from al5d.ros.physical import PhysicalReader
+    from al5d.ros.physical import OwnPhysicalReader, PhysicalReader
 
     client = Client(namespace, wait_s=wait_s)
+    own: OwnPhysicalReader | None = None
     try:
         client.wait_for_server(wait_s)
         served: Path | None
@@ -337,7 +338,12 @@ def calibrate_command(
             print(f"al5d calibrate: {e}", file=err)
             return exits.USAGE
         print(f"al5d calibrate: {path}, joints {', '.join(procedure.joints)}", file=out)
-        physical = PhysicalReader(client.node, client.names, config.model)
+        # Where an emulated arm truly stands is on ROS 2 only (`al5d emulator --misalign`).
+        physical: PhysicalReader
+        if client.lane is not None:
+            physical = own = OwnPhysicalReader(client.names, config.model)
+        else:
+            physical = PhysicalReader(client.node, client.names, config.model)
 
         def witness() -> Mapping[str, float] | None:
             # A sample taken after the move's outcome, where an emulated arm says any.
@@ -362,4 +368,6 @@ def calibrate_command(
         print(f"al5d calibrate: {e}; nothing written", file=err)
         return exits.NOT_DONE
     finally:
+        if own is not None:
+            own.close()
         client.close()

@@ -451,7 +451,9 @@ def _send(
 
     arm = load_config(config)
     presets = tuple(arm.presets)
-    client = Client(namespace)
+    # Over ROS 2 always, wherever the server is: the instructions go on its topic as they
+    # were recorded, the outcomes come from its result topic (`_Outcomes`).
+    client = Client(namespace, local=False)
     report = Report(out)
     sent = 0
     try:

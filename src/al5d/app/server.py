@@ -181,13 +181,14 @@ class RosSide:
         send(self.bridge.ctrl, "go", not alive)
         self._serving = True
         if alive and stop is not None:
-            threading.Thread(target=self._watch_stop, args=(stop,), daemon=True).start()
+            threading.Thread(target=self._watch_stop, args=(stop, owner), daemon=True).start()
 
-    def _watch_stop(self, stop: Child) -> None:
+    def _watch_stop(self, stop: Child, owner: Owner) -> None:
         from al5d.ros.processes import send
 
         code = stop.proc.wait()
-        if self._serving:
+        # At the owner's end its lanes close, and the stop process ends as it should.
+        if self._serving and not owner.finished.is_set():
             log.error("the stop process ended (exit code %s)", code)
             send(self.bridge.ctrl, "serve-stop")
 

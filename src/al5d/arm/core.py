@@ -123,7 +123,11 @@ def step(c: Core, ev: Input) -> tuple[Core, tuple[Effect, ...]]:
             c = lose(c, ev.error, ev.t, ev.wall, out)
     elif isinstance(ev, Gone):
         c = _gone(c, ev, out)
-    return _advance(c, ev.t, ev.wall, out), tuple(out)
+    c = _advance(c, ev.t, ev.wall, out)
+    # The outcomes and answers last: a client told that its move is done finds the state
+    # that follows it (ready) already said, as it would expect.
+    told = tuple(e for e in out if isinstance(e, Resolve | Reply))
+    return c, tuple(e for e in out if not isinstance(e, Resolve | Reply)) + told
 
 
 # -- requests ---------------------------------------------------------------------------

@@ -33,34 +33,79 @@ def tell(listeners: Iterable[Callable[[T], None]], value: T, what: str) -> None:
             log.exception("%s listener %r failed; the owner goes on", what, listener)
 
 
+class Repeats:
+    """Which of a stream of reasons are news: each reason the first time in `every_s`,
+    whatever the order the reasons come in, and how many of it came unsaid meanwhile.
+    A reason not seen for `every_s` is forgotten: reasons that hold numbers do not pile up.
+    Thread-safe (a node's reader and done callbacks both ask)."""
+
+    def __init__(self, every_s: float = REFUSAL_EVERY_S) -> None:
+        self.every_s = every_s
+        self._lock = threading.Lock()
+        # reason -> (when it was said, how many came since)
+        self._seen: dict[str, tuple[float, int]] = {}
+
+    def news(self, reason: str, t: float) -> int | None:
+        """None when `reason` was said less than `every_s` ago (it is counted); else how many
+        came unsaid since it was last said (0: none, or never said)."""
+        with self._lock:
+            seen = self._seen.get(reason)
+            if seen is not None and t - seen[0] < self.every_s:
+                self._seen[reason] = (seen[0], seen[1] + 1)
+                return None
+            self._seen[reason] = (t, 0)
+            if len(self._seen) > 64:
+                self._forget(t)
+            return 0 if seen is None else seen[1]
+
+    def over(
+        self, t: float, every: bool = False, keep: str | None = None
+    ) -> list[tuple[str, int, float]]:
+        """The reasons whose `every_s` is over (all: `every`), but `keep`, forgotten, each
+        with how many came unsaid and since when it was said; those with none are left out."""
+        with self._lock:
+            return self._forget(t, every, keep)
+
+    def _forget(
+        self, t: float, every: bool = False, keep: str | None = None
+    ) -> list[tuple[str, int, float]]:
+        done = [
+            (r, n, at)
+            for r, (at, n) in self._seen.items()
+            if r != keep and (every or t - at >= self.every_s)
+        ]
+        for reason, _, _ in done:
+            del self._seen[reason]
+        return [(r, n, at) for r, n, at in done if n]
+
+
 class RefusalLog:
-    """WARNING lines for refusals: each reason the first time in a second, then one line
-    with how many more came with the same reason, whatever the order the reasons come in.
-    A flood of ten thousand refused instructions a second, or a held stream of set-points
-    sent again a hundred times a second, is a few lines a second; every refusal still has
-    its outcome."""
+    """WARNING lines for refusals: each reason once a second at most, whatever the order the
+    reasons come in, with how many like it came unsaid since its last line; a reason that
+    stops coming has its count said when its second is over. A flood of ten thousand
+    refused instructions a second, or a held stream of set-points sent again a hundred
+    times a second, is a line a second for each reason; every refusal still has its
+    outcome."""
 
     def __init__(self) -> None:
-        # reason -> (when it was logged, how many came since)
-        self._seen: dict[str, tuple[float, int]] = {}
+        self._repeats = Repeats(REFUSAL_EVERY_S)
 
     def refused(self, name: str, ident: str, reason: str, t: float) -> None:
         log.debug("EVENT: refused")
-        self.flush(t)
-        seen = self._seen.get(reason)
-        if seen is None:
-            log.warning("refused %s [%s]: %s", name, ident, reason)
-            self._seen[reason] = (t, 0)
+        self.flush(t, keep=reason)
+        more = self._repeats.news(reason, t)
+        if more is None:
+            return
+        if more:
+            log.warning("refused %s [%s] and %d more like it: %s", name, ident, more, reason)
         else:
-            self._seen[reason] = (seen[0], seen[1] + 1)
+            log.warning("refused %s [%s]: %s", name, ident, reason)
 
-    def flush(self, t: float, every: bool = False) -> None:
-        """Say the counts of the reasons whose second is over (all of them: `every`)."""
-        for reason, (at, more) in list(self._seen.items()):
-            if every or t - at >= REFUSAL_EVERY_S:
-                del self._seen[reason]
-                if more:
-                    log.warning("refused %d more in %.0f s: %s", more, max(1.0, t - at), reason)
+    def flush(self, t: float, every: bool = False, keep: str | None = None) -> None:
+        """Say the counts of the reasons whose second is over (all of them: `every`), but
+        `keep`'s, which its next line says."""
+        for reason, more, at in self._repeats.over(t, every, keep):
+            log.warning("refused %d more in %.0f s: %s", more, max(1.0, t - at), reason)
 
 
 class Teller:

@@ -25,6 +25,8 @@ client.
   GripperCommand (both `ActionsNode`'s).
 - `client`: `Client`, a client of the server: a local one by its lane, any other over
   ROS 2 (the terminal's commands on it are `al5d.app.terminal`'s).
+- `reading`: what a client hears of the arm (its state, joints and tool pose), kept from
+  the lane or the ROS topics, with waits and callbacks.
 
 This layer imports `al5d.owner`, `al5d.arm` (never the board's emulator) and rclpy.
 """

@@ -249,7 +249,7 @@ def main(argv: list[str]) -> int:
     def on_ctrl() -> None:
         # The owner says its stop process has ended: the stop is served here from now on.
         while (message := receive(ctrl)) is not None:
-            if message[0] == "serve-stop" and bridge.stop is None:
+            if message[0] == "serve-stop" and bridge.stop is None and not arm.closed.is_set():
                 log.error(
                     "the stop process has ended; the stop is served by the bridge from now "
                     "on, where a busy host delays it"

@@ -38,6 +38,7 @@ from al5d.clock import Deadline
 from al5d.owner import where
 from al5d.owner.client import LaneClosed, Remote
 from al5d.ros.names import NODE, PING, Names
+from al5d.ros.reading import ArmView, Reading, Tool, follow_lane, follow_ros
 
 if TYPE_CHECKING:
     from al5d_interfaces.msg import InstructionResult
@@ -102,6 +103,22 @@ class Answer:
         return f"{text} (by {self.via})"
 
 
+def elsewhere(names: Names, node: Any) -> str:
+    """The end of a message that no server answers at `names`: the servers seen under other
+    namespaces (on this machine's lanes, and on the ROS graph as `node` sees it), or the
+    question whether one runs."""
+    seen = set(where.namespaces())
+    if node is not None:
+        seen |= {ns for name, ns in node.get_node_names_and_namespaces() if name == NODE}
+    seen.discard(names.node_namespace)
+    if not seen:
+        return ": is 'al5d serve' running?"
+    found = sorted(seen)
+    listed = " and ".join([", ".join(found[:-1]), found[-1]] if len(found) > 1 else found)
+    hint = f"--namespace {found[0].strip('/')}" if found[0] != "/" else "no --namespace"
+    return f"; found {listed}: {hint}?"
+
+
 #: Every client not yet closed, closed at interpreter exit (`_close_open_clients`).
 _open: weakref.WeakSet[Client] = weakref.WeakSet()
 
@@ -139,13 +156,19 @@ class Client:
         self._futures: dict[str, Future[Outcome]] = {}
         self._watchers: dict[str, Callable[[Outcome], None]] = {}
         self._matched = False
+        self._view: ArmView | None = None
         if local is not False:
             path = where.path(names.namespace)
             try:
-                self.lane = Remote.connect(path, name=f"al5d-client-{os.getpid()}", watch=())
+                self.lane = Remote.connect(
+                    path, name=f"al5d-client-{os.getpid()}", watch=("state", "pose")
+                )
             except LaneClosed as e:
                 if local:
-                    raise NoServer(f"no al5d server on this machine's lane: {e}") from None
+                    raise NoServer(
+                        f"no al5d server on this machine's lane: {e}{elsewhere(names, None)}"
+                    ) from None
+                log.debug("%s: ROS 2 then", e)
         if self.lane is not None:
             self.via = f"the local lane {where.path(names.namespace)}"
             self._matched = True
@@ -236,7 +259,7 @@ class Client:
         domain = os.environ.get("ROS_DOMAIN_ID", "0")
         return NoServer(
             f"no al5d server answers on {name} (ROS_DOMAIN_ID={domain}) "
-            f"within {timeout:g} s: is 'al5d serve' running?"
+            f"within {timeout:g} s{elsewhere(self.names, self.node if self.lane is None else None)}"
         )
 
     def _check_open(self) -> None:
@@ -284,21 +307,25 @@ class Client:
         self.pub.publish(msg)
         return str(msg.id)
 
-    def send(self, instr: Instruction) -> None:
-        """Send `instr` (on the lane, or the instruction topic); its outcome is kept for
-        `outcome`."""
+    def send(self, instr: Instruction | str) -> Instruction:
+        """Send `instr` (or its text, in `al5d send`'s grammar) on the lane or the instruction
+        topic, without waiting; its outcome is kept for `outcome`. The instruction sent (its
+        `id` names the outcome). Raises `GrammarError` for text that is not an instruction."""
+        if isinstance(instr, str):
+            instr = parse_instruction(instr, PRESET_NAMES)
         self._check_open()
         if self.lane is not None:
             future = self._futures[instr.id] = self.lane.submit(instr)
             watcher = self._watchers.pop(instr.id, None)
             if watcher is not None:
                 self._watch(future, watcher)
-            return
+            return instr
         from al5d.ros.convert import to_message
 
         with self._cv:
             self._sent.add(instr.id)
         self.pub.publish(to_message(instr))
+        return instr
 
     def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None:
         """Call `watcher` with the outcome of `ident` as soon as it comes (at once if it has)."""
@@ -360,6 +387,72 @@ class Client:
         if outcome is None:
             raise NoOutcome(f"{instr.name} [{instr.id}]: no outcome within {timeout:g} s")
         return outcome
+
+    # -- what the client hears of the arm ----------------------------------------------
+
+    def _arm(self) -> ArmView:
+        """The view of the arm, made on first use: over ROS 2, subscriptions to the server's
+        state and joint states, its model that of the configuration it serves."""
+        self._check_open()
+        if self._view is not None:
+            return self._view
+        if self.lane is not None:
+            view = ArmView(self.lane.config.model, live=self.lane.positions)
+            follow_lane(self.lane, view)
+        else:
+            from al5d.arm.config import load_config
+            from al5d.ros.params import served_config_file
+
+            if not self._matched:
+                self.wait_for_server(self.wait_s)
+            config = load_config(served_config_file(self.node, self.names, ANSWER_S))
+            prefix = config.server.joint_prefix_in(self.names.namespace)
+            view = ArmView(config.model)
+            follow_ros(self.node, self.names, prefix, view)
+        self._view = view
+        return view
+
+    def read(self, timeout: float | None = None) -> Reading:
+        """The arm as last heard: its state, joints (degrees) and tool pose (`Reading`). The
+        first read waits for the server's news up to `timeout` (default `wait_s`); raises
+        NoServer if none came."""
+        timeout = self.wait_s if timeout is None else timeout
+        reading = self._arm().wait(lambda r: bool(r.state and r.joints_told), timeout)
+        if reading is None:
+            raise self._no_server(self.names.joint_states, timeout)
+        return self._arm().reading
+
+    def state(self) -> str:
+        """The arm's state word: `ready`, `moving`, `stopped`, `fault`, ... (`read`)."""
+        return self.read().state
+
+    def joints(self) -> dict[str, float]:
+        """The joints' angles in degrees, as the grammar names them (`read`)."""
+        return dict(self.read().joints)
+
+    def tool(self) -> Tool:
+        """Where the gripper's tip is, in `move_to`'s millimetres and degrees (`read`); raises
+        NoOutcome while a joint's angle is not known (before the first move after power-up)."""
+        tool = self.read().tool
+        if tool is None:
+            raise NoOutcome("the tool's pose is not known: an arm joint's angle is not known yet")
+        return tool
+
+    def wait_for_state(self, state: str, timeout: float = OUTCOME_S) -> Reading:
+        """Until the arm's state is `state` (a word, as `state` says it); the reading then.
+        Raises NoOutcome if it was not within `timeout` seconds."""
+        reading = self._arm().wait(lambda r: r.state == state, timeout)
+        if reading is None:
+            raise NoOutcome(
+                f"the arm was not {state} within {timeout:g} s (it is {self.read(0).state!r})"
+            )
+        return reading
+
+    def on_change(self, listener: Callable[[Reading], None]) -> None:
+        """Call `listener` with each news of the arm (a `Reading`) on the client's own thread:
+        over ROS 2 each joint state the server publishes, over the lane each state and each
+        move the owner tells. Keep it short; it must not call the client back and wait."""
+        self._arm().on_change(listener)
 
     def forget(self, ident: str) -> None:
         """The outcome of `ident` is not kept any more."""

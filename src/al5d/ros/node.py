@@ -17,11 +17,11 @@ cheaper). The safety services are `al5d.ros.safety`'s.
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future
+from dataclasses import replace
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -39,7 +39,7 @@ from al5d.arm.states import State
 from al5d.clock import now
 from al5d.owner.client import Remote
 from al5d.owner.lane import LaneError
-from al5d.owner.teller import RefusalLog
+from al5d.owner.teller import RefusalLog, Repeats
 from al5d.ros import params
 from al5d.ros.actions import MoveAction
 from al5d.ros.controllers import FollowTrajectoryAction, GripperAction
@@ -68,25 +68,6 @@ JOINT_COMMANDS = "joint_commands"
 
 #: How often a joint command's refusal is published again when its reason has not changed.
 COMMAND_REFUSALS_EVERY_S = 1.0
-
-
-class Repeats:
-    """Tells a reason that is news: another than the last one told, or the same once
-    `every_s` has passed since it was told."""
-
-    def __init__(self, every_s: float) -> None:
-        self._every_s = every_s
-        self._lock = threading.Lock()  # done callbacks and the reader's thread both ask
-        self._last = ""
-        self._told_at = -math.inf
-
-    def news(self, reason: str) -> bool:
-        t = time.monotonic()
-        with self._lock:
-            if reason == self._last and t - self._told_at < self._every_s:
-                return False
-            self._last, self._told_at = reason, t
-            return True
 
 
 class ArmNode(Node):
@@ -251,8 +232,9 @@ class ArmNode(Node):
         prefix = config.server.joint_name_prefix
         instr = joint_command_from_message(msg, config.model, sent_ns(info), prefix)
         if isinstance(instr, str):
-            if self._command_refusals.news(instr):
-                self.refuse(trajectory_id(msg), JOINT_COMMANDS, instr)
+            said = self._said(instr)
+            if said is not None:
+                self.refuse(trajectory_id(msg), JOINT_COMMANDS, said)
             return
         future = self.arm.submit(instr, listeners=False, stream=JOINT_COMMANDS)
         future.add_done_callback(self._publish_refusal)
@@ -271,8 +253,19 @@ class ArmNode(Node):
         if future.exception() is not None:
             return  # the lane closed: the owner has ended
         outcome = future.result()
-        if outcome.result is Result.REFUSED and self._command_refusals.news(outcome.reason):
-            self.results.put(outcome)
+        if outcome.result is Result.REFUSED:
+            said = self._said(outcome.reason)
+            if said is not None:
+                self.results.put(replace(outcome, reason=said))
+
+    def _said(self, reason: str) -> str | None:
+        """A set-point's refusal as published: each reason once a second at most, with how
+        many like it were not published since (None: not now)."""
+        more = self._command_refusals.news(reason, time.monotonic())
+        if not more:
+            return None if more is None else reason
+        every = self._command_refusals.every_s
+        return f"{reason} ({more} more like it in the last {every:g} s not published)"
 
 
 class RobotNode(Node):

@@ -127,3 +127,19 @@ class PhysicalReader:
                 self._cv.wait(left)
             assert self._latest is not None
             return dict(self._latest[1])
+
+
+class OwnPhysicalReader(PhysicalReader):
+    """A `PhysicalReader` on a node and DDS participant of its own, spun until `close`: for a
+    client that has no node (one on the server's local lane)."""
+
+    def __init__(self, names: Names, model: ArmModel) -> None:
+        from al5d.ros.executors import Spinner
+
+        context = start_context()
+        node = Node(f"al5d_witness_{os.getpid()}", namespace=names.node_namespace, context=context)
+        super().__init__(node, names, model)
+        self._spinner = Spinner(node, context)
+
+    def close(self) -> None:
+        self._spinner.close()
