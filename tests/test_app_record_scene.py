@@ -119,6 +119,9 @@ def test_one_recorder_records_both_arms_and_the_file_alone_rebuilds_each_tool(
         for arm in arms:  # each found (in either order), and its servers' writers matched
             needed += [f"recording the arm in /{arm.name}", f"/{arm.name}/joint_states: 1 writer"]
             needed.append(f"/{arm.name}/al5d/goals/follow_joint_trajectory: 1 writer")
+        # And the test's own writer of the right arm's instructions (its one message below
+        # reached nobody when the recorder matched it late, on a loaded host).
+        needed.append("/right/al5d/instruction: 1 writer")
         wait_until(
             lambda: all(n in "\n".join(recorder.out.drain(0.1)) for n in needed),
             30,

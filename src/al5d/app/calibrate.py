@@ -42,6 +42,10 @@ if TYPE_CHECKING:
 REFERENCE_MOVE_MS = 1500
 #: How long a nudge's report waits for where an emulated arm truly stands after the move.
 WITNESS_WAIT_S = 0.5
+#: How long a client on the lane of an emulated board waits for the first of its true
+#: angles (the witness's DDS discovery: 0.2 s idle, more than a 300 ms move beside a full
+#: test run).
+WITNESS_FIND_S = 5.0
 #: Keys at a terminal -> the line they stand for.
 KEYS = {
     "+": "+",
@@ -342,6 +346,10 @@ def calibrate_command(
         physical: PhysicalReader
         if client.lane is not None:
             physical = own = OwnPhysicalReader(client.names, config.model)
+            if client.lane.port.startswith("/dev/pts/"):
+                # An emulated board (a pseudo-terminal): its true angles come over ROS 2, to
+                # a reader whose discovery, on a loaded host, outlasts the first move.
+                physical.next(WITNESS_FIND_S)
         else:
             physical = PhysicalReader(client.node, client.names, config.model)
 

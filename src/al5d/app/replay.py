@@ -495,7 +495,9 @@ def _send(
             report.line(f"> {instr}")
             outcome_of = _reporter(report, instr)
             outcomes.expect(instr.id, outcome_of)
-            client.pub.publish(to_message(instr))
+            msg = to_message(instr)
+            msg.client = client.key  # a replay cut off or killed leaves nothing moving
+            client.pub.publish(msg)
             sent += 1
             last_sent = time.monotonic()
             arrived = functools.partial(outcomes.arrived, instr.id)

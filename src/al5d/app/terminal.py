@@ -41,6 +41,7 @@ from al5d.arm.sequence import SequenceJudge, judged_steps, served_config
 from al5d.ros.client import (
     Answer,
     Client,
+    LostContact,
     NoOutcome,
     NoServer,
 )
@@ -171,6 +172,9 @@ def send(
         timing.discovered(client)
         try:
             outcome: Outcome | None = client.execute(instr, timeout)
+        except LostContact as e:  # said as it is, not as a timeout
+            report.line(str(e))
+            return exits.NOT_DONE
         except NoOutcome:
             outcome = None
         report.outcome(outcome, instr=instr)
@@ -273,7 +277,7 @@ def _step(
     if in_background:
         background.append(item)
         client.watch(item.id, functools.partial(report.outcome, instr=item))
-    client.send(item)
+    client.send(item, timeout)
     if not in_background:
         report.outcome(client.outcome(item.id, timeout), instr=item)
 

@@ -238,6 +238,10 @@ class ServerSettings(_Frozen):
     #: none has come for this long while the arm still moves toward the last, the arm is
     #: held where it is (its source has stopped, or lost its link).
     stream_timeout_s: float = Field(default=0.5, gt=0, le=60)
+    #: A ROS client that commands motion sends its lease a few times a second; when none
+    #: has come for this long, the client is lost (cut off, killed, hung) and what it
+    #: commanded is halted, its queued moves cancelled (docs/ros.md, "Across a network").
+    client_lease_s: float = Field(default=1.0, gt=0, le=60)
     trajectory_path_tolerance_deg: FiniteFloat = Field(default=1.0, gt=0, le=45)
     #: Every move (joint or Cartesian, a trajectory's every point and the path between, a
     #: set-point) is refused whole if its path would take a body of the arm under the table

@@ -43,8 +43,9 @@ The order across channels
 Stops, releases and moves come by several channels (the instruction topic, in order
 behind a flood; the services; the stop watcher; actions; the local lane; Python
 calls), so a request can arrive after one sent later. Each instruction carries when it
-was sent (`Instruction.sent_ns`, CLOCK_REALTIME; when the owner took it, where the
-channel does not say), and the order of sending, not of arriving, decides:
+was sent (`Instruction.sent_ns`, CLOCK_REALTIME, this machine's: the ROS side puts a
+client's times on it, and a stop's no later than when it came, `al5d.ros.leases`; when the
+owner took it, where the channel does not say), and the order of sending, not of arriving, decides:
 
 1. A release unlocks only if it was sent after every stop that holds the lock; an
    older one is refused with a reason naming that stop. So a stop is never undone by a

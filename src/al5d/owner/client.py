@@ -158,10 +158,14 @@ class Remote:
         key: Hashable | None = None,
         stream: str = "",
         listeners: bool = True,
+        client: str = "",
     ) -> Future[Outcome]:
         """Hand over an instruction (or one judged already); its Future resolves to its one
-        outcome, or raises LaneClosed if the lane closes first."""
+        outcome, or raises LaneClosed if the lane closes first. `client`: the key of a client
+        this one speaks for (`gone`), if it is that one's."""
         message: dict[str, Any] = {"op": "ask", "stream": stream, "tell": listeners}
+        if client:
+            message["for"] = client
         if isinstance(what, Judged):
             message["ticket"] = what.name
         else:
@@ -174,6 +178,11 @@ class Remote:
 
     def execute(self, instr: Instruction, timeout: float | None = None) -> Outcome:
         return self.submit(instr).result(timeout)
+
+    def gone(self, client: str, why: str) -> None:
+        """Client `client`, whom this one speaks for, is lost (`why`: what it commanded is
+        halted), or has closed (`why` empty: what it commanded goes on)."""
+        self._send({"op": "gone", "for": client, "why": why})
 
     def cancel(self, ident: str, reason: str = "cancelled by the client") -> bool:
         """Cancel one move; False when it has already ended (or was never there)."""

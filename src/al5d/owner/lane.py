@@ -5,7 +5,10 @@ network), one JSON object a line each way. A client says `hello` (and what it wa
 hear: `watch`), then asks (`ask`, `judge`, `cancel`); the owner answers each request
 once under its `ref`, and tells watchers what happens (`state`, `told`, `moved`,
 `posed`, `wire`). A client that goes without `bye` is a lost client: what it commanded
-does not go on (`al5d.arm.core`, `Gone`).
+does not go on (`al5d.arm.core`, `Gone`). A client that speaks for others (the ROS
+bridge for the ROS clients) names one in an `ask` (`for`: its key) and says when it has
+lost one (`gone`, with `why`) or one has closed (`gone` without `why`): each is a client
+of its own to the core.
 
 Everything here is pure, and light to import (the standard library and
 `al5d.arm.instruction`): `al5d send stop`'s own path (`quick`) imports nothing else.

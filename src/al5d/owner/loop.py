@@ -96,6 +96,9 @@ class Conn:
     out: bytearray = field(default_factory=bytearray)
     watch: frozenset[str] = frozenset()
     tickets: dict[str, Ticket] = field(default_factory=dict)
+    #: The clients this one speaks for (a bridge's ROS clients), by their keys: each a
+    #: client of the core of its own, lost on its own (`gone`).
+    subs: dict[str, int] = field(default_factory=dict)
     bye: bool = False
     writing: bool = False
 
@@ -679,6 +682,8 @@ class Owner:
                 self._write(conn, ln.dumps({"op": "pong", "ref": ref, "t": now()}))
             elif op == "bye":
                 conn.bye = True
+            elif op == "gone":
+                self._lane_gone(conn, m)
             else:
                 raise ln.LaneError(f"no op {op[:40]!r}")
         except ln.LaneError as e:
@@ -722,10 +727,26 @@ class Owner:
         if not isinstance(stream, str):
             raise ln.LaneError("ask: stream must be text")
         key = _hashable(m.get("key"))
+        client = conn.ident
+        if "for" in m:
+            who = m["for"]
+            if not isinstance(who, str) or not who or len(who) > 200:
+                raise ln.LaneError("ask: for must be a client's key (text, 1 to 200 characters)")
+            client = conn.subs.get(who) or conn.subs.setdefault(who, next(self._conn_ids))
         ours = next(self._refs)
         self._lane_refs[ours] = (conn, ref)
         tell_ = bool(m.get("tell", True))
-        self._put(ours, instr, ticket, stream, key, conn.ident, tell_)
+        self._put(ours, instr, ticket, stream, key, client, tell_)
+
+    def _lane_gone(self, conn: Conn, m: dict[str, Any]) -> None:
+        """A client `conn` speaks for is lost (`why`): what it commanded does not go on; or
+        closed (`why` empty): it is forgotten, what it commanded goes on."""
+        who, why = m.get("for"), m.get("why", "")
+        if not isinstance(who, str) or not isinstance(why, str):
+            raise ln.LaneError("gone: for and why must be text")
+        client = conn.subs.pop(who, None)
+        if client is not None and why:
+            self._others.append(("gone", 0, (client, f"{who}: {why[:200]}")))
 
     def _lane_judge(self, conn: Conn, ref: Any, m: dict[str, Any]) -> None:
         instr = ln.instruction_in(m.get("instr"))
@@ -777,6 +798,8 @@ class Owner:
                 del self._lane_refs[ref]
         if why:
             self._others.append(("gone", 0, (conn.ident, f"{conn.name}: {why}")))
+            for who, client in conn.subs.items():
+                self._others.append(("gone", 0, (client, f"{who} by {conn.name}: {why}")))
 
     # -- the end -------------------------------------------------------------------------------
 

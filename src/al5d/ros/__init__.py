@@ -27,6 +27,8 @@ client.
   ROS 2 (the terminal's commands on it are `al5d.app.terminal`'s).
 - `reading`: what a client hears of the arm (its state, joints and tool pose), kept from
   the lane or the ROS topics, with waits and callbacks.
+- `leases`: the ROS clients' leases (who is still there, and each one's clock), and
+  which requests are stale (pure).
 
 This layer imports `al5d.owner`, `al5d.arm` (never the board's emulator) and rclpy.
 """

@@ -243,8 +243,6 @@ def main(argv: list[str]) -> int:
         arm.wire_listeners.append(lambda w: tap(*w))
         recording.follow(start.names, start.settings.config.server.instruction_backlog)
     bridge = Bridge(arm, start, setup.trace, stop_here)
-    ended = threading.Event()
-    arm.closed_listeners.append(ended.set)
 
     def on_ctrl() -> None:
         # The owner says its stop process has ended: the stop is served here from now on.
@@ -260,7 +258,9 @@ def main(argv: list[str]) -> int:
                 bridge.safety_spinner.add(bridge.stop)
 
     threading.Thread(target=on_ctrl, name="al5d-bridge-ctrl", daemon=True).start()
-    ended.wait()
+    # The lane's own event, not a listener added now: a lane that closed before this line
+    # (a SIGTERM as the server started) has told its listeners already.
+    arm.closed.wait()
     bridge.close()
     if recording is not None:
         recording.close_ros()  # after the server's last messages reached it

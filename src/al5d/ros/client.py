@@ -14,8 +14,11 @@ discovery, no DDS); any other over ROS 2, its instruction topic and its services
 from __future__ import annotations
 
 import atexit
+import contextlib
 import logging
 import os
+import secrets
+import socket
 import threading
 import time
 import weakref
@@ -58,6 +61,12 @@ class NoOutcome(TimeoutError):
     call: what became of the instruction is unknown."""
 
 
+class LostContact(NoOutcome):
+    """Nothing has been heard from the server for `LOST_S`: the link (or the server) is
+    gone. The client has given up on what it waited for; the server, once this client's
+    lease runs out, halts what it commanded and never runs what it sent meanwhile."""
+
+
 #: The handshake's ping (`al5d.ros.names.PING`) is sent again this often until one is
 #: answered: a ping the server answered before its result writer had matched our reader
 #: reached nobody.
@@ -79,6 +88,13 @@ WAIT_S = 10.0
 OUTCOME_S = 120.0
 #: A stop, a release or a shutdown is answered at once.
 ANSWER_S = 10.0
+#: A client over ROS 2 sends its lease this often (`al5d.ros.leases`), and takes the server
+#: for lost when it has heard nothing from it (its joint states, 10 a second when idle)
+#: for `LOST_S`.
+LEASE_EVERY_S = 0.1
+LOST_S = 1.0
+#: How long a closing client waits for the server to have its last lease.
+BYE_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -112,11 +128,30 @@ def elsewhere(names: Names, node: Any) -> str:
         seen |= {ns for name, ns in node.get_node_names_and_namespaces() if name == NODE}
     seen.discard(names.node_namespace)
     if not seen:
-        return ": is 'al5d serve' running?"
+        if node is None:
+            return ": is 'al5d serve' running?"
+        return ": is 'al5d serve' running?" + closed_hint()
     found = sorted(seen)
     listed = " and ".join([", ".join(found[:-1]), found[-1]] if len(found) > 1 else found)
     hint = f"--namespace {found[0].strip('/')}" if found[0] != "/" else "no --namespace"
     return f"; found {listed}: {hint}?"
+
+
+def closed_hint() -> str:
+    """What a client over ROS 2 that finds no server says of a server on another machine."""
+    here = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST").upper()
+    if here == "LOCALHOST":
+        return (
+            " This client looks on this machine only (ROS_AUTOMATIC_DISCOVERY_RANGE="
+            "LOCALHOST, the default); for a server on another machine, set "
+            "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET here and where it runs, with the same "
+            "ROS_DOMAIN_ID (docs/ros.md, 'Reaching the node from another machine')."
+        )
+    return (
+        " A server on another machine is closed to the network unless it was started with "
+        "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET (its default keeps it to its own machine) and "
+        "this ROS_DOMAIN_ID (docs/ros.md, 'Reaching the node from another machine')."
+    )
 
 
 #: Every client not yet closed, closed at interpreter exit (`_close_open_clients`).
@@ -177,13 +212,15 @@ class Client:
         self._ros(names)
 
     def _ros(self, names: Names) -> None:
-        from al5d_interfaces.msg import ArmInstruction, InstructionResult
+        from al5d_interfaces.msg import ArmInstruction, ClientLease, InstructionResult
         from rclpy.node import Node
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import JointState
         from std_srvs.srv import Trigger
 
         from al5d.ros.dds import start_context
         from al5d.ros.executors import Spinner
-        from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SERVICES, QOS_STREAM
+        from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_LEASES, QOS_SERVICES, QOS_STREAM
 
         self.via = "ROS 2"
         self.context = start_context()
@@ -198,6 +235,20 @@ class Client:
         self.results = self.node.create_subscription(
             InstructionResult, names.result, self._on_result, QOS_STREAM
         )
+        #: This client's lease (`al5d.ros.leases`), named in what it sends.
+        self.key = f"{socket.gethostname()[:40]}-{os.getpid()}-{secrets.token_hex(3)}"
+        self._lease_pub = self.node.create_publisher(ClientLease, names.clients, QOS_LEASES)
+        #: When the server was last heard (monotonic s; None: not yet).
+        self._heard: float | None = None
+        latest = QoSProfile(
+            depth=1,
+            reliability=ReliabilityPolicy.BEST_EFFORT,
+            durability=DurabilityPolicy.VOLATILE,
+        )
+        self.node.create_subscription(JointState, names.joint_states, self._on_sign, latest)
+        self._leasing = threading.Event()
+        self._leaser = threading.Thread(target=self._lease, name="al5d-lease", daemon=True)
+        self._leaser.start()
         self._services: dict[Kind, tuple[str, Any]] = {
             kind: (name, self.node.create_client(Trigger, name, qos_profile=QOS_SERVICES))
             for name, kind in names.services.items()
@@ -226,9 +277,40 @@ class Client:
     ) -> None:
         self.close()
 
+    def _lease(self) -> None:
+        """Send this client's lease every `LEASE_EVERY_S` until it closes."""
+        from al5d_interfaces.msg import ClientLease
+
+        every_ms = round(LEASE_EVERY_S * 1000)
+        while not self._leasing.wait(LEASE_EVERY_S):
+            self._lease_pub.publish(
+                ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=every_ms)
+            )
+
+    def _on_sign(self, msg: object) -> None:
+        self._heard = time.monotonic()
+
+    def lost_contact(self) -> float | None:
+        """Over ROS 2, once the server has been heard: for how long it has not been, if more
+        than `LOST_S` (None: not lost)."""
+        heard = None if self.lane is not None else self._heard
+        if heard is None:
+            return None
+        quiet = time.monotonic() - heard
+        return quiet if quiet > LOST_S else None
+
+    def _lost(self, what: str) -> LostContact:
+        quiet = self.lost_contact() or LOST_S
+        return LostContact(
+            f"{what}: lost contact with the server (nothing heard from it for {quiet:.1f} s; "
+            "whether it ran is unknown): once this client's lease runs out the server halts "
+            "what it commanded, and never runs what it sent meanwhile"
+        )
+
     def _on_result(self, msg: InstructionResult) -> None:
         from al5d.ros.convert import outcome_from_message
 
+        self._heard = time.monotonic()
         with self._cv:
             if msg.id not in self._sent and msg.id not in self._watchers:
                 return
@@ -307,13 +389,18 @@ class Client:
         self.pub.publish(msg)
         return str(msg.id)
 
-    def send(self, instr: Instruction | str) -> Instruction:
+    def send(self, instr: Instruction | str, wait_s: float = 0.0) -> Instruction:
         """Send `instr` (or its text, in `al5d send`'s grammar) on the lane or the instruction
         topic, without waiting; its outcome is kept for `outcome`. The instruction sent (its
-        `id` names the outcome). Raises `GrammarError` for text that is not an instruction."""
+        `id` names the outcome). `wait_s`: how long its outcome will be waited for (0: for
+        ever): over ROS 2 the server refuses it as stale if it comes later than that.
+        Raises `GrammarError` for text that is not an instruction, `LostContact` while
+        the server is out of contact (nothing is sent)."""
         if isinstance(instr, str):
             instr = parse_instruction(instr, PRESET_NAMES)
         self._check_open()
+        if self.lost_contact() is not None:
+            raise self._lost(f"{instr.name} [{instr.id}]: not sent")
         if self.lane is not None:
             future = self._futures[instr.id] = self.lane.submit(instr)
             watcher = self._watchers.pop(instr.id, None)
@@ -322,9 +409,12 @@ class Client:
             return instr
         from al5d.ros.convert import to_message
 
+        msg = to_message(instr)
+        msg.client = self.key
+        msg.wait_ms = min(round(wait_s * 1000), 2**32 - 1)
         with self._cv:
             self._sent.add(instr.id)
-        self.pub.publish(to_message(instr))
+        self.pub.publish(msg)
         return instr
 
     def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None:
@@ -365,7 +455,9 @@ class Client:
             while ident not in self._outcomes:
                 if deadline.expired:
                     return None
-                self._cv.wait(deadline.left())
+                if self.lost_contact() is not None:
+                    raise self._lost(f"[{ident}]")
+                self._cv.wait(min(deadline.left(), LEASE_EVERY_S))
             return self._outcomes[ident]
 
     def execute(self, instr: Instruction | str, timeout: float = OUTCOME_S) -> Outcome:
@@ -381,8 +473,13 @@ class Client:
         self._check_open()
         if not self._matched:
             self.wait_for_server(self.wait_s)
-        self.send(instr)
-        outcome = self.outcome(instr.id, timeout)
+        self.send(instr, timeout)
+        try:
+            outcome = self.outcome(instr.id, timeout)
+        except LostContact:
+            self.forget(instr.id)
+            raise self._lost(f"{instr.name} [{instr.id}]") from None
+        # Kept on Ctrl-C (KeyboardInterrupt), which cancels what is pending.
         self.forget(instr.id)
         if outcome is None:
             raise NoOutcome(f"{instr.name} [{instr.id}]: no outcome within {timeout:g} s")
@@ -532,6 +629,18 @@ class Client:
         message = outcome.reason or f"{kind.value}: {outcome.result.value}"
         return Answer(kind.value, outcome.ok, message, "the local lane")
 
+    def _say_bye(self) -> None:
+        """Tell the server this client closes (what it commanded goes on), and wait a moment
+        for what it sent and that word to reach it: a client it never hears close, it takes
+        for lost."""
+        from al5d_interfaces.msg import ClientLease
+        from rclpy.duration import Duration
+
+        self._lease_pub.publish(ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=0))
+        with contextlib.suppress(Exception):  # what it sent, then its last word
+            self.pub.wait_for_all_acked(Duration(seconds=BYE_S))
+            self._lease_pub.wait_for_all_acked(Duration(seconds=BYE_S))
+
     def _find_service(self, kind: Kind, name: str, service: Any) -> bool:
         """True once `service` is available; False if the server's topics are there and it is
         not, `SERVICE_GRACE_S` on. `NoServer` if neither comes within `wait_s`."""
@@ -590,4 +699,7 @@ class Client:
             if self.lane is not None:
                 self.lane.close()
                 return
+            self._leasing.set()
+            self._leaser.join()
+            self._say_bye()
             self.spinner.close()

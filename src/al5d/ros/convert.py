@@ -130,6 +130,14 @@ def stop_key(info: Mapping[str, int | None]) -> tuple[int | None, int | None]:
     return info.get("source_timestamp"), info.get("publication_sequence_number")
 
 
+def stop_time(sent: int | None, came: int) -> int:
+    """When a stop counts from: when it was sent, by its sender's clock, unless that is
+    later than when it came to this machine (a clock ahead: a stop from a client seconds
+    ahead would hold every release sent in those seconds). Docs/ros.md, "Across a
+    network"."""
+    return came if not sent else min(sent, came)
+
+
 def from_message(
     msg: ArmInstruction, presets: tuple[str, ...], model: ArmModel, sent: int | None = None
 ) -> Instruction | str:

@@ -67,6 +67,11 @@ class Names:
         return self.private("result")
 
     @property
+    def clients(self) -> str:
+        """Where clients send their leases (`al5d.ros.leases`)."""
+        return self.private("clients")
+
+    @property
     def state(self) -> str:
         return self.private("state")
 

@@ -16,6 +16,7 @@ cheaper). The safety services are `al5d.ros.safety`'s.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
@@ -23,7 +24,7 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import replace
 
-from al5d_interfaces.msg import ArmInstruction, InstructionResult
+from al5d_interfaces.msg import ArmInstruction, ClientLease, InstructionResult
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.context import Context
 from rclpy.node import Node
@@ -37,7 +38,7 @@ from al5d.arm.instruction import MAX_ID, MAX_QUOTE, Kind, Outcome, Result, new_i
 from al5d.arm.jobs import Sent
 from al5d.arm.states import State
 from al5d.clock import now
-from al5d.owner.client import Remote
+from al5d.owner.client import LaneClosed, Remote
 from al5d.owner.lane import LaneError
 from al5d.owner.teller import RefusalLog, Repeats
 from al5d.ros import params
@@ -49,13 +50,15 @@ from al5d.ros.convert import (
     outcome_message,
     sent_ns,
     stop_key,
+    stop_time,
     trajectory_from_message,
     trajectory_id,
 )
 from al5d.ros.executors import PublishThread
+from al5d.ros.leases import Leases
 from al5d.ros.names import ACTIONS_NODE, NODE, PING, ROBOT_NODE, Names, pinned
 from al5d.ros.params import Settings
-from al5d.ros.qos import QOS_COMMANDS, QOS_INSTRUCTIONS, QOS_LATCHED, QOS_STREAM
+from al5d.ros.qos import QOS_COMMANDS, QOS_INSTRUCTIONS, QOS_LATCHED, QOS_LEASES, QOS_STREAM
 from al5d.ros.robot import RobotPublisher
 from al5d.ros.workarounds import Reader, ReaderOnly, taken_by_reader
 
@@ -160,12 +163,23 @@ class ArmNode(Node):
             QOS_COMMANDS,
             callback_group=group,
         )
+        leases = self.create_subscription(
+            ClientLease, names.clients, taken_by_reader, QOS_LEASES, callback_group=group
+        )
+        self.leases = Leases(arm.config.server.client_lease_s)
+        self._leases_lock = threading.Lock()
+        self._ending = threading.Event()
+        self._lease_keeper = threading.Thread(
+            target=self._keep_leases, name="al5d-leases", daemon=True
+        )
+        self._lease_keeper.start()
         self.reader = Reader(
             self,
             [
                 (instructions, self._on_instruction),
                 (trajectories, self._on_trajectory),
                 (commands, self._on_joint_command),
+                (leases, self._on_lease),
             ],
             "al5d-inputs",
             group=group,
@@ -179,6 +193,7 @@ class ArmNode(Node):
 
     def detach(self) -> None:
         """Hear the owner no more (once, before the node is destroyed)."""
+        self._ending.set()
         self.arm.outcome_listeners.remove(self._publish_outcome)
         self.arm.state_listeners.remove(self._publish_state)
 
@@ -200,19 +215,56 @@ class ArmNode(Node):
 
     # -- inputs ---------------------------------------------------------------------
 
+    def _on_lease(self, msg: ClientLease, info: dict[str, int]) -> None:
+        came = info.get("received_timestamp") or time.time_ns()
+        with self._leases_lock:
+            self.leases.heard(str(msg.client), msg.sent_ns, msg.every_ms, now(), came)
+        if msg.every_ms == 0:  # closed: what it commanded goes on
+            with contextlib.suppress(LaneClosed):  # the owner has ended
+                self.arm.gone(str(msg.client), "")
+
+    def _keep_leases(self) -> None:
+        """Every tenth of the lease: a client not heard for the lease is lost, and what it
+        commanded is halted (`al5d.ros.leases`)."""
+        lease_s = self.leases.lease_s
+        while not self._ending.wait(min(0.1, lease_s / 10)):
+            with self._leases_lock:
+                lost = self.leases.lapsed(now())
+            for key in lost:
+                log.warning("lost contact with client %s: no lease for %g s", key, lease_s)
+                try:
+                    self.arm.gone(key, f"no lease heard for {lease_s:g} s")
+                except LaneClosed:
+                    return  # the owner has ended
+
     def _on_instruction(self, msg: ArmInstruction, info: dict[str, int]) -> None:
         if self.trace is not None:
             self.trace.append((msg.id, "recv", time.monotonic_ns()))
         if msg.instruction == PING:
             self.results.put(Outcome(msg.id or new_id(), PING, Result.DONE))
             return
-        instr = from_message(msg, self.presets, self.model, sent_ns(info))
+        sent = sent_ns(info)
+        came = info.get("received_timestamp") or time.time_ns()
+        client = str(msg.client)
+        stale = None
+        if sent is not None and client:
+            with self._leases_lock:
+                stale = self.leases.stale(client, sent, msg.wait_ms, now(), came)
+                sent = self.leases.on_server_clock(client, sent)
+        if msg.instruction.strip().lower() == "stop":
+            sent = stop_time(sent, came)  # as the stop watcher's
+        instr = from_message(msg, self.presets, self.model, sent)
         if isinstance(instr, str):
             self.refuse(msg.id or new_id(), msg.instruction, instr)
             return
+        if stale is not None:
+            if instr.kind is not Kind.STOP:  # a stop is obeyed, however late
+                self.refuse(instr.id, instr.name, stale)
+                return
+            log.warning("stop [%s]: obeyed, late: %s", instr.id, stale.split(": stale")[0])
         # A stop the stop watcher has obeyed already is the same message: obeyed once.
         key = stop_key(info) if instr.kind is Kind.STOP else None
-        self._submitted(self.arm.submit(instr, key=key), instr.id, instr.name)
+        self._submitted(self.arm.submit(instr, key=key, client=client), instr.id, instr.name)
 
     def _on_trajectory(self, msg: JointTrajectory, info: dict[str, int]) -> None:
         """A trajectory is one instruction: every point checked, then all run or none."""

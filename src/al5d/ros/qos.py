@@ -64,3 +64,14 @@ QOS_LATCHED = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
+#: The clients' leases (`al5d.ros.leases`): reliable, so that a client's last word (it is
+#: closing) reaches the server, and one deep, so that after an outage a writer sends again
+#: only its newest lease, not the ones of the outage, which would say it had been there.
+#: (Several clients' leases share the reader's one place: one overwritten before it is
+#: taken is one of the ten or so a lease's time holds.)
+QOS_LEASES = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)

@@ -31,6 +31,7 @@ of its own.
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Any
@@ -43,7 +44,7 @@ from std_srvs.srv import Trigger
 
 from al5d.arm.instruction import Instruction, Kind
 from al5d.owner.client import LaneClosed, Remote
-from al5d.ros.convert import from_message, sent_ns, stop_key
+from al5d.ros.convert import from_message, sent_ns, stop_key, stop_time
 from al5d.ros.names import SAFETY_NODE, STOP_NODE, Names, pinned
 from al5d.ros.qos import QOS_SERVICES, qos_watch
 from al5d.ros.workarounds import (
@@ -106,6 +107,8 @@ def answered(arm: Remote, kind: Kind, sent: int | None) -> tuple[bool, str]:
 
 def _trigger(arm: Remote, kind: Kind) -> Callable[[Any, Any, int], Any]:
     def answer(request: Trigger.Request, response: Trigger.Response, sent: int) -> Any:
+        if kind is Kind.STOP:
+            sent = stop_time(sent, time.time_ns())
         response.success, response.message = answered(arm, kind, sent)
         return response
 
@@ -170,7 +173,8 @@ class StopNode(Node):
         if first_word(raw) != _STOP:
             return
         msg = deserialize_message(raw, ArmInstruction)
-        instr = from_message(msg, self.presets, self.model, sent_ns(info))
+        came = info.get("received_timestamp") or time.time_ns()
+        instr = from_message(msg, self.presets, self.model, stop_time(sent_ns(info), came))
         if isinstance(instr, Instruction) and instr.kind is Kind.STOP:
             self.arm.submit(instr, key=stop_key(info))
 

@@ -1,0 +1,247 @@
+"""The clients' leases: a client that hangs or is cut off leaves nothing moving, one that
+closes leaves its motion going, and a request its sender gave up on, or that comes too late
+for it, never moves the arm, whatever the client's clock says."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from al5d.arm import instruction as ins
+from al5d.arm.config import ArmConfig
+from al5d.owner import where
+from al5d.owner.client import Remote
+from al5d.ros.leases import FORGET_S, Leases
+from al5d_rig.proc import Lines
+from al5d_rig.rospeer import wait_until
+from al5d_rig.served import Served, served
+
+CMD_S = 60.0
+S = 1_000_000_000  # ns
+
+
+# -- the bookkeeping, alone --------------------------------------------------------------
+
+
+def test_a_client_not_heard_for_its_lease_is_lost_once_and_one_that_closes_is_forgotten() -> None:
+    leases = Leases(1.0)
+    leases.heard("a", 0, 100, 10.0, 5 * S)
+    leases.heard("b", 0, 100, 10.0, 5 * S)
+    assert leases.lapsed(10.9) == []
+    leases.heard("b", S // 2, 0, 10.5, 5 * S)  # b closes: forgotten, never lost
+    assert leases.lapsed(11.1) == ["a"]
+    assert leases.lapsed(20.0) == []  # said once
+    assert len(leases) == 1
+    assert leases.lapsed(10.0 + FORGET_S + 1) == [] and len(leases) == 0  # forgotten
+
+
+@pytest.mark.parametrize("skew_s", [-5.0, 0.0, 5.0])
+def test_a_requests_age_is_judged_on_the_servers_clock_whatever_the_clients(
+    skew_s: float,
+) -> None:
+    """The client's clock is `skew_s` off the server's; the trip takes 2 ms, once 4 s."""
+    leases = Leases(1.0)
+    skew = int(skew_s * S)
+    trip = 2_000_000
+    for k in range(10):  # leases at 10 a second
+        sent = 100 * S + k * S // 10
+        leases.heard("c", sent + skew, 100, 100.0 + k / 10, sent + trip)
+    sent = 101 * S
+    assert leases.stale("c", sent + skew, 3000, 101.0, sent + trip) is None
+    late = leases.stale("c", sent + skew, 3000, 105.0, sent + 4 * S)
+    assert late is not None and "3998 ms after it was sent" in late and "3000 ms" in late
+    assert leases.stale("c", sent + skew, 0, 105.0, sent + 4 * S) is None  # it waits for ever
+    # Its time of sending on the server's clock, to within the quickest trip.
+    assert leases.on_server_clock("c", sent + skew) == sent + trip
+
+
+def test_what_a_lost_client_sent_before_it_was_heard_again_is_stale() -> None:
+    leases = Leases(1.0)
+    leases.heard("c", 10 * S, 100, 10.0, 10 * S)
+    assert leases.lapsed(11.5) == ["c"]
+    # Sent before the cut, delivered while it is lost.
+    lost = leases.stale("c", 10 * S + 1, 0, 16.0, 16 * S)
+    assert lost is not None and "is lost" in lost
+    leases.heard("c", 16 * S, 100, 16.0, 16 * S)  # the link is back
+    back = leases.stale("c", 10 * S + 2, 0, 16.0, 16 * S + 1)
+    assert back is not None and "out of contact" in back
+    assert leases.stale("c", 16 * S + 5, 0, 16.0, 16 * S + 6) is None  # sent since: run
+
+
+def test_a_client_with_no_lease_yet_is_judged_by_its_first_request_and_lost_without_one() -> None:
+    leases = Leases(1.0)
+    assert leases.stale("", 0, 100, 5.0, 60 * S) is None  # no client named: no lease
+    assert leases.stale("new", 0, 100, 5.0, 60 * S) is None  # its first sample: not late
+    assert leases.on_server_clock("new", 7) == 60 * S + 7
+    # Its request was a sign of it; no lease followed within the lease's time: lost.
+    assert leases.lapsed(5.5) == []
+    assert leases.lapsed(6.1) == ["new"]
+
+
+# -- on a server ---------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def arm(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    with served(config, tmp_path_factory.mktemp("leases"), "al5d_leases_peer") as s:
+        yield s
+
+
+def test_a_lane_client_that_speaks_for_others_loses_one_and_the_others_go_on(
+    arm: Served,
+) -> None:
+    """The bridge's way: each ROS client a client of the core of its own on one lane."""
+    arm.ready()
+    lane = Remote.connect(where.path(), name="speaks-for-two")
+    try:
+        gone = lane.submit(ins.move(base=-80, time_ms=4000, id="gone-1"), client="a")
+        queued = lane.submit(ins.move(base=80, time_ms=400, id="gone-2"), client="a")
+        wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
+        stays = lane.submit(ins.move(elbow=60, time_ms=400, id="stays"), client="b")
+        time.sleep(0.3)
+        lane.gone("a", "no lease heard for 1 s")
+        for future in (gone, queued):
+            outcome = future.result(CMD_S)
+            assert outcome.result is ins.Result.CANCELLED, outcome
+            assert "lost contact with the client (a: no lease heard for 1 s)" in outcome.reason
+        assert stays.result(CMD_S).result is ins.Result.DONE
+        assert abs(arm.emu.servo_degrees()["base"] + 80) > 5  # halted on its way
+        lane.gone("b", "")  # closed: forgotten, nothing to halt
+    finally:
+        lane.close()
+
+
+CLIENT = """
+import time
+from al5d.arm import instruction as ins
+from al5d.ros.client import Client
+c = Client(local=False)
+c.wait_for_server(60)
+c.send(ins.move(base={target}, time_ms=4000, id="{ident}"), wait_s=60)
+print("sent", flush=True)
+{then}
+"""
+
+
+def ros_client(target: int, ident: str, then: str) -> subprocess.Popen[str]:
+    script = CLIENT.format(target=target, ident=ident, then=then)
+    return subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+
+
+def test_a_ros_client_that_hangs_mid_move_has_its_move_halted_with_the_reason(
+    arm: Served,
+) -> None:
+    arm.ready()
+    client = ros_client(-80, "hung-1", "time.sleep(600)")
+    try:
+        assert client.stdout is not None and client.stdout.readline().strip() == "sent"
+        wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
+        client.send_signal(signal.SIGSTOP)  # hung: its leases stop, its process stays
+        results = arm.peer.results_now
+        wait_until(lambda: "hung-1" in results(), CMD_S, "its outcome")
+        outcome = results()["hung-1"]
+        assert outcome.outcome == "cancelled", outcome
+        assert "lost contact with the client" in outcome.reason and "no lease" in outcome.reason
+        wait_until(lambda: arm.states[-1] == "ready", CMD_S, "ready: halted, not locked")
+        assert abs(arm.emu.servo_degrees()["base"] + 80) > 5
+    finally:
+        client.kill()
+        client.wait(10)
+
+
+def test_a_ros_client_that_closes_leaves_its_move_going(arm: Served) -> None:
+    arm.ready()
+    client = ros_client(60, "closed-1", "c.close()")
+    assert client.stdout is not None and client.stdout.readline().strip() == "sent"
+    assert client.wait(CMD_S) == 0
+    results = arm.peer.results_now
+    wait_until(lambda: "closed-1" in results(), CMD_S, "its outcome")
+    assert results()["closed-1"].outcome == "done", results()["closed-1"]
+    assert abs(arm.emu.servo_degrees()["base"] - 60) < 1
+
+
+FAKETIME_LIB = Path("/usr/lib/x86_64-linux-gnu/faketime/libfaketime.so.1")
+
+SKEWED = """
+import select, sys, time
+# libfaketime 0.9.10 with FAKETIME_DONT_FAKE_MONOTONIC fails Python's time.sleep
+# (clock_nanosleep: "OSError: [Errno 22] Invalid argument"); select's timeout is relative.
+time.sleep = lambda s: select.select([], [], [], max(0.0, s)) and None
+from al5d.ros.client import Client
+c = Client(local=False)
+c.wait_for_server(60)
+print("clock", time.time(), flush=True)
+for line in sys.stdin:
+    word = line.strip()
+    if word == "stop":
+        print("stop:", c.stop(), flush=True)
+    elif word == "release":  # on the topic, with its lease: the service takes no lease
+        print("release:", c.execute("release", timeout=60), flush=True)
+    else:
+        print("move:", c.execute(word, timeout=60), flush=True)
+c.close()
+"""
+
+
+@pytest.mark.parametrize("skew_s", [-5, 5])
+def test_a_client_whose_clock_is_seconds_off_is_judged_on_the_servers_clock(
+    arm: Served, skew_s: int
+) -> None:
+    """A client on a machine whose clock is 5 s behind or ahead (libfaketime): a stop and a
+    release, each by it (the stop by the service, the release on the topic) or by a client
+    whose clock is right, are taken in the order they were sent, and its move sent after
+    the release runs."""
+    assert FAKETIME_LIB.exists(), "libfaketime: `make faketime` installs it"
+    arm.ready()
+    env = {
+        **os.environ,
+        "LD_PRELOAD": str(FAKETIME_LIB),
+        "FAKETIME": f"{skew_s:+d}s",
+        # Its monotonic clock faked too, libfaketime 0.9.10's timed waits never end.
+        "FAKETIME_DONT_FAKE_MONOTONIC": "1",
+    }
+    skewed = subprocess.Popen(
+        [sys.executable, "-c", SKEWED],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    assert skewed.stdin is not None and skewed.stdout is not None
+    out = Lines(skewed.stdout)
+
+    def ask(word: str) -> str:
+        assert skewed.stdin is not None
+        skewed.stdin.write(word + "\n")
+        skewed.stdin.flush()
+        return out.wait_for(f"{word.split()[0]}:", CMD_S)
+
+    lane = Remote.connect(where.path(), name="right-clock")
+    try:
+        said = float(out.wait_for("clock", CMD_S).split()[1])
+        assert abs(said - time.time() - skew_s) < 1.0, said  # its clock is off indeed
+        # A stop by a client whose clock is right, then a release by the skewed one.
+        assert lane.execute(ins.Instruction(ins.Kind.STOP), CMD_S).ok
+        wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped")
+        time.sleep(0.2)
+        assert ": done" in ask("release")
+        wait_until(lambda: arm.states[-1] == "ready", CMD_S, "released")
+        # A stop by the skewed client, then a release by the right one.
+        assert "stop: done" in ask("stop")
+        wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped")
+        time.sleep(0.2)
+        released = lane.execute(ins.Instruction(ins.Kind.RELEASE), CMD_S)
+        assert released.ok, released
+        # The skewed client's move, sent after that release, runs.
+        assert ": done" in ask(f"move base={10 + skew_s} time=300")
+    finally:
+        lane.close()
+        skewed.kill()
+        skewed.wait(10)
