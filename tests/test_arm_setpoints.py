@@ -54,7 +54,10 @@ def test_a_set_point_does_not_replace_other_moves(rig: Rig) -> None:
     point = driver.submit(ins.move(wrist=10), stream=STREAM)
     assert running.result(10).ok and queued.result(10).ok and point.result(10).ok
     assert len(rig.moves()) - before == 3
-    assert abs(rig.emu.servo_degrees()["wrist"] - 10) < 0.5
+    # Where the wrist comes to rest, not where it is when the outcome comes: the emulated
+    # servo runs on the wall clock, 0.56 degrees short of it once in a loaded CI run.
+    settled = rig.emu.servo_degrees(rig.emu.settle_time(0.01, ["wrist"]))["wrist"]
+    assert abs(settled - 10) < 0.5
 
 
 def test_a_set_point_where_the_arm_is_or_goes_writes_nothing(rig: Rig) -> None:
