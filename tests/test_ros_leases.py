@@ -75,6 +75,20 @@ def test_what_a_lost_client_sent_before_it_was_heard_again_is_stale() -> None:
     assert leases.stale("c", 16 * S + 5, 0, 16.0, 16 * S + 6) is None  # sent since: run
 
 
+def test_a_lost_clients_request_sent_since_the_link_came_back_runs_and_brings_it_back() -> None:
+    """After a cut the client hears the server (its joint states) before the server hears
+    its lease: its first request, on time, is a sign of it."""
+    leases = Leases(1.0)
+    leases.heard("c", 10 * S, 100, 10.0, 10 * S + 2_000_000)  # trips take 2 ms
+    assert leases.lapsed(11.5) == ["c"]
+    late = leases.stale("c", 10 * S + 500_000_000, 0, 16.0, 16 * S)  # sent into the cut
+    assert late is not None and "is lost" in late
+    assert leases.stale("c", 16 * S, 0, 16.0, 16 * S + 3_000_000) is None  # on time: back
+    assert leases.lapsed(16.5) == []
+    older = leases.stale("c", 15 * S, 0, 16.1, 16 * S + 4_000_000)  # sent before that one
+    assert older is not None and "out of contact" in older
+
+
 def test_a_client_with_no_lease_yet_is_judged_by_its_first_request_and_lost_without_one() -> None:
     leases = Leases(1.0)
     assert leases.stale("", 0, 100, 5.0, 60 * S) is None  # no client named: no lease

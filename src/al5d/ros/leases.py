@@ -15,8 +15,10 @@ keeps one `Lease` per client here:
   sending are put on the server's clock by it, so that stops and releases from clients
   whose clocks differ are ordered as they were sent (to within the quickest trip).
 - **Stale.** A request that took longer than its sender waits for it (`wait_ms`), or that
-  comes while its client is lost, or was sent before a lost client was heard again, is
-  stale: its sender has given up on it, and it never moves the arm.
+  comes late while its client is lost, or was sent before a lost client was heard again,
+  is stale: its sender has given up on it, and it never moves the arm. A request that
+  comes on time while its client is lost (sent since the link came back, before any of
+  its leases) is a sign of the client: it is back.
 
 Pure bookkeeping: no ROS, no thread, no clock of its own (each call says when it is).
 """
@@ -90,6 +92,10 @@ class Leases:
                 del self._leases[lease.key]
         return lost
 
+    def _on_time(self, lease: Lease, sent_ns: int, wall_ns: int) -> bool:
+        """A request that took at most half a lease longer than the quickest trip."""
+        return wall_ns - sent_ns - lease.offset_ns <= self.lease_s * 5e8
+
     def on_server_clock(self, key: str, sent_ns: int) -> int:
         """`sent_ns` of client `key`'s clock, on the server's (as it is, for an unknown client)."""
         lease = self._leases.get(key)
@@ -107,6 +113,10 @@ class Leases:
             if lease is None:
                 lease = self._leases[key] = Lease(key, t)
         if lease is not None:
+            if lease.lost and lease.gaps and self._on_time(lease, sent_ns, wall_ns):
+                # Sent since the link came back (it took no longer than a trip does): the
+                # client is back, though none of its leases has come yet.
+                lease.lost, lease.back_ns, lease.heard = False, sent_ns, t
             if lease.lost:
                 return (
                     f"its client {key} is lost (no lease heard for more than "
