@@ -22,7 +22,7 @@ from al5d.arm.config import ArmConfig
 from al5d.ros.names import Names
 from al5d.ssc32u.driver import SSC32U
 from al5d.twin.node import QOS_PICTURES, QOS_WORDS
-from al5d_rig.proc import Proc
+from al5d_rig.proc import PATIENT_ANSWER_S, Proc
 from al5d_rig.rospeer import Peer, wait_until
 
 HEAVY = {
@@ -68,7 +68,9 @@ def run_board(
     board = Proc(*args, *(["--physics", str(physics)] if physics else []))
     try:
         board.out.wait_for(str(link), START_S)
-        with SSC32U(str(link), 9600) as ssc:
+        # A board whose process also steps the physics and renders the camera: on a loaded
+        # host it once missed the default 0.05 s for both asks of `Q` (a CI run).
+        with SSC32U(str(link), 9600, read_timeout_s=PATIENT_ANSWER_S) as ssc:
             for targets, ms, wait in sequence(config):
                 ssc.move(targets, time_ms=ms or None)
                 time.sleep(wait if physics else 0.05)
