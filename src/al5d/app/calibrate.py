@@ -16,6 +16,7 @@ asked whether to write.
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
@@ -346,7 +347,7 @@ def calibrate_command(
         physical: PhysicalReader
         if client.lane is not None:
             physical = own = OwnPhysicalReader(client.names, config.model)
-            if client.lane.port.startswith("/dev/pts/"):
+            if os.path.realpath(client.lane.port).startswith("/dev/pts/"):
                 # An emulated board (a pseudo-terminal): its true angles come over ROS 2, to
                 # a reader whose discovery, on a loaded host, outlasts the first move.
                 physical.next(WITNESS_FIND_S)
