@@ -214,13 +214,18 @@ class Client:
     def _ros(self, names: Names) -> None:
         from al5d_interfaces.msg import ArmInstruction, ClientLease, InstructionResult
         from rclpy.node import Node
-        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState
         from std_srvs.srv import Trigger
 
         from al5d.ros.dds import start_context
         from al5d.ros.executors import Spinner
-        from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_LEASES, QOS_SERVICES, QOS_STREAM
+        from al5d.ros.qos import (
+            QOS_INSTRUCTIONS,
+            QOS_LATEST,
+            QOS_LEASES,
+            QOS_SERVICES,
+            QOS_STREAM,
+        )
 
         self.via = "ROS 2"
         self.context = start_context()
@@ -240,12 +245,7 @@ class Client:
         self._lease_pub = self.node.create_publisher(ClientLease, names.clients, QOS_LEASES)
         #: When the server was last heard (monotonic s; None: not yet).
         self._heard: float | None = None
-        latest = QoSProfile(
-            depth=1,
-            reliability=ReliabilityPolicy.BEST_EFFORT,
-            durability=DurabilityPolicy.VOLATILE,
-        )
-        self.node.create_subscription(JointState, names.joint_states, self._on_sign, latest)
+        self.node.create_subscription(JointState, names.joint_states, self._on_sign, QOS_LATEST)
         self._leasing = threading.Event()
         self._leaser = threading.Thread(target=self._lease, name="al5d-lease", daemon=True)
         self._leaser.start()

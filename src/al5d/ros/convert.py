@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 
@@ -122,6 +123,11 @@ def move_from_fields(
 def sent_ns(info: Mapping[str, int | None]) -> int | None:
     """When a message was sent (CLOCK_REALTIME ns), from the info rclpy hands a callback."""
     return info.get("source_timestamp")
+
+
+def came_ns(info: Mapping[str, int | None]) -> int:
+    """When a message came to this machine (CLOCK_REALTIME ns): its info's, else now."""
+    return info.get("received_timestamp") or time.time_ns()
 
 
 def stop_key(info: Mapping[str, int | None]) -> tuple[int | None, int | None]:

@@ -45,6 +45,7 @@ from al5d.ros import params
 from al5d.ros.actions import MoveAction
 from al5d.ros.controllers import FollowTrajectoryAction, GripperAction
 from al5d.ros.convert import (
+    came_ns,
     from_message,
     joint_command_from_message,
     outcome_message,
@@ -216,7 +217,7 @@ class ArmNode(Node):
     # -- inputs ---------------------------------------------------------------------
 
     def _on_lease(self, msg: ClientLease, info: dict[str, int]) -> None:
-        came = info.get("received_timestamp") or time.time_ns()
+        came = came_ns(info)
         with self._leases_lock:
             self.leases.heard(str(msg.client), msg.sent_ns, msg.every_ms, now(), came)
         if msg.every_ms == 0:  # closed: what it commanded goes on
@@ -244,7 +245,7 @@ class ArmNode(Node):
             self.results.put(Outcome(msg.id or new_id(), PING, Result.DONE))
             return
         sent = sent_ns(info)
-        came = info.get("received_timestamp") or time.time_ns()
+        came = came_ns(info)
         client = str(msg.client)
         stale = None
         if sent is not None and client:

@@ -31,6 +31,14 @@ def qos_watch(backlog: int) -> QoSProfile:
     )
 
 
+#: Samples that may be dropped (joint states, a pose): the latest is all a reader wants, a
+#: late one is replaced, never sent again.
+QOS_LATEST = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
 #: Results: reliable and deep; a reader more than 10,000 results behind loses the oldest,
 #: and never slows the server (KEEP_ALL here would let a stuck reader block it).
 QOS_STREAM = QoSProfile(

@@ -165,11 +165,10 @@ def follow_lane(remote: Any, view: ArmView) -> None:
 def follow_ros(node: Any, names: Any, prefix: str, view: ArmView) -> None:
     """`view` kept by the server's state and joint states topics, read by `node`
     (`names`: the server's `al5d.ros.names.Names`; `prefix`: its joints' prefix)."""
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import JointState
     from std_msgs.msg import String
 
-    from al5d.ros.qos import QOS_LATCHED
+    from al5d.ros.qos import QOS_LATCHED, QOS_LATEST
 
     def on_state(msg: String) -> None:
         state = str(msg.data)
@@ -183,10 +182,5 @@ def follow_ros(node: Any, names: Any, prefix: str, view: ArmView) -> None:
         }
         view.heard(joints=view.model.from_urdf(values))
 
-    latest = QoSProfile(
-        depth=1,
-        reliability=ReliabilityPolicy.BEST_EFFORT,
-        durability=DurabilityPolicy.VOLATILE,
-    )
     node.create_subscription(String, names.state, on_state, QOS_LATCHED)
-    node.create_subscription(JointState, names.joint_states, on_joints, latest)
+    node.create_subscription(JointState, names.joint_states, on_joints, QOS_LATEST)

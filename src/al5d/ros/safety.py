@@ -44,7 +44,7 @@ from std_srvs.srv import Trigger
 
 from al5d.arm.instruction import Instruction, Kind
 from al5d.owner.client import LaneClosed, Remote
-from al5d.ros.convert import from_message, sent_ns, stop_key, stop_time
+from al5d.ros.convert import came_ns, from_message, sent_ns, stop_key, stop_time
 from al5d.ros.names import SAFETY_NODE, STOP_NODE, Names, pinned
 from al5d.ros.qos import QOS_SERVICES, qos_watch
 from al5d.ros.workarounds import (
@@ -173,8 +173,7 @@ class StopNode(Node):
         if first_word(raw) != _STOP:
             return
         msg = deserialize_message(raw, ArmInstruction)
-        came = info.get("received_timestamp") or time.time_ns()
-        instr = from_message(msg, self.presets, self.model, stop_time(sent_ns(info), came))
+        instr = from_message(msg, self.presets, self.model, stop_time(sent_ns(info), came_ns(info)))
         if isinstance(instr, Instruction) and instr.kind is Kind.STOP:
             self.arm.submit(instr, key=stop_key(info))
 
