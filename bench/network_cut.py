@@ -1,5 +1,7 @@
 """The link cut mid-move, 20 times (`make soak`): how long after each cut the server halts
-what the lost client commanded, against `server.client_lease_s` + 0.5 s.
+what the lost client commanded, against `server.client_lease_s` + 0.5 s; then the link cut
+10 times under a browser on the laptop whose web view is beside the server: how long until
+the page says it lost contact, against 2 s.
 
 Two hosts (`al5d_rig.netrig`: network namespaces joined by a veth pair), the server on
 one, a Python client on the other sending 6 s moves; 1.5 s into each the link is cut.
@@ -15,14 +17,17 @@ import sys
 import time
 from datetime import datetime
 
-from al5d_rig import domains, netrig
+from al5d_rig import domains, netrig, webrig
 from al5d_rig.proc import AL5D, Lines, patient_config
 
 if "ROS_DOMAIN_ID" not in os.environ:
     os.environ["ROS_DOMAIN_ID"] = str(domains.claim())
 
 CUTS = int(os.environ.get("AL5D_CUTS", "20"))
+PAGE_CUTS = int(os.environ.get("AL5D_PAGE_CUTS", "10"))
 LEASE_S = 1.0
+#: The remote page's promise: it says it lost contact within this of a cut.
+PAGE_LOST_S = 2.0
 CMD_S = 60.0
 
 LAPTOP = """
@@ -70,6 +75,7 @@ def main() -> int:
                 halts.append(_clock(halted, cut) - cut)
                 hosts.mend()
                 print(f"cut {k + 1}: halt {halts[-1]:.3f} s, client told {told[-1]:.2f} s")
+            pages = _page_cuts(hosts)
         finally:
             laptop.kill()
             server.kill()
@@ -81,7 +87,43 @@ def main() -> int:
         f"{limit:g} s: {'held' if held else 'NOT held'}); the client said it lost contact "
         f"within {max(told):.2f} s of each cut"
     )
-    return 0 if held else 1
+    page_held = max(pages) <= PAGE_LOST_S
+    print(
+        f"{PAGE_CUTS} cuts under a remote browser: the page said it lost contact after "
+        f"p50 {statistics.median(pages):.2f} s, max {max(pages):.2f} s (target: "
+        f"{PAGE_LOST_S:g} s: {'held' if page_held else 'NOT held'})"
+    )
+    return 0 if held and page_held else 1
+
+
+def _page_cuts(hosts: netrig.Hosts) -> list[float]:
+    """`al5d web` on the arm's host, a browser on the laptop, the link cut PAGE_CUTS times:
+    how long after each cut the page said it lost contact."""
+    web = hosts.popen(hosts.arm, [AL5D, "web", "--host", netrig.ARM_IP, "--port", "0"])
+    assert web.stdout is not None
+    url = Lines(web.stdout).wait_for("al5d web: http", CMD_S).split(": ", 1)[1].strip()
+    browser = hosts.popen(hosts.laptop, [sys.executable, "-c", webrig.REMOTE_PAGE, url])
+    assert browser.stdout is not None and browser.stdin is not None
+    out = Lines(browser.stdout)
+    shown: list[float] = []
+    try:
+        out.wait_for("open", 120)
+        for k in range(PAGE_CUTS):
+            time.sleep(2.0)
+            hosts.cut()
+            cut = time.time()
+            browser.stdin.write("cut\n")
+            browser.stdin.flush()
+            shown.append(float(out.wait_for("lost ", CMD_S).split()[1]) - cut)
+            time.sleep(1.0)
+            hosts.mend()
+            out.wait_for("back ", 120)
+            print(f"page cut {k + 1}: the page said it lost contact after {shown[-1]:.2f} s")
+    finally:
+        hosts.mend()
+        browser.kill()
+        web.kill()
+    return shown
 
 
 def _clock(line: str, near: float) -> float:

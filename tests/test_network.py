@@ -15,7 +15,7 @@ from datetime import datetime
 import pytest
 
 from al5d import exits
-from al5d_rig import netrig
+from al5d_rig import netrig, webrig
 from al5d_rig.proc import AL5D, Lines, patient_config
 
 CMD_S = 60.0
@@ -128,6 +128,46 @@ def test_a_client_cut_off_mid_move_leaves_nothing_moving_and_its_stale_request_n
     print(f"the move sent into the cut, at the server: {about or 'never came'}")
     assert all("refused" in line and re.search("is lost|out of contact", line) for line in about)
     assert -55 < base < -5, base  # halted on its way to -60; never at 60
+
+
+def test_a_remote_browser_says_it_lost_contact_within_two_seconds_of_a_cut(
+    hosts: netrig.Hosts, server: Lines
+) -> None:
+    """The web view beside the server, the browser on the laptop: the link cut, the page
+    covers its controls and says so (its websocket says nothing: TCP waits minutes); the
+    link mended, the page is live again."""
+    web = hosts.popen(hosts.arm, [AL5D, "web", "--host", netrig.ARM_IP, "--port", "0"])
+    assert web.stdout is not None
+    url = said(Lines(web.stdout), "al5d web: http").split(": ", 1)[1].strip()
+    browser = hosts.popen(hosts.laptop, [sys.executable, "-c", webrig.REMOTE_PAGE, url])
+    assert browser.stdout is not None and browser.stdin is not None
+    out = Lines(browser.stdout)
+    try:
+        said(out, "open", 120)
+        time.sleep(1.0)
+        hosts.cut()
+        cut = time.time()
+        browser.stdin.write("cut\n")
+        browser.stdin.flush()
+        lost = said(out, "lost ").split()
+        text = said(out, "text ")
+        time.sleep(1.0)
+        hosts.mend()
+        mended = time.time()
+        back = float(said(out, "back ", 120).split()[1])
+    finally:
+        hosts.mend()
+        for proc in (browser, web):
+            proc.kill()
+            proc.wait(10)
+    shown = float(lost[1])
+    print(
+        f"the remote page said it lost contact {shown - cut:.2f} s after the cut, "
+        f"was live again {back - mended:.2f} s after the link was mended"
+    )
+    assert "No contact with the web view" in text, text
+    # The layer came once the pulses stopped, and not before the cut: the page was live.
+    assert 0 < shown - cut < 10, shown - cut
 
 
 def test_a_server_closed_to_the_network_is_said_to_be_so(hosts: netrig.Hosts) -> None:

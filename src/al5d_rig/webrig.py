@@ -94,6 +94,28 @@ class WebProc:
 PAGE_LOAD_S = 90.0
 
 
+#: A browser in a process of its own (on another host: `ip netns exec`), the page at
+#: argv[1]. It prints "open"; then for each line read (the link cut), "lost EPOCH_S" once
+#: the page says it lost contact (when it said so, by the page's clock), the page's words,
+#: and "back EPOCH_S" once it is live again.
+REMOTE_PAGE = """
+import sys, time
+from playwright.sync_api import sync_playwright
+from al5d_rig.webrig import launch, open_page
+with sync_playwright() as playwright:
+    browser = launch(playwright)
+    page = open_page(browser, sys.argv[1])
+    print("open", flush=True)
+    for _ in sys.stdin:
+        layer = page.wait_for_selector("#al5d-page-lost", timeout=60_000)
+        print("lost", int(layer.get_attribute("data-at")) / 1000, flush=True)
+        print("text", layer.inner_text().replace(chr(10), " "), flush=True)
+        page.wait_for_selector("#al5d-page-lost", state="detached", timeout=120_000)
+        print("back", time.time(), flush=True)
+    browser.close()
+"""
+
+
 def open_page(browser: Any, url: str, timeout_s: float = PAGE_LOAD_S) -> Any:
     """The page, once the arm's joint states have reached it (the tool readout is there)."""
     page = browser.new_page(viewport=VIEWPORT)

@@ -11,6 +11,7 @@ are only called under it.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import threading
@@ -25,7 +26,7 @@ from al5d.arm.instruction import Instruction, Outcome, Result, preset
 from al5d.model import JOINTS, ModelError
 from al5d.model.transforms import Transform
 from al5d.web.jog import Jog
-from al5d.web.panel import RELEASABLE, STATE_WORDS, Panel
+from al5d.web.panel import PULSE_S, RELEASABLE, STATE_WORDS, Panel
 from al5d.web.plan import JointHistory, OutcomeLog, Planner, Target
 from al5d.web.scene import ArmScene
 from al5d.web.sliders import SliderInput
@@ -406,11 +407,15 @@ class Page:
     # -- the page's loop -------------------------------------------------------------
 
     def _loop(self) -> None:
-        last_plot = last_readout = 0.0
+        last_plot = last_readout = last_beat = 0.0
+        beats = itertools.count(1)
         while self._running:
             time.sleep(LOOP_S)
             now = time.monotonic()
             with self._lock:
+                if now - last_beat >= PULSE_S:
+                    self.panel.beat(next(beats))
+                    last_beat = now
                 if self.last_joints_t is not None:
                     age = now - self.last_joints_t
                     if age > LOST_AFTER_S and (not self.lost or int(age) != int(age - LOOP_S)):
@@ -452,7 +457,12 @@ def lost_text(ended: bool, age_s: float | None) -> str:
     if ended:
         return (
             "The server has ended (it shut down, the arm parked). Start it again "
-            "(al5d serve) to go on. Controls are off; STOP still works."
+            "(al5d serve) to go on. Controls are off; STOP is still sent."
         )
     since = "never heard from it" if age_s is None else f"no joint states for {age_s:.0f} s"
-    return f"No contact with the server ({since}). Controls are off; STOP still works."
+    # Across a network the server may be running and the way to it cut: STOP is sent, but
+    # nothing here can say that it arrived.
+    return (
+        f"No contact with the server ({since}). Controls are off; STOP is still sent, "
+        "and stops the arm if it reaches the server."
+    )

@@ -134,6 +134,54 @@ def phone_style(stop_id: str) -> str:
     )
 
 
+#: The web view's pulse: the page's element changes this often while its server is heard.
+PULSE_S = 0.25
+#: No pulse for this long: the browser has lost its web view (a link cut, a hung process).
+#: Four pulses missed: at most PULSE_S + PAGE_LOST_S + 0.1 s (the check's period) from a
+#: cut to the page saying so, within the 2 s promised.
+PAGE_LOST_S = 1.0
+#: The page's own watchdog. A browser learns nothing of a cut link from its websocket (TCP
+#: waits minutes before it gives up), so the page watches the pulse: once it stops, a layer
+#: over everything but STOP says so and takes the clicks (a click on a stalled socket would
+#: reach the arm whenever the link came back). STOP's window stays above it: a STOP sent
+#: late still stops the arm, and nothing else can be.
+PAGE_WATCH_JS = f"""if (!window.al5dWatch) {{ window.al5dWatch = true;
+  let seen = null, at = performance.now();
+  setInterval(() => {{
+    const pulse = document.getElementById("al5d-pulse");
+    const beat = pulse ? pulse.dataset.n : null;
+    const now = performance.now();
+    if (beat !== seen) {{ seen = beat; at = now; }}
+    const age = (now - at) / 1000;
+    let layer = document.getElementById("al5d-page-lost");
+    if (age <= {PAGE_LOST_S}) {{ if (layer) layer.remove(); return; }}
+    if (!layer) {{
+      layer = document.createElement("div");
+      layer.id = "al5d-page-lost";
+      layer.setAttribute("role", "alert");
+      layer.dataset.at = String(Date.now());  // when the page said it (epoch ms)
+      layer.style.cssText = "position:fixed;inset:0;z-index:250;background:rgba(73,80,87,.45);"
+        + "display:flex;align-items:flex-start;justify-content:center;padding-top:12vh";
+      const text = document.createElement("div");
+      text.style.cssText = "background:#c92a2a;color:#fff;padding:.8em 1.2em;font-weight:700;"
+        + "border-radius:6px;max-width:32em;font-family:sans-serif";
+      layer.appendChild(text);
+      document.body.appendChild(layer);
+    }}
+    layer.firstChild.textContent = `No contact with the web view for ${{Math.floor(age)}} s: `
+      + "what this page shows is old and its controls are off. STOP is still sent; it "
+      + "stops the arm if it reaches the web view.";
+  }}, 100);
+}}"""
+
+
+def pulse_html(beat: int) -> str:
+    """The element the page's watchdog watches (`PAGE_WATCH_JS`), at beat `beat`; it carries
+    the watchdog's script."""
+    script = html.escape(PAGE_WATCH_JS, quote=True)
+    return f'<img id="al5d-pulse" data-n="{beat}" alt="" hidden src="{PIXEL}" onload="{script}">'
+
+
 #: The page's words for the server's states where the server's are not plain English.
 STATE_WORDS = {"shutting_down": "shutting down", "ended": "server ended"}
 
@@ -196,6 +244,8 @@ class Panel:
             )
             gui.add_html(phone_style(self.stop._impl.uuid))
             gui.add_html(names_html())
+            #: In STOP's window: always drawn, whatever tab or section the panel shows.
+            self.pulse = gui.add_html(pulse_html(0))
         self.stop_window.float(x=STOP_MARGIN_PX, y=-STOP_MARGIN_PX, width=STOP_WIDTH_PX)
         self.stop_window.expand()  # a phone's sheet draws it as a section, collapsed
         self.state_html = gui.add_html(state_html("unknown"))
@@ -293,6 +343,10 @@ class Panel:
         # Nothing to release in any other state: a button there would only be refused.
         self.release.visible = state in RELEASABLE
         return True
+
+    def beat(self, beat: int) -> None:
+        """The pulse the page's watchdog waits for."""
+        self.pulse.content = pulse_html(beat)
 
     def show_lost(self, text: str | None) -> None:
         """The red banner with `text`, or none."""
