@@ -210,6 +210,8 @@ bench: install
 soak: install
 	$(BIN)/python bench/soak.py
 	$(BIN)/python bench/network_cut.py
+	$(BIN)/python bench/network_faults.py
+	$(BIN)/python bench/network_restart.py
 	$(BIN)/python bench/busy_host.py
 	AL5D_FUZZ_SCALE=10 $(BIN)/python -m pytest -q -p no:cacheprovider -o timeout=1800 \
 	  tests/test_fuzz_text.py tests/test_fuzz_ros.py tests/test_arm_model.py tests/test_ros_sequences.py

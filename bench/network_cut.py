@@ -15,9 +15,8 @@ import os
 import statistics
 import sys
 import time
-from datetime import datetime
 
-from al5d_rig import domains, netrig, webrig
+from al5d_rig import domains, netfaults, netrig, webrig
 from al5d_rig.proc import AL5D, Lines, patient_config
 
 if "ROS_DOMAIN_ID" not in os.environ:
@@ -72,7 +71,7 @@ def main() -> int:
                 halted = log.wait_for(": halted", CMD_S)
                 out.wait_for("lost", CMD_S)
                 told.append(time.time() - cut)
-                halts.append(_clock(halted, cut) - cut)
+                halts.append(netfaults.log_clock(halted, cut) - cut)
                 hosts.mend()
                 print(f"cut {k + 1}: halt {halts[-1]:.3f} s, client told {told[-1]:.2f} s")
             pages = _page_cuts(hosts)
@@ -124,11 +123,6 @@ def _page_cuts(hosts: netrig.Hosts) -> list[float]:
         browser.kill()
         web.kill()
     return shown
-
-
-def _clock(line: str, near: float) -> float:
-    at = datetime.strptime(line.split()[0], "%H:%M:%S.%f").time()
-    return datetime.combine(datetime.fromtimestamp(near).date(), at).timestamp()
 
 
 if __name__ == "__main__":

@@ -10,12 +10,11 @@ import re
 import sys
 import time
 from collections.abc import Iterator
-from datetime import datetime
 
 import pytest
 
 from al5d import exits
-from al5d_rig import netrig, webrig
+from al5d_rig import netfaults, netrig, webrig
 from al5d_rig.proc import AL5D, Lines, patient_config
 
 CMD_S = 60.0
@@ -23,11 +22,7 @@ CMD_S = 60.0
 
 @pytest.fixture(scope="module")
 def hosts() -> Iterator[netrig.Hosts]:
-    why = netrig.unavailable()
-    if why is not None:
-        if os.environ.get("CI"):
-            pytest.fail(f"the network tests cannot run here: {why}")
-        pytest.skip(f"the network tests cannot run here: {why}")
+    netrig.need()
     with netrig.Hosts() as h:
         yield h
 
@@ -81,12 +76,6 @@ def said(lines: Lines, text: str, timeout: float = CMD_S) -> str:
         assert time.monotonic() < deadline, f"no line with {text!r}: {lines.all[-20:]}"
 
 
-def clock(line: str, near: float) -> float:
-    """The time (epoch s) of a server's log line `HH:MM:SS.mmm ...` of the day of `near`."""
-    at = datetime.strptime(line.split()[0], "%H:%M:%S.%f").time()
-    return datetime.combine(datetime.fromtimestamp(near).date(), at).timestamp()
-
-
 def test_a_client_cut_off_mid_move_leaves_nothing_moving_and_its_stale_request_never_runs(
     hosts: netrig.Hosts, server: Lines
 ) -> None:
@@ -116,7 +105,8 @@ def test_a_client_cut_off_mid_move_leaves_nothing_moving_and_its_stale_request_n
     # The server halted the move where the arm was, with the reason.
     halted = said(server, ": halted")
     assert "lost contact with the client" in halted, halted
-    print(f"the server took the client for lost {clock(lost, cut) - cut:.2f} s after the cut")
+    lost_s = netfaults.log_clock(lost, cut) - cut
+    print(f"the server took the client for lost {lost_s:.2f} s after the cut")
     # The move sent into the cut, if DDS delivers it once the link is back (its writer
     # keeps it), is refused as stale: it never runs. (Here Fast DDS has not delivered it
     # within the seconds after the link was back; the stale rule is the same as
@@ -168,6 +158,24 @@ def test_a_remote_browser_says_it_lost_contact_within_two_seconds_of_a_cut(
     assert "No contact with the web view" in text, text
     # The layer came once the pulses stopped, and not before the cut: the page was live.
     assert 0 < shown - cut < 10, shown - cut
+
+
+@pytest.mark.timeout(600)
+def test_a_client_from_before_a_restart_has_its_stop_obeyed_or_says_it_was_not(
+    hosts: netrig.Hosts, server: Lines
+) -> None:
+    """Three restarts of a server of its own (ten in `make soak`) under a client on the
+    laptop made before the first, sending moves all along: a stop asked of each new server
+    is obeyed within 1 s, or the client says it had no answer."""
+    domain = str(int(os.environ["ROS_DOMAIN_ID"]) + 2)  # apart from the module's server
+    os.environ["ROS_DOMAIN_ID"], before = domain, os.environ["ROS_DOMAIN_ID"]
+    try:
+        done = netfaults.restarts(hosts, 3, seed=3)
+    finally:
+        os.environ["ROS_DOMAIN_ID"] = before
+    print([(r.said, r.obeyed_s) for r in done])
+    assert len(done) == 3
+    assert netfaults.restart_problems(done) == []
 
 
 def test_a_server_closed_to_the_network_is_said_to_be_so(hosts: netrig.Hosts) -> None:

@@ -154,7 +154,11 @@ def test_stop_and_release_go_by_the_services_and_lock_the_arm_between(
     assert ended_normally(done) and done.returncode == 0, done.stderr
     stop, locked, release, free, again = done.stdout.splitlines()
     # The answers are the services' own (the server's message for a stop it obeyed).
-    assert stop == "stop|True|True|/al5d/stop|stop: done"
+    # The stop's answer is its service's or, had it come first, its topic copy's outcome.
+    assert stop in (
+        "stop|True|True|/al5d/stop|stop: done",
+        "stop|True|False|/al5d/instruction|stop: done",
+    )
     assert locked.startswith("move [")
     assert locked.endswith("refused: the arm is stopped (emergency stop): send release first")
     assert release == "release|True|True|/al5d/release|release: done"
@@ -164,17 +168,22 @@ def test_stop_and_release_go_by_the_services_and_lock_the_arm_between(
     )
     wait_until(lambda: arm.stops() > before, STATE_S, "the board stopped")
     wait_until(lambda: "stopped" in arm.states[seen:], STATE_S, "the state stopped")
-    # The stop and the releases did not go on the topic (the answers above say by which
-    # service each went). This test's reader may miss the script's moves: its client need
-    # not have heard of this reader yet when it sends (seen once beside two busy loops);
-    # the client's handshake (pings) is on the topic too.
-    assert set(topic_words) <= {"move", PING}, topic_words
+    # The releases did not go on the topic (the answers above say by which service each
+    # went); the stop goes there too, beside its service (a copy the stop watcher obeys
+    # whatever a lossy link lost before it: docs/ros.md). This test's reader may miss the
+    # script's moves: its client need not have heard of this reader yet when it sends
+    # (seen once beside two busy loops); the client's handshake (pings) is on the topic too.
+    assert set(topic_words) <= {"move", PING, "stop"}, topic_words
 
 
 def test_al5d_send_stops_and_releases_by_the_services(arm: Served) -> None:
     stop = Proc("send", "--via", "ros", "stop")
     assert stop.wait(SCRIPT_S) == 0, stop.err.drain()
-    assert stop.out.drain() == ["stop: done (by /al5d/stop)"]
+    # By whichever answered first: the service, or the stop's copy on the topic.
+    assert stop.out.drain() in (
+        ["stop: done (by /al5d/stop)"],
+        ["stop: done (by /al5d/instruction)"],
+    )
     locked = Proc("send", "--via", "ros", "move", "base=5")
     assert locked.wait(SCRIPT_S) == 1
     assert any("refused: the arm is stopped" in line for line in locked.out.drain())

@@ -32,8 +32,10 @@ among its modules run as `python -m al5d_rig.NAME`. It sits above every subpacka
   the test's own.
 - `fuzzcount`: how many cases each fuzz suite ran.
 - `host`: how short of cores the host was over a stretch of a test (its timing excused).
-- `netrig`: two hosts (network namespaces joined by a veth pair) and their link, cut and
-  mended.
+- `netrig`: two hosts (network namespaces joined by a veth pair, or by `cable`) and their
+  link, cut and mended; `cable`: a link that delays and loses frames (a process: `python
+  -m al5d_rig.cable`), where the kernel has no netem; `netfaults`: random faults on it
+  under a client, server restarts, and the promises checked.
 
 The pytest fixtures stay in tests/conftest.py, not here as a plugin: they claim the run's
 ROS domain when pytest loads them, which only the test suite must do (a benchmark

@@ -1,13 +1,15 @@
 """Two hosts on a network for the tests: the arm's computer and a laptop, each a network
-namespace, joined by a veth pair; the link cut and mended with `ip link`.
+namespace, joined by a veth pair, or by a cable that delays and loses frames
+(`al5d_rig.cable`); the link cut and mended with `ip link`.
 
 Each host has a lane folder of its own (`AL5D_RUNTIME_DIR`), so that a client on the laptop
 cannot reach the server's local lane through the shared file system: it goes over the
 network, by ROS 2, as on two machines. DDS is opened to the network on both
 (`ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET`, docs/ros.md).
 
-Delay and loss (`tc netem`) are not here: this machine's kernel has no netem ("Error:
-Specified qdisc kind is unknown." for `tc qdisc add dev X root netem delay 10ms`).
+Delay and loss come from the cable rather than `tc netem`: this machine's kernel has no
+netem ("Error: Specified qdisc kind is unknown." for `tc qdisc add dev X root netem delay
+10ms`).
 """
 
 from __future__ import annotations
@@ -15,12 +17,13 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 from pathlib import Path
 from types import TracebackType
 
 from al5d.ros.dds import OURS_VAR, PROFILES_VAR
-from al5d_rig.proc import dies_with_parent
+from al5d_rig.proc import Lines, dies_with_parent
 
 #: The two hosts' addresses on their link.
 ARM_IP = "10.231.0.1"
@@ -41,22 +44,52 @@ def unavailable() -> str | None:
     return None
 
 
-class Hosts:
-    """The arm's host and the laptop, joined by one link, for as long as the `with` block."""
+def need() -> None:
+    """Skips the calling test where hosts cannot be made, saying why; fails it instead in CI
+    (which runs as root): the network tests never go quietly unrun there."""
+    why = unavailable()
+    if why is None:
+        return
+    import pytest
 
-    def __init__(self, tag: str | None = None) -> None:
+    message = f"the network tests cannot run here: {why}"
+    if os.environ.get("CI"):
+        pytest.fail(message)
+    pytest.skip(message)
+
+
+class Hosts:
+    """The arm's host and the laptop, joined by one link, for as long as the `with` block.
+
+    `cable`: the link is `al5d_rig.cable`'s (delay and loss set by `impair`), not a veth
+    pair."""
+
+    def __init__(self, tag: str | None = None, cable: bool = False) -> None:
         tag = tag or f"{os.getpid() % 100_000}"
         self.arm = f"al5d-arm-{tag}"
         self.laptop = f"al5d-lap-{tag}"
         self._veth = (f"a5a{tag}"[:15], f"a5l{tag}"[:15])
         self._dirs = {h: Path(tempfile.mkdtemp(prefix=f"{h}-")) for h in (self.arm, self.laptop)}
+        self._cable_wanted = cable
+        self._cable: subprocess.Popen[str] | None = None
 
     def __enter__(self) -> Hosts:
         a, b = self._veth
         for ns in (self.arm, self.laptop):
             _ip("netns", "add", ns)
         try:
-            _ip("link", "add", a, "type", "veth", "peer", "name", b)
+            if self._cable_wanted:
+                self._cable = subprocess.Popen(
+                    [sys.executable, "-m", "al5d_rig.cable", a, b],
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                    text=True,
+                    preexec_fn=dies_with_parent,
+                )
+                assert self._cable.stdout is not None
+                Lines(self._cable.stdout).wait_for("ready", 30)
+            else:
+                _ip("link", "add", a, "type", "veth", "peer", "name", b)
             _ip("link", "set", a, "netns", self.arm)
             _ip("link", "set", b, "netns", self.laptop)
             for ns, dev, addr in ((self.arm, a, ARM_IP), (self.laptop, b, LAPTOP_IP)):
@@ -74,6 +107,10 @@ class Hosts:
         self.close()
 
     def close(self) -> None:
+        if self._cable is not None:
+            self._cable.kill()
+            self._cable.wait(10)
+            self._cable = None
         for ns in (self.arm, self.laptop):  # the veth pair goes with its namespaces
             subprocess.run(["ip", "netns", "del", ns], capture_output=True)
         for d in self._dirs.values():
@@ -108,6 +145,14 @@ class Hosts:
 
     def mend(self) -> None:
         _ip("-n", self.laptop, "link", "set", self._veth[1], "up")
+
+    def impair(self, delay_ms: float = 0.0, loss_percent: float = 0.0) -> None:
+        """Each frame, both ways, lost with `loss_percent` and the others `delay_ms` late
+        (from now on; frames in flight keep their delay). Needs `cable`."""
+        if self._cable is None or self._cable.stdin is None:
+            raise RuntimeError("impair needs Hosts(cable=True)")
+        self._cable.stdin.write(f"delay {delay_ms:g}\nloss {loss_percent:g}\n")
+        self._cable.stdin.flush()
 
 
 def _ip(*args: str) -> None:
