@@ -396,7 +396,7 @@ def test_a_joint_trajectory_runs_its_points_in_order_as_one_instruction(
     short = Shortage()
     trajectories.publish(trajectory("t-good", *points))
     result = peer.result("t-good")  # one outcome, under the header's frame_id
-    assert (result.outcome, result.instruction) == ("done", "trajectory")
+    assert (result.outcome, result.instruction) == ("done", "trajectory"), result.reason
     moves = group_moves(server.emu.records)[before:]
     records = [r for r in server.emu.records if r.raw.startswith(b"#")][before:]
     assert len(moves) == len(records) == len(points) and moves[0].time_ms == 500
