@@ -135,7 +135,7 @@ def test_a_script_that_never_closes_its_client_exits_0(arm: Served, tmp_path: Pa
     assert done.stdout.startswith("ready [") and ": done" in done.stdout, done.stdout
 
 
-def test_stop_and_release_go_by_the_services_and_lock_the_arm_between(
+def test_stop_by_its_service_and_topic_release_by_the_topic_lock_the_arm_between(
     arm: Served, topic_words: list[str], tmp_path: Path
 ) -> None:
     before, seen = arm.stops(), len(arm.states)
@@ -153,30 +153,30 @@ def test_stop_and_release_go_by_the_services_and_lock_the_arm_between(
     )
     assert ended_normally(done) and done.returncode == 0, done.stderr
     stop, locked, release, free, again = done.stdout.splitlines()
-    # The answers are the services' own (the server's message for a stop it obeyed).
-    # The stop's answer is its service's or, had it come first, its topic copy's outcome.
+    # The stop's answer is its service's or, had it come first, its topic copy's outcome;
+    # a release goes on the topic with the client's lease (judged on the server's clock).
     assert stop in (
         "stop|True|True|/al5d/stop|stop: done",
         "stop|True|False|/al5d/instruction|stop: done",
     )
     assert locked.startswith("move [")
     assert locked.endswith("refused: the arm is stopped (emergency stop): send release first")
-    assert release == "release|True|True|/al5d/release|release: done"
+    assert release == "release|True|False|/al5d/instruction|release: done"
     assert free.startswith("move [") and ": done (" in free
     assert again == (
-        "release|False|True|/al5d/release|the arm is not stopped (state ready): nothing to release"
+        "release|False|False|/al5d/instruction|"
+        "the arm is not stopped (state ready): nothing to release"
     )
     wait_until(lambda: arm.stops() > before, STATE_S, "the board stopped")
     wait_until(lambda: "stopped" in arm.states[seen:], STATE_S, "the state stopped")
-    # The releases did not go on the topic (the answers above say by which service each
-    # went); the stop goes there too, beside its service (a copy the stop watcher obeys
+    # The stop goes on the topic too, beside its service (a copy the stop watcher obeys
     # whatever a lossy link lost before it: docs/ros.md). This test's reader may miss the
-    # script's moves: its client need not have heard of this reader yet when it sends
+    # script's words: its client need not have heard of this reader yet when it sends
     # (seen once beside two busy loops); the client's handshake (pings) is on the topic too.
-    assert set(topic_words) <= {"move", PING, "stop"}, topic_words
+    assert set(topic_words) <= {"move", PING, "stop", "release"}, topic_words
 
 
-def test_al5d_send_stops_and_releases_by_the_services(arm: Served) -> None:
+def test_al5d_send_stops_and_releases_and_says_by_what(arm: Served) -> None:
     stop = Proc("send", "--via", "ros", "stop")
     assert stop.wait(SCRIPT_S) == 0, stop.err.drain()
     # By whichever answered first: the service, or the stop's copy on the topic.
@@ -189,7 +189,8 @@ def test_al5d_send_stops_and_releases_by_the_services(arm: Served) -> None:
     assert any("refused: the arm is stopped" in line for line in locked.out.drain())
     release = Proc("send", "--via", "ros", "release")
     assert release.wait(SCRIPT_S) == 0, release.err.drain()
-    assert release.out.drain() == ["release: done (by /al5d/release)"]
+    # On the topic, with the client's lease: judged on the server's clock (docs/ros.md).
+    assert release.out.drain() == ["release: done (by /al5d/instruction)"]
     twice = Proc("send", "--via", "ros", "release")
     assert twice.wait(SCRIPT_S) == 1
     assert any("refused: the arm is not stopped" in line for line in twice.out.drain())

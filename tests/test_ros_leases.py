@@ -196,8 +196,8 @@ for line in sys.stdin:
     word = line.strip()
     if word == "stop":
         print("stop:", c.stop(), flush=True)
-    elif word == "release":  # on the topic, with its lease: the service takes no lease
-        print("release:", c.execute("release", timeout=60), flush=True)
+    elif word == "release":  # on the topic, with its lease (Client.release)
+        print("release:", c.release(), flush=True)
     else:
         print("move:", c.execute(word, timeout=60), flush=True)
 c.close()
@@ -209,7 +209,8 @@ def test_a_client_whose_clock_is_seconds_off_is_judged_on_the_servers_clock(
     arm: Served, skew_s: int
 ) -> None:
     """A client on a machine whose clock is 5 s behind or ahead (libfaketime): a stop and a
-    release, each by it (the stop by the service, the release on the topic) or by a client
+    release, each by it (the stop by the service and the topic, the release on the topic,
+    as `Client.stop` and `Client.release` send them) or by a client
     whose clock is right, are taken in the order they were sent, and its move sent after
     the release runs."""
     assert FAKETIME_LIB.exists(), "libfaketime: `make faketime` installs it"

@@ -2,8 +2,9 @@
 `al5d.ros.client.Client` (a local server by its lane, any other over ROS 2), and how they
 report.
 
-`al5d send` sends one instruction and waits for its outcome (a stop or a release
-goes by the server's service). `al5d run` runs a sequence file: each instruction
+`al5d send` sends one instruction and waits for its outcome (a stop goes by the
+server's service and its topic; over ROS 2 a release goes on the topic, with the
+client's lease: `Client.release`). `al5d run` runs a sequence file: each instruction
 waits for its outcome before the next line, unless the line ends with `&` (then
 the client goes on at once, so that, say, a `stop` can land in the middle of a
 move); `wait <ms>` pauses. `al5d shell` reads instructions a line at a time and
@@ -131,7 +132,7 @@ def interrupted(client: Client, report: Report, sent: list[Instruction]) -> int:
 
 
 def _by_service(client: Client, instr: Instruction, timeout: float) -> Answer:
-    """A stop or a release, by the server's service."""
+    """A stop or a release, as `Client.stop` and `Client.release` send them."""
     call = client.stop if instr.kind is Kind.STOP else client.release
     return call(timeout)
 
@@ -147,8 +148,8 @@ def send(
     verbose: bool = False,
     via: str = "auto",
 ) -> int:
-    """Send one instruction and print its outcome; a stop or a release by the server's
-    service (the topic only if the service is not there), printed with what carried it."""
+    """Send one instruction and print its outcome; a stop or a release as `Client.stop`
+    and `Client.release` send them, printed with what carried it."""
     try:
         instr = parse_instruction(text, PRESET_NAMES)
     except GrammarError as e:
@@ -331,7 +332,7 @@ def shell(
     `pose <name>` of the file `poses`, by default `poses.yaml` here if there) and run each
     over one connection kept throughout: the server is discovered once.
 
-    A stop or a release goes by the server's service, as with `al5d send`. A bad line is
+    A stop or a release goes as with `al5d send`. A bad line is
     said and skipped. Ctrl-C while an instruction runs is the emergency stop. The exit
     code at the end: no server; else bad input if a line was bad; else whether every
     instruction was done.

@@ -81,13 +81,10 @@ SERVICE_GRACE_S = 5.0
 #: on a loaded machine can befall a new client's first call. A second stop is harmless; a
 #: second release could undo a stop sent in between, so a release is never sent twice.
 STOP_RETRY_S = 1.0
-#: A stop's copy on the instruction topic is sent again this often until the stop is
-#: answered (`Client._stop`).
-STOP_COPY_EVERY_S = 0.25
-#: A release waits at most this long for the stop's copies to be acknowledged (a lost copy
-#: is sent again at the writer's next heartbeat, 3 s on): a reader that will never
-#: acknowledge (a server gone, not yet unmatched) must not cost the release its timeout.
-COPIES_ACKED_S = 4.0
+#: A release waits at most this long for the answers of its client's stops still on their
+#: way (`Client._in_flight`): a lost request is sent again at the writer's next heartbeat,
+#: 3 s on; a server gone never answers, and must not cost the release its timeout.
+STOPS_ANSWERED_S = 4.0
 #: A release or a shutdown waits this long after its service is found: see `STOP_RETRY_S`.
 SERVICE_SETTLE_S = 0.5
 #: The defaults of `al5d send` and `al5d run`: finding the server, and an outcome.
@@ -269,8 +266,6 @@ class Client:
         #: Stop requests sent again (`STOP_RETRY_S`) whose answers have not come: each is a
         #: stop the server may still obey. A release waits for them (`_in_flight`).
         self._stops_in_flight: list[Any] = []
-        #: Stop copies were published since a release last waited for them (`_in_flight`).
-        self._copies_out = False
         # rclpy's Python executor: its events executor is now and then told of one message
         # too few, and the last one waits for the next; here that would be an outcome, or a
         # service's answer, waited for until the timeout (and the test peer's spin thread
@@ -589,8 +584,8 @@ class Client:
         return self._trigger(Kind.STOP, timeout)
 
     def release(self, timeout: float = ANSWER_S) -> Answer:
-        """Unlock the arm after a stop, by the server's release service, once this client's
-        stops have reached the server (`_in_flight`)."""
+        """Unlock the arm after a stop: over ROS 2 on the instruction topic, with this
+        client's lease (`_release`); on the local lane, by it."""
         return self._trigger(Kind.RELEASE, timeout)
 
     def shutdown(self, timeout: float = ANSWER_S) -> Answer:
@@ -604,6 +599,8 @@ class Client:
         self._check_open()
         if self.lane is not None:
             return self._by_lane(kind, timeout)
+        if kind is Kind.RELEASE:
+            return self._release(timeout)
         name, service = self._services[kind]
         if not self._find_service(kind, name, service):
             log.warning(
@@ -630,14 +627,27 @@ class Client:
             )
         return Answer(kind.value, bool(response.success), str(response.message), name)
 
+    def _release(self, timeout: float) -> Answer:
+        """The release on the instruction topic, with this client's lease, once its stops
+        have reached the server (`_in_flight`). Not by the release service: a service
+        request names no client, so the server could only take its time of sending on
+        this machine's clock, seconds off on another machine; a request on the topic
+        names its client, whose clock the server knows from its leases
+        (`al5d.ros.leases`), and comes after this client's stops on the topic, in order."""
+        deadline = Deadline(timeout)
+        self._in_flight(deadline)
+        outcome = self.execute(Instruction(Kind.RELEASE), deadline.left())
+        message = outcome.reason or f"release: {outcome.result.value}"
+        return Answer("release", outcome.ok, message, self.names.instruction, False)
+
     def _stop(self, name: str, service: Any, timeout: float) -> Answer:
-        """The stop by its service and, beside it, on the instruction topic, each sent again
-        until one is answered (the service every `STOP_RETRY_S`, the topic every
-        `STOP_COPY_EVERY_S`). On a lossy link a reliable writer's lost sample is sent again
-        only at its next heartbeat (Fast DDS: every 3 s; measured: stops obeyed 3.5 and 6.0
-        s late at 13 to 17 % loss), and what the writer sent after it waits behind it. The
-        stop watcher reads the topic best effort: each copy that gets through is obeyed at
-        once, whatever was lost before it."""
+        """The stop by its service and, beside it, on the instruction topic, both sent again
+        every `STOP_RETRY_S` until one is answered (not more often: a copy still on its way
+        when another client releases the arm would lock it again). On a lossy link a
+        reliable writer's lost sample is sent again only at its next heartbeat (Fast DDS:
+        every 3 s; measured: stops obeyed 3.5 and 6.0 s late at 13 to 17 % loss), and what
+        the writer sent after it waits behind it. The stop watcher reads the topic best
+        effort: each copy that gets through is obeyed at once, whatever was lost before."""
         from std_srvs.srv import Trigger
 
         from al5d.ros.convert import to_message
@@ -652,14 +662,11 @@ class Client:
             told.append(outcome)
             answered.set()
 
-        next_call = 0.0
         try:
             while True:
-                if time.monotonic() >= next_call:
-                    future = service.call_async(Trigger.Request())
-                    future.add_done_callback(lambda _: answered.set())
-                    futures.append(future)
-                    next_call = time.monotonic() + STOP_RETRY_S
+                future = service.call_async(Trigger.Request())
+                future.add_done_callback(lambda _: answered.set())
+                futures.append(future)
                 copy = Instruction(Kind.STOP)
                 msg = to_message(copy)
                 msg.client = self.key  # no deadline: a stop is obeyed however late
@@ -668,8 +675,7 @@ class Client:
                 with self._cv:
                     self._sent.add(copy.id)
                 self.pub.publish(msg)
-                self._copies_out = True
-                if answered.wait(min(STOP_COPY_EVERY_S, deadline.left())) or deadline.expired:
+                if answered.wait(min(STOP_RETRY_S, deadline.left())) or deadline.expired:
                     break
         finally:
             for future in futures:
@@ -747,22 +753,14 @@ class Client:
         On a slow or lossy link a stop asked again arrives after the first is answered:
         were the release sent at once, that stop, sent before it, would lock the arm again
         behind it, with nobody to release it. Answered, it is obeyed before the release."""
-        from rclpy.duration import Duration
-
-        # The stop's copies on the topic: a reliable reader (the node's) gets them in order,
-        # and may get one the watcher lost, late: it must have them before the release.
-        if self._copies_out:
-            self._copies_out = False  # waited for once: a reader that never acks costs once
-            with contextlib.suppress(Exception):
-                wait = min(deadline.left(), COPIES_ACKED_S)
-                self.pub.wait_for_all_acked(Duration(seconds=wait))
         stop_service = self._services[Kind.STOP][1]
-        while self._stops_in_flight and not deadline.expired:
+        until = Deadline(min(deadline.left(), STOPS_ANSWERED_S))
+        while self._stops_in_flight and not until.expired:
             if self._stops_in_flight[0].done():
                 self._stops_in_flight.pop(0)
             else:
                 time.sleep(0.02)
-        for future in self._stops_in_flight:  # lost with the server, or past the deadline
+        for future in self._stops_in_flight:  # lost with its server, or too late
             stop_service.remove_pending_request(future)
         self._stops_in_flight.clear()
 
