@@ -254,12 +254,18 @@ def check(report: Report) -> list[str]:
                     f"it was done at {t:.2f} (the fault began at {began})"
                 )
     for asked, _, how in report.stops:
-        stopped = [t for s, t in report.states if s == "stopped" and t >= asked - 0.05]
-        if how != "ok" and not stopped:
+        obeyed = _obeyed_after(report, asked)
+        if how != "ok" and obeyed is None:
             problems.append(f"a stop asked at {asked:.2f} was not obeyed ({how})")
-        elif not stopped or stopped[0] - asked > STOP_OBEYED_S:
-            problems.append(f"a stop asked at {asked:.2f}: STOPPED {stopped[:1]}")
+        elif obeyed is None or obeyed > STOP_OBEYED_S:
+            problems.append(f"a stop asked at {asked:.2f}: STOPPED after {obeyed} s")
     return problems
+
+
+def _obeyed_after(report: Report, asked: float) -> float | None:
+    """How long after `asked` the server's state first said STOPPED (None: never)."""
+    stopped = [t for s, t in report.states if s == "stopped" and t >= asked - 0.05]
+    return stopped[0] - asked if stopped else None
 
 
 def _fault_before(faults: list[Fault], t: float) -> float | None:
@@ -271,11 +277,8 @@ def _fault_before(faults: list[Fault], t: float) -> float | None:
 def figures(report: Report) -> str:
     """The run in a few numbers."""
     results = Counter(r for r, _ in report.results.values())
-    obeyed = []
-    for asked, _, _ in report.stops:
-        stopped = [t for s, t in report.states if s == "stopped" and t >= asked - 0.05]
-        if stopped:
-            obeyed.append(stopped[0] - asked)
+    after = (_obeyed_after(report, asked) for asked, _, _ in report.stops)
+    obeyed = [s for s in after if s is not None]
     kinds = Counter(f.kind for f in report.faults)
     reasons = Counter(why[:60] for _, result, _, why in report.outcomes if result == "refused")
     return (

@@ -131,7 +131,7 @@ def interrupted(client: Client, report: Report, sent: list[Instruction]) -> int:
     return exits.INTERRUPTED
 
 
-def _by_service(client: Client, instr: Instruction, timeout: float) -> Answer:
+def _stop_or_release(client: Client, instr: Instruction, timeout: float) -> Answer:
     """A stop or a release, as `Client.stop` and `Client.release` send them."""
     call = client.stop if instr.kind is Kind.STOP else client.release
     return call(timeout)
@@ -165,7 +165,7 @@ def send(
     report = Report(out)
     try:
         if instr.kind in (Kind.STOP, Kind.RELEASE):
-            answer = _by_service(client, instr, timeout)
+            answer = _stop_or_release(client, instr, timeout)
             timing.discovered(client)
             report.line(str(answer))
             return exits.DONE if answer.success else exits.NOT_DONE
@@ -407,7 +407,7 @@ def _shell_step(
 ) -> None:
     item, in_background = step
     if isinstance(item, Instruction) and item.kind in (Kind.STOP, Kind.RELEASE):
-        answer = _by_service(client, item, timeout)
+        answer = _stop_or_release(client, item, timeout)
         report.all_done &= answer.success
         report.line(str(answer))
         return

@@ -253,9 +253,11 @@ class Client:
         self._leasing = threading.Event()
         self._leaser = threading.Thread(target=self._lease, name="al5d-lease", daemon=True)
         self._leaser.start()
+        #: The stop's and the shutdown's services (a release goes on the topic: `_release`).
         self._services: dict[Kind, tuple[str, Any]] = {
             kind: (name, self.node.create_client(Trigger, name, qos_profile=QOS_SERVICES))
             for name, kind in names.services.items()
+            if kind is not Kind.RELEASE
         }
         #: Only the outcomes of what this client sent are kept: every client's come by.
         self._sent: set[str] = set()
@@ -612,14 +614,12 @@ class Client:
             outcome = self.execute(Instruction(kind), timeout)
             message = outcome.reason or f"{kind.value}: {outcome.result.value}"
             return Answer(kind.value, outcome.ok, message, self.names.instruction, False)
-        deadline = Deadline(timeout)
         if kind is Kind.STOP:
             return self._stop(name, service, timeout)
         # The server matches our reader of its answers a moment after we match its
         # service; an answer it cannot deliver 100 ms on is dropped (`STOP_RETRY_S`).
         time.sleep(self._settled[kind].left())
-        self._in_flight(deadline)
-        response = self._call(service, deadline.left())
+        response = self._call(service, timeout)
         if response is None:
             raise NoOutcome(
                 f"{kind.value}: no answer from {name} within {timeout:g} s "
