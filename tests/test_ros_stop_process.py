@@ -10,6 +10,8 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -185,3 +187,39 @@ def test_a_release_sent_after_the_stop_is_judged_after_it(served: Served) -> Non
     assert served.peer.result("between").outcome == "refused"  # locked, whichever came first
     served.peer.send("after", "move", base=-10)
     assert served.peer.result("after").outcome == "done"
+
+
+def test_a_stop_goes_on_the_topic_at_once_while_the_stop_process_is_not_found(
+    served: Served, tmp_path: Path
+) -> None:
+    """A client that has found the server's node but not its stop process (frozen here; a
+    server just restarted under load has its stop process found seconds after its node)
+    sends its stop on the instruction topic at once, and the node obeys it: the client
+    does not first wait for the stop service (`SERVICE_GRACE_S`)."""
+    from al5d.ros.client import SERVICE_GRACE_S
+
+    stop_process = served.stop_process()
+    os.kill(stop_process, signal.SIGSTOP)
+    script = tmp_path / "stop.py"
+    script.write_text(
+        "import time\n"
+        "from al5d.ros.client import Client\n"
+        'with Client(namespace="", local=False, wait_s=60) as arm:\n'
+        "    arm.wait_for_server(60)\n"
+        "    asked = time.monotonic()\n"
+        "    answer = arm.stop()\n"
+        "    print(answer.via, answer.success, time.monotonic() - asked, flush=True)\n"
+    )
+    n = len(served.emu.records)
+    try:
+        done = subprocess.run(
+            [sys.executable, str(script)], capture_output=True, text=True, timeout=120
+        )
+    finally:
+        os.kill(stop_process, signal.SIGCONT)
+    assert done.returncode == 0, done.stderr
+    via, success, took = done.stdout.split()
+    assert (via, success) == ("/al5d/instruction", "True"), done.stdout
+    assert float(took) < SERVICE_GRACE_S, done.stdout
+    assert "is not available" not in done.stderr, done.stderr
+    wait_until(lambda: served.stops_since(n), 10, "the STOP on the board")

@@ -94,9 +94,12 @@ while True:
     say("res", instr.id, result, time.time())
 """
 
-#: Beside the server: every outcome (`out ID RESULT EPOCH REASON`) and state (`state S EPOCH`).
+#: Beside the server: every outcome (`out ID RESULT EPOCH REASON`) and state (`state S EPOCH`);
+#: `ready` once its reader of outcomes has matched the server's writer and the server's
+#: latched state has come (the server has found it: what it publishes from then reaches it).
 OBSERVER = """
-import time
+import threading, time
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, HistoryPolicy, ReliabilityPolicy, DurabilityPolicy
 from al5d_interfaces.msg import InstructionResult
@@ -111,11 +114,19 @@ names = Names()
 def outcome(msg):
     reason = msg.reason.replace(chr(10), " ")
     print("out", msg.id, msg.outcome, time.time(), reason, flush=True)
+matched, stated = threading.Event(), threading.Event()
 def state(msg):
     print("state", msg.data, time.time(), flush=True)
-node.create_subscription(InstructionResult, names.result, outcome, QOS_STREAM)
+    stated.set()
+def ready():
+    if matched.wait(60) and stated.wait(60):
+        print("ready", flush=True)
+threading.Thread(target=ready, daemon=True).start()
+events = SubscriptionEventCallbacks(matched=lambda info: matched.set())
+node.create_subscription(
+    InstructionResult, names.result, outcome, QOS_STREAM, event_callbacks=events
+)
 node.create_subscription(String, names.state, state, QOS_LATCHED)
-print("ready", flush=True)
 executor = rclpy.executors.SingleThreadedExecutor(context=context)
 executor.add_node(node)
 executor.spin()
@@ -161,14 +172,16 @@ def run(hosts: Hosts, count: int, seed: int, kinds: tuple[str, ...] = ()) -> Rep
     rng = random.Random(seed)
     server = hosts.popen(hosts.arm, [AL5D, "serve", "--config", patient_config()])
     observer = hosts.popen(hosts.arm, [sys.executable, "-c", OBSERVER])
-    laptop = hosts.popen(hosts.laptop, [sys.executable, "-c", LAPTOP, str(seed)])
     assert server.stderr is not None and observer.stdout is not None
-    assert laptop.stdout is not None and laptop.stdin is not None
-    log, seen, out = Lines(server.stderr), Lines(observer.stdout), Lines(laptop.stdout)
+    log, seen = Lines(server.stderr), Lines(observer.stdout)
+    laptop: subprocess.Popen[str] | None = None
     report = Report()
     try:
         log.wait_for("STATE: ready", CMD_S)
-        seen.wait_for("ready", CMD_S)
+        seen.wait_for("ready", CMD_S)  # before the first request: it sees every outcome
+        laptop = hosts.popen(hosts.laptop, [sys.executable, "-c", LAPTOP, str(seed)])
+        assert laptop.stdout is not None and laptop.stdin is not None
+        out = Lines(laptop.stdout)
         out.wait_for("ready", CMD_S)
         for k in range(count):
             time.sleep(rng.uniform(*CLEAR_S))
@@ -193,8 +206,9 @@ def run(hosts: Hosts, count: int, seed: int, kinds: tuple[str, ...] = ()) -> Rep
         hosts.mend()
         hosts.impair()
         for proc in (laptop, observer):
-            proc.kill()
-            proc.wait(10)
+            if proc is not None:
+                proc.kill()
+                proc.wait(10)
         server.kill()
         server.wait(10)
     for line in out.drain(0.5):

@@ -217,6 +217,7 @@ class Client:
 
     def _ros(self, names: Names) -> None:
         from al5d_interfaces.msg import ArmInstruction, ClientLease, InstructionResult
+        from rclpy.event_handler import PublisherEventCallbacks
         from rclpy.node import Node
         from sensor_msgs.msg import JointState
         from std_srvs.srv import Trigger
@@ -240,7 +241,15 @@ class Client:
         except BaseException:
             self.context.try_shutdown()
             raise
-        self.pub = self.node.create_publisher(ArmInstruction, names.instruction, QOS_INSTRUCTIONS)
+        #: Readers of our instructions ever matched (the matched event's total): a stop is
+        #: sent again the moment a new one matches (`_stop`).
+        self._readers_matched = 0
+        self.pub = self.node.create_publisher(
+            ArmInstruction,
+            names.instruction,
+            QOS_INSTRUCTIONS,
+            event_callbacks=PublisherEventCallbacks(matched=self._on_readers_matched),
+        )
         self.results = self.node.create_subscription(
             InstructionResult, names.result, self._on_result, QOS_STREAM
         )
@@ -295,6 +304,9 @@ class Client:
             self._lease_pub.publish(
                 ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=every_ms)
             )
+
+    def _on_readers_matched(self, info: Any) -> None:
+        self._readers_matched = info.total_count
 
     def _on_sign(self, msg: object) -> None:
         self._heard = time.monotonic()
@@ -604,6 +616,8 @@ class Client:
         if kind is Kind.RELEASE:
             return self._release(timeout)
         name, service = self._services[kind]
+        if kind is Kind.STOP:
+            return self._stop(name, service, timeout)
         if not self._find_service(kind, name, service):
             log.warning(
                 "%s: the service %s is not available; sent on the topic %s instead",
@@ -614,8 +628,6 @@ class Client:
             outcome = self.execute(Instruction(kind), timeout)
             message = outcome.reason or f"{kind.value}: {outcome.result.value}"
             return Answer(kind.value, outcome.ok, message, self.names.instruction, False)
-        if kind is Kind.STOP:
-            return self._stop(name, service, timeout)
         # The server matches our reader of its answers a moment after we match its
         # service; an answer it cannot deliver 100 ms on is dropped (`STOP_RETRY_S`).
         time.sleep(self._settled[kind].left())
@@ -641,22 +653,34 @@ class Client:
         return Answer("release", outcome.ok, message, self.names.instruction, False)
 
     def _stop(self, name: str, service: Any, timeout: float) -> Answer:
-        """The stop by its service and, beside it, on the instruction topic, both sent again
-        every `STOP_RETRY_S` until one is answered (not more often: a copy still on its way
-        when another client releases the arm would lock it again). On a lossy link a
-        reliable writer's lost sample is sent again only at its next heartbeat (Fast DDS:
-        every 3 s; measured: stops obeyed 3.5 and 6.0 s late at 13 to 17 % loss), and what
-        the writer sent after it waits behind it. The stop watcher reads the topic best
-        effort: each copy that gets through is obeyed at once, whatever was lost before."""
+        """The stop on the instruction topic at once and by its service as soon as that is
+        found, both sent again every `STOP_RETRY_S` until one is answered (not more often: a
+        copy still on its way when another client releases the arm would lock it again),
+        and on the topic again the moment a reader of it matches. `timeout` counts from
+        when the server is found; `NoServer` if it is not within `wait_s`.
+
+        Nothing waits for the service: the server's stop path is a DDS participant of its
+        own, found apart from its node (after a restart, under load, seconds apart), and
+        the node obeys the topic's copy too. A copy sent before our writer matched a new
+        server's reader reached nobody: sent again when it matches, a stop asked of a
+        server just restarted is obeyed as soon as either side has found the other. On a
+        lossy link a reliable writer's lost sample is sent again only at its next heartbeat
+        (Fast DDS: every 3 s; measured: stops obeyed 3.5 and 6.0 s late at 13 to 17 % loss),
+        and what the writer sent after it waits behind it. The stop watcher reads the topic
+        best effort: each copy that gets through is obeyed at once, whatever was lost."""
         from std_srvs.srv import Trigger
 
         from al5d.ros.convert import to_message
 
-        deadline = Deadline(timeout)
+        finding = Deadline(self.wait_s)
+        deadline: Deadline | None = None  # from when the server is found
         answered = threading.Event()
         told: list[Outcome] = []
         futures: list[Any] = []
         copies: list[str] = []
+        start = time.monotonic()
+        copied = called = -STOP_RETRY_S  # when (monotonic) last sent, each way
+        matched = -1
 
         def heard(outcome: Outcome) -> None:
             told.append(outcome)
@@ -664,18 +688,32 @@ class Client:
 
         try:
             while True:
-                future = service.call_async(Trigger.Request())
-                future.add_done_callback(lambda _: answered.set())
-                futures.append(future)
-                copy = Instruction(Kind.STOP)
-                msg = to_message(copy)
-                msg.client = self.key  # no deadline: a stop is obeyed however late
-                copies.append(copy.id)
-                self.watch(copy.id, heard)
-                with self._cv:
-                    self._sent.add(copy.id)
-                self.pub.publish(msg)
-                if answered.wait(min(STOP_RETRY_S, deadline.left())) or deadline.expired:
+                ready = service.service_is_ready()
+                if deadline is None and (ready or self._server_seen()):
+                    deadline = Deadline(timeout)
+                    self.discovery_s += time.monotonic() - start
+                at = time.monotonic()
+                if ready and at - called >= STOP_RETRY_S:
+                    future = service.call_async(Trigger.Request())
+                    future.add_done_callback(lambda _: answered.set())
+                    futures.append(future)
+                    called = at
+                if at - copied >= STOP_RETRY_S or self._readers_matched > matched:
+                    matched = self._readers_matched
+                    copy = Instruction(Kind.STOP)
+                    msg = to_message(copy)
+                    msg.client = self.key  # no deadline: a stop is obeyed however late
+                    copies.append(copy.id)
+                    self.watch(copy.id, heard)
+                    with self._cv:
+                        self._sent.add(copy.id)
+                    self.pub.publish(msg)
+                    copied = at
+                if answered.wait(0.02):
+                    break
+                if deadline is None and finding.expired:
+                    raise self._no_server(name, self.wait_s)
+                if deadline is not None and deadline.expired:
                     break
         finally:
             for future in futures:
