@@ -22,7 +22,7 @@ from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
 from al5d.owner import where
 from al5d.owner.client import Remote
-from al5d_rig.proc import AL5D, Proc
+from al5d_rig.proc import AL5D, Proc, said
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import Served, served
 
@@ -109,7 +109,7 @@ def test_a_client_killed_mid_move_leaves_nothing_moving(arm: Served) -> None:
     )
     client = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
     try:
-        assert client.stdout is not None and client.stdout.readline().strip() == "sent"
+        assert client.stdout is not None and said(client.stdout) == "sent"
         wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
         time.sleep(0.3)
         client.kill()

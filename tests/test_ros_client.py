@@ -27,7 +27,7 @@ from al5d.ros.names import PING, Names
 from al5d.ros.qos import QOS_STREAM
 from al5d_rig.armrig import group_moves
 from al5d_rig.domains import alone
-from al5d_rig.proc import Proc, dies_with_parent
+from al5d_rig.proc import Proc, dies_with_parent, said
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import Served, served
 
@@ -288,7 +288,7 @@ def test_the_first_instruction_waits_until_the_servers_answers_reach_the_client(
         preexec_fn=dies_with_parent,
     )
     try:
-        assert server.stdout is not None and server.stdout.readline() == "ready\n"
+        assert server.stdout is not None and said(server.stdout) == "ready"
         script = 'with Client(wait_s=30) as arm:\n    print(arm.execute("ready", timeout=10))\n'
         done = run_script(tmp_path, "from al5d.ros.client import Client\n" + script, env)
     finally:

@@ -19,7 +19,7 @@ from al5d.arm.config import ArmConfig
 from al5d.owner import where
 from al5d.owner.client import Remote
 from al5d.ros.leases import FORGET_S, Leases
-from al5d_rig.proc import Lines
+from al5d_rig.proc import Lines, said
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import Served, served
 
@@ -155,7 +155,7 @@ def test_a_ros_client_that_hangs_mid_move_has_its_move_halted_with_the_reason(
     arm.ready()
     client = ros_client(-80, "hung-1", "time.sleep(600)")
     try:
-        assert client.stdout is not None and client.stdout.readline().strip() == "sent"
+        assert client.stdout is not None and said(client.stdout) == "sent"
         wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
         client.send_signal(signal.SIGSTOP)  # hung: its leases stop, its process stays
         results = arm.peer.results_now
@@ -173,7 +173,7 @@ def test_a_ros_client_that_hangs_mid_move_has_its_move_halted_with_the_reason(
 def test_a_ros_client_that_closes_leaves_its_move_going(arm: Served) -> None:
     arm.ready()
     client = ros_client(60, "closed-1", "c.close()")
-    assert client.stdout is not None and client.stdout.readline().strip() == "sent"
+    assert client.stdout is not None and said(client.stdout) == "sent"
     assert client.wait(CMD_S) == 0
     results = arm.peer.results_now
     wait_until(lambda: "closed-1" in results(), CMD_S, "its outcome")

@@ -266,11 +266,18 @@ def test_sliders_into_the_table_show_why_and_send_nothing(rig: Rig) -> None:
     # The slider has followed the arm to ready (on a busy host it lags the arm): the drag
     # starts on its thumb, not on the track where the thumb was (a jump to far forward).
     shoulder = rig.config.presets["ready"]["shoulder"]
-    wait_until(
-        lambda: float(thumb.get_attribute("aria-valuenow") or "nan") == shoulder,
-        10,
-        f"the shoulder's slider at {shoulder}",
-    )
+    try:
+        wait_until(
+            lambda: float(thumb.get_attribute("aria-valuenow") or "nan") == shoulder,
+            10,
+            f"the shoulder's slider at {shoulder}",
+        )
+    except AssertionError as e:
+        status = page.locator("#al5d-joints-status").inner_text()
+        raise AssertionError(
+            f"{e}: at {thumb.get_attribute('aria-valuenow')}; status {status!r}; "
+            f"states {rig.state.states[-5:]}"
+        ) from None
     box = thumb.bounding_box()
     x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
     n0 = len(rig.emu.records)

@@ -27,11 +27,23 @@ def test_a_jog_ends_once_let_go_and_the_arm_is_there() -> None:
     assert jog.due(0.0, False, ARM)[0] is not None
     there = {"base": 10.0, "shoulder": 0.0}
     assert jog.due(QUIET_S + 0.1, False, there) == (None, "")
-    assert jog.target is not None  # the sliders were let go only just now
-    assert not jog.quiet(QUIET_S + 0.1)
-    assert jog.due(FOLLOW_AFTER_S + 0.1, False, there) == (None, "")
     assert jog.target is None
-    assert jog.quiet(FOLLOW_AFTER_S + 0.2)
+    assert not jog.quiet(QUIET_S + 0.1)  # the sliders were let go only just now
+    assert jog.quiet(FOLLOW_AFTER_S + 0.1)
+
+
+def test_a_jog_that_arrived_does_not_undo_the_next_move_of_another_client() -> None:
+    """Let go and there: another client's move then (the arm moving, then idle elsewhere)
+    is not fought: nothing is sent again, neither while it runs nor after it."""
+    jog = Jog(SPEEDS)
+    jog.take("base", 10.0, 0.0)
+    jog.due(0.0, False, ARM)
+    assert jog.due(QUIET_S + 0.1, False, {"base": 10.0, "shoulder": 0.0}) == (None, "")
+    elsewhere = {"base": -20.0, "shoulder": 30.0}
+    for k, t in enumerate(itertools.count(QUIET_S + 0.2, 0.05)):
+        if t > FOLLOW_AFTER_S * 3:
+            break
+        assert jog.due(t, k < 10, elsewhere) == (None, ""), t
 
 
 def test_a_moving_arm_keeps_the_jog_alive_for_its_way_and_no_longer() -> None:

@@ -17,6 +17,7 @@ from al5d.arm.instruction import Outcome
 from al5d.model.transforms import Transform
 from al5d.ros.names import Names
 from al5d.web.link import WebNode
+from al5d_rig.proc import said
 from al5d_rig.rospeer import wait_until
 
 NAMES = Names.of("web_link_test")
@@ -60,7 +61,7 @@ def reader() -> Iterator[subprocess.Popen[str]]:
         [sys.executable, "-c", READER], stdout=subprocess.PIPE, text=True, env=os.environ.copy()
     )
     try:
-        assert proc.stdout is not None and proc.stdout.readline().strip() == "reading"
+        assert proc.stdout is not None and said(proc.stdout) == "reading"
         yield proc
     finally:
         proc.kill()

@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from al5d_rig.proc import Proc, dies_with_parent
+from al5d_rig.proc import Proc, dies_with_parent, said
 from al5d_rig.result_counter import ResultCounter
 from al5d_rig.stallprobe import Stalls
 
@@ -158,7 +158,7 @@ def goals(seconds: float, rate: float, busy: int, stops_every_s: float = 0.5) ->
         peer.wait_for_server()
         for name in ("stop", "release"):
             peer.trigger(name)
-        assert json.loads(client.stdout.readline()).get("ready")
+        assert json.loads(said(client.stdout)).get("ready")
         loops = busy_loops(busy)
         client.stdin.write("go\n")
         client.stdin.flush()
@@ -175,7 +175,7 @@ def goals(seconds: float, rate: float, busy: int, stops_every_s: float = 0.5) ->
                 stops[via].append(ms)
             wait_future(peer.services["release"].call_async(Trigger.Request()), 10)
             via = "topic" if via == "service" else "service"
-        out.update(json.loads(client.stdout.readline()))
+        out.update(json.loads(said(client.stdout)))
         log = server.err.drain(0.5)
         out["stop_service_ms"], out["stop_topic_ms"] = stops["service"], stops["topic"]
         out["stops_missed"] = missed
@@ -268,7 +268,7 @@ def run(
             )
         for each in arms:
             assert each.stdout is not None
-            line = each.stdout.readline()
+            line = said(each.stdout)
             if not line:
                 raise RuntimeError(f"an arm of the rig ended before it was ready: {each.args!r}")
         probe.append(
@@ -288,7 +288,7 @@ def run(
         results = []
         for each in arms:
             assert each.stdout is not None
-            line = each.stdout.readline()
+            line = said(each.stdout)
             results.append(json.loads(line) if line else {"error": "ended without a result"})
             each.wait(60)
         load = os.getloadavg()[0]

@@ -25,7 +25,7 @@ from std_srvs.srv import Trigger
 
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Record
-from al5d_rig.proc import dies_with_parent
+from al5d_rig.proc import dies_with_parent, said
 from al5d_rig.rospeer import Peer, wait_future, wait_until
 
 #: How the board's record notes an ESC (the first byte of every stop's write).
@@ -256,7 +256,7 @@ def flood(
     )
     assert client.stdin is not None and client.stdout is not None
     try:
-        assert json.loads(client.stdout.readline()).get("ready")
+        assert json.loads(said(client.stdout)).get("ready")
         # Both directions matched: the server answered one of the client's probes.
         probe = f"{prefix}-probe-"
         wait_until(lambda: counter.heard(probe), 60, "a probe of the flood client answered")
@@ -292,7 +292,7 @@ def flood(
                     result.notes.append(f"a stop via {via} took {ms:.0f} ms:\n{diagnose()}")
             wait_future(peer.services["release"].call_async(Trigger.Request()), 10)
             via = "topic" if via == "service" else "service"
-        done = json.loads(client.stdout.readline())
+        done = json.loads(said(client.stdout))
         result.sent, result.failed_publishes = done["sent"], done["failed"]
         result.publish_retries = done["retried"]
         if not done.get("acked", True):

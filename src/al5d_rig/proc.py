@@ -8,6 +8,7 @@ import ctypes
 import functools
 import os
 import queue
+import re
 import signal
 import subprocess
 import sys
@@ -26,6 +27,22 @@ AL5D = str(Path(sys.executable).with_name("al5d"))
 
 _PR_SET_PDEATHSIG = 1
 _prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before any fork
+
+
+#: A line of Fast DDS's own log (its default consumer prints on stdout, coloured or not:
+#: "2026-11-28 16:18:09.319 [RTPS_TRANSPORT_SHM Error] Failed init_port ...", seen when a
+#: shared-memory port's lock file was held), not a word of the process that printed it.
+_FASTDDS_LOG = re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d+ \[\w+ (Error|Warning|Info)\]")
+_ESCAPES = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def said(stream: IO[str]) -> str:
+    """The next line of `stream` printed by its process itself, stripped: Fast DDS's log
+    lines on the same stdout are passed over. "" at the stream's end."""
+    for line in stream:
+        if not _FASTDDS_LOG.match(_ESCAPES.sub("", line)):
+            return line.strip()
+    return ""
 
 
 def dies_with_parent() -> None:

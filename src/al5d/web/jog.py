@@ -117,8 +117,9 @@ class Jog:
             self.short_t = None
             return None, ""
         if all(j in here and abs(here[j] - v) <= JOG_THERE_DEG for j, v in jog.items()):
-            if now - self.touched > FOLLOW_AFTER_S:
-                self.target = None
+            # Over at once: a move of another client's that comes next is not the jog's to
+            # undo (kept on, the jog sent the arm back to its target after that move).
+            self.target, self.short_t = None, None
             return None, ""
         # Let go, and the arm idle short of the target: the server's watchdog held it (the
         # page's loop lagged more than server.stream_timeout_s behind, on a busy host) or

@@ -1,0 +1,27 @@
+"""The rig's reading of its processes' words (`al5d_rig.proc.said`): Fast DDS prints its own
+log on the same stdout, and a line of it is not the process's word (a CI run read
+"... [RTPS_TRANSPORT_SHM Error] Failed init_port ..." where it waited for "reading")."""
+
+from __future__ import annotations
+
+import io
+
+from al5d_rig.proc import said
+
+SHM_ERROR = (
+    "\x1b[37;1m2026-11-28 16:18:09.319 \x1b[31;1m[\x1b[37;1mRTPS_TRANSPORT_SHM\x1b[31;1m Error]"
+    " \x1b[37mFailed init_port fastrtps_port7005: open_and_lock_file failed\x1b[34;1m"
+    " -> Function \x1b[36mopen_port_internal\x1b[m\n"
+)
+
+
+def test_fast_dds_log_lines_are_passed_over_coloured_or_not() -> None:
+    plain = "2026-11-28 16:18:09.319 [RTPS_TRANSPORT_SHM Warning] a port\n"
+    stream = io.StringIO(SHM_ERROR + plain + "reading\n" + '{"ready": true}\n')
+    assert said(stream) == "reading"
+    assert said(stream) == '{"ready": true}'
+    assert said(stream) == ""
+
+
+def test_a_line_that_only_starts_with_a_date_is_the_process_s_own() -> None:
+    assert said(io.StringIO("2026-11-28 16:18:09.319 moved\n")) == "2026-11-28 16:18:09.319 moved"
