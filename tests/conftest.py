@@ -66,6 +66,15 @@ def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, Owne
             driver.close()
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Before any worker starts: Fast DDS's files of processes of earlier runs that were
+    killed are removed (`al5d_rig.shm`)."""
+    if not hasattr(config, "workerinput"):
+        from al5d_rig import shm
+
+        shm.clean()
+
+
 def pytest_sessionfinish(session: pytest.Session) -> None:
     """Under pytest-xdist, a worker hands its fuzz counts to the controller."""
     from al5d_rig.fuzzcount import CASES

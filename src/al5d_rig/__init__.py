@@ -6,6 +6,7 @@ among its modules run as `python -m al5d_rig.NAME`. It sits above every subpacka
 `al5d` and may import any of them; nothing in `al5d` imports it. The modules:
 
 - `proc`: `al5d` commands as processes of their own, their output read as it comes.
+- `shm`: Fast DDS's shared-memory files of processes gone, removed before a run.
 - `boardproc`: `al5d emulator` in a process of its own, its records streamed back.
 - `armrig`: an owner on an emulated board in this process, and what tests read of the
   board's records (`group_moves`, `written`, `group_pulses`).

@@ -71,10 +71,10 @@ class LostContact(NoOutcome):
 #: answered: a ping the server answered before its result writer had matched our reader
 #: reached nobody.
 PING_EVERY_S = 0.25
-#: How long the server's services may stay undiscovered once its topics are: after that a
-#: stop, a release or a shutdown goes on the instruction topic instead (and says so). The
-#: services are on the stop path's DDS participant, discovered apart from the topics':
-#: beside two busy loops once more than 2 s after them.
+#: How long the shutdown service may stay undiscovered once the server's topics are: after
+#: that the shutdown goes on the instruction topic instead (and says so). The services are
+#: on the stop path's DDS participant, discovered apart from the topics': beside two busy
+#: loops once more than 2 s after them. (A stop waits for nothing: `Client._stop`.)
 SERVICE_GRACE_S = 5.0
 #: A stop's service call unanswered this long is made again. rmw_fastrtps drops an answer
 #: whose client it has not matched 100 ms after the request (ros2/rmw_fastrtps#390), which
@@ -608,8 +608,9 @@ class Client:
         return self._trigger(Kind.SHUTDOWN, timeout)
 
     def _trigger(self, kind: Kind, timeout: float) -> Answer:
-        """Call the server's service for `kind`; the instruction topic instead if the server
-        is there but its service is not (`SERVICE_GRACE_S`)."""
+        """The stop (`_stop`), the release (`_release`), or the shutdown by its service (the
+        instruction topic instead if the server is there but its service is not:
+        `SERVICE_GRACE_S`)."""
         self._check_open()
         if self.lane is not None:
             return self._by_lane(kind, timeout)
@@ -662,12 +663,14 @@ class Client:
         Nothing waits for the service: the server's stop path is a DDS participant of its
         own, found apart from its node (after a restart, under load, seconds apart), and
         the node obeys the topic's copy too. A copy sent before our writer matched a new
-        server's reader reached nobody: sent again when it matches, a stop asked of a
-        server just restarted is obeyed as soon as either side has found the other. On a
-        lossy link a reliable writer's lost sample is sent again only at its next heartbeat
-        (Fast DDS: every 3 s; measured: stops obeyed 3.5 and 6.0 s late at 13 to 17 % loss),
-        and what the writer sent after it waits behind it. The stop watcher reads the topic
-        best effort: each copy that gets through is obeyed at once, whatever was lost."""
+        server's reader reached nobody: a stop asked of a server just restarted goes again
+        once our writer has matched its reader (the stop watcher's, best effort, takes the
+        copies sent after its reader matched ours; the node's, reliable, asks for what it
+        missed at the writer's next heartbeat). On a lossy link a reliable writer's lost
+        sample is sent again only at its next heartbeat (Fast DDS: every 3 s; measured:
+        stops obeyed 3.5 and 6.0 s late at 13 to 17 % loss), and what the writer sent after
+        it waits behind it. The stop watcher reads the topic best effort: each copy that
+        gets through is obeyed at once, whatever was lost."""
         from std_srvs.srv import Trigger
 
         from al5d.ros.convert import to_message
@@ -680,6 +683,7 @@ class Client:
         copies: list[str] = []
         start = time.monotonic()
         copied = called = -STOP_RETRY_S  # when (monotonic) last sent, each way
+        found: float | None = None  # when the server was found (monotonic)
         matched = -1
 
         def heard(outcome: Outcome) -> None:
@@ -691,7 +695,7 @@ class Client:
                 ready = service.service_is_ready()
                 if deadline is None and (ready or self._server_seen()):
                     deadline = Deadline(timeout)
-                    self.discovery_s += time.monotonic() - start
+                    found = time.monotonic()
                 at = time.monotonic()
                 if ready and at - called >= STOP_RETRY_S:
                     future = service.call_async(Trigger.Request())
@@ -716,6 +720,7 @@ class Client:
                 if deadline is not None and deadline.expired:
                     break
         finally:
+            self.discovery_s += (found or time.monotonic()) - start
             for future in futures:
                 if not future.done():
                     self._stops_in_flight.append(future)
