@@ -81,6 +81,11 @@ SERVICE_GRACE_S = 5.0
 #: on a loaded machine can befall a new client's first call. A second stop is harmless; a
 #: second release could undo a stop sent in between, so a release is never sent twice.
 STOP_RETRY_S = 1.0
+#: In a stop's first second its copy on the topic goes this often: a server just found (a
+#: restart) may not have matched our writer yet, and drops what comes before (seen beside
+#: two busy loops: a restarted server's stop obeyed 1.01 s after it was asked, by the copy
+#: sent again after a second).
+STOP_FIRST_COPIES_S = 0.25
 #: A release waits at most this long for the answers of its client's stops still on their
 #: way (`Client._in_flight`): a lost request is sent again at the writer's next heartbeat,
 #: 3 s on; a server gone never answers, and must not cost the release its timeout.
@@ -655,9 +660,10 @@ class Client:
 
     def _stop(self, name: str, service: Any, timeout: float) -> Answer:
         """The stop on the instruction topic at once and by its service as soon as that is
-        found, both sent again every `STOP_RETRY_S` until one is answered (not more often: a
-        copy still on its way when another client releases the arm would lock it again),
-        and on the topic again the moment a reader of it matches. `timeout` counts from
+        found, both sent again every `STOP_RETRY_S` until one is answered (the copy every
+        `STOP_FIRST_COPIES_S` in the first second; not more often after it: a copy still on
+        its way when another client releases the arm would lock it again), and on the topic
+        again the moment a reader of it matches. `timeout` counts from
         when the server is found; `NoServer` if it is not within `wait_s`.
 
         Nothing waits for the service: the server's stop path is a DDS participant of its
@@ -702,7 +708,8 @@ class Client:
                     future.add_done_callback(lambda _: answered.set())
                     futures.append(future)
                     called = at
-                if at - copied >= STOP_RETRY_S or self._readers_matched > matched:
+                every = STOP_FIRST_COPIES_S if at - start < 1.0 else STOP_RETRY_S
+                if at - copied >= every or self._readers_matched > matched:
                     matched = self._readers_matched
                     copy = Instruction(Kind.STOP)
                     msg = to_message(copy)
