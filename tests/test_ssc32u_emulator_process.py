@@ -19,7 +19,7 @@ from al5d.ssc32u import protocol as p
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Mechanics, Record
 from al5d_rig.boardproc import BoardProcess
-from al5d_rig.proc import Proc
+from al5d_rig.proc import Proc, said
 
 AL5D = Path(sys.executable).with_name("al5d")
 
@@ -33,7 +33,7 @@ def test_standalone_emulator(tmp_path: Path) -> None:
     )
     try:
         assert proc.stdout is not None
-        first = proc.stdout.readline().strip()
+        first = said(proc.stdout)
         assert first == str(link)
         assert os.path.realpath(link).startswith("/dev/pts/")
         with SSC32U(first, 115200) as board:
@@ -61,7 +61,7 @@ class Standalone:
             text=True,
         )
         assert self.proc.stdout is not None
-        assert self.proc.stdout.readline().strip() == str(self.link)
+        assert said(self.proc.stdout) == str(self.link)
         self.port = serial.Serial(str(self.link), 9600, timeout=1)
 
     def ask(self, line: bytes, n: int | None = None) -> bytes:

@@ -14,7 +14,7 @@ from al5d.arm.config import ArmConfig
 from al5d.clock import Deadline
 from al5d.ssc32u.emulator import Record
 from al5d.ssc32u.emulator.board import RESET, Board
-from al5d_rig.proc import AL5D, dies_with_parent
+from al5d_rig.proc import AL5D, dies_with_parent, said
 
 
 class BoardProcess:
@@ -40,7 +40,7 @@ class BoardProcess:
             preexec_fn=dies_with_parent,
         )
         assert self.popen.stdout is not None
-        first = self.popen.stdout.readline().strip()  # the device path comes first
+        first = said(self.popen.stdout)  # the device path comes first
         assert first == str(link), f"al5d emulator said {first!r}"
         threading.Thread(target=self._read, name="board-records", daemon=True).start()
 
