@@ -698,16 +698,9 @@ class Client:
 
         try:
             while True:
-                ready = service.service_is_ready()
-                if deadline is None and (ready or self._server_seen()):
-                    deadline = Deadline(timeout)
-                    found = time.monotonic()
+                # The copy first: the graph's answers below (is the service there, the
+                # server) take their time, and the stop waits for nothing.
                 at = time.monotonic()
-                if ready and at - called >= STOP_RETRY_S:
-                    future = service.call_async(Trigger.Request())
-                    future.add_done_callback(lambda _: answered.set())
-                    futures.append(future)
-                    called = at
                 every = STOP_FIRST_COPIES_S if at - start < 1.0 else STOP_RETRY_S
                 if at - copied >= every or self._readers_matched > matched:
                     matched = self._readers_matched
@@ -720,6 +713,16 @@ class Client:
                         self._sent.add(copy.id)
                     self.pub.publish(msg)
                     copied = at
+                if at - called >= STOP_RETRY_S:
+                    ready = service.service_is_ready()
+                    if deadline is None and (ready or self._server_seen()):
+                        deadline = Deadline(timeout)
+                        found = time.monotonic()
+                    if ready:
+                        future = service.call_async(Trigger.Request())
+                        future.add_done_callback(lambda _: answered.set())
+                        futures.append(future)
+                        called = at
                 if answered.wait(0.02):
                     break
                 if deadline is None and finding.expired:

@@ -1,0 +1,78 @@
+"""The owner's loop on an emulated board in this process (`VirtualTransport`): what the loop
+itself must get right, apart from the core's rules."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import pytest
+
+from al5d.arm import instruction as ins
+from al5d.arm.config import ArmConfig
+from al5d.arm.states import State
+from al5d.owner.loop import Owner
+from al5d.ssc32u.emulator.board import Board
+from al5d.ssc32u.emulator.virtual import VirtualTransport
+
+#: How long a stop's write is held here: longer than a query's answer may take (its wire
+#: time, the USB chip's 16 ms and `answer_timeout_s`, 50 ms) and the excuse for the host's
+#: stalls (`al5d.arm.link.EXCUSE_MAX_S`, 150 ms), as a write to a full port at 9600 baud
+#: (or one by a thread that waited for a core) may be held.
+HELD_S = 0.3
+
+
+class HeldWrites(VirtualTransport):
+    """The virtual board, whose writes of anything but a query are held `HELD_S` after their
+    bytes are on the wire once `held` is set; every write is kept (`writes`), a query's is
+    said (`asked`)."""
+
+    def __init__(self, board: Board) -> None:
+        super().__init__(board)
+        self.asked = threading.Event()
+        self.writes: list[bytes] = []
+        self.held = False
+
+    def _write(self, data: bytes) -> None:
+        super()._write(data)
+        self.writes.append(data)
+        if data.startswith(b"Q"):
+            self.asked.set()
+        elif self.held:
+            time.sleep(HELD_S)
+
+
+def test_an_answer_that_came_while_the_owner_wrote_is_read_before_its_deadline_is_judged(
+    config: ArmConfig, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A query's answer that came while the owner took a turn's requests (here a stop whose
+    write a full port holds) was left in the port while the query's deadline was judged:
+    the query was asked again, and the second ask's answer, left the same way, was a lost
+    link ("no answer to QP, asked twice, 4 ms late", under a burst of 300 goals in CI).
+    Here the idle check's query is followed at once by such a stop: its answer is read,
+    and the next query is the stop's own, not the check asked again."""
+    caplog.set_level(logging.WARNING, logger="al5d")
+    transport = HeldWrites(Board(config, baud=config.server.baud))
+    owner = Owner(config, transport).start()
+    try:
+        owner.wait_for_state(State.READY, 10)
+        transport.held = True
+        transport.asked.clear()
+        assert transport.asked.wait(10), "no idle check asked of the board in 10 s"
+        check = len(transport.writes) - 1
+        owner.submit(ins.stop()).result(10)
+        owner.wait_for_state(State.STOPPED, 10)
+        owner.sync()
+        deadline = time.monotonic() + 10
+        while not any(w.startswith(b"Q") for w in transport.writes[check + 2 :]):
+            assert time.monotonic() < deadline, "no query after the stop in 10 s"
+            time.sleep(0.05)
+        after = transport.writes[check:]
+        assert after[1].startswith(b"\x1b"), after  # the stop, written next
+        following = next(w for w in after[2:] if w.startswith(b"Q"))
+        assert following != after[0], f"the check was asked again: {after}"
+        assert owner.state is State.STOPPED, caplog.text
+    finally:
+        transport.held = False
+        owner.close()
