@@ -9,12 +9,15 @@ import time
 import pytest
 
 from al5d.arm import instruction as ins
+from al5d.arm.config import load_config
 from al5d.arm.instruction import Result
 from al5d.arm.states import State
+from al5d.model.table import PATH_TOLERANCE_M, below
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Record
 from al5d_rig.armrig import Rig, group_moves, group_pulses, logged, pulses
 from al5d_rig.rospeer import wait_until
+from al5d_rig.sim import Sim
 
 STREAM = "joint_commands"
 
@@ -228,3 +231,33 @@ def test_a_stop_during_a_stream_wins_and_holds_it(rig: Rig) -> None:
     assert stops, [(r.raw, r.t_effect - t_stop) for r in rig.emu.records[-30:]]
     after = [r for r in rig.emu.records if r.t_effect > stops[0].t_effect]
     assert not group_moves(after)
+
+
+def _depth_under_table_mm(sim: Sim) -> float:
+    """How far under the table the board holds the arm now (0: above it)."""
+    joints = sim.config.joints
+    pulses_now = {name: sim.board.pulse_us(j.channel, sim.t) for name, j in joints.items()}
+    pose = {name: joints[name].to_deg(us) for name, us in pulses_now.items()}
+    under = below(sim.config.model, pose)
+    return 0.0 if under is None else (under.table_m - under.z_m) * 1000.0
+
+
+def test_a_set_point_naming_fewer_joints_takes_the_others_still_moving_along() -> None:
+    """A set-point that supersedes a running one mid-move names only the elbow: the board
+    retargets the joints a line names, and the shoulder and wrist went on to the first
+    one's target at its pace while the elbow crept to its own: a path nobody judged, 15.9
+    mm under the table (found by the model-based test). They now go along with the new
+    set-point, one group move judged whole; in virtual time, on the emulated board."""
+    sim = Sim(load_config(), baud=115_200).ready()
+    first = sim.ask(ins.move(shoulder=26.3, elbow=93.7, wrist=0.8), stream=STREAM)
+    sim.run(0.002)
+    newer = ins.move(elbow=102, time_ms=1500)
+    sim.ask(newer, stream=STREAM)
+    deepest = 0.0
+    for _ in range(400):  # 2 s: the watchdog holds the arm at 0.5 s
+        sim.run(0.005)
+        deepest = max(deepest, _depth_under_table_mm(sim))
+    assert sim.outcomes[first].reason == f"superseded by set-point {newer.id}"
+    assert deepest <= PATH_TOLERANCE_M * 1000.0 + 1e-3, f"{deepest:.1f} mm under the table"
+    retarget = [d for _, d in sim.sent if b"#2P1820" in d]
+    assert retarget and b"#1P" in retarget[0] and b"#3P" in retarget[0], sim.sent

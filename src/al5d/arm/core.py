@@ -19,20 +19,21 @@ The lanes
   idle arm, started at once (its first line in the same step). One job runs at a time
   (`Core.run`); only its steps are written; whoever ends it (done, stop, cancel, fault,
   shutdown) makes it not current, in one step.
-- **Set-points** (a stream such as ros2_control's joint commands, or the web view's
-  jog) are moves whose latest wins: a new one replaces the one of its stream that
-  waits (it ends cancelled, never written), and one where the arm is heading already
-  (within half a pulse microsecond) is done at once with nothing written. One that
-  comes while a set-point of its stream runs, and nothing waits, supersedes it: the
-  running one is cancelled (none of its bytes still to go is written) and the new one
-  runs, written when the wire is free, from where the superseded one has the arm
-  then (the board retargets a group move mid-move). A set-point is done when its time
-  is over, without `Q`. The watchdog: when no set-point of its stream has come for
-  `server.stream_timeout_s` during its time, the arm is held where it is, as a
-  cancelled move is (no lock). A stop, a fault or a shutdown holds the streams: their
-  set-points are refused until one comes that is where the arm is (its source has let
-  go of the target it had before), so a target sent again and again is not driven to
-  after a release.
+- **Set-points** (a stream such as ros2_control's joint commands, or the web view's jog)
+  are moves whose latest wins: a new one replaces the one of its stream that waits (it
+  ends cancelled, never written), and one where the arm is heading already (within half
+  a pulse microsecond) is done at once with nothing written. One that comes while a
+  set-point of its stream runs, and nothing waits, supersedes it: the running one is
+  cancelled (none of its bytes still to go is written) and the new one runs, written
+  when the wire is free, from where the superseded one has the arm then (the board
+  retargets a group move mid-move; the joints still moving that it does not name go
+  along to their target in its line, judged whole with it). A set-point is done when its
+  time is over, without `Q`. The watchdog: when no set-point of its stream has come for
+  `server.stream_timeout_s` during its time, the arm is held where it is, as a cancelled
+  move is (no lock). A stop, a fault or a shutdown holds the streams: their set-points
+  are refused until one comes that is where the arm is (its source has let go of the
+  target it had before), so a target sent again and again is not driven to after a
+  release.
 - **The core's own work**, in this order: the port opened and checked (and after a
   fault, a move the board may still run halted and the pose read back), the shutdown
   (halt, read back, park, end), the current run, the read-back of the pose after a
@@ -55,8 +56,10 @@ owner took it, where the channel does not say), and the order of sending, not of
    the queue; a move sent between a stop and the release that unlocked the arm is
    refused, as it would have been had it arrived then.
 3. A stop that two readers of one topic both see (the bridge's node, in order; the stop
-   watcher, at once) is one stop: it is known by its message's identity (`Ask.key`),
-   obeyed once and answered once.
+   watcher, at once) is one stop: it is known by its identity (`Ask.key`: its message's,
+   or its client's and id, which every copy its client sends again shares), obeyed once
+   and answered once; a copy (an id of its own) that comes later, even after a release,
+   is that stop: answered, not obeyed again.
 
 A fault, a board's reset and the shutdown are the owner's own events: they count as
 sent when the owner takes them.
@@ -157,12 +160,19 @@ def _refuse(ev: Ask, reason: str, out: Out, result: Result = Result.REFUSED) -> 
 
 def _stop(c: Core, ev: Ask, out: Out) -> Core:
     """VE01/D4: halt at once, drop everything, lock. A stop obeyed already under the same
-    key is answered as it was, and nobody else hears of it again."""
+    key is answered as it was, and nobody else hears of it again; a copy of it (the same
+    key, an id of its own) is answered so under its id, and told: it asked too."""
     if ev.key is not None:
         known = c.order.stops.get(ev.key)
         if known is not None:
-            out.append(Resolve(ev.ref, known, tell=False))
-            return c
+            answer = replace(known, id=ev.instr.id)
+            copy = (ev.key, ev.instr.id)
+            if known.id == ev.instr.id or copy in c.order.stops:  # seen by another reader
+                out.append(Resolve(ev.ref, answer, tell=False))
+                return c
+            # A copy of its own id: answered under it, and told, once.
+            out.append(Resolve(ev.ref, answer, ev.tell))
+            return replace(c, order=c.order.obeyed(copy, answer))
     sent = _sent(ev)
     c, jobs = drop(c, "cancelled by stop", sent)
     c = lock_arm(c, "the stop", sent)
@@ -276,6 +286,14 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
             # when its bytes go: `running`).
             motion = c.book.motion
             here = {**c.book.pose, **(motion.at(ev.t) if motion is not None else {})}
+            if motion is not None and len(job.steps) == 1:
+                # The board retargets only the joints a line names: the others still moving
+                # would go on to the running move's target at its pace, on a path nobody
+                # judged (seen: 15.9 mm under the table). The set-point takes them along to
+                # that target: one group move, judged whole.
+                step = job.steps[0]
+                moving = {j: motion.target[j] for j in motion.moving(ev.t) if j in motion.target}
+                job = replace(job, steps=(replace(step, target={**moving, **step.target}),))
             reason = from_start(instr, job.steps, here, c.arm.limits)
             if reason:
                 _refuse(ev, reason, out)
