@@ -106,6 +106,7 @@ class CoreProtocol(RuleBasedStateMachine):
         self.ready = dict(CONFIG.presets["ready"])
         self.pulled = False
         self.ended = False
+        self.keyed: list[tuple[str, int]] = []  # the keys of the stops obeyed under one
         self.n_records = len(self.sim.records)
         self.started = time.perf_counter()
 
@@ -186,6 +187,7 @@ class CoreProtocol(RuleBasedStateMachine):
             self._ask("stop", ins.stop())
             return
         instr, key = ins.stop(), ("model", next(KEYS))
+        self.keyed.append(key)
         told = len(self.sim.told)
         first = self._ask("stop", instr, key=key)
         again = self._ask("stop", instr, key=key)
@@ -194,6 +196,26 @@ class CoreProtocol(RuleBasedStateMachine):
         times = sum(o.id == instr.id for o in self.sim.told[told:])
         if times != 1:
             self.problems.append(f"a stop seen twice was told {times} times")
+
+    def _copy(self, pick: int) -> None:
+        """A copy of a stop obeyed earlier (its key, an id of its own), coming now, after
+        whatever came since (a release): answered and told once under its id, as the stop
+        was; it writes nothing and neither locks nor unlocks the arm."""
+        if not self.keyed:
+            return
+        key = self.keyed[pick % len(self.keyed)]
+        copy = ins.stop()
+        told, locked, sent = len(self.sim.told), self.sim.core.locked, len(self.sim.sent)
+        first = self._ask("stop", copy, key=key)
+        again = self._ask("stop", copy, key=key)  # the copy seen by the other reader
+        outcomes = self.sim.outcomes
+        if outcomes[first.ref] != outcomes[again.ref] or outcomes[first.ref].id != copy.id:
+            self.problems.append("a copy of a stop was not answered under its id, once")
+        times = sum(o.id == copy.id for o in self.sim.told[told:])
+        if times != 1:
+            self.problems.append(f"a copy of a stop was told {times} times")
+        if self.sim.core.locked != locked or len(self.sim.sent) != sent:
+            self.problems.append("a copy of a stop obeyed already acted again")
 
     def _release(self, late: bool) -> None:
         stops = [a for a in self.asked if a.kind == "stop"]
@@ -243,6 +265,11 @@ class CoreProtocol(RuleBasedStateMachine):
     @rule(twice=st.booleans())
     def stop(self, twice: bool) -> None:
         self._stop(twice)
+
+    @precondition(lambda self: not self.ended)
+    @rule(pick=st.integers(0, 100))
+    def copy_of_a_stop(self, pick: int) -> None:
+        self._copy(pick)
 
     @precondition(lambda self: not self.ended)
     @rule(late=st.booleans())

@@ -1,12 +1,12 @@
-"""The rig's reading of its processes' words (`al5d_rig.proc.said`): Fast DDS prints its own
-log on the same stdout, and a line of it is not the process's word (a CI run read
+"""The rig's reading of its processes' words (`al5d_rig.proc.said`, `own_lines`): Fast DDS
+prints its own log on the same stdout, and a line of it is not the process's word (a CI run read
 "... [RTPS_TRANSPORT_SHM Error] Failed init_port ..." where it waited for "reading")."""
 
 from __future__ import annotations
 
 import io
 
-from al5d_rig.proc import said
+from al5d_rig.proc import own_lines, said
 
 SHM_ERROR = (
     "\x1b[37;1m2026-11-28 16:18:09.319 \x1b[31;1m[\x1b[37;1mRTPS_TRANSPORT_SHM\x1b[31;1m Error]"
@@ -25,3 +25,10 @@ def test_fast_dds_log_lines_are_passed_over_coloured_or_not() -> None:
 
 def test_a_line_that_only_starts_with_a_date_is_the_process_s_own() -> None:
     assert said(io.StringIO("2026-11-28 16:18:09.319 moved\n")) == "2026-11-28 16:18:09.319 moved"
+
+
+def test_a_whole_stdout_keeps_the_process_s_own_lines_in_order() -> None:
+    """A user's script read whole (a CI-like run of tests/test_ros_client.py read the SHM
+    error as the script's first line)."""
+    text = SHM_ERROR + "ROS 2\n" + SHM_ERROR + "move [1]: done (300 ms)\n"
+    assert own_lines(text) == ["ROS 2", "move [1]: done (300 ms)"]

@@ -27,7 +27,7 @@ from al5d.ros.names import PING, Names
 from al5d.ros.qos import QOS_STREAM
 from al5d_rig.armrig import group_moves
 from al5d_rig.domains import alone
-from al5d_rig.proc import Proc, dies_with_parent, said
+from al5d_rig.proc import Proc, dies_with_parent, own_lines, said
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import Served, served
 
@@ -152,7 +152,7 @@ def test_stop_by_its_service_and_topic_release_by_the_topic_lock_the_arm_between
         "    show(arm.release())\n",
     )
     assert ended_normally(done) and done.returncode == 0, done.stderr
-    stop, locked, release, free, again = done.stdout.splitlines()
+    stop, locked, release, free, again = own_lines(done.stdout)
     # The stop's answer is its service's or, had it come first, its topic copy's outcome;
     # a release goes on the topic with the client's lease (judged on the server's clock).
     assert stop in (
@@ -238,7 +238,7 @@ def test_al5d_send_stop_without_a_server_is_the_no_server_exit() -> None:
 def test_the_readme_example_runs_as_written(arm: Served, tmp_path: Path) -> None:
     done = run_script(tmp_path, readme_example())
     assert ended_normally(done) and done.returncode == 0, done.stderr
-    moved, state, tool, stop, cancelled, locked, release = done.stdout.splitlines()
+    moved, state, tool, stop, cancelled, locked, release = own_lines(done.stdout)
     assert moved.startswith("move_to [") and ": done (" in moved
     assert state == "ready elbow 132 deg"
     assert re.fullmatch(r"x=\S+ y=\S+ z=\S+ pitch=\S+ roll=\S+", tool), tool
@@ -340,7 +340,7 @@ def test_the_client_reads_the_arm(arm: Served, tmp_path: Path, local: bool) -> N
     and hears each change, over ROS 2 (DDS) as over the local lane."""
     done = run_script(tmp_path, READS.format(local=local))
     assert ended_normally(done) and done.returncode == 0, done.stdout + done.stderr
-    lines = done.stdout.splitlines()
+    lines = own_lines(done.stdout)
     assert lines[0].startswith("the local lane ") if local else lines[0] == "ROS 2", lines[0]
     assert ": done (" in lines[1]
     assert lines[2] == "state ready False"

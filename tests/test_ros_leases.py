@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from al5d_interfaces.msg import ArmInstruction
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
@@ -134,6 +135,8 @@ def test_a_lane_client_that_speaks_for_others_loses_one_and_the_others_go_on(
 
 CLIENT = """
 import time
+from al5d_interfaces.msg import ArmInstruction
+
 from al5d.arm import instruction as ins
 from al5d.ros.client import Client
 c = Client(local=False)
@@ -260,3 +263,38 @@ def test_a_client_whose_clock_is_seconds_off_is_judged_on_the_servers_clock(
         lane.close()
         skewed.kill()
         skewed.wait(10)
+
+
+def test_a_copy_of_a_clients_stop_that_comes_after_another_clients_release_is_that_stop(
+    arm: Served,
+) -> None:
+    """A client sends its stop again until it is answered (`Client.stop`: `<stop>~<n>`,
+    naming itself); a copy still on its way when another client releases the arm is the
+    stop obeyed already: answered under its own id, and the arm neither halted nor locked
+    again (it was: the move behind it was refused as sent while the arm was locked). A
+    stop of another id from the same client is a new stop."""
+    arm.ready()
+
+    def stop(ident: str) -> None:
+        msg = ArmInstruction(instruction="stop", id=ident, client="laptop-copies")
+        arm.peer.pub.publish(msg)
+
+    before = arm.stops()
+    stop("copied-stop~1")
+    assert arm.peer.result("copied-stop~1", CMD_S).outcome == "done"
+    wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped")
+    wait_until(lambda: arm.stops() >= before + 6, CMD_S, "its six STOPs on the board")
+    stops = arm.stops()
+    assert arm.peer.trigger("release").success  # another client's release
+    wait_until(lambda: arm.states[-1] == "ready", CMD_S, "released")
+    stop("copied-stop~2")  # a copy of the same stop, late
+    arm.peer.send("after-copy", "move", 300, base=12)  # behind the copy, in order
+    copy = arm.peer.result("copied-stop~2", CMD_S)
+    assert copy.outcome == "done", copy
+    moved = arm.peer.result("after-copy", CMD_S)
+    assert moved.outcome == "done", moved
+    assert arm.states[-1] == "ready" and arm.stops() == stops
+    stop("new-stop~1")  # a new stop of the same client: obeyed
+    assert arm.peer.result("new-stop~1", CMD_S).outcome == "done"
+    wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped again")
+    wait_until(lambda: arm.stops() >= stops + 6, CMD_S, "its six STOPs on the board")

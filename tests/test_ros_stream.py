@@ -123,7 +123,16 @@ def test_a_stop_during_a_stream_wins_and_the_stream_stays_held(streamed: Command
     sender = threading.Thread(target=stream)
     sender.start()
     try:
-        wait_until(lambda: len(group_moves(streamed.records(since))) >= 5, 10, "the stream moving")
+        try:
+            wait_until(lambda: len(group_moves(streamed.records(since))) >= 5, 10, "moving")
+        except AssertionError:
+            told = [r for r in streamed.peer.results_now().values() if r.id.startswith("tele-")]
+            raise AssertionError(
+                f"the stream did not move the arm in 10 s: {len(sent)} set-points sent, "
+                f"{[r.raw for r in streamed.records(since)][-8:]} on the board, told "
+                f"{[(r.id, r.outcome, r.reason) for r in told][-4:]}, the server said "
+                f"{streamed.proc.err.all[-12:]}"
+            ) from None
         t_stop = time.monotonic()
         assert streamed.peer.trigger("stop").success
         time.sleep(0.5)

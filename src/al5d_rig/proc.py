@@ -45,6 +45,12 @@ def said(stream: IO[str]) -> str:
     return ""
 
 
+def own_lines(text: str) -> list[str]:
+    """The lines of `text` (a process's whole stdout) that the process printed itself:
+    Fast DDS's log lines on the same stdout are left out."""
+    return [line for line in text.splitlines() if not _FASTDDS_LOG.match(_ESCAPES.sub("", line))]
+
+
 def dies_with_parent() -> None:
     """`preexec_fn` of the rig's processes: killed when the test process dies.
 

@@ -661,10 +661,11 @@ class Client:
     def _stop(self, name: str, service: Any, timeout: float) -> Answer:
         """The stop on the instruction topic at once and by its service as soon as that is
         found, both sent again every `STOP_RETRY_S` until one is answered (the copy every
-        `STOP_FIRST_COPIES_S` in the first second; not more often after it: a copy still on
-        its way when another client releases the arm would lock it again), and on the topic
-        again the moment a reader of it matches. `timeout` counts from
-        when the server is found; `NoServer` if it is not within `wait_s`.
+        `STOP_FIRST_COPIES_S` in the first second), and on the topic again the moment a
+        reader of it matches. The copies are one stop (`<stop>~<n>`, this client's): the
+        server obeys the first to come and takes the others for it (each answered), so a
+        copy still on its way when another client releases the arm does not lock it again. `timeout`
+        counts from when the server is found; `NoServer` if it is not within `wait_s`.
 
         Nothing waits for the service: the server's stop path is a DDS participant of its
         own, found apart from its node (after a restart, under load, seconds apart), and
@@ -679,14 +680,13 @@ class Client:
         gets through is obeyed at once, whatever was lost."""
         from std_srvs.srv import Trigger
 
-        from al5d.ros.convert import to_message
+        from al5d.ros.convert import COPY_MARK, to_message
 
         finding = Deadline(self.wait_s)
         deadline: Deadline | None = None  # from when the server is found
         answered = threading.Event()
         told: list[Outcome] = []
         futures: list[Any] = []
-        copies: list[str] = []
         start = time.monotonic()
         copied = called = -STOP_RETRY_S  # when (monotonic) last sent, each way
         found: float | None = None  # when the server was found (monotonic)
@@ -696,6 +696,12 @@ class Client:
             told.append(outcome)
             answered.set()
 
+        # One stop, however many copies: each names this client and is `<stop>~<n>`, so
+        # that the server obeys the first to come and answers each (a copy whose answer
+        # was lost is answered again), and a copy that comes after another client's release
+        # is the stop obeyed already (`convert.stop_key`).
+        stop = Instruction(Kind.STOP).id
+        copies: list[str] = []
         try:
             while True:
                 # The copy first: the graph's answers below (is the service there, the
@@ -704,13 +710,13 @@ class Client:
                 every = STOP_FIRST_COPIES_S if at - start < 1.0 else STOP_RETRY_S
                 if at - copied >= every or self._readers_matched > matched:
                     matched = self._readers_matched
-                    copy = Instruction(Kind.STOP)
-                    msg = to_message(copy)
+                    ident = f"{stop}{COPY_MARK}{len(copies) + 1}"
+                    msg = to_message(Instruction(Kind.STOP, id=ident))
                     msg.client = self.key  # no deadline: a stop is obeyed however late
-                    copies.append(copy.id)
-                    self.watch(copy.id, heard)
+                    copies.append(ident)
+                    self.watch(ident, heard)
                     with self._cv:
-                        self._sent.add(copy.id)
+                        self._sent.add(ident)
                     self.pub.publish(msg)
                     copied = at
                 if at - called >= STOP_RETRY_S:

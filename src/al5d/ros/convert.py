@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import replace
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
@@ -120,6 +120,10 @@ def move_from_fields(
     return Instruction(Kind.MOVE, joints=pairs, time_ms=time_ms, id=ident)
 
 
+#: In a stop's id, what follows it names a copy of the stop before it (`stop_key`).
+COPY_MARK = "~"
+
+
 def sent_ns(info: Mapping[str, int | None]) -> int | None:
     """When a message was sent (CLOCK_REALTIME ns), from the info rclpy hands a callback."""
     return info.get("source_timestamp")
@@ -130,9 +134,16 @@ def came_ns(info: Mapping[str, int | None]) -> int:
     return info.get("received_timestamp") or time.time_ns()
 
 
-def stop_key(info: Mapping[str, int | None]) -> tuple[int | None, int | None]:
-    """What one message is known by to every reader of its topic (the node and the stop
-    watcher both see a stop): its source timestamp and its publication sequence number."""
+def stop_key(msg: ArmInstruction, info: Mapping[str, int | None]) -> Hashable:
+    """What one stop is known by to every reader of its topic (the node and the stop watcher
+    both see it; `al5d.arm.core`'s rule 3: obeyed once): a stop that names its client is
+    known by that and its id up to its first `COPY_MARK` (`<stop>~<copy>`: the copies
+    `al5d.ros.client` sends until one is answered are one stop, so a copy that comes
+    after another client's release is the stop obeyed already, and does not lock the arm
+    again); any other, by its message (its source timestamp and publication sequence
+    number)."""
+    if msg.client and msg.id:
+        return ("stop", msg.client, msg.id.partition(COPY_MARK)[0])
     return info.get("source_timestamp"), info.get("publication_sequence_number")
 
 

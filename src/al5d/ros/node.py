@@ -264,7 +264,7 @@ class ArmNode(Node):
                 return
             log.warning("stop [%s]: obeyed, late: %s", instr.id, stale.split(": stale")[0])
         # A stop the stop watcher has obeyed already is the same message: obeyed once.
-        key = stop_key(info) if instr.kind is Kind.STOP else None
+        key = stop_key(msg, info) if instr.kind is Kind.STOP else None
         self._submitted(self.arm.submit(instr, key=key, client=client), instr.id, instr.name)
 
     def _on_trajectory(self, msg: JointTrajectory, info: dict[str, int]) -> None:

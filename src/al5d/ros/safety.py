@@ -175,7 +175,7 @@ class StopNode(Node):
         msg = deserialize_message(raw, ArmInstruction)
         instr = from_message(msg, self.presets, self.model, stop_time(sent_ns(info), came_ns(info)))
         if isinstance(instr, Instruction) and instr.kind is Kind.STOP:
-            self.arm.submit(instr, key=stop_key(info))
+            self.arm.submit(instr, key=stop_key(msg, info))
 
     def close(self) -> None:
         self.reader.close()
