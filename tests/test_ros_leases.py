@@ -272,7 +272,8 @@ def test_a_copy_of_a_clients_stop_that_comes_after_another_clients_release_is_th
     naming itself); a copy still on its way when another client releases the arm is the
     stop obeyed already: answered under its own id, and the arm neither halted nor locked
     again (it was: the move behind it was refused as sent while the arm was locked). A
-    stop of another id from the same client is a new stop."""
+    stop of another id from the same client is a new stop, and so is a stop sent again
+    under an id that marks no copy."""
     arm.ready()
 
     def stop(ident: str) -> None:
@@ -298,3 +299,12 @@ def test_a_copy_of_a_clients_stop_that_comes_after_another_clients_release_is_th
     assert arm.peer.result("new-stop~1", CMD_S).outcome == "done"
     wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped again")
     wait_until(lambda: arm.stops() >= stops + 6, CMD_S, "its six STOPs on the board")
+    # A stop sent again under the same id (no copy's mark) is a stop again.
+    assert arm.peer.trigger("release").success
+    wait_until(lambda: arm.states[-1] == "ready", CMD_S, "released again")
+    stop("new-stop")
+    wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped by a plain id")
+    assert arm.peer.trigger("release").success
+    wait_until(lambda: arm.states[-1] == "ready", CMD_S, "released once more")
+    stop("new-stop")
+    wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped by the same id again")

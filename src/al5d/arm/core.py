@@ -26,8 +26,8 @@ The lanes
   set-point of its stream runs, and nothing waits, supersedes it: the running one is
   cancelled (none of its bytes still to go is written) and the new one runs, written
   when the wire is free, from where the superseded one has the arm then (the board
-  retargets a group move mid-move; the joints still moving that it does not name go
-  along to their target in its line, judged whole with it). A set-point is done when its
+  retargets a group move mid-move; the superseded move's joints that it does not name
+  go along to their target in its line, judged whole with it). A set-point is done when its
   time is over, without `Q`. The watchdog: when no set-point of its stream has come for
   `server.stream_timeout_s` during its time, the arm is held where it is, as a cancelled
   move is (no lock). A stop, a fault or a shutdown holds the streams: their set-points
@@ -57,9 +57,10 @@ owner took it, where the channel does not say), and the order of sending, not of
    refused, as it would have been had it arrived then.
 3. A stop that two readers of one topic both see (the bridge's node, in order; the stop
    watcher, at once) is one stop: it is known by its identity (`Ask.key`: its message's,
-   or its client's and id, which every copy its client sends again shares), obeyed once
-   and answered once; a copy (an id of its own) that comes later, even after a release,
-   is that stop: answered, not obeyed again.
+   or, for a copy `<stop>~<n>` that names its client, its client's and the stop's id,
+   which every copy its client sends again shares), obeyed once and answered once; a copy
+   (an id of its own) that comes later, even after a release, is that stop: answered,
+   not obeyed again.
 
 A fault, a board's reset and the shutdown are the owner's own events: they count as
 sent when the owner takes them.
@@ -289,11 +290,12 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
             if motion is not None and len(job.steps) == 1:
                 # The board retargets only the joints a line names: the others still moving
                 # would go on to the running move's target at its pace, on a path nobody
-                # judged (seen: 15.9 mm under the table). The set-point takes them along to
-                # that target: one group move, judged whole.
+                # judged (seen: 15.9 mm under the table). The set-point takes the running
+                # move's joints along to that target: one group move, judged whole, whose
+                # end is where the arm then rests (the superseded one, cancelled, never
+                # says where it took them).
                 step = job.steps[0]
-                moving = {j: motion.target[j] for j in motion.moving(ev.t) if j in motion.target}
-                job = replace(job, steps=(replace(step, target={**moving, **step.target}),))
+                job = replace(job, steps=(replace(step, target={**motion.target, **step.target}),))
             reason = from_start(instr, job.steps, here, c.arm.limits)
             if reason:
                 _refuse(ev, reason, out)

@@ -388,13 +388,12 @@ class Owner:
             self._take(self._others.popleft())
             if self._stops:
                 break
-        t = now()
         if self._core.link.query is not None:
-            # The tick judges the query's deadline at `t`: an answer that came while this
-            # turn's requests were taken (a write held by a full port) is in the port, and
-            # must be read first, or it is taken for none and asked again (twice: a fault).
-            self._read_board(t, ready=self._transport_fd is not None)
-        self._input(Tick(t, wall_ns(), self._host_stalls()))
+            # The tick judges the query's deadline: an answer that came while this turn's
+            # requests were taken (a write held by a full port) is in the port, and must be
+            # read first, or it is taken for none and asked again (twice: a fault).
+            self._read_board(now(), ready=self._transport_fd is not None)
+        self._input(Tick(now(), wall_ns(), self._host_stalls()))
 
     def _host_stalls(self) -> float:
         """The owner's own stalls, and, while a query waits for its answer, the host's (the

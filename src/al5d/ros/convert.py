@@ -136,14 +136,15 @@ def came_ns(info: Mapping[str, int | None]) -> int:
 
 def stop_key(msg: ArmInstruction, info: Mapping[str, int | None]) -> Hashable:
     """What one stop is known by to every reader of its topic (the node and the stop watcher
-    both see it; `al5d.arm.core`'s rule 3: obeyed once): a stop that names its client is
-    known by that and its id up to its first `COPY_MARK` (`<stop>~<copy>`: the copies
-    `al5d.ros.client` sends until one is answered are one stop, so a copy that comes
-    after another client's release is the stop obeyed already, and does not lock the arm
-    again); any other, by its message (its source timestamp and publication sequence
-    number)."""
-    if msg.client and msg.id:
-        return ("stop", msg.client, msg.id.partition(COPY_MARK)[0])
+    both see it; `al5d.arm.core`'s rule 3: obeyed once): a copy of a stop (its id
+    `<stop>~<copy>`, `COPY_MARK`) that names its client, by that and the stop's id before
+    the mark (the copies `al5d.ros.client` sends until one is answered are one stop, so a
+    copy that comes after another client's release is the stop obeyed already, and does
+    not lock the arm again); any other, by its message (its source timestamp and
+    publication sequence number): a stop sent again under the same id is a stop again."""
+    stop, mark, _ = msg.id.partition(COPY_MARK)
+    if msg.client and stop and mark:
+        return ("stop", msg.client, stop)
     return info.get("source_timestamp"), info.get("publication_sequence_number")
 
 

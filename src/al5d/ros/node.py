@@ -263,7 +263,8 @@ class ArmNode(Node):
                 self.refuse(instr.id, instr.name, stale)
                 return
             log.warning("stop [%s]: obeyed, late: %s", instr.id, stale.split(": stale")[0])
-        # A stop the stop watcher has obeyed already is the same message: obeyed once.
+        # A stop the stop watcher has obeyed already (the same message, or a copy of the
+        # same stop: `stop_key`) is obeyed once.
         key = stop_key(msg, info) if instr.kind is Kind.STOP else None
         self._submitted(self.arm.submit(instr, key=key, client=client), instr.id, instr.name)
 
