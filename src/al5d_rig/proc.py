@@ -122,7 +122,10 @@ class Lines:
         return line
 
     def wait_for(self, text: str, timeout: float = 20.0) -> str:
-        """The next line (after the last one matched) that contains `text`."""
+        """The next line (after the last one matched) that contains `text`; if none comes,
+        the error holds every line since the last match (up to 200: a process's start-up
+        log, where a child process said why it ended, is often longer than 30)."""
+        start = self._cursor
         for i in range(self._cursor, len(self.all)):
             if text in self.all[i]:
                 self._cursor = i + 1
@@ -133,9 +136,8 @@ class Lines:
                 self._cursor = len(self.all)
                 return line
         self._cursor = len(self.all)
-        raise AssertionError(
-            f"no line with {text!r} in {timeout} s; got:\n" + "\n".join(self.all[-30:])
-        )
+        got = self.all[max(start, len(self.all) - 200) :]
+        raise AssertionError(f"no line with {text!r} in {timeout} s; got:\n" + "\n".join(got))
 
     def drain(self, timeout: float = 2.0) -> list[str]:
         """Every line so far, after waiting up to `timeout` for more (or for the end)."""
