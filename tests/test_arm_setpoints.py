@@ -130,9 +130,13 @@ def test_a_stop_holds_the_stream_until_a_set_point_where_the_arm_is(rig: Rig) ->
 
     wait_until(hold_here, 10, "the stream resumed")
     assert driver.submit(ins.move(**target), stream=STREAM).result(10).ok
-    moves = moves_since(rig, before, 1)
-    assert len(moves) == 1
-    assert group_pulses(moves[0].commands[0]) == pulses(rig.config, target)
+    moves = moves_since(rig, before, 2)
+    assert len(moves) == 2
+    # The joints the stop caught moving, read back (`QP`: 10 us steps), put there first.
+    hold = moves[0].commands[0]
+    assert isinstance(hold, p.GroupMove) and hold.time_ms is None, moves[0]
+    assert all(t.pulse_us % 10 == 0 for t in hold.targets), moves[0]
+    assert group_pulses(moves[1].commands[0]) == pulses(rig.config, target)
 
 
 # -- the streaming mode (issue 25): the running set-point is superseded too ----------------

@@ -14,10 +14,12 @@ from hypothesis import strategies as st
 from al5d.arm import instruction as ins
 from al5d.arm.config import load_config, with_changes
 from al5d.arm.instruction import Point, Result
+from al5d.arm.states import State
 from al5d.arm.validate import Limits, check, from_start
 from al5d.model import JOINTS, build_chain, link_poses
 from al5d.model.table import HEIGHT_JOINTS, PATH_TOLERANCE_M, below, heights, path_below
 from al5d.model.transforms import matrix_from_quat
+from al5d.ssc32u import protocol as p
 from al5d_rig.armrig import Rig, written
 
 CONFIG = load_config()
@@ -130,6 +132,41 @@ def test_a_joint_move_into_the_table_is_refused_with_nothing_written(rig: Rig) -
     time.sleep(0.1)
     assert written(rig.emu.records) == before
     assert rig.driver.execute(ins.move(base=10.0), 5).ok  # the server goes on
+
+
+def test_a_move_after_a_stop_mid_move_starts_on_the_board_where_it_was_judged(rig: Rig) -> None:
+    """`QP` reads a pulse to 10 us, rounded down: up to 1 degree a joint, and near the table
+    up to 2 mm of depth on a path judged from the pose read back (the model-based test
+    found the board's pulses 0.67 mm under the table, 0.5 mm allowed). The first move after
+    a stop mid-move puts the joints it caught moving where they were read back first (a
+    line with no time), so that the board's path starts where its check started it."""
+    driver, emu, joints = rig.driver, rig.emu, rig.config.joints
+    assert driver.execute(ins.preset("ready"), 10).ok
+    moving = {"base": 40.0, "shoulder": 20.0, "elbow": 100.0}
+    before = len(rig.moves())
+    going = driver.submit(ins.move(**moving, time_ms=4000))
+    rig.wait_move_count(before + 1)
+    time.sleep(0.7)
+    assert driver.execute(ins.stop(), 10).ok
+    assert going.result(10).result is Result.CANCELLED
+    driver.wait_for_state(State.STOPPED, 10)
+    time.sleep(0.3)  # the pose read back
+    halted = {name: emu.pulse_us(j.channel) for name, j in joints.items()}
+    assert driver.execute(ins.release(), 10).ok
+    driver.wait_for_state(State.READY, 10)
+    n = len(emu.records)
+    assert driver.execute(ins.move(wrist=10.0, time_ms=1000), 10).ok
+    timed = [
+        r for r in emu.records[n:] for c in r.commands if isinstance(c, p.GroupMove) and c.time_ms
+    ]
+    assert len(timed) == 1, timed
+    # The board's ramp for the move starts where the core judged its path from: the pulses
+    # read back (the step of `QP` under the pulse the stop left) for the joints that moved,
+    # the pulses its own lines wrote for the others.
+    start = {name: emu.pulse_us(j.channel, timed[0].t_effect - 1e-6) for name, j in joints.items()}
+    for name, us in halted.items():
+        expected = us if name not in moving else math.floor(us / 10) * 10
+        assert abs(start[name] - expected) < 0.01, (name, us, start[name])
 
 
 def test_a_trajectory_with_one_point_in_the_table_is_refused_whole(rig: Rig) -> None:

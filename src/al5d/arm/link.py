@@ -327,12 +327,29 @@ def _pose(c: Core, pose: Mapping[str, float | None], t: float, wall: int, out: O
     if following is Next.RECONNECT:
         c = _reconnected(c, pose, bool(lost), wall, out)
     else:
-        c = replace(c, book=c.book.read_back(pose))
+        c = replace(c, book=c.book.read_back(pose, _exact(c, pose)))
         if c.run is None:
             c = replace(c, readback=False)
     c = replace(c, link=replace(c.link, next=None))
     posed(c, out)
     return c
+
+
+def _exact(c: Core, pose: Mapping[str, float | None]) -> frozenset[str]:
+    """The joints read back whose pulse the core knows to the microsecond: at rest where
+    its own line put them, and in the step of `QP` the board answered."""
+    book, tr = c.book, c.arm.translator
+    exact = set()
+    for joint, deg in pose.items():
+        known = book.pose.get(joint)
+        if deg is None or known is None or joint in book.unsure:
+            continue
+        if (
+            tr.pulse_us(joint, known) // QP_RESOLUTION_US
+            == tr.pulse_us(joint, deg) // QP_RESOLUTION_US
+        ):
+            exact.add(joint)
+    return frozenset(exact)
 
 
 def _reconnected(
@@ -345,7 +362,8 @@ def _reconnected(
         say(out, logging.WARNING, RESET_LOCKED)
         c = lock_arm(c, "the board's reset", wall)
         book = book.forget()
-    c = replace(c, book=book.read_back(pose), fault=None, readback=False)
+    exact = frozenset() if reset else _exact(c, pose)
+    c = replace(c, book=book.read_back(pose, exact), fault=None, readback=False)
     if c.state is State.FAULT:  # not if a shutdown came meanwhile: it parks now
         c = fire(c, Event.RECONNECTED, out)
     say(out, logging.INFO, f"reconnected to {c.firmware} on {c.arm.port}")

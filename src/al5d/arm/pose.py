@@ -36,6 +36,12 @@ class PoseBook:
     #: time is over (UG-38); until then a move's completion is judged by time alone.
     q_unreliable_until: float = 0.0
     steps_written: int = 0
+    #: The joints whose pulse the core knows only to within a step of `QP` (10 us, rounded
+    #: down: up to 1 degree): read back, or estimated at a halt or a lost link while they
+    #: moved. A path judged from such a pose is not the board's (near the table, 1 degree
+    #: is up to 2 mm of depth): the next job's first line puts them first where the core
+    #: believes them (`held`), with no time, so that its path starts where it was judged.
+    unsure: frozenset[str] = frozenset()
 
     @classmethod
     def unknown(cls, joints: Mapping[str, object]) -> PoseBook:
@@ -99,6 +105,7 @@ class PoseBook:
             steps_written=n,
             stamps=stamps,
             ways=ways,
+            unsure=self.unsure - set(motion.target),  # its line puts them at their target
         )
 
     def reached(self, target: Mapping[str, float]) -> PoseBook:
@@ -115,20 +122,33 @@ class PoseBook:
         motion = self.motion
         if motion is None:
             return self
-        return replace(self, pose={**self.pose, **motion.at(t)}, motion=None).distrust_q(motion)
+        unsure = self.unsure | {j for j in self.ways if self.way(j, t) is not None}
+        book = replace(self, pose={**self.pose, **motion.at(t)}, motion=None, unsure=unsure)
+        return book.distrust_q(motion)
 
     def distrust_q(self, stopped: Motion) -> PoseBook:
         return replace(self, q_unreliable_until=max(self.q_unreliable_until, stopped.end))
 
     def lost(self) -> PoseBook:
-        """The link went (the board may go on with its move): Q counts that move down."""
-        book = self if self.motion is None else self.distrust_q(self.motion)
-        return replace(book, motion=None)
+        """The link went (the board may go on with its move): Q counts that move down, and
+        where it has its joints is known once read back."""
+        motion = self.motion
+        if motion is None:
+            return self
+        moved = set(motion.target) | (set(motion.before.target) if motion.before else set())
+        return replace(self.distrust_q(motion), motion=None, unsure=self.unsure | moved)
 
-    def read_back(self, pose: Pose) -> PoseBook:
-        """Where the board says the servos are."""
-        return replace(self, pose={**self.pose, **pose}, motion=None)
+    def read_back(self, pose: Pose, exact: frozenset[str] = frozenset()) -> PoseBook:
+        """Where the board says the servos are; `exact`: the joints whose own pose the core
+        knows to the microsecond and the board's answer agrees with (kept, not rounded)."""
+        read = {j: v for j, v in pose.items() if j not in exact}
+        unsure = (self.unsure - exact) | {j for j, v in read.items() if v is not None}
+        return replace(self, pose={**self.pose, **read}, motion=None, unsure=unsure)
+
+    def held(self) -> PoseBook:
+        """A line put every joint of unsure pose where the core believes it."""
+        return replace(self, unsure=frozenset())
 
     def forget(self) -> PoseBook:
         """After a board's reset: no pose is known until it is read back."""
-        return replace(self, pose=dict.fromkeys(self.pose), motion=None)
+        return replace(self, pose=dict.fromkeys(self.pose), motion=None, unsure=frozenset())

@@ -41,13 +41,16 @@ class Translator:
 
     def encode(self, target: Mapping[str, float], time_ms: int) -> bytes:
         """The group move for `target` (degrees) arriving together in `time_ms`."""
-        pulse = self._pulse
-        parts = []
-        for name, deg in target.items():
-            prefix, u0, k = pulse[name]
-            parts.append(f"{prefix}{int(u0 + deg * k + 0.5)}")
+        parts = [
+            f"{self._pulse[name][0]}{self.pulse_us(name, deg)}" for name, deg in target.items()
+        ]
         parts.append(time_suffix(time_ms))
         return "".join(parts).encode("ascii")
+
+    def pulse_us(self, name: str, deg: float) -> int:
+        """The pulse width a line writes for joint `name` at `deg` degrees."""
+        _, u0, k = self._pulse[name]
+        return int(u0 + deg * k + 0.5)
 
     def degrees(self, pulses: Mapping[int, int]) -> dict[str, float | None]:
         """Angles from pulse widths read back; None where the channel has no pulse yet."""
