@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import io
 
-from al5d_rig.proc import own_lines, said
+import pytest
+
+from al5d_rig.proc import Lines, own_lines, said
 
 SHM_ERROR = (
     "\x1b[37;1m2026-11-28 16:18:09.319 \x1b[31;1m[\x1b[37;1mRTPS_TRANSPORT_SHM\x1b[31;1m Error]"
@@ -32,3 +34,14 @@ def test_a_whole_stdout_keeps_the_process_s_own_lines_in_order() -> None:
     error as the script's first line)."""
     text = SHM_ERROR + "ROS 2\n" + SHM_ERROR + "move [1]: done (300 ms)\n"
     assert own_lines(text) == ["ROS 2", "move [1]: done (300 ms)"]
+
+
+def test_lines_of_two_processes_are_waited_for_in_whichever_order_they_came() -> None:
+    """A server logs, then tells its child, which logs: each by a logging thread of its own,
+    the child's line may come first (a CI run waited for the server's, then the child's,
+    and never saw the child's: it had come before)."""
+    lines = Lines(io.StringIO("start\nthe effect\nthe cause\nlater\n"))
+    assert lines.wait_for_each(["the cause", "the effect"], 5) == ["the cause", "the effect"]
+    assert lines.wait_for("later", 5) == "later"
+    with pytest.raises(AssertionError, match="'never'"):
+        lines.wait_for_each(["later", "never"], 0.5)

@@ -314,12 +314,14 @@ class Restart:
     answered: float
     said: str
     obeyed_s: float | None
+    #: When the server's ROS nodes said they were up, after the stop was asked (s).
+    up_s: tuple[float, ...] = ()
 
 
 def restarts(hosts: Hosts, count: int, seed: int) -> list[Restart]:
     """The server on `hosts.arm` restarted `count` times (SIGTERM, then started again) under
     the laptop's client, which sends moves all along; a stop asked of each new server at a
-    random moment in its first second."""
+    random moment in its first second up (its arm ready, and its ROS nodes)."""
     rng = random.Random(seed)
     laptop: subprocess.Popen[str] | None = None
     out: Lines | None = None
@@ -329,7 +331,10 @@ def restarts(hosts: Hosts, count: int, seed: int) -> list[Restart]:
         assert server.stderr is not None
         log = Lines(server.stderr)
         try:
-            log.wait_for("STATE: ready", CMD_S)
+            # Restarted once the arm is ready and its ROS side has said it is up: a stop
+            # asked before reaches no node (beside busy loops in CI, seen up to 2 s after the
+            # arm was ready), and is obeyed when one is up (the client keeps sending it).
+            log.wait_for_each(["STATE: ready", "ROS 2 node", "ROS 2 stop node"], CMD_S)
             if laptop is None:  # the client, from before the first restart on
                 laptop = hosts.popen(hosts.laptop, [sys.executable, "-c", LAPTOP, str(seed)])
                 assert laptop.stdout is not None
@@ -346,7 +351,12 @@ def restarts(hosts: Hosts, count: int, seed: int) -> list[Restart]:
                 obeyed: float | None = stopped - float(asked)
             except AssertionError:
                 obeyed = None
-            done.append(Restart(float(asked), float(answered), said, obeyed))
+            up = tuple(
+                round(log_clock(line, float(asked)) - float(asked), 3)
+                for line in log.drain(0)
+                if ("ROS 2 node" in line or "ROS 2 stop node" in line) and " up" in line
+            )
+            done.append(Restart(float(asked), float(answered), said, obeyed, up))
             print(f"restart {len(done)}: {done[-1]}", flush=True)
         finally:
             server.send_signal(signal.SIGTERM)

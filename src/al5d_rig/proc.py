@@ -16,6 +16,7 @@ import tempfile
 import threading
 import time
 import weakref
+from collections.abc import Sequence
 from pathlib import Path
 from typing import IO
 
@@ -36,19 +37,21 @@ _FASTDDS_LOG = re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d+ \[\w+ (Error|Wa
 _ESCAPES = re.compile(r"\x1b\[[0-9;]*m")
 
 
+def _own(line: str) -> bool:
+    """Whether a line of a process's stdout is its own (not one of Fast DDS's log lines)."""
+    return not _FASTDDS_LOG.match(_ESCAPES.sub("", line))
+
+
 def said(stream: IO[str]) -> str:
     """The next line of `stream` printed by its process itself, stripped: Fast DDS's log
     lines on the same stdout are passed over. "" at the stream's end."""
-    for line in stream:
-        if not _FASTDDS_LOG.match(_ESCAPES.sub("", line)):
-            return line.strip()
-    return ""
+    return next((line.strip() for line in stream if _own(line)), "")
 
 
 def own_lines(text: str) -> list[str]:
     """The lines of `text` (a process's whole stdout) that the process printed itself:
     Fast DDS's log lines on the same stdout are left out."""
-    return [line for line in text.splitlines() if not _FASTDDS_LOG.match(_ESCAPES.sub("", line))]
+    return [line for line in text.splitlines() if _own(line)]
 
 
 def dies_with_parent() -> None:
@@ -138,6 +141,30 @@ class Lines:
         self._cursor = len(self.all)
         got = self.all[max(start, len(self.all) - 200) :]
         raise AssertionError(f"no line with {text!r} in {timeout} s; got:\n" + "\n".join(got))
+
+    def wait_for_each(self, texts: Sequence[str], timeout: float = 20.0) -> list[str]:
+        """The lines (after the last one matched) that hold each of `texts`, in whichever
+        order they come: two processes writing to one stream (a server and its child) each
+        through a logging thread of its own may have their lines cross, the effect's line
+        before its cause's."""
+        start = seen = self._cursor
+        found: dict[str, int] = {}
+        deadline = time.monotonic() + timeout
+        while True:
+            for i in range(seen, len(self.all)):
+                for text in texts:
+                    if text not in found and text in self.all[i]:
+                        found[text] = i
+            seen = len(self.all)
+            if len(found) == len(texts):
+                self._cursor = max(found.values()) + 1
+                return [self.all[found[text]] for text in texts]
+            if self._next(deadline) is None:
+                missing = [t for t in texts if t not in found]
+                got = self.all[max(start, len(self.all) - 200) :]
+                raise AssertionError(
+                    f"no line with {missing!r} in {timeout} s; got:\n" + "\n".join(got)
+                )
 
     def drain(self, timeout: float = 2.0) -> list[str]:
         """Every line so far, after waiting up to `timeout` for more (or for the end)."""

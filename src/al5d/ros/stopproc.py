@@ -18,6 +18,7 @@ Run as `python -m al5d.ros.stopproc CTRL LANE` by the owner; nothing else starts
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 import threading
@@ -46,6 +47,7 @@ def main(argv: list[str]) -> int:
     arm = Remote(lane, name="al5d-stop", watch=(), timeout=120.0)
     node = StopNode(arm, context, Names.of(arm.settings.namespace))
     Spinner(node, context, owns_context=False, kind="single", urgent=True)
+    logging.getLogger("al5d").info("ROS 2 stop node %s up", node.get_fully_qualified_name())
     send(ctrl, "ready")
     ended = threading.Event()
     arm.closed_listeners.append(ended.set)
