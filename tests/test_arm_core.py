@@ -436,3 +436,28 @@ def test_a_held_stream_at_100_hz_for_10_s_is_a_few_log_lines(
     named = sum(bool(re.match(r"refused move \[", m)) for m in lines)
     counted = [re.search(r"(\d+) more", m) for m in lines]
     assert named + sum(int(c.group(1)) for c in counted if c) == len(refs), lines
+
+
+def test_after_a_stop_a_trajectory_s_points_take_effect_on_schedule(sim: Sim) -> None:
+    """The first line after a stop mid-move puts the joints it caught moving where they
+    were read back (`QP`'s steps) first; the points after it go out a wire time of their
+    own line before the point ahead ends, not of that longer first line (at 9600 baud,
+    25 ms early: a corner nobody judged)."""
+    sim.ask(ins.move(base=60, shoulder=10, elbow=100, time_ms=1500))
+    sim.run(0.5)
+    assert sim.outcomes[sim.ask(ins.stop())].ok
+    sim.run(0.5)
+    assert sim.outcomes[sim.ask(ins.release())].ok
+    records = len(sim.records)
+    points = (Point((("base", 20.0),), 400.0), Point((("base", 0.0),), 800.0))
+    assert sim.outcome(sim.ask(ins.trajectory(points))).ok
+    lines = [
+        r for r in sim.records[records:] if any(isinstance(c, p.GroupMove) for c in r.commands)
+    ]
+    assert len(lines) == 3, [r.raw for r in lines]
+    held, first = lines[0].commands[0], lines[1].commands[0]
+    assert isinstance(held, p.GroupMove) and held.time_ms is None
+    assert {t.channel for t in held.targets} >= {0, 1, 2}  # base, shoulder, elbow
+    assert isinstance(first, p.GroupMove) and first.time_ms is not None
+    first_end = lines[1].t_effect + first.time_ms / 1000
+    assert abs(lines[2].t_effect - first_end) < 0.003, lines[2].t_effect - first_end

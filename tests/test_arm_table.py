@@ -150,7 +150,10 @@ def test_a_move_after_a_stop_mid_move_starts_on_the_board_where_it_was_judged(ri
     assert driver.execute(ins.stop(), 10).ok
     assert going.result(10).result is Result.CANCELLED
     driver.wait_for_state(State.STOPPED, 10)
-    time.sleep(0.3)  # the pose read back
+    deadline = time.monotonic() + 10
+    while driver.core.readback:  # the pose read back
+        assert time.monotonic() < deadline, "the pose not read back in 10 s"
+        time.sleep(0.01)
     halted = {name: emu.pulse_us(j.channel) for name, j in joints.items()}
     assert driver.execute(ins.release(), 10).ok
     driver.wait_for_state(State.READY, 10)

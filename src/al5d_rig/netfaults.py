@@ -314,7 +314,8 @@ class Restart:
     answered: float
     said: str
     obeyed_s: float | None
-    #: When the server's ROS nodes said they were up, after the stop was asked (s).
+    #: When the server's ROS nodes said they were up, from when the stop was asked (s;
+    #: negative: before it).
     up_s: tuple[float, ...] = ()
 
 

@@ -146,7 +146,9 @@ class Lines:
         """The lines (after the last one matched) that hold each of `texts`, in whichever
         order they come: two processes writing to one stream (a server and its child) each
         through a logging thread of its own may have their lines cross, the effect's line
-        before its cause's."""
+        before its cause's. Each of `texts` is looked for once (give each once)."""
+        if not texts:
+            return []
         start = seen = self._cursor
         found: dict[str, int] = {}
         deadline = time.monotonic() + timeout

@@ -312,6 +312,9 @@ class Run:
     poll_at: float = 0.0
     #: The step's line, planned: its bytes and its time (sent with the line's first piece).
     line: bytes = b""
+    #: Of `line`, the bytes of the line before the step's own that puts the joints of
+    #: unsure pose where the core believes them (`PoseBook.unsure`).
+    held_bytes: int = 0
     line_ms: int = 0
     line_start: Mapping[str, float] = field(default_factory=dict)
     t_write: float = 0.0

@@ -119,10 +119,12 @@ class PoseBook:
     def halted(self, t: float) -> PoseBook:
         """A STOP is written: the pose is where the motion is at `t` (until the read-back
         says exactly where), and `Q` counts the stopped move down."""
+        # A joint still on its way (its step's time over by the owner's clock, the board a
+        # little behind it) stops short of where the pose says too.
+        unsure = self.unsure | {j for j in self.ways if self.way(j, t) is not None}
         motion = self.motion
         if motion is None:
-            return self
-        unsure = self.unsure | {j for j in self.ways if self.way(j, t) is not None}
+            return replace(self, unsure=unsure)
         book = replace(self, pose={**self.pose, **motion.at(t)}, motion=None, unsure=unsure)
         return book.distrust_q(motion)
 

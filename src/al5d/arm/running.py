@@ -150,12 +150,20 @@ def plan(c: Core, run: Run, t: float) -> Run:
     start = {j: v for j, v in pose.items() if v is not None}
     line = tr.encode(step.target, time_ms)
     unsure = {j: start[j] for j in c.book.unsure if j in start}
-    if k == 0 and not run.retarget and job.mode is Mode.QUEUE and unsure:
+    held = b""
+    if k == 0 and job.mode is Mode.QUEUE and unsure:
         # Joints known to within a step of `QP` only are put where the core believes them
         # first, at once (no time: a jump of less than 10 us), so that the path the board
         # takes is the one judged from `start` (the owner's parks are not judged).
-        line = tr.encode(unsure, 0) + line
-    return replace(run, line=line, line_ms=time_ms, line_start=start, notes=tuple(notes))
+        held = tr.encode(unsure, 0)
+    return replace(
+        run,
+        line=held + line,
+        held_bytes=len(held),
+        line_ms=time_ms,
+        line_start=start,
+        notes=tuple(notes),
+    )
 
 
 def _line_note(c: Core, run: Run, pose: Mapping[str, float | None]) -> list[str]:
@@ -246,9 +254,10 @@ def _written(c: Core, t: float, out: Out) -> Core:
     else:
         t_due = t_sent + step.time_ms / 1000.0
     motion = Motion(run.line_start, step.target, t_sent, run.line_ms / 1000.0)
-    wire = p.wire_time_s(len(run.line), c.arm.baud)
+    # The step's own line: the next step goes that wire time before this one ends.
+    wire = p.wire_time_s(len(run.line) - run.held_bytes, c.arm.baud)
     book = c.book.moving(motion, run.t_write, t_end)
-    if k == 0 and not run.retarget and job.mode is Mode.QUEUE:
+    if k == 0 and job.mode is Mode.QUEUE:
         book = book.held()
     late = _off_path(c, run, t_sent) if k and step.time_ms else ""
     run = replace(
