@@ -8,6 +8,7 @@ import io
 
 import pytest
 
+from al5d_rig.host import Shortage
 from al5d_rig.proc import Lines, own_lines, said
 
 SHM_ERROR = (
@@ -45,3 +46,13 @@ def test_lines_of_two_processes_are_waited_for_in_whichever_order_they_came() ->
     assert lines.wait_for("later", 5) == "later"
     with pytest.raises(AssertionError, match="'never'"):
         lines.wait_for_each(["later", "never"], 0.5)
+
+
+def test_a_late_trajectory_is_excused_only_by_the_servers_word_and_the_hosts() -> None:
+    short = Shortage()
+    late = "point 3 took effect {} ms late: base was 1.53 deg off its path, tolerance 1 deg "
+    host = "(the host did not run the owner in time)"
+    assert short.excuses(late.format(0) + host)  # nothing to excuse: any host
+    assert not short.excuses(late.format(10**9) + host)  # more than the host was short
+    assert not short.excuses(late.format(0))  # not the server's word that the host was late
+    assert not short.excuses("point 3 is below the table")

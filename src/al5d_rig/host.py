@@ -11,7 +11,12 @@ says only what the host let it say.
 
 from __future__ import annotations
 
+import re
+
 from al5d.priority import cpu_waited_s
+
+#: The server's word for a trajectory whose point it wrote too late to keep the path.
+_LATE = re.compile(r"took effect (\d+) ms late: .*\(the host did not run the owner in time\)")
 
 
 class Shortage:
@@ -27,3 +32,12 @@ class Shortage:
         if now is None or self._start is None:
             return 0.0
         return now - self._start
+
+    def excuses(self, reason: str) -> bool:
+        """Whether `reason` is the server's word that it ended a trajectory because the host
+        ran it too late to keep the path (its point took effect N ms late), and the kernel
+        says the host was short of cores at least that long meanwhile: the server kept its
+        promise (never a goal done off its path), and the test's own, a goal on time,
+        was not the server's to keep."""
+        late = _LATE.search(reason)
+        return late is not None and self.s >= int(late.group(1)) / 1000
