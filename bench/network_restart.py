@@ -28,12 +28,15 @@ def main() -> int:
     problems = netfaults.restart_problems(done)
     obeyed = [r.obeyed_s for r in done if r.obeyed_s is not None]
     said = sum(1 for r in done if r.said.startswith("raised"))
+    unanswered = sorted(r.unanswered_s for r in done if r.unanswered_s is not None)
     for problem in problems:
         print(f"BROKEN: {problem}")
     print(
         f"{RESTARTS} restarts: {len(obeyed)} stops obeyed, after p50 "
         f"{statistics.median(obeyed) if obeyed else float('nan'):.3f} s, max "
-        f"{max(obeyed, default=float('nan')):.3f} s; {said} said unanswered by the client "
+        f"{max(obeyed, default=float('nan')):.3f} s; {said} raised unanswered by the client, "
+        f"{len(unanswered)} said unanswered at once "
+        f"({', '.join(f'{u:.2f}' for u in unanswered)} s after asked) "
         f"(target: each obeyed within {netfaults.RESTART_STOP_S:g} s or said unanswered: "
         f"{'held' if not problems else 'NOT held'})"
     )

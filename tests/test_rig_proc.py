@@ -9,6 +9,7 @@ import io
 import pytest
 
 from al5d_rig.host import Shortage
+from al5d_rig.netfaults import Restart, restart_problems
 from al5d_rig.proc import Lines, own_lines, said
 
 SHM_ERROR = (
@@ -56,3 +57,15 @@ def test_a_late_trajectory_is_excused_only_by_the_servers_word_and_the_hosts() -
     assert not short.excuses(late.format(10**9) + host)  # more than the host was short
     assert not short.excuses(late.format(0))  # not the server's word that the host was late
     assert not short.excuses("point 3 is below the table")
+
+
+def test_a_restarts_stop_is_obeyed_in_time_or_said_unanswered_by_its_client() -> None:
+    def problems(obeyed: float | None, said: str = "ok", unanswered: float | None = None) -> int:
+        done = Restart(100.0, 100.0 + (obeyed or 10.0), said, obeyed, (), unanswered)
+        return len(restart_problems([done]))
+
+    assert problems(0.01) == 0
+    assert problems(2.15) == 1  # late, and nobody told
+    assert problems(2.15, unanswered=1.02) == 0  # told at once, obeyed later
+    assert problems(None, unanswered=1.02) == 1  # told, and never obeyed
+    assert problems(None, said="raised NoOutcome") == 0  # the client's call said so

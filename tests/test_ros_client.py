@@ -235,6 +235,19 @@ def test_al5d_send_stop_without_a_server_is_the_no_server_exit() -> None:
     assert any("no al5d server answers on /al5d/stop" in line for line in lost.err.drain())
 
 
+def test_a_stop_unanswered_for_a_second_is_said_to_be_so_while_it_is_still_sent() -> None:
+    """After a server's restart its side may take seconds to find the client (a stop was
+    obeyed 2.15 s after it was asked): whoever asked hears within a second that it has had
+    no answer yet, and the stop goes on being sent until its time is up."""
+    lost = Proc("send", "--wait", "3", "stop", env=alone())
+    assert lost.wait(SCRIPT_S) == exits.NO_SERVER
+    err = lost.err.drain()
+    said = [i for i, line in enumerate(err) if "stop: no answer in 1 s" in line]
+    ended = [i for i, line in enumerate(err) if "no al5d server answers on /al5d/stop" in line]
+    assert said and ended and said[0] < ended[0], err
+    assert "whether the arm has stopped is unknown" in err[said[0]], err
+
+
 def test_the_readme_example_runs_as_written(arm: Served, tmp_path: Path) -> None:
     done = run_script(tmp_path, readme_example())
     assert ended_normally(done) and done.returncode == 0, done.stderr

@@ -86,6 +86,11 @@ STOP_RETRY_S = 1.0
 #: two busy loops: a restarted server's stop obeyed 1.01 s after it was asked, by the copy
 #: sent again after a second).
 STOP_FIRST_COPIES_S = 0.25
+#: A stop unanswered this long is said to be so at once (a WARNING), while it is still
+#: sent: after a server's restart its side may take seconds to find this client (beside
+#: busy loops, a stop was obeyed 2.15 s after it was asked), and whoever asked must not
+#: believe the arm stopped meanwhile.
+STOP_UNANSWERED_S = 1.0
 #: A release waits at most this long for the answers of its client's stops still on their
 #: way (`Client._in_flight`): a lost request is sent again at the writer's next heartbeat,
 #: 3 s on; a server gone never answers, and must not cost the release its timeout.
@@ -691,6 +696,7 @@ class Client:
         copied = called = -STOP_RETRY_S  # when (monotonic) last sent, each way
         found: float | None = None  # when the server was found (monotonic)
         matched = -1
+        warned = False
 
         def heard(outcome: Outcome) -> None:
             told.append(outcome)
@@ -731,6 +737,14 @@ class Client:
                         called = at
                 if answered.wait(0.02):
                     break
+                if not warned and time.monotonic() - start >= STOP_UNANSWERED_S:
+                    warned = True
+                    log.warning(
+                        "stop: no answer in %g s (the server not found yet, or its side has "
+                        "not found this client yet); still sending it: whether the arm has "
+                        "stopped is unknown",
+                        STOP_UNANSWERED_S,
+                    )
                 if deadline is None and finding.expired:
                     raise self._no_server(name, self.wait_s)
                 if deadline is not None and deadline.expired:
