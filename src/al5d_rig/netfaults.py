@@ -328,6 +328,10 @@ class Restart:
     unanswered_s: float | None = None
 
 
+#: What a server's bridge and its stop's own process say when their ROS 2 node is up.
+NODES_UP = ("ROS 2 node", "ROS 2 stop node")
+
+
 def restarts(hosts: Hosts, count: int, seed: int) -> list[Restart]:
     """The server on `hosts.arm` restarted `count` times (SIGTERM, then started again) under
     the laptop's client, which sends moves all along; a stop asked of each new server at a
@@ -345,7 +349,7 @@ def restarts(hosts: Hosts, count: int, seed: int) -> list[Restart]:
             # asked before reaches no node, and is obeyed when one is up (the client keeps
             # sending it; in a CI run beside busy loops, one asked 0.24 s after the arm was
             # ready was obeyed 2.15 s after it was asked).
-            log.wait_for_each(["STATE: ready", "ROS 2 node", "ROS 2 stop node"], CMD_S)
+            log.wait_for_each(["STATE: ready", *NODES_UP], CMD_S)
             if laptop is None:  # the client, from before the first restart on
                 laptop = hosts.popen(hosts.laptop, [sys.executable, "-c", LAPTOP, str(seed)])
                 assert laptop.stdout is not None
@@ -365,7 +369,7 @@ def restarts(hosts: Hosts, count: int, seed: int) -> list[Restart]:
             up = tuple(
                 round(log_clock(line, float(asked)) - float(asked), 3)
                 for line in log.drain(0)
-                if ("ROS 2 node" in line or "ROS 2 stop node" in line) and " up" in line
+                if any(node in line for node in NODES_UP) and " up" in line
             )
             unanswered = [
                 float(line.split()[1]) - float(asked)

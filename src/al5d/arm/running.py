@@ -257,7 +257,7 @@ def _written(c: Core, t: float, out: Out) -> Core:
     # The step's own line: the next step goes that wire time before this one ends.
     wire = p.wire_time_s(len(run.line) - run.held_bytes, c.arm.baud)
     book = c.book.moving(motion, run.t_write, t_end)
-    if k == 0 and job.mode is Mode.QUEUE:
+    if run.held_bytes:
         book = book.held()
     late = _off_path(c, run, t_sent) if k and step.time_ms else ""
     run = replace(
