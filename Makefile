@@ -118,9 +118,12 @@ $(STDMSGS): $(VENV)/.%: $(RUNTIME)
 # update the pin to what `apt-cache policy chromium` offers). APT_GET, APT_CACHE and
 # CHROMIUM_BIN are there to try the choice without apt: e.g.
 #   make chromium CHROMIUM_BIN=none APT_GET='echo apt-get' APT_CACHE=./fake-apt-cache
-CHROMIUM_VERSION := 156.0.8078.108-1~deb12u1
+CHROMIUM_VERSION := 156.0.8078.114-1~deb12u1
 CHROMIUM_BIN ?= chromium
-APT_GET ?= apt-get
+# Chromium's, the GL's and libfaketime's installs run side by side (make -j): each apt-get
+# waits its turn on one lock of ours, as dpkg allows one at a time (seen on a fresh
+# machine: "Could not get lock /var/lib/dpkg/lock-frontend", and the install failed).
+APT_GET ?= flock /tmp/al5d-apt.lock apt-get
 APT_CACHE ?= apt-cache
 chromium:
 	@command -v $(CHROMIUM_BIN) >/dev/null || { \

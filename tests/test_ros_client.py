@@ -378,3 +378,55 @@ def test_the_client_reads_the_arm(arm: Served, tmp_path: Path, local: bool) -> N
         lines[14],
     )
     assert raised and int(raised.group(1)) > 10, lines[14]
+
+
+CTRL_C_IN_SEND = """
+import os, signal, time
+from al5d.arm.instruction import parse_instruction
+from al5d.ros.client import Client
+
+def then_ctrl_c(real, wanted):
+    pressed = []
+    def sending(message):
+        real(message)
+        if wanted(message) and not pressed:  # Ctrl-C as the move has just gone out
+            pressed.append(True)
+            os.kill(os.getpid(), signal.SIGINT)
+    return sending
+
+with Client(local={local}, wait_s=60) as c:
+    c.wait_for_server(60)
+    if c.lane is not None:
+        c.lane._send = then_ctrl_c(c.lane._send, lambda m: m.get("op") == "ask")
+    else:
+        c.pub.publish = then_ctrl_c(c.pub.publish, lambda m: m.instruction != "ping")
+    instr = parse_instruction("move base=60 time=4000")
+    try:
+        c.send(instr, 60)
+        print("sent, no Ctrl-C")
+    except KeyboardInterrupt:
+        print("Ctrl-C", c.sent(instr.id))
+    print(c.stop())
+    print(c.outcome(instr.id, 60))
+    print(c.release())
+    t = time.monotonic()  # what it never sent (a Ctrl-C before the send) is not waited for
+    print(c.sent("never-sent"), c.outcome("never-sent", 60), time.monotonic() - t < 10)
+"""
+
+
+@pytest.mark.parametrize("local", [False, True], ids=["over DDS", "over the lane"])
+def test_ctrl_c_as_an_instruction_goes_out_leaves_it_known_as_sent(
+    arm: Served, tmp_path: Path, local: bool
+) -> None:
+    """A Ctrl-C that comes while an instruction is being sent is raised once it is sent
+    and kept: its outcome is heard, and what catches the Ctrl-C can cancel it (seen in CI:
+    Ctrl-C in `al5d shell` as a move had just gone on the lane; the move's outcome never
+    came)."""
+    done = run_script(tmp_path, CTRL_C_IN_SEND.format(local=local))
+    assert ended_normally(done) and done.returncode == 0, done.stdout + done.stderr
+    lines = own_lines(done.stdout)
+    assert lines[0] == "Ctrl-C True", lines
+    assert lines[1].startswith("stop: done"), lines
+    assert re.fullmatch(r"move \[\S+\]: cancelled.*", lines[2]), lines
+    assert lines[3].startswith("release: done"), lines
+    assert lines[4] == "False None True", lines

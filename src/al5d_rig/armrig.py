@@ -66,6 +66,15 @@ def group_moves(records: Iterable[Record]) -> list[p.GroupMove]:
     return [c for r in records for c in r.commands if isinstance(c, p.GroupMove)]
 
 
+def holds(moves: list[p.GroupMove], points: int) -> int:
+    """How many of `moves`, the group moves written for one motion of `points` points, come
+    before its points to hold joints known only within a step of `QP` (after a stop) where
+    the core judged them from (`al5d.arm.running.plan`): 1 where there is one line more than
+    points and the first is untimed, else 0. The test after a stop counts points without it
+    (seen in CI: a fuzz case's 1-point trajectory wrote 2 group moves after a halted one)."""
+    return int(len(moves) == points + 1 and moves[0].time_ms is None)
+
+
 def pulses(config: ArmConfig, pose: dict[str, float]) -> dict[int, int]:
     return {config.joints[j].channel: round(config.joints[j].to_us(d)) for j, d in pose.items()}
 

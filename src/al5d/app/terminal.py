@@ -381,7 +381,10 @@ def shell(
                 report.all_done = False
                 item, in_background = step
                 if isinstance(item, Instruction) and not in_background:
-                    report.outcome(client.outcome(item.id, timeout), instr=item)
+                    if client.sent(item.id):
+                        report.outcome(client.outcome(item.id, timeout), instr=item)
+                    else:
+                        report.line(f"{item.name} [{item.id}]: not sent (Ctrl-C)")
             except NoOutcome as e:
                 report.line(str(e))
                 report.all_done = False

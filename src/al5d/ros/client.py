@@ -18,11 +18,12 @@ import contextlib
 import logging
 import os
 import secrets
+import signal
 import socket
 import threading
 import time
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
@@ -179,6 +180,30 @@ def _close_open_clients() -> None:
     exception", exit 134) and hide the script's own exit code and traceback."""
     for client in list(_open):
         client.close()
+
+
+@contextlib.contextmanager
+def ctrl_c_after() -> Iterator[None]:
+    """Ctrl-C (SIGINT) that comes inside is raised as the block ends, not in its middle: an
+    instruction is sent and kept as sent whole, or not sent, so that whoever catches the
+    KeyboardInterrupt can cancel what was sent (seen: Ctrl-C in `al5d shell` as a move had
+    just gone on the lane, before the client kept it: its outcome was never heard, and
+    `al5d send` would not have cancelled it). Where Python's own handler is not the one in
+    place (another thread, a program's own handler), the block runs as it is."""
+    if (
+        threading.current_thread() is not threading.main_thread()
+        or signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+    ):
+        yield
+        return
+    came: list[int] = []
+    signal.signal(signal.SIGINT, lambda signum, frame: came.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        if came:  # over any error of the block's: the user's Ctrl-C comes first
+            raise KeyboardInterrupt
 
 
 class Client:
@@ -433,7 +458,8 @@ class Client:
         if self.lost_contact() is not None:
             raise self._lost(f"{instr.name} [{instr.id}]: not sent")
         if self.lane is not None:
-            future = self._futures[instr.id] = self.lane.submit(instr)
+            with ctrl_c_after():
+                future = self._futures[instr.id] = self.lane.submit(instr)
             watcher = self._watchers.pop(instr.id, None)
             if watcher is not None:
                 self._watch(future, watcher)
@@ -443,9 +469,10 @@ class Client:
         msg = to_message(instr)
         msg.client = self.key
         msg.wait_ms = min(round(wait_s * 1000), 2**32 - 1)
-        with self._cv:
-            self._sent.add(instr.id)
-        self.pub.publish(msg)
+        with ctrl_c_after():
+            with self._cv:
+                self._sent.add(instr.id)
+            self.pub.publish(msg)
         return instr
 
     def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None:
@@ -473,6 +500,10 @@ class Client:
         future.add_done_callback(told)
 
     def outcome(self, ident: str, timeout: float) -> Outcome | None:
+        """The outcome of `ident`, sent by this client (and not forgotten): None if it does
+        not come within `timeout` seconds, or at once where this client did not send it
+        (Ctrl-C before the send was made). Raises `NoOutcome` where the lane closed first,
+        `LostContact` where the server went out of contact."""
         future = self._futures.get(ident)
         if future is not None:
             try:
@@ -481,6 +512,8 @@ class Client:
                 return None
             except LaneClosed as e:
                 raise NoOutcome(f"[{ident}]: {e}: whether it ran is unknown") from None
+        if not self.sent(ident):
+            return None
         deadline = Deadline(timeout)
         with self._cv:
             while ident not in self._outcomes:
@@ -589,6 +622,13 @@ class Client:
             with self._cv:
                 self._sent.discard(ident)
                 self._outcomes.pop(ident, None)
+
+    def sent(self, ident: str) -> bool:
+        """Whether this client sent `ident` (and has not forgotten it)."""
+        if self.lane is not None:
+            return ident in self._futures
+        with self._cv:
+            return ident in self._sent or ident in self._outcomes
 
     def pending(self) -> list[str]:
         """The ids of what this client sent whose outcome has not come (over the lane)."""
