@@ -576,3 +576,19 @@ def test_huge_strings_are_refused_without_inflating_the_server(server: Server, p
     growth = [flood(r) for r in range(1, 8)]
     assert sum(growth) < 150_000, f"the server grew by {growth} kB"
     assert sum(growth[-3:]) < 45_000, f"the server grew by {growth} kB: it keeps growing"
+
+
+def test_a_message_larger_than_a_fragment_reaches_a_server_just_restarted(
+    served: Served, server: Server, peer: Peer
+) -> None:
+    """The stop process of the server before a restart ends without a word, so its filtered
+    reader stays matched until its lease ends, beside the new one's: with Fast DDS's
+    fragments sized for the whole message, the inline QoS of two filters overflowed every
+    fragment, and a message over about 64 kB never arrived (`al5d.ros.dds.WRITER_MESSAGE`)."""
+    served.shut_down(peer)
+    served.running(peer)
+    msg = ArmInstruction(instruction="move", joints=["w" * 200_000], degrees=[1.0])
+    msg.id = f"large-{uuid.uuid4().hex}"
+    peer.pub.publish(msg)
+    result = peer.result(msg.id, 30)
+    assert result.outcome == "refused", result.reason

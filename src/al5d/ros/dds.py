@@ -34,6 +34,21 @@ OURS_VAR = "AL5D_DDS_PROFILES_FILE"
 #: default is 512: about 50 ms of a 10,000/s flood, or half of the outcomes one stop gives
 #: a full queue).
 SHM_PORT_QUEUE = 8192
+#: The largest RTPS message a writer fills with a fragment of a large sample (bytes), below
+#: the 65,500 of the UDP transport that sizes the participant's send buffers.
+#:
+#: Fast DDS 2.14 sizes a writer's fragments for the whole message and only then adds, to
+#: each sample, the inline QoS that tells filtered readers which filters it passed
+#: (ContentFilterInfo: 36 bytes for one filter, 16 more for each further one; the stop
+#: watcher's reader is filtered, `workarounds.filter_content`). One filter just fits; with
+#: two (a restarted server's watcher beside the one of the server before it, whose stop
+#: process ended without saying goodbye and stays matched until its lease ends) every
+#: fragment overflowed its message ("Cannot add RTPS submesage to the CDRMessage. Buffer
+#: too small", over and over), and the writer never delivered a sample larger than a
+#: fragment (eProsima/Fast-DDS#6017). 600 bytes less holds the inline QoS of the 32 filters
+#: a writer tracks (Fast DDS's default `reader_filters_allocation`: 532 bytes) however Fast
+#: DDS packs a fragment, and costs a 1 MB sample no fragment more (16 either way).
+WRITER_MESSAGE = 64_900
 _PROFILES = """<?xml version="1.0" encoding="UTF-8"?>
 <dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">{library}
   <profiles>
@@ -56,7 +71,18 @@ _PROFILES = """<?xml version="1.0" encoding="UTF-8"?>
         </userTransports>
         <useBuiltinTransports>false</useBuiltinTransports>
       </rtps>
-    </participant>{reader}
+    </participant>
+    <!-- al5d: every writer's fragments leave room for the content filters' inline QoS. -->
+    <data_writer profile_name="al5d_writer" is_default_profile="true">
+      <propertiesPolicy>
+        <properties>
+          <property>
+            <name>fastdds.max_message_size</name>
+            <value>{writer_message}</value>
+          </property>
+        </properties>
+      </propertiesPolicy>
+    </data_writer>{reader}
   </profiles>
 </dds>
 """
@@ -150,6 +176,7 @@ def dds_profile(instructions: tuple[str, int] | None = None, in_process: bool = 
         port_queue=_PORT_QUEUE.format(n=SHM_PORT_QUEUE),
         loopback=_LOOPBACK if local else "",
         reader=reader,
+        writer_message=WRITER_MESSAGE,
         library="" if in_process else _NOT_IN_PROCESS,
     )
     fd, path = tempfile.mkstemp(prefix="al5d-dds-", suffix=".xml")
