@@ -401,6 +401,8 @@ with Client(local={local}, wait_s=60) as c:
     else:
         c.pub.publish = then_ctrl_c(c.pub.publish, lambda m: m.instruction != "ping")
     instr = parse_instruction("move base=60 time=4000")
+    heard = []
+    c.watch(instr.id, heard.append)  # as `al5d run` does for a line run in the background
     try:
         c.send(instr, 60)
         print("sent, no Ctrl-C")
@@ -408,6 +410,8 @@ with Client(local={local}, wait_s=60) as c:
         print("Ctrl-C", c.sent(instr.id))
     print(c.stop())
     print(c.outcome(instr.id, 60))
+    time.sleep(0.5)  # the watcher is called on the client's thread
+    print("watched", [o.result.value for o in heard])
     print(c.release())
     t = time.monotonic()  # what it never sent (a Ctrl-C before the send) is not waited for
     print(c.sent("never-sent"), c.outcome("never-sent", 60), time.monotonic() - t < 10)
@@ -428,5 +432,6 @@ def test_ctrl_c_as_an_instruction_goes_out_leaves_it_known_as_sent(
     assert lines[0] == "Ctrl-C True", lines
     assert lines[1].startswith("stop: done"), lines
     assert re.fullmatch(r"move \[\S+\]: cancelled.*", lines[2]), lines
-    assert lines[3].startswith("release: done"), lines
-    assert lines[4] == "False None True", lines
+    assert lines[3] == "watched ['cancelled']", lines
+    assert lines[4].startswith("release: done"), lines
+    assert lines[5] == "False None True", lines

@@ -24,7 +24,7 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
-from al5d_rig.armrig import LINK_CHECK, group_moves, holds
+from al5d_rig.armrig import LINK_CHECK, board_pulses, group_moves, holds
 from al5d_rig.host import Shortage
 from al5d_rig.rospeer import LockedActionClient, Peer, wait_future, wait_until
 from al5d_rig.served import served
@@ -171,6 +171,7 @@ def test_a_moveit_shaped_trajectory_from_the_start_state_succeeds(rig: Rig) -> N
             )
         )
     rig.emu.clear_records()
+    pulses_before = board_pulses(rig.emu)
     short = Shortage()
     handle = rig.send(rig.fjt, goal)
     assert handle.accepted
@@ -180,7 +181,7 @@ def test_a_moveit_shaped_trajectory_from_the_start_state_succeeds(rig: Rig) -> N
     assert answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result.error_string
     # The start point too: the arm is already there.
     moves = group_moves(rig.emu.records)
-    assert len(moves) - holds(moves, n + 1) == n + 1
+    assert len(moves) - holds(moves, n + 1, pulses_before) == n + 1
     ends = rig.emu.servo_degrees()
     for j, deg in pose(base=25, shoulder=15, elbow=70).items():
         assert abs(ends[j] - deg) < 0.5

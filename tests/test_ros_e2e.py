@@ -26,7 +26,7 @@ from al5d import exits
 from al5d.arm.config import ArmConfig, load_config
 from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_LATCHED
 from al5d.ssc32u.emulator import Emulator
-from al5d_rig.armrig import group_moves, holds, written
+from al5d_rig.armrig import board_pulses, group_moves, holds, written
 from al5d_rig.host import Shortage
 from al5d_rig.loadrig import Counter, proc_status
 from al5d_rig.proc import Proc, patient_config
@@ -391,6 +391,7 @@ def test_a_joint_trajectory_runs_its_points_in_order_as_one_instruction(
     server: Server, peer: Peer, trajectories: Any
 ) -> None:
     before = len(group_moves(server.emu.records))
+    pulses_before = board_pulses(server.emu)
     points = (
         ({"base": 20, "elbow": 80}, 0.5),
         ({"base": -20, "elbow": 60}, 1.3),
@@ -405,7 +406,7 @@ def test_a_joint_trajectory_runs_its_points_in_order_as_one_instruction(
     assert (result.outcome, result.instruction) == ("done", "trajectory"), result.reason
     moves = group_moves(server.emu.records)[before:]
     records = [r for r in server.emu.records if r.raw.startswith(b"#")][before:]
-    held = holds(moves, len(points))
+    held = holds(moves, len(points), pulses_before)
     moves, records = moves[held:], records[held:]
     assert len(moves) == len(records) == len(points) and moves[0].time_ms == 500
     # Each point is reached at its time from when the first move took effect: a step's time

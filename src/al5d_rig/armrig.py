@@ -7,7 +7,7 @@ import math
 import re
 import socket
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,6 +21,8 @@ from al5d.owner.client import Remote
 from al5d.owner.loop import Owner
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator, Record
+from al5d.ssc32u.emulator.board import Board
+from al5d.ssc32u.facts import CHANNELS, QP_RESOLUTION_US
 
 
 @dataclass
@@ -66,13 +68,30 @@ def group_moves(records: Iterable[Record]) -> list[p.GroupMove]:
     return [c for r in records for c in r.commands if isinstance(c, p.GroupMove)]
 
 
-def holds(moves: list[p.GroupMove], points: int) -> int:
+def holds(moves: list[p.GroupMove], points: int, before: Mapping[int, float]) -> int:
     """How many of `moves`, the group moves written for one motion of `points` points, come
     before its points to hold joints known only within a step of `QP` (after a stop) where
     the core judged them from (`al5d.arm.running.plan`): 1 where there is one line more than
-    points and the first is untimed, else 0. The test after a stop counts points without it
-    (seen in CI: a fuzz case's 1-point trajectory wrote 2 group moves after a halted one)."""
-    return int(len(moves) == points + 1 and moves[0].time_ms is None)
+    points and the first is untimed and puts each of its channels within a step of `QP`
+    of its pulse `before` the motion (`board_pulses`), else 0. Tests after a stop count
+    points without it (seen in CI: a fuzz case's 1-point trajectory wrote 2 group moves
+    after a halted one). A first point at time 0 where the arm is looks the same: a test
+    with one checks where the arm ends as well."""
+    if len(moves) != points + 1 or moves[0].time_ms is not None:
+        return 0
+    return int(
+        all(
+            # A step, and a microsecond of the degrees' round trip.
+            abs(t.pulse_us - before.get(t.channel, -math.inf)) <= QP_RESOLUTION_US + 1
+            for t in moves[0].targets
+        )
+    )
+
+
+def board_pulses(board: Board) -> dict[int, float]:
+    """The pulse `board` (an emulator, or a board process's `model()`) puts out on each of
+    its channels now (0 when off)."""
+    return {ch: board.pulse_us(ch) for ch in CHANNELS}
 
 
 def pulses(config: ArmConfig, pose: dict[str, float]) -> dict[int, int]:

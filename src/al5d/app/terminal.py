@@ -64,6 +64,11 @@ class Report:
         with self._lock:
             print(text, file=self._out, flush=True)
 
+    def not_sent(self, instr: Instruction) -> None:
+        """`instr` was never sent: a Ctrl-C came first."""
+        self.line(f"{instr.name} [{instr.id}]: not sent (Ctrl-C)")
+        self.all_done = False
+
     def outcome(self, outcome: Outcome | None, *, instr: Instruction) -> None:
         if outcome is None:
             text = f"{instr.name} [{instr.id}]: no outcome (timed out)"
@@ -286,7 +291,9 @@ def _step(
 def _drain(client: Client, report: Report, background: list[Instruction], timeout: float) -> None:
     """Wait for the outcomes of the lines run in the background (each printed as it came)."""
     for item in background:
-        if client.outcome(item.id, timeout) is None:
+        if not client.sent(item.id):
+            report.not_sent(item)
+        elif client.outcome(item.id, timeout) is None:
             report.outcome(None, instr=item)
     background.clear()
 
@@ -384,7 +391,7 @@ def shell(
                     if client.sent(item.id):
                         report.outcome(client.outcome(item.id, timeout), instr=item)
                     else:
-                        report.line(f"{item.name} [{item.id}]: not sent (Ctrl-C)")
+                        report.not_sent(item)
             except NoOutcome as e:
                 report.line(str(e))
                 report.all_done = False

@@ -188,8 +188,9 @@ def ctrl_c_after() -> Iterator[None]:
     instruction is sent and kept as sent whole, or not sent, so that whoever catches the
     KeyboardInterrupt can cancel what was sent (seen: Ctrl-C in `al5d shell` as a move had
     just gone on the lane, before the client kept it: its outcome was never heard, and
-    `al5d send` would not have cancelled it). Where Python's own handler is not the one in
-    place (another thread, a program's own handler), the block runs as it is."""
+    `al5d send` would not have cancelled it). A second Ctrl-C inside is raised at once.
+    Where Python's own handler is not the one in place (another thread, a program's own
+    handler), the block runs as it is."""
     if (
         threading.current_thread() is not threading.main_thread()
         or signal.getsignal(signal.SIGINT) is not signal.default_int_handler
@@ -197,7 +198,13 @@ def ctrl_c_after() -> Iterator[None]:
         yield
         return
     came: list[int] = []
-    signal.signal(signal.SIGINT, lambda signum, frame: came.append(signum))
+
+    def pressed(signum: int, frame: object) -> None:
+        if came:  # a second Ctrl-C: a send that hangs (a lane's owner not reading) is left
+            raise KeyboardInterrupt
+        came.append(signum)
+
+    signal.signal(signal.SIGINT, pressed)
     try:
         yield
     finally:
@@ -460,9 +467,9 @@ class Client:
         if self.lane is not None:
             with ctrl_c_after():
                 future = self._futures[instr.id] = self.lane.submit(instr)
-            watcher = self._watchers.pop(instr.id, None)
-            if watcher is not None:
-                self._watch(future, watcher)
+                watcher = self._watchers.pop(instr.id, None)
+                if watcher is not None:
+                    self._watch(future, watcher)
             return instr
         from al5d.ros.convert import to_message
 

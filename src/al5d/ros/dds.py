@@ -130,7 +130,8 @@ def dds_profile(instructions: tuple[str, int] | None = None, in_process: bool = 
     sockets to the loopback interface unless the user opened DDS to the network
     (`local_only`): discovery kept to this machine is not enough, since a participant
     still listens on every interface for anyone who knows its port. Every process's
-    shared-memory port is deeper than Fast DDS's default (below). The server's
+    shared-memory port is deeper than Fast DDS's default (below), and every writer's
+    fragments leave room for the content filters' inline QoS (`WRITER_MESSAGE`). The server's
     (`instructions`: the topic and its backlog) also bounds that topic's reader:
 
     With KEEP_ALL and no bound, a flood faster than the server piles up in its reader,
