@@ -14,7 +14,9 @@ from dataclasses import replace
 import pytest
 
 from al5d.arm import instruction as ins
+from al5d.arm import link as lk
 from al5d.arm.config import ArmConfig
+from al5d.arm.corestate import Purpose, Received, Say
 from al5d.arm.instruction import Point, Result
 from al5d.arm.states import State
 from al5d.ssc32u import protocol as p
@@ -461,3 +463,31 @@ def test_after_a_stop_a_trajectory_s_points_take_effect_on_schedule(sim: Sim) ->
     assert isinstance(first, p.GroupMove) and first.time_ms is not None
     first_end = lines[1].t_effect + first.time_ms / 1000
     assert abs(lines[2].t_effect - first_end) < 0.003, lines[2].t_effect - first_end
+
+
+def test_the_answer_owed_to_a_query_taken_on_its_first_is_dropped_when_it_comes(
+    sim: Sim,
+) -> None:
+    """A query asked twice and taken on its first answer is owed the second: when that comes
+    while the next query waits, it is dropped, not taken as the next one's (seen beside busy
+    loops: a reconnect's VER, asked twice, taken on the first; the second's answer came
+    while the next Q waited, which took its last byte, "Q answered b'\\r'", and the link
+    was lost again and again for 2 s)."""
+    sim.ready()
+    c, out, wall = sim.core, [], sim.wall
+    c = lk.ask(c, Purpose.VERSION, p.encode_version(), None, sim.t, out)
+    assert c.link.query is not None
+    t = lk.due(c.link.query, c.link.stalled) + 0.001
+    c = lk.overdue(c, t, wall, out)  # no answer yet: asked again
+    assert c.link.query is not None and c.link.query.asks == 2
+    c = lk.received(c, Received(t + 0.001, wall, b"SSC32-V2.50USB\r"), out)  # the first's
+    assert c.link.query is not None  # both answers are waited for
+    t = lk.due(c.link.query, c.link.stalled) + 0.001
+    c = lk.overdue(c, t, wall, out)  # the second's late: taken on the first
+    assert c.link.query is None
+    c = lk.ask(c, Purpose.ALIVE, p.encode_query_movement(), 1, t, out)
+    c = lk.received(c, Received(t + 0.002, wall, b"SSC32-V2.50USB\r"), out)  # the second's
+    assert c.link.query is not None, "the owed answer was taken as the Q's"
+    c = lk.received(c, Received(t + 0.003, wall, b"."), out)  # the Q's own
+    assert c.link.query is None and c.link.open and c.state is State.READY
+    assert not [s for s in out if isinstance(s, Say) and "serial fault" in s.text], out

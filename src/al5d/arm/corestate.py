@@ -283,6 +283,12 @@ class Link:
     cut: bool = False
     query: Query | None = None
     received: bytes = b""
+    #: Answers still owed to a query asked twice and taken on its first answer: how each
+    #: ends (bytes each, or None: a CR), and how many. The board answers in order, so they
+    #: come before any later query's, and are dropped as they come, until `owed_until`
+    #: (a board that answered one ask of two must not cost every later query its answer).
+    owed: tuple[int | None, int] = (None, 0)
+    owed_until: float = 0.0
     writes: int = 0  # lines (and stops) written so far: a QP's answer is judged if none since
     watched: float = 0.0  # when the link was last checked
     #: After the pose is read from a board just opened: what comes next; `halt_checked`:

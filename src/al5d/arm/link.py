@@ -171,15 +171,44 @@ def _last(data: bytes, n_answer: int | None) -> bytes:
     return data[end - n_answer : end]
 
 
+def _skip_owed(data: bytes, owed: tuple[int | None, int]) -> tuple[bytes, tuple[int | None, int]]:
+    """`data` without the whole answers owed to a query taken already, and what is still owed
+    (an answer owed that has come in part is kept whole until the rest comes)."""
+    n_answer, count = owed
+    while count and data:
+        if n_answer is None:
+            end = data.find(p.CR) + 1
+            if not end:
+                break
+        else:
+            end = n_answer
+            if len(data) < end:
+                break
+        data, count = data[end:], count - 1
+    return data, (n_answer, count)
+
+
 def received(c: Core, ev: Received, out: Out) -> Core:
     """Bytes from the board: the answer of the query on its way, once whole (both answers
     after a second ask: the board answers in order, so a late first answer comes before
-    the second, and is never left for the next query to take as its own)."""
-    query = c.link.query
+    the second, and is never left for the next query to take as its own). A query taken on
+    its first answer is owed the second: that is dropped when it comes (seen beside busy
+    loops: a reconnect's VER, asked twice, taken on the first; the second's 15 bytes came
+    while the next Q waited, which took the last of them as its answer, "Q answered
+    b'\\r'", and the link was lost again, for 2 s)."""
+    link = c.link
+    data = link.received + ev.data
+    if link.owed[1] and ev.t > link.owed_until:
+        link = replace(link, owed=(None, 0))
+    if link.owed[1]:
+        data, owed = _skip_owed(data, link.owed)
+        link = replace(link, owed=owed)
+        if owed[1]:  # an owed answer in part: kept until it is whole
+            return replace(c, link=replace(link, received=data))
+    query = link.query
     if query is None:
-        return c  # nothing asked: not an answer of ours
-    data = c.link.received + ev.data
-    c = replace(c, link=replace(c.link, received=data))
+        return replace(c, link=link)  # nothing asked: not an answer of ours
+    c = replace(c, link=replace(link, received=data))
     if _count(data, query.n_answer) >= query.asks:
         return _answered(c, query, _last(data, query.n_answer), ev.t, ev.wall, out)
     return c
@@ -197,7 +226,11 @@ def overdue(c: Core, t: float, wall: int, out: Out) -> Core:
     query = c.link.query
     assert query is not None
     data = c.link.received
-    if _count(data, query.n_answer):
+    if answers := _count(data, query.n_answer):
+        owed = (query.n_answer, max(0, query.asks - answers))
+        back = p.wire_time_s(query.n_answer or VERSION_ANSWER_BYTES, c.arm.baud)
+        until = t + back + c.link.margin_s + EXCUSE_MAX_S
+        c = replace(c, link=replace(c.link, owed=owed, owed_until=until))
         return _answered(c, query, _last(data, query.n_answer), t, wall, out)
     if query.asks == 1:
         c = replace(c, link=replace(c.link, query=None))
