@@ -485,9 +485,33 @@ def test_the_answer_owed_to_a_query_taken_on_its_first_is_dropped_when_it_comes(
     t = lk.due(c.link.query, c.link.stalled) + 0.001
     c = lk.overdue(c, t, wall, out)  # the second's late: taken on the first
     assert c.link.query is None
-    c = lk.ask(c, Purpose.ALIVE, p.encode_query_movement(), 1, t, out)
-    c = lk.received(c, Received(t + 0.002, wall, b"SSC32-V2.50USB\r"), out)  # the second's
+    c = lk.received(c, Received(t + 0.001, wall, b"SSC32-V2"), out)  # the second's, in part
+    c = lk.ask(c, Purpose.ALIVE, p.encode_query_movement(), 1, t + 0.001, out)
+    c = lk.received(c, Received(t + 0.002, wall, b".50USB\r"), out)  # and its rest
     assert c.link.query is not None, "the owed answer was taken as the Q's"
     c = lk.received(c, Received(t + 0.003, wall, b"."), out)  # the Q's own
+    assert c.link.query is None and c.link.open and c.state is State.READY
+    assert not [s for s in out if isinstance(s, Say) and "serial fault" in s.text], out
+
+
+def test_an_owed_answer_of_fixed_length_that_comes_in_parts_is_dropped_whole(sim: Sim) -> None:
+    """As above for a `QP` of every channel (an answer of one byte a channel): its owed
+    answer's first bytes come before the next query is asked, the rest after."""
+    sim.ready()
+    c, out, wall = sim.core, [], sim.wall
+    channels = list(c.arm.channels.values())
+    answer = p.encode_pulses([1500] * len(channels))
+    c = lk.ask(c, Purpose.POSE, p.encode_query_pulse(channels), len(channels), sim.t, out)
+    assert c.link.query is not None
+    t = lk.due(c.link.query, c.link.stalled) + 0.001
+    c = lk.overdue(c, t, wall, out)
+    c = lk.received(c, Received(t + 0.001, wall, answer), out)
+    assert c.link.query is not None
+    t = lk.due(c.link.query, c.link.stalled) + 0.001
+    c = lk.overdue(c, t, wall, out)
+    assert c.link.query is None
+    c = lk.received(c, Received(t + 0.001, wall, answer[:3]), out)
+    c = lk.ask(c, Purpose.ALIVE, p.encode_query_movement(), 1, t + 0.001, out)
+    c = lk.received(c, Received(t + 0.002, wall, answer[3:] + b"."), out)
     assert c.link.query is None and c.link.open and c.state is State.READY
     assert not [s for s in out if isinstance(s, Say) and "serial fault" in s.text], out

@@ -154,7 +154,8 @@ def ask(
     due = link.free_at + back + link.margin_s
     writes = link.writes if asks == 1 or link.query is None else link.query.writes
     query = Query(purpose, data, n_answer, due, asks, writes, link.stalled, probe)
-    keep = link.received if asks > 1 else b""  # a late first answer may still come
+    # A late first answer may still come, and so may an owed one (kept whole to be dropped).
+    keep = link.received if asks > 1 or link.owed[1] else b""
     return replace(c, link=replace(link, query=query, received=keep))
 
 
