@@ -207,8 +207,8 @@ def received(c: Core, ev: Received, out: Out) -> Core:
         if owed[1]:  # an owed answer in part: kept until it is whole
             return replace(c, link=replace(link, received=data))
     query = link.query
-    if query is None:
-        return replace(c, link=link)  # nothing asked: not an answer of ours
+    if query is None:  # nothing asked: not an answer of ours
+        return replace(c, link=replace(link, received=b""))
     c = replace(c, link=replace(link, received=data))
     if _count(data, query.n_answer) >= query.asks:
         return _answered(c, query, _last(data, query.n_answer), ev.t, ev.wall, out)
