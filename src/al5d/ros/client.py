@@ -18,12 +18,11 @@ import contextlib
 import logging
 import os
 import secrets
-import signal
 import socket
 import threading
 import time
 import weakref
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
@@ -39,6 +38,7 @@ from al5d.arm.instruction import (
     parse_instruction,
 )
 from al5d.clock import Deadline
+from al5d.interrupts import ctrl_c_after
 from al5d.owner import where
 from al5d.owner.client import LaneClosed, Remote
 from al5d.ros.names import NODE, PING, Names
@@ -180,37 +180,6 @@ def _close_open_clients() -> None:
     exception", exit 134) and hide the script's own exit code and traceback."""
     for client in list(_open):
         client.close()
-
-
-@contextlib.contextmanager
-def ctrl_c_after() -> Iterator[None]:
-    """Ctrl-C (SIGINT) that comes inside is raised as the block ends, not in its middle: an
-    instruction is sent and kept as sent whole, or not sent, so that whoever catches the
-    KeyboardInterrupt can cancel what was sent (seen: Ctrl-C in `al5d shell` as a move had
-    just gone on the lane, before the client kept it: its outcome was never heard, and
-    `al5d send` would not have cancelled it). A second Ctrl-C inside is raised at once.
-    Where Python's own handler is not the one in place (another thread, a program's own
-    handler), the block runs as it is."""
-    if (
-        threading.current_thread() is not threading.main_thread()
-        or signal.getsignal(signal.SIGINT) is not signal.default_int_handler
-    ):
-        yield
-        return
-    came: list[int] = []
-
-    def pressed(signum: int, frame: object) -> None:
-        if came:  # a second Ctrl-C: a send that hangs (a lane's owner not reading) is left
-            raise KeyboardInterrupt
-        came.append(signum)
-
-    signal.signal(signal.SIGINT, pressed)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-        if came:  # over any error of the block's: the user's Ctrl-C comes first
-            raise KeyboardInterrupt
 
 
 class Client:
