@@ -222,6 +222,53 @@ def test_a_silent_board_is_a_fault_found_within_a_second(sim: Sim) -> None:
     assert any("no answer" in s.text for s in sim.said if s.level >= logging.ERROR)
 
 
+def test_a_stop_asked_while_the_board_is_unreachable_is_written_once_it_answers(
+    sim: Sim,
+) -> None:
+    """A stop in a fault, with the port closed until the reconnect: the port is tried again at
+    once, not at the reconnect's interval, and the STOP goes out as soon as the board is
+    back, whatever `Q` then says of motion. (Beside two busy loops and a flood, a pty held
+    the server's bytes for 1.7 s: a fault; the board, reached again within a second, said
+    it was at rest, and a stop asked meanwhile never reached the wire.)"""
+    sim.ask(ins.move(base=30, time_ms=300))
+    sim.run(0.05)
+    sim.board.inject(Fault.NO_ANSWER)
+    assert sim.until(lambda: sim.core.state is State.FAULT, 2.0)
+    sim.run(1.0)  # the move is over: the board is at rest
+    assert sim.until(lambda: not (sim.core.link.open or sim.core.link.opening), 2.0)
+    sim.board.clear(Fault.NO_ANSWER)
+    asked = sim.t
+    stop = sim.ask(ins.stop())
+    assert "the serial link is lost" in sim.outcomes[stop].reason
+    assert sim.core.link.open  # tried at once
+    assert sim.until(lambda: sim.core.state is State.STOPPED, 2.0)
+    stops = [t - asked for t, data in sim.sent if t >= asked and b"STOP" in data]
+    assert stops and stops[0] < 0.1, stops
+    assert sim.core.locked
+
+
+def test_late_answers_from_before_a_fault_do_not_fail_the_reconnect(sim: Sim) -> None:
+    """Answers the board gave before the fault that came after it (beside two busy loops, a
+    pty held them: `answered VER with '..SSC32-V2.50USB', which is not an SSC-32U`, and
+    the reconnect waited its interval again) are not the board's VER answer: they go, and
+    the board is back at the first reconnect."""
+    sim.board.inject(Fault.NO_ANSWER)
+    assert sim.until(lambda: sim.core.state is State.FAULT, 2.0)
+    assert sim.until(lambda: not (sim.core.link.open or sim.core.link.opening), 2.0)
+    sim.board.clear(Fault.NO_ANSWER)
+
+    def asking_version() -> bool:
+        query = sim.core.link.query
+        return query is not None and query.purpose is Purpose.VERSION
+
+    assert sim.until(asking_version, 1.0)
+    back = sim.t
+    sim.put(Received(sim.t, sim.wall, b".+"))  # two `Q` answers, late
+    assert sim.until(lambda: sim.core.state is State.READY, 2.0)
+    assert sim.t - back < 0.1
+    assert not [s.text for s in sim.said if "not an SSC-32U" in s.text]
+
+
 def test_a_reset_locks_the_arm_and_forgets_the_pose(sim: Sim) -> None:
     sim.board.inject(Fault.RESET)
     assert sim.until(lambda: sim.core.state is State.FAULT, 2.0)

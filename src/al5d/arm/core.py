@@ -179,7 +179,12 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
     c = lock_arm(c, "the stop", sent)
     board_open = c.link.open
     c = fire(halt(c, ev.t, out), Event.STOP, out)
-    note = "" if board_open else f"the serial link is lost ({c.fault}); the arm is locked"
+    note = (
+        ""
+        if board_open
+        else f"the serial link is lost ({c.fault}); the arm is locked, and STOP is written "
+        "as soon as the board is reached again"
+    )
     done = outcome(ev.instr, Result.DONE, note, ev.t, ev.t)
     out.append(Resolve(ev.ref, done, ev.tell))
     if ev.key is not None:

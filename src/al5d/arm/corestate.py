@@ -362,6 +362,9 @@ class Core:
     #: The pose is to be read back from the board (after a halt): nothing is written until
     #: it has been, or the pose read would be a snapshot of a motion.
     readback: bool = False
+    #: A stop came while the port was closed (a fault): its STOP goes out as soon as the
+    #: board is reached again, whatever the board then says of motion.
+    halt_owed: bool = False
     shutdown: Job | None = None
     shutdown_taken: bool = False
     parked: bool = False  # the start-up park has been done
@@ -487,8 +490,13 @@ def halt(c: Core, t: float, out: Out, urgent: bool = True) -> Core:
     pose is where the motion is now, until it is read back."""
     order = stop_order(c.book.motion, t, c.arm.channels)
     c = replace(c, book=c.book.halted(t), readback=True)
-    if not c.link.open:
+    link = c.link
+    if not link.open:
+        if urgent:  # owed; and the port is tried now, not at the reconnect's interval
+            when = link.open_at if link.opening else min(link.open_at, t)
+            c = replace(c, halt_owed=True, link=replace(link, open_at=when))
         return c
+    c = replace(c, halt_owed=False)
     data = p.CANCEL + p.encode_stop(order)
     if urgent:
         # Its ESC cancels on the board whatever part of a line went out before it.

@@ -101,6 +101,12 @@ def not_reached(c: Core, error: SerialFault, t: float, out: Out) -> Core:
 def _checked(c: Core, answer: bytes, t: float, wall: int, out: Out) -> Core:
     """VER's answer: an SSC-32U, or not (closed and tried again)."""
     port = c.arm.port
+    start = answer.upper().find(FIRMWARE_PREFIX.encode())
+    if start > 0:
+        # Answers to queries asked before the fault, held up on their way (a busy host's
+        # pty): they come first, and are not the board's.
+        say(out, logging.DEBUG, f"late answers before VER's, dropped: {answer[:start]!r}")
+        answer = answer[start:]
     try:
         firmware = p.parse_version(answer)
     except p.ProtocolError:
@@ -116,7 +122,8 @@ def _checked(c: Core, answer: bytes, t: float, wall: int, out: Out) -> Core:
     else:
         following = Next.STARTUP
         say(out, logging.INFO, f"connected to {firmware} on {port} at {c.arm.baud} baud")
-    link = replace(c.link, checked=True, next=following, halt_checked=following is Next.STARTUP)
+    checked = following is Next.STARTUP and not c.halt_owed
+    link = replace(c.link, checked=True, next=following, halt_checked=checked)
     return replace(c, link=link, firmware=firmware)
 
 
@@ -406,14 +413,19 @@ def _reconnected(
 
 def settle(c: Core, t: float, out: Out) -> Core:
     """A board just opened (or the shutdown's): a move it may still run (cancelled without a
-    halt, when the link went or by the shutdown) is halted, then the pose is read back, so
-    that it is where the arm stopped, not a snapshot of it on its way."""
+    halt, when the link went or by the shutdown) is halted, and so is every servo if a stop
+    came while the port was closed; then the pose is read back, so that it is where the
+    arm stopped, not a snapshot of it on its way."""
     if not can_ask(c, t):
         return c
     if not c.link.halt_checked:
-        if c.book.q_believed(t):
+        if c.halt_owed:
+            c = halt(c, t, out)
+            say(out, logging.WARNING, "the board is back: STOP for the stop asked meanwhile")
+        elif c.book.q_believed(t):
             return ask(c, Purpose.HALTED, p.encode_query_movement(), 1, t, out)
-        c = _halt_cancelled(c, t, out)
+        else:
+            c = _halt_cancelled(c, t, out)
         return replace(c, link=replace(c.link, halt_checked=True))
     return read_pose(c, t, out)
 
