@@ -17,6 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import yaml
 
 from al5d import exits
 from al5d.app.terminal import SLOW_DISCOVERY_S, Timing
@@ -106,6 +107,18 @@ def test_no_server_is_its_own_code_for_run_too(tmp_path: Path) -> None:
     assert any("no al5d server answers" in line for line in err)
 
 
+def test_bad_grammar_in_a_file_is_said_before_a_server_is_looked_for(tmp_path: Path) -> None:
+    """Bad for every server, so said at once, with no server to judge the rest by."""
+    seq = tmp_path / "typo.seq"
+    seq.write_text("ready\nmove base=x\n")
+    code, out, err = ended(Proc("run", "--wait", "30", str(seq), env=alone()))
+    assert code == exits.BAD_INPUT, err
+    assert out == []
+    assert err == [
+        f"al5d run: nothing sent: {seq}:2: word 2 'base=x': 'x' is not a number of degrees"
+    ]
+
+
 def test_a_sequence_files_errors_are_said_all_at_once_and_nothing_is_sent(
     arm: Served, tmp_path: Path
 ) -> None:
@@ -167,6 +180,39 @@ def test_a_sequence_the_server_would_refuse_is_judged_whole_and_nothing_is_sent(
     assert len(arm.peer.results_now()) == outcomes
 
 
+def test_a_sequence_is_judged_by_the_servers_own_configuration(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """A server started with a base range of -45..45 (its own file): `al5d run`, over its lane
+    and over ROS 2, and `al5d run --check` judge a file by it, not by the shipped one (where
+    base=60 is fine): the line is said, and nothing is sent."""
+    data = yaml.safe_load(Path(patient_config()).read_text())
+    data["joints"]["base"]["range_deg"] = [-45, 45]
+    narrow = tmp_path / "narrow.yaml"
+    narrow.write_text(yaml.safe_dump(data, sort_keys=False))
+    seq = tmp_path / "wide.seq"
+    seq.write_text("ready\nmove base=60\npark\n")
+    link = tmp_path / "ssc32u"
+    ns = ("--namespace", "narrow")
+    with Emulator(config, link=link).start() as emu:
+        server = Proc("serve", "--port", str(link), "--config", str(narrow), *ns)
+        try:
+            server.err.wait_for("STATE: ready", STATE_S)
+            n0 = len(emu.records)
+            for args in (("--check",), (), ("--via", "ros")):
+                code, out, err = ended(Proc("run", *args, *ns, str(seq)))
+                assert code == exits.BAD_INPUT, (args, out, err)
+                said = [
+                    e.removeprefix("al5d run: ").removeprefix("nothing sent: ")
+                    for e in err
+                    if "to be discovered" not in e  # a slow discovery is said
+                ]
+                assert said == [f"{seq}:2: base: 60 deg is outside the range -45..45"], (args, err)
+            assert group_moves(emu.records[n0:]) == []
+        finally:
+            server.kill()
+
+
 def test_check_judges_a_file_without_a_server(tmp_path: Path) -> None:
     (tmp_path / "poses.yaml").write_text("above_cup: {base: -35, shoulder: 40, elbow: 80}\n")
     seq = tmp_path / "judged.seq"
@@ -179,7 +225,10 @@ def test_check_judges_a_file_without_a_server(tmp_path: Path) -> None:
     good.write_text("ready\nmove base=10 &\nwait 100\npose above_cup time=800\npark\n")
     code, out, err = ended(Proc("run", "--check", str(good), env=alone()))
     assert code == exits.DONE, err
-    assert out == [f"{good}: 5 steps, none the server would refuse; nothing sent"], out
+    assert out == [
+        f"{good}: 5 steps, none a server with the shipped configuration (none on this "
+        "machine's lane) would refuse; nothing sent"
+    ], out
 
 
 def test_a_file_that_cannot_be_read_is_bad_input(tmp_path: Path) -> None:
@@ -199,6 +248,23 @@ def test_refused_is_not_done_and_verbose_says_where_the_time_went(arm: Served) -
     )
     assert found is not None, said
     assert re.search(r"^al5d send: \d+\.\d\d s in all$", said, re.M), said
+
+
+def test_what_the_server_changed_is_printed_by_send_and_run(arm: Served, tmp_path: Path) -> None:
+    """`ready time=10` is slowed to what the servos can do: `al5d send` and `al5d run` print
+    the outcome with the time the server raised it to (INF03), not a bare `done`."""
+    seq = tmp_path / "fast.seq"
+    seq.write_text("park\nready time=10\n")
+    raised = re.compile(
+        r"^ready \[\S+\]: done: INF03: ready \[\S+\] cannot be done in the requested 10 ms; "
+        r"expected \d+ ms",
+        re.M,
+    )
+    for args in (("send", "park"), ("send", "ready", "time=10"), ("run", str(seq))):
+        code, out, err = ended(Proc(*args))
+        assert code == exits.DONE, (args, out, err)
+        if args[0] == "run" or "time=10" in args:
+            assert raised.search("\n".join(out)), (args, out)
 
 
 def test_a_slow_discovery_is_said_without_verbose(arm: Served) -> None:

@@ -27,11 +27,11 @@ def test_the_demo_picks_the_cup_and_sets_it_down_at_its_goal_recorded(tmp_path: 
         code = demo.wait(400)
         out = demo.out.drain(1.0)
         text = "\n".join(out)
+        # What the twin said (how far behind real time it fell, what it skipped), for a miss.
+        said = "\n".join(line for line in demo.err.drain(0.5) if "twin" in line)
         # 0, or 1 when a move's QoS missed SA03's bound on a busy host (the table says MISSED):
         # the cup's measures below are what this test is about.
-        assert code == 0 or (code == 1 and "MISSED" in text), (
-            text + "\n" + "\n".join(demo.err.drain(0.5)[-30:])
-        )
+        assert code == 0 or (code == 1 and "MISSED" in text), text + "\n" + said
         recorder.out.wait_for(f"{names.camera_image}: 1 writer", 5)
         recorder.popen.send_signal(signal.SIGINT)
         assert recorder.wait(60) == 0
@@ -43,9 +43,9 @@ def test_the_demo_picks_the_cup_and_sets_it_down_at_its_goal_recorded(tmp_path: 
     assert placed, text
     found = re.search(r"lifted (\d+) mm at most; .*?, ([\d.]+) mm from its goal", placed[0])
     assert found, placed[0]
-    assert int(found.group(1)) >= 50
-    assert float(found.group(2)) <= 10
-    assert placed[0].split(": ")[-2].endswith("held") or ": held (" in placed[0]
+    assert int(found.group(1)) >= 50, (placed[0], said)
+    assert float(found.group(2)) <= 10, (placed[0], said)
+    assert ": held (" in placed[0]
 
     counts: Counter[str] = Counter()
     picture = None

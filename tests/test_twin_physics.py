@@ -13,13 +13,16 @@ from typing import Any
 import mujoco
 import pytest
 
+from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
+from al5d.arm.instruction import Result
 from al5d.arm.servos import SERVOS
 from al5d.model import build_chain
 from al5d.ssc32u.emulator import Board, Mechanics
 from al5d.twin.mjcf import KG_CM, drives
 from al5d.twin.physics import FRAME_S, Twin
 from al5d.twin.scene import Scene, load_scene, parse_scene
+from al5d_rig.sim import Sim
 from al5d_rig.twinrig import TwinRig
 
 READY = {"base": 0, "shoulder": 30, "elbow": 90, "wrist": 0, "gripper": 0, "wrist_rotate": 0}
@@ -171,6 +174,34 @@ def test_a_move_into_an_object_stops_against_it_and_says_which_joint(config: Arm
     assert f"{against[0].joint} held " in against[0].text and "against the box" in against[0].text
     box_state = rig.twin.objects()["box"]
     assert math.dist(box_state.position, box_state.start) < 0.005  # 2 kg: not pushed away
+
+
+def test_a_move_the_servers_core_sends_into_an_object_stops_against_it(
+    config: ArmConfig,
+) -> None:
+    """As above, but the move is judged and written by the server's own core (in virtual time,
+    `al5d_rig.sim`): it knows only the table, so it sends a tool move 20 mm above it, into
+    the box, and the move is done as far as the board can tell; the twin on the board it
+    writes stops the arm on the box and says which joint was held."""
+    box = {"shape": "box", "size_mm": [60, 80, 60], "mass_g": 2000, "xyz_mm": [230, 0, 0]}
+    sim = Sim(config)
+    start = sim.board.powered_at
+    twin = Twin(config, scene_with(box=box), start=start, pose=sim.board.joint_degrees(start))
+    sim.board.observe_pulses(twin.follow)
+    sim.ready()
+    for instr in (
+        ins.preset("straight_up"),  # clear of the box on the way
+        ins.move_to(230, 0, 100, pitch=-90, time_ms=1200),
+        ins.move_to(230, 0, 20, pitch=-90, time_ms=1200),
+    ):
+        outcome = sim.outcome(sim.ask(instr), 10.0)
+        assert outcome.result is Result.DONE, outcome
+    sim.run(1.5)
+    held = twin.advance_to(sim.t)  # the board's answers do not depend on the twin's
+    assert 0.0 < twin.deepest.get("box", 0.0) <= 0.002, twin.deepest  # touched, not sunk
+    against = [h for h in held if h.against == "box"]
+    assert against, [h.text for h in held]
+    assert f"{against[0].joint} held " in against[0].text and "against the box" in against[0].text
 
 
 def test_a_channel_without_pulses_leaves_its_servo_limp(config: ArmConfig) -> None:

@@ -183,7 +183,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from al5d.app.terminal import run
 
     if args.check:
-        return _check(args.file, args.poses)
+        return _check(args.file, args.poses, args.namespace)
     return run(
         args.file,
         wait_s=args.wait,
@@ -195,14 +195,24 @@ def _cmd_run(args: argparse.Namespace) -> int:
     )
 
 
-def _check(path: str, poses: str | None) -> int:
-    """`al5d run --check`: the file judged whole as `al5d run` judges it; nothing sent."""
+def _check(path: str, poses: str | None, namespace: str | None) -> int:
+    """`al5d run --check`: the file judged whole as `al5d run` judges it, against the
+    configuration of the server on this machine's lane, else the shipped one; nothing sent."""
     from al5d.arm.poses import PosesError, beside, load_poses
     from al5d.arm.sequence import judge_sequence, served_config
+    from al5d.owner import where
+    from al5d.owner.client import LaneClosed, Remote
+    from al5d.ros.names import Names
 
     try:
+        with Remote.connect(where.path(Names.of(namespace).namespace), watch=()) as lane:
+            config, whose = lane.config, "the server"
+    except LaneClosed:
+        config = served_config()
+        whose = "a server with the shipped configuration (none on this machine's lane)"
+    try:
         book = load_poses(beside(path) if poses is None else poses, required=poses is not None)
-        judged = judge_sequence(Path(path).read_bytes(), served_config(), path, book)
+        judged = judge_sequence(Path(path).read_bytes(), config, path, book)
     except OSError as e:
         print(f"al5d run: cannot read {path}: {e.strerror}", file=sys.stderr)
         return exits.BAD_INPUT
@@ -213,7 +223,7 @@ def _check(path: str, poses: str | None) -> int:
         print(f"al5d run: {problem.at(path)}", file=sys.stderr)
     if not judged.ok:
         return exits.BAD_INPUT
-    print(f"{path}: {len(judged.lines)} steps, none the server would refuse; nothing sent")
+    print(f"{path}: {len(judged.lines)} steps, none {whose} would refuse; nothing sent")
     return exits.DONE
 
 

@@ -38,7 +38,7 @@ from al5d.arm.instruction import (
     parse_instruction,
 )
 from al5d.arm.poses import PosesError, beside, load_poses
-from al5d.arm.sequence import SequenceJudge, judged_steps, served_config
+from al5d.arm.sequence import SequenceJudge, judge_sequence, judged_steps, served_config
 from al5d.ros.client import (
     Answer,
     Client,
@@ -212,14 +212,20 @@ def run(
 ) -> int:
     """Run a sequence file; 0 if every instruction was done, 1 if any was not.
 
-    The file is checked whole before its first line is sent, and every bad line is said.
-    Each outcome is printed when it comes: a line run in the background (`&`) reports as
-    soon as its outcome arrives, not after the next line's. Its `pose <name>` lines name
-    poses of the file `poses` (by default `poses.yaml` beside the sequence, if there).
+    The file is judged whole against the server's configuration (`Client.config`) before
+    its first line is sent, and every bad line is said (a file with a line of bad grammar
+    at once, before the server is found, judged against the shipped configuration). Each
+    outcome is printed when it comes: a line run in the background (`&`) reports as soon as
+    its outcome arrives, not after the next line's. Its `pose <name>` lines name poses of
+    the file `poses` (by default `poses.yaml` beside the sequence, if there).
     """
     try:
         book = load_poses(beside(path) if poses is None else poses, required=poses is not None)
-        steps = judged_steps(Path(path).read_bytes(), str(path), book)
+        data = Path(path).read_bytes()
+        # A line of bad grammar is bad for every server: said at once, before one is found.
+        first = judge_sequence(data, served_config(), str(path), book)
+        if any(problem.grammar for problem in first.problems):
+            raise first.error()
     except OSError as e:
         print(f"al5d run: cannot read {path}: {e.strerror}", file=err)
         return exits.BAD_INPUT
@@ -241,6 +247,11 @@ def run(
     try:
         client.wait_for_server(wait_s)
         timing.discovered(client)
+        try:
+            steps = judged_steps(data, str(path), book, client.config())
+        except GrammarError as e:
+            print(f"al5d run: nothing sent: {e}".replace("\n", "\nal5d run: "), file=err)
+            return exits.BAD_INPUT
         background: list[Instruction] = []
         for item, in_background in steps:
             if isinstance(item, Instruction):
@@ -349,7 +360,6 @@ def shell(
     except PosesError as e:
         print(f"al5d shell: {e}", file=err)
         return exits.BAD_INPUT
-    judge = SequenceJudge(served_config())
     interactive = inp.isatty()
     timing = Timing("al5d shell", verbose, err)
     try:
@@ -364,6 +374,7 @@ def shell(
     try:
         client.wait_for_server(wait_s)
         timing.discovered(client)
+        judge = SequenceJudge(client.config())
         if interactive:
             report.line(
                 "al5d shell: one instruction a line (as in a sequence file); Ctrl-C while "

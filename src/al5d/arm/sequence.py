@@ -62,6 +62,8 @@ class Problem:
     number: int
     text: str
     reason: str
+    #: The grammar's (a line no configuration would take), not the server's.
+    grammar: bool = False
 
     def at(self, name: str) -> str:
         """`name:line: reason`, as a compiler says it."""
@@ -118,7 +120,7 @@ class SequenceJudge:
             try:
                 step = sequence_line(raw, self.presets, poses)
             except GrammarError as e:
-                problems.append(Problem(number, text, str(e)))
+                problems.append(Problem(number, text, str(e), grammar=True))
                 continue
             if step is None:
                 continue

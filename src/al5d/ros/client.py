@@ -47,6 +47,8 @@ from al5d.ros.reading import ArmView, Reading, Tool, follow_lane, follow_ros
 if TYPE_CHECKING:
     from al5d_interfaces.msg import InstructionResult
 
+    from al5d.arm.config import ArmConfig
+
 # rclpy and the messages are imported where the ROS 2 way is taken: a client of a local
 # server (its lane) starts without them (about half a second less).
 
@@ -207,6 +209,7 @@ class Client:
         self._watchers: dict[str, Callable[[Outcome], None]] = {}
         self._matched = False
         self._view: ArmView | None = None
+        self._config: ArmConfig | None = None
         if local is not False:
             path = where.path(names.namespace)
             try:
@@ -537,17 +540,38 @@ class Client:
             view = ArmView(self.lane.config.model, live=self.lane.positions)
             follow_lane(self.lane, view)
         else:
-            from al5d.arm.config import load_config
-            from al5d.ros.params import served_config_file
-
-            if not self._matched:
-                self.wait_for_server(self.wait_s)
-            config = load_config(served_config_file(self.node, self.names, ANSWER_S))
+            config = self.config()
             prefix = config.server.joint_prefix_in(self.names.namespace)
             view = ArmView(config.model)
             follow_ros(self.node, self.names, prefix, view)
         self._view = view
         return view
+
+    def config(self) -> ArmConfig:
+        """The configuration the server judges with (its joints, ranges, presets, table), for
+        judging before sending: the lane's welcome holds it; over ROS 2, the file the server
+        was started with (its `config_file` parameter), where this machine has that file,
+        else the shipped one. Waits for the server first if it has not been found (raises
+        NoServer)."""
+        self._check_open()
+        if self._config is not None:
+            return self._config
+        if self.lane is not None:
+            self._config = self.lane.config
+            return self._config
+        from al5d.arm.config import load_config
+        from al5d.ros.params import served_config_file
+
+        if not self._matched:
+            self.wait_for_server(self.wait_s)
+        served = served_config_file(self.node, self.names, ANSWER_S)
+        if served is not None and not served.is_file():
+            log.info(
+                "the server's configuration %s is not on this machine: the shipped one", served
+            )
+            served = None
+        self._config = load_config(served)
+        return self._config
 
     def read(self, timeout: float | None = None) -> Reading:
         """The arm as last heard: its state, joints (degrees) and tool pose (`Reading`). The
