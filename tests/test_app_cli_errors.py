@@ -185,7 +185,9 @@ def test_a_sequence_is_judged_by_the_servers_own_configuration(
 ) -> None:
     """A server started with a base range of -45..45 (its own file): `al5d run`, over its lane
     and over ROS 2, and `al5d run --check` judge a file by it, not by the shipped one (where
-    base=60 is fine): the line is said, and nothing is sent."""
+    base=60 is fine): the line is said, and nothing is sent. The file is gone once the
+    server has read it, as for a client on another machine: the server says what it
+    judges with."""
     data = yaml.safe_load(Path(patient_config()).read_text())
     data["joints"]["base"]["range_deg"] = [-45, 45]
     narrow = tmp_path / "narrow.yaml"
@@ -198,6 +200,7 @@ def test_a_sequence_is_judged_by_the_servers_own_configuration(
         server = Proc("serve", "--port", str(link), "--config", str(narrow), *ns)
         try:
             server.err.wait_for("STATE: ready", STATE_S)
+            narrow.unlink()
             n0 = len(emu.records)
             for args in (("--check",), (), ("--via", "ros")):
                 code, out, err = ended(Proc("run", *args, *ns, str(seq)))

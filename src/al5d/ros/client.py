@@ -549,29 +549,42 @@ class Client:
 
     def config(self) -> ArmConfig:
         """The configuration the server judges with (its joints, ranges, presets, table), for
-        judging before sending: the lane's welcome holds it; over ROS 2, the file the server
-        was started with (its `config_file` parameter), where this machine has that file,
-        else the shipped one. Waits for the server first if it has not been found (raises
-        NoServer)."""
+        judging before sending: the lane's welcome holds it, and so does the server's
+        latched `al5d/config` over ROS 2 (the parameters' values included, wherever the
+        server runs). Waits for the server first if it has not been found (raises
+        NoServer); a server that does not say it (an older one): the shipped file.
+        """
         self._check_open()
-        if self._config is not None:
-            return self._config
-        if self.lane is not None:
-            self._config = self.lane.config
-            return self._config
-        from al5d.arm.config import load_config
-        from al5d.ros.params import served_config_file
+        if self._config is None:
+            self._config = self.lane.config if self.lane is not None else self._served_config()
+        return self._config
+
+    def _served_config(self) -> ArmConfig:
+        import json
+
+        from std_msgs.msg import String
+
+        from al5d.arm.config import load_config, parse_config
+        from al5d.ros.qos import QOS_LATCHED
 
         if not self._matched:
             self.wait_for_server(self.wait_s)
-        served = served_config_file(self.node, self.names, ANSWER_S)
-        if served is not None and not served.is_file():
-            log.info(
-                "the server's configuration %s is not on this machine: the shipped one", served
-            )
-            served = None
-        self._config = load_config(served)
-        return self._config
+        said: list[str] = []
+        came = threading.Event()
+
+        def heard(msg: String) -> None:
+            said.append(msg.data)
+            came.set()
+
+        reader = self.node.create_subscription(String, self.names.config, heard, QOS_LATCHED)
+        try:
+            came.wait(ANSWER_S)
+        finally:
+            self.node.destroy_subscription(reader)
+        if not said:
+            log.warning("the server did not say its configuration: judged by the shipped one")
+            return load_config(None)
+        return parse_config(json.loads(said[0]), "the server's configuration")
 
     def read(self, timeout: float | None = None) -> Reading:
         """The arm as last heard: its state, joints (degrees) and tool pose (`Reading`). The

@@ -76,6 +76,11 @@ class Names:
         return self.private("state")
 
     @property
+    def config(self) -> str:
+        """The configuration the server judges with, as JSON (latched)."""
+        return self.private("config")
+
+    @property
     def move(self) -> str:
         return self.private("move")
 

@@ -17,6 +17,7 @@ cheaper). The safety services are `al5d.ros.safety`'s.
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import threading
 import time
@@ -141,6 +142,10 @@ class ArmNode(Node):
             self.result_pub, outcome_message, "al5d-results"
         )
         self.state_pub = self.create_publisher(String, names.state, QOS_LATCHED)
+        # For clients that judge before they send (`Client.config`), on any machine: the
+        # configuration in effect, the parameters' values included, not a file's name.
+        self.config_pub = self.create_publisher(String, names.config, QOS_LATCHED)
+        self.config_pub.publish(String(data=json.dumps(arm.config.model_dump(mode="json"))))
         # Read by a thread of their own, with each message's info (see `workarounds.Reader`).
         group = self.reader_group
         instructions = self.create_subscription(
