@@ -96,8 +96,9 @@ def run(config: ArmConfig, log: Any, n: int = 40) -> dict[str, Any]:
     with Emulator(config, link=link) as emu:
         server = Proc("serve", "--port", str(link), "--config", patient_config())
         try:
-            server.err.wait_for("STATE: ready", 60)
-            server.err.wait_for("local lane", 5)
+            # The lane is said before or after the state, as the owner's thread and the
+            # server's start go: either order.
+            server.err.wait_for_each(("STATE: ready", "local lane"), 60)
             with Remote.connect(where.path()) as arm:
                 for label, loops in (("idle", 0), ("beside two busy loops", 2)):
                     log(f"al5d send stop: {n} trials, {label}")

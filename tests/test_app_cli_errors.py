@@ -183,17 +183,18 @@ def test_a_sequence_the_server_would_refuse_is_judged_whole_and_nothing_is_sent(
 def test_a_sequence_is_judged_by_the_servers_own_configuration(
     config: ArmConfig, tmp_path: Path
 ) -> None:
-    """A server started with a base range of -45..45 (its own file): `al5d run`, over its lane
-    and over ROS 2, and `al5d run --check` judge a file by it, not by the shipped one (where
-    base=60 is fine): the line is said, and nothing is sent. The file is gone once the
-    server has read it, as for a client on another machine: the server says what it
-    judges with."""
+    """A server started with a base range of -45..45 and a preset of its own (its own file):
+    `al5d run`, over its lane and over ROS 2, and `al5d run --check` judge a file by it,
+    not by the shipped one (where base=60 is fine, and `wave` no instruction): the one
+    line is said, and nothing is sent. The file is gone once the server has read it, as
+    for a client on another machine: the server says what it judges with."""
     data = yaml.safe_load(Path(patient_config()).read_text())
     data["joints"]["base"]["range_deg"] = [-45, 45]
+    data["presets"]["wave"] = {**data["presets"]["ready"], "base": 20}
     narrow = tmp_path / "narrow.yaml"
     narrow.write_text(yaml.safe_dump(data, sort_keys=False))
     seq = tmp_path / "wide.seq"
-    seq.write_text("ready\nmove base=60\npark\n")
+    seq.write_text("ready\nwave\nmove base=60\npark\n")
     link = tmp_path / "ssc32u"
     ns = ("--namespace", "narrow")
     with Emulator(config, link=link).start() as emu:
@@ -210,7 +211,7 @@ def test_a_sequence_is_judged_by_the_servers_own_configuration(
                     for e in err
                     if "to be discovered" not in e  # a slow discovery is said
                 ]
-                assert said == [f"{seq}:2: base: 60 deg is outside the range -45..45"], (args, err)
+                assert said == [f"{seq}:3: base: 60 deg is outside the range -45..45"], (args, err)
             assert group_moves(emu.records[n0:]) == []
         finally:
             server.kill()

@@ -240,7 +240,9 @@ def test_a_stop_asked_while_the_board_is_unreachable_is_written_once_it_answers(
     asked = sim.t
     stop = sim.ask(ins.stop())
     assert "the serial link is lost" in sim.outcomes[stop].reason
-    assert sim.core.link.open  # tried at once
+    assert not sim.core.link.open  # not before the stop's answer has gone
+    sim.run(0.01)
+    assert sim.core.link.open  # tried at once, not at the reconnect's interval (0.5 s)
     assert sim.until(lambda: sim.core.state is State.STOPPED, 2.0)
     stops = [t - asked for t, data in sim.sent if t >= asked and b"STOP" in data]
     assert stops and stops[0] < 0.1, stops

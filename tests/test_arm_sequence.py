@@ -117,3 +117,15 @@ def test_a_preset_the_configuration_adds_is_an_instruction(config: ArmConfig) ->
     assert judged.ok, judged.problems
     instr = judged.lines[0].step[0]
     assert isinstance(instr, Instruction) and instr.preset == "home"
+
+
+def test_only_what_no_configuration_would_take_is_the_grammars(judge: SequenceJudge) -> None:
+    """`al5d run` says a file's grammar before it has found a server: an unknown first word is
+    not the grammar's, as the server's configuration may name a preset of that name."""
+    judged = judge.judge(b"wave\nmove base=x\nwait\nmove base=200\n")
+    assert [(p.number, p.grammar) for p in judged.problems] == [
+        (1, False),
+        (2, True),
+        (3, True),
+        (4, False),
+    ]

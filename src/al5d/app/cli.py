@@ -201,13 +201,12 @@ def _check(path: str, poses: str | None, namespace: str | None) -> int:
     from al5d.arm.poses import PosesError, beside, load_poses
     from al5d.arm.sequence import judge_sequence, served_config
     from al5d.owner import where
-    from al5d.owner.client import LaneClosed, Remote
+    from al5d.owner.client import local_config
     from al5d.ros.names import Names
 
-    try:
-        with Remote.connect(where.path(Names.of(namespace).namespace), watch=()) as lane:
-            config, whose = lane.config, "the server"
-    except LaneClosed:
+    config = local_config(where.path(Names.of(namespace).namespace))
+    whose = "the server"
+    if config is None:
         config = served_config()
         whose = "a server with the shipped configuration (none on this machine's lane)"
     try:

@@ -39,6 +39,8 @@ from al5d.arm.instruction import (
 )
 from al5d.arm.poses import PosesError, beside, load_poses
 from al5d.arm.sequence import SequenceJudge, judge_sequence, judged_steps, served_config
+from al5d.owner import where
+from al5d.owner.client import local_config
 from al5d.ros.client import (
     Answer,
     Client,
@@ -46,6 +48,7 @@ from al5d.ros.client import (
     NoOutcome,
     NoServer,
 )
+from al5d.ros.names import Names
 
 #: Finding the server slower than this is said (where the time went), even without
 #: `--verbose`: a user waiting seconds for a command should know it was discovery.
@@ -222,8 +225,11 @@ def run(
     try:
         book = load_poses(beside(path) if poses is None else poses, required=poses is not None)
         data = Path(path).read_bytes()
-        # A line of bad grammar is bad for every server: said at once, before one is found.
-        first = judge_sequence(data, served_config(), str(path), book)
+        # A line of bad grammar is bad for every server: said at once, before one is found
+        # its own way, with every other problem as the server on this machine's lane
+        # judges it (instantly), or a server with the shipped configuration.
+        here = local_config(where.path(Names.of(namespace).namespace))
+        first = judge_sequence(data, here or served_config(), str(path), book)
         if any(problem.grammar for problem in first.problems):
             raise first.error()
     except OSError as e:

@@ -182,8 +182,8 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
     note = (
         ""
         if board_open
-        else f"the serial link is lost ({c.fault}); the arm is locked, and STOP is written "
-        "as soon as the board is reached again"
+        else f"the serial link is lost ({c.fault or 'the board not reached yet'}); the arm "
+        "is locked, and STOP is written as soon as the board is reached again"
     )
     done = outcome(ev.instr, Result.DONE, note, ev.t, ev.t)
     out.append(Resolve(ev.ref, done, ev.tell))

@@ -484,6 +484,10 @@ def drop(c: Core, why: str, sent_ns: int) -> tuple[Core, list[Job]]:
     return c, jobs
 
 
+#: A stop that finds the port closed (a fault) has it opened this long after its answer.
+STOP_OPENS_AFTER_S = 0.001
+
+
 def halt(c: Core, t: float, out: Out, urgent: bool = True) -> Core:
     """A STOP of every channel, the moving joints first: an emergency stop's at once; a
     cancelled move's (`urgent` False) on the wire's pace, in place of a line going out. The
@@ -492,9 +496,15 @@ def halt(c: Core, t: float, out: Out, urgent: bool = True) -> Core:
     c = replace(c, book=c.book.halted(t), readback=True)
     link = c.link
     if not link.open:
-        if urgent:  # owed; and the port is tried now, not at the reconnect's interval
-            when = link.open_at if link.opening else min(link.open_at, t)
-            c = replace(c, halt_owed=True, link=replace(link, open_at=when))
+        if urgent:
+            c = replace(c, halt_owed=True)
+            if not link.opening:
+                # Tried now, not at the reconnect's interval; in a turn of the owner's own,
+                # so that the stop's answer does not wait for the port to open. (A board
+                # that did not answer VER is told apart from another device by nothing but
+                # its answer: both are tried, as every reconnect tries them.)
+                when = min(link.open_at, t + STOP_OPENS_AFTER_S)
+                c = replace(c, link=replace(link, open_at=when))
         return c
     c = replace(c, halt_owed=False)
     data = p.CANCEL + p.encode_stop(order)

@@ -209,6 +209,10 @@ class GrammarError(ValueError):
     """Text that is not an instruction; the message points at the offending word."""
 
 
+class UnknownInstruction(GrammarError):
+    """A first word that is no instruction of these presets (a configuration may add more)."""
+
+
 def _fmt_number(x: float) -> str:
     """The shortest text that reads back as the same number (`1e+06` would lose digits)."""
     if math.isfinite(x) and x == int(x) and abs(x) < 1e15:
@@ -322,7 +326,7 @@ def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Ins
     head = words[0].lower()
     known = (*presets, "move", "move_to", *(kind.value for kind in SAFETY))
     if head not in known:
-        raise GrammarError(f"word 1 {quote(words[0])}: {_unknown(head, known)}")
+        raise UnknownInstruction(f"word 1 {quote(words[0])}: {_unknown(head, known)}")
     time_ms: int | None = None
     joints: list[tuple[str, float]] = []
     tool_words: dict[str, tuple[int, str]] = {}

@@ -4,8 +4,9 @@ Pure steps on the core's value (`corestate.Core`): the owner opens the port when
 (`Open`), hands over what comes (`Opened`, `Received`, `Failed`), and writes what it is
 given (`Send`). A lost link, a silent or babbling board, or a board that has reset
 becomes the `fault` state: every pending move gets its outcome, and the port is opened
-again every `server.reconnect_interval_s` until the board answers; then a move the board
-may still run is halted, the pose is read back, and no cancelled move is replayed.
+again every `server.reconnect_interval_s` (and at once for a stop) until the board
+answers; then a move the board may still run is halted (every servo, if a stop came
+meanwhile), the pose is read back, and no cancelled move is replayed.
 
 One query is on its way at a time; it is written only when no line is going out and the
 wire is free (it cannot be cut), asked once more before a missing answer is a fault, and
@@ -102,9 +103,10 @@ def _checked(c: Core, answer: bytes, t: float, wall: int, out: Out) -> Core:
     """VER's answer: an SSC-32U, or not (closed and tried again)."""
     port = c.arm.port
     start = answer.upper().find(FIRMWARE_PREFIX.encode())
-    if start > 0:
+    if 0 < start <= 2 * (len(c.arm.channels) + 1):
         # Answers to queries asked before the fault, held up on their way (a busy host's
-        # pty): they come first, and are not the board's.
+        # pty): they come first, and are not the board's. At most a `QP` of every channel
+        # and a `Q`, each asked twice.
         say(out, logging.DEBUG, f"late answers before VER's, dropped: {answer[:start]!r}")
         answer = answer[start:]
     try:

@@ -27,6 +27,7 @@ from al5d.arm.instruction import (
     Kind,
     SequenceErrors,
     SequenceStep,
+    UnknownInstruction,
     sequence_line,
 )
 from al5d.arm.poses import NamedPoses
@@ -40,8 +41,8 @@ Pose = dict[str, float | None]
 def served_config(path: str | None = None) -> ArmConfig:
     """The configuration the server judges with, for a client that judges before it sends.
 
-    Today a client reads it as `al5d serve` does (`path`: its `--config`; None: the shipped
-    file); this is the one place to point at the server's own once the server can tell it.
+    Where no server can say it (`Client.config` asks the server): the file as `al5d serve`
+    reads it (`path`: its `--config`; None: the shipped file).
     """
     return load_config(path)
 
@@ -120,7 +121,9 @@ class SequenceJudge:
             try:
                 step = sequence_line(raw, self.presets, poses)
             except GrammarError as e:
-                problems.append(Problem(number, text, str(e), grammar=True))
+                # An unknown first word may be a preset of another configuration's.
+                bad = not isinstance(e, UnknownInstruction)
+                problems.append(Problem(number, text, str(e), grammar=bad))
                 continue
             if step is None:
                 continue

@@ -359,3 +359,13 @@ def wait_lane(path: Path, timeout: float) -> bool:
         finally:
             probe.close()
         time.sleep(0.05)
+
+
+def local_config(path: Path) -> ArmConfig | None:
+    """The configuration the server on the lane at `path` judges with (its `welcome`'s), for
+    a client that judges before it has found a server its own way; None where none answers."""
+    try:
+        with Remote.connect(path, name="al5d-config", watch=()) as lane:
+            return lane.config
+    except LaneClosed:
+        return None

@@ -550,9 +550,11 @@ class Client:
     def config(self) -> ArmConfig:
         """The configuration the server judges with (its joints, ranges, presets, table), for
         judging before sending: the lane's welcome holds it, and so does the server's
-        latched `al5d/config` over ROS 2 (the parameters' values included, wherever the
-        server runs). Waits for the server first if it has not been found (raises
-        NoServer); a server that does not say it (an older one): the shipped file.
+        latched `al5d/config` over ROS 2 (the parameters' values at its start included,
+        wherever the server runs). Kept for the client's life. Waits for the server first
+        if it has not been found (raises NoServer); a server that does not say it within
+        10 s (an older one): the shipped file, with a warning. Raises ConfigError if what
+        the server says is no configuration this version reads.
         """
         self._check_open()
         if self._config is None:

@@ -143,7 +143,7 @@ class ArmNode(Node):
         )
         self.state_pub = self.create_publisher(String, names.state, QOS_LATCHED)
         # For clients that judge before they send (`Client.config`), on any machine: the
-        # configuration in effect, the parameters' values included, not a file's name.
+        # configuration in effect (the parameters' values at start), not a file's name.
         self.config_pub = self.create_publisher(String, names.config, QOS_LATCHED)
         self.config_pub.publish(String(data=json.dumps(arm.config.model_dump(mode="json"))))
         # Read by a thread of their own, with each message's info (see `workarounds.Reader`).
