@@ -431,7 +431,10 @@ def test_ctrl_c_as_an_instruction_goes_out_leaves_it_known_as_sent(
     lines = own_lines(done.stdout)
     assert lines[0] == "Ctrl-C True", lines
     assert lines[1].startswith("stop: done"), lines
-    assert re.fullmatch(r"move \[\S+\]: cancelled.*", lines[2]), lines
-    assert lines[3] == "watched ['cancelled']", lines
+    # Cancelled by the stop; or, where the stop (by the service) overtook the move (on the
+    # topic) on its way over DDS, refused as the stopped arm's: a CI run saw both.
+    found = re.fullmatch(r"move \[\S+\]: (cancelled|refused: the arm is stopped).*", lines[2])
+    assert found, lines
+    assert lines[3] == f"watched [{found.group(1).split(':')[0]!r}]", lines
     assert lines[4].startswith("release: done"), lines
     assert lines[5] == "False None True", lines
