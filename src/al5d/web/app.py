@@ -48,6 +48,7 @@ class WebView:
         import viser
 
         from al5d.arm.poses import beside, load_poses
+        from al5d.arm.sequence import served_config
         from al5d.ros.names import Names
         from al5d.ros.params import served_config_file
         from al5d.web import calibrate, guard
@@ -58,9 +59,8 @@ class WebView:
 
         # The websocket library's INFO lines (each connection) would drown the page's own.
         logging.getLogger("websockets").setLevel(logging.WARNING)
-        # The server's configuration, as a client judges what it sends (`al5d run` too): the
-        # server's own where one is on this machine's lane, else the file.
-        config = config or self._served(options)
+        # The server's configuration, as a client judges what it sends (`al5d run` too).
+        config = config or served_config(options.config)
         poses = (Path(options.poses) if options.poses else beside(options.config)).absolute()
         load_poses(poses, required=False)  # a bad file stops here, before the port is taken
         ns = config.server.namespace if options.namespace is None else options.namespace
@@ -99,23 +99,6 @@ class WebView:
                 print("al5d web: a page opened", flush=True)
 
         self.server.on_client_connect(on_client)
-
-    @staticmethod
-    def _served(options: WebOptions) -> ArmConfig:
-        from al5d.arm.sequence import served_config
-        from al5d.owner import where
-        from al5d.owner.client import local_config
-        from al5d.ros.names import Names
-
-        mine = served_config(options.config)
-        ns = mine.server.namespace if options.namespace is None else options.namespace
-        here = where.path(Names.of(ns).namespace)
-        theirs = local_config(here)
-        if theirs is None:
-            log.info("the page judges and draws with %s", options.config or "the shipped file")
-            return mine
-        log.info("the page judges and draws with the configuration of the server on %s", here)
-        return theirs
 
     def close(self) -> None:
         self.teach.player.halt("the web view's end")
