@@ -562,31 +562,16 @@ class Client:
         return self._config
 
     def _served_config(self) -> ArmConfig:
-        import json
-
-        from std_msgs.msg import String
-
-        from al5d.arm.config import load_config, parse_config
-        from al5d.ros.qos import QOS_LATCHED
+        from al5d.arm.config import load_config
+        from al5d.ros.params import served_config
 
         if not self._matched:
             self.wait_for_server(self.wait_s)
-        said: list[str] = []
-        came = threading.Event()
-
-        def heard(msg: String) -> None:
-            said.append(msg.data)
-            came.set()
-
-        reader = self.node.create_subscription(String, self.names.config, heard, QOS_LATCHED)
-        try:
-            came.wait(ANSWER_S)
-        finally:
-            self.node.destroy_subscription(reader)
-        if not said:
+        config = served_config(self.node, self.names, ANSWER_S)
+        if config is None:
             log.warning("the server did not say its configuration: judged by the shipped one")
             return load_config(None)
-        return parse_config(json.loads(said[0]), "the server's configuration")
+        return config
 
     def read(self, timeout: float | None = None) -> Reading:
         """The arm as last heard: its state, joints (degrees) and tool pose (`Reading`). The

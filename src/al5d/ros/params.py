@@ -44,6 +44,7 @@ from al5d.arm.config import (
     GeometrySettings,
     ServerSettings,
     load_config,
+    parse_config,
 )
 from al5d.arm.config import with_changes as config_with
 
@@ -330,3 +331,29 @@ def served_config_file(node: Node, names: Names, timeout: float) -> Path | None:
         return Path(served) if served else DEFAULT_CONFIG
     finally:
         node.destroy_client(service)
+
+
+def served_config(node: Node, names: Names, timeout: float) -> ArmConfig | None:
+    """The configuration a running server judges with, as it says it on its latched
+    `al5d/config`, heard by a client's `node`; None if nothing came within `timeout` (a
+    server that does not say it). Raises ConfigError if it is no configuration this
+    version reads."""
+    import json
+
+    from std_msgs.msg import String
+
+    from al5d.ros.qos import QOS_LATCHED
+
+    said: list[str] = []
+    came = threading.Event()
+
+    def heard(msg: String) -> None:
+        said.append(msg.data)
+        came.set()
+
+    reader = node.create_subscription(String, names.config, heard, QOS_LATCHED)
+    try:
+        came.wait(timeout)
+    finally:
+        node.destroy_subscription(reader)
+    return parse_config(json.loads(said[0]), "the server's configuration") if said else None
