@@ -8,6 +8,7 @@ written out here as examples.
 from __future__ import annotations
 
 import logging
+import math
 import re
 from dataclasses import replace
 
@@ -454,6 +455,29 @@ def test_a_burst_of_set_points_writes_a_line_a_wire_time_the_last_the_newest(
     cancelled = [sim.outcomes[r] for r in refs[:-1] if sim.outcomes[r].result is Result.CANCELLED]
     assert len(cancelled) >= 1000 - 1 - len(lines)
     assert all("set-point" in o.reason for o in cancelled)
+
+
+def test_a_stream_faster_than_the_wire_moves_the_arm_line_after_whole_line(
+    config: ArmConfig,
+) -> None:
+    """A 50 Hz stream of six-joint set-points at 9600 baud, whose lines take 45 ms of wire:
+    a newer set-point waits for the line going out, none is cut (each was cut by the next,
+    and the arm did not move: seen over DDS), and the arm follows the newest."""
+    sim = Sim(config, baud=9600).ready()
+    n = len(sim.records)
+    here = sim.degrees()
+    refs = []
+    for k in range(100):
+        target = here | {"base": here["base"] + 20 * math.sin(k / 25)}
+        refs.append(sim.ask(ins.move(**target), stream="joint_commands", tell=False))
+        sim.run(0.02)
+    records = sim.records[n:]
+    assert not [r.raw for r in records if r.ignored == "cancelled by ESC"]
+    line = max((r.raw for r in records if r.raw.startswith(b"#")), key=len)
+    wire = p.wire_time_s(len(line) + 1, 9600)
+    moved = [r for r in records if r.accepted and r.raw.startswith(b"#")]
+    assert len(moved) >= 2.0 / wire - 2, (len(moved), wire)
+    assert sim.outcome(refs[-1]).ok
 
 
 def test_a_held_stream_at_100_hz_for_10_s_is_a_few_log_lines(

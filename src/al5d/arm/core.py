@@ -285,33 +285,14 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
                 c = fire(c, Event.MOVE_DONE, out)
             finish(job, Result.DONE, "at this set-point, or on its way: nothing written", ev.t, out)
             return c
-        superseded = c.run.job if c.run is not None else None
         if _supersedes(c, job):
-            assert superseded is not None
-            # Judged against the table from where the running one has the arm now (again
-            # when its bytes go: `running`).
-            motion = c.book.motion
-            here = {**c.book.pose, **(motion.at(ev.t) if motion is not None else {})}
-            if motion is not None and len(job.steps) == 1:
-                # The board retargets only the joints a line names: the others still moving
-                # would go on to the running move's target at its pace, on a path nobody
-                # judged (seen: 15.9 mm under the table). The set-point takes the running
-                # move's joints along to that target: one group move, judged whole, whose
-                # end is where the arm then rests (the superseded one, cancelled, never
-                # says where it took them).
-                step = job.steps[0]
-                job = replace(job, steps=(replace(step, target={**motion.target, **step.target}),))
-            reason = from_start(instr, job.steps, here, c.arm.limits)
-            if reason:
-                _refuse(ev, reason, out)
-                return c
-            link = c.link
-            if link.rest and not link.rest_is_halt:
-                link = replace(link, rest=b"", cut=True)
-            c = replace(c, run=Run(job, job.steps, retarget=True), link=link)
-            why = f"superseded by set-point {instr.id}"
-            finish(superseded, Result.CANCELLED, why, ev.t, out)
-            return c
+            if c.link.rest and not c.link.rest_is_halt:
+                # The running set-point's line is going out: cut, the board would drop it
+                # whole, and a stream faster than the wire would never move the arm (each
+                # line cut by the next: seen at 50 Hz and 9600 baud). The newest waits for
+                # the line and takes its place then (`_next`).
+                return replace(c, queue=(*c.queue, job))
+            return _supersede(c, job, ev.t, out)
     if c.idle:
         return running.start(fire(c, Event.MOVE, out), job, ev.t, out)
     capacity = c.arm.settings.queue_capacity
@@ -346,6 +327,35 @@ def _unchanged(c: Core, job: Job) -> bool:
         if there is None or abs(deg - there) > c.arm.same_deg[name]:
             return False
     return True
+
+
+def _supersede(c: Core, job: Job, t: float, out: Out) -> Core:
+    """The set-point `job` takes the running one's place (`_supersedes`), judged from where
+    that one has the arm at `t`; refused where that path would leave the table. Never while
+    a line of the running one is going out (no line is cut but by a stop)."""
+    assert c.run is not None and not (c.link.rest and not c.link.rest_is_halt)
+    superseded = c.run.job
+    # Judged against the table from where the running one has the arm now (again
+    # when its bytes go: `running`).
+    motion = c.book.motion
+    here = {**c.book.pose, **(motion.at(t) if motion is not None else {})}
+    if motion is not None and len(job.steps) == 1:
+        # The board retargets only the joints a line names: the others still moving
+        # would go on to the running move's target at its pace, on a path nobody
+        # judged (seen: 15.9 mm under the table). The set-point takes the running
+        # move's joints along to that target: one group move, judged whole, whose
+        # end is where the arm then rests (the superseded one, cancelled, never
+        # says where it took them).
+        step = job.steps[0]
+        job = replace(job, steps=(replace(step, target={**motion.target, **step.target}),))
+    reason = from_start(job.instr, job.steps, here, c.arm.limits)
+    if reason:
+        finish(job, Result.REFUSED, reason, t, out)
+        return c
+    c = replace(c, run=Run(job, job.steps, retarget=True))
+    why = f"superseded by set-point {job.instr.id}"
+    finish(superseded, Result.CANCELLED, why, t, out)
+    return c
 
 
 def _supersedes(c: Core, job: Job) -> bool:
@@ -441,6 +451,10 @@ def _next(c: Core, t: float, wall: int, out: Out) -> Core:
     if c.state is State.FAULT:
         return c
     if c.run is not None:
+        # A set-point that waited for the running one's line takes its place once it is out.
+        waiting = c.queue[0] if c.queue and c.queue[0].stream and not c.link.rest else None
+        if waiting is not None and _supersedes(replace(c, queue=c.queue[1:]), waiting):
+            return _supersede(replace(c, queue=c.queue[1:]), waiting, t, out)
         return running.progress(c, t, out)
     if c.shutdown is not None:
         if c.shutdown_taken:
