@@ -4,14 +4,17 @@ itself must get right, apart from the core's rules."""
 from __future__ import annotations
 
 import logging
+import tempfile
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
 from al5d.arm.states import State
+from al5d.owner.client import Remote
 from al5d.owner.loop import Owner
 from al5d.ssc32u.emulator.board import Board
 from al5d.ssc32u.emulator.virtual import VirtualTransport
@@ -86,4 +89,39 @@ def test_an_answer_that_came_while_the_owner_wrote_is_read_before_its_deadline_i
         assert owner.state is State.STOPPED, caplog.text
     finally:
         transport.held = False
+        owner.close()
+
+
+def test_writes_before_a_recorder_connects_are_kept_for_it(config: ArmConfig) -> None:
+    """`al5d serve --record` with ROS: the bridge records the board's writes, and connects
+    while the park may be on the wire already (an idle CI run's recording lacked the park's
+    lines). With `keep_wire` the owner keeps them and tells the first client that watches
+    the wire, right after its welcome; a later watcher hears only what follows."""
+    transport = HeldWrites(Board(config, baud=config.server.baud))
+    lane = Path(tempfile.mkdtemp(prefix="al5d-")) / "lane"
+    owner = Owner(config, transport, lane=lane, keep_wire=True).start()
+    try:
+        owner.wait_for_state(State.READY, 10)
+        owner.sync()
+        before = [w for w in transport.writes if w.startswith(b"#")]
+        assert before, transport.writes  # the park
+        heard: list[bytes] = []
+        later: list[bytes] = []
+        with Remote.connect(lane, watch=("wire",), on_wire=lambda w: heard.append(w[0])):
+            deadline = time.monotonic() + 10
+            while [w for w in heard if w.startswith(b"#")][: len(before)] != before:
+                assert time.monotonic() < deadline, f"the park's writes not told: {heard}"
+                time.sleep(0.01)
+            n = len(transport.writes)
+            with Remote.connect(lane, watch=("wire",), on_wire=lambda w: later.append(w[0])):
+                owner.submit(ins.move(id="after", base=10)).result(10)
+                owner.sync()
+                deadline = time.monotonic() + 10
+                while len(heard) < len(transport.writes) or not later:
+                    assert time.monotonic() < deadline, "the move's writes not told"
+                    time.sleep(0.01)
+        # Every write from the start, in order, to the first; only the new ones to the second.
+        assert heard == transport.writes[: len(heard)]
+        assert later == transport.writes[n : n + len(later)]
+    finally:
         owner.close()

@@ -86,6 +86,19 @@ def served(config: ArmConfig, tmp_path: Path) -> Iterator[Served]:
         emu.close()
 
 
+def freeze(pid: int) -> None:
+    """SIGSTOP process `pid` and wait until it is stopped: the signal stops a process only
+    once each of its threads is scheduled again (an idle CI run read the bridge as running
+    after the stop it was to miss had been written)."""
+    os.kill(pid, signal.SIGSTOP)
+    wait_until(lambda: state(pid) == "T", 30, f"process {pid} stopped")
+
+
+def state(pid: int) -> str:
+    """The state letter of process `pid` (/proc/PID/stat)."""
+    return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+
+
 def long_move_running(served: Served, ident: str) -> int:
     """A 6 s move under way on the board; the index of the record after it (a stop's STOPs
     before it may still be on their way when this is sent)."""
@@ -107,7 +120,7 @@ def test_a_frozen_bridge_does_not_hold_the_stop(served: Served) -> None:
     sent before the stop are cancelled by it, the arm is locked, no move after the STOP."""
     n = long_move_running(served, "long")
     bridge = served.bridge
-    os.kill(bridge, signal.SIGSTOP)
+    freeze(bridge)
     try:
         # Moves sent while it is frozen wait in DDS for it; sent before the stop, they are
         # cancelled by it (rule 2) once the bridge hands them over.
@@ -117,7 +130,7 @@ def test_a_frozen_bridge_does_not_hold_the_stop(served: Served) -> None:
         answer = served.peer.trigger("stop")
         assert answer.success, answer.message
         served.emu.wait_for(lambda rs: any(r.raw.startswith(b"STOP") for r in rs[n:]), 10)
-        assert Path(f"/proc/{bridge}/stat").read_text().rsplit(")", 1)[1].split()[0] == "T"
+        assert state(bridge) == "T"
     finally:
         os.kill(bridge, signal.SIGCONT)
     assert served.peer.result("long").reason == "cancelled by stop"
@@ -176,7 +189,7 @@ def test_a_release_sent_after_the_stop_is_judged_after_it(served: Served) -> Non
     from std_srvs.srv import Trigger
 
     bridge = served.bridge
-    os.kill(bridge, signal.SIGSTOP)
+    freeze(bridge)
     try:
         assert served.peer.trigger("stop").success
         served.peer.send("between", "move", base=10)
@@ -202,7 +215,7 @@ def test_a_stop_goes_on_the_topic_at_once_while_the_stop_process_is_not_found(
     from al5d.ros.client import SERVICE_GRACE_S
 
     stop_process = served.stop_process()
-    os.kill(stop_process, signal.SIGSTOP)
+    freeze(stop_process)
     script = tmp_path / "stop.py"
     script.write_text(
         "import time\n"

@@ -90,9 +90,11 @@ def arm(
     config: ArmConfig | None = None,
     lane_path: Path | None = None,
     config_file: str | None = None,
+    keep_wire: bool = False,
 ) -> Iterator[tuple[Owner, Emulator | None]]:
     """The owner on the given port, or on an embedded emulator; closed (parked) on exit. With
-    `lane_path`, its local lane is there."""
+    `lane_path`, its local lane is there; `keep_wire`: the board's writes are kept for the
+    first lane client that watches them (the ROS bridge, where it records)."""
     config = config or load_config(options.config)
     baud = options.baud or config.server.baud
     emulator: Emulator | None = None
@@ -111,7 +113,9 @@ def arm(
         log.info("no --port: using the embedded SSC-32U emulator on %s, %s", port, link)
     given = config_file if config_file is not None else options.config
     source = Path(given) if given else None
-    owner = Owner(config, SerialTransport(port, baud), lane=lane_path, config_file=source)
+    owner = Owner(
+        config, SerialTransport(port, baud), lane=lane_path, config_file=source, keep_wire=keep_wire
+    )
     try:
         owner.start()
         yield owner, emulator
@@ -234,6 +238,7 @@ def serve(options: ServerOptions) -> int:
         config = None
         config_file = options.config
         namespace = options.namespace or ""
+        bridge_records = False  # with ROS the bridge records, the board's writes too
         if ros is not None:
             settings = ros.settings()
             if isinstance(settings, str):
@@ -245,6 +250,7 @@ def serve(options: ServerOptions) -> int:
             config, options.port = settings.config, settings.port
             namespace = settings.namespace
             config_file = settings.config_file
+            bridge_records = settings.record is not None
         elif options.namespace is None:
             config = load_config(options.config)
             namespace = config.server.namespace
@@ -252,7 +258,8 @@ def serve(options: ServerOptions) -> int:
             recording = _recording(options)
             if recording is None:
                 return 2
-        with arm(options, config, lane.path(namespace), config_file) as (owner, _):
+        where = lane.path(namespace)
+        with arm(options, config, where, config_file, bridge_records) as (owner, _):
             if recording is not None:
                 tap = recording.file.board_tap
                 owner.wire_listeners.append(lambda w: tap(*w))

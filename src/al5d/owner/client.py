@@ -65,6 +65,7 @@ class Remote:
         name: str = "al5d-client",
         watch: Iterable[str] = ("state", "pose"),
         timeout: float = WELCOME_S,
+        on_wire: Callable[[tuple[bytes, float, float]], None] | None = None,
     ) -> None:
         self._sock = sock
         sock.setblocking(True)
@@ -75,7 +76,11 @@ class Remote:
         self.state_listeners: list[Callable[[State], None]] = []
         self.motion_listeners: list[Callable[[Sent], None]] = []
         self.pose_listeners: list[Callable[[], None]] = []
-        self.wire_listeners: list[Callable[[tuple[bytes, float, float]], None]] = []
+        #: `on_wire` among them from the start: the owner tells a recorder the writes it
+        #: kept for it right after the welcome (`Owner`'s keep_wire).
+        self.wire_listeners: list[Callable[[tuple[bytes, float, float]], None]] = (
+            [on_wire] if on_wire is not None else []
+        )
         #: Called once when the lane closes (the owner has ended, or the socket failed).
         self.closed_listeners: list[Callable[[], None]] = []
         self.closed = threading.Event()

@@ -79,6 +79,9 @@ BATCH = 32
 READ_BYTES = 32 * 1024
 #: A client that reads nothing while this much waits for it is let go (a lost client).
 OUT_MAX = 64 * 1024 * 1024
+#: The board's writes kept for a recorder that has not yet connected (`keep_wire`), at most:
+#: its bridge connects within a second of the start, the park's writes are a handful.
+WIRE_KEPT = 1000
 #: The longest the owner sleeps without looking (a lost wake-up is found then).
 SLEEP_MAX_S = 0.5
 #: A thread that woke this much later than it asked was not running: the host's stall.
@@ -114,6 +117,7 @@ class Owner:
         *,
         lane: Path | None = None,
         config_file: Path | None = None,
+        keep_wire: bool = False,
     ) -> None:
         self.config = config
         #: The file the configuration was read from (None: the shipped one, or none).
@@ -158,6 +162,10 @@ class Owner:
         self._writes = 0
         self._stalled = 0.0
         self._cpu_waited = cpu_waited_s()
+        #: With `keep_wire`, the board's writes until a lane client watches them, told to the
+        #: first that does (`al5d serve --record` with ROS: the bridge records, and connects
+        #: while the park may be on the wire already); None once told, or not kept.
+        self._wire_kept: list[dict[str, Any]] | None = [] if keep_wire else None
         self._lane_path = lane
         self._listener: socket.socket | None = None
         self._lane_inode: int | None = None
@@ -514,9 +522,14 @@ class Owner:
         free_at = self._free_at
         if self.wire_listeners:
             self._teller.put(lambda: tell(self.wire_listeners, (data, t, free_at), "wire"))
-        if self._watching("wire"):
+        watched = self._watching("wire")
+        if watched or (self._wire_kept is not None and len(self._wire_kept) < WIRE_KEPT):
             message = {"op": "wire", "data": data.decode("latin-1"), "t": t, "free_at": free_at}
-            self._lane_news("wire", message)
+            if watched:
+                self._lane_news("wire", message)
+            else:
+                assert self._wire_kept is not None
+                self._wire_kept.append(message)
 
     def _open(self) -> None:
         t = now()
@@ -718,6 +731,10 @@ class Owner:
             "wall": wall_ns(),
         }
         self._write(conn, ln.dumps(welcome))
+        if "wire" in conn.watch and self._wire_kept is not None:
+            for message in self._wire_kept:
+                self._write(conn, ln.dumps(message))
+            self._wire_kept = None
 
     def _lane_ask(self, conn: Conn, ref: Any, m: dict[str, Any]) -> None:
         ticket = None

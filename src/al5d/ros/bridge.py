@@ -237,10 +237,10 @@ def main(argv: list[str]) -> int:
         return 0
     stop_here = bool(go[1]) if len(go) > 1 else False
     watch = ("state", "outcomes", "motion", "pose") + (("wire",) if recording else ())
-    arm = Remote(lane, name="al5d-ros", watch=watch)
+    tap = recording.tap(start.names.namespace) if recording is not None else None
+    on_wire = None if tap is None else (lambda w: tap(*w))
+    arm = Remote(lane, name="al5d-ros", watch=watch, on_wire=on_wire)
     if recording is not None:
-        tap = recording.tap(start.names.namespace)
-        arm.wire_listeners.append(lambda w: tap(*w))
         recording.follow(start.names, start.settings.config.server.instruction_backlog)
     bridge = Bridge(arm, start, setup.trace, stop_here)
 
