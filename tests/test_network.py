@@ -49,7 +49,7 @@ c.execute("ready", timeout=60)
 print("sent", flush=True)
 def late():  # sent just after the cut, before the client can know
     try:
-        print("late:", c.execute("move base=60 time=500", timeout=2), flush=True)
+        print("late:", c.execute("move base=60 time=500", timeout=3), flush=True)
     except LostContact as e:
         print("late: lost:", e, flush=True)
 threading.Timer(2.3, late).start()

@@ -176,6 +176,26 @@ def test_stop_by_its_service_and_topic_release_by_the_topic_lock_the_arm_between
     assert set(topic_words) <= {"move", PING, "stop", "release"}, topic_words
 
 
+def test_the_client_gives_up_on_the_server_only_after_its_lease_has_run_out(
+    arm: Served, tmp_path: Path
+) -> None:
+    """A client takes the server for lost only once the server, which checks its leases
+    every tenth of a second, has halted what it commanded: with equal times (1 s each) a
+    move was done 80 ms after its sender gave up on it (a CI run of the network faults)."""
+    done = run_script(
+        tmp_path,
+        "from al5d.ros.client import Client\n"
+        'with Client(namespace="", local=False) as arm:\n'
+        "    before = arm.lost_after_s\n"
+        "    print(before, arm.config().server.client_lease_s, arm.lost_after_s)\n",
+    )
+    assert ended_normally(done) and done.returncode == 0, done.stderr
+    before, lease, after = (float(x) for x in own_lines(done.stdout)[-1].split())
+    checked_every_s = 0.1  # `al5d.ros.node`'s lease keeper, for a lease of 1 s or more
+    assert before >= 1.0 + checked_every_s + 0.3  # the shipped lease, before it is read
+    assert after >= lease + checked_every_s + 0.3
+
+
 def test_al5d_send_stops_and_releases_and_says_by_what(arm: Served) -> None:
     stop = Proc("send", "--via", "ros", "stop")
     assert stop.wait(SCRIPT_S) == 0, stop.err.drain()

@@ -65,7 +65,8 @@ class NoOutcome(TimeoutError):
 
 
 class LostContact(NoOutcome):
-    """Nothing has been heard from the server for `LOST_S`: the link (or the server) is
+    """Nothing has been heard from the server for longer than its lease of this client (and
+    a margin: `Client.lost_contact`): the link (or the server) is
     gone. The client has given up on what it waited for; the server, once this client's
     lease runs out, halts what it commanded and never runs what it sent meanwhile."""
 
@@ -107,9 +108,13 @@ OUTCOME_S = 120.0
 ANSWER_S = 10.0
 #: A client over ROS 2 sends its lease this often (`al5d.ros.leases`), and takes the server
 #: for lost when it has heard nothing from it (its joint states, 10 a second when idle)
-#: for `LOST_S`.
+#: for the server's lease (`server.client_lease_s`, 1 s unless the client has read the
+#: server's configuration) and `LOST_AFTER_LEASE_S` more: by then the server, which
+#: checks its leases every tenth of a second, has halted what this client commanded. With
+#: equal times a move was done 80 ms after its sender had given up on it (a CI run).
 LEASE_EVERY_S = 0.1
-LOST_S = 1.0
+LOST_AFTER_LEASE_S = 0.5
+LOST_S = 1.0 + LOST_AFTER_LEASE_S
 #: How long a closing client waits for the server to have its last lease.
 BYE_S = 0.5
 
@@ -327,12 +332,23 @@ class Client:
 
     def lost_contact(self) -> float | None:
         """Over ROS 2, once the server has been heard: for how long it has not been, if more
-        than `LOST_S` (None: not lost)."""
+        than its lease and `LOST_AFTER_LEASE_S` (`LOST_S` before its configuration is read;
+        None: not lost)."""
         heard = None if self.lane is not None else self._heard
         if heard is None:
             return None
         quiet = time.monotonic() - heard
-        return quiet if quiet > LOST_S else None
+        return quiet if quiet > self.lost_after_s else None
+
+    @property
+    def lost_after_s(self) -> float:
+        """How long the server may go unheard before this client takes it for lost: the
+        server's lease of this client and `LOST_AFTER_LEASE_S` (`LOST_S` until the server's
+        configuration is read), so that the server has halted what this client commanded
+        before the client gives up on it."""
+        if self._config is None:
+            return LOST_S
+        return self._config.server.client_lease_s + LOST_AFTER_LEASE_S
 
     def _lost(self, what: str) -> LostContact:
         quiet = self.lost_contact() or LOST_S
