@@ -6,7 +6,8 @@ the page says it lost contact, against 2 s.
 Two hosts (`al5d_rig.netrig`: network namespaces joined by a veth pair), the server on
 one, a Python client on the other sending 6 s moves; 1.5 s into each the link is cut.
 The halt's time is that of the server's log line `...: halted`, which the owner says in
-the step that writes the halt to the board. Needs root (CI runs as root).
+the step that writes the halt to the board; the client must give up only after it. Needs
+root (CI runs as root).
 """
 
 from __future__ import annotations
@@ -80,11 +81,15 @@ def main() -> int:
             server.kill()
     limit = LEASE_S + 0.5
     held = max(halts) <= limit
+    # The client gives up only once the server has halted (`Client.lost_after_s`): nothing it
+    # gave up on is done after it said so.
+    first = sum(h < t for h, t in zip(halts, told, strict=True))
     print(
         f"{CUTS} cuts mid-move: halt after the cut p50 {statistics.median(halts):.3f} s, "
         f"max {max(halts):.3f} s (target: every one within lease {LEASE_S:g} s + 0.5 s = "
         f"{limit:g} s: {'held' if held else 'NOT held'}); the client said it lost contact "
-        f"within {max(told):.2f} s of each cut"
+        f"after p50 {statistics.median(told):.2f} s, max {max(told):.2f} s; the halt came "
+        f"before the client gave up in {first} of {CUTS} (target: all)"
     )
     page_held = max(pages) <= PAGE_LOST_S
     print(
@@ -92,7 +97,7 @@ def main() -> int:
         f"p50 {statistics.median(pages):.2f} s, max {max(pages):.2f} s (target: "
         f"{PAGE_LOST_S:g} s: {'held' if page_held else 'NOT held'})"
     )
-    return 0 if held and page_held else 1
+    return 0 if held and page_held and first == CUTS else 1
 
 
 def _page_cuts(hosts: netrig.Hosts) -> list[float]:
