@@ -31,8 +31,9 @@ PAGE_LOST_S = 2.0
 CMD_S = 60.0
 
 LAPTOP = """
-import sys, time
+import logging, sys, time
 from al5d.ros.client import Client, LostContact
+logging.basicConfig(stream=sys.stdout, format="%(message)s", level=logging.WARNING)
 c = Client(wait_s=60)
 c.wait_for_server(60)
 print("ready", flush=True)
@@ -53,6 +54,7 @@ def main() -> int:
         return 1
     halts: list[float] = []
     told: list[float] = []
+    noticed: list[float] = []
     with netrig.Hosts() as hosts:
         server = hosts.popen(hosts.arm, [AL5D, "serve", "--config", patient_config()])
         laptop = hosts.popen(hosts.laptop, [sys.executable, "-c", LAPTOP])
@@ -70,11 +72,16 @@ def main() -> int:
                 cut = time.time()
                 hosts.cut()
                 halted = log.wait_for(": halted", CMD_S)
+                out.wait_for("no sign of the server", CMD_S)
+                noticed.append(time.time() - cut)
                 out.wait_for("lost", CMD_S)
                 told.append(time.time() - cut)
                 halts.append(netfaults.log_clock(halted, cut) - cut)
                 hosts.mend()
-                print(f"cut {k + 1}: halt {halts[-1]:.3f} s, client told {told[-1]:.2f} s")
+                print(
+                    f"cut {k + 1}: halt {halts[-1]:.3f} s, the client said the silence "
+                    f"{noticed[-1]:.2f} s, gave up {told[-1]:.2f} s"
+                )
             pages = _page_cuts(hosts)
         finally:
             laptop.kill()
@@ -88,7 +95,9 @@ def main() -> int:
         f"{CUTS} cuts mid-move: halt after the cut p50 {statistics.median(halts):.3f} s, "
         f"max {max(halts):.3f} s (target: every one within lease {LEASE_S:g} s + 0.5 s = "
         f"{limit:g} s: {'held' if held else 'NOT held'}); the client said it lost contact "
-        f"after p50 {statistics.median(told):.2f} s, max {max(told):.2f} s; the halt came "
+        f"after p50 {statistics.median(told):.2f} s, max {max(told):.2f} s, having said the "
+        f"silence after p50 {statistics.median(noticed):.2f} s, max {max(noticed):.2f} s; "
+        f"the halt came "
         f"before the client gave up in {first} of {CUTS} (target: all)"
     )
     page_held = max(pages) <= PAGE_LOST_S

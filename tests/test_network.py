@@ -82,6 +82,8 @@ def test_a_client_cut_off_mid_move_leaves_nothing_moving_and_its_stale_request_n
     laptop = hosts.popen(hosts.laptop, [sys.executable, "-c", LAPTOP])
     assert laptop.stdout is not None and laptop.stdin is not None
     out = Lines(laptop.stdout)
+    assert laptop.stderr is not None
+    err = Lines(laptop.stderr)
     try:
         said(out, "sent")
         time.sleep(2.0)  # two seconds into the 8 s move
@@ -98,8 +100,9 @@ def test_a_client_cut_off_mid_move_leaves_nothing_moving_and_its_stale_request_n
     finally:
         laptop.kill()
         laptop.wait(10)
-    # The client said at once that it lost contact, for both: the move it waited for, and
-    # the one it sent into the cut.
+    # The client said the silence before it gave up, then that it lost contact, for both:
+    # the move it waited for, and the one it sent into the cut.
+    assert "no sign of the server for 1." in said(err, "no sign of the server")
     assert "move: lost: " in move and "lost contact with the server" in move, move
     assert "late: lost: " in late and "lost contact with the server" in late, late
     # The server halted the move where the arm was, with the reason.

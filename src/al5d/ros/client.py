@@ -114,6 +114,9 @@ ANSWER_S = 10.0
 #: equal times a move was done 80 ms after its sender had given up on it (a CI run).
 LEASE_EVERY_S = 0.1
 LOST_AFTER_LEASE_S = 0.5
+#: A silence this long is said at once (a WARNING) by a client that waits for the server,
+#: before it gives up.
+SILENCE_SAID_S = 1.0
 LOST_S = 1.0 + LOST_AFTER_LEASE_S
 #: How long a closing client waits for the server to have its last lease.
 BYE_S = 0.5
@@ -277,6 +280,8 @@ class Client:
         self._lease_pub = self.node.create_publisher(ClientLease, names.clients, QOS_LEASES)
         #: When the server was last heard (monotonic s; None: not yet).
         self._heard: float | None = None
+        #: The last sign of the server whose silence has been said (once an outage).
+        self._silence_said: float | None = None
         self.node.create_subscription(JointState, names.joint_states, self._on_sign, QOS_LATEST)
         self._leasing = threading.Event()
         self._leaser = threading.Thread(target=self._lease, name="al5d-lease", daemon=True)
@@ -338,6 +343,15 @@ class Client:
         if heard is None:
             return None
         quiet = time.monotonic() - heard
+        if SILENCE_SAID_S < quiet <= self.lost_after_s and self._silence_said != heard:
+            self._silence_said = heard
+            log.warning(
+                "no sign of the server for %.1f s: the link may be lost; this client gives "
+                "up on what it waits for in %.1f s, once the server has halted what it "
+                "commanded",
+                quiet,
+                self.lost_after_s - quiet,
+            )
         return quiet if quiet > self.lost_after_s else None
 
     @property
