@@ -33,7 +33,7 @@ CMD_S = 60.0
 LAPTOP = """
 import logging, sys, time
 from al5d.ros.client import Client, LostContact
-logging.basicConfig(stream=sys.stdout, format="%(message)s", level=logging.WARNING)
+logging.basicConfig(stream=sys.stdout, format="%(created).6f %(message)s", level=logging.WARNING)
 c = Client(wait_s=60)
 c.wait_for_server(60)
 print("ready", flush=True)
@@ -43,7 +43,7 @@ for k, line in enumerate(sys.stdin):
     try:
         print("outcome", c.execute(f"move base={-60 if k % 2 else 60} time=6000", 60), flush=True)
     except LostContact:
-        print("lost", flush=True)
+        print("lost", time.time(), flush=True)
 """
 
 
@@ -72,10 +72,10 @@ def main() -> int:
                 cut = time.time()
                 hosts.cut()
                 halted = log.wait_for(": halted", CMD_S)
-                out.wait_for("no sign of the server", CMD_S)
-                noticed.append(time.time() - cut)
-                out.wait_for("lost", CMD_S)
-                told.append(time.time() - cut)
+                # When the client said each, by its own clock (the hosts share the machine's).
+                silence = out.wait_for("no sign of the server", CMD_S)
+                noticed.append(float(silence.split()[0]) - cut)
+                told.append(float(out.wait_for("lost ", CMD_S).split()[1]) - cut)
                 halts.append(netfaults.log_clock(halted, cut) - cut)
                 hosts.mend()
                 print(

@@ -478,6 +478,25 @@ def test_a_stream_faster_than_the_wire_moves_the_arm_line_after_whole_line(
     moved = [r for r in records if r.accepted and r.raw.startswith(b"#")]
     assert len(moved) >= 2.0 / wire - 2, (len(moved), wire)
     assert sim.outcome(refs[-1]).ok
+    sim.run(1.0)
+    assert sim.degrees()["base"] == pytest.approx(here["base"] + 20 * math.sin(99 / 25), abs=0.2)
+
+
+def test_a_set_point_that_waited_for_a_line_takes_over_ahead_of_a_move_behind_it(
+    config: ArmConfig,
+) -> None:
+    """A set-point that waits for the running one's line, and a move of another client
+    queued after it: the set-point supersedes the running one once its line is out, and
+    the move waits for the set-point."""
+    sim = Sim(config, baud=9600).ready()
+    here = sim.degrees()
+    first = sim.ask(ins.move(**(here | {"base": here["base"] + 20})), stream="joint_commands")
+    assert sim.core.link.rest  # its line is going out
+    newer = sim.ask(ins.move(**(here | {"base": here["base"] - 20})), stream="joint_commands")
+    behind = sim.ask(ins.move(id="behind", elbow=here["elbow"] + 5, time_ms=300))
+    assert "superseded by set-point" in sim.outcome(first).reason
+    assert sim.outcome(newer).ok and sim.outcome(behind).ok
+    assert sim.outcomes[behind].elapsed_ms > sim.outcomes[newer].elapsed_ms
 
 
 def test_a_held_stream_at_100_hz_for_10_s_is_a_few_log_lines(

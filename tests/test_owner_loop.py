@@ -4,6 +4,7 @@ itself must get right, apart from the core's rules."""
 from __future__ import annotations
 
 import logging
+import shutil
 import tempfile
 import threading
 import time
@@ -95,10 +96,12 @@ def test_an_answer_that_came_while_the_owner_wrote_is_read_before_its_deadline_i
 def test_writes_before_a_recorder_connects_are_kept_for_it(config: ArmConfig) -> None:
     """`al5d serve --record` with ROS: the bridge records the board's writes, and connects
     while the park may be on the wire already (an idle CI run's recording lacked the park's
-    lines). With `keep_wire` the owner keeps them and tells the first client that watches
-    the wire, right after its welcome; a later watcher hears only what follows."""
+    lines). With `keep_wire` the owner keeps them and tells the recorder (`recorder` in its
+    hello) right after its welcome; another client watching the wire, even one that came
+    first, hears only what follows its own hello."""
     transport = HeldWrites(Board(config, baud=config.server.baud))
-    lane = Path(tempfile.mkdtemp(prefix="al5d-")) / "lane"
+    where = Path(tempfile.mkdtemp(prefix="al5d-"))  # short: a socket's path has a limit
+    lane = where / "lane"
     owner = Owner(config, transport, lane=lane, keep_wire=True).start()
     try:
         owner.wait_for_state(State.READY, 10)
@@ -106,22 +109,26 @@ def test_writes_before_a_recorder_connects_are_kept_for_it(config: ArmConfig) ->
         before = [w for w in transport.writes if w.startswith(b"#")]
         assert before, transport.writes  # the park
         heard: list[bytes] = []
-        later: list[bytes] = []
-        with Remote.connect(lane, watch=("wire",), on_wire=lambda w: heard.append(w[0])):
+        other: list[bytes] = []
+        n = len(transport.writes)
+        with (
+            Remote.connect(lane, watch=("wire",), on_wire=lambda w: other.append(w[0])),
+            Remote.connect(
+                lane, watch=("wire",), on_wire=lambda w: heard.append(w[0]), recorder=True
+            ),
+        ):
+            owner.submit(ins.move(id="after", base=10)).result(10)
+            owner.sync()
             deadline = time.monotonic() + 10
-            while [w for w in heard if w.startswith(b"#")][: len(before)] != before:
-                assert time.monotonic() < deadline, f"the park's writes not told: {heard}"
+            while len(heard) < len(transport.writes) or not other:
+                assert time.monotonic() < deadline, f"the writes not told: {heard}"
                 time.sleep(0.01)
-            n = len(transport.writes)
-            with Remote.connect(lane, watch=("wire",), on_wire=lambda w: later.append(w[0])):
-                owner.submit(ins.move(id="after", base=10)).result(10)
-                owner.sync()
-                deadline = time.monotonic() + 10
-                while len(heard) < len(transport.writes) or not later:
-                    assert time.monotonic() < deadline, "the move's writes not told"
-                    time.sleep(0.01)
-        # Every write from the start, in order, to the first; only the new ones to the second.
+        # Every write from the start, in order, to the recorder; only the new ones to the
+        # other (from one after `n`: an idle check may go out before its hello is taken).
         assert heard == transport.writes[: len(heard)]
-        assert later == transport.writes[n : n + len(later)]
+        assert [w for w in heard if w.startswith(b"#")][: len(before)] == before
+        at = next(i for i in range(n, len(transport.writes)) if transport.writes[i] == other[0])
+        assert other == transport.writes[at : at + len(other)]
     finally:
         owner.close()
+        shutil.rmtree(where, ignore_errors=True)

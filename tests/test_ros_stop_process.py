@@ -95,8 +95,13 @@ def freeze(pid: int) -> None:
 
 
 def state(pid: int) -> str:
-    """The state letter of process `pid` (/proc/PID/stat)."""
-    return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    """`T` where every thread of process `pid` is stopped, else the state letter of one that
+    is not (/proc/PID/task/TID/stat)."""
+    states = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):  # a thread that ended meanwhile
+            states.add((task / "stat").read_text().rsplit(")", 1)[1].split()[0])
+    return "T" if states == {"T"} else min(states - {"T"}, default="?")
 
 
 def long_move_running(served: Served, ident: str) -> int:

@@ -24,8 +24,10 @@ The lanes
   ends cancelled, never written), and one where the arm is heading already (within half
   a pulse microsecond) is done at once with nothing written. One that comes while a
   set-point of its stream runs, and nothing waits, supersedes it: the running one is
-  cancelled (none of its bytes still to go is written) and the new one runs, written
-  when the wire is free, from where the superseded one has the arm then (the board
+  cancelled and the new one runs, written when the wire is free, from where the
+  superseded one has the arm then. A line of the running one still going out is
+  finished first (the new one waits for it, as the newest): no set-point cuts a line,
+  else a stream faster than the wire would have each line cut by the next (the board
   retargets a group move mid-move; the superseded move's joints that it does not name
   go along to their target in its line, judged whole with it). A set-point is done when its
   time is over, without `Q`. The watchdog: when no set-point of its stream has come for
@@ -287,10 +289,10 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
             return c
         if _supersedes(c, job):
             if c.link.rest and not c.link.rest_is_halt:
-                # The running set-point's line is going out: cut, the board would drop it
-                # whole, and a stream faster than the wire would never move the arm (each
-                # line cut by the next: seen at 50 Hz and 9600 baud). The newest waits for
-                # the line and takes its place then (`_next`).
+                # The running set-point's line is going out. Cutting it would make the
+                # board drop it whole, and a stream faster than the wire would never move
+                # the arm (each line cut by the next: seen at 50 Hz and 9600 baud). The
+                # newest waits for the line and takes its place then (`_next`).
                 return replace(c, queue=(*c.queue, job))
             return _supersede(c, job, ev.t, out)
     if c.idle:
@@ -332,7 +334,7 @@ def _unchanged(c: Core, job: Job) -> bool:
 def _supersede(c: Core, job: Job, t: float, out: Out) -> Core:
     """The set-point `job` takes the running one's place (`_supersedes`), judged from where
     that one has the arm at `t`; refused where that path would leave the table. Never while
-    a line of the running one is going out (no line is cut but by a stop)."""
+    a line of the running one is going out: no set-point cuts a line."""
     assert c.run is not None and not (c.link.rest and not c.link.rest_is_halt)
     superseded = c.run.job
     # Judged against the table from where the running one has the arm now (again
@@ -359,8 +361,8 @@ def _supersede(c: Core, job: Job, t: float, out: Out) -> Core:
 
 
 def _supersedes(c: Core, job: Job) -> bool:
-    """A set-point may take the place of the running one of its stream: nothing waits before
-    it, nothing is to be read back, a board is there and the arm moves."""
+    """A set-point may take the place of the running one of its stream: nothing waits,
+    nothing is to be read back, a board is there and the arm moves."""
     run = c.run
     return (
         run is not None
@@ -451,9 +453,10 @@ def _next(c: Core, t: float, wall: int, out: Out) -> Core:
     if c.state is State.FAULT:
         return c
     if c.run is not None:
-        # A set-point that waited for the running one's line takes its place once it is out.
+        # A set-point that waited for the running one's line takes its place once it is out,
+        # ahead of what came after it.
         waiting = c.queue[0] if c.queue and c.queue[0].stream and not c.link.rest else None
-        if waiting is not None and _supersedes(replace(c, queue=c.queue[1:]), waiting):
+        if waiting is not None and _supersedes(replace(c, queue=()), waiting):
             return _supersede(replace(c, queue=c.queue[1:]), waiting, t, out)
         return running.progress(c, t, out)
     if c.shutdown is not None:

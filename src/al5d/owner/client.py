@@ -66,6 +66,7 @@ class Remote:
         watch: Iterable[str] = ("state", "pose"),
         timeout: float = WELCOME_S,
         on_wire: Callable[[tuple[bytes, float, float]], None] | None = None,
+        recorder: bool = False,
     ) -> None:
         self._sock = sock
         sock.setblocking(True)
@@ -76,7 +77,7 @@ class Remote:
         self.state_listeners: list[Callable[[State], None]] = []
         self.motion_listeners: list[Callable[[Sent], None]] = []
         self.pose_listeners: list[Callable[[], None]] = []
-        #: `on_wire` among them from the start: the owner tells a recorder the writes it
+        #: `on_wire` among them from the start: the owner tells a `recorder` the writes it
         #: kept for it right after the welcome (`Owner`'s keep_wire).
         self.wire_listeners: list[Callable[[tuple[bytes, float, float]], None]] = (
             [on_wire] if on_wire is not None else []
@@ -93,7 +94,10 @@ class Remote:
         self.locked = False
         self._reader = threading.Thread(target=self._read, name=f"{name}-lane", daemon=True)
         self._reader.start()
-        self._send({"op": "hello", "name": name, "watch": list(watch), "version": ln.VERSION})
+        hello = {"op": "hello", "name": name, "watch": list(watch), "version": ln.VERSION}
+        if recorder:  # told first the board's writes the owner kept for its recorder
+            hello["recorder"] = True
+        self._send(hello)
         try:
             welcome = self._welcome.result(timeout)
         except TimeoutError:

@@ -8,7 +8,8 @@ once under its `ref`, and tells watchers what happens (`state`, `told`, `moved`,
 does not go on (`al5d.arm.core`, `Gone`). A client that speaks for others (the ROS
 bridge for the ROS clients) names one in an `ask` (`for`: its key) and says when it has
 lost one (`gone`, with `why`) or one has closed (`gone` without `why`): each is a client
-of its own to the core.
+of its own to the core. A recorder (`recorder` in its `hello`, watching `wire`) is told
+first the board's writes the owner kept for it from its start, where it keeps them.
 
 Everything here is pure, and light to import (the standard library and
 `al5d.arm.instruction`): `al5d send stop`'s own path (`quick`) imports nothing else.

@@ -162,9 +162,10 @@ class Owner:
         self._writes = 0
         self._stalled = 0.0
         self._cpu_waited = cpu_waited_s()
-        #: With `keep_wire`, the board's writes until a lane client watches them, told to the
-        #: first that does (`al5d serve --record` with ROS: the bridge records, and connects
-        #: while the park may be on the wire already); None once told, or not kept.
+        #: With `keep_wire`, the board's writes until a recorder watches them (a lane client
+        #: that says `recorder` in its hello), told to the first (`al5d serve --record` with
+        #: ROS: the bridge records, and connects while the park may be on the wire
+        #: already); None once told, or not kept.
         self._wire_kept: list[dict[str, Any]] | None = [] if keep_wire else None
         self._lane_path = lane
         self._listener: socket.socket | None = None
@@ -530,6 +531,12 @@ class Owner:
             else:
                 assert self._wire_kept is not None
                 self._wire_kept.append(message)
+                if len(self._wire_kept) == WIRE_KEPT:
+                    log.warning(
+                        "no recorder has connected: the board's first %d writes are kept "
+                        "for it, the later ones will be missing from the recording",
+                        WIRE_KEPT,
+                    )
 
     def _open(self) -> None:
         t = now()
@@ -731,7 +738,7 @@ class Owner:
             "wall": wall_ns(),
         }
         self._write(conn, ln.dumps(welcome))
-        if "wire" in conn.watch and self._wire_kept is not None:
+        if m.get("recorder") is True and "wire" in conn.watch and self._wire_kept is not None:
             for message in self._wire_kept:
                 self._write(conn, ln.dumps(message))
             self._wire_kept = None

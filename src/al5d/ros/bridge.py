@@ -239,7 +239,7 @@ def main(argv: list[str]) -> int:
     watch = ("state", "outcomes", "motion", "pose") + (("wire",) if recording else ())
     tap = recording.tap(start.names.namespace) if recording is not None else None
     on_wire = None if tap is None else (lambda w: tap(*w))
-    arm = Remote(lane, name="al5d-ros", watch=watch, on_wire=on_wire)
+    arm = Remote(lane, name="al5d-ros", watch=watch, on_wire=on_wire, recorder=tap is not None)
     if recording is not None:
         recording.follow(start.names, start.settings.config.server.instruction_backlog)
     bridge = Bridge(arm, start, setup.trace, stop_here)

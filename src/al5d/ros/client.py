@@ -337,22 +337,24 @@ class Client:
 
     def lost_contact(self) -> float | None:
         """Over ROS 2, once the server has been heard: for how long it has not been, if more
-        than its lease and `LOST_AFTER_LEASE_S` (`LOST_S` before its configuration is read;
-        None: not lost)."""
+        than `lost_after_s` (None: not lost). A silence of `SILENCE_SAID_S` (of the
+        server's lease, if shorter) is said once, as a WARNING, before that."""
         heard = None if self.lane is not None else self._heard
         if heard is None:
             return None
         quiet = time.monotonic() - heard
-        if SILENCE_SAID_S < quiet <= self.lost_after_s and self._silence_said != heard:
+        lost_after = self.lost_after_s
+        said_after = min(SILENCE_SAID_S, lost_after - LOST_AFTER_LEASE_S)  # a short lease
+        if said_after < quiet <= lost_after and self._silence_said != heard:
             self._silence_said = heard
             log.warning(
                 "no sign of the server for %.1f s: the link may be lost; this client gives "
                 "up on what it waits for in %.1f s, once the server has halted what it "
                 "commanded",
                 quiet,
-                self.lost_after_s - quiet,
+                lost_after - quiet,
             )
-        return quiet if quiet > self.lost_after_s else None
+        return quiet if quiet > lost_after else None
 
     @property
     def lost_after_s(self) -> float:
@@ -365,7 +367,7 @@ class Client:
         return self._config.server.client_lease_s + LOST_AFTER_LEASE_S
 
     def _lost(self, what: str) -> LostContact:
-        quiet = self.lost_contact() or LOST_S
+        quiet = self.lost_contact() or self.lost_after_s
         return LostContact(
             f"{what}: lost contact with the server (nothing heard from it for {quiet:.1f} s; "
             "whether it ran is unknown): once this client's lease runs out the server halts "
