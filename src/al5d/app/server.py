@@ -94,7 +94,7 @@ def arm(
 ) -> Iterator[tuple[Owner, Emulator | None]]:
     """The owner on the given port, or on an embedded emulator; closed (parked) on exit. With
     `lane_path`, its local lane is there; `keep_wire`: the board's writes are kept for the
-    first lane client that watches them (the ROS bridge, where it records)."""
+    recorder until it connects (the ROS bridge, where it records)."""
     config = config or load_config(options.config)
     baud = options.baud or config.server.baud
     emulator: Emulator | None = None

@@ -523,15 +523,14 @@ class Owner:
         free_at = self._free_at
         if self.wire_listeners:
             self._teller.put(lambda: tell(self.wire_listeners, (data, t, free_at), "wire"))
-        watched = self._watching("wire")
-        if watched or (self._wire_kept is not None and len(self._wire_kept) < WIRE_KEPT):
+        kept = self._wire_kept
+        keep = kept is not None and len(kept) < WIRE_KEPT
+        if keep or self._watching("wire"):
             message = {"op": "wire", "data": data.decode("latin-1"), "t": t, "free_at": free_at}
-            if watched:
-                self._lane_news("wire", message)
-            else:
-                assert self._wire_kept is not None
-                self._wire_kept.append(message)
-                if len(self._wire_kept) == WIRE_KEPT:
+            self._lane_news("wire", message)
+            if keep and kept is not None:  # the recorder's, whoever else watches meanwhile
+                kept.append(message)
+                if len(kept) == WIRE_KEPT:
                     log.warning(
                         "no recorder has connected: the board's first %d writes are kept "
                         "for it, the later ones will be missing from the recording",
