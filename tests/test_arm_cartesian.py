@@ -15,12 +15,13 @@ from typing import Any
 import pytest
 import yaml
 
-from al5d.app.demo import DEMO_SEQUENCE
+from al5d.app.demo import DEMO_SEQUENCE, REFUSED_SEQUENCE
 from al5d.app.reach import QoSRecorder, format_table, label
 from al5d.arm import cartesian
 from al5d.arm import instruction as ins
 from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, ConfigError, load_config, parse_config
-from al5d.arm.instruction import PRESET_NAMES, Instruction, Kind, Result
+from al5d.arm.instruction import GrammarError, Instruction, Kind, Result
+from al5d.arm.sequence import judged_steps
 from al5d.arm.translate import Translator
 from al5d.arm.validate import Limits, check
 from al5d.model import distance_to_segment, forward, solve
@@ -280,12 +281,17 @@ def test_a_long_label_keeps_its_name_and_its_path() -> None:
 def test_the_demo_runs_a_line_and_refuses_unreachable_targets_saying_why(
     config: ArmConfig,
 ) -> None:
-    steps = ins.parse_sequence(DEMO_SEQUENCE.read_bytes(), "demo.seq", PRESET_NAMES)
+    """`al5d run` judges a file whole: the demo's sequence must pass that judgement (with an
+    unreachable target in it, the demo sent nothing at all), and its refused file
+    must not, for the reasons it shows."""
+    steps = judged_steps(DEMO_SEQUENCE.read_bytes(), "demo.seq", None, config)
     points = [i for i, _ in steps if isinstance(i, Instruction) and i.kind is Kind.MOVE_TO]
     assert any(i.tool is not None and i.tool.line for i in points)
-    refusals = [r for r in (check(i, Limits.of(config)) for i in points) if isinstance(r, str)]
-    assert any(r.startswith("out of reach: ") for r in refusals), refusals
-    assert any(r.startswith("below the table: ") for r in refusals), refusals
+    with pytest.raises(GrammarError) as refused:
+        judged_steps(REFUSED_SEQUENCE.read_bytes(), "refused.seq", None, config)
+    said = str(refused.value)
+    assert "refused.seq:4: out of reach: " in said and "refused.seq:5: below the table: " in said
+    assert "refused.seq:3" not in said
 
 
 def test_a_stop_halts_a_straight_line_and_nothing_more_of_it_is_written(rig: Rig) -> None:

@@ -28,6 +28,9 @@ if TYPE_CHECKING:
 SETTLE_S = 0.5
 
 DEMO_SEQUENCE = Path(__file__).resolve().parent.parent / "data" / "demo.seq"
+#: Run before the demo's sequence: a file `al5d run` refuses whole (out of reach, below the
+#: table), nothing of it sent.
+REFUSED_SEQUENCE = DEMO_SEQUENCE.with_name("refused.seq")
 #: `al5d demo --physics`: the pick-and-place in the shipped scene (data/scene.yaml).
 PICK_SEQUENCE = DEMO_SEQUENCE.with_name("pick.seq")
 #: An object set down this close to its goal is where it was meant to go...
@@ -96,6 +99,7 @@ def run_demo(
         flush=True,
     )
     placed: list[Placement] = []
+    refused: int | None = None
     options = ServerOptions(baud=baud, physics=physics)
     ros = RosSide(options)
     try:
@@ -112,9 +116,12 @@ def run_demo(
                 twin = attached(emulator)
             recorder = QoSRecorder(owner, emulator)
             ros.serve(owner)
-            client = [sys.executable, "-m", "al5d", "run", "--via", "ros", str(sequence)]
+            client = [sys.executable, "-m", "al5d", "run", "--via", "ros"]
+            if physics is None and sequence == DEMO_SEQUENCE:
+                print(f"al5d demo: client: al5d run --via ros {REFUSED_SEQUENCE}", flush=True)
+                refused = subprocess.call([*client, str(REFUSED_SEQUENCE)])
             print(f"al5d demo: client: al5d run --via ros {sequence}", flush=True)
-            code = subprocess.call(client)
+            code = subprocess.call([*client, str(sequence)])
             owner.finished.wait(30)
             if twin is not None:
                 time.sleep(SETTLE_S)  # the objects come to rest, and the twin says where
@@ -130,7 +137,11 @@ def run_demo(
         print("\n".join(p.line() for p in placed) or "no object of the scene has a goal")
     on_purpose = " (1 is expected: the demo refuses and cancels on purpose)"
     expected = "" if physics is not None else on_purpose
-    print(f"\nal5d demo: client exit {code}{expected}; {time.monotonic() - started:.1f} s in all")
+    print()
+    if refused is not None:
+        whole = "4 is expected: refused whole, nothing sent"
+        print(f"al5d demo: {REFUSED_SEQUENCE.name}: client exit {refused} ({whole})")
+    print(f"al5d demo: client exit {code}{expected}; {time.monotonic() - started:.1f} s in all")
     if code == 2:
         return 2
     if physics is not None and code != 0:
