@@ -72,12 +72,9 @@ def test_a_reset_then_a_move_at_once_is_found_during_that_move(
     with Emulator(config, power_up=power_up) as emu, driving(emu, config) as driver:
         assert driver.execute(ins.move(base=30), 10).ok
         emu.inject(Fault.RESET)
-        t0 = time.monotonic()
         move = driver.execute(ins.move(base=0, time_ms=2000), 10)
-        took = time.monotonic() - t0
+        # Found by a check during the move (how soon: test_arm_core.py, in virtual time).
         assert move.result is Result.CANCELLED and "the board has reset" in move.reason
-        # Found by a check during the move (every 0.15 s), long before its 2 s were over.
-        assert took < 1.0, took
         reset_found(driver, emu, caplog, 5)
         n = len([r for r in emu.records if r.raw.startswith(b"#")])
         refused = driver.execute(ins.move(shoulder=0), 5)

@@ -271,6 +271,23 @@ def test_the_qos_table_shows_cartesian_moves_and_refusals_with_their_reason(rig:
     assert f"refused: {refused.reason}" in table
 
 
+def test_the_qos_table_measures_the_first_move_after_a_stop(rig: Rig) -> None:
+    """Its line holds the joints the stop left, read back, before it moves them (`make
+    demo`'s row of that move said 'n/a': its two lines were looked for as one record)."""
+    recorder = QoSRecorder(rig.driver, rig.emu)
+    running = rig.driver.submit(ins.move(base=60, time_ms=2000))
+    rig.wait_move_count(len(rig.moves()) + 1)
+    time.sleep(0.3)
+    assert rig.driver.execute(ins.stop(), 5).ok
+    assert running.result(5).result is Result.CANCELLED
+    assert rig.driver.execute(ins.release(), 5).ok
+    after = ins.move(base=0, elbow=100)
+    assert rig.driver.execute(after, 10).ok
+    row = [r for r in recorder.rows() if r.id == after.id][-1]
+    assert row.reach_ms is not None, row
+    assert "n/a" not in format_table([row])
+
+
 def test_a_long_label_keeps_its_name_and_its_path() -> None:
     text = "move_to x=250.5 y=-120.25 z=140.125 pitch=-30.5 roll=45 gripper=60 path=line time=900"
     short = label(text, 60)

@@ -186,6 +186,23 @@ def test_a_newer_set_point_replaces_the_one_that_waits(sim: Sim) -> None:
     assert sim.outcome(b).result is Result.DONE
 
 
+def test_a_newer_set_point_retargets_the_running_one_mid_move(sim: Sim) -> None:
+    """The board takes a new group move mid-move and goes from where it is: the newest
+    set-point does not wait for the running one's time (3 s here)."""
+    started = sim.t
+    old = sim.ask(ins.move(base=60, time_ms=3000, id="old"), stream="joint_commands")
+    sim.run(0.3)  # within the stream's watchdog (0.5 s)
+    before = len(sim.group_moves())
+    new = sim.ask(ins.move(base=-30, id="new"), stream="joint_commands")
+    assert sim.outcomes[old].result is Result.CANCELLED
+    assert sim.outcomes[old].reason == "superseded by set-point new"
+    assert sim.outcome(new).result is Result.DONE
+    assert len(sim.group_moves()) == before + 1
+    taken = [t for t, data in sim.sent if data.startswith(b"#")][-1]
+    assert taken - started < 0.3 + 0.05  # a wire time after it came, not after the old one's 3 s
+    assert sim.degrees()["base"] == pytest.approx(-30, abs=0.5)
+
+
 def test_the_watchdog_holds_the_arm_when_the_stream_goes_quiet(config: ArmConfig) -> None:
     sim = Sim(config, baud=115_200).ready()
     ref = sim.ask(ins.move(base=60, time_ms=3000), stream="joint_commands", tell=False)
@@ -215,12 +232,74 @@ def test_a_pulled_board_is_a_fault_its_moves_cancelled_and_none_replayed(sim: Si
     assert round(base.to_us(-60)) not in targets  # never replayed
 
 
-def test_a_silent_board_is_a_fault_found_within_a_second(sim: Sim) -> None:
-    sim.board.inject(Fault.NO_ANSWER)
+@pytest.mark.parametrize("fault", [Fault.DISCONNECT, Fault.NO_ANSWER, Fault.GARBAGE])
+def test_a_fault_while_idle_is_found_within_a_second(sim: Sim, fault: Fault) -> None:
+    sim.run(0.2)
+    sim.board.inject(fault)
     t0 = sim.t
     assert sim.until(lambda: sim.core.state is State.FAULT, 2.0)
-    assert sim.t - t0 < 1.0
-    assert any("no answer" in s.text for s in sim.said if s.level >= logging.ERROR)
+    assert sim.t - t0 <= 1.0
+    if fault is Fault.NO_ANSWER:
+        assert any("no answer" in s.text for s in sim.said if s.level >= logging.ERROR)
+    refused = sim.ask(ins.move(base=10))
+    assert "serial link is lost" in sim.outcomes[refused].reason
+
+
+def test_a_replugged_board_is_back_within_a_second_and_nothing_is_replayed(sim: Sim) -> None:
+    sim.board.inject(Fault.DISCONNECT)
+    assert sim.until(lambda: sim.core.state is State.FAULT, 2.0)
+    before = len(sim.records)
+    sim.board.clear(Fault.DISCONNECT)
+    t0 = sim.t
+    assert sim.until(lambda: sim.core.state is State.READY, 5.0)
+    assert sim.t - t0 <= 1.0
+    sim.run(0.2)
+    assert not [r.raw for r in sim.records[before:] if r.raw.startswith(b"#")]
+    assert sim.outcome(sim.ask(ins.move(base=5))).result is Result.DONE
+
+
+def test_a_stop_is_not_held_by_an_idle_check_that_waits_for_its_answer(config: ArmConfig) -> None:
+    """The idle check is one `QP` of one channel every half second; when its answer does not
+    come (here it is given a second for each of its two asks), a stop goes out at once."""
+    server = config.server.model_copy(update={"answer_timeout_s": 1.0})
+    sim = Sim(config.model_copy(update={"server": server}), baud=9600).ready()
+    before = len(sim.records)
+    sim.run(1.2)
+    checks = [r.raw for r in sim.records[before:]]
+    assert len(checks) >= 2 and set(checks) == {f"QP{config.joints['base'].channel}".encode()}
+    sim.board.inject(Fault.NO_ANSWER)
+    sim.run(config.server.idle_check_interval_s + 0.1)
+    assert sim.core.link.query is not None  # a check waits for its answer...
+    asked = sim.t
+    stop = sim.ask(ins.stop())
+    assert sim.until(lambda: stop in sim.outcomes, 1.0)
+    assert sim.outcomes[stop].result is Result.DONE
+    stops = [t - asked for t, data in sim.sent if t >= asked and b"STOP" in data]
+    assert stops == [0.0], stops  # ...and the stop goes out in the step that took it
+
+
+def test_a_reset_then_a_move_at_once_is_found_during_that_move(sim: Sim) -> None:
+    assert sim.outcome(sim.ask(ins.move(base=30))).result is Result.DONE
+    sim.board.inject(Fault.RESET)
+    asked = sim.t
+    move = sim.outcome(sim.ask(ins.move(base=0, time_ms=2000)))
+    assert move.result is Result.CANCELLED and "the board has reset" in move.reason
+    # Found by a check during the move (one every 0.15 s), long before its 2 s are over.
+    assert sim.t - asked < 0.5, sim.t - asked
+
+
+def test_a_move_after_a_stop_does_not_wait_for_the_stopped_move_s_time(sim: Sim) -> None:
+    """UG-38: after a STOP in a timed move, `Q` says '+' until that move's time is over; the
+    next move is judged done by its own time."""
+    started = sim.t
+    sim.ask(ins.move(base=80, shoulder=60, elbow=30, time_ms=4000))
+    sim.run(0.3)
+    sim.ask(ins.stop())
+    assert sim.outcome(sim.ask(ins.release())).result is Result.DONE
+    outcome = sim.outcome(sim.ask(ins.move(base=0)))
+    assert outcome.result is Result.DONE, outcome.reason
+    assert sim.t < started + 4.0, sim.t - started
+    assert sim.core.state is State.READY
 
 
 def test_a_stop_asked_while_the_board_is_unreachable_is_written_once_it_answers(
@@ -287,6 +366,34 @@ def test_shutdown_parks_then_ends(sim: Sim) -> None:
     assert sim.outcome(ref).result is Result.DONE
     assert sim.ended is not None and sim.ended.parked
     assert sim.degrees()["elbow"] == pytest.approx(125, abs=1)
+
+
+def test_a_shutdown_mid_move_halts_it_before_the_park(sim: Sim) -> None:
+    sim.ask(ins.move(base=60, time_ms=2000))
+    sim.run(0.5)
+    asked = sim.t
+    assert sim.outcome(sim.ask(ins.shutdown())).result is Result.DONE
+    assert any(b"STOP" in data for t, data in sim.sent if t >= asked)
+    assert sim.ended is not None and sim.ended.parked
+
+
+def test_a_shutdown_after_the_last_move_is_done_halts_nothing(sim: Sim) -> None:
+    """Right after a stop, a release and two moves, while `Q` still counts the stopped
+    move down: nothing runs, so nothing is halted, and nothing is said to be (`make demo`
+    warned of 'the move the board was still running' right after its park was done)."""
+    assert sim.outcome(sim.ask(ins.preset("ready"))).result is Result.DONE
+    sim.ask(ins.move(base=80, shoulder=10, time_ms=3000))
+    sim.run(1.2)
+    sim.ask(ins.stop())
+    sim.ask(ins.release())
+    assert sim.outcome(sim.ask(ins.move(base=0, shoulder=30, elbow=90))).result is Result.DONE
+    assert sim.outcome(sim.ask(ins.preset("park"))).result is Result.DONE
+    assert not sim.core.book.q_believed(sim.t)  # the premise: `Q` cannot be asked
+    asked, said = sim.t, len(sim.said)
+    assert sim.outcome(sim.ask(ins.shutdown())).result is Result.DONE
+    assert not [data for t, data in sim.sent if t >= asked and b"STOP" in data]
+    assert not [s.text for s in sim.said[said:] if s.level >= logging.WARNING]
+    assert sim.ended is not None and sim.ended.parked
 
 
 def test_a_stop_during_the_shutdown_park_ends_it_not_parked(sim: Sim) -> None:

@@ -20,7 +20,6 @@ from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig, load_config
 from al5d.arm.instruction import Result
 from al5d.arm.jobs import Sent
-from al5d.arm.link import EXCUSE_MAX_S
 from al5d.arm.states import State
 from al5d.owner.loop import Owner
 from al5d.ssc32u import protocol as p
@@ -36,12 +35,6 @@ def slow_to_give_up(answer_timeout_s: float) -> ArmConfig:
     return config.model_copy(update={"server": server})
 
 
-def time_to_state(driver: Owner, state: State, timeout: float = 5.0) -> float:
-    t0 = time.monotonic()
-    driver.wait_for_state(state, timeout)
-    return time.monotonic() - t0
-
-
 class TestIdleLink:
     @pytest.mark.parametrize("fault", [Fault.DISCONNECT, Fault.NO_ANSWER, Fault.GARBAGE])
     def test_a_fault_while_idle_is_seen_within_a_second(
@@ -50,8 +43,8 @@ class TestIdleLink:
         emu, driver = linked
         time.sleep(0.2)
         emu.inject(fault)
-        # Within a second; on a host short of cores, the excuse more for each of two asks.
-        assert time_to_state(driver, State.FAULT, 5) <= 1.0 + 2 * EXCUSE_MAX_S
+        # How soon (within a second): test_arm_core.py, in virtual time.
+        driver.wait_for_state(State.FAULT, 5)
         refused = driver.execute(ins.move(base=10), 5)
         assert refused.result is Result.REFUSED and "serial link is lost" in refused.reason
 
@@ -63,15 +56,15 @@ class TestIdleLink:
         driver.wait_for_state(State.FAULT, 5)
         emu.clear_records()
         emu.reconnect()
-        assert time_to_state(driver, State.READY, 5) <= 1.0
+        driver.wait_for_state(State.READY, 5)  # how soon: test_arm_core.py
         time.sleep(0.2)
         assert not any(r.raw.startswith(b"#") for r in emu.records)  # nothing replayed
         assert driver.execute(ins.move(base=5), 10).ok
 
-    # A check waits 1 s for each of its two asks here, so that "the stop did not wait for it"
-    # is told apart from a busy machine's scheduling by seconds, not by milliseconds.
+    # A check waits 1 s for each of its two asks here. That the stop does not wait for it is
+    # shown in virtual time (test_arm_core.py); here, that the stop is obeyed all the same.
     @pytest.mark.parametrize("config", [slow_to_give_up(1.0)])
-    def test_the_idle_check_is_one_qp_and_a_stop_is_not_held_by_it(
+    def test_the_idle_check_is_one_qp_and_a_stop_is_obeyed_while_it_waits(
         self, config: ArmConfig, linked: tuple[Emulator, Owner]
     ) -> None:
         emu, driver = linked
@@ -82,9 +75,7 @@ class TestIdleLink:
         assert raws and set(raws) == {f"QP{config.joints['base'].channel}".encode()}
         emu.inject(Fault.NO_ANSWER)  # a check now waits for an answer that never comes...
         time.sleep(config.server.idle_check_interval_s + 0.1)
-        t0 = time.monotonic()
-        assert driver.execute(ins.stop(), 5).ok  # ...and the stop does not wait for it
-        assert time.monotonic() - t0 < 1.0
+        assert driver.execute(ins.stop(), 5).ok  # ...and the stop is obeyed all the same
 
 
 def test_cancelling_the_running_move_ends_moving(rig: Rig) -> None:
@@ -235,18 +226,25 @@ class TestStopOrder:
 
 def test_stop_is_answered_while_listeners_are_slow(rig: Rig) -> None:
     # A state listener that takes its time (a ROS publish on a loaded machine) delays
-    # the news, not the STOP on the board. The listener holds on for 5 s; the STOP comes
-    # long before (how long before is bench/'s, not a test's, on a busy machine).
+    # the news, not the STOP on the board: the STOP is on the board while the listener
+    # still holds on (how soon is bench/'s, not a test's, on a busy machine).
     gate = threading.Event()
-    rig.driver.state_listeners.append(lambda _: gate.wait(5))
+    holding = threading.Event()
+
+    def slow(_: State) -> None:
+        holding.set()
+        gate.wait(60)
+        holding.clear()
+
+    rig.driver.state_listeners.append(slow)
     rig.driver.submit(ins.move(base=80, time_ms=3000))
     rig.wait_move_count(2)
+    assert holding.wait(10)
     rig.emu.clear_records()
-    t0 = time.monotonic()
     threading.Thread(target=rig.driver.execute, args=(ins.stop(), 5)).start()
     try:
-        rig.emu.wait_for(lambda rs: any(r.raw.startswith(b"STOP") for r in rs), 4)
-        assert time.monotonic() - t0 < 2.5
+        rig.emu.wait_for(lambda rs: any(r.raw.startswith(b"STOP") for r in rs), 30)
+        assert holding.is_set() and not gate.is_set()
     finally:
         gate.set()
 
@@ -268,7 +266,7 @@ def test_a_slow_link_is_a_fault_unless_its_answers_are_given_the_time(
         driver.start()
         try:
             if answer_timeout_s is None:
-                assert time_to_state(driver, State.FAULT, 10) < 10
+                driver.wait_for_state(State.FAULT, 10)
                 assert not driver.execute(ins.move(base=10), 5).ok
             else:
                 driver.wait_for_state(State.READY, 10)

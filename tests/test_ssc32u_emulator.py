@@ -125,24 +125,22 @@ def test_group_move_duration_rule_worked_example(emulator: Emulator, wire: seria
 
 
 def test_stop_holds_the_pulse_and_q_says_moving_until_the_move_time_is_over(
-    emulator: Emulator, wire: serial.Serial
+    config: ArmConfig,
 ) -> None:
-    wire.write(b"#0P1000\r#0P2000T1000\r")
-    move = last(emulator, b"#0P2000T1000")
-    time.sleep(0.3)
-    wire.write(b"STOP0\r")
-    stop = last(emulator, b"STOP0")
-    held = emulator.pulse_us(0, stop.t_effect)
-    assert 1100 < held < 1900
-    assert emulator.pulse_us(0, stop.t_effect + 0.5) == held
-    wire.write(b"QP0\r")
-    # The board holds whole microseconds (1309.54 is 1310, QP says 131).
-    assert wire.read(1)[0] == round(held) // 10
-    wire.write(b"Q\r")
-    assert wire.read(1) == b"+"  # the manual's caveat: STOP does not end the move's time
-    time.sleep(max(0.0, move.t_effect + 1.05 - time.monotonic()))
-    wire.write(b"Q\r")
-    assert wire.read(1) == b"."
+    board = Board(config, baud=9600)  # the board's logic alone, in virtual time
+    t = board.powered_at + 1
+    board.execute(b"#0P1000", t)
+    board.execute(b"#0P2000T1000", t + 0.01)
+    t_stop = t + 0.31
+    board.execute(b"STOP0", t_stop)
+    held = board.pulse_us(0, t_stop)
+    assert held == pytest.approx(1300)  # 0.3 s into 1 s from 1000 to 2000 us
+    assert board.pulse_us(0, t_stop + 0.5) == held
+    # The board holds whole microseconds (QP says 130).
+    assert board.execute(b"QP0", t_stop + 0.1)[0][1] == bytes([round(held) // 10])
+    # The manual's caveat: STOP does not end the move's time.
+    assert board.execute(b"Q", t_stop + 0.2)[0][1] == b"+"
+    assert board.execute(b"Q", t + 0.01 + 1.05)[0][1] == b"."
 
 
 def test_pulse_offset_and_digital_outputs(emulator: Emulator, wire: serial.Serial) -> None:
@@ -183,37 +181,34 @@ def test_client_at_another_baud_is_noise(config: ArmConfig) -> None:
 
 
 class TestServoModel:
+    """The servo model alone (`Board`, in virtual time): a pty would add only its clock."""
+
     def test_a_jump_is_followed_at_the_servo_speed(self, config: ArmConfig) -> None:
         base = config.joints["base"]
-        with (
-            Emulator(config, initial_pose={"base": -90}) as emu,
-            serial.Serial(emu.port, 9600) as w,
-        ):
-            w.write(b"#0P2400\r")  # first command: the pulse jumps to +90 deg
-            rec = last(emu, b"#0P2400")
-            t = rec.t_effect
-            start = base.to_us(-90)
-            v = base.speed_us_s
-            assert emu.pulse_us(0, t) == 2400
-            assert emu.servo_us(0, t + 0.1) == pytest.approx(start + v * 0.1)
-            reach = t + (2400 - start) / v
-            assert emu.servo_us(0, reach + 0.01) == pytest.approx(2400)
-            # Within 1 degree: 10 us earlier than the full travel.
-            assert emu.settle_time(1.0, ["base"]) == pytest.approx(reach - 10 / v, abs=1e-4)
+        board = Board(config, initial_pose={"base": -90})
+        t = board.powered_at + 1
+        board.execute(b"#0P2400", t)  # first command: the pulse jumps to +90 deg
+        start = base.to_us(-90)
+        v = base.speed_us_s
+        assert board.pulse_us(0, t) == 2400
+        assert board.servo_us(0, t + 0.1) == pytest.approx(start + v * 0.1)
+        reach = t + (2400 - start) / v
+        assert board.servo_us(0, reach + 0.01) == pytest.approx(2400)
+        # Within 1 degree: 10 us earlier than the full travel.
+        assert board.settle_time(1.0, ["base"]) == pytest.approx(reach - 10 / v, abs=1e-4)
 
     def test_a_slow_ramp_is_tracked_and_a_fast_one_lags(self, config: ArmConfig) -> None:
-        with Emulator(config, initial_pose={"base": 0}) as emu, serial.Serial(emu.port, 9600) as w:
-            w.write(b"#0P1500\r")
-            last(emu, b"#0P1500")
-            time.sleep(0.01)
-            w.write(b"#0P2400T2000\r")  # 450 us/s: slower than the servo (3330 us/s)
-            t = last(emu, b"#0P2400T2000").t_effect
-            for dt in (0.5, 1.0, 1.9):
-                assert emu.servo_us(0, t + dt) == pytest.approx(emu.pulse_us(0, t + dt))
-            w.write(b"#0P600T100\r")  # 18000 us/s: the servo cannot keep up
-            t2 = last(emu, b"#0P600T100").t_effect
-            assert emu.servo_us(0, t2 + 0.1) > emu.pulse_us(0, t2 + 0.1) + 100
-            assert emu.settle_time(1.0, ["base"]) > t2 + 0.1
+        board = Board(config, initial_pose={"base": 0})
+        t = board.powered_at + 1
+        board.execute(b"#0P1500", t)
+        t += 0.01
+        board.execute(b"#0P2400T2000", t)  # 450 us/s: slower than the servo (3330 us/s)
+        for dt in (0.5, 1.0, 1.9):
+            assert board.servo_us(0, t + dt) == pytest.approx(board.pulse_us(0, t + dt))
+        end = t + 2.0
+        board.execute(b"#0P600T100", end)  # 18000 us/s: the servo cannot keep up
+        assert board.servo_us(0, end + 0.1) > board.pulse_us(0, end + 0.1) + 100
+        assert board.settle_time(1.0, ["base"]) > end + 0.1
 
 
 def test_the_board_model_needs_no_pty(config: ArmConfig) -> None:

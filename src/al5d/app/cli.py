@@ -199,7 +199,7 @@ def _check(path: str, poses: str | None, namespace: str | None) -> int:
     """`al5d run --check`: the file judged whole as `al5d run` judges it, against the
     configuration of the server on this machine's lane, else the shipped one; nothing sent."""
     from al5d.arm.poses import PosesError, beside, load_poses
-    from al5d.arm.sequence import judge_sequence, served_config
+    from al5d.arm.sequence import judge_sequence
     from al5d.owner import where
     from al5d.owner.client import local_config
     from al5d.ros.names import Names
@@ -207,7 +207,7 @@ def _check(path: str, poses: str | None, namespace: str | None) -> int:
     config = local_config(where.path(Names.of(namespace).namespace))
     whose = "the server"
     if config is None:
-        config = served_config()
+        config = load_config()
         whose = "a server with the shipped configuration (none on this machine's lane)"
     try:
         book = load_poses(beside(path) if poses is None else poses, required=poses is not None)

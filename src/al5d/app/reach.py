@@ -45,8 +45,10 @@ class MoveQoS:
 
 
 def board_record(emulator: Emulator, data: bytes, t_after: float) -> Record | None:
-    """The emulator's record of the command `data` written at or after `t_after`."""
-    line = data.rstrip(b"\r")
+    """The emulator's record of the command `data` written at or after `t_after`: of its
+    last line, the move's (a move after a stop first holds the joints whose pose was read
+    back, in a line of its own)."""
+    line = data.rstrip(b"\r").rsplit(b"\r", 1)[-1]
     return next((r for r in emulator.records if r.raw == line and r.t_effect >= t_after), None)
 
 

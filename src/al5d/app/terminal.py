@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import TextIO
 
 from al5d import exits
+from al5d.arm.config import load_config
 from al5d.arm.instruction import (
     PRESET_NAMES,
     GrammarError,
@@ -38,7 +39,7 @@ from al5d.arm.instruction import (
     parse_instruction,
 )
 from al5d.arm.poses import PosesError, beside, load_poses
-from al5d.arm.sequence import SequenceJudge, judge_sequence, judged_steps, served_config
+from al5d.arm.sequence import SequenceJudge, judge_sequence, judged_steps
 from al5d.owner import where
 from al5d.owner.client import local_config
 from al5d.ros.client import (
@@ -229,7 +230,7 @@ def run(
         # its own way, with every other problem as the server on this machine's lane
         # judges it (instantly), or a server with the shipped configuration.
         here = local_config(where.path(Names.of(namespace).namespace))
-        first = judge_sequence(data, here or served_config(), str(path), book)
+        first = judge_sequence(data, here or load_config(), str(path), book)
         if any(problem.grammar for problem in first.problems):
             raise first.error()
     except OSError as e:

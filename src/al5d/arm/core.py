@@ -226,13 +226,16 @@ def _shutdown(c: Core, ev: Ask, out: Out) -> Core:
         _refuse(ev, "the server is already shutting down", out)
         return c
     sent = _sent(ev)
+    # Only a move cut short here may still run on the board: with none, there is nothing
+    # to halt (and no way to ask while `Q` counts a stopped move down).
+    running = c.run is not None
     c, jobs = drop(c, "cancelled by shutdown", sent)
     park = (Step(dict(c.arm.config.presets["park"]), None),)
     fraction = c.arm.settings.startup_speed_fraction
     job = Job(ev.ref, ev.instr, park, ev.t, sent, c.epoch, fraction, Mode.SHUTDOWN, tell=ev.tell)
     c = fire(replace(c, shutdown=job), Event.SHUTDOWN, out)
     if c.link.checked:
-        c = replace(c, link=replace(c.link, next=Next.SHUTDOWN, halt_checked=False))
+        c = replace(c, link=replace(c.link, next=Next.SHUTDOWN, halt_checked=not running))
     cancel_all(jobs, "cancelled by shutdown", ev.t, out)
     return c
 

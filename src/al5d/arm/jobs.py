@@ -5,7 +5,7 @@ Data only (frozen), handed between the protocol (`core`) and what it runs (`runn
 
 from __future__ import annotations
 
-from collections.abc import Hashable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from enum import Enum
 
@@ -148,7 +148,3 @@ def outcome(
         elapsed_ms=(t - t0) * 1000.0,
         expected_ms=expected,
     )
-
-
-#: A stop message's identity where two readers may both see it (`core`, rule 3).
-StopKey = Hashable

@@ -38,15 +38,6 @@ from al5d.model import ARM_JOINTS
 Pose = dict[str, float | None]
 
 
-def served_config(path: str | None = None) -> ArmConfig:
-    """The configuration the server judges with, for a client that judges before it sends.
-
-    Where no server can say it (`Client.config` asks the server): the file as `al5d serve`
-    reads it (`path`: its `--config`; None: the shipped file).
-    """
-    return load_config(path)
-
-
 @dataclass(frozen=True, slots=True)
 class Line:
     """A step of a sequence with the line it was read from (1 is the first)."""
@@ -206,9 +197,9 @@ def judged_steps(
     data: bytes, name: str, poses: NamedPoses | None, config: ArmConfig | None = None
 ) -> list[SequenceStep]:
     """The steps of a sequence file judged whole against the server's configuration (`config`,
-    by default `served_config()`), where the arm starts not known; SequenceErrors (a
-    GrammarError) with every problem, a line each, if there is any."""
-    judged = SequenceJudge(config or served_config()).judge(data, name, poses)
+    by default the shipped one, as `al5d serve` reads it), where the arm starts not known;
+    SequenceErrors (a GrammarError) with every problem, a line each, if there is any."""
+    judged = SequenceJudge(config or load_config()).judge(data, name, poses)
     if not judged.ok:
         raise judged.error()
     return judged.steps

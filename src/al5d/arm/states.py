@@ -34,18 +34,6 @@ class Event(Enum):
     RECONNECTED = "reconnected"
 
 
-class Task(Enum):
-    """What the move worker does next, in this order of precedence (`core.Core.next_task`)."""
-
-    SHUTDOWN = "park and end"
-    RECOVER = "reconnect"
-    STARTUP = "park once, at half speed, before ready"
-    FOLLOW = "see through a move the caller wrote"
-    READBACK = "read the pose back"
-    MOVE = "run the next move"
-    WATCH = "check the idle link"
-
-
 @dataclass(frozen=True, slots=True)
 class Guards:
     """The facts a transition may depend on."""

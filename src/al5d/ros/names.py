@@ -158,12 +158,7 @@ class Names:
 #: The names with no namespace, as the design gives them.
 DEFAULT_NAMES = Names()
 INSTRUCTION_TOPIC = DEFAULT_NAMES.instruction
-RESULT_TOPIC = DEFAULT_NAMES.result
-STATE_TOPIC = DEFAULT_NAMES.state
-MOVE_ACTION = DEFAULT_NAMES.move
-TRAJECTORY_TOPIC = DEFAULT_NAMES.trajectory
 JOINT_STATES_TOPIC = "joint_states"
-SERVICES = DEFAULT_NAMES.services
 
 
 def pinned(name: str) -> list[str]:

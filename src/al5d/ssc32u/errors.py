@@ -11,7 +11,7 @@
     +-- BoardReset              the board restarted (a brown-out): check the servos'
                                 power supply; the arm driver locks the arm
 
-`Interrupted` is not a fault: an emergency stop flushed a query's answer.
+Each says what to check in its `advice`.
 """
 
 from __future__ import annotations
@@ -65,7 +65,3 @@ class BoardReset(SerialFault):
     and it has forgotten where the servos were, so its next move would run at full speed."""
 
     advice = "check the servos' power supply: it must hold its voltage at full servo current"
-
-
-class Interrupted(Exception):
-    """A query lost its answer because an emergency stop flushed it; not a fault."""

@@ -20,7 +20,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from al5d.arm.config import DEFAULT_CONFIG, ArmConfig
+from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
 
 log = logging.getLogger("al5d.web")
 
@@ -48,7 +48,6 @@ class WebView:
         import viser
 
         from al5d.arm.poses import beside, load_poses
-        from al5d.arm.sequence import served_config
         from al5d.ros.names import Names
         from al5d.ros.params import served_config_file
         from al5d.web import calibrate, guard
@@ -59,8 +58,9 @@ class WebView:
 
         # The websocket library's INFO lines (each connection) would drown the page's own.
         logging.getLogger("websockets").setLevel(logging.WARNING)
-        # The server's configuration, as a client judges what it sends (`al5d run` too).
-        config = config or served_config(options.config)
+        # The server's configuration, as a client judges what it sends (`al5d run` too): the
+        # file as `al5d serve` reads it (its `--config`).
+        config = config or load_config(options.config)
         poses = (Path(options.poses) if options.poses else beside(options.config)).absolute()
         load_poses(poses, required=False)  # a bad file stops here, before the port is taken
         ns = config.server.namespace if options.namespace is None else options.namespace
