@@ -128,10 +128,12 @@ class Rig:
         """Wait until the server has taken in everything sent so far.
 
         Messages on the topic are handled in order; an unknown instruction is refused
-        at once, and the server logs the refusal with its id.
+        at once, and the server logs the refusal with its id. It logs each reason once a
+        second (the repeats counted): each barrier is a word of its own, so that its
+        reason is news.
         """
         ident = self.ident("barrier")
-        (peer or self.peer).send(ident, "barrier")
+        (peer or self.peer).send(ident, ident)
         self.proc.err.wait_for(f"[{ident}]", timeout)
 
     def diagnose(self, what: str) -> str:
