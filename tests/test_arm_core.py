@@ -714,3 +714,30 @@ def test_an_owed_answer_of_fixed_length_that_comes_in_parts_is_dropped_whole(sim
     c = lk.received(c, Received(t + 0.002, wall, answer[3:] + b"."), out)
     assert c.link.query is None and c.link.open and c.state is State.READY
     assert not [s for s in out if isinstance(s, Say) and "serial fault" in s.text], out
+
+
+def test_the_queue_keeps_its_order_through_adds_takes_and_removals() -> None:
+    """`Jobs`, the core's queue: persistent (an old value is never changed by a newer one)
+    and in order, whatever mix of adding, taking the first and removing."""
+    from al5d.arm.jobs import NO_JOBS, Job, Jobs
+
+    def job(n: int) -> Job:
+        return Job(n, ins.move(base=n), (), 0.0, 0)
+
+    model: list[int] = []
+    jobs = NO_JOBS
+    olds: list[tuple[Jobs, list[int]]] = []
+    for k in range(1, 400):
+        if k % 7 == 0 and model:
+            assert jobs.first().ref == model[0]
+            jobs, model = jobs.rest(), model[1:]
+        elif k % 31 == 0:
+            jobs, model = jobs.where(lambda j: j.ref % 3 != 0), [n for n in model if n % 3 != 0]
+        else:
+            jobs, model = jobs.add(job(k)), [*model, k]
+        assert [j.ref for j in jobs] == model and len(jobs) == len(model)
+        olds.append((jobs, model))
+    for old, was in olds:
+        assert [j.ref for j in old] == was
+    with pytest.raises(IndexError):
+        NO_JOBS.first()

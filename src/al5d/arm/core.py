@@ -106,7 +106,7 @@ from al5d.arm.corestate import (
     say,
 )
 from al5d.arm.instruction import Instruction, Kind, Result
-from al5d.arm.jobs import Job, Mode, outcome
+from al5d.arm.jobs import NO_JOBS, Job, Mode, outcome
 from al5d.arm.states import Event, State, next_state, refusal, release_refusal, stream_held
 from al5d.arm.validate import Step, from_start, judge
 
@@ -283,7 +283,7 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
         # The latest set-point wins: one that waits is replaced, never queued behind.
         replaced = next((j for j in c.queue if j.stream == job.stream), None)
         if replaced is not None:
-            c = replace(c, queue=tuple(j for j in c.queue if j is not replaced))
+            c = replace(c, queue=c.queue.where(lambda j: j is not replaced))
             finish(replaced, Result.CANCELLED, f"replaced by set-point {instr.id}", ev.t, out)
         if unchanged:
             if c.run is None and not c.queue and c.state is State.MOVING:
@@ -296,7 +296,7 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
                 # board drop it whole, and a stream faster than the wire would never move
                 # the arm (each line cut by the next: seen at 50 Hz and 9600 baud). The
                 # newest waits for the line and takes its place then (`_next`).
-                return replace(c, queue=(*c.queue, job))
+                return replace(c, queue=c.queue.add(job))
             return _supersede(c, job, ev.t, out)
     if c.idle:
         return running.start(fire(c, Event.MOVE, out), job, ev.t, out)
@@ -304,7 +304,7 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
     if len(c.queue) >= capacity:
         finish(job, Result.REFUSED, f"the queue is full ({capacity} moves wait)", ev.t, out)
         return c
-    c = replace(c, queue=(*c.queue, job))
+    c = replace(c, queue=c.queue.add(job))
     return fire(c, Event.MOVE, out) if c.state is State.READY else c
 
 
@@ -383,7 +383,7 @@ def _cancel(c: Core, ev: Cancel, out: Out) -> Core:
     without the lock. Whether it was there is the answer."""
     job = next((j for j in c.queue if j.instr.id == ev.ident), None)
     if job is not None:
-        c = replace(c, queue=tuple(j for j in c.queue if j is not job))
+        c = replace(c, queue=c.queue.where(lambda j: j is not job))
         if c.run is None and not c.queue and c.state is State.MOVING:
             c = fire(c, Event.MOVE_DONE, out)
         finish(job, Result.CANCELLED, ev.reason, ev.t, out)
@@ -404,7 +404,7 @@ def _gone(c: Core, ev: Gone, out: Out) -> Core:
     why = f"lost contact with the client{f' ({ev.why})' if ev.why else ''}"
     mine = [j for j in c.queue if j.client == ev.client]
     if mine:
-        c = replace(c, queue=tuple(j for j in c.queue if j.client != ev.client))
+        c = replace(c, queue=c.queue.where(lambda j: j.client != ev.client))
         cancel_all(mine, why, ev.t, out)
         if c.run is None and not c.queue and c.state is State.MOVING:
             c = fire(c, Event.MOVE_DONE, out)
@@ -458,9 +458,10 @@ def _next(c: Core, t: float, wall: int, out: Out) -> Core:
     if c.run is not None:
         # A set-point that waited for the running one's line takes its place once it is out,
         # ahead of what came after it.
-        waiting = c.queue[0] if c.queue and c.queue[0].stream and not c.link.rest else None
-        if waiting is not None and _supersedes(replace(c, queue=()), waiting):
-            return _supersede(replace(c, queue=c.queue[1:]), waiting, t, out)
+        if c.queue and not c.link.rest and c.queue.first().stream:
+            waiting = c.queue.first()
+            if _supersedes(replace(c, queue=NO_JOBS), waiting):
+                return _supersede(replace(c, queue=c.queue.rest()), waiting, t, out)
         return running.progress(c, t, out)
     if c.shutdown is not None:
         if c.shutdown_taken:
@@ -472,8 +473,7 @@ def _next(c: Core, t: float, wall: int, out: Out) -> Core:
     if c.state is State.INITIALIZING and not c.parked:
         return running.start(c, _startup_park(c, t, wall), t, out)
     if c.queue and c.state is not State.INITIALIZING:
-        job, rest = c.queue[0], c.queue[1:]
-        return running.start(replace(c, queue=rest), job, t, out)
+        return running.start(replace(c, queue=c.queue.rest()), c.queue.first(), t, out)
     if t >= link.watched + c.arm.settings.idle_check_interval_s and board.can_ask(c, t):
         return board.watch(c, t, out)
     return c

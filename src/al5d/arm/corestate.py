@@ -16,7 +16,7 @@ from enum import Enum
 from al5d.arm import jobs
 from al5d.arm.config import ArmConfig, ServerSettings
 from al5d.arm.instruction import Instruction, Outcome, Result
-from al5d.arm.jobs import Job, Mode, Sent, Written, stop_order
+from al5d.arm.jobs import NO_JOBS, Job, Jobs, Mode, Sent, Written, stop_order
 from al5d.arm.order import Order
 from al5d.arm.pose import PoseBook
 from al5d.arm.states import Event, Guards, State, TransitionError, next_state
@@ -355,7 +355,7 @@ class Core:
     #: When a set-point of each stream last came: the watchdog holds the arm where it is
     #: once none has come for `server.stream_timeout_s`.
     stream_seen: Mapping[str, float] = field(default_factory=dict)
-    queue: tuple[Job, ...] = ()
+    queue: Jobs = NO_JOBS
     run: Run | None = None
     link: Link = field(default_factory=Link)
     fault: SerialFault | None = None
@@ -477,7 +477,7 @@ def drop(c: Core, why: str, sent_ns: int) -> tuple[Core, list[Job]]:
         epoch=c.epoch + 1,
         order=c.order.dropped(why, sent_ns),
         streams_held=why,
-        queue=(),
+        queue=NO_JOBS,
         run=None,
         link=link,
     )

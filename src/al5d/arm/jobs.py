@@ -5,9 +5,10 @@ Data only (frozen), handed between the protocol (`core`) and what it runs (`runn
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from enum import Enum
+from typing import TypeAlias
 
 from al5d.arm.instruction import MAX_ID, MAX_QUOTE, Instruction, Outcome, Result
 from al5d.arm.resample import Follow
@@ -53,6 +54,87 @@ class Job:
     tell: bool = True
     #: A trajectory's tolerances, as its sender gave them.
     follow: Follow | None = None
+
+
+#: A list of jobs as nested pairs (first, rest): adding to its head shares its tail.
+Chain: TypeAlias = "tuple[Job, Chain] | None"
+
+
+def _reversed(chain: Chain) -> Chain:
+    out: Chain = None
+    while chain is not None:
+        out = (chain[0], out)
+        chain = chain[1]
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class Jobs:
+    """The jobs that wait, oldest first, as a persistent queue (two chains, the oldest
+    first and the newest first, as Okasaki's banker's queue): adding one and taking the
+    first cost O(1) amortized however many wait. The core's queue was a tuple copied
+    whole at each of them: 50,000 queued moves were taken at 5,700 a second (27,000
+    before the core was a pure transition), and an owner with a long queue spent its
+    turns copying it."""
+
+    front: Chain = None  # the oldest first; empty only when the queue is
+    back: Chain = None  # the newest first
+    size: int = 0
+
+    @classmethod
+    def of(cls, jobs: Iterable[Job]) -> Jobs:
+        """`jobs` in their order."""
+        chain: Chain = None
+        size = 0
+        for job in jobs:
+            chain = (job, chain)
+            size += 1
+        return cls(_reversed(chain), None, size)
+
+    def __len__(self) -> int:
+        return self.size
+
+    def __bool__(self) -> bool:
+        return self.size > 0
+
+    def __iter__(self) -> Iterator[Job]:
+        chain = self.front
+        while chain is not None:
+            yield chain[0]
+            chain = chain[1]
+        chain = _reversed(self.back)
+        while chain is not None:
+            yield chain[0]
+            chain = chain[1]
+
+    def add(self, job: Job) -> Jobs:
+        """With `job` last."""
+        if self.front is None:
+            return Jobs((job, None), None, 1)
+        return Jobs(self.front, (job, self.back), self.size + 1)
+
+    def first(self) -> Job:
+        """The oldest; IndexError if none waits."""
+        if self.front is None:
+            raise IndexError("no job waits")
+        return self.front[0]
+
+    def rest(self) -> Jobs:
+        """Without the oldest; IndexError if none waits."""
+        if self.front is None:
+            raise IndexError("no job waits")
+        front = self.front[1]
+        if front is None:
+            return Jobs(_reversed(self.back), None, self.size - 1)
+        return Jobs(front, self.back, self.size - 1)
+
+    def where(self, keep: Callable[[Job], bool]) -> Jobs:
+        """Only the jobs `keep` says to keep, in their order."""
+        return Jobs.of(job for job in self if keep(job))
+
+
+#: No job waits.
+NO_JOBS = Jobs()
 
 
 @dataclass(frozen=True, slots=True)
