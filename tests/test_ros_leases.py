@@ -20,7 +20,7 @@ from al5d.arm.config import ArmConfig
 from al5d.owner import where
 from al5d.owner.client import Remote
 from al5d.ros.leases import FORGET_S, Leases
-from al5d_rig.proc import Lines, said
+from al5d_rig.proc import Lines, said, stacks
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import Served, served
 
@@ -209,7 +209,7 @@ c.close()
 
 @pytest.mark.parametrize("skew_s", [-5, 5])
 def test_a_client_whose_clock_is_seconds_off_is_judged_on_the_servers_clock(
-    arm: Served, skew_s: int
+    arm: Served, skew_s: int, tmp_path: Path
 ) -> None:
     """A client on a machine whose clock is 5 s behind or ahead (libfaketime): a stop and a
     release, each by it (the stop by the service and the topic, the release on the topic,
@@ -225,10 +225,12 @@ def test_a_client_whose_clock_is_seconds_off_is_judged_on_the_servers_clock(
         # Its monotonic clock faked too, libfaketime 0.9.10's timed waits never end.
         "FAKETIME_DONT_FAKE_MONOTONIC": "1",
     }
+    errors = tmp_path / "skewed.err"
     skewed = subprocess.Popen(
         [sys.executable, "-c", SKEWED],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
+        stderr=errors.open("w"),
         text=True,
         env=env,
     )
@@ -243,7 +245,17 @@ def test_a_client_whose_clock_is_seconds_off_is_judged_on_the_servers_clock(
 
     lane = Remote.connect(where.path(), name="right-clock")
     try:
-        said = float(out.wait_for("clock", CMD_S).split()[1])
+        try:
+            said = float(out.wait_for("clock", CMD_S).split()[1])
+        except AssertionError as e:
+            # Seen once in a CI run beside two busy loops: no word in 60 s, nothing on its
+            # stderr. Where it waits, for the next reader.
+            code = skewed.poll()
+            raise AssertionError(
+                f"the skewed client (exit {code}) said no clock: {e}\nits stderr:\n"
+                f"{errors.read_text()[-4000:]}\nits stacks:\n"
+                f"{stacks(skewed.pid) if code is None else '(ended)'}"
+            ) from e
         assert abs(said - time.time() - skew_s) < 1.0, said  # its clock is off indeed
         # A stop by a client whose clock is right, then a release by the skewed one.
         assert lane.execute(ins.Instruction(ins.Kind.STOP), CMD_S).ok

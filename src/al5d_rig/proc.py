@@ -194,6 +194,29 @@ def _kill_live() -> None:
             proc.kill()
 
 
+def stacks(pid: int) -> str:
+    """Every thread's stack in the Python process `pid` now (py-spy, with the native frames
+    of C extensions such as rclpy's), for a failure's reader: where a process that went
+    silent is waiting."""
+    spy = str(Path(sys.executable).with_name("py-spy"))
+    said = ""
+    for native in (["--native"], []):  # the Python frames alone where native ones fail
+        try:
+            done = subprocess.run(
+                [spy, "dump", *native, "--pid", str(pid)],
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
+        except (OSError, subprocess.TimeoutExpired) as e:
+            said += f"(no stacks: {e})\n"
+            continue
+        said += done.stdout + done.stderr
+        if done.returncode == 0:
+            break
+    return said
+
+
 class Proc:
     """An `al5d` subcommand in its own process, with its stdout and stderr lines."""
 
@@ -216,17 +239,7 @@ class Proc:
     def stacks(self) -> str:
         """Every thread's stack in the process now (py-spy), for a failure's reader: where a
         server that went silent is waiting."""
-        spy = str(Path(sys.executable).with_name("py-spy"))
-        try:
-            done = subprocess.run(
-                [spy, "dump", "--pid", str(self.popen.pid)],
-                capture_output=True,
-                text=True,
-                timeout=30,
-            )
-        except (OSError, subprocess.TimeoutExpired) as e:
-            return f"(no stacks: {e})"
-        return done.stdout + done.stderr
+        return stacks(self.popen.pid)
 
     def send(self, line: str) -> None:
         assert self.popen.stdin is not None
