@@ -741,3 +741,11 @@ def test_the_queue_keeps_its_order_through_adds_takes_and_removals() -> None:
         assert [j.ref for j in old] == was
     with pytest.raises(IndexError):
         NO_JOBS.first()
+    # Deep chains: compared, hashed and shown by their jobs, not recursively.
+    some = [job(n) for n in range(20_000)]
+    many = Jobs.of(some)
+    again = NO_JOBS
+    for each in some:
+        again = again.add(each)
+    assert many == again and hash(many) == hash(again) and many != again.rest()
+    assert repr(many).startswith("Jobs(20000: ")

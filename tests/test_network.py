@@ -46,17 +46,21 @@ from al5d.ros.client import Client, LostContact
 c = Client(wait_s=60)
 c.wait_for_server(60)
 c.execute("ready", timeout=60)
-print("sent", flush=True)
+lines = threading.Lock()
+def say(*words):  # a line at a time: both requests give up in the same instant
+    with lines:
+        print(*words, flush=True)
+say("sent")
 def late():  # sent just after the cut, before the client can know
     try:
-        print("late:", c.execute("move base=60 time=500", timeout=3), flush=True)
+        say("late:", c.execute("move base=60 time=500", timeout=3))
     except LostContact as e:
-        print("late: lost:", e, flush=True)
+        say("late: lost:", e)
 threading.Timer(2.3, late).start()
 try:
-    print("move:", c.execute("move base=-60 time=8000", timeout=60), flush=True)
+    say("move:", c.execute("move base=-60 time=8000", timeout=60))
 except LostContact as e:
-    print("move: lost:", e, flush=True)
+    say("move: lost:", e)
 sys.stdin.readline()  # the link is mended
 while c.lost_contact() is not None:
     time.sleep(0.1)

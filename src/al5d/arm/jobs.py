@@ -68,7 +68,7 @@ def _reversed(chain: Chain) -> Chain:
     return out
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, eq=False, repr=False)
 class Jobs:
     """The jobs that wait, oldest first, as a persistent queue (two chains, the oldest
     first and the newest first, as Okasaki's banker's queue): adding one and taking the
@@ -90,6 +90,20 @@ class Jobs:
             chain = (job, chain)
             size += 1
         return cls(_reversed(chain), None, size)
+
+    # Equality, hashing and repr by the jobs in order, not by the chains: the same jobs
+    # may be split between the two differently, and a chain thousands deep would take
+    # Python's recursion past its limit.
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Jobs) and self.size == other.size and tuple(self) == tuple(other)
+
+    def __hash__(self) -> int:
+        return hash(tuple(self))
+
+    def __repr__(self) -> str:
+        ids = [job.instr.id for job in self]
+        shown = ids if len(ids) <= 10 else [*ids[:5], "...", *ids[-5:]]
+        return f"Jobs({len(ids)}: {', '.join(shown)})"
 
     def __len__(self) -> int:
         return self.size
