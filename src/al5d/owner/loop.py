@@ -156,6 +156,7 @@ class Owner:
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._selector.register(self._wake_r, selectors.EVENT_READ, "wake")
+        self._woken = False  # a byte is in the pipe for the next turn (`_wake`)
         self._transport_fd: int | None = None
         self._broken = False  # a write failed in this step: no more of its bytes
         self._free_at = 0.0  # when the bytes written so far reach the board
@@ -357,6 +358,12 @@ class Owner:
         self._wake()
 
     def _wake(self) -> None:
+        # One byte per turn is enough: the turn clears the flag before it looks at its
+        # inboxes, so whatever was put before the clear is seen, and whatever after it
+        # writes again (a write per request cost the submitter a third of its time).
+        if self._woken:
+            return
+        self._woken = True
         with contextlib.suppress(BlockingIOError, OSError):
             os.write(self._wake_w, b"!")
 
@@ -375,12 +382,13 @@ class Owner:
     def _turn(self) -> None:
         """One turn: wait for something (or the core's next wake), then take it all: the
         board's bytes, every stop, the other requests (`BATCH` at most), the time."""
+        self._woken = False
         t = now()
         wake = min(wake_at(self._core, t), t + SLEEP_MAX_S)
         due = self.transport.due() if self._core.link.open else None
         if due is not None:
             wake = min(wake, due)
-        busy = self._stops or self._others or self._pending
+        busy = self._stops or self._others or self._pending or self._closing
         timeout = 0.0 if busy else max(0.0, wake - t)
         events = self._selector.select(timeout)
         woke = now()
