@@ -487,6 +487,24 @@ def test_a_line_behind_another_move_starts_where_that_one_ends(sim: Sim) -> None
     assert first_hop.motion.start["base"] == pytest.approx(30, abs=0.01)
 
 
+def test_a_line_planned_as_it_starts_is_written_in_a_later_step(sim: Sim) -> None:
+    """Planning a line as it starts takes the host about 10 ms of IK, which the core's clock,
+    read before it, does not see: its first hop goes out in the step after, on that step's
+    clock. (Written in the planning step, the wire's account of the hop started 10 ms
+    before its bytes did, and the next hop, timed from it, took effect before this one
+    had ended: the bench's first line went 1.2 mm off, where its plan keeps 0.9.)"""
+    assert sim.outcome(sim.ask(ins.preset("ready"))).ok
+    sim.run(1.0)
+    line = ins.move_to(100.0, 250.0, 50.0, pitch=-30, line=True)
+    n, t_ask = len(sim.sent), sim.t
+    ref = sim.ask(line)
+    assert not [data for _, data in sim.sent[n:] if b"#" in data]
+    assert sim.next_wake() == math.nextafter(t_ask, math.inf)  # the next step, at once
+    assert sim.outcome(ref).ok
+    first_hop = next(m.sent for m in sim.moved if m.sent.instr.id == line.id)
+    assert first_hop.t_write > t_ask
+
+
 def test_moves_and_stops_racing_the_checks_never_look_like_a_reset(config: ArmConfig) -> None:
     """Link checks back to back (every 2 ms), moves of every joint across its range and stops
     among them: a line or a STOP written while a check's answer is on its way changes the

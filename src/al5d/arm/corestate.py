@@ -9,6 +9,7 @@ them when it took the input, and nothing here reads a clock.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Hashable, Mapping
 from dataclasses import dataclass, field, replace
 from enum import Enum
@@ -337,6 +338,11 @@ class Run:
     #: When step `k`'s line would take effect had every piece of it gone out when due (the
     #: wire's pace allowing): the yardstick of a point's lateness.
     due_effect: float = 0.0
+    #: The time of the step that planned the run as it started (a Cartesian move: about
+    #: 10 ms of IK): its first line goes out in a later step, whose time is read after the
+    #: planning, or the wire's account starts that long before its bytes do, and the next
+    #: hop of a line takes effect before this one has ended (its corner cut).
+    not_before: float = -math.inf
 
 
 @dataclass(frozen=True, slots=True)

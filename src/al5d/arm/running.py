@@ -100,7 +100,7 @@ def start(c: Core, job: Job, t: float, out: Out) -> Core:
         if c.state is State.MOVING and not c.queue:
             c = fire(c, Event.MOVE_DONE, out)
         return c
-    return replace(c, run=Run(job, steps))
+    return replace(c, run=Run(job, steps, not_before=t if not job.steps else -math.inf))
 
 
 # -- planning a step --------------------------------------------------------------------
@@ -199,6 +199,8 @@ def _write(c: Core, run: Run, t: float, out: Out) -> Core:
     by `pieces`); once all of it is out, the step is written."""
     if run.line or not c.link.checked or c.link.rest:
         return c  # its pieces are going out, or a halt's are
+    if t <= run.not_before:
+        return c  # planned in this step: its time is stale (`Run.not_before`)
     if c.link.free_at - horizon(run.job) > t:
         return c
     told = len(run.notes)
@@ -306,7 +308,7 @@ def wakes(c: Core, run: Run) -> list[float]:
     """When the run has something to do next (`core.wake_at`)."""
     written = run.written
     if written is None:
-        return [c.link.free_at - horizon(run.job)]
+        return [max(c.link.free_at - horizon(run.job), math.nextafter(run.not_before, math.inf))]
     if run.confirming:
         return [run.poll_at]
     times = [_until(run, written), _watch_at(c, written)]
