@@ -125,15 +125,16 @@ class Rig:
         return ident, t
 
     def barrier(self, timeout: float = 30.0, peer: Peer | None = None) -> None:
-        """Wait until the server has taken in everything sent so far.
+        """Wait until the server's owner has taken in everything sent so far.
 
-        Messages on the topic are handled in order; an unknown instruction is refused
-        at once, and the server logs the refusal with its id. It logs each reason once a
-        second (the repeats counted): each barrier is a word of its own, so that its
-        reason is news.
+        Messages on the topic reach the owner in order, and it judges each move as it takes
+        it: a move out of range is refused then, and the server logs the refusal with its
+        id. (An unknown word is refused by the ROS node before the owner: it passed the
+        moves still on their way to it.) The server logs each reason once a second, the
+        repeats counted: each barrier's angle is its own, so that its reason is news.
         """
         ident = self.ident("barrier")
-        (peer or self.peer).send(ident, ident)
+        (peer or self.peer).send(ident, "move", 0, base=1000.0 + self.n)
         self.proc.err.wait_for(f"[{ident}]", timeout)
 
     def diagnose(self, what: str) -> str:
