@@ -5,16 +5,20 @@ from __future__ import annotations
 
 import logging
 import shutil
+import socket
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
+from al5d.arm.instruction import Point
 from al5d.arm.states import State
+from al5d.owner import lane as ln
 from al5d.owner.client import Remote
 from al5d.owner.loop import Owner
 from al5d.ssc32u.emulator.board import Board
@@ -132,3 +136,77 @@ def test_writes_before_a_recorder_connects_are_kept_for_it(config: ArmConfig) ->
     finally:
         owner.close()
         shutil.rmtree(where, ignore_errors=True)
+
+
+class HeldOnce(VirtualTransport):
+    """The virtual board, whose next write once `hold` is set waits for `release`; the
+    writes are kept, each with the bytes the test's peek found waiting then (`peek`)."""
+
+    def __init__(self, board: Board) -> None:
+        super().__init__(board)
+        self.hold = False
+        self.holding = threading.Event()
+        self.release = threading.Event()
+        self.peek: Callable[[], int] = lambda: 0
+        self.writes: list[tuple[bytes, int]] = []
+
+    def _write(self, data: bytes) -> None:
+        super()._write(data)
+        self.writes.append((data, self.peek()))
+        if self.hold:
+            self.hold = False
+            self.holding.set()
+            self.release.wait(10)
+
+
+def test_a_stop_read_in_a_turn_goes_before_the_judgements_read_in_it(config: ArmConfig) -> None:
+    """A trajectory's judgement takes milliseconds. Judged as its connection was read, a
+    burst of them held a stop that the same turn read from another connection until all
+    were judged; taken in its turn among the requests, it waits for none of them. Here
+    the owner is held in a write while twenty judgements and then a stop arrive on two
+    connections: when the stop's STOP goes out, no judgement has been answered yet."""
+    transport = HeldOnce(Board(config, baud=config.server.baud))
+    owner = Owner(config, transport).start()
+    pairs = [socket.socketpair() for _ in range(2)]
+    try:
+        owner.wait_for_state(State.READY, 10)
+        (judges, judges_end), (stops, stops_end) = pairs
+        for end in (judges_end, stops_end):
+            owner.adopt(end)
+        owner.sync()
+        judges.setblocking(False)
+
+        def waiting() -> int:
+            try:
+                return len(judges.recv(1 << 20, socket.MSG_PEEK | socket.MSG_DONTWAIT))
+            except BlockingIOError:
+                return 0
+
+        transport.peek = waiting
+        points = [Point((("base", 0.1 * k),), 20.0 * (k + 1)) for k in range(200)]
+        burst = b"".join(
+            ln.dumps({"op": "judge", "ref": k, "instr": ln.instruction_out(ins.trajectory(points))})
+            for k in range(20)
+        )
+        transport.hold = True
+        owner.submit(ins.move(base=1))  # a write, which the transport holds
+        assert transport.holding.wait(10)
+        judges.sendall(burst)
+        stops.sendall(ln.dumps({"op": "ask", "ref": 1, "instr": ln.instruction_out(ins.stop())}))
+        transport.release.set()
+        owner.wait_for_state(State.STOPPED, 10)
+        owner.sync()
+        stop_writes = [peeked for data, peeked in transport.writes if b"STOP" in data]
+        assert stop_writes and stop_writes[0] == 0, (stop_writes, transport.writes[-30:])
+        transport.peek = lambda: 0
+        judges.setblocking(True)
+        judges.settimeout(30)
+        answered = b""
+        while answered.count(b'"judged"') < 20:
+            answered += judges.recv(1 << 16)
+    finally:
+        transport.release.set()
+        owner.close()
+        for a, b in pairs:
+            a.close()
+            b.close()

@@ -480,6 +480,12 @@ class Owner:
             self._connect(payload)
         elif what == "barrier":
             self._teller.put(lambda: _set(payload, True))
+        elif what == "judge":
+            conn, their, m = payload
+            try:
+                self._lane_judge(conn, their, m)
+            except ln.LaneError as e:
+                self._write(conn, ln.dumps({"op": "error", "ref": their, "error": str(e)}))
 
     def _input(self, ev: Input) -> None:
         """Step the core with `ev`, carry out its effects, then the inputs they made."""
@@ -700,7 +706,11 @@ class Owner:
             if op == "ask":
                 self._lane_ask(conn, ref, m)
             elif op == "judge":
-                self._lane_judge(conn, ref, m)
+                # Judged in its turn among the requests, not as the connection is read: a
+                # trajectory's judgement takes milliseconds, and a stop read in the same turn
+                # from another connection is taken first (a client asks with a ticket only
+                # once it has the answer, so no ask can come before its judgement).
+                self._others.append(("judge", 0, (conn, ref, m)))
             elif op == "cancel":
                 ident, reason = m.get("id"), m.get("reason") or "cancelled by the client"
                 if not isinstance(ident, str) or not isinstance(reason, str):
