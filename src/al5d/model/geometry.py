@@ -56,8 +56,3 @@ class Geometry:
     def max_reach(self) -> float:
         """Largest distance from the shoulder axis to the wrist pitch axis."""
         return self.humerus + self.ulna
-
-    @property
-    def min_reach(self) -> float:
-        """Smallest distance from the shoulder axis to the wrist pitch axis (elbow folded)."""
-        return abs(self.humerus - self.ulna)

@@ -62,13 +62,6 @@ def matrix_from_quat(q: Quat) -> Mat3:
     )
 
 
-def quat_canonical(q: Quat) -> Quat:
-    """The same rotation with w >= 0, normalised (q and -q are one rotation)."""
-    n = math.sqrt(sum(c * c for c in q))
-    s = (1.0 if q[3] >= 0 else -1.0) / n
-    return (q[0] * s, q[1] * s, q[2] * s, q[3] * s)
-
-
 @dataclass(frozen=True)
 class Transform:
     """A child frame in its parent: translation (metres) and rotation (quaternion x, y, z, w)."""

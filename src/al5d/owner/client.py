@@ -31,7 +31,7 @@ from al5d.arm.instruction import Instruction, Kind, Outcome
 from al5d.arm.jobs import Motion, Sent
 from al5d.arm.resample import Follow
 from al5d.arm.states import State
-from al5d.clock import Deadline, now
+from al5d.clock import now
 from al5d.owner import lane as ln
 from al5d.owner.teller import tell
 
@@ -352,22 +352,6 @@ def _call(listeners: list[Callable[[], None]], what: str) -> None:
             listener()
         except Exception:
             log.exception("%s listener %r failed", what, listener)
-
-
-def wait_lane(path: Path, timeout: float) -> bool:
-    """Until a server's lane accepts at `path`; False if none did within `timeout`."""
-    deadline = Deadline(timeout)
-    while True:
-        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        try:
-            probe.connect(str(path))
-            return True
-        except OSError:
-            if deadline.expired:
-                return False
-        finally:
-            probe.close()
-        time.sleep(0.05)
 
 
 def local_config(path: Path) -> ArmConfig | None:

@@ -236,11 +236,6 @@ def outcome_in(data: Any) -> Outcome:
         raise LaneError(f"outcome: {e}") from None
 
 
-def finite(values: Mapping[str, float]) -> dict[str, float | None]:
-    """Degrees for JSON: NaN (unknown) as null."""
-    return {k: (None if v is None or math.isnan(v) else v) for k, v in values.items()}
-
-
 def motion_out(motion: Motion) -> dict[str, Any]:
     out: dict[str, Any] = {
         "start": dict(motion.start),

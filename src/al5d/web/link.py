@@ -244,9 +244,5 @@ class WebNode:
         self.send(Instruction(Kind.RELEASE))
         return None
 
-    def server_count(self) -> int:
-        """How many servers read the instruction topic (this node's own reader excluded)."""
-        return max(0, self.pub.get_subscription_count() - 1)
-
     def close(self) -> None:
         self.spinner.close()
