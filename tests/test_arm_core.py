@@ -17,7 +17,7 @@ import pytest
 from al5d.arm import instruction as ins
 from al5d.arm import link as lk
 from al5d.arm.config import ArmConfig
-from al5d.arm.corestate import Purpose, Received, Say
+from al5d.arm.corestate import Cancelled, Effect, Purpose, Received, Say, Send
 from al5d.arm.instruction import Point, Result
 from al5d.arm.states import State
 from al5d.ssc32u import protocol as p
@@ -503,6 +503,26 @@ def test_a_line_planned_as_it_starts_is_written_in_a_later_step(sim: Sim) -> Non
     assert sim.outcome(ref).ok
     first_hop = next(m.sent for m in sim.moved if m.sent.instr.id == line.id)
     assert first_hop.t_write > t_ask
+
+
+def test_a_stop_drops_a_full_queue_in_one_effect_behind_its_stop(sim: Sim) -> None:
+    """A stop with a thousand moves waiting: its step writes the STOP first and hands the
+    thousand cancellations over as one effect, whose outcomes the owner makes after the
+    STOP is on its way (made within the step, they held the STOP 2.4 ms); every move still
+    has its one outcome, told in the same step as the stop's own."""
+    long = sim.ask(ins.move(base=80, time_ms=5000))
+    queued = [sim.ask(ins.move(base=(k % 60) - 30)) for k in range(1000)]
+    sim.run(0.5)
+    seen: list[tuple[Effect, ...]] = []
+    sim.watch = lambda ev, effects: seen.append(effects)
+    stop = sim.ask(ins.stop())
+    effects = seen[0]
+    assert isinstance(effects[0], Send) and b"STOP" in effects[0].data, effects[:3]
+    cancelled = [e for e in effects if isinstance(e, Cancelled)]
+    assert len(cancelled) == 1 and len(cancelled[0].jobs) == 1001, len(effects)
+    assert sim.outcome(stop).ok
+    for ref in (long, *queued):
+        assert sim.outcomes[ref].result is Result.CANCELLED
 
 
 def test_moves_and_stops_racing_the_checks_never_look_like_a_reset(config: ArmConfig) -> None:

@@ -22,6 +22,7 @@ from al5d.arm.corestate import (
     Arm,
     Ask,
     Cancel,
+    Cancelled,
     Close,
     Core,
     Effect,
@@ -133,6 +134,9 @@ class Sim:
             self.outcomes[effect.ref] = effect.outcome
             if effect.tell:
                 self.told.append(effect.outcome)
+        elif isinstance(effect, Cancelled):
+            for resolve in effect.resolves():
+                self._carry(resolve)
         elif isinstance(effect, Reply):
             self.replies[effect.ref] = effect.ok
         elif isinstance(effect, Announce):

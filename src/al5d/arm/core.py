@@ -79,6 +79,7 @@ from al5d.arm import running
 from al5d.arm.corestate import (
     Ask,
     Cancel,
+    Cancelled,
     Core,
     Effect,
     Failed,
@@ -133,8 +134,8 @@ def step(c: Core, ev: Input) -> tuple[Core, tuple[Effect, ...]]:
     c = _advance(c, ev.t, ev.wall, out)
     # The outcomes and answers last: a client told that its move is done finds the state
     # that follows it (ready) already said, as it would expect.
-    told = tuple(e for e in out if isinstance(e, Resolve | Reply))
-    return c, tuple(e for e in out if not isinstance(e, Resolve | Reply)) + told
+    told = tuple(e for e in out if isinstance(e, Resolve | Cancelled | Reply))
+    return c, tuple(e for e in out if not isinstance(e, Resolve | Cancelled | Reply)) + told
 
 
 # -- requests ---------------------------------------------------------------------------

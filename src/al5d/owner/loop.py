@@ -39,6 +39,7 @@ from al5d.arm.corestate import (
     Arm,
     Ask,
     Cancel,
+    Cancelled,
     Close,
     Core,
     Effect,
@@ -506,6 +507,9 @@ class Owner:
             self._send(effect.data)
         elif isinstance(effect, Resolve):
             self._resolve(effect)
+        elif isinstance(effect, Cancelled):
+            for resolve in effect.resolves():
+                self._resolve(resolve)
         elif isinstance(effect, Posed):
             self._posed(effect)
         elif isinstance(effect, Moved):
