@@ -80,6 +80,7 @@ from al5d.arm.corestate import (
     Ask,
     Cancel,
     Cancelled,
+    Close,
     Core,
     Effect,
     Failed,
@@ -93,6 +94,7 @@ from al5d.arm.corestate import (
     Reply,
     Resolve,
     Run,
+    Send,
     Tick,
     cancel_all,
     drop,
@@ -132,10 +134,17 @@ def step(c: Core, ev: Input) -> tuple[Core, tuple[Effect, ...]]:
     elif isinstance(ev, Gone):
         c = _gone(c, ev, out)
     c = _advance(c, ev.t, ev.wall, out)
-    # The outcomes and answers last: a client told that its move is done finds the state
-    # that follows it (ready) already said, as it would expect.
+    # The board's effects first, in their order: what is told of a step (its state, its
+    # motion, its log lines) must not hold its bytes (a state's news woke the teller
+    # thread, which took the interpreter before the write). The outcomes and answers last:
+    # a client told that its move is done finds the state that follows it (ready) already
+    # said, as it would expect.
+    wire = tuple(e for e in out if isinstance(e, Send | Open | Close))
     told = tuple(e for e in out if isinstance(e, Resolve | Cancelled | Reply))
-    return c, tuple(e for e in out if not isinstance(e, Resolve | Cancelled | Reply)) + told
+    news = tuple(
+        e for e in out if not isinstance(e, Send | Open | Close | Resolve | Cancelled | Reply)
+    )
+    return c, wire + news + told
 
 
 # -- requests ---------------------------------------------------------------------------
