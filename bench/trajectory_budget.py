@@ -59,8 +59,18 @@ def log(text: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
 
 
-def run_goal(client: LockedActionClient, goal: Any) -> tuple[str, str]:
-    handle = wait_future(client.send_goal_async(goal), 10)
+def run_goal(client: LockedActionClient, goal: Any, first: bool = False) -> tuple[str, str]:
+    """A goal's status and error string. The `first` goal to a new server is sent again if
+    its answer does not come: `wait_for_server` says this client has found the server, not
+    that the server has found this client's reader of answers (once in a make bench run, an
+    answer was lost so; a goal that did arrive is preempted by the second)."""
+    try:
+        handle = wait_future(client.send_goal_async(goal), 10)
+    except AssertionError:
+        if not first:
+            raise
+        log("the first goal to this server had no answer in 10 s: sent again")
+        handle = wait_future(client.send_goal_async(goal), 10)
     if not handle.accepted:
         return "REJECTED", ""
     answer = wait_future(handle.get_result_async(), 60)
@@ -121,9 +131,9 @@ def run(config: ArmConfig, say: Any = log) -> list[dict[str, Any]]:
         try:
             proc.err.wait_for("STATE: ready", 30)
             assert client.wait_for_server(timeout_sec=15), "no trajectory action server"
-            for n, dt in CASES:
+            for k, (n, dt) in enumerate(CASES):
                 say(f"{n} points at {dt * 1000:.0f} ms, {baud} baud")
-                status, text = run_goal(client, goal_of(config, [(1.0, START)]))
+                status, text = run_goal(client, goal_of(config, [(1.0, START)]), first=k == 0)
                 assert status == "SUCCEEDED", f"to the start: {status} {text}"
                 points = wave(n, dt, TRAVEL)
                 goal = goal_of(config, points)
