@@ -164,7 +164,9 @@ def test_a_stop_read_in_a_turn_goes_before_the_judgements_read_in_it(config: Arm
     burst of them held a stop that the same turn read from another connection until all
     were judged; taken in its turn among the requests, it waits for none of them. Here
     the owner is held in a write while twenty judgements and then a stop arrive on two
-    connections: when the stop's STOP goes out, no judgement has been answered yet."""
+    connections: when the stop's STOP goes out, no judgement has been answered yet. (The
+    twenty are 60 kB: they fit in the socket's buffer, 208 kB by default on Linux, while
+    the owner is held.)"""
     transport = HeldOnce(Board(config, baud=config.server.baud))
     owner = Owner(config, transport).start()
     pairs = [socket.socketpair() for _ in range(2)]
@@ -183,7 +185,7 @@ def test_a_stop_read_in_a_turn_goes_before_the_judgements_read_in_it(config: Arm
                 return 0
 
         transport.peek = waiting
-        points = [Point((("base", 0.1 * k),), 20.0 * (k + 1)) for k in range(200)]
+        points = [Point((("base", 0.1 * k),), 20.0 * (k + 1)) for k in range(100)]
         burst = b"".join(
             ln.dumps({"op": "judge", "ref": k, "instr": ln.instruction_out(ins.trajectory(points))})
             for k in range(20)
