@@ -20,6 +20,9 @@ from pathlib import Path
 import pytest
 
 from al5d.arm.config import ArmConfig
+from al5d.arm.states import State
+from al5d.owner.loop import Owner
+from al5d.ros.processes import Child, Setup
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator, Record
 from al5d_rig.proc import Proc, family, patient_config
@@ -244,3 +247,34 @@ def test_a_stop_goes_on_the_topic_at_once_while_the_stop_process_is_not_found(
     assert float(took) < SERVICE_GRACE_S, done.stdout
     assert "is not available" not in done.stderr, done.stderr
     wait_until(lambda: served.stops_since(n), 10, "the STOP on the board")
+
+
+def test_a_stop_process_whose_owner_ends_as_it_starts_ends_with_it(
+    config: ArmConfig, emulator: Emulator
+) -> None:
+    """The owner ends (a SIGTERM as `al5d serve` became ready) after it welcomed the stop
+    process and before that process's node was up: the process ends at once. It waited for a
+    listener of the lane's end added after that end, and `al5d serve` killed it 10 s later
+    (found by SIGTERMs at random times during the server's start beside two busy loops)."""
+    owner = Owner.on_port(config, emulator.port)
+    owner.start()
+    child = Child("al5d.ros.stopproc", Setup())
+    try:
+        owner.wait_for_state(State.READY, 30)
+        owner.adopt(child.lane)
+        # Frozen as its hello is read (the welcome goes in the same turn), so that the
+        # welcome and the lane's end both wait for it, ahead of its node.
+        wait_until(
+            lambda: any(c.name == "al5d-stop" for c in list(owner._conns.values())),
+            60,
+            "the stop process's hello",
+        )
+        freeze(child.proc.pid)
+        owner.close()
+        os.kill(child.proc.pid, signal.SIGCONT)
+        assert child.proc.wait(30) == 0
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(child.proc.pid, signal.SIGCONT)
+        child.close(timeout=1)
+        owner.close()

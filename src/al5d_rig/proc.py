@@ -195,15 +195,16 @@ def _kill_live() -> None:
 
 
 def stacks(pid: int) -> str:
-    """Every thread's stack in the Python process `pid` now (py-spy, with the native frames
-    of C extensions such as rclpy's), for a failure's reader: where a process that went
-    silent is waiting."""
+    """Every thread's stack in the Python process `pid` and its children now (py-spy, with
+    the native frames of C extensions such as rclpy's), for a failure's reader: where a
+    process that went silent is waiting (a server waits on its bridge and its stop
+    process)."""
     spy = str(Path(sys.executable).with_name("py-spy"))
     said = ""
     for native in (["--native"], []):  # the Python frames alone where native ones fail
         try:
             done = subprocess.run(
-                [spy, "dump", *native, "--pid", str(pid)],
+                [spy, "dump", *native, "--subprocesses", "--pid", str(pid)],
                 capture_output=True,
                 text=True,
                 timeout=60,

@@ -20,7 +20,7 @@ import socket
 import threading
 import time
 from collections.abc import Callable, Hashable, Iterable
-from concurrent.futures import Future
+from concurrent.futures import Future, InvalidStateError
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import TracebackType
@@ -82,8 +82,7 @@ class Remote:
         self.wire_listeners: list[Callable[[tuple[bytes, float, float]], None]] = (
             [on_wire] if on_wire is not None else []
         )
-        #: Called once when the lane closes (the owner has ended, or the socket failed).
-        self.closed_listeners: list[Callable[[], None]] = []
+        #: Set once when the lane closes (the owner has ended, or the socket failed).
         self.closed = threading.Event()
         self._state_cv = threading.Condition()
         self._welcome: Future[dict[str, Any]] = Future()
@@ -148,11 +147,14 @@ class Remote:
 
     def _request(self, message: dict[str, Any]) -> Future[Any]:
         future: Future[Any] = Future()
-        if self.closed.is_set():
-            future.set_exception(LaneClosed("the lane to the owner is closed"))
-            return future
         ref = next(self._refs)
         self._futures[ref] = future
+        # After the future is in: `_lost` sets `closed` before it fails the futures it finds,
+        # so a lane that closed as this one went in is seen here, not missed by both.
+        if self.closed.is_set():
+            self._futures.pop(ref, None)
+            _fail(future, LaneClosed("the lane to the owner is closed"))
+            return future
         try:
             self._send({**message, "ref": ref})
         except LaneClosed as e:
@@ -324,12 +326,10 @@ class Remote:
             return
         self.closed.set()
         for ref, future in list(self._futures.items()):
-            if not future.done():
-                future.set_exception(LaneClosed("the lane to the owner closed"))
+            _fail(future, LaneClosed("the lane to the owner closed"))
             self._futures.pop(ref, None)
         if not self._welcome.done():
             self._welcome.set_exception(LaneClosed("the owner closed the lane"))
-        _call(self.closed_listeners, "closed")
 
     def close(self, bye: bool = True) -> None:
         """Leave the lane; with `bye`, what this client commanded goes on (without, the owner
@@ -343,6 +343,12 @@ class Remote:
         if self._reader is not threading.current_thread():
             self._reader.join(5)
         self._lost()
+
+
+def _fail(future: Future[Any], error: Exception) -> None:
+    """Fail `future` unless it is done: the lane's reader and a requester may both try."""
+    with contextlib.suppress(InvalidStateError):
+        future.set_exception(error)
 
 
 def _call(listeners: list[Callable[[], None]], what: str) -> None:

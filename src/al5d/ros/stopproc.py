@@ -21,7 +21,6 @@ from __future__ import annotations
 import logging
 import os
 import sys
-import threading
 
 from al5d.priority import make_urgent
 
@@ -49,9 +48,9 @@ def main(argv: list[str]) -> int:
     Spinner(node, context, owns_context=False, kind="single", urgent=True)
     logging.getLogger("al5d").info("ROS 2 stop node %s up", node.get_fully_qualified_name())
     send(ctrl, "ready")
-    ended = threading.Event()
-    arm.closed_listeners.append(ended.set)
-    ended.wait()
+    # The lane's own event: the owner may have ended (and the lane closed) while the node
+    # was being made, before any listener added now could hear it.
+    arm.closed.wait()
     os._exit(0)  # the owner has ended; DDS's threads need no goodbye
 
 
