@@ -8,6 +8,7 @@ it (its threads never scheduled): the stop must reach the board all the same."""
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
 import signal
 import subprocess
@@ -187,6 +188,31 @@ def test_when_the_stop_process_ends_the_bridge_serves_the_stop(served: Served) -
     assert answer.success, answer.message
     assert served.peer.result("after").reason == "cancelled by stop"
     wait_until(lambda: len(served.stops_since(n)) >= 6, 10, "the STOPs")
+
+
+def test_when_the_bridge_ends_its_motion_halts_and_a_new_bridge_serves_ros(
+    served: Served,
+) -> None:
+    """The bridge killed mid-move: the owner halts what its ROS clients commanded (a lost
+    client), the server says so and starts a bridge again, and a move sent by ROS is then
+    done. Before, the server went on without a word and with no ROS side: every ROS client
+    found no server while `al5d send` on the machine still worked."""
+    n = long_move_running(served, "before")
+    os.kill(served.bridge, signal.SIGKILL)
+    served.proc.err.wait_for_each(
+        ["before]: lost contact with the client", "the ROS 2 bridge ended (exit code -9)"], 20
+    )
+    wait_until(lambda: len(served.stops_since(n)) >= 1, 10, "the halt's STOP")
+    served.proc.err.wait_for("the ROS 2 bridge was started again", 120)
+    deadline = time.monotonic() + 60
+    for k in itertools.count():  # until the new bridge's node and this peer have met
+        served.peer.send(f"after-{k}", "move", base=-10)
+        try:
+            assert served.peer.result(f"after-{k}", 3).outcome == "done"
+            break
+        except AssertionError:
+            if time.monotonic() > deadline:
+                raise
 
 
 def test_a_release_sent_after_the_stop_is_judged_after_it(served: Served) -> None:

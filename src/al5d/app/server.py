@@ -148,44 +148,65 @@ def _read_instructions(owner: Owner, stream: TextIO, out: TextIO) -> None:
 
 class RosSide:
     """The ROS side's two processes, started at once (their imports and DDS start-up go on
-    beside the board's): the bridge, which reads the parameters, and the stop's own."""
+    beside the board's): the bridge, which reads the parameters, and the stop's own.
+
+    A bridge that ends while the server serves (killed, crashed) is a lost client to the
+    owner (what its ROS clients commanded is halted) and is started again, said in the log:
+    a server whose topics, actions and parameters had silently gone would look absent to
+    every ROS client while its local lane still worked."""
 
     def __init__(self, options: ServerOptions) -> None:
         from al5d.ros.params import Flags
         from al5d.ros.processes import Child, Setup
 
         flags = Flags(options.config, options.port, options.baud, options.namespace, options.record)
-        setup = Setup(tuple(options.ros_args or ()), flags, options.trace)
-        self.stop: Child | None = Child("al5d.ros.stopproc", setup)
-        self.bridge = Child("al5d.ros.bridge", setup)
+        self._setup = Setup(tuple(options.ros_args or ()), flags, options.trace)
+        self.stop: Child | None = Child("al5d.ros.stopproc", self._setup)
+        self.bridge = Child("al5d.ros.bridge", self._setup)
         self._serving = False
+        # Held while the bridge is swapped for a new one, and by `close`: it closes the one
+        # there is.
+        self._swap = threading.Lock()
 
     def settings(self) -> object:
         """What the bridge made of the parameters (`al5d.ros.params.Settings`), or the error."""
+        got = self._settings(self.bridge)
+        if isinstance(got, tuple):  # said as every bad configuration is (`al5d.app.cli`)
+            raise ConfigError(got[0])
+        return got
+
+    @staticmethod
+    def _settings(bridge: Child) -> object:
+        """A bridge's settings; a str for an error, a 1-tuple for a configuration refused."""
         from al5d.ros.processes import receive
 
-        got = receive(self.bridge.ctrl, SETTINGS_S)
+        got = receive(bridge.ctrl, SETTINGS_S)
         if got is None:
             return "the ROS bridge ended before it read the parameters (see its log above)"
-        if got[0] == "config-error":  # said as every bad configuration is (`al5d.app.cli`)
-            raise ConfigError(str(got[1]))
+        if got[0] == "config-error":
+            return (str(got[1]),)
         if got[0] == "error":
             return str(got[1])
         return got[1]
 
     def serve(self, owner: Owner) -> None:
         """Both on the owner's lane; the stop is the bridge's if its own process is gone."""
-        from al5d.ros.processes import send
-
-        owner.adopt(self.bridge.lane)
         stop = self.stop
         alive = stop is not None and stop.proc.poll() is None
         if stop is not None:
             owner.adopt(stop.lane)
-        send(self.bridge.ctrl, "go", not alive)
+        self._go(owner)
         self._serving = True
+        threading.Thread(target=self._watch_bridge, args=(owner,), daemon=True).start()
         if alive and stop is not None:
             threading.Thread(target=self._watch_stop, args=(stop, owner), daemon=True).start()
+
+    def _go(self, owner: Owner) -> None:
+        from al5d.ros.processes import send
+
+        owner.adopt(self.bridge.lane)
+        stop = self.stop
+        send(self.bridge.ctrl, "go", stop is None or stop.proc.poll() is not None)
 
     def _watch_stop(self, stop: Child, owner: Owner) -> None:
         from al5d.ros.processes import send
@@ -194,11 +215,43 @@ class RosSide:
         # At the owner's end its lanes close, and the stop process ends as it should.
         if self._serving and not owner.finished.is_set():
             log.error("the stop process ended (exit code %s)", code)
-            send(self.bridge.ctrl, "serve-stop")
+            with self._swap:
+                send(self.bridge.ctrl, "serve-stop")
+
+    def _watch_bridge(self, owner: Owner) -> None:
+        from dataclasses import replace
+
+        from al5d.ros.params import Settings
+        from al5d.ros.processes import Child
+
+        while True:
+            code = self.bridge.proc.wait()
+            # At the owner's end its lanes close, and the bridge ends as it should.
+            if not self._serving or owner.finished.is_set():
+                return
+            log.error(
+                "the ROS 2 bridge ended (exit code %s): what its clients commanded is halted; "
+                "starting it again",
+                code,
+            )
+            with self._swap:
+                if not self._serving:
+                    return
+                # Its lane is the owner's now, which closes it as it drops the lost client.
+                self.bridge.ctrl.close()
+                # Its recording, if any, ended with it: a new one would overwrite the file.
+                self.bridge = Child("al5d.ros.bridge", replace(self._setup, again=True))
+                got = self._settings(self.bridge)
+                if not isinstance(got, Settings):
+                    log.error("the ROS 2 bridge could not start again: %s", got)
+                    return
+                self._go(owner)
+            log.warning("the ROS 2 bridge was started again")
 
     def close(self) -> None:
         self._serving = False
-        self.bridge.close(CLOSE_S)
+        with self._swap:
+            self.bridge.close(CLOSE_S)
         if self.stop is not None:
             self.stop.close()
 

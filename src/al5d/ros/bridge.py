@@ -221,7 +221,13 @@ def main(argv: list[str]) -> int:
         send(ctrl, "config-error", str(e))
         return 2
     recording = None
-    if start.settings.record is not None:
+    if start.settings.record is not None and setup.again:
+        log.warning(
+            "%s was recorded by the ROS 2 bridge that ended, and is kept as that one left it "
+            "(what it had not written out is lost); this one does not record",
+            start.settings.record,
+        )
+    elif start.settings.record is not None:
         from al5d.app.record import RecordingError, ServerRecording
 
         try:

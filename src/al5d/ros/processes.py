@@ -32,12 +32,15 @@ _PR_SET_PDEATHSIG = 1
 @dataclass(frozen=True)
 class Setup:
     """What a ROS side is given: the command line (rclpy's argv: the program's name first,
-    its `--ros-args`), `al5d serve`'s flags, and where to write a trace of the instruction
-    topic (`al5d serve --trace`)."""
+    its `--ros-args`), `al5d serve`'s flags, where to write a trace of the instruction
+    topic (`al5d serve --trace`), and whether it is a bridge started again."""
 
     args: tuple[str, ...] = ()
     flags: Flags = field(default_factory=Flags)
     trace: str | None = None
+    #: A bridge started again after one ended: it does not record (the file is the first
+    #: one's, kept as it was).
+    again: bool = False
 
 
 def send(sock: socket.socket, *message: Any) -> None:
