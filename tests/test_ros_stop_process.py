@@ -215,6 +215,23 @@ def test_when_the_bridge_ends_its_motion_halts_and_a_new_bridge_serves_ros(
                 raise
 
 
+def test_a_bridge_that_keeps_ending_is_started_again_three_times_a_minute(
+    served: Served,
+) -> None:
+    """A bridge that cannot run is not started again for ever (each start halts what its
+    clients commanded): the fourth end in a minute is said, and the stop still works."""
+    from al5d.app.server import RESTARTS_MAX
+
+    for _ in range(RESTARTS_MAX):
+        os.kill(served.bridge, signal.SIGKILL)
+        served.proc.err.wait_for("the ROS 2 bridge was started again", 120)
+    os.kill(served.bridge, signal.SIGKILL)
+    served.proc.err.wait_for("not started again; the server goes on without it", 30)
+    n = len(served.emu.records)
+    assert served.peer.trigger("stop").success
+    wait_until(lambda: len(served.stops_since(n)) >= 6, 10, "the STOPs")
+
+
 def test_a_release_sent_after_the_stop_is_judged_after_it(served: Served) -> None:
     """A stop comes by its own process while the bridge is frozen; a move and a release sent
     after it reach the owner later, by the bridge: the release unlocks the arm (it is not

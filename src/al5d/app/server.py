@@ -13,12 +13,14 @@ exits 0.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import logging
 import logging.handlers
 import queue
 import signal
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -48,6 +50,10 @@ SETTINGS_S = 120.0
 #: How long the bridge may take to end once the owner has (its last results published, a
 #: trace or a recording written, on a busy host).
 CLOSE_S = 60.0
+#: A bridge that ends is started again, unless it has been this many times in so long (one
+#: that cannot run would otherwise halt its clients' motion every second or so).
+RESTARTS_MAX = 3
+RESTARTS_WITHIN_S = 60.0
 
 
 def setup_logging(level: str) -> None:
@@ -164,8 +170,10 @@ class RosSide:
         self.stop: Child | None = Child("al5d.ros.stopproc", self._setup)
         self.bridge = Child("al5d.ros.bridge", self._setup)
         self._serving = False
-        # Held while the bridge is swapped for a new one, and by `close`: it closes the one
-        # there is.
+        #: A bridge being started again, until its settings come.
+        self._starting: Child | None = None
+        # Held while a bridge is started again and swapped in, and by `close`, which closes
+        # the one there is (and cuts short one starting).
         self._swap = threading.Lock()
 
     def settings(self) -> object:
@@ -212,8 +220,8 @@ class RosSide:
         from al5d.ros.processes import send
 
         code = stop.proc.wait()
-        # At the owner's end its lanes close, and the stop process ends as it should.
-        if self._serving and not owner.finished.is_set():
+        # As the owner ends its lanes close, and the stop process ends as it should.
+        if self._serving and not owner.ending.is_set():
             log.error("the stop process ended (exit code %s)", code)
             with self._swap:
                 send(self.bridge.ctrl, "serve-stop")
@@ -224,33 +232,57 @@ class RosSide:
         from al5d.ros.params import Settings
         from al5d.ros.processes import Child
 
+        restarts: list[float] = []
         while True:
             code = self.bridge.proc.wait()
-            # At the owner's end its lanes close, and the bridge ends as it should.
-            if not self._serving or owner.finished.is_set():
+            # As the owner ends its lanes close, and the bridge ends as it should.
+            if not self._serving or owner.ending.is_set():
+                return
+            restarts = [t for t in restarts if t > time.monotonic() - RESTARTS_WITHIN_S]
+            if len(restarts) >= RESTARTS_MAX:
+                log.error(
+                    "the ROS 2 bridge ended (exit code %s), started again %d times in the last "
+                    "%.0f s already: not started again; the server goes on without it (its "
+                    "local lane and the stop service still work): restart al5d serve",
+                    code,
+                    len(restarts),
+                    RESTARTS_WITHIN_S,
+                )
                 return
             log.error(
                 "the ROS 2 bridge ended (exit code %s): what its clients commanded is halted; "
                 "starting it again",
                 code,
             )
+            restarts.append(time.monotonic())
             with self._swap:
                 if not self._serving:
                     return
-                # Its lane is the owner's now, which closes it as it drops the lost client.
-                self.bridge.ctrl.close()
                 # Its recording, if any, ended with it: a new one would overwrite the file.
-                self.bridge = Child("al5d.ros.bridge", replace(self._setup, again=True))
-                got = self._settings(self.bridge)
-                if not isinstance(got, Settings):
-                    log.error("the ROS 2 bridge could not start again: %s", got)
+                self._starting = Child("al5d.ros.bridge", replace(self._setup, again=True))
+            bridge = self._starting
+            got = self._settings(bridge)  # outside the lock: `close` cuts it short
+            with self._swap:
+                self._starting = None
+                if not self._serving or owner.ending.is_set() or not isinstance(got, Settings):
+                    if self._serving and not owner.ending.is_set():
+                        log.error("the ROS 2 bridge could not start again: %s", got)
+                    bridge.close(5.0)
                     return
+                # The old one's lane is the owner's, which closes it as it drops the client.
+                self.bridge.ctrl.close()
+                self.bridge = bridge
                 self._go(owner)
             log.warning("the ROS 2 bridge was started again")
 
     def close(self) -> None:
+        from socket import SHUT_RDWR
+
         self._serving = False
         with self._swap:
+            if self._starting is not None:  # its settings are not waited for
+                with contextlib.suppress(OSError):
+                    self._starting.ctrl.shutdown(SHUT_RDWR)
             self.bridge.close(CLOSE_S)
         if self.stop is not None:
             self.stop.close()

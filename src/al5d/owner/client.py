@@ -159,7 +159,7 @@ class Remote:
             self._send({**message, "ref": ref})
         except LaneClosed as e:
             self._futures.pop(ref, None)
-            future.set_exception(e)
+            _fail(future, e)
         return future
 
     def submit(
@@ -282,7 +282,7 @@ class Remote:
             future = self._futures.pop(m["ref"], None) if m.get("ref") is not None else None
             error = ln.LaneError(str(m.get("error")))
             if future is not None:
-                future.set_exception(error)
+                _fail(future, error)
             else:
                 log.warning("the owner says: %s", error)
 

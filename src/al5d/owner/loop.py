@@ -138,6 +138,9 @@ class Owner:
         #: Told every instruction as the owner takes it (from any client), before it is judged.
         self.submit_listeners: list[Callable[[Instruction], None]] = []
         self.finished = threading.Event()
+        #: Set as the owner begins to end, before it closes its lanes: a client that ends
+        #: after this (its lane closed) ends as it should (`finished` comes later).
+        self.ending = threading.Event()
         self.ended: End | None = None
         self._teller = Teller()
         self._announced = State.INITIALIZING
@@ -334,7 +337,10 @@ class Owner:
 
     def adopt(self, sock: socket.socket) -> None:
         """A lane connection made elsewhere (a socket pair with a bridge this process
-        started): a client like any other."""
+        started): a client like any other; closed at once if the owner is ending."""
+        if self.ending.is_set():
+            sock.close()
+            return
         sock.setblocking(False)
         self._others.append(("adopt", 0, sock))
         self._wake()
@@ -362,7 +368,7 @@ class Owner:
         # One byte per turn is enough: the turn clears the flag before it looks at its
         # inboxes, so whatever was put before the clear is seen, and whatever after it
         # writes again (a write per request cost the submitter a third of its time).
-        if self._woken:
+        if self._woken or self._wake_w < 0:
             return
         self._woken = True
         with contextlib.suppress(BlockingIOError, OSError):
@@ -862,6 +868,7 @@ class Owner:
             del self._futures[ref]
 
     def _end(self) -> None:
+        self.ending.set()
         writers = len(self.transport.writers)
         self._teller.put(
             lambda: log.info(
@@ -884,7 +891,8 @@ class Owner:
                 with contextlib.suppress(OSError):
                     if self._lane_path.stat().st_ino == self._lane_inode:
                         self._lane_path.unlink()
-        for fd in (self._wake_r, self._wake_w):
+        wake_fds, self._wake_r, self._wake_w = (self._wake_r, self._wake_w), -1, -1
+        for fd in wake_fds:  # not written again (`_wake`): the number may be reused
             with contextlib.suppress(OSError):
                 os.close(fd)
         self._teller.put(self.finished.set)

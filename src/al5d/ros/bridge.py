@@ -29,7 +29,7 @@ from rclpy.context import Context
 from rclpy.node import Node
 
 from al5d.arm.config import ArmConfig, ConfigError
-from al5d.owner.client import Remote
+from al5d.owner.client import LaneClosed, Remote
 from al5d.priority import built_urgently
 from al5d.ros import params
 from al5d.ros.dds import dds_profile, start_context
@@ -239,13 +239,21 @@ def main(argv: list[str]) -> int:
     send(ctrl, "settings", start.settings)
     go = receive(ctrl)
     if go is None or go[0] != "go":
+        if recording is not None:
+            recording.close()
         start.close()
         return 0
     stop_here = bool(go[1]) if len(go) > 1 else False
     watch = ("state", "outcomes", "motion", "pose") + (("wire",) if recording else ())
     tap = recording.tap(start.names.namespace) if recording is not None else None
     on_wire = None if tap is None else (lambda w: tap(*w))
-    arm = Remote(lane, name="al5d-ros", watch=watch, on_wire=on_wire, recorder=tap is not None)
+    try:
+        arm = Remote(lane, name="al5d-ros", watch=watch, on_wire=on_wire, recorder=tap is not None)
+    except LaneClosed:  # the owner ended before it welcomed this one (a SIGTERM at start)
+        if recording is not None:
+            recording.close()
+        start.close()
+        return 0
     if recording is not None:
         recording.follow(start.names, start.settings.config.server.instruction_backlog)
     bridge = Bridge(arm, start, setup.trace, stop_here)

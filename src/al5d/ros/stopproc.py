@@ -34,7 +34,7 @@ def main(argv: list[str]) -> int:
     from al5d.app.server import setup_logging
 
     setup_logging(os.environ.get("AL5D_LOG_LEVEL", "INFO"))
-    from al5d.owner.client import Remote
+    from al5d.owner.client import LaneClosed, Remote
     from al5d.ros.dds import start_context
     from al5d.ros.executors import Spinner
     from al5d.ros.names import STOP_NODE, Names
@@ -43,7 +43,10 @@ def main(argv: list[str]) -> int:
     # DDS starts while the owner opens its board; the node waits for the owner's welcome
     # (its configuration).
     context = start_context(list(setup.args) or [STOP_NODE])
-    arm = Remote(lane, name="al5d-stop", watch=(), timeout=120.0)
+    try:
+        arm = Remote(lane, name="al5d-stop", watch=(), timeout=120.0)
+    except LaneClosed:  # the owner ended before it welcomed this one (a SIGTERM at start)
+        os._exit(0)
     node = StopNode(arm, context, Names.of(arm.settings.namespace))
     Spinner(node, context, owns_context=False, kind="single", urgent=True)
     logging.getLogger("al5d").info("ROS 2 stop node %s up", node.get_fully_qualified_name())
