@@ -92,16 +92,18 @@ def test_ctrl_c_on_run_cancels_the_line_running_and_those_in_the_background(
     wait_until(lambda: arm.states[-1] == "ready", CMD_S, "ready")
 
 
-def test_a_client_killed_mid_move_leaves_nothing_moving(arm: Served) -> None:
+@pytest.mark.parametrize("how", ["killed", "hung"])
+def test_a_client_killed_or_hung_mid_move_leaves_nothing_moving(arm: Served, how: str) -> None:
     """A client that goes without a word (killed, or hung up) is a lost client: its motion is
-    halted where it is and its waiting moves cancelled, with the reason."""
+    halted where it is and its waiting moves cancelled, with the reason. A leased one that
+    hangs (SIGSTOP: its lane stays open and says nothing) is lost when its lease runs out."""
     arm.ready()
     script = (
         "import time\n"
         "from al5d.arm import instruction as ins\n"
         "from al5d.owner import where\n"
         "from al5d.owner.client import Remote\n"
-        "arm = Remote.connect(where.path())\n"
+        "arm = Remote.connect(where.path(), lease=True)\n"
         "arm.submit(ins.move(base=-80, time_ms=4000, id='lost-1'))\n"
         "arm.submit(ins.move(base=80, time_ms=4000, id='lost-2'))\n"
         "print('sent', flush=True)\n"
@@ -112,8 +114,11 @@ def test_a_client_killed_mid_move_leaves_nothing_moving(arm: Served) -> None:
         assert client.stdout is not None and said(client.stdout) == "sent"
         wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
         time.sleep(0.3)
-        client.kill()
-        client.wait(10)
+        if how == "killed":
+            client.kill()
+            client.wait(10)
+        else:
+            client.send_signal(signal.SIGSTOP)
         results = arm.peer.results_now
         wait_until(lambda: {"lost-1", "lost-2"} <= set(results()), CMD_S, "their outcomes")
         for ident in ("lost-1", "lost-2"):

@@ -41,6 +41,11 @@ log = logging.getLogger("al5d")
 WELCOME_S = 10.0
 
 
+#: A leased client signs this many times in the owner's lease of it: a busy host may hold
+#: one or two back.
+SIGNS_PER_LEASE = 4
+
+
 class LaneClosed(ConnectionError):
     """The owner is not there (any more): its lane is closed."""
 
@@ -67,6 +72,7 @@ class Remote:
         timeout: float = WELCOME_S,
         on_wire: Callable[[tuple[bytes, float, float]], None] | None = None,
         recorder: bool = False,
+        lease: bool = False,
     ) -> None:
         self._sock = sock
         sock.setblocking(True)
@@ -96,6 +102,8 @@ class Remote:
         hello = {"op": "hello", "name": name, "watch": list(watch), "version": ln.VERSION}
         if recorder:  # told first the board's writes the owner kept for its recorder
             hello["recorder"] = True
+        if lease:  # a process that hangs with its lane open is lost all the same
+            hello["lease"] = True
         self._send(hello)
         try:
             welcome = self._welcome.result(timeout)
@@ -112,6 +120,20 @@ class Remote:
         self.baud: int = welcome["baud"]
         self.client: int = welcome["client"]
         self.pid: int = welcome["pid"]
+        if lease:
+            every = self.settings.client_lease_s / SIGNS_PER_LEASE
+            threading.Thread(
+                target=self._sign, args=(every,), name=f"{name}-lease", daemon=True
+            ).start()
+
+    def _sign(self, every: float) -> None:
+        """A sign to the owner every `every` s while the lane is open: the lease the hello
+        asked for (the owner takes a client silent for `server.client_lease_s` for lost)."""
+        while not self.closed.wait(every):
+            try:
+                self._send({"op": "sign"})
+            except LaneClosed:
+                return
 
     @classmethod
     def connect(cls, path: Path, **kwargs: Any) -> Remote:

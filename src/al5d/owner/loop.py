@@ -28,6 +28,7 @@ from collections.abc import Callable, Hashable
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, field, replace
+from math import inf
 from pathlib import Path
 from typing import Any
 
@@ -105,6 +106,11 @@ class Conn:
     subs: dict[str, int] = field(default_factory=dict)
     bye: bool = False
     writing: bool = False
+    #: A leased client (its hello asked for it) not heard for this long is lost: a hung
+    #: process's lane stays open and says nothing (0: not leased).
+    lease_s: float = 0.0
+    #: When it was last heard (the owner's clock).
+    heard: float = 0.0
 
 
 class Owner:
@@ -391,7 +397,7 @@ class Owner:
         board's bytes, every stop, the other requests (`BATCH` at most), the time."""
         self._woken = False
         t = now()
-        wake = min(wake_at(self._core, t), t + SLEEP_MAX_S)
+        wake = min(wake_at(self._core, t), t + SLEEP_MAX_S, self._lease_due())
         due = self.transport.due() if self._core.link.open else None
         if due is not None:
             wake = min(wake, due)
@@ -403,6 +409,7 @@ class Owner:
             self._stalled += woke - max(wake, t)
         for key, mask in events:
             self._event(key.data, mask)
+        self._lapsed(woke)
         self._read_board(woke)
         while self._stops:
             self._take_stop(self._stops.popleft())
@@ -702,6 +709,7 @@ class Owner:
         if not data:
             self._drop(conn, "" if conn.bye else "its connection closed")
             return
+        conn.heard = now()
         for message in conn.lines.feed(data):
             if isinstance(message, ln.LaneError):
                 self._write(conn, ln.dumps({"op": "error", "error": str(message)}))
@@ -732,6 +740,8 @@ class Owner:
                 self._hello(conn, m)
             elif op == "ping":
                 self._write(conn, ln.dumps({"op": "pong", "ref": ref, "t": now()}))
+            elif op == "sign":  # a leased client is there (`Conn.heard`, set as it was read)
+                pass
             elif op == "bye":
                 conn.bye = True
             elif op == "gone":
@@ -747,6 +757,8 @@ class Owner:
             raise ln.LaneError(f"hello: watch is a list of {', '.join(ln.WATCHES)}")
         conn.name = str(m.get("name", "?"))[:80]
         conn.watch = frozenset(watch)
+        if m.get("lease") is True:
+            conn.lease_s = self.config.server.client_lease_s
         c = self._core
         welcome = {
             "op": "welcome",
@@ -841,6 +853,16 @@ class Owner:
             self._selector.modify(conn.sock, events, conn)
         if len(conn.out) > OUT_MAX:
             self._drop(conn, f"it read nothing while {OUT_MAX} bytes waited for it")
+
+    def _lease_due(self) -> float:
+        """When the first leased client's lease runs out (inf: none is leased)."""
+        return min((c.heard + c.lease_s for c in self._conns.values() if c.lease_s), default=inf)
+
+    def _lapsed(self, t: float) -> None:
+        """Each leased client not heard for its lease is lost (`_drop`): what it commanded,
+        and what the clients it speaks for did, is halted."""
+        for conn in [c for c in self._conns.values() if c.lease_s and t - c.heard > c.lease_s]:
+            self._drop(conn, f"nothing heard from it for {conn.lease_s:g} s (hung or stopped)")
 
     def _drop(self, conn: Conn, why: str) -> None:
         """A client has gone: said goodbye (`why` empty), or lost."""

@@ -248,7 +248,16 @@ def main(argv: list[str]) -> int:
     tap = recording.tap(start.names.namespace) if recording is not None else None
     on_wire = None if tap is None else (lambda w: tap(*w))
     try:
-        arm = Remote(lane, name="al5d-ros", watch=watch, on_wire=on_wire, recorder=tap is not None)
+        # Leased: the leases of its ROS clients are kept here, so a bridge that hangs is
+        # lost to the owner, and what they commanded halted.
+        arm = Remote(
+            lane,
+            name="al5d-ros",
+            watch=watch,
+            on_wire=on_wire,
+            recorder=tap is not None,
+            lease=True,
+        )
     except LaneClosed:  # the owner ended before it welcomed this one (a SIGTERM at start)
         if recording is not None:
             recording.close()

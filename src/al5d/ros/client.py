@@ -222,7 +222,7 @@ class Client:
             path = where.path(names.namespace)
             try:
                 self.lane = Remote.connect(
-                    path, name=f"al5d-client-{os.getpid()}", watch=("state", "pose")
+                    path, name=f"al5d-client-{os.getpid()}", watch=("state", "pose"), lease=True
                 )
             except LaneClosed as e:
                 if local:
