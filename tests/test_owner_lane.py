@@ -130,6 +130,7 @@ def test_a_client_killed_or_hung_mid_move_leaves_nothing_moving(arm: Served, how
         assert halted_on_its_way(arm, -80)
     finally:
         client.kill()
+        client.wait(10)
 
 
 def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:

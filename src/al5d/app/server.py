@@ -18,6 +18,8 @@ import logging
 import logging.handlers
 import queue
 import signal
+import socket
+import subprocess
 import sys
 import threading
 import time
@@ -53,6 +55,8 @@ CLOSE_S = 60.0
 #: A bridge that ends is started again, unless it has been this many times in so long (one
 #: that cannot run would otherwise halt its clients' motion every second or so).
 RESTARTS_MAX = 3
+#: A bridge the owner lost to its silence is killed if it has not ended in this long.
+HUNG_KILL_S = 5.0
 RESTARTS_WITHIN_S = 60.0
 
 
@@ -205,6 +209,7 @@ class RosSide:
             owner.adopt(stop.lane)
         self._go(owner)
         self._serving = True
+        owner.lapsed_listeners.append(self._on_lapsed)
         threading.Thread(target=self._watch_bridge, args=(owner,), daemon=True).start()
         if alive and stop is not None:
             threading.Thread(target=self._watch_stop, args=(stop, owner), daemon=True).start()
@@ -215,6 +220,25 @@ class RosSide:
         owner.adopt(self.bridge.lane)
         stop = self.stop
         send(self.bridge.ctrl, "go", stop is None or stop.proc.poll() is not None)
+
+    def _on_lapsed(self, sock: socket.socket) -> None:
+        """The owner lost a lane client to its silence: if it is the bridge, it is killed
+        unless it ends within `HUNG_KILL_S` (it may run again, find its lane closed and
+        end; one that hangs for good would keep the ROS side dead), and started again."""
+        bridge = self.bridge
+        if sock is bridge.lane:
+            threading.Thread(target=self._end_hung, args=(bridge,), daemon=True).start()
+
+    def _end_hung(self, bridge: Child) -> None:
+        try:
+            bridge.proc.wait(HUNG_KILL_S)
+        except subprocess.TimeoutExpired:
+            if self._serving:
+                log.error(
+                    "the ROS 2 bridge was lost to its silence and has not ended in %g s: killed",
+                    HUNG_KILL_S,
+                )
+                bridge.proc.kill()
 
     def _watch_stop(self, stop: Child, owner: Owner) -> None:
         from al5d.ros.processes import send

@@ -34,6 +34,7 @@ from al5d.arm.states import State
 from al5d.clock import now
 from al5d.owner import lane as ln
 from al5d.owner.teller import tell
+from al5d.priority import make_urgent
 
 log = logging.getLogger("al5d")
 
@@ -128,7 +129,9 @@ class Remote:
 
     def _sign(self, every: float) -> None:
         """A sign to the owner every `every` s while the lane is open: the lease the hello
-        asked for (the owner takes a client silent for `server.client_lease_s` for lost)."""
+        asked for (the owner takes a client silent for `server.client_lease_s` for lost), at
+        the stop path's priority: a flood's threads in this process must not hold it back."""
+        make_urgent(threading.current_thread().name)
         while not self.closed.wait(every):
             try:
                 self._send({"op": "sign"})

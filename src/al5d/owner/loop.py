@@ -109,8 +109,10 @@ class Conn:
     #: A leased client (its hello asked for it) not heard for this long is lost: a hung
     #: process's lane stays open and says nothing (0: not leased).
     lease_s: float = 0.0
-    #: When it was last heard (the owner's clock).
+    #: When it was last heard (the owner's clock), and the owner's stalls then (`_stalled`):
+    #: a host that stalled held the client's signs too, and the owner wakes first.
     heard: float = 0.0
+    stalled: float = 0.0
 
 
 class Owner:
@@ -143,6 +145,9 @@ class Owner:
         self.wire_listeners: list[Callable[[tuple[bytes, float, float]], None]] = []
         #: Told every instruction as the owner takes it (from any client), before it is judged.
         self.submit_listeners: list[Callable[[Instruction], None]] = []
+        #: Told the socket of each leased lane client lost for its silence (`Conn.lease_s`),
+        #: from the teller's thread: the process behind it may hang for good.
+        self.lapsed_listeners: list[Callable[[socket.socket], None]] = []
         self.finished = threading.Event()
         #: Set as the owner begins to end, before it closes its lanes: a client that ends
         #: after this (its lane closed) ends as it should (`finished` comes later).
@@ -709,7 +714,7 @@ class Owner:
         if not data:
             self._drop(conn, "" if conn.bye else "its connection closed")
             return
-        conn.heard = now()
+        conn.heard, conn.stalled = now(), self._stalled
         for message in conn.lines.feed(data):
             if isinstance(message, ln.LaneError):
                 self._write(conn, ln.dumps({"op": "error", "error": str(message)}))
@@ -856,13 +861,24 @@ class Owner:
 
     def _lease_due(self) -> float:
         """When the first leased client's lease runs out (inf: none is leased)."""
-        return min((c.heard + c.lease_s for c in self._conns.values() if c.lease_s), default=inf)
+        return min(
+            (
+                c.heard + c.lease_s + self._stalled - c.stalled
+                for c in self._conns.values()
+                if c.lease_s
+            ),
+            default=inf,
+        )
 
     def _lapsed(self, t: float) -> None:
-        """Each leased client not heard for its lease is lost (`_drop`): what it commanded,
-        and what the clients it speaks for did, is halted."""
-        for conn in [c for c in self._conns.values() if c.lease_s and t - c.heard > c.lease_s]:
-            self._drop(conn, f"nothing heard from it for {conn.lease_s:g} s (hung or stopped)")
+        """Each leased client not heard for its lease, the owner's own stalls since not
+        counted, is lost (`_drop`): what it commanded, and what the clients it speaks for
+        did, is halted; the lapsed listeners are told its socket."""
+        for conn in list(self._conns.values()):
+            if conn.lease_s and t - conn.heard - (self._stalled - conn.stalled) > conn.lease_s:
+                self._drop(conn, f"nothing heard from it for {conn.lease_s:g} s (hung or stopped)")
+                sock = conn.sock
+                self._teller.put(lambda s=sock: tell(self.lapsed_listeners, s, "lapsed"))  # type: ignore[misc]
 
     def _drop(self, conn: Conn, why: str) -> None:
         """A client has gone: said goodbye (`why` empty), or lost."""
