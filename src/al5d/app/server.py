@@ -55,9 +55,9 @@ CLOSE_S = 60.0
 #: A bridge that ends is started again, unless it has been this many times in so long (one
 #: that cannot run would otherwise halt its clients' motion every second or so).
 RESTARTS_MAX = 3
+RESTARTS_WITHIN_S = 60.0
 #: A bridge the owner lost to its silence is killed if it has not ended in this long.
 HUNG_KILL_S = 5.0
-RESTARTS_WITHIN_S = 60.0
 
 
 def setup_logging(level: str) -> None:
