@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import faulthandler
 import json
 import logging
 import os
@@ -66,13 +67,35 @@ def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, Owne
             driver.close()
 
 
+#: Where each pytest-xdist worker's fault handler writes (a worker that dies by a signal
+#: is reported by xdist as "crashed", with nothing of why): printed at the end of the run.
+FAULTS = Path(__file__).resolve().parents[1] / "build" / "reliability" / "faults"
+
+
 def pytest_configure(config: pytest.Config) -> None:
     """Before any worker starts: Fast DDS's files of processes of earlier runs that were
-    killed are removed (`al5d_rig.shm`)."""
+    killed are removed (`al5d_rig.shm`), and so are the fault records of an earlier run."""
     if not hasattr(config, "workerinput"):
         from al5d_rig import shm
 
         shm.clean()
+        for old in FAULTS.glob("*.txt"):
+            old.unlink()
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """In a worker: its fault handler writes to a file of its own (after pytest's own
+    plugin has pointed it at the worker's stderr, which xdist does not show)."""
+    worker = getattr(session.config, "workerinput", None)
+    if worker is not None:
+        FAULTS.mkdir(parents=True, exist_ok=True)
+        record = (FAULTS / f"{worker['workerid']}-{os.getpid()}.txt").open("w")
+        session.config.stash[FAULT_RECORD] = record  # open for as long as the worker runs
+        faulthandler.enable(file=record, all_threads=True)
+
+
+FAULT_RECORD = pytest.StashKey[Any]()
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
@@ -91,10 +114,30 @@ def pytest_testnodedown(node: Any, error: Any) -> None:
     CASES.update(getattr(node, "workeroutput", {}).get("fuzz_cases", {}))
 
 
+def fault_summary(text: str, frames: int = 8) -> list[str]:
+    """A fault handler's record with each thread's innermost `frames` frames (the rest is
+    pytest's and xdist's)."""
+    kept: list[str] = []
+    depth = 0
+    for line in text.splitlines():
+        framed = line.startswith("  File ")
+        depth = depth + 1 if framed else 0
+        if depth <= frames:
+            kept.append(line)
+    return kept
+
+
 def pytest_terminal_summary(terminalreporter: Any) -> None:
-    """The fuzz suites' case counts, at the end of the run (and in build/reliability)."""
+    """What a worker that died wrote as it died, and the fuzz suites' case counts, at the
+    end of the run (the counts in build/reliability too)."""
     from al5d_rig.fuzzcount import CASES
 
+    for record in sorted(FAULTS.glob("*.txt")):
+        text = record.read_text(errors="replace").strip()
+        if text:
+            terminalreporter.write_sep("-", f"fault in worker {record.stem}")
+            for line in fault_summary(text):
+                terminalreporter.write_line(line)
     if not CASES:
         return
     terminalreporter.write_sep("-", "fuzz cases run")

@@ -186,6 +186,8 @@ def test_a_sequence_written_by_hand_plays_and_stop_halfway_ends_it(rig: Rig) -> 
     wait_text(rig.page, STATUS, lambda t: "playing step 1 of 3: pose a time=5000" in t)
     rig.state("moving")
     rig.page.get_by_role("button", name="STOP", exact=True).click()
+    # The click reached the web view (where it did not, its log since says what it did).
+    rig.web.proc.err.wait_for("web: STOP clicked", 15)
     text = wait_text(rig.page, STATUS, lambda t: "play ended" in t)
     # The play learns of the click, or first (on a busy host) of its step cancelled by the
     # stop the click sent: either way it ends there (nothing more sent: the outcomes below).

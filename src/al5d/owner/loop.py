@@ -402,7 +402,8 @@ class Owner:
         board's bytes, every stop, the other requests (`BATCH` at most), the time."""
         self._woken = False
         t = now()
-        wake = min(wake_at(self._core, t), t + SLEEP_MAX_S, self._lease_due())
+        lease_due = self._lease_due()
+        wake = min(wake_at(self._core, t), t + SLEEP_MAX_S, lease_due)
         due = self.transport.due() if self._core.link.open else None
         if due is not None:
             wake = min(wake, due)
@@ -414,10 +415,11 @@ class Owner:
             self._stalled += woke - max(wake, t)
         for key, mask in events:
             self._event(key.data, mask)
-        self._lapsed(woke)
         self._read_board(woke)
         while self._stops:
             self._take_stop(self._stops.popleft())
+        if woke >= lease_due:  # after the stops: they go to the wire first
+            self._lapsed(woke)
         for _ in range(BATCH):
             if not self._others:
                 break
