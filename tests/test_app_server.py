@@ -100,7 +100,7 @@ def test_a_server_on_a_real_port_and_the_clients_never_load_the_emulator() -> No
     """The emulator is imported only where an emulated board is wanted (issue 8)."""
     code = (
         "import sys\n"
-        "import al5d.app.cli, al5d.app.server, al5d.ros.bridge, al5d.owner.loop\n"
+        "import al5d.app.cli, al5d.app.server, al5d.app.bridgeproc, al5d.owner.loop\n"
         "import al5d.ros.client, al5d.web.app\n"
         "parser = al5d.app.cli.build_parser()\n"
         "for argv in (['serve', '--port', '/dev/ttyUSB0'], ['send', 'ready'], ['web']):\n"

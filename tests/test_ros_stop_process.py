@@ -51,7 +51,7 @@ class Served:
 
     @property
     def bridge(self) -> int:
-        return self.child(b"al5d.ros.bridge")
+        return self.child(b"al5d.app.bridgeproc")
 
     def stop_process(self) -> int:
         return self.child(b"al5d.ros.stopproc")

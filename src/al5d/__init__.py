@@ -14,6 +14,7 @@ The layers, each importing only those below it:
     al5d.exits    the command line's exit codes, one table, for all of them
     al5d.priority threads ahead of the rest (the stop path), where the OS allows it
     al5d.interrupts Ctrl-C held off while a send is made whole
+    al5d.logs     the processes' log lines: one format, written by a thread of their own
     al5d.__main__ `python -m al5d`: the command line
 
 The model and the board do not know each other: the arm joins them.

@@ -7,7 +7,8 @@
 - `emulator`: `al5d emulator`, a standalone emulated SSC-32U on a pseudo terminal.
 - `terminal`: `al5d send`, `al5d run`, `al5d shell`, the client's commands at the terminal.
 - `server`: `al5d serve`, the owner of the board on a port or on the embedded emulator,
-  with the ROS side's processes beside it.
+  with the ROS side's processes beside it; `bridgeproc`: the ROS 2 bridge's process (it
+  records, for `serve --record`).
 - `demo`: DE01 on the embedded emulator, with the DE02 table of `reach`.
 - `reach`: how soon each move reached its target (the demo's and the benchmarks' table).
 - `doctor`: `al5d doctor`, what stands between this computer and its SSC-32U.

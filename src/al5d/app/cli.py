@@ -38,7 +38,8 @@ def _namespace(text: str) -> str:
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
-    from al5d.app.server import ServerOptions, serve, setup_logging
+    from al5d.app.server import ServerOptions, serve
+    from al5d.logs import setup_logging
 
     setup_logging(args.log_level)
     options = ServerOptions(
@@ -81,7 +82,7 @@ PHYSICS: dict[str, Any] = {
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from al5d.app.demo import run_demo
-    from al5d.app.server import setup_logging
+    from al5d.logs import setup_logging
 
     setup_logging(args.log_level)
 
@@ -103,7 +104,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_web(args: argparse.Namespace) -> int:
-    from al5d.app.server import setup_logging
+    from al5d.logs import setup_logging
     from al5d.web.app import WebOptions, serve_web
 
     setup_logging(args.log_level)

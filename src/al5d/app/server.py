@@ -12,11 +12,8 @@ exits 0.
 
 from __future__ import annotations
 
-import atexit
 import contextlib
 import logging
-import logging.handlers
-import queue
 import signal
 import socket
 import subprocess
@@ -46,7 +43,6 @@ log = logging.getLogger("al5d")
 SWITCH_INTERVAL_S = 0.0005
 #: `al5d serve`'s exit code when the server ended without the arm in park.
 EXIT_NOT_PARKED = exits.NOT_PARKED
-LOG_FORMAT = "%(asctime)s.%(msecs)03d %(levelname)s %(message)s"
 #: How long the bridge may take to read the parameters (a busy host's imports and DDS).
 SETTINGS_S = 120.0
 #: How long the bridge may take to end once the owner has (its last results published, a
@@ -58,20 +54,6 @@ RESTARTS_MAX = 3
 RESTARTS_WITHIN_S = 60.0
 #: A bridge the owner lost to its silence is killed if it has not ended in this long.
 HUNG_KILL_S = 5.0
-
-
-def setup_logging(level: str) -> None:
-    """Log lines to stderr, written by a thread of their own: a thousand refusals logged in a
-    flood cost their callers a hand-over each, not a write to the terminal each."""
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter(LOG_FORMAT, datefmt="%H:%M:%S"))
-    lines: queue.SimpleQueue[logging.LogRecord] = queue.SimpleQueue()
-    listener = logging.handlers.QueueListener(lines, handler)
-    listener.start()
-    atexit.register(listener.stop)  # the last lines are written before the process ends
-    hand_over = logging.handlers.QueueHandler(lines)
-    hand_over.setFormatter(logging.Formatter("%(message)s"))  # the listener's handler formats
-    logging.basicConfig(level=level.upper(), handlers=[hand_over])
 
 
 @dataclass
@@ -172,7 +154,7 @@ class RosSide:
         flags = Flags(options.config, options.port, options.baud, options.namespace, options.record)
         self._setup = Setup(tuple(options.ros_args or ()), flags, options.trace)
         self.stop: Child | None = Child("al5d.ros.stopproc", self._setup)
-        self.bridge = Child("al5d.ros.bridge", self._setup)
+        self.bridge = Child("al5d.app.bridgeproc", self._setup)
         self._serving = False
         #: A bridge being started again, until its settings come.
         self._starting: Child | None = None
@@ -283,7 +265,7 @@ class RosSide:
                 if not self._serving:
                     return
                 # Its recording, if any, ended with it: a new one would overwrite the file.
-                self._starting = Child("al5d.ros.bridge", replace(self._setup, again=True))
+                self._starting = Child("al5d.app.bridgeproc", replace(self._setup, again=True))
             bridge = self._starting
             got = self._settings(bridge)  # outside the lock: `close` cuts it short
             with self._swap:

@@ -24,10 +24,27 @@ import itertools
 import math
 import os
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-if TYPE_CHECKING:  # the poses file's module reads the configuration, which imports this one
-    from al5d.arm.poses import NamedPoses
+
+class SavedPose(Protocol):
+    """A saved pose: its joints' angles (degrees), in the arm's joint order."""
+
+    @property
+    def joints(self) -> tuple[tuple[str, float], ...]: ...
+
+
+class SavedPoses(Protocol):
+    """The saved poses a `pose NAME` step may name: `al5d.arm.poses.NamedPoses` (which this
+    module does not import: the poses file's module reads the configuration, which imports
+    this one)."""
+
+    def find(self, name: str) -> SavedPose | None: ...
+
+    def unknown(self, name: str) -> str:
+        """Why `name` is no pose here, and what there is."""
+        ...
+
 
 #: The presets every arm has (PO01 park, PO02 ready, PO03 straight up).
 PRESET_NAMES = ("park", "ready", "straight_up")
@@ -381,7 +398,7 @@ def _unknown(head: str, known: tuple[str, ...]) -> str:
     return f"unknown instruction; {hint}expected {' | '.join(known)}"
 
 
-def _pose_move(words: list[str], poses: NamedPoses | None) -> Instruction:
+def _pose_move(words: list[str], poses: SavedPoses | None) -> Instruction:
     """`pose <name> [time=<ms>]`: a move of the saved pose's joints."""
     if len(words) < 2 or "=" in words[1]:
         at = _where(words, min(1, len(words) - 1))
@@ -402,7 +419,7 @@ def _pose_move(words: list[str], poses: NamedPoses | None) -> Instruction:
 
 
 def parse_sequence_step(
-    line: str, presets: tuple[str, ...] = PRESET_NAMES, poses: NamedPoses | None = None
+    line: str, presets: tuple[str, ...] = PRESET_NAMES, poses: SavedPoses | None = None
 ) -> tuple[Instruction | Wait, bool] | None:
     """One line of a sequence file: (instruction or wait, whether it runs in the background).
 
@@ -455,7 +472,7 @@ def parse_sequence(
     data: bytes,
     name: str = "<sequence>",
     presets: tuple[str, ...] = PRESET_NAMES,
-    poses: NamedPoses | None = None,
+    poses: SavedPoses | None = None,
 ) -> list[SequenceStep]:
     """Every step of a sequence file, checked whole before anything is sent; a `pose` line
     names one of `poses`.
@@ -483,7 +500,7 @@ def parse_sequence(
 
 
 def sequence_line(
-    raw: bytes, presets: tuple[str, ...] = PRESET_NAMES, poses: NamedPoses | None = None
+    raw: bytes, presets: tuple[str, ...] = PRESET_NAMES, poses: SavedPoses | None = None
 ) -> SequenceStep | None:
     """One line of a sequence file as its bytes (`parse_sequence_step`); text that is not
     UTF-8 is a GrammarError naming the byte."""

@@ -11,8 +11,8 @@ client.
 - `convert`: ROS messages <-> instructions and outcomes (pure).
 - `params`: the node's ROS parameters, validated by the configuration's own code.
 - `processes`: the ROS side's processes as the owner starts them (no rclpy there).
-- `bridge`: the bridge's process: the parameters read (`RosStart`), then the nodes on
-  the owner's lane (`Bridge`).
+- `bridge`: the bridge: the parameters read (`RosStart`), then the nodes on the owner's
+  lane (`Bridge`); its process is `al5d.app.bridgeproc`.
 - `node`: the nodes on the owner: `ArmNode` (`al5d`: the instruction topic, results,
   state, parameters), `RobotNode` (`al5d_robot`) and `ActionsNode` (`al5d_actions`).
 - `safety`: node `al5d_safety` (the release and shutdown services) and node `al5d_stop`

@@ -11,7 +11,7 @@ participant of its own). The stop service and the stop watcher are the stop's ow
 process (`al5d.ros.stopproc`); if that one cannot start or ends, this one serves the
 stop too, and says so. It ends when the owner ends (its lane closes).
 
-Run as `python -m al5d.ros.bridge CTRL LANE` by the owner; nothing else starts it.
+Its process is `al5d.app.bridgeproc`.
 """
 
 from __future__ import annotations
@@ -19,8 +19,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import sys
-import threading
 from collections.abc import Sequence
 from typing import Any
 
@@ -29,7 +27,7 @@ from rclpy.context import Context
 from rclpy.node import Node
 
 from al5d.arm.config import ArmConfig, ConfigError
-from al5d.owner.client import LaneClosed, Remote
+from al5d.owner.client import Remote
 from al5d.priority import built_urgently
 from al5d.ros import params
 from al5d.ros.dds import dds_profile, start_context
@@ -37,7 +35,6 @@ from al5d.ros.executors import Spinner
 from al5d.ros.names import NODE, SAFETY_NODE, Names
 from al5d.ros.node import ActionsNode, ArmNode, RobotNode
 from al5d.ros.params import Flags, Settings
-from al5d.ros.processes import child_start, receive, send
 from al5d.ros.safety import SafetyNode, StopNode
 
 log = logging.getLogger("al5d")
@@ -207,89 +204,3 @@ class Bridge:
             with open(self.trace_path, "w", encoding="utf-8") as f:
                 # One JSON array a line: an id may hold any character.
                 f.writelines(json.dumps(event) + "\n" for event in self.node.trace)
-
-
-def main(argv: list[str]) -> int:
-    """The bridge's process: settings for the owner, then the nodes until the lane closes."""
-    ctrl, lane, setup = child_start(argv)
-    from al5d.app.server import setup_logging
-
-    setup_logging(os.environ.get("AL5D_LOG_LEVEL", "INFO"))
-    try:
-        start = RosStart(setup.args, setup.flags)
-    except ConfigError as e:
-        send(ctrl, "config-error", str(e))
-        return 2
-    recording = None
-    if start.settings.record is not None and setup.again:
-        log.warning(
-            "%s was recorded by the ROS 2 bridge that ended, and is kept as that one left it "
-            "(what it had not written out is lost); this one does not record",
-            start.settings.record,
-        )
-    elif start.settings.record is not None:
-        from al5d.app.record import RecordingError, ServerRecording
-
-        try:
-            recording = ServerRecording(start.settings.record)
-        except RecordingError as e:
-            send(ctrl, "error", str(e))
-            start.close()
-            return 2
-    send(ctrl, "settings", start.settings)
-    go = receive(ctrl)
-    if go is None or go[0] != "go":
-        if recording is not None:
-            recording.close()
-        start.close()
-        return 0
-    stop_here = bool(go[1]) if len(go) > 1 else False
-    watch = ("state", "outcomes", "motion", "pose") + (("wire",) if recording else ())
-    tap = recording.tap(start.names.namespace) if recording is not None else None
-    on_wire = None if tap is None else (lambda w: tap(*w))
-    try:
-        # Leased: the leases of its ROS clients are kept here, so a bridge that hangs is
-        # lost to the owner, and what they commanded halted.
-        arm = Remote(
-            lane,
-            name="al5d-ros",
-            watch=watch,
-            on_wire=on_wire,
-            recorder=tap is not None,
-            lease=True,
-        )
-    except LaneClosed:  # the owner ended before it welcomed this one (a SIGTERM at start)
-        if recording is not None:
-            recording.close()
-        start.close()
-        return 0
-    if recording is not None:
-        recording.follow(start.names, start.settings.config.server.instruction_backlog)
-    bridge = Bridge(arm, start, setup.trace, stop_here)
-
-    def on_ctrl() -> None:
-        # The owner says its stop process has ended: the stop is served here from now on.
-        while (message := receive(ctrl)) is not None:
-            if message[0] == "serve-stop" and bridge.stop is None and not arm.closed.is_set():
-                log.error(
-                    "the stop process has ended; the stop is served by the bridge from now "
-                    "on, where a busy host delays it"
-                )
-                bridge.stop = built_urgently(
-                    "al5d-stop-here", lambda: StopNode(arm, bridge.safety_context, bridge.names)
-                )
-                bridge.safety_spinner.add(bridge.stop)
-
-    threading.Thread(target=on_ctrl, name="al5d-bridge-ctrl", daemon=True).start()
-    # The lane's own event, not a listener added now: a lane that closed before this line
-    # (a SIGTERM as the server started) has told its listeners already.
-    arm.closed.wait()
-    bridge.close()
-    if recording is not None:
-        recording.close_ros()  # after the server's last messages reached it
-        recording.close()
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))

@@ -1,5 +1,5 @@
-"""The ROS side's processes, as the owner starts them: the bridge (`al5d.ros.bridge`) and the
-stop's own bridge (`al5d.ros.stopproc`).
+"""The ROS side's processes, as the owner starts them: the bridge (`al5d.app.bridgeproc`,
+`al5d.ros.bridge`'s nodes) and the stop's own bridge (`al5d.ros.stopproc`).
 
 The owner of the board takes no ROS 2 callback: on a busy host a flood's callbacks held
 its interpreter while a stop waited. So each ROS side runs in a process of its own, a

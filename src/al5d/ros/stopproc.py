@@ -11,7 +11,7 @@ waiting, and the answer goes back when it has.
 `al5d serve` starts it at once (`al5d.ros.processes`), so that its imports and DDS
 start-up go on beside the board's; it waits for its lane's welcome (the owner and its
 configuration), and ends when the owner ends. If it cannot start, or ends, the bridge
-serves the stop (`al5d.ros.bridge`), and one log line says so.
+serves the stop (`al5d.ros.bridge`, in `al5d.app.bridgeproc`), and one log line says so.
 
 Run as `python -m al5d.ros.stopproc CTRL LANE` by the owner; nothing else starts it.
 """
@@ -31,7 +31,7 @@ def main(argv: list[str]) -> int:
     ctrl, lane, setup = child_start(argv)
     # Every thread started from here (the DDS participant's among them) inherits it.
     make_urgent("al5d-stop")
-    from al5d.app.server import setup_logging
+    from al5d.logs import setup_logging
 
     setup_logging(os.environ.get("AL5D_LOG_LEVEL", "INFO"))
     from al5d.owner.client import LaneClosed, Remote

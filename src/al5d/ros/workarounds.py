@@ -163,11 +163,17 @@ class Reader:
         wait_set = _rclpy.WaitSet(len(self._inputs), 1, 0, 0, 0, 0, context.handle)
         while self._running and context.ok():
             try:
-                wait_set.clear_entities()
-                for sub, _ in self._inputs:
-                    wait_set.add_subscription(sub.handle)
-                wait_set.add_guard_condition(self._wake.handle)
-                wait_set.wait(-1)
+                # Held while waited on, as rclpy's executors hold theirs: a node destroyed
+                # meanwhile (its `close` gave up waiting for this thread) is destroyed
+                # once the wait ends, not under it.
+                with contextlib.ExitStack() as held:
+                    wait_set.clear_entities()
+                    for sub, _ in self._inputs:
+                        held.enter_context(sub.handle)
+                        wait_set.add_subscription(sub.handle)
+                    held.enter_context(self._wake.handle)
+                    wait_set.add_guard_condition(self._wake.handle)
+                    wait_set.wait(-1)
                 ready = wait_set.get_ready_entities("subscription")
                 for sub, handle in self._inputs:
                     if sub.handle.pointer in ready:

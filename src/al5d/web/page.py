@@ -374,7 +374,13 @@ class Page:
         # click's message is read, whatever else the pool is busy with.
         self.jog.end()
         if self.commands is not None:
-            way = self.commands.stop()
+            try:
+                way = self.commands.stop()
+            except Exception:
+                # Never raised: viser would then skip the click's other callbacks (the
+                # Teach tab's, which ends its play) and only say so when the task is freed.
+                log.exception("web: STOP clicked, and it could not be sent")
+                return
             log.info("web: STOP clicked (sent by %s)", way)
 
     def send_instruction(self, instr: Instruction) -> bool:
