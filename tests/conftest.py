@@ -70,6 +70,7 @@ def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, Owne
 #: Where each pytest-xdist worker's fault handler writes (a worker that dies by a signal
 #: is reported by xdist as "crashed", with nothing of why): printed at the end of the run.
 FAULTS = Path(__file__).resolve().parents[1] / "build" / "reliability" / "faults"
+FAULT_RECORD = pytest.StashKey[Any]()
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -93,9 +94,6 @@ def pytest_sessionstart(session: pytest.Session) -> None:
         record = (FAULTS / f"{worker['workerid']}-{os.getpid()}.txt").open("w")
         session.config.stash[FAULT_RECORD] = record  # open for as long as the worker runs
         faulthandler.enable(file=record, all_threads=True)
-
-
-FAULT_RECORD = pytest.StashKey[Any]()
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:

@@ -317,6 +317,31 @@ def test_a_recording_cut_short_is_an_error_or_with_partial_what_it_holds(tmp_pat
     assert "cut.mcap is damaged or cut short" in refused.err.wait_for("al5d replay:", 5)
 
 
+def test_what_a_recording_is_handed_is_on_disk_a_moment_later(tmp_path: Path) -> None:
+    """A process killed as it records (a bridge that crashed) leaves what is on disk: what it
+    was handed up to `FLUSH_EVERY_S` before, readable with --partial. The chunk being filled
+    stayed in memory until it was full (a megabyte): a killed bridge's short recording was
+    0 bytes."""
+    live = tmp_path / "live.mcap"
+    file = RecordFile(live)
+    try:
+        channel = file.channel("/al5d/instruction", "al5d_interfaces/msg/ArmInstruction")
+        for i in range(50):
+            msg = ArmInstruction(instruction="move", joints=["base"], degrees=[float(i)])
+            msg.id = f"m{i}"
+            file.put(channel, serialize_message(msg), 1000 + i, 1000 + i, i)
+        killed_now = tmp_path / "killed.mcap"
+
+        def left() -> int:
+            killed_now.write_bytes(live.read_bytes())  # what a kill -9 would leave now
+            return survey(killed_now, partial=True).instructions["/al5d/instruction"]
+
+        wait_until(lambda: left() == 50, 20, "the 50 instructions on disk")
+    finally:
+        file.close()
+    assert len(read_instructions(live)) == 50  # and closed, the file is whole
+
+
 def test_a_recording_that_fails_never_stops_the_arm(tmp_path: Path) -> None:
     """/dev/full takes the file but no byte of it: the arm works, the failure is logged."""
     server = Proc("serve", "--stdin", "--no-ros", "--record", "/dev/full", stdin=True)

@@ -73,6 +73,11 @@ _BOARD_WRITE_HEAD = struct.Struct("<iIiII")
 #: At most this many messages wait for the file: a disk slower than the messages for long
 #: loses the newest (counted), not the server's memory.
 BACKLOG = 100_000
+#: What has been handed to a file is on disk this long after, at most (the chunk being
+#: filled is ended and written): a process killed, or a bridge that crashed, leaves a file
+#: cut short that `al5d replay --partial` reads up to then. In memory until the chunk was
+#: full (a megabyte), a short recording of a killed bridge was 0 bytes.
+FLUSH_EVERY_S = 1.0
 #: How often a recorder looks at how many writers each of its topics has matched.
 WRITERS_EVERY_S = 0.1
 _SEPARATOR = "=" * 80
@@ -263,6 +268,10 @@ class RecordFile:
         self.dropped = 0
         self.failed: str | None = None
         self._closed = False
+        try:  # killed before its first message, it is still an MCAP file (cut short)
+            self._file.flush()
+        except OSError as e:  # a full disk: the arm goes on
+            self._failed(e)
         self._thread = threading.Thread(target=self._run, name="al5d-record", daemon=True)
         self._thread.start()
 
@@ -300,18 +309,37 @@ class RecordFile:
         self._items.put((data, written, arrival))
 
     def _run(self) -> None:
-        while (item := self._items.get()) is not None:
+        unflushed = 0.0  # when the first message not yet on disk was written (0: none)
+        while True:
+            due = unflushed + FLUSH_EVERY_S - time.monotonic() if unflushed else None
+            item: _Message | _BoardWrite | None = None
+            try:
+                item = self._items.get(timeout=None if due is None else max(0.0, due))
+                if item is None:
+                    return
+            except queue.Empty:
+                pass  # time to flush
             if self.failed:
                 continue
             try:
-                self._write(item)
+                if item is not None:
+                    self._write(item)
+                    unflushed = unflushed or time.monotonic()
+                # Also in a steady stream, which never leaves the queue empty for long.
+                if unflushed and time.monotonic() - unflushed >= FLUSH_EVERY_S:
+                    unflushed = 0.0
+                    with self._lock:
+                        self._writer.flush()  # type: ignore[no-untyped-call]
             except Exception as e:  # a full disk, a removed file: the arm goes on
-                self.failed = f"{type(e).__name__}: {e}"
-                log.error(
-                    "recording %s failed (%s): nothing more is recorded; the arm goes on",
-                    self.path,
-                    self.failed,
-                )
+                self._failed(e)
+
+    def _failed(self, e: Exception) -> None:
+        self.failed = f"{type(e).__name__}: {e}"
+        log.error(
+            "recording %s failed (%s): nothing more is recorded; the arm goes on",
+            self.path,
+            self.failed,
+        )
 
     def _write(self, item: _Message | _BoardWrite) -> None:
         if len(item) == 3:
