@@ -67,8 +67,9 @@ def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, Owne
             driver.close()
 
 
-#: Where each pytest-xdist worker's fault handler writes (a worker that dies by a signal
-#: is reported by xdist as "crashed", with nothing of why): printed at the end of the run.
+#: Where each pytest-xdist worker's fault handler writes (a worker that dies of a fault, a
+#: segfault or an abort, is reported by xdist as "crashed", with nothing of why): printed
+#: at the end of the run. A worker killed outright (SIGKILL) writes nothing.
 FAULTS = Path(__file__).resolve().parents[1] / "build" / "reliability" / "faults"
 FAULT_RECORD = pytest.StashKey[Any]()
 

@@ -5,6 +5,8 @@ fresh server on a fresh board, which then receives the same bytes."""
 from __future__ import annotations
 
 import signal
+import subprocess
+import sys
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -340,6 +342,44 @@ def test_what_a_recording_is_handed_is_on_disk_a_moment_later(tmp_path: Path) ->
     finally:
         file.close()
     assert len(read_instructions(live)) == 50  # and closed, the file is whole
+
+
+#: A recorder whose disk refuses its chunk (the kernel's file size limit: EFBIG), in a
+#: process of its own; it prints the failure and the CPU seconds its process then spent
+#: in 3 s of doing nothing.
+FAILING_DISK = """
+import os, resource, signal, sys, time
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write fails with EFBIG instead
+resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, 64 * 1024))
+from al5d.app.record import RecordFile
+file = RecordFile(sys.argv[1])
+channel = file.channel("/al5d/instruction", "al5d_interfaces/msg/ArmInstruction")
+for i in range(1500):  # a chunk's megabyte at once, random: compressed, still over the limit
+    file.put(channel, b"\\x00\\x01\\x00\\x00" + os.urandom(1000), i, i, i)
+deadline = time.monotonic() + 60
+while not file.failed and time.monotonic() < deadline:
+    time.sleep(0.05)
+cpu = time.process_time()
+time.sleep(3)
+print(file.failed, time.process_time() - cpu, flush=True)
+os._exit(0)
+"""
+
+
+def test_a_recording_whose_disk_fails_mid_chunk_waits_quietly(tmp_path: Path) -> None:
+    """A write that failed within a second of the last flush left a flush due for ever: the
+    file's thread spun (0.87 CPU s in 3 s here) until the recording was closed, beside
+    the bridge's nodes. Once failed, it waits for the end and writes nothing."""
+    done = subprocess.run(
+        [sys.executable, "-c", FAILING_DISK, str(tmp_path / "full.mcap")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    failed, cpu = done.stdout.rsplit(" ", 1)
+    assert "File too large" in failed, done.stdout + done.stderr
+    assert float(cpu) < 0.1, done.stdout
 
 
 def test_a_recording_that_fails_never_stops_the_arm(tmp_path: Path) -> None:

@@ -57,8 +57,8 @@ def main(argv: list[str]) -> int:
             send(ctrl, "error", str(e))
             start.close()
             return 2
-    send(ctrl, "settings", start.settings)
     try:
+        send(ctrl, "settings", start.settings)
         return _serve(ctrl, lane, setup, start, recording)
     finally:
         if recording is not None:

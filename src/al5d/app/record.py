@@ -73,8 +73,9 @@ _BOARD_WRITE_HEAD = struct.Struct("<iIiII")
 #: At most this many messages wait for the file: a disk slower than the messages for long
 #: loses the newest (counted), not the server's memory.
 BACKLOG = 100_000
-#: What has been handed to a file is on disk this long after, at most (the chunk being
-#: filled is ended and written): a process killed, or a bridge that crashed, leaves a file
+#: What the file's thread has taken is written out this long after, at most (the chunk
+#: being filled is ended and written; behind a disk that falls behind, later): a process
+#: killed, or a bridge that crashed, leaves a file
 #: cut short that `al5d replay --partial` reads up to then. In memory until the chunk was
 #: full (a megabyte), a short recording of a killed bridge was 0 bytes.
 FLUSH_EVERY_S = 1.0
@@ -320,6 +321,7 @@ class RecordFile:
             except queue.Empty:
                 pass  # time to flush
             if self.failed:
+                unflushed = 0.0  # nothing more is written: no flush is due
                 continue
             try:
                 if item is not None:
