@@ -75,9 +75,9 @@ _BOARD_WRITE_HEAD = struct.Struct("<iIiII")
 BACKLOG = 100_000
 #: What the file's thread has taken is written out this long after, at most (the chunk
 #: being filled is ended and written; behind a disk that falls behind, later): a process
-#: killed, or a bridge that crashed, leaves a file
-#: cut short that `al5d replay --partial` reads up to then. In memory until the chunk was
-#: full (a megabyte), a short recording of a killed bridge was 0 bytes.
+#: killed, or a bridge that crashed, leaves a file cut short that `al5d replay --partial`
+#: reads up to then. In memory until the chunk was full (a megabyte), a short recording of
+#: a killed bridge was 0 bytes.
 FLUSH_EVERY_S = 1.0
 #: How often a recorder looks at how many writers each of its topics has matched.
 WRITERS_EVERY_S = 0.1
