@@ -37,13 +37,13 @@ _refused = threading.Event()  # said once per process
 T = TypeVar("T")
 
 
-def make_urgent(what: str) -> bool:
-    """Give the calling thread (and those it starts) the urgent priority; False, said once,
-    where the OS refuses it."""
+def make_urgent(what: str, quiet: bool = False) -> bool:
+    """Give the calling thread (and those it starts) the urgent priority; False where the OS
+    refuses it, said once unless `quiet`."""
     try:
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), URGENT_NICE)
     except (OSError, AttributeError) as e:
-        if not _refused.is_set():
+        if not quiet and not _refused.is_set():
             _refused.set()
             log.warning(
                 "%s: the OS refused a higher scheduling priority (nice %d: %s); it runs at "

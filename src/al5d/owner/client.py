@@ -16,7 +16,6 @@ import contextlib
 import itertools
 import logging
 import math
-import os
 import socket
 import threading
 import time
@@ -35,7 +34,7 @@ from al5d.arm.states import State
 from al5d.clock import now
 from al5d.owner import lane as ln
 from al5d.owner.teller import tell
-from al5d.priority import URGENT_NICE
+from al5d.priority import make_urgent
 
 log = logging.getLogger("al5d")
 
@@ -133,8 +132,7 @@ class Remote:
         asked for (the owner takes a client silent for `server.client_lease_s` for lost), at
         the stop path's priority: a flood's threads in this process must not hold it back."""
         # Quietly where the OS refuses it (a user's command is not to warn of it each time).
-        with contextlib.suppress(OSError, AttributeError):
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), URGENT_NICE)
+        make_urgent("the lane's signs", quiet=True)
         while not self.closed.wait(every):
             try:
                 self._send({"op": "sign"})

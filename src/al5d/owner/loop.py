@@ -863,21 +863,19 @@ class Owner:
 
     def _lease_due(self) -> float:
         """When the first leased client's lease runs out (inf: none is leased)."""
-        return min(
-            (
-                c.heard + c.lease_s + self._stalled - c.stalled
-                for c in self._conns.values()
-                if c.lease_s
-            ),
-            default=inf,
-        )
+        return min((self._lease_end(c) for c in self._conns.values() if c.lease_s), default=inf)
+
+    def _lease_end(self, conn: Conn) -> float:
+        """When leased `conn`'s lease runs out: its lease from when it was last heard, the
+        owner's own stalls since not counted."""
+        return conn.heard + conn.lease_s + self._stalled - conn.stalled
 
     def _lapsed(self, t: float) -> None:
         """Each leased client not heard for its lease, the owner's own stalls since not
         counted, is lost (`_drop`): what it commanded, and what the clients it speaks for
         did, is halted; the lapsed listeners are told its socket."""
         for conn in list(self._conns.values()):
-            if conn.lease_s and t - conn.heard - (self._stalled - conn.stalled) > conn.lease_s:
+            if conn.lease_s and t > self._lease_end(conn):
                 self._drop(conn, f"nothing heard from it for {conn.lease_s:g} s (hung or stopped)")
                 sock = conn.sock
                 self._teller.put(lambda s=sock: tell(self.lapsed_listeners, s, "lapsed"))  # type: ignore[misc]
