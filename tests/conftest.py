@@ -6,6 +6,7 @@ import faulthandler
 import json
 import logging
 import os
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -68,8 +69,9 @@ def linked(config: ArmConfig, tmp_path: object) -> Iterator[tuple[Emulator, Owne
 
 
 #: Where each pytest-xdist worker's fault handler writes (a worker that dies of a fault, a
-#: segfault or an abort, is reported by xdist as "crashed", with nothing of why): printed
-#: at the end of the run. A worker killed outright (SIGKILL) writes nothing.
+#: segfault or an abort, or that pytest-timeout ends, is reported by xdist as "crashed",
+#: with nothing of why): printed at the end of the run. A worker killed outright (SIGKILL)
+#: writes nothing.
 FAULTS = Path(__file__).resolve().parents[1] / "build" / "reliability" / "faults"
 FAULT_RECORD = pytest.StashKey[Any]()
 
@@ -95,6 +97,35 @@ def pytest_sessionstart(session: pytest.Session) -> None:
         record = (FAULTS / f"{worker['workerid']}-{os.getpid()}.txt").open("w")
         session.config.stash[FAULT_RECORD] = record  # open for as long as the worker runs
         faulthandler.enable(file=record, all_threads=True)
+
+
+@pytest.hookimpl(tryfirst=True, optionalhook=True)
+def pytest_timeout_set_timer(item: pytest.Item, settings: Any) -> bool | None:
+    """In a worker: a test that overran its timeout is named in the worker's fault record,
+    with every thread's stack, before pytest-timeout ends the worker (it prints both to the
+    worker's terminal, which xdist does not show: the run said only "crashed")."""
+    import pytest_timeout
+
+    record = item.config.stash.get(FAULT_RECORD, None)
+    if record is None or settings.method != "thread":
+        return None  # pytest-timeout's own
+
+    def overran() -> None:
+        record.write(f"Timeout: {item.nodeid} ran past its {settings.timeout:g} s\n")
+        record.flush()
+        faulthandler.dump_traceback(file=record, all_threads=True)
+        pytest_timeout.timeout_timer(item, settings)  # its report, then os._exit(1)
+
+    timer = threading.Timer(settings.timeout, overran)
+    timer.name = f"timeout {item.nodeid}"
+
+    def cancel() -> None:
+        timer.cancel()
+        timer.join()
+
+    item.cancel_timeout = cancel  # type: ignore[attr-defined]  # pytest-timeout's cancel hook calls it
+    timer.start()
+    return True
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:

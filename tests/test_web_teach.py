@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import re
 import shutil
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -175,7 +176,13 @@ def write_poses(rig: Rig, more: str = "") -> None:
 def test_a_sequence_written_by_hand_plays_and_stop_halfway_ends_it(rig: Rig) -> None:
     config = rig.arm.config
     write_poses(rig, "lean: {base: 15, elbow: 85}\n")
-    (rig.folder / "halfway.seq").write_text("# by hand\npose a time=5000\npose b time=500\nready\n")
+    # The first step long enough for the click to land in it: a click waits on the page's
+    # renderer, which draws the moving arm on the CPU (SwiftShader): 0.75 s here with
+    # nothing else running, 0.1 to 1.9 s beside two busy loops, and a CI run of four
+    # workers played all three steps (5.5 s and the way home) before its click came.
+    (rig.folder / "halfway.seq").write_text(
+        "# by hand\npose a time=30000\npose b time=500\nready\n"
+    )
     rig.ready()
     type_into(rig, "sequence name", "halfway", "sequence 'halfway' is saved")
     click(rig, "load sequence", "3 steps: ready to play")
@@ -183,12 +190,17 @@ def test_a_sequence_written_by_hand_plays_and_stop_halfway_ends_it(rig: Rig) -> 
     n0 = len(rig.arm.emu.records)
     before = set(rig.arm.peer.results_now())
     rig.page.get_by_role("button", name="play", exact=True).click()
-    wait_text(rig.page, STATUS, lambda t: "playing step 1 of 3: pose a time=5000" in t)
+    wait_text(rig.page, STATUS, lambda t: "playing step 1 of 3: pose a time=30000" in t)
     rig.state("moving")
+    started = time.monotonic()
     rig.page.get_by_role("button", name="STOP", exact=True).click()
+    took = time.monotonic() - started
     # The click reached the web view (where it did not, its log since says what it did).
     rig.web.proc.err.wait_for("web: STOP clicked", 15)
-    text = wait_text(rig.page, STATUS, lambda t: "play ended" in t)
+    try:
+        text = wait_text(rig.page, STATUS, lambda t: "play ended" in t)
+    except AssertionError as e:
+        raise AssertionError(f"{e} (the click took {took:.1f} s)") from None
     # The play learns of the click, or first (on a busy host) of its step cancelled by the
     # stop the click sent: either way it ends there (nothing more sent: the outcomes below).
     assert "by STOP: nothing more sent" in text or "cancelled: cancelled by stop" in text, text
