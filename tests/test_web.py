@@ -327,7 +327,9 @@ def test_sliders_into_the_table_show_why_and_send_nothing(rig: Rig) -> None:
 
 def test_stop_and_release_from_the_page(rig: Rig) -> None:
     page = rig.page
-    rig.peer.send("web-slow", "move", time_ms=5000, base=-60)
+    # 30 s, which STOP ends: a click waits on the page's renderer, which draws the moving arm
+    # on the CPU, and on a busy host it comes seconds later (tests/test_web_teach.py).
+    rig.peer.send("web-slow", "move", time_ms=30_000, base=-60)
     rig.state.wait_for("moving", 5)
     n0 = len(rig.emu.records)
     page.get_by_role("button", name="STOP").click()
@@ -348,7 +350,7 @@ def test_release_is_shown_only_when_there_is_something_to_release(rig: Rig) -> N
     rig.state.wait_for("ready", 10)
     wait_text(page, "#al5d-state", lambda t: t == "READY")
     assert not release.is_visible()
-    rig.peer.send("web-moving", "move", time_ms=3000, base=-20)
+    rig.peer.send("web-moving", "move", time_ms=30_000, base=-20)  # the stop ends it
     wait_text(page, "#al5d-state", lambda t: t == "MOVING")
     assert not release.is_visible()
     assert rig.peer.trigger("stop").success
@@ -563,7 +565,7 @@ def test_stop_stays_in_view_whatever_the_panel_does(rig: Rig) -> None:
         assert clickable(page, stop)
         # STOP's own window offers nothing to hide it with.
         assert page.get_by_label("Minimize panel").locator("visible=true").count() == 0
-        rig.peer.send("web-hidden", "move", time_ms=5000, base=60)
+        rig.peer.send("web-hidden", "move", time_ms=30_000, base=60)  # STOP ends it
         rig.state.wait_for("moving", 5)
         n0 = len(rig.emu.records)
         stop.click()
