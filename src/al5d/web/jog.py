@@ -39,6 +39,9 @@ class Jog:
     #: Why the latest target would be refused (the table, a limit), or "": such a target is
     #: not sent, and once the sliders are let go they go back to the arm.
     refused: str = ""
+    #: False while the latest target waits for its judgement (`judge`): it is not sent
+    #: before it has one.
+    judged: bool = True
     #: When the sliders were last moved by the user (-inf: not since the jog ended).
     touched: float = -math.inf
     #: When the latest target was set (the user's hand, or sent again), and since when the
@@ -54,8 +57,17 @@ class Jog:
         # page's lock, and must find either the old target or the new one.
         target = {**(self.target or {}), joint: degrees}
         self.target = target
-        self.sent = False
+        self.sent, self.judged, self.refused = False, False, ""
         return dict(target)
+
+    def judge(self, target: Mapping[str, float], reason: str) -> bool:
+        """`target` (as `take` gave it) judged: `reason` why the server would refuse it, or
+        "". False, and nothing changed, where it is no longer the jog's target (a newer
+        one, or the jog ended: a STOP does not wait for a judgement)."""
+        if self.target != target:
+            return False
+        self.refused, self.judged = reason, True
+        return True
 
     def hold(self, now: float) -> None:
         """A slider's new value has come and is not taken yet: the sliders do not follow the
@@ -95,7 +107,9 @@ class Jog:
         from holding the arm (were the page to stop, the arm would be held where it is).
         The jog ends once the sliders are let go and the arm is there."""
         jog = self.target
-        if jog is None:
+        if jog is None or not self.judged:
+            # A target is sent once judged: taken and sent before its judgement, one the
+            # server refused went out while the page said it would not be sent.
             return None, ""
         at_it = now - self.touched < QUIET_S
         if self.refused:

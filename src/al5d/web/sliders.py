@@ -80,10 +80,10 @@ class SliderInput:
         # is not sent (the arm stays at the last one it took), and the page says why.
         reason = page.precheck(move)
         with page.lock:
-            page.jog.refused = reason
-            page.panel.show_joints_status(
-                f"will not be sent: {reason}" if reason else "jogging", not reason
-            )
+            if page.jog.judge(jog, reason):
+                page.panel.show_joints_status(
+                    f"will not be sent: {reason}" if reason else "jogging", not reason
+                )
 
     def close(self) -> None:
         self._thread.shutdown(wait=False, cancel_futures=True)
