@@ -94,13 +94,19 @@ def _flood_then_flush(emu: Emulator, port: serial.Serial) -> list[bytes]:
 
     A flush at once, before the link could read them, would find them in the pty, which
     drops them itself whatever the model (docs/emulator.md, "What it does not model")."""
+    heard = emu.bytes_heard
+    written = 0
     for i in range(20):
-        port.write(f"#0P{1000 + i * 10}\r".encode())
+        written += port.write(f"#0P{1000 + i * 10}\r".encode())
     emu.wait_for(lambda rs: any(r.raw == b"#0P1000" for r in rs), 2)
-    # On a busy host the link's reader can be late to read the pty: until it has, what is
-    # still in the pty is the pty's to drop.
+    # On a busy host the link's reader can be late to read the pty. What it has not read
+    # when the flush comes is the pty's: it drops some, and hands the rest over after
+    # the flush's report, where they ran after moves the flush had dropped (a CI run beside
+    # two busy loops: 1000, 1010, then 1180 and 1190). The client's `out_waiting` does not
+    # see them (0 with bytes still in the master).
     deadline = time.monotonic() + 10
-    while port.out_waiting and time.monotonic() < deadline:
+    while emu.bytes_heard - heard < written:
+        assert time.monotonic() < deadline, f"the link read {emu.bytes_heard - heard} of {written}"
         time.sleep(0.001)
     port.reset_output_buffer()
     port.write(b"\x1bSTOP0\r")

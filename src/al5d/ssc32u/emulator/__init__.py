@@ -119,6 +119,11 @@ class Emulator(Board):
         """The pty slave itself (changes on reconnect)."""
         return self._link.device
 
+    @property
+    def bytes_heard(self) -> int:
+        """How many bytes the client wrote that the link has read (since it was opened)."""
+        return self._link.bytes_heard
+
     # -- faults on the link ---------------------------------------------------
 
     def inject(self, fault: Fault) -> None:

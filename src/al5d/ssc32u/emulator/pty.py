@@ -84,6 +84,10 @@ class PtyLink:
         self._answers: queue.Queue[Answer | None] = queue.Queue()
         self._wake_r, self._wake_w = -1, -1
         self._line_began = 0.0  # when the first byte of the board's partial line arrived
+        #: How many of the client's bytes the link has read from the pty (one writer: its
+        #: reader thread). A flush finds those it has not read in the pty, whose own flush
+        #: may keep them (see `_flush`).
+        self.bytes_heard = 0
 
     @property
     def is_open(self) -> bool:
@@ -193,6 +197,7 @@ class PtyLink:
                     if flushed and self.model.flush_drops_unsent:
                         line_free = self._flush(wire, ends, t_seen, line_free)
                     continue
+                self.bytes_heard += len(packet) - 1
                 line_free = self._on_wire(packet[1:], t_seen, line_free, wire, ends)
             self._deliver(wire, ends, line)
 
@@ -242,9 +247,11 @@ class PtyLink:
     def _flush(wire: deque[_Slot], ends: deque[float], t_flush: float, line_free: float) -> float:
         """Drop the bytes whose slot had not begun at `t_flush`; return when the wire is free.
 
-        Only bytes this thread has read can be kept or dropped here: those still unread
-        in the master when the client flushed never reach it, since the pty's own flush
-        discards them (on the USB model too, where the real link would keep them).
+        Only bytes this thread has read can be kept or dropped here. Of those still unread
+        in the master when the client flushed, the pty's own flush discards the ones it
+        had not yet handed to the master's line discipline (on the USB model too, where the
+        real link would keep them); the ones it had are read after the flush's report, and
+        go on the wire as if written after it.
         """
         while wire and wire[-1].start > t_flush:
             if wire.pop().byte in (0x0D, 0x1B):
