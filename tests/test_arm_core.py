@@ -19,7 +19,9 @@ from al5d.arm import link as lk
 from al5d.arm.config import ArmConfig
 from al5d.arm.corestate import Announce, Cancelled, Effect, Purpose, Received, Say, Send
 from al5d.arm.instruction import Point, Result
+from al5d.arm.resample import Follow
 from al5d.arm.states import State
+from al5d.arm.validate import judge
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator.board import Fault
 from al5d_rig.sim import Sim
@@ -419,6 +421,59 @@ def test_a_trajectory_whose_point_took_effect_too_late_ends_with_the_reason(
     outcome = sim.outcome(ref)
     assert outcome.result is Result.CANCELLED
     assert "off its path" in outcome.reason
+
+
+#: Point 1 asks base for 70 deg in 50 ms, faster than its servo goes (333 deg/s): the
+#: board takes 210 ms, the trajectory's lateness; its line is due 500 ms after the start.
+FAST_POINT = (
+    Point((("base", 10.0),), 500.0),
+    Point((("base", -60.0),), 550.0),
+    Point((("base", 0.0),), 2500.0),
+)
+
+
+def _late_fast_point(
+    config: ArmConfig, stall_s: float, follow: Follow | None = None
+) -> tuple[Sim, float]:
+    """`FAST_POINT` with the owner's thread not running from 10 ms before point 1's line is
+    due until `stall_s` later; the sim, and when the trajectory was asked."""
+    sim = Sim(config, baud=115_200).ready()
+    ticket = judge(ins.trajectory(FAST_POINT), sim.core.arm.limits, follow)
+    assert not isinstance(ticket, str), ticket
+    start = sim.t
+    sim.ask(ticket)
+    sim.run(0.49)
+    sim.stall(stall_s)
+    sim.until(lambda: not sim.core.run and not sim.core.queue)
+    return sim, start
+
+
+def test_a_time_due_while_the_owner_did_not_run_is_kept_when_it_runs_again(
+    config: ArmConfig,
+) -> None:
+    """The core counts its next wake from its own latest input: a point's time that fell
+    due while the owner's thread did not run wakes it as soon as it runs, not at the next
+    check of the link (which wrote point 1 333 ms late, and ended the goal for it)."""
+    sim, start = _late_fast_point(config, 0.012)
+    lines = [(t, data) for t, data in sim.sent if data.startswith(b"#0P900")]
+    assert lines, sim.sent
+    assert lines[0][0] - start == pytest.approx(0.502, abs=1e-6)
+    outcome = sim.told[-1]
+    assert outcome.result is Result.DONE, outcome.reason
+
+
+def test_a_late_point_is_off_its_path_by_no_more_than_its_servo_goes(config: ArmConfig) -> None:
+    """A point faster than its servo, written late: the board moves the joint at the servo's
+    speed whatever the point asked, so the lateness puts it behind by that speed times the
+    lateness (10 ms: 3.33 deg), not by the point's own pace (14 deg)."""
+    speed = config.joints["base"].speed_deg_s
+    reason = _late_fast_point(config, 0.02)[0].told[-1].reason
+    late = re.search(r"point 1 took effect (\d+) ms late: base was ([\d.]+) deg off", reason)
+    assert late is not None, reason
+    assert float(late.group(2)) == pytest.approx(speed * int(late.group(1)) / 1000, abs=0.01)
+    follow = Follow(tolerance={"base": 6.0})  # more than 3.33 deg, less than 14
+    outcome = _late_fast_point(config, 0.02, follow)[0].told[-1]
+    assert outcome.result is Result.DONE, outcome.reason
 
 
 def test_a_trajectory_on_time_is_done(config: ArmConfig) -> None:

@@ -183,7 +183,7 @@ class Sim:
 
     def next_wake(self) -> float:
         """The next time after now that the core or the board wants to be woken."""
-        times = [wake_at(self.core, self.t)]
+        times = [wake_at(self.core)]
         due = self.wire.due() if self._open else None
         if due is not None:
             times.append(max(due, self.t + 1e-6))
@@ -195,7 +195,7 @@ class Sim:
             wake = self.next_wake()
             if wake > until:
                 break
-            self.t = wake
+            self.t = max(self.t, wake)  # due while nobody looked (`stall`): now
             self._wake()
         self.t = max(self.t, until)
         self._wake()
@@ -211,7 +211,8 @@ class Sim:
 
     def stall(self, seconds: float) -> None:
         """Time passes and nobody looks (the owner's thread was not running): what was due
-        meanwhile is done late, at the next wake."""
+        meanwhile is done late, as soon as time is let pass again (the owner's thread runs
+        again)."""
         self.t += seconds
 
     def run(self, seconds: float) -> None:
@@ -223,7 +224,7 @@ class Sim:
         while not done():
             if self.t >= end or self.core.ended:
                 return done()
-            self.t = min(self.next_wake(), end)
+            self.t = min(max(self.t, self.next_wake()), end)
             self._wake()
         return True
 

@@ -134,6 +134,8 @@ def step(c: Core, ev: Input) -> tuple[Core, tuple[Effect, ...]]:
     elif isinstance(ev, Gone):
         c = _gone(c, ev, out)
     c = _advance(c, ev.t, ev.wall, out)
+    if ev.t > c.t:
+        c = replace(c, t=ev.t)
     # The board's effects first, in their order: what is told of a step (its state, its
     # motion, its log lines) must not hold its bytes (a state's news woke the teller
     # thread, which took the interpreter before the write). The outcomes and answers last:
@@ -497,10 +499,15 @@ def _startup_park(c: Core, t: float, wall: int) -> Job:
     return Job(0, instr, park, t, wall, c.epoch, fraction, Mode.STARTUP, tell=False)
 
 
-def wake_at(c: Core, t: float) -> float:
-    """When after `t` the core wants a `Tick` at the latest, whatever else comes (inf: only an
-    input wakes it). An early one is harmless: nothing is due, nothing is done; what is due
-    already but waits for something else (the wire, a query's answer) is woken by that."""
+def wake_at(c: Core) -> float:
+    """When the core wants a `Tick` at the latest, whatever else comes (inf: only an input
+    wakes it). An early one is harmless: nothing is due, nothing is done; what is due
+    already but waits for something else (the wire, a query's answer) is woken by that.
+
+    It counts from the core's own latest input (`Core.t`), not from when the owner asks: a
+    time that fell due between the two (the owner's thread did not run meanwhile) is a
+    time already past, which wakes it at once, not a time skipped until the next wake."""
+    t = c.t
     if c.ended:
         return math.inf
     link = c.link

@@ -393,11 +393,15 @@ class Core:
     order: Order = field(default_factory=Order)
     ended: bool = False
     firmware: str = ""  # what the board said to VER
+    #: The time of the latest input taken: all that was due until then is done, and what
+    #: falls due after it wants a wake (`al5d.arm.core.wake_at`), however late the owner
+    #: comes back to ask.
+    t: float = -math.inf
 
     @classmethod
     def start(cls, arm: Arm, t: float = 0.0) -> Core:
         """A core for `arm`, its port to open at `t`."""
-        return cls(arm, PoseBook.unknown(arm.config.joints), link=Link(open_at=t))
+        return cls(arm, PoseBook.unknown(arm.config.joints), link=Link(open_at=t), t=t)
 
     # -- reading -------------------------------------------------------------------------
 

@@ -283,15 +283,19 @@ def _off_path(c: Core, run: Run, t_sent: float) -> str:
     beyond its tolerance (""): later than it would have had the host run the owner in time
     (`Run.due_effect`), the board holds the point before while the path moves on. (A point
     the servos cannot reach in its time slips the schedule, not the path: that is the
-    trajectory's lateness, which its result reports.)"""
+    trajectory's lateness, which its result reports: so a joint is behind by at most its
+    servo's speed times the lateness, however fast its point asked it to go.)"""
     late = t_sent - run.due_effect
     if run.job.instr.kind is not Kind.TRAJECTORY or late <= LATE_JUDGED_S:
         return ""
     step, before = run.steps[run.k], run.steps[run.k - 1]
     span = (step.time_ms or 1) / 1000.0
     follow = run.job.follow
+    joints = c.arm.config.joints
     for joint, target in step.target.items():
-        off = abs(target - before.target.get(joint, target)) * min(1.0, late / span)
+        travel = abs(target - before.target.get(joint, target))
+        rate = min(travel / span, joints[joint].speed_deg_s)
+        off = min(travel, rate * late)
         tolerance = c.arm.limits.path_tolerance_deg
         if follow is not None:
             tolerance = follow.tolerance.get(joint, tolerance)

@@ -403,7 +403,7 @@ class Owner:
         self._woken = False
         t = now()
         lease_due = self._lease_due()
-        wake = min(wake_at(self._core, t), t + SLEEP_MAX_S, lease_due)
+        wake = min(wake_at(self._core), t + SLEEP_MAX_S, lease_due)
         due = self.transport.due() if self._core.link.open else None
         if due is not None:
             wake = min(wake, due)
