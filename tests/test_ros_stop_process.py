@@ -147,9 +147,21 @@ def a_move_by_ros_is_done(served: Served) -> None:
         try:
             assert served.peer.result(f"after-{k}", 3).outcome == "done"
             return
-        except AssertionError:
+        except AssertionError as e:
             if time.monotonic() > deadline:
-                raise
+                raise AssertionError(f"{e}; {met(served)}") from e
+
+
+def met(served: Served) -> str:
+    """What this peer and the server's bridge know of each other, and the server's last words
+    (a failure's account: DDS not matched, or matched and not answering)."""
+    peer = served.peer
+    lines = served.proc.err.drain(0.5)[-30:]
+    return (
+        f"readers of our instructions: {peer.pub.get_subscription_count()}, writers of "
+        f"results: {peer.node.count_publishers(peer.names.result)}; the server said last:\n"
+        + "\n".join(lines)
+    )
 
 
 def test_a_frozen_bridge_does_not_hold_the_stop(served: Served) -> None:
