@@ -423,6 +423,33 @@ def test_a_trajectory_whose_point_took_effect_too_late_ends_with_the_reason(
     assert "off its path" in outcome.reason
 
 
+@pytest.mark.parametrize("cost", [0.008, 0.02])
+def test_a_trajectory_is_timed_from_its_first_line_not_from_its_request(
+    config: ArmConfig, cost: float
+) -> None:
+    """A long trajectory's checks (its path against the table: about 10 ms for 200 points)
+    keep the owner busy after the request's time: its points are timed from when its first
+    line goes. Timed from the request, each was written that much early (`make bench`'s 200
+    points at 10 ms ran 10 to 29 ms early, the path 0.03 rad off with the goal done; here
+    892 ms for 900), and with 20 ms the second point was judged late and the goal ended."""
+    sim = Sim(config, baud=115_200, ask_cost_s=cost).ready()
+    points = tuple(
+        Point((("base", 8.0 * math.sin(2 * math.pi * k / 30)),), 10.0 * (k + 1)) for k in range(90)
+    )
+    first = len(sim.records)
+    start = sim.t
+    assert sim.outcome(sim.ask(ins.trajectory(points))).result is Result.DONE
+    moves = [r for r in sim.records[first:] if r.raw.startswith(b"#")]
+    written = [t for t, data in sim.sent if data.startswith(b"#") and t >= start]
+    assert written[0] >= start + cost  # as the owner's writes are, after the step
+    last = moves[-1].commands[0]
+    assert isinstance(last, p.GroupMove) and last.time_ms is not None
+    reached = moves[-1].t_effect + last.time_ms / 1000.0
+    # Point 0's line takes effect at its schedule's start; the last point is 900 ms after
+    # it (whole ms: a line's time is rounded).
+    assert (reached - moves[0].t_effect) * 1000.0 == pytest.approx(900.0, abs=1.0)
+
+
 #: Point 1 asks base for 70 deg in 50 ms, faster than its servo goes (333 deg/s): the
 #: board takes 210 ms, the trajectory's lateness; its line is due 500 ms after the start.
 FAST_POINT = (

@@ -79,6 +79,10 @@ class Sim:
     watch: Callable[[Input, tuple[Effect, ...]], None] | None = None
     #: How much of each second the host is short of cores, as the owner tells the core.
     stalling: float = 0.0
+    #: How long the core's step of a request takes (its checks: a long trajectory's path
+    #: against the table takes milliseconds): what it writes goes that much after the
+    #: request's time, as the owner's writes do.
+    ask_cost_s: float = 0.0
 
     def __post_init__(self) -> None:
         self.t0 = self.t
@@ -106,6 +110,8 @@ class Sim:
             ev = self._made[0]
             self.core, effects = step(self.core, ev)
             self.steps += 1
+            if isinstance(ev, Ask):
+                self.t += self.ask_cost_s
             for effect in effects:
                 self._carry(effect)
             if self.watch is not None:

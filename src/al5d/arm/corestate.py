@@ -354,10 +354,12 @@ class Run:
     #: When step `k`'s line would take effect had every piece of it gone out when due (the
     #: wire's pace allowing): the yardstick of a point's lateness.
     due_effect: float = 0.0
-    #: The time of the step that planned the run as it started (a Cartesian move: about
-    #: 10 ms of IK): its first line goes out in a later step, whose time is read after the
-    #: planning, or the wire's account starts that long before its bytes do, and the next
-    #: hop of a line takes effect before this one has ended (its corner cut).
+    #: The time of the step that planned or checked the run as it started (a Cartesian
+    #: move: about 10 ms of IK; a trajectory of 200 points: about 10 ms of its path against
+    #: the table): its first line goes out in a later step, whose time is read after that
+    #: work, or the wire's account starts that long before its bytes do: the next hop of a
+    #: line takes effect before this one has ended (its corner cut), and every point of a
+    #: trajectory is written that much early (its schedule counts from the first line).
     not_before: float = -math.inf
 
 

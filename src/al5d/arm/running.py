@@ -100,7 +100,9 @@ def start(c: Core, job: Job, t: float, out: Out) -> Core:
         if c.state is State.MOVING and not c.queue:
             c = fire(c, Event.MOVE_DONE, out)
         return c
-    return replace(c, run=Run(job, steps, not_before=t if not job.steps else -math.inf))
+    # A run of one step checked in this step is written in it: its check took microseconds.
+    worked = not job.steps or len(steps) > 1
+    return replace(c, run=Run(job, steps, not_before=t if worked else -math.inf))
 
 
 # -- planning a step --------------------------------------------------------------------
