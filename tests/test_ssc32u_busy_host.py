@@ -65,9 +65,11 @@ def test_an_answer_late_because_the_host_is_short_of_cores_is_not_a_lost_link(
     # Beside busy loops the kernel's work that carries a pty's bytes waits for a core, and
     # a board's answer comes late though the board is fine (seen: 75 ms, twice in a row).
     # The kernel's CPU pressure says so, and the owner excuses that much (up to
-    # EXCUSE_MAX_S an ask). Here the board answers 0.3 s late while the host is short of
+    # EXCUSE_MAX_S an ask). Here the board answers 0.2 s late while the host is short of
     # cores: both asks without the excuse give up after about 0.13 s, a lost link; with
-    # it, the first answer comes within the second ask's.
+    # it (up to 0.43 s), the first answer comes within the second ask's. (0.3 s left the
+    # host's own lateness 0.11 s: a CI run with four workers beside the test's busy loops
+    # found the link lost, "no answer to QP0, asked twice, 97 ms late".)
     if cpu_waited_s() is None:
         pytest.skip("this kernel gives no CPU pressure (PSI): nothing to excuse by")
     loops = [
@@ -81,12 +83,12 @@ def test_an_answer_late_because_the_host_is_short_of_cores_is_not_a_lost_link(
                 owner.wait_for_state(State.READY, 60)
                 waited = cpu_waited_s()
                 assert waited is not None
-                emu.answer_delay_s = 0.3
+                emu.answer_delay_s = 0.2
                 t0 = time.monotonic()
                 time.sleep(4 * config.server.idle_check_interval_s)  # link checks, answered late
                 elapsed = time.monotonic() - t0
                 host = (cpu_waited_s() or 0.0) - waited
-                assert owner.state is State.READY
+                assert owner.state is State.READY, f"short of cores {host:.2f} s of {elapsed:.2f}"
                 emu.answer_delay_s = 0.0003
             finally:
                 owner.close()
