@@ -52,8 +52,6 @@ from al5d.ssc32u.facts import FIRMWARE_PREFIX, QP_RESOLUTION_US
 #: loops and a flood, a board's answer (an emulator at nice -10 in its own process) came
 #: 75 ms late twice in a row: the kernel's work that carries a pty's bytes waited for a core.
 EXCUSE_MAX_S = 0.15
-#: A VER answer's length, for its deadline (`SSC32-V2.50USB\r` is 15 bytes).
-VERSION_ANSWER_BYTES = 16
 #: How far a pulse read back may be from the one expected at rest: `QP` answers in steps
 #: of 10 us (rounded down), and a pose read back is itself one of those steps.
 REST_MARGIN_US = 2 * QP_RESOLUTION_US
@@ -159,26 +157,13 @@ def ask(
     the answer's own bytes back, and the margin."""
     c = send(c, data, t, out, pulses=False)
     link = c.link
-    back = p.wire_time_s(n_answer or VERSION_ANSWER_BYTES, c.arm.baud)
+    back = p.wire_time_s(n_answer or p.VERSION_ANSWER_BYTES, c.arm.baud)
     due = link.free_at + back + link.margin_s
     writes = link.writes if asks == 1 or link.query is None else link.query.writes
     query = Query(purpose, data, n_answer, due, asks, writes, link.stalled, probe)
     # A late first answer may still come, and so may an owed one (kept whole to be dropped).
     keep = link.received if asks > 1 or link.owed[1] else b""
     return replace(c, link=replace(link, query=query, received=keep))
-
-
-def _count(data: bytes, n_answer: int | None) -> int:
-    return data.count(p.CR) if n_answer is None else len(data) // n_answer
-
-
-def _last(data: bytes, n_answer: int | None) -> bytes:
-    """The last whole answer in `data` (which holds one at least)."""
-    if n_answer is None:
-        end = data.rindex(p.CR) + 1
-        return data[data.rfind(p.CR, 0, end - 1) + 1 : end]
-    end = len(data) // n_answer * n_answer
-    return data[end - n_answer : end]
 
 
 def _skip_owed(data: bytes, owed: tuple[int | None, int]) -> tuple[bytes, tuple[int | None, int]]:
@@ -219,8 +204,8 @@ def received(c: Core, ev: Received, out: Out) -> Core:
     if query is None:  # nothing asked: not an answer of ours
         return replace(c, link=replace(link, received=b""))
     c = replace(c, link=replace(link, received=data))
-    if _count(data, query.n_answer) >= query.asks:
-        return _answered(c, query, _last(data, query.n_answer), ev.t, ev.wall, out)
+    if p.count_answers(data, query.n_answer) >= query.asks:
+        return _answered(c, query, p.last_answer(data, query.n_answer), ev.t, ev.wall, out)
     return c
 
 
@@ -236,12 +221,12 @@ def overdue(c: Core, t: float, wall: int, out: Out) -> Core:
     query = c.link.query
     assert query is not None
     data = c.link.received
-    if answers := _count(data, query.n_answer):
+    if answers := p.count_answers(data, query.n_answer):
         owed = (query.n_answer, max(0, query.asks - answers))
-        back = p.wire_time_s(query.n_answer or VERSION_ANSWER_BYTES, c.arm.baud)
+        back = p.wire_time_s(query.n_answer or p.VERSION_ANSWER_BYTES, c.arm.baud)
         until = t + back + c.link.margin_s + EXCUSE_MAX_S
         c = replace(c, link=replace(c.link, owed=owed, owed_until=until))
-        return _answered(c, query, _last(data, query.n_answer), t, wall, out)
+        return _answered(c, query, p.last_answer(data, query.n_answer), t, wall, out)
     if query.asks == 1:
         c = replace(c, link=replace(c.link, query=None))
         return ask(c, query.purpose, query.data, query.n_answer, t, out, query.probe, asks=2)

@@ -155,10 +155,8 @@ class Names:
         return {self.private(k.value): k for k in (Kind.STOP, Kind.RELEASE, Kind.SHUTDOWN)}
 
 
-#: The names with no namespace, as the design gives them.
-DEFAULT_NAMES = Names()
-INSTRUCTION_TOPIC = DEFAULT_NAMES.instruction
-JOINT_STATES_TOPIC = "joint_states"
+#: The instruction topic with no namespace, as the design gives it.
+INSTRUCTION_TOPIC = Names().instruction
 
 
 def pinned(name: str) -> list[str]:

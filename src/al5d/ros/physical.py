@@ -16,20 +16,13 @@ import time
 from collections.abc import Callable, Mapping
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 from al5d.model import ArmModel, ModelError
 from al5d.ros.dds import start_context
 from al5d.ros.names import Names
+from al5d.ros.qos import QOS_LATEST
 
-#: The latest is all a reader wants: a late sample is replaced, never resent.
-QOS_PHYSICAL = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.BEST_EFFORT,
-    durability=DurabilityPolicy.VOLATILE,
-)
 #: How often the physical pose is published: enough for a person watching it move.
 RATE_HZ = 20.0
 #: A reader's latest sample older than this is no longer where the arm stands.
@@ -47,7 +40,7 @@ class PhysicalPublisher:
         self.node = Node(
             f"al5d_physical_{os.getpid()}", namespace=names.node_namespace, context=self.context
         )
-        self.pub = self.node.create_publisher(JointState, names.physical_joint_states, QOS_PHYSICAL)
+        self.pub = self.node.create_publisher(JointState, names.physical_joint_states, QOS_LATEST)
         self._done = threading.Event()
         self._read: Callable[[], Mapping[str, float]] | None = None
         self._given = threading.Event()
@@ -94,7 +87,7 @@ class PhysicalReader:
         self.on_pose = on_pose
         self._latest: tuple[float, dict[str, float]] | None = None
         self._cv = threading.Condition()
-        node.create_subscription(JointState, names.physical_joint_states, self._on, QOS_PHYSICAL)
+        node.create_subscription(JointState, names.physical_joint_states, self._on, QOS_LATEST)
 
     def _on(self, msg: JointState) -> None:
         try:

@@ -24,7 +24,6 @@ from typing import Any
 
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
@@ -33,16 +32,11 @@ from al5d.arm.config import ArmConfig
 from al5d.model import build_chain, joint_transforms, tool_pose, urdf_from_chain
 from al5d.model.transforms import Transform
 from al5d.ros.names import Names
-from al5d.ros.qos import QOS_LATCHED
+from al5d.ros.qos import QOS_LATCHED, profile
 
 #: /tf_static: every transform kept for late joiners (tf2's own profile: depth 1 would
 #: do for one message, but other static broadcasters share the topic).
-QOS_TF_STATIC = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=100,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+QOS_TF_STATIC = profile(100, latched=True)
 
 
 def _transform(parent: str, child: str, t: Transform, stamp: object) -> TransformStamped:

@@ -81,15 +81,6 @@ class StampedExecutor(SingleThreadedExecutor):
         return _execute
 
 
-def parameter_overrides(node: Node) -> dict[str, Any]:
-    """The parameter values a node's command line gives it (`-p`, `--params-file`, global and
-    its own), name -> value, as rcl resolved them for its name and namespace. rclpy 7.1
-    keeps them in `Node._parameter_overrides` and offers no getter; a node that declares its
-    parameters from them reads them there (it can go when rclpy offers one)."""
-    overrides: dict[str, Any] = getattr(node, "_parameter_overrides", {})
-    return {name: p.value for name, p in overrides.items()}
-
-
 class ReaderOnly(CallbackGroup):
     """The callback group of what a `Reader` takes from (its subscriptions and its guard
     condition), whose node an executor spins all the same (the node `al5d`, for its

@@ -12,7 +12,6 @@ from __future__ import annotations
 import select
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from types import TracebackType
 from typing import TypeVar
 
 from al5d.clock import Deadline, now
@@ -30,8 +29,6 @@ from al5d.ssc32u.transport import SerialTransport, Transport
 #: How long an answer may take beyond its wire time: the board's slowest (5 ms) ten times
 #: over, because the host may be busy when the answer comes.
 DEFAULT_READ_TIMEOUT_S = 10 * ANSWER_DELAY_MAX_S
-#: A VER answer's length, for its deadline (`SSC32-V2.50USB\r` is 15 bytes).
-VERSION_ANSWER_BYTES = 16
 
 Targets = Mapping[int, int] | Sequence[p.ChannelTarget]
 T = TypeVar("T")
@@ -72,12 +69,7 @@ class SSC32U:
     def __enter__(self) -> SSC32U:
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     # -- board functions ----------------------------------------------------------------
@@ -165,16 +157,16 @@ class SSC32U:
         answer = b""
         for asks in (1, 2):
             self.write(data)
-            back = self.wire_time_s(len(data) + (n_answer or VERSION_ANSWER_BYTES))
+            back = self.wire_time_s(len(data) + (n_answer or p.VERSION_ANSWER_BYTES))
             answer = self._read(answer, n_answer, asks, Deadline(back + self._margin_s))
-            if _count(answer, n_answer):
-                return _last(answer, n_answer)
+            if p.count_answers(answer, n_answer):
+                return p.last_answer(answer, n_answer)
         got = f", got {answer!r}" if answer else ""
         raise NoAnswer(self.port, f"no answer to {name}, asked twice{got}", answer)
 
     def _read(self, answer: bytes, n_answer: int | None, count: int, deadline: Deadline) -> bytes:
         fd = self.transport.fileno()
-        while _count(answer, n_answer) < count and not deadline.expired:
+        while p.count_answers(answer, n_answer) < count and not deadline.expired:
             if fd is not None:
                 select.select([fd], [], [], deadline.left())
             else:  # an emulated board in this process: it says when its answer is due
@@ -184,16 +176,3 @@ class SSC32U:
                 )
             answer += self.transport.read()
         return answer
-
-
-def _count(data: bytes, n_answer: int | None) -> int:
-    return data.count(p.CR) if n_answer is None else len(data) // n_answer
-
-
-def _last(data: bytes, n_answer: int | None) -> bytes:
-    """The last whole answer in `data` (which holds one at least)."""
-    if n_answer is None:
-        end = data.rindex(p.CR) + 1
-        return data[data.rfind(p.CR, 0, end - 1) + 1 : end]
-    end = len(data) // n_answer * n_answer
-    return data[end - n_answer : end]

@@ -21,7 +21,6 @@ import numpy as np
 import numpy.typing as npt
 from geometry_msgs.msg import TransformStamped
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
@@ -32,6 +31,7 @@ from al5d.model.joints import GRIPPER_FINGERS
 from al5d.model.transforms import Quat, Vec3, quat_mul, quat_rotate
 from al5d.ros.dds import start_context
 from al5d.ros.names import TWIN_NODE, Names
+from al5d.ros.qos import profile
 from al5d.ros.robot import QOS_TF_STATIC
 from al5d.twin.camera import Intrinsics
 from al5d.twin.physics import ObjectState
@@ -39,19 +39,9 @@ from al5d.twin.scene import CAMERA_OPTICAL_FRAME, Scene, rgba
 
 #: The camera's pictures: reliable (a recording asks for what it missed) but only the
 #: newest two kept, so that a slow reader never holds the twin up.
-QOS_PICTURES = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=2,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+QOS_PICTURES = profile(2)
 #: Its words: each one kept for a reader that is behind.
-QOS_WORDS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=100,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+QOS_WORDS = profile(100)
 
 
 def _transform(parent: str, child: str, xyz: Vec3, q: Quat, stamp: object) -> TransformStamped:

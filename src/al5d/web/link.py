@@ -23,7 +23,6 @@ from typing import Any, Protocol
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -45,35 +44,25 @@ from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.names import PING, Names
 from al5d.ros.physical import PhysicalReader
-from al5d.ros.qos import QOS_COMMANDS, QOS_INSTRUCTIONS, QOS_LATCHED, QOS_SERVICES
+from al5d.ros.qos import (
+    QOS_COMMANDS,
+    QOS_INSTRUCTIONS,
+    QOS_LATCHED,
+    QOS_LATEST,
+    QOS_SERVICES,
+    profile,
+)
 from al5d.ros.robot import QOS_TF_STATIC
 
-#: Samples that may be dropped: the latest is all the page wants.
-QOS_LATEST = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.BEST_EFFORT,
-    durability=DurabilityPolicy.VOLATILE,
-)
 #: Outcomes: reliable (a refusal's reason must reach the page) but shallow; the server's
 #: writer keeps its own history and is never slowed by a reader's.
-QOS_OUTCOMES = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=100,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+QOS_OUTCOMES = profile(100)
 
 
 #: The state: latched as the server writes it, and every change kept until this page takes
 #: it (a reader of depth 1 whose executor lagged a short move behind showed READY, READY:
 #: the MOVING between them was overwritten before it was taken).
-QOS_STATES = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=20,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+QOS_STATES = profile(20, latched=True)
 
 
 class Listener(Protocol):

@@ -27,7 +27,8 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from al5d.ros.executors import Spinner
 from al5d.ros.names import Names
-from al5d.web.link import QOS_LATEST, QOS_OUTCOMES
+from al5d.ros.qos import QOS_LATEST
+from al5d.web.link import QOS_OUTCOMES
 from al5d.web.page import Page
 from al5d.web.scene import ROOT
 from al5d.web.scene import _load_urdf as load_urdf  # the page's own way to read a URDF

@@ -26,7 +26,6 @@ import os
 import queue
 import signal
 import threading
-from types import TracebackType
 from typing import TYPE_CHECKING, TextIO
 
 from al5d.ssc32u.emulator import settings
@@ -102,12 +101,7 @@ class Emulator(Board):
     def __enter__(self) -> Emulator:
         return self.start()
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     @property

@@ -42,6 +42,7 @@ from al5d.ssc32u import facts
 from al5d.ssc32u.emulator.board import Answer, Board, Record
 from al5d.ssc32u.emulator.usb import FtdiChip, LinkModel, Packet, byte_arrivals
 
+#: A line longer than this is cut (what the board's buffer holds of it).
 MAX_LINE = 1024
 #: What termios calls the bauds a client may set.
 _BAUDS = {

@@ -12,8 +12,6 @@ from al5d.ssc32u import facts
 from al5d.ssc32u.emulator.inputs import Level, input_level
 from al5d.ssc32u.emulator.measure import Mechanics
 
-LATENCY_TIMER_MS = facts.LATENCY_TIMER_MS
-
 
 def _pair(text: str, what: str) -> tuple[str, str]:
     name, sep, value = text.partition("=")

@@ -16,12 +16,10 @@ from collections.abc import Callable
 from al5d.clock import now
 from al5d.ssc32u import facts
 from al5d.ssc32u.emulator.board import Board, Fault, Record
+from al5d.ssc32u.emulator.pty import MAX_LINE
 from al5d.ssc32u.emulator.usb import USB, FtdiChip, LinkModel, Packet, byte_arrivals
 from al5d.ssc32u.errors import LinkLost, PortUnavailable
 from al5d.ssc32u.transport import Transport
-
-#: A line longer than this is cut (as the pty link keeps it).
-MAX_LINE = 1024
 
 
 class VirtualWire:

@@ -15,7 +15,10 @@ from __future__ import annotations
 
 from al5d.ssc32u.facts import TIME_MAX_MS
 from al5d.ssc32u.protocol.answers import (
+    VERSION_ANSWER_BYTES,
+    count_answers,
     encode_pulses,
+    last_answer,
     parse_digital,
     parse_movement,
     parse_pulses,
@@ -75,6 +78,7 @@ __all__ = [
     "CR",
     "ESC",
     "TIME_MAX_MS",
+    "VERSION_ANSWER_BYTES",
     "AppendStartup",
     "ByteOutput",
     "ChannelTarget",
@@ -96,6 +100,7 @@ __all__ = [
     "Unrecognized",
     "Version",
     "WriteRegister",
+    "count_answers",
     "encode",
     "encode_byte_output",
     "encode_digital_output",
@@ -112,6 +117,7 @@ __all__ = [
     "encode_stop",
     "encode_version",
     "group_duration_s",
+    "last_answer",
     "move_prefix",
     "parse_digital",
     "parse_line",

@@ -21,6 +21,23 @@ from al5d.ssc32u.facts import (
 )
 from al5d.ssc32u.protocol.commands import CR, ProtocolError
 
+#: A VER answer's length, for its deadline (`SSC32-V2.50USB\r` is 15 bytes).
+VERSION_ANSWER_BYTES = 16
+
+
+def count_answers(data: bytes, n_answer: int | None) -> int:
+    """How many whole answers `data` holds: of `n_answer` bytes each, or lines (None)."""
+    return data.count(CR) if n_answer is None else len(data) // n_answer
+
+
+def last_answer(data: bytes, n_answer: int | None) -> bytes:
+    """The last whole answer in `data` (which holds one at least)."""
+    if n_answer is None:
+        end = data.rindex(CR) + 1
+        return data[data.rfind(CR, 0, end - 1) + 1 : end]
+    end = len(data) // n_answer * n_answer
+    return data[end - n_answer : end]
+
 
 def parse_movement(answer: bytes) -> bool:
     """True while moving (`+`), False when complete (`.`)."""
