@@ -15,7 +15,7 @@ from std_srvs.srv import Trigger
 
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
-from al5d.ros.names import Names
+from al5d.ros.names import PING, Names
 from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SERVICES, QOS_STREAM
 from al5d.ros.workarounds import Reader, ReaderOnly, taken_by_reader
 
@@ -155,6 +155,13 @@ class Peer:
             20,
             "the server's topics",
         )
+        # The count may be the stop watcher's reader alone (a participant of its own, often
+        # found first); a move sent before the node's reader is matched never reaches it (the
+        # topic is volatile): a CI run with four workers saw a test's first move on the topic
+        # go unanswered. An answered ping is the node's reader matched, and its results (a
+        # peer that takes no results cannot hear one: the counts must do for its floods).
+        if self._result_sub is not None:
+            self.wait_for_topics("ready-ping-")
         # The safety services are a participant of their own, discovered apart (seen: more
         # than 10 s with four workers beside two busy loops).
         for name, client in self.services.items():
@@ -163,17 +170,16 @@ class Peer:
         self.first_answer()
 
     def wait_for_topics(self, prefix: str, timeout: float = 20.0) -> None:
-        """Until an instruction sent on the topic has come back answered: both ways matched
-        with the server that runs now. After a server was killed, `wait_for_server`'s counts
-        may still be the dead one's (DDS forgets a killed participant only when its lease
-        ends), and a move sent then reaches nobody. The probes are refused (no such
-        instruction): nothing is written."""
+        """Until a ping sent on the topic has come back answered: both ways matched with the
+        server's node that runs now. After a server was killed, the counts may still be the
+        dead one's (DDS forgets a killed participant only when its lease ends), and a move
+        sent then reaches nobody. The node answers a ping itself: nothing reaches the owner."""
         deadline = time.monotonic() + timeout
         n = 0
         while not any(ident.startswith(prefix) for ident in self.results_now()):
             if time.monotonic() > deadline:
                 raise AssertionError(f"no probe {prefix}* answered in {timeout} s")
-            self.send(f"{prefix}{n}", "probe")
+            self.send(f"{prefix}{n}", PING)
             n += 1
             time.sleep(0.2)
 
