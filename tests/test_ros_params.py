@@ -107,6 +107,17 @@ def double(x: float) -> ParameterValue:
     return ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=x)
 
 
+def test_a_client_over_ros_finds_the_renamed_node(served: Served) -> None:
+    """`-r __node:=left_arm` leaves the topics where they were, so that the clients find the
+    server (docs/ros.md): a client over ROS 2, as on another machine, has its move done.
+    Before, it looked for a node named `al5d` and said that no server answers."""
+    from al5d.ros.client import Client
+
+    with Client("left", local=False, wait_s=60) as client:
+        outcome = client.execute("move base=4", timeout=60)
+    assert outcome.ok, outcome
+
+
 def test_a_namespace_remap_moves_every_node_name_and_frame(served: Served) -> None:
     node = served.peer.node
     expected = {(RENAMED, "/left"), *((name, "/left") for name in OTHERS)}

@@ -70,6 +70,8 @@ class LostContact(NoOutcome):
     lease runs out, halts what it commanded and never runs what it sent meanwhile."""
 
 
+#: The node name that discovery lists for an endpoint whose node it has not heard of yet.
+UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
 #: The handshake's ping (`al5d.ros.names.PING`) is sent again this often until one is
 #: answered: a ping the server answered before its result writer had matched our reader
 #: reached nobody.
@@ -384,16 +386,23 @@ class Client:
 
     def _server_seen(self) -> bool:
         """Our writer of instructions has matched every reader of them that discovery lists,
-        the node `al5d`'s among them, and our reader of results a writer of them.
+        the server's node's among them, and our reader of results a writer of them.
 
         A server has more than one reader of instructions (its stop watcher's, best effort):
         one matched is not enough. An instruction published before our writer has matched
-        the node `al5d`'s reader never reaches it (seen: 2 `al5d run`s in 30 on a loaded
-        machine waited for ever for their first outcome, the server never told of it)."""
+        the node's reader never reaches it (seen: 2 `al5d run`s in 30 on a loaded machine
+        waited for ever for their first outcome, the server never told of it). The node is
+        the one that both reads instructions and publishes results, whatever its name: `-r
+        __node:=left_arm` renames it (looked for as `al5d`, no client over ROS found it)."""
         readers = self.node.get_subscriptions_info_by_topic(self.names.instruction)
+        writers = self.node.get_publishers_info_by_topic(self.names.result)
         ours = self.names.node_namespace
+
+        def named(infos: Any) -> set[str]:  # a name discovery has not heard yet says nothing
+            return {i.node_name for i in infos if i.node_namespace == ours} - {UNKNOWN_NODE}
+
         return (
-            any(r.node_name == NODE and r.node_namespace == ours for r in readers)
+            bool(named(readers) & named(writers))
             and self.pub.get_subscription_count() >= len(readers)
             and self.results.get_publisher_count() > 0
         )
