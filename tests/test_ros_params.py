@@ -118,6 +118,20 @@ def test_a_client_over_ros_finds_the_renamed_node(served: Served) -> None:
     assert outcome.ok, outcome
 
 
+def test_the_recorder_finds_the_renamed_node(served: Served) -> None:
+    """`al5d record` records every arm the graph shows: the renamed node's too (before, it
+    looked for nodes named `al5d`, and found none here)."""
+    from al5d.app.record import ArmFinder
+
+    found: list[str] = []
+    finder = ArmFinder(served.peer.node, found.append)
+    try:
+        wait_until(lambda: "/left" in found, 30, "the arm in /left")
+    finally:
+        finder.close()
+    assert found == ["/left"]
+
+
 def test_a_namespace_remap_moves_every_node_name_and_frame(served: Served) -> None:
     node = served.peer.node
     expected = {(RENAMED, "/left"), *((name, "/left") for name in OTHERS)}

@@ -496,8 +496,9 @@ class Recorder:
 
 
 class ArmFinder:
-    """Finds the arms a recorder records: every server's node `al5d` the ROS graph shows,
-    by its namespace, each told to `found` once (a thread that looks every `every_s`)."""
+    """Finds the arms a recorder records: every server's node the ROS graph shows, whatever
+    its name (`al5d.ros.client.server_namespaces`), by its namespace, each told to `found`
+    once (a thread that looks every `every_s`)."""
 
     def __init__(self, node: Any, found: Callable[[str], None], every_s: float = 0.2) -> None:
         self._node = node
@@ -509,15 +510,15 @@ class ArmFinder:
         self._thread.start()
 
     def _run(self) -> None:
-        from al5d.ros.names import NODE
+        from al5d.ros.client import server_namespaces
 
         while not self._ended.is_set():
             try:
-                seen = self._node.get_node_names_and_namespaces()
+                seen = server_namespaces(self._node)
             except Exception:  # the node is being destroyed
                 return
-            for name, namespace in seen:
-                if name == NODE and namespace not in self.namespaces:
+            for namespace in sorted(seen):
+                if namespace not in self.namespaces:
                     self.namespaces.append(namespace)
                     self._found(namespace)
             self._ended.wait(self._every_s)

@@ -40,7 +40,7 @@ from al5d.clock import Deadline
 from al5d.interrupts import ctrl_c_after
 from al5d.owner import where
 from al5d.owner.client import LaneClosed, Remote
-from al5d.ros.names import NODE, PING, Names
+from al5d.ros.names import PING, Names
 from al5d.ros.reading import ArmView, Reading, Tool, follow_lane, follow_ros
 
 if TYPE_CHECKING:
@@ -145,13 +145,38 @@ class Answer:
         return f"{text} (by {self.via})"
 
 
+def server_node_seen(node: Any, names: Names) -> bool:
+    """Whether the ROS graph, as `node` sees it, lists the server's node at `names`: the node
+    that both reads its instructions and publishes its results, whatever its name (`-r
+    __node:=left_arm` renames it); a name that discovery has not heard yet counts for
+    nothing (it may be the stop watcher's reader)."""
+    ours = names.node_namespace
+
+    def named(infos: Any) -> set[str]:
+        return {i.node_name for i in infos if i.node_namespace == ours} - {UNKNOWN_NODE}
+
+    readers = named(node.get_subscriptions_info_by_topic(names.instruction))
+    return bool(readers & named(node.get_publishers_info_by_topic(names.result)))
+
+
+def server_namespaces(node: Any) -> set[str]:
+    """The namespaces of the servers that the ROS graph, as `node` sees it, lists
+    (`server_node_seen`), "/" for none."""
+    tail = Names().instruction
+    found = set()
+    for topic, _ in node.get_topic_names_and_types():
+        if topic.endswith(tail) and server_node_seen(node, names := Names(topic[: -len(tail)])):
+            found.add(names.node_namespace)
+    return found
+
+
 def elsewhere(names: Names, node: Any) -> str:
     """The end of a message that no server answers at `names`: the servers seen under other
     namespaces (on this machine's lanes, and on the ROS graph as `node` sees it), or the
     question whether one runs."""
     seen = set(where.namespaces())
     if node is not None:
-        seen |= {ns for name, ns in node.get_node_names_and_namespaces() if name == NODE}
+        seen |= server_namespaces(node)
     seen.discard(names.node_namespace)
     if not seen:
         if node is None:
@@ -395,14 +420,8 @@ class Client:
         the one that both reads instructions and publishes results, whatever its name: `-r
         __node:=left_arm` renames it (looked for as `al5d`, no client over ROS found it)."""
         readers = self.node.get_subscriptions_info_by_topic(self.names.instruction)
-        writers = self.node.get_publishers_info_by_topic(self.names.result)
-        ours = self.names.node_namespace
-
-        def named(infos: Any) -> set[str]:  # a name discovery has not heard yet says nothing
-            return {i.node_name for i in infos if i.node_namespace == ours} - {UNKNOWN_NODE}
-
         return (
-            bool(named(readers) & named(writers))
+            server_node_seen(self.node, self.names)
             and self.pub.get_subscription_count() >= len(readers)
             and self.results.get_publisher_count() > 0
         )
