@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from al5d import exits
-from al5d.app.calibrate import Command, parse_command
+from al5d.app.calibrate import Command, parse_command, server_config
 from al5d.arm.config import ArmConfig, load_config
 from al5d.ros.names import Names
 from al5d.ros.physical import PhysicalPublisher
@@ -218,3 +218,14 @@ def test_calibrate_at_a_terminal_takes_single_keys(server: Emulator, arm_file: P
             popen.kill()
         os.close(main)
     assert load_config(arm_file).joints["base"].calibration[0].us == 1540
+
+
+def test_a_file_the_server_did_not_name_is_not_written(tmp_path: Path) -> None:
+    """The pulses found are the server's file's: a `--config` is written only once the
+    server has said that it runs with it (before, one it did not answer for was written
+    unchecked)."""
+    given = tmp_path / "al5d.yaml"
+    path, why = server_config(None, str(given))
+    assert path is None and "did not say which config_file it runs with" in why
+    assert server_config(given, str(given)) == (given, "")
+    assert server_config(given, None) == (given, "")

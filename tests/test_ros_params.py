@@ -118,6 +118,17 @@ def test_a_client_over_ros_finds_the_renamed_node(served: Served) -> None:
     assert outcome.ok, outcome
 
 
+def test_the_renamed_node_says_its_config_file(served: Served) -> None:
+    """`al5d calibrate` and the web view's Calibrate tab write only the file the server
+    runs with, asked of its node: the renamed node is asked by its name (before, `al5d`
+    was asked, nothing answered, and the page wrote its own file unchecked)."""
+    from al5d.ros.names import Names
+    from al5d.ros.params import served_config_file
+
+    served_file = served_config_file(served.peer.node, Names.of("left"), 30)
+    assert served_file == Path(patient_config())
+
+
 def test_the_recorder_finds_the_renamed_node(served: Served) -> None:
     """`al5d record` records every arm the graph shows: the renamed node's too (before, it
     looked for nodes named `al5d`, and found none here)."""

@@ -132,3 +132,23 @@ def test_a_heavy_cup_holds_the_shoulder_short_and_the_board_hears_the_same_bytes
     frames = {t.child_frame_id for msg in seen["tf"] for t in msg.transforms}
     assert "cup" in frames
     assert {"shoulder", "gripper_left"} <= set(seen["joints"][-1].name)
+
+
+def test_the_twin_of_an_emulator_in_a_namespace_is_in_that_namespace(tmp_path: Path) -> None:
+    """`al5d emulator --namespace left --physics`: the twin's topics are under /left, beside
+    the server that drives that board (`al5d web --namespace left` shows it). Before, the
+    option reached only the misaligned arm's true angles, and the twin was under the
+    configuration's namespace (none)."""
+    link = tmp_path / "left"
+    joints: list[JointState] = []
+    peer = Peer(results=False)
+    board = Proc("emulator", "--link", str(link), "--namespace", "left", "--physics")
+    try:
+        peer.read(JointState, Names.of("left").twin_joint_states, joints.append, 10)
+        board.out.wait_for(str(link), START_S)
+        wait_until(lambda: joints, START_S, "the twin's joint states under /left")
+        board.popen.send_signal(signal.SIGINT)
+        assert board.wait(60) == 0
+    finally:
+        board.kill()
+        peer.close()

@@ -94,3 +94,17 @@ def test_a_bad_scene_file_stops_the_emulator_before_it_starts(tmp_path: Path) ->
     )
     assert missing.returncode == exits.USAGE
     assert "none.yaml: cannot read the scene" in missing.stderr
+
+
+def test_serve_with_a_port_refuses_a_twin(tmp_path: Path) -> None:
+    """The twin follows an emulated board's pulses: `al5d serve --port DEV --physics` ran
+    without one and said nothing; it is refused, with what to do instead."""
+    done = subprocess.run(
+        [sys.executable, "-m", "al5d", "serve", "--port", str(tmp_path / "tty"), "--physics"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == exits.USAGE, done.stderr
+    assert "--physics runs the twin of the embedded emulated board" in done.stderr
+    assert "Traceback" not in done.stderr

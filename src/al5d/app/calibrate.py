@@ -287,14 +287,13 @@ class ServerMover:
 def server_config(served: Path | None, given: str | None) -> tuple[Path | None, str]:
     """The file to write: the one the server was started with (`served`, None: it did not
     say). `given` (`--config`) must be it; without it, the server's. (None and why, when
-    they differ.)"""
+    the file is not known to be the server's.)"""
     if served is None:
-        if given is None:
-            return None, (
-                "the server did not say its config_file (its node renamed?): give --config, "
-                "the file al5d serve was started with"
-            )
-        return Path(given), ""
+        return None, (
+            "the server did not say which config_file it runs with (it did not answer in "
+            "time): nothing is written unless the pulses are known to be that file's; "
+            "try again"
+        )
     if given is not None and Path(given).resolve() != served.resolve():
         return None, (
             f"the server runs with {served}, not {given}: the pulses are that file's; "

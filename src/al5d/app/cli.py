@@ -55,6 +55,14 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         physics=args.physics,
     )
     if args.physics is not None:
+        if args.port is not None:  # the twin follows an emulated board's pulses
+            print(
+                "al5d serve: --physics runs the twin of the embedded emulated board; with "
+                "--port the board is real (for a twin beside an emulated board on a pty: al5d "
+                "emulator --physics, then al5d serve --port on it)",
+                file=sys.stderr,
+            )
+            return exits.USAGE
         return with_twin(lambda: serve(options))
     return serve(options)
 

@@ -133,15 +133,16 @@ def _run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return exits.USAGE
+    from al5d.arm.config import namespace_problem
+
+    # The arm's namespace: where the misaligned arm's true angles and the twin go.
+    ns = config.server.namespace if args.namespace is None else args.namespace
+    problem = namespace_problem(ns)
+    if problem:
+        print(f"al5d emulator: --namespace: {problem}", file=sys.stderr)
+        return exits.USAGE
     physical = None
     if args.misalign:
-        from al5d.arm.config import namespace_problem
-
-        ns = config.server.namespace if args.namespace is None else args.namespace
-        problem = namespace_problem(ns)
-        if problem:
-            print(f"al5d emulator: --namespace: {problem}", file=sys.stderr)
-            return exits.USAGE
         # Before the board is made urgent: the publisher's threads (and DDS's) keep the
         # default priority, behind the board's.
         physical = _physical(config, ns)
@@ -167,7 +168,7 @@ def _run(args: argparse.Namespace) -> int:
         from al5d.twin.link import TwinFailed
 
         try:
-            twin = _twin(emulator, config, args.physics)
+            twin = _twin(emulator, config, args.physics, ns)
         except TwinFailed as e:
             print(f"al5d emulator: {e}", file=sys.stderr)
             return exits.USAGE
@@ -189,14 +190,15 @@ def _run(args: argparse.Namespace) -> int:
     return exits.DONE
 
 
-def _twin(emulator: Emulator, config: ArmConfig, scene: str) -> TwinLink:
-    """The physical twin of the board (`al5d.twin`), its words on stderr."""
+def _twin(emulator: Emulator, config: ArmConfig, scene: str, namespace: str) -> TwinLink:
+    """The physical twin of the board (`al5d.twin`) on ROS under `namespace`, its words on
+    stderr."""
     import logging
 
     from al5d.twin.link import TwinLink
 
     logging.basicConfig(level=logging.INFO, format="al5d emulator: %(message)s", stream=sys.stderr)
-    return TwinLink(emulator, config, scene or None)
+    return TwinLink(emulator, config, scene or None, namespace)
 
 
 def _physical(config: ArmConfig, namespace: str) -> PhysicalPublisher:

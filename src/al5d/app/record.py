@@ -303,7 +303,7 @@ class RecordFile:
         self._items.put((channel, data, log_ns, publish_ns, seq))
 
     def board_tap(self, data: bytes, written: float, arrival: float) -> None:
-        """A `al5d.ssc32u.wire.WriteTap`: one write to the board (only a queue's put)."""
+        """One write to the board, as the owner's wire news tells it (only a queue's put)."""
         if self._items.qsize() >= BACKLOG or self.failed:
             self.dropped += 1
             return
@@ -497,7 +497,7 @@ class Recorder:
 
 class ArmFinder:
     """Finds the arms a recorder records: every server's node the ROS graph shows, whatever
-    its name (`al5d.ros.client.server_namespaces`), by its namespace, each told to `found`
+    its name (`al5d.ros.names.server_namespaces`), by its namespace, each told to `found`
     once (a thread that looks every `every_s`)."""
 
     def __init__(self, node: Any, found: Callable[[str], None], every_s: float = 0.2) -> None:
@@ -510,7 +510,7 @@ class ArmFinder:
         self._thread.start()
 
     def _run(self) -> None:
-        from al5d.ros.client import server_namespaces
+        from al5d.ros.names import server_namespaces
 
         while not self._ended.is_set():
             try:

@@ -40,7 +40,7 @@ from al5d.clock import Deadline
 from al5d.interrupts import ctrl_c_after
 from al5d.owner import where
 from al5d.owner.client import LaneClosed, Remote
-from al5d.ros.names import PING, Names
+from al5d.ros.names import PING, Names, server_namespaces, server_nodes
 from al5d.ros.reading import ArmView, Reading, Tool, follow_lane, follow_ros
 
 if TYPE_CHECKING:
@@ -70,8 +70,6 @@ class LostContact(NoOutcome):
     lease runs out, halts what it commanded and never runs what it sent meanwhile."""
 
 
-#: The node name that discovery lists for an endpoint whose node it has not heard of yet.
-UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
 #: The handshake's ping (`al5d.ros.names.PING`) is sent again this often until one is
 #: answered: a ping the server answered before its result writer had matched our reader
 #: reached nobody.
@@ -143,31 +141,6 @@ class Answer:
         if self.message and self.message != text:
             text += f": {self.message}"
         return f"{text} (by {self.via})"
-
-
-def server_node_seen(node: Any, names: Names) -> bool:
-    """Whether the ROS graph, as `node` sees it, lists the server's node at `names`: the node
-    that both reads its instructions and publishes its results, whatever its name (`-r
-    __node:=left_arm` renames it); a name that discovery has not heard yet counts for
-    nothing (it may be the stop watcher's reader)."""
-    ours = names.node_namespace
-
-    def named(infos: Any) -> set[str]:
-        return {i.node_name for i in infos if i.node_namespace == ours} - {UNKNOWN_NODE}
-
-    readers = named(node.get_subscriptions_info_by_topic(names.instruction))
-    return bool(readers & named(node.get_publishers_info_by_topic(names.result)))
-
-
-def server_namespaces(node: Any) -> set[str]:
-    """The namespaces of the servers that the ROS graph, as `node` sees it, lists
-    (`server_node_seen`), "/" for none."""
-    tail = Names().instruction
-    found = set()
-    for topic, _ in node.get_topic_names_and_types():
-        if topic.endswith(tail) and server_node_seen(node, names := Names(topic[: -len(tail)])):
-            found.add(names.node_namespace)
-    return found
 
 
 def elsewhere(names: Names, node: Any) -> str:
@@ -421,7 +394,7 @@ class Client:
         __node:=left_arm` renames it (looked for as `al5d`, no client over ROS found it)."""
         readers = self.node.get_subscriptions_info_by_topic(self.names.instruction)
         return (
-            server_node_seen(self.node, self.names)
+            bool(server_nodes(self.node, self.names))
             and self.pub.get_subscription_count() >= len(readers)
             and self.results.get_publisher_count() > 0
         )

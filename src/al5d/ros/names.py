@@ -1,10 +1,11 @@
 """The public names of one arm's server (its nodes, topics, services and actions, under
 its namespace): the one place that spells them, for the server, the clients and the web
-view alike. No rclpy here."""
+view alike; and its node found in a ROS graph by them, whatever its name. No rclpy here."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from al5d.arm.config import namespace_problem
 from al5d.arm.instruction import Kind
@@ -16,6 +17,8 @@ ACTIONS_NODE = "al5d_actions"
 ROBOT_NODE = "al5d_robot"
 #: The physical twin's node, in a process of its own (`al5d.twin`).
 TWIN_NODE = "al5d_twin"
+#: The node name that discovery lists for an endpoint whose node it has not heard of yet.
+UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
 #: The instruction a client's handshake sends on the instruction topic: the node answers
 #: it `done` on the result topic at once, without the arm (nothing written, nothing
 #: logged, whatever the arm's state). An answer says both ways of the topics work.
@@ -164,3 +167,28 @@ def pinned(name: str) -> list[str]:
     (which renames every node of a context; a node's own rules come first): the server's
     nodes but `al5d` keep theirs, so that each has one name, as the design gives them."""
     return ["--ros-args", "-r", f"__node:={name}"]
+
+
+def server_nodes(node: Any, names: Names) -> set[str]:
+    """The names of the server's node at `names` that the ROS graph, as rclpy's `node` sees
+    it, lists: the node that both reads the instructions and publishes the results,
+    whatever a remap called it (`-r __node:=left_arm`). A name that discovery has not
+    heard yet counts for nothing (it may be the stop watcher's reader)."""
+    ours = names.node_namespace
+
+    def named(infos: Any) -> set[str]:
+        return {i.node_name for i in infos if i.node_namespace == ours} - {UNKNOWN_NODE}
+
+    readers = named(node.get_subscriptions_info_by_topic(names.instruction))
+    return readers & named(node.get_publishers_info_by_topic(names.result))
+
+
+def server_namespaces(node: Any) -> set[str]:
+    """The namespaces ("/" for none) of the servers that the ROS graph, as rclpy's `node`
+    sees it, lists (`server_nodes`)."""
+    tail = Names().instruction
+    found = set()
+    for topic, _ in node.get_topic_names_and_types():
+        if topic.endswith(tail) and server_nodes(node, names := Names(topic[: -len(tail)])):
+            found.add(names.node_namespace)
+    return found

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import re
 import threading
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,6 +48,8 @@ from al5d.arm.config import (
     parse_config,
 )
 from al5d.arm.config import with_changes as config_with
+from al5d.clock import Deadline
+from al5d.ros.names import server_nodes
 
 if TYPE_CHECKING:
     from rclpy.node import Node
@@ -308,13 +311,22 @@ def description(name: str) -> str:
 
 
 def served_config_file(node: Node, names: Names, timeout: float) -> Path | None:
-    """The configuration file a running server was started with (its node `al5d`'s
-    `config_file`; the shipped one for ""), asked by a client's `node`; None if that node
-    does not answer within `timeout` (renamed, or gone)."""
+    """The configuration file a running server was started with (its node's `config_file`;
+    the shipped one for ""), asked by a client's `node`; None if that node does not answer
+    within `timeout` (gone). The node is asked by the name the graph shows for it
+    (`server_nodes`): a remap may have renamed it, and the file asked of a node `al5d`
+    that is not there went unanswered, so the calibration was written unchecked."""
     from rcl_interfaces.msg import ParameterType
     from rcl_interfaces.srv import GetParameters
 
-    service = node.create_client(GetParameters, names.private("get_parameters"))
+    deadline = Deadline(timeout)
+    while not (found := server_nodes(node, names)) and not deadline.expired:
+        time.sleep(0.05)
+    if not found:
+        return None
+    name = f"{names.namespace}/{min(found)}/get_parameters"
+    timeout = deadline.left()
+    service = node.create_client(GetParameters, name)
     try:
         if not service.wait_for_service(timeout_sec=timeout):
             return None

@@ -219,7 +219,14 @@ class CalibrationTab:
             results = list(self.results.values())
             if not results:
                 return
-            if served is not None and served.resolve() != self.path.resolve():
+            if served is None:
+                self._show(
+                    "not written: the server did not say which file it runs with (no answer "
+                    "in time); write again",
+                    ok=False,
+                )
+                return
+            if served.resolve() != self.path.resolve():
                 self._show(
                     f"not written: the server runs with {served}, this page with {self.path}: "
                     f"start al5d web --config {served}",
