@@ -12,6 +12,7 @@ import math
 import os
 import shutil
 import signal
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -119,6 +120,23 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
                 server.popen.send_signal(signal.SIGTERM)
                 server.wait(30)
         emu.close()
+
+
+@pytest.fixture(autouse=True)
+def web_faults(request: pytest.FixtureRequest) -> Iterator[None]:
+    """What the web view wrote on stderr during a test where it wrote a traceback or an
+    error, on this test's stderr (shown with a failure). In one CI run (four workers) a
+    page lost its web view for good after the long-drag test, and every later test of the
+    module failed behind its layer, with no word of what the web view went through."""
+    if "rig" not in request.fixturenames:
+        yield
+        return
+    err = request.getfixturevalue("rig").web.proc.err
+    n = len(err.all)
+    yield
+    said = err.all[n:]
+    if any(w in line for line in said for w in ("Traceback", "ERROR", "Exception in")):
+        print("the web view's stderr:", *said[-40:], sep="\n", file=sys.stderr)
 
 
 def serve(link: Path, speeds: tuple[tuple[str, float], ...] = (), **server: float) -> Proc:
