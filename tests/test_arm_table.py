@@ -17,7 +17,14 @@ from al5d.arm.instruction import Point, Result
 from al5d.arm.states import State
 from al5d.arm.validate import Limits, check, from_start
 from al5d.model import JOINTS, build_chain, link_poses
-from al5d.model.table import HEIGHT_JOINTS, PATH_TOLERANCE_M, below, heights, path_below
+from al5d.model.table import (
+    HEIGHT_JOINTS,
+    PATH_TOLERANCE_M,
+    below,
+    clear_by_bound,
+    heights,
+    path_below,
+)
 from al5d.model.transforms import matrix_from_quat
 from al5d.ssc32u import protocol as p
 from al5d_rig.armrig import Rig, written
@@ -89,6 +96,36 @@ def test_no_dip_deeper_than_the_tolerance_is_missed(
         assert path_below(MODEL, [a, b]) is not None
     if path_below(MODEL, [a, b]) is None:
         assert dense.min() >= MODEL.geometry.table_height - PATH_TOLERANCE_M
+
+
+@settings(max_examples=300, deadline=None)
+@given(degrees_in_range(), degrees_in_range(), st.floats(0.0, 1.0))
+def test_a_path_cleared_by_the_bound_alone_is_above_the_table_all_the_way(
+    a: dict[str, float], b: dict[str, float], near: float
+) -> None:
+    # The bound skips sampling only where no pose on the way is under the table: checked
+    # 20,000 times along the path. `b` drawn near `a` as often as far (short moves are the
+    # ones the bound clears).
+    b = {j: a[j] + near * (b[j] - a[j]) for j in a}
+    h = heights(MODEL)
+    qa = np.array([a[j] for j in HEIGHT_JOINTS])
+    qb = np.array([b[j] for j in HEIGHT_JOINTS])
+    if clear_by_bound(h, [list(qa), list(qb)], [h.speed(a, b)]):
+        dense = h.lowest(qa + np.linspace(0, 1, 20001)[:, None] * (qb - qa)).min(axis=1)
+        assert dense.min() >= MODEL.geometry.table_height
+        assert path_below(MODEL, [a, b]) is None
+
+
+def test_a_small_move_high_above_the_table_is_cleared_without_sampling() -> None:
+    h = heights(MODEL)
+
+    def row(pose: dict[str, float]) -> list[float]:
+        return [pose[j] for j in HEIGHT_JOINTS]
+
+    nudged = {**READY, "shoulder": READY["shoulder"] + 5.0}
+    assert clear_by_bound(h, [row(READY), row(nudged)], [h.speed(READY, nudged)])
+    deep = {**READY, **INTO_TABLE}
+    assert not clear_by_bound(h, [row(READY), row(deep)], [h.speed(READY, deep)])
 
 
 def test_a_path_that_dips_under_between_two_poses_above_is_refused() -> None:
