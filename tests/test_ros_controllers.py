@@ -415,6 +415,11 @@ def test_a_late_point_the_next_catches_up_with_is_reported(rig: Rig) -> None:
     rig.recover()
     # Point 1: 60 deg of base in 0.1 s (the servo needs more); point 2 has time to catch up.
     goal = rig.trajectory([(0.5, pose(base=10)), (0.6, pose(base=70)), (3.0, pose())])
+    # The servo's lateness is this test's, not the host's: a point written later than its
+    # schedule is judged against the path tolerance, and at the servo's full speed (about
+    # 330 degrees a second) 1 degree is 3 ms of it: a CI run with four workers wrote point 1
+    # 82 ms late, and the goal ended for it, as it should. 90 degrees: a host 270 ms late.
+    goal.path_tolerance = [JointTolerance(name="base", position=math.radians(90))]
     answer = wait_future(rig.send(rig.fjt, goal).get_result_async(), 15)
     assert answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result.error_string
     text = answer.result.error_string
