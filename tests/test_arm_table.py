@@ -8,7 +8,7 @@ import math
 import time
 
 import numpy as np
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from al5d.arm import instruction as ins
@@ -98,8 +98,16 @@ def test_no_dip_deeper_than_the_tolerance_is_missed(
         assert dense.min() >= MODEL.geometry.table_height - PATH_TOLERANCE_M
 
 
+#: Both ends above the table, the hand sweeping 26 mm through it on the way (below).
+DIPS = (
+    {**READY, "shoulder": 70.0, "elbow": 50.0, "wrist": 70.0},
+    {**READY, "shoulder": 10.0, "elbow": 125.0, "wrist": -90.0},
+)
+
+
 @settings(max_examples=300, deadline=None)
 @given(degrees_in_range(), degrees_in_range(), st.floats(0.0, 1.0))
+@example(*DIPS, 1.0)  # random pairs seldom dip between two ends above the table
 def test_a_path_cleared_by_the_bound_alone_is_above_the_table_all_the_way(
     a: dict[str, float], b: dict[str, float], near: float
 ) -> None:
@@ -131,8 +139,7 @@ def test_a_small_move_high_above_the_table_is_cleared_without_sampling() -> None
 def test_a_path_that_dips_under_between_two_poses_above_is_refused() -> None:
     # Both ends above the table (the hand up, leaning forward; then folded back, pointing
     # down); on the way the hand sweeps 26 mm through the table.
-    a = {**READY, "shoulder": 70.0, "elbow": 50.0, "wrist": 70.0}
-    b = {**READY, "shoulder": 10.0, "elbow": 125.0, "wrist": -90.0}
+    a, b = DIPS
     assert below(MODEL, a) is None and below(MODEL, b) is None
     under = path_below(MODEL, [a, b])
     assert under is not None and 0.5 < under.fraction < 0.8, under
