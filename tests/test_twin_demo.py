@@ -32,8 +32,10 @@ def test_the_demo_picks_the_cup_and_sets_it_down_at_its_goal_recorded(tmp_path: 
         err = demo.err.drain(0.5)
         said = "\n".join([line for line in err[:-30] if "twin" in line] + err[-30:])
         # 0, or 1 when a move's QoS missed SA03's bound on a busy host (the table says MISSED):
-        # the cup's measures below are what this test is about.
-        assert code == 0 or (code == 1 and "MISSED" in text), text + "\n" + said
+        # the cup's measures below are what this test is about. (The cup's own line says
+        # MISSED too when it is not at its goal: not counted here.)
+        qos_missed = any("MISSED" in line for line in out if not line.startswith("cup:"))
+        assert code == 0 or (code == 1 and qos_missed), text + "\n" + said
         recorder.out.wait_for(f"{names.camera_image}: 1 writer", 5)
         recorder.popen.send_signal(signal.SIGINT)
         assert recorder.wait(60) == 0
@@ -45,8 +47,8 @@ def test_the_demo_picks_the_cup_and_sets_it_down_at_its_goal_recorded(tmp_path: 
     assert placed, text
     found = re.search(r"lifted (\d+) mm at most; .*?, ([\d.]+) mm from its goal", placed[0])
     assert found, placed[0]
-    assert int(found.group(1)) >= 50, (placed[0], said)
-    assert float(found.group(2)) <= 10, (placed[0], said)
+    assert int(found.group(1)) >= 50, text + "\n" + said
+    assert float(found.group(2)) <= 10, text + "\n" + said
     assert ": held (" in placed[0]
 
     counts: Counter[str] = Counter()
