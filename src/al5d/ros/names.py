@@ -51,8 +51,9 @@ class Names:
     def node_namespace(self) -> str:
         return self.namespace or "/"
 
-    def private(self, name: str) -> str:
-        return f"{self.namespace}/{NODE}/{name}"
+    def private(self, name: str, node: str = NODE) -> str:
+        """`name` private to the server's node (`node`: its name, if a remap changed it)."""
+        return f"{self.namespace}/{node}/{name}"
 
     def shared(self, name: str) -> str:
         return f"{self.namespace}/{name}"

@@ -324,9 +324,8 @@ def served_config_file(node: Node, names: Names, timeout: float) -> Path | None:
         time.sleep(0.05)
     if not found:
         return None
-    name = f"{names.namespace}/{min(found)}/get_parameters"
     timeout = deadline.left()
-    service = node.create_client(GetParameters, name)
+    service = node.create_client(GetParameters, names.private("get_parameters", min(found)))
     try:
         if not service.wait_for_service(timeout_sec=timeout):
             return None
