@@ -23,6 +23,7 @@ from typing import Any
 
 import pytest
 import viser
+from playwright.sync_api import Error as PlaywrightError
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from websockets.exceptions import ConnectionClosed
@@ -875,7 +876,13 @@ def test_the_demo_waits_for_a_page_then_runs(rig: Rig) -> None:
             ws.recv(timeout=5)
         lines = demo.out.drain(4.0)  # the demo's own first line comes a second or so later
         assert not [x for x in lines if x.endswith("the demo starts") or "embedded emulator" in x]
-        page = open_page(rig.browser, url)  # once the demo's joint states reach the page
+        try:
+            page = open_page(rig.browser, url)  # once the demo's joint states reach the page
+        except PlaywrightError as e:
+            # What the demo said and where it waits: a CI run's page had no joint states in
+            # 90 s, with no word of why.
+            said = "\n".join(demo.out.drain(0.5)[-60:] + demo.err.drain(0.5)[-60:])
+            raise AssertionError(f"{e}\nthe demo said:\n{said}\n{demo.stacks()}") from None
         try:
             demo.out.wait_for("a page opened; the demo starts", 1)
         finally:
