@@ -95,7 +95,7 @@ def without_holds(lines: list[bytes]) -> list[bytes]:
     the one last written on its channel. The server writes one before a move after a stop
     that came while a joint may still have been on its way (`PoseBook.unsure`: within
     `SETTLE_GRACE_S` of its move's end), so whether there is one depends on how soon the
-    stop followed the move: in a replay on a loaded host, later than in the recording."""
+    stop followed the move (a CI run's replay had none where its recording had one)."""
     last: dict[int, int] = {}
     kept = []
     for line in lines:

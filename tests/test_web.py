@@ -879,8 +879,8 @@ def test_the_demo_waits_for_a_page_then_runs(rig: Rig) -> None:
         try:
             page = open_page(rig.browser, url)  # once the demo's joint states reach the page
         except PlaywrightError as e:
-            # What the demo said and where it waits: a CI run's page had no joint states in
-            # 90 s, with no word of why.
+            # What the demo said and where it waits: in a run of the suite (four workers) the
+            # page had no joint states in 90 s, with no word of why.
             said = "\n".join(demo.out.drain(0.5)[-60:] + demo.err.drain(0.5)[-60:])
             raise AssertionError(f"{e}\nthe demo said:\n{said}\n{demo.stacks()}") from None
         try:
