@@ -12,7 +12,8 @@
 - `demo`: DE01 on the embedded emulator, with the DE02 table of `reach`.
 - `reach`: how soon each move reached its target (the demo's and the benchmarks' table).
 - `doctor`: `al5d doctor`, what stands between this computer and its SSC-32U.
-- `moveit`, `moveit_package`: `al5d moveit`, a MoveIt 2 config package for the arm.
+- `moveit`, `moveit_package`, `moveit_arms`: `al5d moveit`, a MoveIt 2 config package for
+  the arm (`moveit_arms`: the launch files of a package of several).
 - `record`, `replay`: recordings in rosbag2's MCAP (`al5d record`, `serve --record`) and
   `al5d replay`.
 - `calibrate`: `al5d calibrate`, the guided calibration at the terminal (through the server).

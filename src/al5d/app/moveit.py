@@ -14,6 +14,7 @@ from pathlib import Path
 import yaml
 
 from al5d.app import moveit_package as pkg
+from al5d.app.moveit_arms import ServedArm, arms_launch_files
 from al5d.arm.config import ArmConfig, namespace_problem
 from al5d.model import Chain, build_chain, moveit_config, urdf_from_chain, urdf_of_arms
 from al5d.model import moveit as mv
@@ -173,14 +174,14 @@ def moveit_files_of_arms(arms: Sequence[Arm], package: str = DEFAULT_PACKAGE) ->
         config["server"]["namespace"] = ns
         files[f"config/arms/{ns}.yaml"] = _yaml(config)
         served.append(
-            pkg.ServedArm(
+            ServedArm(
                 ns,
                 f"config/arms/{ns}.yaml",
                 arm.config.server.joint_prefix_in(ns),
                 arm.config.server.joint_state_rate_hz,
             )
         )
-    files |= pkg.arms_launch_files(robot=ROBOT, package=package, arms=served)
+    files |= arms_launch_files(robot=ROBOT, package=package, arms=served)
     return files
 
 
