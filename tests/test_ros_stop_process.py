@@ -357,7 +357,7 @@ def test_a_stop_process_whose_owner_ends_as_it_starts_ends_with_it(
         # Frozen as its hello is read (the welcome goes in the same turn), so that the
         # welcome and the lane's end both wait for it, ahead of its node.
         wait_until(
-            lambda: any(c.name == "al5d-stop" for c in list(owner._conns.values())),
+            lambda: any(c.name == "al5d-stop" for c in list(owner._lanes.conns.values())),
             60,
             "the stop process's hello",
         )

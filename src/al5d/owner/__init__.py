@@ -3,6 +3,8 @@ its inbox's lanes, and the local lane by which clients on this machine reach it.
 
 - `loop`: `Owner`, the owner's thread: inputs in (stops first), the core stepped, its
   effects carried out (bytes to the board, outcomes and news to the clients).
+- `conns`: the lane's sockets, for the owner's thread: its clients' connections
+  accepted, read, written, leased and dropped.
 - `teller`: the thread that tells in-process futures, listeners and the log, so that the
   owner's thread never runs anyone else's code.
 - `lane`: the local lane's protocol (a Unix socket, one JSON object a line); `where`:

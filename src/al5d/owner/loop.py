@@ -27,8 +27,7 @@ from collections import deque
 from collections.abc import Callable, Hashable
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
-from dataclasses import dataclass, field, replace
-from math import inf
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +65,7 @@ from al5d.arm.states import Event, State
 from al5d.arm.validate import Ticket, judge
 from al5d.clock import Deadline, now, wall_ns
 from al5d.owner import lane as ln
+from al5d.owner.conns import Conn, Conns
 from al5d.owner.teller import Teller, tell
 from al5d.priority import cpu_waited_s, make_urgent
 from al5d.ssc32u import protocol as p
@@ -77,10 +77,6 @@ log = logging.getLogger("al5d")
 #: Requests other than stops taken in one turn, at most: a stop that comes meanwhile waits
 #: for no more than these.
 BATCH = 32
-#: A client's socket read at most this much in one turn (the stops in it are found first).
-READ_BYTES = 32 * 1024
-#: A client that reads nothing while this much waits for it is let go (a lost client).
-OUT_MAX = 64 * 1024 * 1024
 #: The board's writes kept for a recorder that has not yet connected (`keep_wire`), at most:
 #: its bridge connects within a second of the start, the park's writes are a handful.
 WIRE_KEPT = 1000
@@ -88,31 +84,6 @@ WIRE_KEPT = 1000
 SLEEP_MAX_S = 0.5
 #: A thread that woke this much later than it asked was not running: the host's stall.
 LATE_S = 0.002
-
-
-@dataclass(eq=False)
-class Conn:
-    """One client of the local lane."""
-
-    sock: socket.socket
-    ident: int
-    name: str = "?"
-    lines: ln.Lines = field(default_factory=ln.Lines)
-    out: bytearray = field(default_factory=bytearray)
-    watch: frozenset[str] = frozenset()
-    tickets: dict[str, Ticket] = field(default_factory=dict)
-    #: The clients this one speaks for (a bridge's ROS clients), by their keys: each a
-    #: client of the core of its own, lost on its own (`gone`).
-    subs: dict[str, int] = field(default_factory=dict)
-    bye: bool = False
-    writing: bool = False
-    #: A leased client (its hello asked for it) not heard for this long is lost: a hung
-    #: process's lane stays open and says nothing (0: not leased).
-    lease_s: float = 0.0
-    #: When it was last heard (the owner's clock), and the owner's stalls then (`_stalled`):
-    #: a host that stalled held the client's signs too, and the owner wakes first.
-    heard: float = 0.0
-    stalled: float = 0.0
 
 
 class Owner:
@@ -164,8 +135,6 @@ class Owner:
         )
         self._others: deque[tuple[str, int, Any]] = deque()
         self._pending: deque[Input] = deque()  # inputs the effects made (a port opened)
-        self._conns: dict[int, Conn] = {}
-        self._conn_ids = itertools.count(1)
         self._selector = selectors.DefaultSelector()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
@@ -183,14 +152,7 @@ class Owner:
         #: ROS: the bridge records, and connects while the park may be on the wire
         #: already); None once told, or not kept.
         self._wire_kept: list[dict[str, Any]] | None = [] if keep_wire else None
-        self._lane_path = lane
-        self._listener: socket.socket | None = None
-        self._lane_inode: int | None = None
-        if lane is not None:
-            self._listener = _listen(lane)
-            if self._listener is not None:
-                self._lane_inode = lane.stat().st_ino
-                self._selector.register(self._listener, selectors.EVENT_READ, "listen")
+        self._lanes = Conns(self._selector, self._lost, lane)
         self._thread = threading.Thread(target=self._run, name="al5d-owner", daemon=True)
         self._closing = False
 
@@ -233,7 +195,7 @@ class Owner:
     @property
     def lane(self) -> Path | None:
         """The local lane's socket, where it could be made."""
-        return self._lane_path if self._listener is not None else None
+        return self._lanes.path
 
     def positions(self, t: float | None = None) -> dict[str, float]:
         """Estimated joint angles (degrees; NaN where unknown since power-up)."""
@@ -402,7 +364,7 @@ class Owner:
         board's bytes, every stop, the other requests (`BATCH` at most), the time."""
         self._woken = False
         t = now()
-        lease_due = self._lease_due()
+        lease_due = self._lanes.lease_due(self._stalled)
         wake = min(wake_at(self._core), t + SLEEP_MAX_S, lease_due)
         due = self.transport.due() if self._core.link.open else None
         if due is not None:
@@ -451,12 +413,12 @@ class Owner:
             with contextlib.suppress(BlockingIOError, OSError):
                 os.read(self._wake_r, 4096)
         elif data == "listen":
-            self._accept()
+            self._lanes.accept()
         elif data == "board":
             self._read_board(now(), ready=True)
         elif isinstance(data, Conn):
             if mask & selectors.EVENT_WRITE:
-                self._flush(data)
+                self._lanes.flush(data)
             if mask & selectors.EVENT_READ:
                 self._read_conn(data)
 
@@ -498,7 +460,7 @@ class Owner:
             client, why = payload
             self._input(Gone(t, wall, client, why))
         elif what == "adopt":
-            self._connect(payload)
+            self._lanes.connect(payload)
         elif what == "barrier":
             self._teller.put(lambda: _set(payload, True))
         elif what == "judge":
@@ -506,7 +468,7 @@ class Owner:
             try:
                 self._lane_judge(conn, their, m)
             except ln.LaneError as e:
-                self._write(conn, ln.dumps({"op": "error", "ref": their, "error": str(e)}))
+                self._lanes.write(conn, ln.dumps({"op": "error", "ref": their, "error": str(e)}))
 
     def _input(self, ev: Input) -> None:
         """Step the core with `ev`, carry out its effects, then the inputs they made."""
@@ -563,9 +525,9 @@ class Owner:
             self._teller.put(lambda: tell(self.wire_listeners, (data, t, free_at), "wire"))
         kept = self._wire_kept
         keep = kept is not None and len(kept) < WIRE_KEPT
-        if keep or self._watching("wire"):
+        if keep or self._lanes.watching("wire"):
             message = {"op": "wire", "data": data.decode("latin-1"), "t": t, "free_at": free_at}
-            self._lane_news("wire", message)
+            self._lanes.news("wire", message)
             if keep and kept is not None:  # the recorder's, whoever else watches meanwhile
                 kept.append(message)
                 if len(kept) == WIRE_KEPT:
@@ -615,11 +577,11 @@ class Owner:
             if routed is not None:
                 conn, their = routed
                 message = {"op": "outcome", "ref": their, "outcome": ln.outcome_out(outcome)}
-                self._write(conn, ln.dumps(message))
+                self._lanes.write(conn, ln.dumps(message))
         if effect.tell:
             if self.outcome_listeners:
                 self._teller.put(lambda: tell(self.outcome_listeners, outcome, "outcome"))
-            self._lane_news("outcomes", {"op": "told", "outcome": ln.outcome_out(outcome)})
+            self._lanes.news("outcomes", {"op": "told", "outcome": ln.outcome_out(outcome)})
 
     def _reply(self, ref: int, ok: bool) -> None:
         future = self._futures.pop(ref, None)
@@ -629,7 +591,7 @@ class Owner:
         routed = self._lane_refs.pop(ref, None)
         if routed is not None:
             conn, their = routed
-            self._write(conn, ln.dumps({"op": "reply", "ref": their, "ok": ok}))
+            self._lanes.write(conn, ln.dumps({"op": "reply", "ref": their, "ok": ok}))
 
     def _announce(self, effect: Announce) -> None:
         new, old, event = effect.new, effect.old, effect.event
@@ -647,12 +609,12 @@ class Owner:
         self._teller.put(told)
         if new is not old:
             message = {"op": "state", "state": new.value, "locked": locked}
-            self._lane_news("state", message)
+            self._lanes.news("state", message)
 
     def _moved(self, sent: Sent) -> None:
         if self.motion_listeners:
             self._teller.put(lambda: tell(self.motion_listeners, sent, "motion"))
-        if self._watching("motion"):
+        if self._lanes.watching("motion"):
             message = {
                 "op": "moved",
                 "id": sent.instr.id,
@@ -664,12 +626,12 @@ class Owner:
                 "t_write": sent.t_write,
                 "motion": ln.motion_out(sent.motion),
             }
-            self._lane_news("motion", message)
+            self._lanes.news("motion", message)
 
     def _posed(self, effect: Posed) -> None:
         if self.pose_listeners:
             self._teller.put(lambda: tell(self.pose_listeners, effect, "pose"))
-        if self._watching("pose"):
+        if self._lanes.watching("pose"):
             book = effect.book
             message = {
                 "op": "posed",
@@ -677,49 +639,14 @@ class Owner:
                 "motion": None if book.motion is None else ln.motion_out(book.motion),
                 "running": effect.running,
             }
-            self._lane_news("pose", message)
+            self._lanes.news("pose", message)
 
     # -- the lane ----------------------------------------------------------------------------
 
-    def _watching(self, what: str) -> bool:
-        return any(what in conn.watch for conn in self._conns.values())
-
-    def _lane_news(self, what: str, message: dict[str, Any]) -> None:
-        line = b""
-        for conn in list(self._conns.values()):
-            if what in conn.watch:
-                line = line or ln.dumps(message)
-                self._write(conn, line)
-
-    def _accept(self) -> None:
-        assert self._listener is not None
-        for _ in range(16):
-            try:
-                sock, _ = self._listener.accept()
-            except (BlockingIOError, OSError):
-                return
-            sock.setblocking(False)
-            self._connect(sock)
-
-    def _connect(self, sock: socket.socket) -> None:
-        conn = Conn(sock, next(self._conn_ids))
-        self._conns[conn.ident] = conn
-        self._selector.register(sock, selectors.EVENT_READ, conn)
-
     def _read_conn(self, conn: Conn) -> None:
-        try:
-            data = conn.sock.recv(READ_BYTES)
-        except BlockingIOError:
-            return
-        except OSError:
-            data = b""
-        if not data:
-            self._drop(conn, "" if conn.bye else "its connection closed")
-            return
-        conn.heard, conn.stalled = now(), self._stalled
-        for message in conn.lines.feed(data):
+        for message in self._lanes.read(conn, self._stalled):
             if isinstance(message, ln.LaneError):
-                self._write(conn, ln.dumps({"op": "error", "error": str(message)}))
+                self._lanes.write(conn, ln.dumps({"op": "error", "error": str(message)}))
             else:
                 self._message(conn, message)
 
@@ -746,7 +673,7 @@ class Owner:
             elif op == "hello":
                 self._hello(conn, m)
             elif op == "ping":
-                self._write(conn, ln.dumps({"op": "pong", "ref": ref, "t": now()}))
+                self._lanes.write(conn, ln.dumps({"op": "pong", "ref": ref, "t": now()}))
             elif op == "sign":  # a leased client is there (`Conn.heard`, set as it was read)
                 pass
             elif op == "bye":
@@ -756,7 +683,7 @@ class Owner:
             else:
                 raise ln.LaneError(f"no op {op[:40]!r}")
         except ln.LaneError as e:
-            self._write(conn, ln.dumps({"op": "error", "ref": ref, "error": str(e)}))
+            self._lanes.write(conn, ln.dumps({"op": "error", "ref": ref, "error": str(e)}))
 
     def _hello(self, conn: Conn, m: dict[str, Any]) -> None:
         watch = m.get("watch") or []
@@ -783,10 +710,10 @@ class Owner:
             "t": now(),
             "wall": wall_ns(),
         }
-        self._write(conn, ln.dumps(welcome))
+        self._lanes.write(conn, ln.dumps(welcome))
         if m.get("recorder") is True and "wire" in conn.watch and self._wire_kept is not None:
             for message in self._wire_kept:
-                self._write(conn, ln.dumps(message))
+                self._lanes.write(conn, ln.dumps(message))
             self._wire_kept = None
 
     def _lane_ask(self, conn: Conn, ref: Any, m: dict[str, Any]) -> None:
@@ -807,7 +734,7 @@ class Owner:
             who = m["for"]
             if not isinstance(who, str) or not who or len(who) > 200:
                 raise ln.LaneError("ask: for must be a client's key (text, 1 to 200 characters)")
-            client = conn.subs.get(who) or conn.subs.setdefault(who, next(self._conn_ids))
+            client = conn.subs.get(who) or conn.subs.setdefault(who, self._lanes.new_ident())
         ours = next(self._refs)
         self._lane_refs[ours] = (conn, ref)
         tell_ = bool(m.get("tell", True))
@@ -828,65 +755,27 @@ class Owner:
         follow = ln.follow_in(m.get("follow"))
         got = self.judge(instr, follow)
         if isinstance(got, str):
-            self._write(conn, ln.dumps({"op": "judged", "ref": ref, "reason": got}))
+            self._lanes.write(conn, ln.dumps({"op": "judged", "ref": ref, "reason": got}))
             return
         name = f"{conn.ident}-{ref}"
         conn.tickets[name] = got
         while len(conn.tickets) > 10_000:  # judged and never asked: the oldest go
             del conn.tickets[next(iter(conn.tickets))]
         knots = [step.point for step in got.steps]
-        self._write(conn, ln.dumps({"op": "judged", "ref": ref, "ticket": name, "knots": knots}))
-
-    def _write(self, conn: Conn, line: bytes) -> None:
-        if conn.ident not in self._conns:
-            return
-        conn.out += line
-        if not conn.writing:
-            self._flush(conn)
-
-    def _flush(self, conn: Conn) -> None:
-        try:
-            sent = conn.sock.send(conn.out)
-        except BlockingIOError:
-            sent = 0
-        except OSError:
-            self._drop(conn, "its connection failed")
-            return
-        del conn.out[:sent]
-        waiting = bool(conn.out)
-        if waiting != conn.writing:
-            conn.writing = waiting
-            events = selectors.EVENT_READ | (selectors.EVENT_WRITE if waiting else 0)
-            self._selector.modify(conn.sock, events, conn)
-        if len(conn.out) > OUT_MAX:
-            self._drop(conn, f"it read nothing while {OUT_MAX} bytes waited for it")
-
-    def _lease_due(self) -> float:
-        """When the first leased client's lease runs out (inf: none is leased)."""
-        return min((self._lease_end(c) for c in self._conns.values() if c.lease_s), default=inf)
-
-    def _lease_end(self, conn: Conn) -> float:
-        """When leased `conn`'s lease runs out: its lease from when it was last heard, the
-        owner's own stalls since not counted."""
-        return conn.heard + conn.lease_s + self._stalled - conn.stalled
+        self._lanes.write(
+            conn, ln.dumps({"op": "judged", "ref": ref, "ticket": name, "knots": knots})
+        )
 
     def _lapsed(self, t: float) -> None:
         """Each leased client not heard for its lease, the owner's own stalls since not
-        counted, is lost (`_drop`): what it commanded, and what the clients it speaks for
-        did, is halted; the lapsed listeners are told its socket."""
-        for conn in list(self._conns.values()):
-            if conn.lease_s and t > self._lease_end(conn):
-                self._drop(conn, f"nothing heard from it for {conn.lease_s:g} s (hung or stopped)")
-                sock = conn.sock
-                self._teller.put(lambda s=sock: tell(self.lapsed_listeners, s, "lapsed"))  # type: ignore[misc]
+        counted, is lost (`Conns.lapsed`: what it commanded, and what the clients it speaks
+        for did, is halted); the lapsed listeners are told its socket."""
+        for sock in self._lanes.lapsed(t, self._stalled):
+            self._teller.put(lambda s=sock: tell(self.lapsed_listeners, s, "lapsed"))  # type: ignore[misc]
 
-    def _drop(self, conn: Conn, why: str) -> None:
-        """A client has gone: said goodbye (`why` empty), or lost."""
-        if self._conns.pop(conn.ident, None) is None:
-            return
-        with contextlib.suppress(KeyError, ValueError):
-            self._selector.unregister(conn.sock)
-        conn.sock.close()
+    def _lost(self, conn: Conn, why: str) -> None:
+        """`conn` has been dropped (`Conns.drop`): its requests' answers go nowhere; and, when
+        it was lost (`why`), what it and the clients it speaks for commanded does not go on."""
         for ref, (c, _) in list(self._lane_refs.items()):
             if c is conn:
                 del self._lane_refs[ref]
@@ -913,22 +802,8 @@ class Owner:
                 "board: %d writes, by %d thread%s", self._writes, writers, "s"[: writers != 1]
             )
         )
-        for conn in list(self._conns.values()):
-            with contextlib.suppress(OSError):
-                conn.sock.setblocking(True)
-                conn.sock.settimeout(1.0)
-                conn.sock.sendall(conn.out)
-            conn.sock.close()
-        self._conns.clear()
+        self._lanes.close()
         self._close_board()
-        if self._listener is not None:
-            self._listener.close()
-            # Only our own: a server started meanwhile on the same name may have taken the
-            # path (it found no one listening), and its lane must stay.
-            if self._lane_path is not None and self._lane_inode is not None:
-                with contextlib.suppress(OSError):
-                    if self._lane_path.stat().st_ino == self._lane_inode:
-                        self._lane_path.unlink()
         wake_fds, self._wake_r, self._wake_w = (self._wake_r, self._wake_w), -1, -1
         for fd in wake_fds:  # not written again (`_wake`): the number may be reused
             with contextlib.suppress(OSError):
@@ -949,31 +824,3 @@ def _hashable(value: Any) -> Hashable | None:
     if value is None or isinstance(value, str | int | float | bool):
         return value
     raise ln.LaneError("key: not a JSON value")
-
-
-def _listen(lane: Path) -> socket.socket | None:
-    """The lane's socket, in a folder that is the user's alone; None (said) where another
-    server holds it already."""
-    lane.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
-    with contextlib.suppress(OSError):
-        os.chmod(lane.parent, 0o700)
-    if lane.exists():
-        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        try:
-            probe.connect(str(lane))
-        except OSError:
-            lane.unlink(missing_ok=True)  # a server that ended without removing it
-        else:
-            probe.close()
-            log.warning(
-                "another al5d server holds the local lane %s: this one is reached over ROS only",
-                lane,
-            )
-            return None
-    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    sock.bind(str(lane))
-    os.chmod(lane, 0o600)
-    sock.listen(64)
-    sock.setblocking(False)
-    log.info("local lane: %s", lane)
-    return sock
