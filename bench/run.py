@@ -30,7 +30,7 @@ import micro  # noqa: E402
 import model_bench  # noqa: E402
 import plot  # noqa: E402
 import quickstop  # noqa: E402
-import rosbench  # noqa: E402
+import rossuite  # noqa: E402
 import stream_budget  # noqa: E402
 import tables  # noqa: E402
 import trajectory_budget  # noqa: E402
@@ -328,7 +328,7 @@ def main() -> int:
     results["throughput_in_process"] = micro.throughput_in_process(config, workdir)
     log("robot model: IK time, FK/IK round trips")
     results["model"] = model_figures()
-    results.update(rosbench.run(config, log))
+    results.update(rossuite.run(config, log))
     log("dense trajectories at the link's budget (9600 and 115200 baud)")
     results["trajectory_budget"] = trajectory_budget.run(config, log)
     results["stream"] = stream_budget.run(config, log)

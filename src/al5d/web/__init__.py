@@ -17,6 +17,7 @@ teach and replay (named poses, sequences).
     sliders.py the sliders as the user moves them: read as they arrive, judged, into the jog
     viewhold.py  when the 3D view may change: a state goes to the browsers first
     target.py  the Target tab: the gizmo dragged, the numbers typed, `move_to` sent
+    parts.py   what the tabs' input (sliders.py, target.py) uses of the page
     teach.py   the Teach tab: named poses, sequences built, saved, loaded and played
     player.py  a sequence played step by step, each outcome waited for (no viser, no ROS)
     calibrate.py  the Calibrate tab: the guided calibration (`al5d.arm.calibration`)

@@ -2,7 +2,7 @@
 taken into the page's jog (`jog.py`) and judged as the server will judge it.
 
 Called from viser's event loop; what it shares with the rest of the page is the page's,
-under its lock (`Page.lock`).
+under its lock (`PageParts.lock`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from al5d.arm.instruction import Instruction, Kind
 from al5d.web.panel import RELEASABLE
 
 if TYPE_CHECKING:
-    from al5d.web.page import Page
+    from al5d.web.parts import PageParts
 
 log = logging.getLogger("al5d.web")
 
@@ -25,7 +25,7 @@ class SliderInput:
     """The sliders' values on one page, taken in the order they came: the newest of each
     slider not yet taken, set by viser's event loop."""
 
-    def __init__(self, page: Page) -> None:
+    def __init__(self, page: PageParts) -> None:
         self._page = page
         self._thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="al5d-web-slider")
         self._due: dict[str, float] = {}

@@ -2,7 +2,7 @@
 server will judge it, and `move_to` sent.
 
 Called from viser's threads; what it shares with the rest of the page is the page's, under
-its lock (`Page.lock`).
+its lock (`PageParts.lock`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from al5d.arm.instruction import Instruction, move_to
 from al5d.model.transforms import Vec3
 
 if TYPE_CHECKING:
-    from al5d.web.page import Page
+    from al5d.web.parts import PageParts
 
 
 #: The gizmo stays where the user left it this long (a refused target stays in view).
@@ -28,7 +28,7 @@ TARGET_KEPT_S = 5.0
 class TargetTab:
     """The Target tab's input on one page, and where its gizmo stands."""
 
-    def __init__(self, page: Page) -> None:
+    def __init__(self, page: PageParts) -> None:
         self._page = page
         #: When the user last set the target, and where the tool was when the gizmo was
         #: last put at it (None: never).
