@@ -26,7 +26,7 @@ from al5d.owner.loop import Owner
 from al5d.ros.processes import Child, Setup
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator, Record
-from al5d_rig.proc import Proc, family, patient_config
+from al5d_rig.proc import Proc, family, freeze, patient_config, run_state
 from al5d_rig.rospeer import Peer, wait_until
 from al5d_rig.served import StopBursts
 
@@ -106,24 +106,6 @@ def serve(config: ArmConfig, tmp_path: Path, lease_s: float) -> Iterator[Served]
         emu.close()
 
 
-def freeze(pid: int) -> None:
-    """SIGSTOP process `pid` and wait until it is stopped: the signal stops a process only
-    once each of its threads is scheduled again (an idle CI run read the bridge as running
-    after the stop it was to miss had been written)."""
-    os.kill(pid, signal.SIGSTOP)
-    wait_until(lambda: state(pid) == "T", 30, f"process {pid} stopped")
-
-
-def state(pid: int) -> str:
-    """`T` where every thread of process `pid` is stopped, else the state letter of one that
-    is not (/proc/PID/task/TID/stat)."""
-    states = set()
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        with contextlib.suppress(OSError):  # a thread that ended meanwhile
-            states.add((task / "stat").read_text().rsplit(")", 1)[1].split()[0])
-    return "T" if states == {"T"} else min(states - {"T"}, default="?")
-
-
 def long_move_running(served: Served, ident: str) -> int:
     """A 6 s move under way on the board; the index of the record after it (a stop's STOPs
     before it may still be on their way when this is sent)."""
@@ -180,7 +162,7 @@ def test_a_frozen_bridge_does_not_hold_the_stop(served: Served) -> None:
         answer = served.peer.trigger("stop")
         assert answer.success, answer.message
         served.emu.wait_for(lambda rs: any(r.raw.startswith(b"STOP") for r in rs[n:]), 10)
-        assert state(bridge) == "T"
+        assert run_state(bridge) == "T"
     finally:
         os.kill(bridge, signal.SIGCONT)
     assert served.peer.result("long").reason == "cancelled by stop"

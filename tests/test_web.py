@@ -34,6 +34,7 @@ from al5d.arm.config import ArmConfig, load_config
 from al5d.model import JOINTS, forward
 from al5d.model.table import below
 from al5d.model.urdf import urdf
+from al5d.ros.client import Client
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ssc32u import protocol as p
@@ -42,7 +43,7 @@ from al5d.web import viewhold
 from al5d.web.jog import FOLLOW_AFTER_S, QUIET_S
 from al5d.web.page import LOOP_S, Page
 from al5d_rig.armrig import group_moves
-from al5d_rig.proc import Proc, patient_config
+from al5d_rig.proc import Proc, family, freeze, patient_config, run_state
 from al5d_rig.rospeer import Peer, wait_until
 from al5d_rig.webrig import (
     PAGE_LOAD_S,
@@ -84,7 +85,7 @@ class Rig:
 
     def every_channel_stopped(self, since: int) -> None:
         """A STOP for every channel on the board since record `since`. The page stops by
-        the service and on the topic: the server may obey both, twelve STOPs."""
+        the local lane, the service and on the topic: the server may obey each."""
         channels = {joint.channel for joint in self.config.joints.values()}
         wait_until(
             lambda: {s.channel for s in self.stops(since)} == channels,
@@ -1224,3 +1225,49 @@ def test_a_sliders_value_is_the_users_however_late_viser_runs_its_handlers(
             browser.close()
         page.close()
         server.stop()
+
+
+def test_the_pages_stop_reaches_a_local_server_whose_ros_side_is_frozen(rig: Rig) -> None:
+    """A server on this machine: the page's STOP goes by its local lane too, and reaches the
+    owner where DDS does not (here the server's bridge and its stop process frozen with
+    SIGSTOP: neither the stop service nor the instruction topic is read). The last of the
+    module: its server's clients' leases are a minute long, so that the frozen bridge is
+    not taken for lost (which would halt what it handed over, with no STOP asked). The move
+    and the reads go by the lane too (this process's `Client`), which the freeze leaves be."""
+    page = rig.page
+    rig.server.popen.kill()
+    rig.server.wait(10)
+    rig.server = serve(rig.link, client_lease_s=60.0)
+    wait_until(lambda: page.locator("#al5d-banner").count() == 0, 30, "the server found again")
+    with Client(local=True) as arm:
+        arm.wait_for_state("ready", 10)
+        move = arm.send("move base=-50 time=30000")
+        arm.wait_for_state("moving", 10)
+        owner = rig.server.popen.pid
+        ros_side = [pid for pid in family(owner) if pid != owner]
+        assert len(ros_side) == 2, ros_side  # the bridge and the stop's process
+        n0 = len(rig.emu.records)
+        seen = len(rig.web.proc.err.drain(0.1))
+        for pid in ros_side:
+            freeze(pid)
+        try:
+            page.get_by_role("button", name="STOP").click()
+            rig.every_channel_stopped(n0)
+            outcome = arm.outcome(move.id, 10)
+            assert outcome is not None and outcome.result.value == "cancelled", outcome
+            assert all(run_state(pid) == "T" for pid in ros_side)  # DDS carried none of it
+        finally:
+            for pid in ros_side:
+                os.kill(pid, signal.SIGCONT)
+        said = rig.web.proc.err.drain(0.1)[seen:]
+        assert any("STOP clicked (sent by the local lane" in line for line in said), said
+        wait_until(
+            lambda: any(
+                "STOP by the local lane: done" in line
+                for line in rig.web.proc.err.drain(0.1)[seen:]
+            ),
+            10,
+            "the lane's answer in the web view's log",
+        )
+        arm.wait_for_state("stopped", 10)
+        assert arm.release().ok

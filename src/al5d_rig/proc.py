@@ -276,6 +276,28 @@ def family(pid: int) -> list[int]:
     return found
 
 
+def freeze(pid: int, timeout: float = 30.0) -> None:
+    """SIGSTOP process `pid` and wait until it is stopped: the signal stops a process only
+    once each of its threads is scheduled again (an idle CI run read the bridge as running
+    after the stop it was to miss had been written)."""
+    os.kill(pid, signal.SIGSTOP)
+    deadline = time.monotonic() + timeout
+    while (now := run_state(pid)) != "T":
+        if time.monotonic() > deadline:
+            raise AssertionError(f"process {pid} not stopped in {timeout:g} s (state {now})")
+        time.sleep(0.01)
+
+
+def run_state(pid: int) -> str:
+    """`T` where every thread of process `pid` is stopped, else the state letter of one that
+    is not (/proc/PID/task/TID/stat)."""
+    states = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):  # a thread that ended meanwhile
+            states.add((task / "stat").read_text().rsplit(")", 1)[1].split()[0])
+    return "T" if states == {"T"} else min(states - {"T"}, default="?")
+
+
 def thread_nices(pid: int) -> list[int]:
     """The nice value of every thread of process `pid` (/proc/PID/task/TID/stat, field 19)."""
     nices = []

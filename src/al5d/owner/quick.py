@@ -13,6 +13,7 @@ import json
 import os
 import socket
 import time
+from pathlib import Path
 
 from al5d.owner import where
 
@@ -45,14 +46,35 @@ def parse(argv: list[str]) -> tuple[str, float] | None:
 def stop(namespace: str, timeout: float) -> int | None:
     """Ask the local server for the stop and print its answer as `al5d send` does; the exit
     code, or None where no server's lane answers here (then ROS 2 is the way)."""
-    path = where.path(namespace)
+    ident = f"{os.getpid():x}-stop"
+    try:
+        answer = ask_stop(where.path(namespace), ident, timeout)
+    except OSError as e:
+        print(f"stop [{ident}]: no answer from the server ({e}): it may not have stopped")
+        return 1
+    except EOFError:
+        print(f"stop [{ident}]: the server closed the lane without answering")
+        return 1
+    if answer is None:
+        return None
+    ok = answer.get("result") == "done"
+    reason = answer.get("reason") or ""
+    text = f"stop [{answer.get('id', ident)}]: {answer.get('result')}"
+    print(f"{text}: {reason} (by the local lane)" if reason else f"{text} (by the local lane)")
+    return 0 if ok else 1
+
+
+def ask_stop(lane: Path, ident: str, timeout: float) -> dict[str, object] | None:
+    """The stop `ident` asked of the server whose lane is `lane`, and its outcome as the lane
+    carries it; None where no server's lane takes a connection there. Raises OSError where
+    the lane failed or no answer came within `timeout` s (the stop may have been obeyed),
+    EOFError where the server closed it without answering."""
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
-        sock.connect(str(path))
+        sock.connect(str(lane))
     except OSError:
         sock.close()
         return None
-    ident = f"{os.getpid():x}-stop"
     ask = {
         "op": "ask",
         "ref": 1,
@@ -62,19 +84,11 @@ def stop(namespace: str, timeout: float) -> int | None:
     try:
         sock.sendall(json.dumps(ask).encode() + b"\n")
         answer = _answer(sock)
-    except OSError as e:
-        print(f"stop [{ident}]: no answer from the server ({e}): it may not have stopped")
-        return 1
     finally:
         sock.close()
     if answer is None:
-        print(f"stop [{ident}]: the server closed the lane without answering")
-        return 1
-    ok = answer.get("result") == "done"
-    reason = answer.get("reason") or ""
-    text = f"stop [{answer.get('id', ident)}]: {answer.get('result')}"
-    print(f"{text}: {reason} (by the local lane)" if reason else f"{text} (by the local lane)")
-    return 0 if ok else 1
+        raise EOFError(f"{lane}: closed without an answer")
+    return answer
 
 
 def _answer(sock: socket.socket) -> dict[str, object] | None:

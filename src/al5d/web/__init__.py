@@ -1,11 +1,12 @@
 """The live web view and control panel (`al5d web`): a ROS 2 client that serves one page.
 
-Like RViz, it talks to the server only over ROS (the public names of
+Like RViz, it talks to the server over ROS (the public names of
 `al5d.ros.names.Names`), in its own process, so that a browser never slows
-the arm. The page is built with viser: the arm in 3D from /robot_description,
-moving with /joint_states, the target of the running move as a ghost, sliders,
-a draggable target for the tool, presets, STOP, what happened, and
-teach and replay (named poses, sequences).
+the arm; its STOP also goes by the server's local lane where the server is on
+this machine (`al5d.owner.quick`). The page is built with viser: the arm in
+3D from /robot_description, moving with /joint_states, the target of the
+running move as a ghost, sliders, a draggable target for the tool, presets,
+STOP, what happened, and teach and replay (named poses, sequences).
 
     link.py    the ROS side: subscriptions, the instruction and jog publishers, the stop service
     plan.py    pure: targets of instructions, the outcome log, the joint history

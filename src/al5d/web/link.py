@@ -1,4 +1,5 @@
-"""The page's ROS side: a client node of the server, by the public names of one namespace.
+"""The page's ROS side: a client node of the server, by the public names of one namespace
+(and its STOP by the server's local lane too, where the server is on this machine).
 
 It reads what any client may read and sends what any client may send; the server
 does not know it is a web page. Nothing it does can hold the server up: the
@@ -15,7 +16,9 @@ are on no topic: the page shows no ghost for them, only their outcomes.
 from __future__ import annotations
 
 import itertools
+import logging
 import os
+import threading
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
@@ -34,6 +37,7 @@ from al5d.arm.instruction import stop as stop_instruction
 from al5d.model import ArmModel
 from al5d.model.chain import BASE_LINK
 from al5d.model.transforms import Transform
+from al5d.owner import quick, where
 from al5d.ros.convert import (
     from_message,
     outcome_from_message,
@@ -57,6 +61,12 @@ from al5d.ros.robot import QOS_TF_STATIC
 #: Outcomes: reliable (a refusal's reason must reach the page) but shallow; the server's
 #: writer keeps its own history and is never slowed by a reader's.
 QOS_OUTCOMES = profile(100)
+
+log = logging.getLogger("al5d.web")
+
+#: How long a STOP by the local lane waits for its answer (in a thread of its own: the page
+#: waits for nothing).
+LANE_STOP_S = 10.0
 
 
 #: The state: latched as the server writes it, and every change kept until this page takes
@@ -134,6 +144,9 @@ class WebNode:
         self.release_client = node.create_client(
             Trigger, by_kind[Kind.RELEASE], qos_profile=QOS_SERVICES
         )
+        #: The local lane of a server of these names on this machine, where the STOP goes
+        #: first (no discovery: `al5d.owner.quick`), if a server is there.
+        self.lane = where.path(names.namespace)
         self.spinner = Spinner(node, self.context)
 
     # -- from the server ------------------------------------------------------------
@@ -212,20 +225,35 @@ class WebNode:
         self._jog_seen = (info.total_count, info.total_count - info.current_count)
 
     def stop(self) -> str:
-        """The emergency stop, by the service (it never waits behind instructions) and on the
-        instruction topic as well (the server's stop watcher obeys it at once). The topic
-        reaches a server whose service this process has not matched yet: the server's stop
-        path is a DDS participant of its own, discovered apart from the node whose state the
-        page shows (a server just restarted beside a page that saw it go), and a server
-        killed outright still looks ready for as long as DDS takes to notice (seconds). A
-        stop twice is harmless. Returns which ways it went."""
+        """The emergency stop, by the local lane where a server's is on this machine (no
+        discovery, no DDS: the owner has it as the socket is read), by the service (it never
+        waits behind instructions) and on the instruction topic as well (the server's stop
+        watcher obeys it at once). The topic reaches a server whose service this process has
+        not matched yet: the server's stop path is a DDS participant of its own, discovered
+        apart from the node whose state the page shows (a server just restarted beside a page
+        that saw it go), and a server killed outright still looks ready for as long as DDS
+        takes to notice (seconds). A stop twice is harmless. Returns which ways it went."""
         ways = []
+        if self.lane.exists():
+            threading.Thread(
+                target=self._stop_by_lane, args=(f"web-stop-{new_id()}",), daemon=True
+            ).start()
+            ways.append("the local lane")
         if self.stop_client.service_is_ready():
             self.stop_client.call_async(Trigger.Request())
             ways.append("service")
         self.send(stop_instruction(id=new_id()))
         ways.append("topic")
-        return " and ".join(ways)
+        return ", ".join(ways[:-1]) + " and " + ways[-1] if len(ways) > 1 else ways[0]
+
+    def _stop_by_lane(self, ident: str) -> None:
+        try:
+            answer = quick.ask_stop(self.lane, ident, LANE_STOP_S)
+        except (OSError, EOFError) as e:
+            log.warning("web: STOP by the local lane %s: no answer (%s)", self.lane, e)
+            return
+        if answer is not None:
+            log.info("web: STOP by the local lane: %s", answer.get("result"))
 
     def release(self) -> Any:
         if self.release_client.service_is_ready():
