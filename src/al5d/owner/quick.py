@@ -48,18 +48,18 @@ def stop(namespace: str, timeout: float) -> int | None:
     code, or None where no server's lane answers here (then ROS 2 is the way)."""
     ident = f"{os.getpid():x}-stop"
     try:
-        answer = ask_stop(where.path(namespace), ident, timeout)
+        outcome = ask_stop(where.path(namespace), ident, timeout)
     except OSError as e:
         print(f"stop [{ident}]: no answer from the server ({e}): it may not have stopped")
         return 1
     except EOFError:
         print(f"stop [{ident}]: the server closed the lane without answering")
         return 1
-    if answer is None:
+    if outcome is None:
         return None
-    ok = answer.get("result") == "done"
-    reason = answer.get("reason") or ""
-    text = f"stop [{answer.get('id', ident)}]: {answer.get('result')}"
+    ok = outcome.get("result") == "done"
+    reason = outcome.get("reason") or ""
+    text = f"stop [{outcome.get('id', ident)}]: {outcome.get('result')}"
     print(f"{text}: {reason} (by the local lane)" if reason else f"{text} (by the local lane)")
     return 0 if ok else 1
 
@@ -69,7 +69,17 @@ def ask_stop(lane: Path, ident: str, timeout: float) -> dict[str, object] | None
     carries it; None where no server's lane takes a connection there. Raises OSError where
     the lane failed or no answer came within `timeout` s (the stop may have been obeyed),
     EOFError where the server closed it without answering."""
+    sock = hand_stop(lane, ident, timeout)
+    return None if sock is None else answer(sock, timeout)
+
+
+def hand_stop(lane: Path, ident: str, timeout: float) -> socket.socket | None:
+    """The stop `ident` handed to the server whose lane is `lane` (within `timeout` s: a
+    Unix socket takes a line at once, unless the owner has not read a backlog of them);
+    the socket its answer comes on (`answer`), or None where no server's lane takes a
+    connection there. Raises OSError where the lane failed."""
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    sock.settimeout(timeout)
     try:
         sock.connect(str(lane))
     except OSError:
@@ -80,15 +90,26 @@ def ask_stop(lane: Path, ident: str, timeout: float) -> dict[str, object] | None
         "ref": 1,
         "instr": {"kind": "stop", "id": ident, "sent_ns": time.time_ns()},
     }
-    sock.settimeout(timeout)
     try:
         sock.sendall(json.dumps(ask).encode() + b"\n")
-        answer = _answer(sock)
+    except OSError:
+        sock.close()
+        raise
+    return sock
+
+
+def answer(sock: socket.socket, timeout: float) -> dict[str, object]:
+    """The outcome of the stop handed over on `sock` (`hand_stop`), which is then closed.
+    Raises OSError where none came within `timeout` s, EOFError where the server closed
+    the lane without answering."""
+    sock.settimeout(timeout)
+    try:
+        outcome = _answer(sock)
     finally:
         sock.close()
-    if answer is None:
-        raise EOFError(f"{lane}: closed without an answer")
-    return answer
+    if outcome is None:
+        raise EOFError("the server closed the lane without answering")
+    return outcome
 
 
 def _answer(sock: socket.socket) -> dict[str, object] | None:

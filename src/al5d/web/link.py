@@ -18,6 +18,7 @@ from __future__ import annotations
 import itertools
 import logging
 import os
+import socket
 import threading
 import time
 from collections.abc import Mapping, Sequence
@@ -64,8 +65,9 @@ QOS_OUTCOMES = profile(100)
 
 log = logging.getLogger("al5d.web")
 
-#: How long a STOP by the local lane waits for its answer (in a thread of its own: the page
-#: waits for nothing).
+#: How long a STOP by the local lane may take to be handed over (a socket whose owner has
+#: not read its backlog), and how long its answer is waited for, in a thread of its own.
+LANE_HAND_S = 0.05
 LANE_STOP_S = 10.0
 
 
@@ -234,11 +236,17 @@ class WebNode:
         that saw it go), and a server killed outright still looks ready for as long as DDS
         takes to notice (seconds). A stop twice is harmless. Returns which ways it went."""
         ways = []
-        if self.lane.exists():
-            threading.Thread(
-                target=self._stop_by_lane, args=(f"web-stop-{new_id()}",), daemon=True
-            ).start()
-            ways.append("the local lane")
+        ident = f"web-stop-{new_id()}"
+        try:
+            # Handed over here, the first of the three ways (a Unix socket takes it at
+            # once); only its answer is waited for in a thread of its own.
+            sock = quick.hand_stop(self.lane, ident, LANE_HAND_S)
+        except OSError as e:
+            log.warning("web: STOP by the local lane %s failed: %s", self.lane, e)
+        else:
+            if sock is not None:
+                threading.Thread(target=self._lane_answer, args=(sock,), daemon=True).start()
+                ways.append("the local lane")
         if self.stop_client.service_is_ready():
             self.stop_client.call_async(Trigger.Request())
             ways.append("service")
@@ -246,14 +254,13 @@ class WebNode:
         ways.append("topic")
         return ", ".join(ways[:-1]) + " and " + ways[-1] if len(ways) > 1 else ways[0]
 
-    def _stop_by_lane(self, ident: str) -> None:
+    def _lane_answer(self, sock: socket.socket) -> None:
         try:
-            answer = quick.ask_stop(self.lane, ident, LANE_STOP_S)
+            answer = quick.answer(sock, LANE_STOP_S)
         except (OSError, EOFError) as e:
             log.warning("web: STOP by the local lane %s: no answer (%s)", self.lane, e)
             return
-        if answer is not None:
-            log.info("web: STOP by the local lane: %s", answer.get("result"))
+        log.info("web: STOP by the local lane: %s", answer.get("result"))
 
     def release(self) -> Any:
         if self.release_client.service_is_ready():
