@@ -92,6 +92,54 @@ def test_ctrl_c_on_run_cancels_the_line_running_and_those_in_the_background(
     wait_until(lambda: arm.states[-1] == "ready", CMD_S, "ready")
 
 
+@pytest.mark.parametrize("command", ["send", "run"])
+def test_two_quick_ctrl_cs_do_not_cut_the_cancel(arm: Served, tmp_path: Path, command: str) -> None:
+    """A user who presses Ctrl-C twice: the second press, a moment after the first, does not
+    cut the cancel the first started (seen: 2 of 5 `al5d send`s and 3 of 8 `al5d run`s left
+    their moves running, saying only "al5d: interrupted"). Two signals at once are one to
+    Python (its handler runs once for both): the second comes a few milliseconds after the
+    first, later in each round, to land at a different point of the cancel."""
+    seq = tmp_path / "moves.seq"
+    seq.write_text("move elbow=60 time=4000 &\nmove wrist=60 time=4000 &\nmove base=60 time=4000\n")
+    args = ("send", "move", "base=60", "time=4000") if command == "send" else ("run", str(seq))
+    for after_s in (0.001, 0.003, 0.006, 0.01, 0.02, 0.04):
+        arm.ready()
+        proc = Proc(*args)
+        wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
+        time.sleep(0.3)
+        proc.popen.send_signal(signal.SIGINT)
+        time.sleep(after_s)
+        proc.popen.send_signal(signal.SIGINT)
+        code = proc.wait(CMD_S)
+        out, err = proc.out.drain(), proc.err.drain()
+        assert code == exits.INTERRUPTED, (after_s, code, out, err)
+        assert not any("interrupted" in line for line in err), (out, err)
+        assert any(line.endswith("cancelled (Ctrl-C)") for line in out), (out, err)
+        wait_until(lambda: arm.states[-1] == "ready", CMD_S, "ready: halted, not locked")
+        assert halted_on_its_way(arm, 60)
+
+
+def test_a_client_that_sends_and_closes_at_once_leaves_its_move_running(arm: Served) -> None:
+    """Leaving the `with` block right after a send never stops the arm (docs/server.md): the
+    client says `bye` and closes while the owner may be writing it the move's news, a write
+    that fails before the `bye` is read (seen: 2 of 6 moves halted, "its connection
+    failed"). Ten rounds, each move then done to its end."""
+    from al5d.ros.client import Client
+
+    arm.ready()
+    for k in range(10):
+        target = 30.0 if k % 2 else -30.0
+        seen = len(arm.states)
+        with Client(local=True) as client:
+            client.send(f"move base={target:g} time=400")
+        wait_until(
+            lambda seen=seen: "moving" in arm.states[seen:] and arm.states[-1] == "ready",
+            CMD_S,
+            "moved, then ready",
+        )
+        assert abs(arm.emu.servo_degrees()["base"] - target) < 1, (k, arm.emu.servo_degrees())
+
+
 @pytest.mark.parametrize("how", ["killed", "hung"])
 def test_a_client_killed_or_hung_mid_move_leaves_nothing_moving(arm: Served, how: str) -> None:
     """A client that goes without a word (killed, or hung up) is a lost client: its motion is

@@ -177,31 +177,35 @@ def _arms(text: str) -> list[tuple[str, str | None]]:
 
 def _cmd_send(args: argparse.Namespace) -> int:
     from al5d.app.terminal import send
+    from al5d.interrupts import cancelling
 
-    return send(
-        " ".join(args.instruction),
-        wait_s=args.wait,
-        timeout=args.timeout,
-        namespace=args.namespace,
-        verbose=args.verbose,
-        via=args.via,
-    )
+    with cancelling():  # a second Ctrl-C does not cut the cancel the first one started
+        return send(
+            " ".join(args.instruction),
+            wait_s=args.wait,
+            timeout=args.timeout,
+            namespace=args.namespace,
+            verbose=args.verbose,
+            via=args.via,
+        )
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from al5d.app.terminal import run
+    from al5d.interrupts import cancelling
 
     if args.check:
         return _check(args.file, args.poses, args.namespace)
-    return run(
-        args.file,
-        wait_s=args.wait,
-        timeout=args.timeout,
-        namespace=args.namespace,
-        verbose=args.verbose,
-        poses=args.poses,
-        via=args.via,
-    )
+    with cancelling():  # as in `_cmd_send`
+        return run(
+            args.file,
+            wait_s=args.wait,
+            timeout=args.timeout,
+            namespace=args.namespace,
+            verbose=args.verbose,
+            poses=args.poses,
+            via=args.via,
+        )
 
 
 def _check(path: str, poses: str | None, namespace: str | None) -> int:

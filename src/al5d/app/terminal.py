@@ -125,18 +125,26 @@ VIA = {"auto": None, "lane": True, "ros": False}
 
 
 def interrupted(client: Client, report: Report, sent: list[Instruction]) -> int:
-    """Ctrl-C: what the command sent and is not over is cancelled, and said."""
+    """Ctrl-C: what the command sent and is not over is cancelled, and said. Inside
+    `interrupts.cancelling` a second Ctrl-C meanwhile is let be; a third leaves, and says
+    what may still run."""
     pending = set(client.pending()) if client.lane is not None else {i.id for i in sent}
-    for instr in sent:
-        if instr.id not in pending:
-            continue
-        if client.lane is None:
-            report.line(
-                f"{instr.name} [{instr.id}]: Ctrl-C: not cancelled: ROS 2 has no cancel by id "
-                "(it may still run; `al5d send stop` halts the arm)"
-            )
-        elif client.cancel(instr.id, "cancelled by Ctrl-C"):
-            report.line(f"{instr.name} [{instr.id}]: cancelled (Ctrl-C)")
+    try:
+        for instr in sent:
+            if instr.id not in pending:
+                continue
+            if client.lane is None:
+                report.line(
+                    f"{instr.name} [{instr.id}]: Ctrl-C: not cancelled: ROS 2 has no cancel by "
+                    "id (it may still run; `al5d send stop` halts the arm)"
+                )
+            elif client.cancel(instr.id, "cancelled by Ctrl-C"):
+                report.line(f"{instr.name} [{instr.id}]: cancelled (Ctrl-C)")
+    except KeyboardInterrupt:
+        report.line(
+            "Ctrl-C again: left before every cancel was answered: what was sent may still "
+            "run (`al5d send stop` halts the arm)"
+        )
     return exits.INTERRUPTED
 
 
