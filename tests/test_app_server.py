@@ -135,3 +135,22 @@ def test_our_processes_start_numpy_with_one_blas_thread_unless_the_user_said() -
         timeout=60,
     )
     assert first.stdout.strip() == "False", first.stderr
+
+
+def test_a_second_server_of_the_same_name_on_this_machine_is_refused() -> None:
+    """One server per name (namespace and ROS domain), as on ROS: a second one on this
+    machine exits 2 and says which holds the name (seen: it came up as a second /al5d node,
+    and a ROS client was told "refused: the serial link is lost" of a move the first made).
+    The first serves on."""
+    first = Proc("serve", "--no-ros", "--stdin", stdin=True)
+    try:
+        first.err.wait_for("STATE: ready")
+        second = Proc("serve", "--no-ros")
+        assert second.wait(60) == 2
+        said = "\n".join(second.err.drain())
+        assert "another al5d server serves the namespace / on ROS domain" in said, said
+        assert "STATE:" not in said  # its board was never opened
+        first.send("move base=20 time=200")
+        assert "done" in first.out.wait_for("move [")
+    finally:
+        first.kill()

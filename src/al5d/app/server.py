@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import signal
 import socket
 import subprocess
@@ -31,6 +32,7 @@ from al5d.arm.config import ArmConfig, ConfigError, load_config
 from al5d.arm.instruction import GrammarError, Instruction, Outcome, parse_instruction, shutdown
 from al5d.owner import lane
 from al5d.owner.loop import Owner
+from al5d.owner.where import answers
 from al5d.ssc32u.transport import SerialTransport
 
 if TYPE_CHECKING:
@@ -350,6 +352,18 @@ def serve(options: ServerOptions) -> int:
             if recording is None:
                 return 2
         where = lane.path(namespace)
+        if answers(where):
+            # One server per name, as on ROS: a second would answer ROS clients too (one of
+            # them "refused: the serial link is lost" while the first moved the arm), and
+            # could not be reached on this lane.
+            log.error(
+                "another al5d server serves the namespace %s on ROS domain %s on this machine "
+                "(its lane %s): end it first, or give this one another namespace",
+                namespace or "/",
+                os.environ.get("ROS_DOMAIN_ID", "0"),
+                where,
+            )
+            return 2
         with arm(options, config, where, config_file, bridge_records) as (owner, _):
             if recording is not None:
                 tap = recording.file.board_tap

@@ -3,7 +3,6 @@ alone. The standard library only: `al5d send stop` imports it first."""
 
 from __future__ import annotations
 
-import contextlib
 import os
 import socket
 from pathlib import Path
@@ -29,18 +28,25 @@ def path(namespace: str = "", domain: str | None = None) -> Path:
     return folder() / f"d{domain or 0}-{name}.sock"
 
 
+def answers(lane: Path) -> bool:
+    """Whether a server listens on `lane` (a lane left behind by a server that was killed
+    takes no connection)."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.settimeout(0.5)
+        try:
+            sock.connect(str(lane))
+        except OSError:
+            return False
+    return True
+
+
 def namespaces(domain: str | None = None) -> list[str]:
     """The namespaces ("/" for none) of the servers on ROS domain `domain` whose lanes are
     here and take a connection (a lane left behind by a server that was killed does not)."""
     domain = domain if domain is not None else os.environ.get("ROS_DOMAIN_ID", "0")
     found = []
     for lane in sorted(folder().glob(f"d{domain or 0}-*.sock")):
-        with (
-            socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock,
-            contextlib.suppress(OSError),
-        ):
-            sock.settimeout(0.5)
-            sock.connect(str(lane))
+        if answers(lane):
             name = lane.stem.split("-", 1)[1]
             found.append("/" if name == "_" else "/" + name.replace("_", "/"))
     return found
