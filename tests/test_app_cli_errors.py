@@ -64,12 +64,43 @@ def test_help_lists_the_exit_codes(args: tuple[str, ...]) -> None:
 
 
 @pytest.mark.parametrize(
-    "args", [("send",), ("run", "--frobnicate", "x.seq"), ("send", "--wait", "soon", "ready")]
+    "args",
+    [
+        ("send",),
+        ("run", "--frobnicate", "x.seq"),
+        ("send", "--wait", "soon", "ready"),
+        ("send", "--namespace", "a" * 300, "ready"),  # was rcl's traceback
+    ],
 )
 def test_a_usage_error_is_argparses_own_code(args: tuple[str, ...]) -> None:
     code, _, err = ended(Proc(*args, env=alone()))
     assert code == exits.USAGE == 2, err
     assert err[0].startswith("usage: al5d")
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("send", "--timeout", "nan", "move", "base=10"),
+        ("send", "--timeout", "-1", "move", "base=10"),
+        ("send", "--timeout", "0", "move", "base=10"),
+        ("send", "--timeout", "inf", "move", "base=10"),
+        ("send", "--timeout", "1e10", "move", "base=10"),
+        ("send", "--wait", "nan", "ready"),
+        ("run", "--timeout", "nan", "x.seq"),
+        ("shell", "--wait", "-5"),
+        ("record", "--duration", "-1", "/nonexistent/out.mcap"),
+        ("replay", "--timeout", "inf", "x.mcap"),
+    ],
+)
+def test_a_wait_that_is_no_number_of_seconds_is_a_usage_error(args: tuple[str, ...]) -> None:
+    """NaN, 0, -1 sent the move and then waited for none of it ("no outcome (timed out)",
+    and the server halted it, its client gone); inf and 1e10 sent it, then failed with a
+    traceback (the standard library's waits end near 9e9 s): each is argparse's error,
+    before anything is sent."""
+    code, _, err = ended(Proc(*args, env=alone()))
+    assert code == exits.USAGE, err
+    assert "give a number of seconds above 0, at most 604800" in err[-1], err
 
 
 @pytest.mark.parametrize(
@@ -231,8 +262,17 @@ def test_check_judges_a_file_without_a_server(tmp_path: Path) -> None:
     assert code == exits.DONE, err
     assert out == [
         f"{good}: 5 steps, none a server with the shipped configuration (none on this "
-        "machine's lane) would refuse; nothing sent"
+        "machine's lane) would refuse from where the lines before leave the arm; where it "
+        "starts is not known, so the table is judged for line 1 only by the server, as it "
+        "starts (from a preset, or a move naming every joint, on it is known); nothing sent"
     ], out
+    # Moves naming some joints only: none of them is judged against the table here (seen:
+    # "none would refuse" of a file whose second line the server refused, below the table).
+    partial = tmp_path / "partial.seq"
+    partial.write_text("move base=30\nmove shoulder=90 elbow=90 wrist=90\nmove base=-30\n")
+    code, out, err = ended(Proc("run", "--check", str(partial), env=alone()))
+    assert code == exits.DONE, err
+    assert "the table is judged for lines 1, 2 and 3 only by the server" in out[0], out
 
 
 def test_a_file_that_cannot_be_read_is_bad_input(tmp_path: Path) -> None:
@@ -269,6 +309,32 @@ def test_what_the_server_changed_is_printed_by_send_and_run(arm: Served, tmp_pat
         assert code == exits.DONE, (args, out, err)
         if args[0] == "run" or "time=10" in args:
             assert raised.search("\n".join(out)), (args, out)
+
+
+def test_a_line_waited_for_and_not_done_ends_the_sequence(arm: Served, tmp_path: Path) -> None:
+    """A stop (from another terminal) cancels the line running: the sequence ends there, and a
+    release meanwhile does not take up its rest (seen: the moves after it ran once the arm
+    was released). A stop of the sequence's own, whose move runs in the background, does not
+    end it: the lines after it still go."""
+    seq = tmp_path / "stopped.seq"
+    seq.write_text("move base=60 time=3000\nwait 1500\nmove base=-60 time=2000\nmove elbow=60\n")
+    run = Proc("run", str(seq))
+    wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
+    assert arm.peer.trigger("stop").success
+    assert arm.peer.trigger("release").success
+    code = run.wait(CMD_S)
+    out = run.out.drain()
+    assert code == exits.NOT_DONE, out
+    assert any("cancelled by stop" in line for line in out), out
+    assert out[-1] == "not done: the 3 steps after it not sent", out
+    assert not any("base=-60" in line for line in out), out
+    own = tmp_path / "own.seq"
+    own.write_text("move base=40 time=3000 &\nwait 300\nstop\nrelease\nmove base=0 time=300\n")
+    code, out, err = ended(Proc("run", str(own)))
+    assert code == exits.NOT_DONE, (out, err)  # the move in the background was cancelled
+    assert any(re.match(r"move \[\S+\]: cancelled", line) for line in out), out
+    assert any(re.match(r"release \[\S+\]: done", line) for line in out), out
+    assert re.match(r"move \[\S+\]: done", out[-1]), out
 
 
 def test_a_slow_discovery_is_said_without_verbose(arm: Served) -> None:
@@ -331,6 +397,27 @@ def test_the_shell_runs_each_line_over_one_connection(arm: Served) -> None:
     # One discovery for all of them.
     assert sum("s for the server to be discovered" in line for line in err) == 1, err
     assert len(group_moves(arm.emu.records)) - moves >= 2
+
+
+def test_ctrl_c_in_the_shell_stops_a_move_in_the_background(arm: Served) -> None:
+    """A move sent with `&` runs while the shell reads its input: Ctrl-C then stops the arm
+    too (seen: the move ran on, at a terminal's prompt and piped)."""
+    shell = Proc("shell", stdin=True)
+    try:
+        shell.send("move base=80 time=5000 &")
+        wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+        shell.popen.send_signal(signal.SIGINT)
+        assert (
+            shell.out.wait_for("Ctrl-C: stop: ", CMD_S) == "Ctrl-C: stop: done (by the local lane)"
+        )
+        wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
+        assert abs(arm.emu.servo_degrees()["base"] - 80) > 5  # halted on its way
+        code, out, err = ended(shell)  # Ctrl-C ended its piped input
+    finally:
+        shell.kill()
+    assert code == exits.NOT_DONE, (out, err)
+    assert any(re.match(r"move \[\S+\]: cancelled", line) for line in out), out
+    assert arm.peer.trigger("release").success
 
 
 def test_ctrl_c_in_the_shell_stops_the_arm(arm: Served) -> None:

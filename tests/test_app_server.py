@@ -154,3 +154,24 @@ def test_a_second_server_of_the_same_name_on_this_machine_is_refused() -> None:
         assert "done" in first.out.wait_for("move [")
     finally:
         first.kill()
+
+
+def test_a_send_whose_server_is_killed_says_the_lane_closed_not_a_timeout() -> None:
+    """The server killed while `al5d send` waits for a move's outcome: the command says the
+    lane closed and that whether the move ran is unknown (seen: "no outcome (timed out)"
+    after 2 s, the client's own reason dropped)."""
+    from al5d.ros.client import Client
+
+    server = Proc("serve", "--no-ros")
+    try:
+        server.err.wait_for("STATE: ready")
+        send = Proc("send", "move", "base=60", "time=5000")
+        with Client(local=True) as arm:
+            arm.wait_for_state("moving", 60)
+        server.kill()
+        assert send.wait(60) == 1
+        out = send.out.drain()
+        assert any("lane" in line and "whether it ran is unknown" in line for line in out), out
+        assert not any("timed out" in line for line in out), out
+    finally:
+        server.kill()

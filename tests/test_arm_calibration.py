@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from al5d.app.calibrate import server_config
+from al5d.arm import calfile
 from al5d.arm import instruction as ins
 from al5d.arm.calfile import edit_calibrations, write_calibration
 from al5d.arm.calibration import (
@@ -270,6 +272,28 @@ def test_the_file_is_written_with_a_backup_and_a_diff(config: ArmConfig, tmp_pat
     second = write_calibration(link, [result], stamp="20261126T061500Z")
     assert second.backup != written.backup and written.backup.exists()
     assert second.diff == ""
+
+
+def test_the_shipped_configuration_is_never_written(
+    config: ArmConfig, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A server started without --config runs with the package's own file: calibrate offered
+    to write into it (an install replaces it; an editable one is the source tree). Tried on
+    a stand-in for the shipped file, so that a guard that fails writes nothing of ours."""
+    shipped = tmp_path / "data" / "al5d.yaml"
+    shipped.parent.mkdir()
+    shutil.copy(DEFAULT_CONFIG, shipped)
+    monkeypatch.setattr(calfile, "DEFAULT_CONFIG", shipped)
+    result = judge(config.joints["base"], (Point(0, 1540), Point(45, 1990)))
+    before = shipped.read_text(encoding="utf-8")
+    link = tmp_path / "al5d.yaml"
+    link.symlink_to(shipped)  # as the repository's config/al5d.yaml is
+    for path in (shipped, link):
+        with pytest.raises(CalibrationRefused, match=r"the shipped configuration .* copy it"):
+            write_calibration(path, [result])
+    assert shipped.read_text(encoding="utf-8") == before
+    assert list(shipped.parent.glob("*.bak")) == []
+    assert server_config(link, None)[0] is None  # said before anything moves
 
 
 def test_a_calibration_that_does_not_validate_writes_nothing(

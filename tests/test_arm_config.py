@@ -14,6 +14,7 @@ from al5d.arm.config import (
     DEFAULT_CONFIG,
     ConfigError,
     load_config,
+    namespace_problem,
     parse_config,
     with_changes,
 )
@@ -225,3 +226,11 @@ def test_changes_by_dotted_name_are_validated_like_the_file(data: dict[str, Any]
     # The same message, but for where it comes from and the name it is known by there.
     expected = str(in_file.value).replace("arm.yaml: server.baud", "ROS parameters: baud")
     assert str(bad.value) == expected
+
+
+def test_a_namespace_too_long_for_its_lane_is_refused_with_the_reason() -> None:
+    """A server's lane is a Unix socket named after its namespace (a path of at most 107
+    bytes): a 300-character one ended `al5d send` in rcl's traceback."""
+    assert namespace_problem("/" + "a" * 64) is None
+    problem = namespace_problem("a" * 65)
+    assert problem is not None and "at most 64 characters" in problem, problem

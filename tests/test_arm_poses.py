@@ -70,6 +70,22 @@ def test_a_bad_poses_file_names_the_pose_and_the_joint(text: str, error: str) ->
     assert str(e.value).startswith(error), str(e.value)
 
 
+@pytest.mark.parametrize(
+    ("text", "twice"),
+    [("home: {base: 0}\nhome: {base: 20}", "'home'"), ("a: {base: 0, base: 2}", "'base'")],
+)
+def test_a_name_or_a_joint_written_twice_is_an_error_with_its_line(text: str, twice: str) -> None:
+    """PyYAML's safe loader keeps the last of a key written twice, silently (seen: a pose
+    written twice by hand took the second): the file is refused, with the line."""
+    with pytest.raises(PosesError) as e:
+        parse_poses(text, FILE)
+    said = str(e.value)
+    assert (
+        said.startswith("/arm/poses.yaml: not valid YAML: ") and f"{twice} is named twice" in said
+    )
+    assert "line " in said, said
+
+
 def test_a_book_saves_renames_and_deletes_and_reads_back(tmp_path: Path) -> None:
     path = tmp_path / "poses.yaml"
     book = load_poses(path, required=False)

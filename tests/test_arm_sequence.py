@@ -129,3 +129,10 @@ def test_only_what_no_configuration_would_take_is_the_grammars(judge: SequenceJu
         (3, True),
         (4, False),
     ]
+
+
+def test_a_file_an_editor_began_with_a_byte_order_mark_is_read(judge: SequenceJudge) -> None:
+    judged = judge.judge(b"\xef\xbb\xbfready\nmove base=10\n")
+    assert judged.ok, judged.problems
+    assert [line.number for line in judged.lines] == [1, 2]
+    assert [line.known for line in judged.lines] == [False, True]  # where the arm starts

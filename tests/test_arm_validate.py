@@ -7,6 +7,7 @@ import math
 import pytest
 
 from al5d.arm import instruction as ins
+from al5d.arm.cartesian import outside
 from al5d.arm.config import ArmConfig
 from al5d.arm.validate import Limits, Step, check, explain
 
@@ -125,3 +126,11 @@ def test_a_reason_never_repeats_a_huge_input(limits: Limits) -> None:
     reason = check(many, limits)
     assert isinstance(reason, str) and reason.endswith("; and 9995 more")
     assert "at most 256" in str(check(ins.move(base=1, id="i" * 257), limits))
+
+
+def test_an_angle_just_past_a_limit_is_said_with_the_digits_that_show_it() -> None:
+    """`move base=90.0000000001` was refused as "base: 90 deg is outside the range -90..90"."""
+    assert outside("base", 90.0000000001, -90, 90) == (
+        "base: 90.0000000001 deg is outside the range -90..90"
+    )
+    assert outside("base", 120.5, -90, 90) == "base: 120.5 deg is outside the range -90..90"

@@ -288,3 +288,14 @@ def test_the_table_is_judged_at_the_tip_and_at_the_wrist() -> None:
     raised = ArmModel(MODEL.ranges, Geometry(table_height=0.05))
     assert below_table(raised, solve(raised, 0.2, 0.0, 0.04, -90.0)) is not None
     assert below_table(raised, solve(raised, 0.2, 0.0, 0.06, -90.0)) is None
+
+
+def test_a_huge_target_is_said_in_a_few_digits() -> None:
+    """`move_to x=1e308 y=1e308 z=1e308` was refused with about 1 KB of digits: a number of a
+    refusal's reason past 1e7 is said as 1e+308, not digit by digit."""
+    with pytest.raises(Unreachable) as refused:
+        solve_nearest_pitch(MODEL, 1e305, 1e305, 1e305, 0.0, 0.0)
+    said = str(refused.value)
+    assert "x=1e+308 y=1e+308 z=1e+308 mm" in said and len(said) < 200, said
+    huge = str(JointOutOfRange((("base", 1e300, -90.0, 90.0),)))
+    assert huge == "base would need 1e+300 deg, its range is -90..90", huge

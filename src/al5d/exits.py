@@ -31,7 +31,7 @@ TABLE: Final = (
     (NOT_PARKED, "serve: the arm could not be parked at the end"),
     (BAD_INPUT, "bad input: an instruction or sequence file not in the grammar; nothing sent"),
     (NO_SERVER, "no server found within --wait seconds; nothing sent"),
-    (INTERRUPTED, "Ctrl-C: what the command sent is cancelled (send, run)"),
+    (INTERRUPTED, "Ctrl-C: what the command sent is cancelled (send, run; over ROS 2 said not)"),
 )
 
 

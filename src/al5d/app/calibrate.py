@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Protocol, TextIO
 
 from al5d import exits
 from al5d.arm import instruction as ins
-from al5d.arm.calfile import write_calibration
+from al5d.arm.calfile import shipped_problem, write_calibration
 from al5d.arm.calibration import (
     Awaiting,
     CalibrationRefused,
@@ -294,6 +294,8 @@ def server_config(served: Path | None, given: str | None) -> tuple[Path | None, 
             "time): nothing is written unless the pulses are known to be that file's; "
             "try again"
         )
+    if problem := shipped_problem(served):
+        return None, problem
     if given is not None and Path(given).resolve() != served.resolve():
         return None, (
             f"the server runs with {served}, not {given}: the pulses are that file's; "

@@ -235,7 +235,22 @@ def _check(path: str, poses: str | None, namespace: str | None) -> int:
         print(f"al5d run: {problem.at(path)}", file=sys.stderr)
     if not judged.ok:
         return exits.BAD_INPUT
-    print(f"{path}: {len(judged.lines)} steps, none {whose} would refuse; nothing sent")
+    steps = len(judged.lines)
+    said = f"{path}: {steps} step{'s'[: steps != 1]}, none {whose} would refuse"
+    unknown = [str(line.number) for line in judged.lines if not line.known]
+    if unknown:
+        # Where the arm starts is not known here: those lines' paths (the table) and starts
+        # are the server's to judge as they start (seen: "none would refuse" of a move the
+        # server then refused as below the table).
+        which = unknown[0] if len(unknown) == 1 else ", ".join(unknown[:-1]) + " and " + unknown[-1]
+        one = len(unknown) == 1
+        said += (
+            " from where the lines before leave the arm; where it starts is not known, so "
+            f"the table is judged for line{'' if one else 's'} {which} only by the server, "
+            f"as {'it starts' if one else 'they start'} (from a preset, or a move naming "
+            "every joint, on it is known)"
+        )
+    print(f"{said}; nothing sent")
     return exits.DONE
 
 
@@ -317,8 +332,8 @@ def _add_calibrate(sub: Any) -> None:
     )
     cal.add_argument("--yes", action="store_true", help="write without asking")
     cal.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
-    cal.add_argument("--wait", type=float, default=10.0, help="seconds to find the server")
-    cal.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for a move")
+    cal.add_argument("--wait", type=_seconds, default=10.0, help="seconds to find the server")
+    cal.add_argument("--timeout", type=_seconds, default=30.0, help="seconds to wait for a move")
     cal.set_defaults(func=_cmd_calibrate)
 
 
@@ -393,10 +408,10 @@ def build_parser() -> argparse.ArgumentParser:
                 "--poses",
                 help=f"the poses file that `pose <name>` lines name; default: poses.yaml {where}",
             )
-        cmd.add_argument("--wait", type=float, default=10.0, help="seconds to find the server")
+        cmd.add_argument("--wait", type=_seconds, default=10.0, help="seconds to find the server")
         cmd.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
         cmd.add_argument(
-            "--timeout", type=float, default=120.0, help="seconds to wait for an outcome"
+            "--timeout", type=_seconds, default=120.0, help="seconds to wait for an outcome"
         )
         cmd.add_argument(
             "--verbose",
@@ -525,7 +540,7 @@ def _add_recordings(sub: Any) -> None:
         help="the arm to record, by its ROS namespace (again for more); default: every arm "
         "found, as it is found",
     )
-    rec.add_argument("--duration", type=float, help="seconds to record; default: until Ctrl-C")
+    rec.add_argument("--duration", type=_seconds, help="seconds to record; default: until Ctrl-C")
     rec.set_defaults(func=_cmd_record)
 
     rep = sub.add_parser("replay", help="send a recording's instructions again")
@@ -563,19 +578,29 @@ def _add_recordings(sub: Any) -> None:
         help="a file cut short (its recorder killed): replay the instructions before the cut",
     )
     rep.add_argument("--config", help="arm configuration (presets, geometry); default: shipped")
-    rep.add_argument("--wait", type=float, default=10.0, help="seconds to find the server")
-    rep.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for an outcome")
+    rep.add_argument("--wait", type=_seconds, default=10.0, help="seconds to find the server")
+    rep.add_argument(
+        "--timeout", type=_seconds, default=120.0, help="seconds to wait for an outcome"
+    )
     rep.set_defaults(func=_cmd_replay)
 
 
+#: The longest a command's wait may be (a week): longer ones are a mistake, and past about
+#: 9e9 s the standard library's waits fail (`threading.TIMEOUT_MAX`).
+SECONDS_MAX = 7 * 24 * 3600.0
+
+
 def _seconds(text: str) -> float:
-    """A number of seconds above 0, or argparse's error saying so."""
+    """A number of seconds above 0 and at most `SECONDS_MAX`, or argparse's error saying so
+    (before anything is sent: NaN, 0 or -1 sent a move and then waited for none of it)."""
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"{text}: give a number of seconds above 0")
+    if not 0 < value <= SECONDS_MAX:
+        raise argparse.ArgumentTypeError(
+            f"{text}: give a number of seconds above 0, at most {SECONDS_MAX:.0f}"
+        )
     return value
 
 

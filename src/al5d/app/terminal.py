@@ -16,7 +16,6 @@ not told). Exit codes: `al5d.exits` (done, not done, bad input, no server, inter
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import sys
 import threading
@@ -45,6 +44,7 @@ from al5d.owner.client import local_config
 from al5d.ros.client import (
     Answer,
     Client,
+    LaneLost,
     LostContact,
     NoOutcome,
     NoServer,
@@ -190,7 +190,7 @@ def send(
         timing.discovered(client)
         try:
             outcome: Outcome | None = client.execute(instr, timeout)
-        except LostContact as e:  # said as it is, not as a timeout
+        except (LostContact, LaneLost) as e:  # said as it is, not as a timeout
             report.line(str(e))
             return exits.NOT_DONE
         except NoOutcome:
@@ -268,10 +268,16 @@ def run(
             print(f"al5d run: nothing sent: {e}".replace("\n", "\nal5d run: "), file=err)
             return exits.BAD_INPUT
         background: list[Instruction] = []
-        for item, in_background in steps:
+        for n, (item, in_background) in enumerate(steps):
             if isinstance(item, Instruction):
                 sent.append(item)
-            _step(client, report, item, in_background, timeout, background)
+            if not _step(client, report, item, in_background, timeout, background):
+                # As the web view's Teach tab: a line waited for and not done (refused, or
+                # cancelled: by a stop, say) ends the sequence, so that a release after a
+                # stop does not take up the rest of it.
+                if left := len(steps) - n - 1:
+                    report.line(f"not done: the {left} step{'s'[: left != 1]} after it not sent")
+                break
         _drain(client, report, background, timeout)
         return exits.DONE if report.all_done else exits.NOT_DONE
     except NoServer as e:
@@ -296,22 +302,29 @@ def _step(
     background: list[Instruction],
     *,
     echo: bool = True,
-) -> None:
+) -> bool:
     """One step of a sequence, on the instruction topic: its outcome waited for and printed,
-    or (in the background) printed when it comes; `echo`: the step is printed first."""
+    or (in the background) printed when it comes; `echo`: the step is printed first. False
+    when its outcome, waited for, was not done (or did not come); a release refused (the
+    arm was not stopped) is not that."""
     if isinstance(item, Wait):
         if echo:
             report.line(f"wait {item.ms} ms")
         time.sleep(item.ms / 1000)
-        return
+        return True
     if echo:
         report.line(f"> {item}{' &' if in_background else ''}")
     if in_background:
         background.append(item)
         client.watch(item.id, functools.partial(report.outcome, instr=item))
     client.send(item, timeout)
-    if not in_background:
-        report.outcome(client.outcome(item.id, timeout), instr=item)
+    if in_background:
+        return True
+    outcome = client.outcome(item.id, timeout)
+    report.outcome(outcome, instr=item)
+    if outcome is not None and item.kind is Kind.RELEASE:
+        return True  # refused where nothing is stopped: nothing to release, nothing lost
+    return outcome is not None and outcome.result is Result.DONE
 
 
 def _drain(client: Client, report: Report, background: list[Instruction], timeout: float) -> None:
@@ -329,13 +342,19 @@ SHELL_QUIT = ("exit", "quit")
 SHELL_PROMPT = "al5d> "
 
 
+#: What `_lines` yields for a Ctrl-C while the input was read (at the prompt).
+CTRL_C = "\x03"
+
+
 def _lines(inp: TextIO, interactive: bool) -> Iterator[str]:
     """The shell's input, a line at a time; at a terminal with a prompt and line editing,
-    and Ctrl-C there drops the line typed, as a shell does."""
+    and Ctrl-C there drops the line typed, as a shell does. A Ctrl-C is `CTRL_C` (piped, the
+    input's end then)."""
     if not interactive:
-        # Ctrl-C with no instruction running: the end of the input, quietly.
-        with contextlib.suppress(KeyboardInterrupt):
+        try:
             yield from inp
+        except KeyboardInterrupt:
+            yield CTRL_C
         return
     import readline  # noqa: F401  (imported for its effect: input() gets editing and history)
 
@@ -344,6 +363,7 @@ def _lines(inp: TextIO, interactive: bool) -> Iterator[str]:
             yield input(SHELL_PROMPT)
         except KeyboardInterrupt:
             print(file=sys.stdout)
+            yield CTRL_C
         except EOFError:
             print(file=sys.stdout)
             return
@@ -366,7 +386,8 @@ def shell(
     over one connection kept throughout: the server is discovered once.
 
     A stop or a release goes as with `al5d send`. A bad line is
-    said and skipped. Ctrl-C while an instruction runs is the emergency stop. The exit
+    said and skipped. Ctrl-C while an instruction runs (in the background too, `&`) is the
+    emergency stop. The exit
     code at the end: no server; else bad input if a line was bad; else whether every
     instruction was done.
     """
@@ -396,6 +417,13 @@ def shell(
                 "one runs stops the arm; exit or Ctrl-D ends"
             )
         for line in _lines(inp, interactive):
+            if line == CTRL_C:
+                # Ctrl-C while a move of the shell's runs in the background stops the arm,
+                # as it does while one runs in the foreground (seen: the move ran on).
+                if any(client.sent(i.id) and client.outcome(i.id, 0) is None for i in background):
+                    report.line(f"Ctrl-C: {client.stop()}")
+                    report.all_done = False
+                continue
             if line.strip().lower() in SHELL_QUIT:
                 break
             try:

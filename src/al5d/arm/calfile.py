@@ -19,7 +19,7 @@ from typing import Any
 import yaml
 
 from al5d.arm.calibration import CalibrationRefused, JointCalibration, Point
-from al5d.arm.config import ArmConfig, ConfigError, parse_config
+from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, ConfigError, load_yaml, parse_config
 
 _KEY = re.compile(r"^(?P<indent>\s*)(?P<key>[A-Za-z_][\w-]*)\s*:(?P<rest>.*)$")
 
@@ -138,7 +138,7 @@ def check_written(text: str, source: str, results: Iterable[JointCalibration]) -
     """The new text loaded and validated by the configuration's own code, and holding the
     calibrations meant (an edit that landed elsewhere is caught here, before any write)."""
     try:
-        data: Any = yaml.safe_load(text)
+        data: Any = load_yaml(text)
     except yaml.YAMLError as e:
         raise CalibrationRefused(f"{source}: the edited file is not valid YAML: {e}") from None
     try:
@@ -155,13 +155,29 @@ def check_written(text: str, source: str, results: Iterable[JointCalibration]) -
     return config
 
 
+def shipped_problem(path: str | Path) -> str:
+    """Why the calibrations cannot be written into `path` where it is the configuration the
+    package ships (an install replaces it; an editable one is the source tree), or ""."""
+    if Path(path).resolve() != DEFAULT_CONFIG.resolve():
+        return ""
+    return (
+        f"the server runs with the shipped configuration ({DEFAULT_CONFIG}), which al5d's "
+        "install owns and replaces: copy it (cp "
+        f"{DEFAULT_CONFIG} my-arm.yaml), start the server with --config my-arm.yaml, and "
+        "calibrate that"
+    )
+
+
 def write_calibration(
     path: str | Path, results: Iterable[JointCalibration], stamp: str | None = None
 ) -> Written:
     """Write the calibrations found into the configuration file at `path`: first a copy of
     the file as it was beside it (`<name>.<UTC time>.bak`), then the new text, whole (a
     file beside it renamed over it), only once it loads and validates. A path that is a
-    symbolic link is written through (the link stays)."""
+    symbolic link is written through (the link stays); never the shipped configuration
+    (`shipped_problem`: CalibrationRefused)."""
+    if problem := shipped_problem(path):
+        raise CalibrationRefused(problem)
     given = Path(path)
     real = given.resolve()
     chosen = list(results)

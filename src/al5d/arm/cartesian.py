@@ -58,7 +58,19 @@ AT_FLOOR_MS = 1.0
 
 def _in_range(ranges: Ranges, joint: str, deg: float) -> str:
     lo, hi = ranges[joint]
-    return "" if lo <= deg <= hi else f"{joint}: {deg:g} deg is outside the range {lo:g}..{hi:g}"
+    return "" if lo <= deg <= hi else outside(joint, deg, lo, hi)
+
+
+def outside(joint: str, deg: float, lo: float, hi: float) -> str:
+    """Why `deg` of `joint` is refused, outside `lo`..`hi`: with the digits that show it
+    beyond them (90.0000000001 was said as 90, of the range -90..90)."""
+    limits = (f"{lo:g}", f"{hi:g}")
+    text = f"{deg:g}"
+    for digits in range(7, 18):
+        if text not in limits:
+            break
+        text = f"{deg:.{digits}g}"
+    return f"{joint}: {text} deg is outside the range {limits[0]}..{limits[1]}"
 
 
 def precheck(instr: Instruction, ranges: Ranges, max_time_ms: int, model: ArmModel) -> str:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import functools
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -129,9 +129,19 @@ class JointSettings(_Frozen):
 _NAME_SEGMENT = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 
 
+#: The longest namespace: its server's lane is a Unix socket named after it, whose path
+#: holds at most 107 bytes (a 300-character one ended `al5d send` in rcl's traceback).
+NAMESPACE_MAX = 64
+
+
 def namespace_problem(namespace: str) -> str | None:
     """Why `namespace` (`left`, `/left`, `/lab/left`; "" or "/" for none) is no ROS namespace."""
     ns = namespace.strip("/")
+    if len(ns) > NAMESPACE_MAX:
+        return (
+            f"namespace {namespace[:40]!r}...: at most {NAMESPACE_MAX} characters (its server's "
+            "local lane is a socket named after it)"
+        )
     if ns and not all(_NAME_SEGMENT.fullmatch(seg) for seg in ns.split("/")):
         return (
             f"namespace {namespace[:40]!r}: each part must start with a letter and hold only "
@@ -474,6 +484,36 @@ def with_changes(
     return parse_config(data, source, names)
 
 
+class _UniqueKeys(yaml.SafeLoader):
+    """PyYAML's safe loader, but a mapping that names a key twice is an error: the safe one
+    keeps the last, silently (seen: a pose written twice by hand took the second)."""
+
+
+def _mapping(loader: _UniqueKeys, node: yaml.MappingNode) -> dict[Any, Any]:
+    loader.flatten_mapping(node)  # `<<` merges: a key they bring may be named again
+    seen = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node)
+        if isinstance(key, Hashable) and key in seen:
+            raise yaml.constructor.ConstructorError(
+                "while reading a mapping",
+                node.start_mark,
+                f"{key!r} is named twice",
+                key_node.start_mark,
+            )
+        seen.add(key)
+    return loader.construct_mapping(node, deep=True)
+
+
+_UniqueKeys.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _mapping)
+
+
+def load_yaml(text: str) -> Any:
+    """YAML text's data, as `yaml.safe_load` reads it but a key named twice in a mapping is
+    a `yaml.YAMLError` (with its line)."""
+    return yaml.load(text, Loader=_UniqueKeys)
+
+
 def read_yaml(
     path: Path, what: str = "the configuration", error: type[ConfigError] = ConfigError
 ) -> Any:
@@ -484,7 +524,7 @@ def read_yaml(
     except OSError as e:
         raise error(f"{path}: cannot read {what}: {e.strerror}") from None
     try:
-        return yaml.safe_load(text)
+        return load_yaml(text)
     except yaml.YAMLError as e:
         raise error(f"{path}: not valid YAML: {e}") from None
 

@@ -27,7 +27,7 @@ from typing import Any
 
 import yaml
 
-from al5d.arm.config import ConfigError
+from al5d.arm.config import ConfigError, load_yaml
 from al5d.arm.instruction import PRESET_NAMES, SequenceStep, parse_sequence
 from al5d.model import JOINTS
 
@@ -158,7 +158,7 @@ def _pose(name: str, angles: Any, where: str) -> Pose:
 def parse_poses(text: str, path: Path) -> NamedPoses:
     """The poses of a file's text; PosesError names the file, the pose and the joint."""
     try:
-        data = yaml.safe_load(text)
+        data = load_yaml(text)
     except yaml.YAMLError as e:
         raise PosesError(f"{path}: not valid YAML: {e}") from None
     if data is None:

@@ -15,6 +15,7 @@ The arm's state (a stop's lock) is not judged either: the server's outcomes say 
 
 from __future__ import annotations
 
+import codecs
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -45,6 +46,10 @@ class Line:
     number: int
     text: str
     step: SequenceStep
+    #: Judged from where the lines before it leave every joint: the path's table and the
+    #: start's ranges included. False: the arm's start was not known (the server judges
+    #: those as the step starts).
+    known: bool = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,6 +109,9 @@ class SequenceJudge:
         (None: not known)."""
         lines: list[Line] = []
         problems: list[Problem] = []
+        # The byte order mark some editors start a UTF-8 file with: not a word of its first
+        # line (seen: "word 1 '\ufeffmove': unknown instruction").
+        data = data.removeprefix(codecs.BOM_UTF8)
         pose: Pose = {j: None for j in self.config.joints}
         pose.update(start or {})
         ended_at = 0  # the line of a shutdown: nothing after it reaches a server
@@ -123,14 +131,17 @@ class SequenceJudge:
                 why = f"the server shuts down at line {ended_at}: nothing after it is run"
                 problems.append(Problem(number, text, why))
                 continue
+            known = True
             if isinstance(item, Instruction):
+                moves = item.kind not in (Kind.STOP, Kind.RELEASE)
+                known = not moves or all(v is not None for v in pose.values())
                 reason = self._step(item, pose)
                 if reason:
                     problems.append(Problem(number, text, reason))
                     continue
                 if item.kind is Kind.SHUTDOWN:
                     ended_at = number
-            lines.append(Line(number, text, step))
+            lines.append(Line(number, text, step, known))
         return Judgement(name, tuple(lines), tuple(problems))
 
     def judge_text(

@@ -239,7 +239,7 @@ def _joint_problems(joints: tuple[tuple[str, float], ...], limits: Limits) -> li
         elif not math.isfinite(deg):
             problems.append(f"{name}: {deg} is not a finite number of degrees")
         elif not r[0] <= deg <= r[1]:
-            problems.append(f"{name}: {deg:g} deg is outside the range {r[0]:g}..{r[1]:g}")
+            problems.append(cartesian.outside(name, deg, *r))
         seen.add(name)
     return problems
 

@@ -149,9 +149,22 @@ def excess(err: Unreachable, like: Unreachable) -> float | None:
     return None
 
 
+#: A number this large (or larger) is said in the `g` format: with "f" a 1e308 mm target
+#: took 309 digits of a refusal's reason.
+BIG = 1e7
+
+
+def whole_mm(value_m: float) -> str:
+    """`value_m` (metres) in whole millimetres, or past `BIG` mm in four figures."""
+    mm = value_m * 1000
+    return f"{mm:.4g}" if abs(mm) >= BIG else f"{mm:.0f}"
+
+
 def _deg(value: float, *limits: float) -> str:
     # Whole degrees read best; decimals are added only while the value would
     # print the same as a limit it exceeds ("would need 135 deg, range 0..135").
+    if abs(value) >= BIG:
+        return f"{value:.4g}"
     for digits in range(7):
         text = f"{value:.{digits}f}"
         if all(text != f"{limit:.{digits}f}" for limit in limits):
@@ -162,6 +175,8 @@ def _deg(value: float, *limits: float) -> str:
 def _mm_pair(distance_m: float, limit_m: float) -> tuple[str, str]:
     # "333 mm from the shoulder, the arm reaches 333 mm" would hide the difference:
     # add decimals until the two numbers differ (at most six).
+    if max(abs(distance_m), abs(limit_m)) * 1000 >= BIG:
+        return f"{distance_m * 1000:.4g}", f"{limit_m * 1000:.4g}"
     for digits in range(7):
         a = f"{distance_m * 1000:.{digits}f}"
         b = f"{limit_m * 1000:.{digits}f}"

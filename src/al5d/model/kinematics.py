@@ -22,6 +22,7 @@ from al5d.model.errors import (
     JointOutOfRange,
     OutOfReach,
     Unreachable,
+    whole_mm,
 )
 from al5d.model.geometry import Geometry
 from al5d.model.joints import ARM_JOINTS
@@ -356,6 +357,6 @@ def solve_nearest_pitch(
             return sol, wrap_deg(90.0 - sol["shoulder"] - sol["elbow"] + sol["wrist"])
         previous = offset
     raise Unreachable(
-        f"no pitch reaches x={x * 1000:.0f} y={y * 1000:.0f} z={z * 1000:.0f} mm; "
+        f"no pitch reaches x={whole_mm(x)} y={whole_mm(y)} z={whole_mm(z)} mm; "
         f"at pitch {p0:.0f} deg: {first_error}"
     )

@@ -70,6 +70,11 @@ class LostContact(NoOutcome):
     lease runs out, halts what it commanded and never runs what it sent meanwhile."""
 
 
+class LaneLost(NoOutcome):
+    """The server's local lane closed while an outcome was waited for (the server ended, or
+    was killed): whether the instruction ran is unknown."""
+
+
 #: The handshake's ping (`al5d.ros.names.PING`) is sent again this often until one is
 #: answered: a ping the server answered before its result writer had matched our reader
 #: reached nobody.
@@ -517,7 +522,7 @@ class Client:
             except FutureTimeout:
                 return None
             except LaneClosed as e:
-                raise NoOutcome(f"[{ident}]: {e}: whether it ran is unknown") from None
+                raise LaneLost(f"[{ident}]: {e}: whether it ran is unknown") from None
         if not self.sent(ident):
             return None
         deadline = Deadline(timeout)
@@ -536,7 +541,7 @@ class Client:
 
         Raises `GrammarError` for text that is not an instruction, `NoServer` if no server
         is found within `wait_s` (on first use), `NoOutcome` if no outcome comes within
-        `timeout` seconds.
+        `timeout` seconds (`LostContact`, `LaneLost`: the server went out of contact first).
         """
         if isinstance(instr, str):
             instr = parse_instruction(instr, PRESET_NAMES)
@@ -549,6 +554,9 @@ class Client:
         except LostContact:
             self.forget(instr.id)
             raise self._lost(f"{instr.name} [{instr.id}]") from None
+        except LaneLost as e:
+            self.forget(instr.id)
+            raise LaneLost(f"{instr.name} {e}") from None
         # Kept on Ctrl-C (KeyboardInterrupt), which cancels what is pending.
         self.forget(instr.id)
         if outcome is None:
