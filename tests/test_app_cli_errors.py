@@ -279,6 +279,15 @@ def test_a_file_that_cannot_be_read_is_bad_input(tmp_path: Path) -> None:
     code, _, err = ended(Proc("run", str(tmp_path / "missing.seq"), env=alone()))
     assert code == exits.BAD_INPUT
     assert err == [f"al5d run: cannot read {tmp_path / 'missing.seq'}: No such file or directory"]
+    # Without a bound, /dev/zero was read until memory ran out (a MemoryError's traceback).
+    # A sparse file just over the bound stands for it: a test that fails reads no more.
+    big = tmp_path / "big.seq"
+    with big.open("wb") as f:
+        f.truncate(16 * 2**20 + 1)
+    for args in (("run", str(big)), ("run", "--check", str(big))):
+        code, _, err = ended(Proc(*args, env=alone()))
+        assert code == exits.BAD_INPUT, err
+        assert err == [f"al5d run: cannot read {big}: larger than 16 MiB: no sequence file"], err
 
 
 def test_refused_is_not_done_and_verbose_says_where_the_time_went(arm: Served) -> None:

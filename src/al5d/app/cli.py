@@ -7,7 +7,6 @@ import argparse
 import os
 import sys
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from typing import Any
 
 from al5d import exits
@@ -212,7 +211,7 @@ def _check(path: str, poses: str | None, namespace: str | None) -> int:
     """`al5d run --check`: the file judged whole as `al5d run` judges it, against the
     configuration of the server on this machine's lane, else the shipped one; nothing sent."""
     from al5d.arm.poses import PosesError, beside, load_poses
-    from al5d.arm.sequence import judge_sequence
+    from al5d.arm.sequence import judge_sequence, read_sequence
     from al5d.owner import where
     from al5d.owner.client import local_config
     from al5d.ros.names import Names
@@ -224,7 +223,7 @@ def _check(path: str, poses: str | None, namespace: str | None) -> int:
         whose = "a server with the shipped configuration (none on this machine's lane)"
     try:
         book = load_poses(beside(path) if poses is None else poses, required=poses is not None)
-        judged = judge_sequence(Path(path).read_bytes(), config, path, book)
+        judged = judge_sequence(read_sequence(path), config, path, book)
     except OSError as e:
         print(f"al5d run: cannot read {path}: {e.strerror}", file=sys.stderr)
         return exits.BAD_INPUT

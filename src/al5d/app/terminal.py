@@ -38,7 +38,7 @@ from al5d.arm.instruction import (
     parse_instruction,
 )
 from al5d.arm.poses import PosesError, beside, load_poses
-from al5d.arm.sequence import SequenceJudge, judge_sequence, judged_steps
+from al5d.arm.sequence import SequenceJudge, judge_sequence, judged_steps, read_sequence
 from al5d.owner import where
 from al5d.owner.client import local_config
 from al5d.ros.client import (
@@ -233,7 +233,7 @@ def run(
     """
     try:
         book = load_poses(beside(path) if poses is None else poses, required=poses is not None)
-        data = Path(path).read_bytes()
+        data = read_sequence(path)
         # A line of bad grammar is bad for every server: said at once, before one is found
         # its own way, with every other problem as the server on this machine's lane
         # judges it (instantly), or a server with the shipped configuration.

@@ -16,8 +16,10 @@ The arm's state (a stop's lock) is not judged either: the server's outcomes say 
 from __future__ import annotations
 
 import codecs
+import errno
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 from al5d.arm import validate
 from al5d.arm.config import ArmConfig, load_config
@@ -191,6 +193,20 @@ class SequenceJudge:
         for step in steps:
             pose.update(step.target)
         return ""
+
+
+#: The largest sequence file read (a sequence of 100,000 lines is about 2 MB).
+MAX_FILE_BYTES = 16 * 1024 * 1024
+
+
+def read_sequence(path: str | Path) -> bytes:
+    """A sequence file's bytes; OSError (its `strerror` says why) where it cannot be read or
+    is larger than `MAX_FILE_BYTES` (`/dev/zero` was read until memory ran out)."""
+    with open(path, "rb") as f:
+        data = f.read(MAX_FILE_BYTES + 1)
+    if len(data) > MAX_FILE_BYTES:
+        raise OSError(errno.EFBIG, f"larger than {MAX_FILE_BYTES // 2**20} MiB: no sequence file")
+    return data
 
 
 def judge_sequence(
