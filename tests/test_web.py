@@ -84,8 +84,9 @@ class Rig:
         return [c for r in self.emu.records[since:] for c in r.commands if isinstance(c, p.Stop)]
 
     def every_channel_stopped(self, since: int) -> None:
-        """A STOP for every channel on the board since record `since`. The page stops by
-        the local lane, the service and on the topic: the server may obey each."""
+        """A STOP for every channel on the board since record `since` (the page's STOP goes by
+        the local lane; without one, by the service and on the topic: the server may obey
+        both)."""
         channels = {joint.channel for joint in self.config.joints.values()}
         wait_until(
             lambda: {s.channel for s in self.stops(since)} == channels,
@@ -1260,7 +1261,7 @@ def test_the_pages_stop_reaches_a_local_server_whose_ros_side_is_frozen(rig: Rig
             for pid in ros_side:
                 os.kill(pid, signal.SIGCONT)
         said = rig.web.proc.err.drain(0.1)[seen:]
-        assert any("STOP clicked (sent by the local lane" in line for line in said), said
+        assert any("STOP clicked (sent by the local lane)" in line for line in said), said
         wait_until(
             lambda: any(
                 "STOP by the local lane: done" in line

@@ -227,32 +227,34 @@ class WebNode:
         self._jog_seen = (info.total_count, info.total_count - info.current_count)
 
     def stop(self) -> str:
-        """The emergency stop, by the local lane where a server's is on this machine (no
-        discovery, no DDS: the owner has it as the socket is read), by the service (it never
-        waits behind instructions) and on the instruction topic as well (the server's stop
-        watcher obeys it at once). The topic reaches a server whose service this process has
-        not matched yet: the server's stop path is a DDS participant of its own, discovered
-        apart from the node whose state the page shows (a server just restarted beside a page
-        that saw it go), and a server killed outright still looks ready for as long as DDS
-        takes to notice (seconds). A stop twice is harmless. Returns which ways it went."""
-        ways = []
-        ident = f"web-stop-{new_id()}"
+        """The emergency stop: by the local lane where a server's is on this machine (no
+        discovery, no DDS: the owner has it as the socket is read), and only by it then: the
+        service and the topic end at the same owner, and a copy of them that came after a
+        release would lock the arm again (seen in a CI run: a STOPPED after the release).
+        Else by the service (it never waits behind instructions) and on the instruction
+        topic as well (the server's stop watcher obeys it at once). The topic reaches a
+        server whose service this process has not matched yet: the server's stop path is a
+        DDS participant of its own, discovered apart from the node whose state the page
+        shows (a server just restarted beside a page that saw it go), and a server killed
+        outright still looks ready for as long as DDS takes to notice (seconds). Returns
+        which ways it went."""
         try:
-            # Handed over here, the first of the three ways (a Unix socket takes it at
-            # once); only its answer is waited for in a thread of its own.
-            sock = quick.hand_stop(self.lane, ident, LANE_HAND_S)
+            # Handed over here (a Unix socket takes it at once); only its answer is waited
+            # for, in a thread of its own.
+            sock = quick.hand_stop(self.lane, f"web-stop-{new_id()}", LANE_HAND_S)
         except OSError as e:
             log.warning("web: STOP by the local lane %s failed: %s", self.lane, e)
-        else:
-            if sock is not None:
-                threading.Thread(target=self._lane_answer, args=(sock,), daemon=True).start()
-                ways.append("the local lane")
+            sock = None
+        if sock is not None:
+            threading.Thread(target=self._lane_answer, args=(sock,), daemon=True).start()
+            return "the local lane"
+        ways = []
         if self.stop_client.service_is_ready():
             self.stop_client.call_async(Trigger.Request())
             ways.append("service")
         self.send(stop_instruction(id=new_id()))
         ways.append("topic")
-        return ", ".join(ways[:-1]) + " and " + ways[-1] if len(ways) > 1 else ways[0]
+        return " and ".join(ways)
 
     def _lane_answer(self, sock: socket.socket) -> None:
         try:
