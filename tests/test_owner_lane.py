@@ -100,11 +100,15 @@ def test_two_quick_ctrl_cs_do_not_cut_the_cancel(arm: Served, tmp_path: Path, co
     Python (its handler runs once for both): the second comes a few milliseconds after the
     first, later in each round, to land at a different point of the cancel."""
     seq = tmp_path / "moves.seq"
-    seq.write_text("move elbow=60 time=4000 &\nmove wrist=60 time=4000 &\nmove base=60 time=4000\n")
-    args = ("send", "move", "base=60", "time=4000") if command == "send" else ("run", str(seq))
     for after_s in (0.001, 0.003, 0.006, 0.01, 0.02, 0.04):
         arm.ready()
-        proc = Proc(*args)
+        # The side away from where the base is: halted on its way, it is far from there.
+        target = -60 if arm.emu.servo_degrees()["base"] > 0 else 60
+        seq.write_text(
+            f"move elbow=60 time=4000 &\nmove wrist=60 time=4000 &\nmove base={target} time=4000\n"
+        )
+        send = ("send", "move", f"base={target}", "time=4000")
+        proc = Proc(*send) if command == "send" else Proc("run", str(seq))
         wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
         time.sleep(0.3)
         proc.popen.send_signal(signal.SIGINT)
@@ -116,7 +120,7 @@ def test_two_quick_ctrl_cs_do_not_cut_the_cancel(arm: Served, tmp_path: Path, co
         assert not any("interrupted" in line for line in err), (out, err)
         assert any(line.endswith("cancelled (Ctrl-C)") for line in out), (out, err)
         wait_until(lambda: arm.states[-1] == "ready", CMD_S, "ready: halted, not locked")
-        assert halted_on_its_way(arm, 60)
+        assert halted_on_its_way(arm, target)
 
 
 def test_a_client_that_sends_and_closes_at_once_leaves_its_move_running(arm: Served) -> None:
