@@ -24,6 +24,7 @@ from typing import Any
 from al5d.arm.validate import Ticket
 from al5d.clock import now
 from al5d.owner import lane as ln
+from al5d.owner.where import answers
 
 log = logging.getLogger("al5d")
 
@@ -228,18 +229,13 @@ def _listen(lane: Path) -> socket.socket | None:
     with contextlib.suppress(OSError):
         os.chmod(lane.parent, 0o700)
     if lane.exists():
-        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        try:
-            probe.connect(str(lane))
-        except OSError:
-            lane.unlink(missing_ok=True)  # a server that ended without removing it
-        else:
-            probe.close()
+        if answers(lane):
             log.warning(
                 "another al5d server holds the local lane %s: this one is reached over ROS only",
                 lane,
             )
             return None
+        lane.unlink(missing_ok=True)  # a server that ended without removing it
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     sock.bind(str(lane))
     os.chmod(lane, 0o600)
