@@ -393,15 +393,23 @@ def test_the_shell_runs_each_line_over_one_connection(arm: Served) -> None:
     moves = len(group_moves(arm.emu.records))
     shell = Proc("shell", "--verbose", stdin=True)
     try:
-        for line in ("ready", "move base=x", "move base=10 time=200", "move base=0 &", "exit"):
+        lines = ("ready", "stop", "release", "move base=x", "move base=10 time=200")
+        for line in (*lines, "move base=0 &", "exit"):
             shell.send(line)
         code, out, err = ended(shell)
     finally:
         shell.kill()
     assert code == exits.BAD_INPUT, err  # a line was bad; the others ran
     assert out[0] == "> ready" and re.fullmatch(r"ready \[.*\]: done.*", out[1]), out
+    # Each line is said before its outcome, the stop's and the release's too.
+    assert out[2:6] == [
+        "> stop",
+        "stop: done (by the local lane)",
+        "> release",
+        "release: done (by the local lane)",
+    ], out
     assert "> move base=10 time=200" in out
-    assert sum(": done" in line for line in out) == 3, out
+    assert sum(": done" in line for line in out) == 5, out
     assert "al5d shell: word 2 'base=x': 'x' is not a number of degrees" in err
     # One discovery for all of them.
     assert sum("s for the server to be discovered" in line for line in err) == 1, err

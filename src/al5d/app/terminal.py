@@ -471,6 +471,8 @@ def _shell_step(
 ) -> None:
     item, in_background = step
     if isinstance(item, Instruction) and item.kind in (Kind.STOP, Kind.RELEASE):
+        if not interactive:
+            report.line(f"> {item}")
         answer = _stop_or_release(client, item, timeout)
         report.all_done &= answer.success
         report.line(str(answer))
