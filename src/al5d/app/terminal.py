@@ -20,7 +20,7 @@ import functools
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from pathlib import Path
 from typing import TextIO
 
@@ -124,10 +124,13 @@ class Timing:
 VIA = {"auto": None, "lane": True, "ros": False}
 
 
-def interrupted(client: Client, report: Report, sent: list[Instruction]) -> int:
-    """Ctrl-C: what the command sent and is not over is cancelled, and said. Inside
-    `interrupts.cancelling` a second Ctrl-C meanwhile is let be; a third leaves, and says
-    what may still run."""
+def interrupted(
+    client: Client, report: Report, sent: list[Instruction], watched: Collection[str] = ()
+) -> int:
+    """Ctrl-C: what the command sent and is not over is cancelled, and said: by its outcome's
+    line where its outcome is printed as it comes (`watched`: the lines run in the
+    background), else by a line of its own. Inside `interrupts.cancelling` a second Ctrl-C
+    meanwhile is let be; a third leaves, and says what may still run."""
     pending = set(client.pending()) if client.lane is not None else {i.id for i in sent}
     try:
         for instr in sent:
@@ -138,7 +141,11 @@ def interrupted(client: Client, report: Report, sent: list[Instruction]) -> int:
                     f"{instr.name} [{instr.id}]: Ctrl-C: not cancelled: ROS 2 has no cancel by "
                     "id (it may still run; `al5d send stop` halts the arm)"
                 )
-            elif client.cancel(instr.id, "cancelled by Ctrl-C"):
+            # The owner tells the outcome before it answers the cancel: a watched line's
+            # outcome has come, and its watcher said it.
+            elif client.cancel(instr.id, "cancelled by Ctrl-C") and (
+                instr.id not in watched or client.outcome(instr.id, 0) is None
+            ):
                 report.line(f"{instr.name} [{instr.id}]: cancelled (Ctrl-C)")
     except KeyboardInterrupt:
         report.line(
@@ -259,6 +266,7 @@ def run(
     timing.ros_started()
     report = Report(out)
     sent: list[Instruction] = []
+    background: list[Instruction] = []
     try:
         client.wait_for_server(wait_s)
         timing.discovered(client)
@@ -267,7 +275,6 @@ def run(
         except GrammarError as e:
             print(f"al5d run: nothing sent: {e}".replace("\n", "\nal5d run: "), file=err)
             return exits.BAD_INPUT
-        background: list[Instruction] = []
         for n, (item, in_background) in enumerate(steps):
             if isinstance(item, Instruction):
                 sent.append(item)
@@ -287,7 +294,7 @@ def run(
         report.line(str(e))
         return exits.NOT_DONE
     except KeyboardInterrupt:
-        return interrupted(client, report, sent)
+        return interrupted(client, report, sent, {i.id for i in background})
     finally:
         client.close()
         timing.end()
