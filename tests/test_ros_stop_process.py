@@ -294,7 +294,7 @@ def test_a_stop_goes_on_the_topic_at_once_while_the_stop_process_is_not_found(
     server just restarted under load has its stop process found seconds after its node)
     sends its stop on the instruction topic at once, and the node obeys it: the client
     does not first wait for the stop service (`SERVICE_GRACE_S`)."""
-    from al5d.ros.client import SERVICE_GRACE_S
+    from al5d.ros.rosway import SERVICE_GRACE_S
 
     stop_process = served.stop_process()
     freeze(stop_process)

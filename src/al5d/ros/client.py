@@ -14,186 +14,185 @@ discovery, no DDS); any other over ROS 2, its instruction topic and its services
 from __future__ import annotations
 
 import atexit
-import contextlib
 import logging
 import os
-import secrets
-import socket
 import threading
-import time
 import weakref
 from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
-from al5d.arm.instruction import (
-    PRESET_NAMES,
-    Instruction,
-    Kind,
-    Outcome,
-    new_id,
-    parse_instruction,
-)
-from al5d.clock import Deadline
+from al5d.arm.instruction import PRESET_NAMES, Instruction, Kind, Outcome, parse_instruction
 from al5d.interrupts import ctrl_c_after
 from al5d.owner import where
 from al5d.owner.client import LaneClosed, Remote
-from al5d.ros.names import PING, Names, server_namespaces, server_nodes
-from al5d.ros.reading import ArmView, Reading, Tool, follow_lane, follow_ros
+from al5d.ros.answers import (
+    ANSWER_S,
+    Answer,
+    LaneLost,
+    LostContact,
+    NoOutcome,
+    NoServer,
+    elsewhere,
+)
+from al5d.ros.names import Names
+from al5d.ros.reading import ArmView, Reading, Tool, follow_lane
 
 if TYPE_CHECKING:
-    from al5d_interfaces.msg import InstructionResult
-
     from al5d.arm.config import ArmConfig
-
-# rclpy and the messages are imported where the ROS 2 way is taken: a client of a local
-# server (its lane) starts without them (about half a second less).
 
 log = logging.getLogger("al5d")
 
+__all__ = [
+    "ANSWER_S",
+    "OUTCOME_S",
+    "WAIT_S",
+    "Answer",
+    "Client",
+    "LaneLost",
+    "LostContact",
+    "NoOutcome",
+    "NoServer",
+]
 
-class NoServer(Exception):
-    """No `al5d serve` answers on this ROS domain."""
-
-
-class NoOutcome(TimeoutError):
-    """The server took too long to report an instruction's outcome, or to answer a service
-    call: what became of the instruction is unknown."""
-
-
-class LostContact(NoOutcome):
-    """Nothing has been heard from the server for longer than its lease of this client (and
-    a margin: `Client.lost_contact`): the link (or the server) is
-    gone. The client has given up on what it waited for; the server, once this client's
-    lease runs out, halts what it commanded and never runs what it sent meanwhile."""
-
-
-class LaneLost(NoOutcome):
-    """The server's local lane closed while an outcome was waited for (the server ended, or
-    was killed): whether the instruction ran is unknown."""
-
-
-#: The handshake's ping (`al5d.ros.names.PING`) is sent again this often until one is
-#: answered: a ping the server answered before its result writer had matched our reader
-#: reached nobody.
-PING_EVERY_S = 0.25
-#: How long the shutdown service may stay undiscovered once the server's topics are: after
-#: that the shutdown goes on the instruction topic instead (and says so). The services are
-#: on the stop path's DDS participant, discovered apart from the topics': beside two busy
-#: loops once more than 2 s after them. (A stop waits for nothing: `Client._stop`.)
-SERVICE_GRACE_S = 5.0
-#: A stop's service call unanswered this long is made again. rmw_fastrtps drops an answer
-#: whose client it has not matched 100 ms after the request (ros2/rmw_fastrtps#390), which
-#: on a loaded machine can befall a new client's first call. A second stop is harmless; a
-#: second release could undo a stop sent in between, so a release is never sent twice.
-STOP_RETRY_S = 1.0
-#: In a stop's first second its copy on the topic goes this often: a server just found (a
-#: restart) may not have matched our writer yet, and drops what comes before (seen beside
-#: two busy loops: a restarted server's stop obeyed 1.01 s after it was asked, by the copy
-#: sent again after a second).
-STOP_FIRST_COPIES_S = 0.25
-#: A stop unanswered this long is said to be so at once (a WARNING), while it is still
-#: sent: after a server's restart its side may take seconds to find this client (beside
-#: busy loops, a stop was obeyed 2.15 s after it was asked), and whoever asked must not
-#: believe the arm stopped meanwhile.
-STOP_UNANSWERED_S = 1.0
-#: A release waits at most this long for the answers of its client's stops still on their
-#: way (`Client._in_flight`): a lost request is sent again at the writer's next heartbeat,
-#: 3 s on; a server gone never answers, and must not cost the release its timeout.
-STOPS_ANSWERED_S = 4.0
-#: A release or a shutdown waits this long after its service is found: see `STOP_RETRY_S`.
-SERVICE_SETTLE_S = 0.5
 #: The defaults of `al5d send` and `al5d run`: finding the server, and an outcome.
 WAIT_S = 10.0
 OUTCOME_S = 120.0
-#: A stop, a release or a shutdown is answered at once.
-ANSWER_S = 10.0
-#: A client over ROS 2 sends its lease this often (`al5d.ros.leases`), and takes the server
-#: for lost when it has heard nothing from it (its joint states, 10 a second when idle)
-#: for the server's lease (`server.client_lease_s`, 1 s unless the client has read the
-#: server's configuration) and `LOST_AFTER_LEASE_S` more: by then the server, which
-#: checks its leases every tenth of a second, has halted what this client commanded. With
-#: equal times a move was done 80 ms after its sender had given up on it (a CI run).
-LEASE_EVERY_S = 0.1
-LOST_AFTER_LEASE_S = 0.5
-#: A silence this long is said at once (a WARNING) by a client that waits for the server,
-#: before it gives up.
-SILENCE_SAID_S = 1.0
-LOST_S = 1.0 + LOST_AFTER_LEASE_S
-#: How long a closing client waits for the server to have its last lease.
-BYE_S = 0.5
 
 
-@dataclass(frozen=True)
-class Answer:
-    """The server's answer to a stop, a release or a shutdown: whether it was obeyed and the
-    server's message, and `via` the service (or, as a fallback, the topic) that took it."""
+class Way(Protocol):
+    """How a client reaches its server: by the local lane (`LaneWay`), or over ROS 2
+    (`al5d.ros.rosway.RosWay`). `Client` says what each call means."""
 
-    instruction: str
-    success: bool
-    message: str
     via: str
-    by_service: bool = True
+    discovery_s: float
+    matched: bool
 
-    @property
-    def ok(self) -> bool:
-        return self.success
-
-    def __str__(self) -> str:
-        text = f"{self.instruction}: {'done' if self.success else 'refused'}"
-        if self.message and self.message != text:
-            text += f": {self.message}"
-        return f"{text} (by {self.via})"
-
-
-def elsewhere(names: Names, node: Any) -> str:
-    """The end of a message that no server answers at `names`: the servers seen under other
-    namespaces (on this machine's lanes, and on the ROS graph as `node` sees it), or the
-    question whether one runs."""
-    seen = set(where.namespaces())
-    if node is not None:
-        seen |= server_namespaces(node)
-    seen.discard(names.node_namespace)
-    if not seen:
-        if node is None:
-            return ": is 'al5d serve' running?"
-        return ": is 'al5d serve' running?" + closed_hint()
-    found = sorted(seen)
-    listed = " and ".join([", ".join(found[:-1]), found[-1]] if len(found) > 1 else found)
-    hint = f"--namespace {found[0].strip('/')}" if found[0] != "/" else "no --namespace"
-    return f"; found {listed}: {hint}?"
+    def wait_for_server(self, timeout: float) -> None: ...
+    def no_server(self, name: str, timeout: float) -> NoServer: ...
+    def lost_contact(self) -> float | None: ...
+    def send(self, instr: Instruction, wait_s: float) -> None: ...
+    def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None: ...
+    def outcome(self, ident: str, timeout: float) -> Outcome | None: ...
+    def execute(self, instr: Instruction, timeout: float) -> Outcome: ...
+    def forget(self, ident: str) -> None: ...
+    def sent(self, ident: str) -> bool: ...
+    def pending(self) -> list[str]: ...
+    def cancel(self, ident: str, reason: str) -> bool: ...
+    def config(self) -> ArmConfig: ...
+    def view(self) -> ArmView: ...
+    def ask(self, kind: Kind, timeout: float) -> Answer: ...
+    def close(self) -> None: ...
 
 
-def closed_hint() -> str:
-    """What a client over ROS 2 that finds no server says of a server on another machine."""
-    here = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST").upper()
-    if here == "LOCALHOST":
-        return (
-            " This client looks on this machine only (ROS_AUTOMATIC_DISCOVERY_RANGE="
-            "LOCALHOST, the default); for a server on another machine, set "
-            "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET here and where it runs, with the same "
-            "ROS_DOMAIN_ID (docs/ros.md, 'Reaching the node from another machine')."
+class LaneWay:
+    """A client's way to a server on this machine: its local lane (`Remote`: no discovery,
+    no DDS). Each instruction's outcome is a future."""
+
+    matched = True
+    discovery_s = 0.0
+
+    def __init__(self, lane: Remote, names: Names) -> None:
+        self.lane = lane
+        self.names = names
+        self.via = f"the local lane {where.path(names.namespace)}"
+        self._futures: dict[str, Future[Outcome]] = {}
+        #: Watched before they are sent: told once they are.
+        self._watchers: dict[str, Callable[[Outcome], None]] = {}
+
+    def wait_for_server(self, timeout: float) -> None:
+        pass  # the lane answered when it was opened
+
+    def no_server(self, name: str, timeout: float) -> NoServer:
+        return NoServer(
+            f"no al5d server answers on {name} within {timeout:g} s{elsewhere(self.names, None)}"
         )
-    return (
-        " A server on another machine is closed to the network unless it was started with "
-        "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET (its default keeps it to its own machine) and "
-        "this ROS_DOMAIN_ID (docs/ros.md, 'Reaching the node from another machine')."
-    )
+
+    def lost_contact(self) -> float | None:
+        return None  # a lane that closes ends what waits on it (`LaneLost`)
+
+    def send(self, instr: Instruction, wait_s: float) -> None:
+        with ctrl_c_after():
+            future = self._futures[instr.id] = self.lane.submit(instr)
+            watcher = self._watchers.pop(instr.id, None)
+            if watcher is not None:
+                _watch(future, watcher)
+
+    def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None:
+        future = self._futures.get(ident)
+        if future is not None:
+            _watch(future, watcher)
+        else:
+            self._watchers[ident] = watcher
+
+    def outcome(self, ident: str, timeout: float) -> Outcome | None:
+        future = self._futures.get(ident)
+        if future is None:
+            return None
+        try:
+            return future.result(timeout)
+        except FutureTimeout:
+            return None
+        except LaneClosed as e:
+            raise LaneLost(f"[{ident}]: {e}: whether it ran is unknown") from None
+
+    def execute(self, instr: Instruction, timeout: float) -> Outcome:
+        self.send(instr, timeout)
+        try:
+            outcome = self.outcome(instr.id, timeout)
+        except LaneLost as e:
+            self.forget(instr.id)
+            raise LaneLost(f"{instr.name} {e}") from None
+        # Kept on Ctrl-C (KeyboardInterrupt), which cancels what is pending.
+        self.forget(instr.id)
+        if outcome is None:
+            raise NoOutcome(f"{instr.name} [{instr.id}]: no outcome within {timeout:g} s")
+        return outcome
+
+    def forget(self, ident: str) -> None:
+        self._futures.pop(ident, None)
+
+    def sent(self, ident: str) -> bool:
+        return ident in self._futures
+
+    def pending(self) -> list[str]:
+        return [ident for ident, f in self._futures.items() if not f.done()]
+
+    def cancel(self, ident: str, reason: str) -> bool:
+        return self.lane.cancel(ident, reason)
+
+    def config(self) -> ArmConfig:
+        return self.lane.config
+
+    def view(self) -> ArmView:
+        view = ArmView(self.lane.config.model, live=self.lane.positions)
+        follow_lane(self.lane, view)
+        return view
+
+    def ask(self, kind: Kind, timeout: float) -> Answer:
+        try:
+            outcome = self.lane.submit(Instruction(kind)).result(timeout)
+        except FutureTimeout:
+            raise NoOutcome(
+                f"{kind.value}: no answer on the local lane within {timeout:g} s "
+                "(whether the server obeyed is unknown)"
+            ) from None
+        except LaneClosed as e:
+            raise NoOutcome(f"{kind.value}: {e} (whether the server obeyed is unknown)") from None
+        message = outcome.reason or f"{kind.value}: {outcome.result.value}"
+        return Answer(kind.value, outcome.ok, message, "the local lane")
+
+    def close(self) -> None:
+        self.lane.close()
 
 
-#: Every client not yet closed, closed at interpreter exit (`_close_open_clients`).
-_open: weakref.WeakSet[Client] = weakref.WeakSet()
+def _watch(future: Future[Outcome], watcher: Callable[[Outcome], None]) -> None:
+    def told(done: Future[Outcome]) -> None:
+        if done.exception() is None:
+            watcher(done.result())
 
-
-@atexit.register
-def _close_open_clients() -> None:
-    """Close what a script left open. rclpy's executor thread and context still alive when
-    the interpreter finalizes abort the process ("terminate called without an active
-    exception", exit 134) and hide the script's own exit code and traceback."""
-    for client in list(_open):
-        client.close()
+    future.add_done_callback(told)
 
 
 class Client:
@@ -212,16 +211,12 @@ class Client:
     ) -> None:
         self.names = names = Names.of(namespace)
         self.wait_s = wait_s
-        #: Seconds spent waiting for the server (its topics or services) to be discovered.
-        self.discovery_s = 0.0
         self._closing = threading.Lock()
         self._closed = False
-        self.lane: Remote | None = None
-        self._futures: dict[str, Future[Outcome]] = {}
-        self._watchers: dict[str, Callable[[Outcome], None]] = {}
-        self._matched = False
         self._view: ArmView | None = None
-        self._config: ArmConfig | None = None
+        self._way: Way
+        #: The server's local lane, where this client takes it (else None: ROS 2).
+        self.lane: Remote | None = None
         if local is not False:
             path = where.path(names.namespace)
             try:
@@ -235,81 +230,13 @@ class Client:
                     ) from None
                 log.debug("%s: ROS 2 then", e)
         if self.lane is not None:
-            self.via = f"the local lane {where.path(names.namespace)}"
-            self._matched = True
-            _open.add(self)
-            return
-        self._ros(names)
+            self._way = LaneWay(self.lane, names)
+        else:
+            # rclpy and the messages are imported where the ROS 2 way is taken: a client of
+            # a local server (its lane) starts without them (about half a second less).
+            from al5d.ros.rosway import RosWay
 
-    def _ros(self, names: Names) -> None:
-        from al5d_interfaces.msg import ArmInstruction, ClientLease, InstructionResult
-        from rclpy.event_handler import PublisherEventCallbacks
-        from rclpy.node import Node
-        from sensor_msgs.msg import JointState
-        from std_srvs.srv import Trigger
-
-        from al5d.ros.dds import start_context
-        from al5d.ros.executors import Spinner
-        from al5d.ros.qos import (
-            QOS_INSTRUCTIONS,
-            QOS_LATEST,
-            QOS_LEASES,
-            QOS_SERVICES,
-            QOS_STREAM,
-        )
-
-        self.via = "ROS 2"
-        self.context = start_context()
-        try:
-            self.node = Node(
-                f"al5d_client_{os.getpid()}", namespace=names.node_namespace, context=self.context
-            )
-        except BaseException:
-            self.context.try_shutdown()
-            raise
-        #: Readers of our instructions ever matched (the matched event's total): a stop is
-        #: sent again the moment a new one matches (`_stop`).
-        self._readers_matched = 0
-        self.pub = self.node.create_publisher(
-            ArmInstruction,
-            names.instruction,
-            QOS_INSTRUCTIONS,
-            event_callbacks=PublisherEventCallbacks(matched=self._on_readers_matched),
-        )
-        self.results = self.node.create_subscription(
-            InstructionResult, names.result, self._on_result, QOS_STREAM
-        )
-        #: This client's lease (`al5d.ros.leases`), named in what it sends.
-        self.key = f"{socket.gethostname()[:40]}-{os.getpid()}-{secrets.token_hex(3)}"
-        self._lease_pub = self.node.create_publisher(ClientLease, names.clients, QOS_LEASES)
-        #: When the server was last heard (monotonic s; None: not yet).
-        self._heard: float | None = None
-        #: The last sign of the server whose silence has been said (once an outage).
-        self._silence_said: float | None = None
-        self.node.create_subscription(JointState, names.joint_states, self._on_sign, QOS_LATEST)
-        self._leasing = threading.Event()
-        self._leaser = threading.Thread(target=self._lease, name="al5d-lease", daemon=True)
-        self._leaser.start()
-        #: The stop's and the shutdown's services (a release goes on the topic: `_release`).
-        self._services: dict[Kind, tuple[str, Any]] = {
-            kind: (name, self.node.create_client(Trigger, name, qos_profile=QOS_SERVICES))
-            for name, kind in names.services.items()
-            if kind is not Kind.RELEASE
-        }
-        #: Only the outcomes of what this client sent are kept: every client's come by.
-        self._sent: set[str] = set()
-        self._outcomes: dict[str, Outcome] = {}
-        self._cv = threading.Condition()
-        #: Each service once found, and when its first call may go (`SERVICE_SETTLE_S`).
-        self._settled: dict[Kind, Deadline] = {}
-        #: Stop requests sent again (`STOP_RETRY_S`) whose answers have not come: each is a
-        #: stop the server may still obey. A release waits for them (`_in_flight`).
-        self._stops_in_flight: list[Any] = []
-        # rclpy's Python executor: its events executor is now and then told of one message
-        # too few, and the last one waits for the next; here that would be an outcome, or a
-        # service's answer, waited for until the timeout (and the test peer's spin thread
-        # crashed with it: `al5d_rig.rospeer.Peer`).
-        self.spinner = Spinner(self.node, self.context, kind="single")
+            self._way = self._ros = RosWay(names, wait_s)
         _open.add(self)
 
     def __enter__(self) -> Client:
@@ -318,143 +245,51 @@ class Client:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _lease(self) -> None:
-        """Send this client's lease every `LEASE_EVERY_S` until it closes."""
-        from al5d_interfaces.msg import ClientLease
+    @property
+    def via(self) -> str:
+        """The way to the server: the local lane (its path), or ROS 2."""
+        return self._way.via
 
-        every_ms = round(LEASE_EVERY_S * 1000)
-        while not self._leasing.wait(LEASE_EVERY_S):
-            self._lease_pub.publish(
-                ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=every_ms)
-            )
+    @property
+    def discovery_s(self) -> float:
+        """Seconds spent waiting for the server (its topics or services) to be discovered."""
+        return self._way.discovery_s
 
-    def _on_readers_matched(self, info: Any) -> None:
-        self._readers_matched = info.total_count
+    # Over ROS 2, what the commands that publish on their own use (`al5d replay`,
+    # `al5d calibrate`): the node, the instruction topic's writer, this client's lease.
+    @property
+    def node(self) -> Any:
+        return self._ros.node
 
-    def _on_sign(self, msg: object) -> None:
-        self._heard = time.monotonic()
+    @property
+    def pub(self) -> Any:
+        return self._ros.pub
+
+    @property
+    def key(self) -> str:
+        return self._ros.key
 
     def lost_contact(self) -> float | None:
         """Over ROS 2, once the server has been heard: for how long it has not been, if more
-        than `lost_after_s` (None: not lost). A silence of `SILENCE_SAID_S` (of the
-        server's lease, if shorter) is said once, as a WARNING, before that."""
-        heard = None if self.lane is not None else self._heard
-        if heard is None:
-            return None
-        quiet = time.monotonic() - heard
-        lost_after = self.lost_after_s
-        said_after = min(SILENCE_SAID_S, lost_after - LOST_AFTER_LEASE_S)  # a short lease
-        if said_after < quiet <= lost_after and self._silence_said != heard:
-            self._silence_said = heard
-            log.warning(
-                "no sign of the server for %.1f s: the link may be lost; this client gives "
-                "up on what it waits for in %.1f s, once the server has halted what it "
-                "commanded",
-                quiet,
-                lost_after - quiet,
-            )
-        return quiet if quiet > lost_after else None
+        than the server's lease of this client and a margin (None: not lost; always None on
+        the lane). A shorter silence is said once, as a WARNING, before that."""
+        return self._way.lost_contact()
 
     @property
     def lost_after_s(self) -> float:
-        """How long the server may go unheard before this client takes it for lost: the
-        server's lease of this client and `LOST_AFTER_LEASE_S` (`LOST_S` until the server's
-        configuration is read), so that the server has halted what this client commanded
-        before the client gives up on it."""
-        if self._config is None:
-            return LOST_S
-        return self._config.server.client_lease_s + LOST_AFTER_LEASE_S
-
-    def _lost(self, what: str) -> LostContact:
-        quiet = self.lost_contact() or self.lost_after_s
-        return LostContact(
-            f"{what}: lost contact with the server (nothing heard from it for {quiet:.1f} s; "
-            "whether it ran is unknown): once this client's lease runs out the server halts "
-            "what it commanded, and never runs what it sent meanwhile"
-        )
-
-    def _on_result(self, msg: InstructionResult) -> None:
-        from al5d.ros.convert import outcome_from_message
-
-        self._heard = time.monotonic()
-        with self._cv:
-            if msg.id not in self._sent and msg.id not in self._watchers:
-                return
-            outcome = outcome_from_message(msg)
-            self._outcomes[msg.id] = outcome
-            watcher = self._watchers.pop(msg.id, None)
-            self._cv.notify_all()
-        if watcher is not None:
-            watcher(outcome)
-
-    def _server_seen(self) -> bool:
-        """Our writer of instructions has matched every reader of them that discovery lists,
-        the server's node's among them, and our reader of results a writer of them.
-
-        A server has more than one reader of instructions (its stop watcher's, best effort):
-        one matched is not enough. An instruction published before our writer has matched
-        the node's reader never reaches it (seen: 2 `al5d run`s in 30 on a loaded machine
-        waited for ever for their first outcome, the server never told of it). The node is
-        the one that both reads instructions and publishes results, whatever its name: `-r
-        __node:=left_arm` renames it (looked for as `al5d`, no client over ROS found it)."""
-        readers = self.node.get_subscriptions_info_by_topic(self.names.instruction)
-        return (
-            bool(server_nodes(self.node, self.names))
-            and self.pub.get_subscription_count() >= len(readers)
-            and self.results.get_publisher_count() > 0
-        )
-
-    def _no_server(self, name: str, timeout: float) -> NoServer:
-        domain = os.environ.get("ROS_DOMAIN_ID", "0")
-        return NoServer(
-            f"no al5d server answers on {name} (ROS_DOMAIN_ID={domain}) "
-            f"within {timeout:g} s{elsewhere(self.names, self.node if self.lane is None else None)}"
-        )
+        """Over ROS 2, how long the server may go unheard before this client takes it for
+        lost: its lease of this client and a margin (`al5d.ros.rosway.LOST_AFTER_LEASE_S`)."""
+        return self._ros.lost_after_s
 
     def _check_open(self) -> None:
         if self._closed:
             raise RuntimeError("this al5d client is closed")
 
     def wait_for_server(self, timeout: float) -> None:
-        """Until our instructions reach a server and its results reach us: a ping of ours
-        answered. Each side of a topic matches the other when it hears of it, apart: our
-        reader can have matched the server's result writer long before that writer has
-        matched our reader, and a result published meanwhile reaches nobody (seen on a
-        loaded host: discovery took 9.6 s, then an outcome waited for 80 s and more)."""
+        """Until our instructions reach a server and its results reach us: over ROS 2 a ping
+        of ours answered (`NoServer` if none is within `timeout` s)."""
         self._check_open()
-        if self.lane is not None:
-            return
-        deadline = Deadline(timeout)
-        start = time.monotonic()
-        pings: list[str] = []
-        next_ping = 0.0
-        try:
-            while not deadline.expired:
-                with self._cv:
-                    if any(p in self._outcomes for p in pings):
-                        self._matched = True
-                        return
-                if self._server_seen() and time.monotonic() >= next_ping:
-                    pings.append(self._ping())
-                    next_ping = time.monotonic() + PING_EVERY_S
-                time.sleep(0.02)
-            raise self._no_server(self.names.instruction, timeout)
-        finally:
-            self.discovery_s += time.monotonic() - start
-            with self._cv:  # an answer that comes later is not kept
-                for ping in pings:
-                    self._sent.discard(ping)
-                    self._outcomes.pop(ping, None)
-
-    def _ping(self) -> str:
-        """Send a ping; its id."""
-        from al5d_interfaces.msg import ArmInstruction
-
-        msg = ArmInstruction(instruction=PING, id=new_id())
-        with self._cv:
-            self._sent.add(msg.id)
-        self.pub.publish(msg)
-        return str(msg.id)
+        self._way.wait_for_server(timeout)
 
     def send(self, instr: Instruction | str, wait_s: float = 0.0) -> Instruction:
         """Send `instr` (or its text, in `al5d send`'s grammar) on the lane or the instruction
@@ -466,74 +301,19 @@ class Client:
         if isinstance(instr, str):
             instr = parse_instruction(instr, PRESET_NAMES)
         self._check_open()
-        if self.lost_contact() is not None:
-            raise self._lost(f"{instr.name} [{instr.id}]: not sent")
-        if self.lane is not None:
-            with ctrl_c_after():
-                future = self._futures[instr.id] = self.lane.submit(instr)
-                watcher = self._watchers.pop(instr.id, None)
-                if watcher is not None:
-                    self._watch(future, watcher)
-            return instr
-        from al5d.ros.convert import to_message
-
-        msg = to_message(instr)
-        msg.client = self.key
-        msg.wait_ms = min(round(wait_s * 1000), 2**32 - 1)
-        with ctrl_c_after():
-            with self._cv:
-                self._sent.add(instr.id)
-            self.pub.publish(msg)
+        self._way.send(instr, wait_s)
         return instr
 
     def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None:
         """Call `watcher` with the outcome of `ident` as soon as it comes (at once if it has)."""
-        future = self._futures.get(ident)
-        if future is not None:
-            self._watch(future, watcher)
-            return
-        if self.lane is not None:  # watched before it is sent: told once it is
-            self._watchers[ident] = watcher
-            return
-        with self._cv:
-            outcome = self._outcomes.get(ident)
-            if outcome is None:
-                self._watchers[ident] = watcher
-        if outcome is not None:
-            watcher(outcome)
-
-    @staticmethod
-    def _watch(future: Future[Outcome], watcher: Callable[[Outcome], None]) -> None:
-        def told(done: Future[Outcome]) -> None:
-            if done.exception() is None:
-                watcher(done.result())
-
-        future.add_done_callback(told)
+        self._way.watch(ident, watcher)
 
     def outcome(self, ident: str, timeout: float) -> Outcome | None:
         """The outcome of `ident`, sent by this client (and not forgotten): None if it does
         not come within `timeout` seconds, or at once where this client did not send it
         (Ctrl-C before the send was made). Raises `NoOutcome` where the lane closed first,
         `LostContact` where the server went out of contact."""
-        future = self._futures.get(ident)
-        if future is not None:
-            try:
-                return future.result(timeout)
-            except FutureTimeout:
-                return None
-            except LaneClosed as e:
-                raise LaneLost(f"[{ident}]: {e}: whether it ran is unknown") from None
-        if not self.sent(ident):
-            return None
-        deadline = Deadline(timeout)
-        with self._cv:
-            while ident not in self._outcomes:
-                if deadline.expired:
-                    return None
-                if self.lost_contact() is not None:
-                    raise self._lost(f"[{ident}]")
-                self._cv.wait(min(deadline.left(), LEASE_EVERY_S))
-            return self._outcomes[ident]
+        return self._way.outcome(ident, timeout)
 
     def execute(self, instr: Instruction | str, timeout: float = OUTCOME_S) -> Outcome:
         """Send an instruction (or its text, in `al5d send`'s grammar) on the instruction topic
@@ -546,22 +326,7 @@ class Client:
         if isinstance(instr, str):
             instr = parse_instruction(instr, PRESET_NAMES)
         self._check_open()
-        if not self._matched:
-            self.wait_for_server(self.wait_s)
-        self.send(instr, timeout)
-        try:
-            outcome = self.outcome(instr.id, timeout)
-        except LostContact:
-            self.forget(instr.id)
-            raise self._lost(f"{instr.name} [{instr.id}]") from None
-        except LaneLost as e:
-            self.forget(instr.id)
-            raise LaneLost(f"{instr.name} {e}") from None
-        # Kept on Ctrl-C (KeyboardInterrupt), which cancels what is pending.
-        self.forget(instr.id)
-        if outcome is None:
-            raise NoOutcome(f"{instr.name} [{instr.id}]: no outcome within {timeout:g} s")
-        return outcome
+        return self._way.execute(instr, timeout)
 
     # -- what the client hears of the arm ----------------------------------------------
 
@@ -569,18 +334,9 @@ class Client:
         """The view of the arm, made on first use: over ROS 2, subscriptions to the server's
         state and joint states, its model that of the configuration it serves."""
         self._check_open()
-        if self._view is not None:
-            return self._view
-        if self.lane is not None:
-            view = ArmView(self.lane.config.model, live=self.lane.positions)
-            follow_lane(self.lane, view)
-        else:
-            config = self.config()
-            prefix = config.server.joint_prefix_in(self.names.namespace)
-            view = ArmView(config.model)
-            follow_ros(self.node, self.names, prefix, view)
-        self._view = view
-        return view
+        if self._view is None:
+            self._view = self._way.view()
+        return self._view
 
     def config(self) -> ArmConfig:
         """The configuration the server judges with (its joints, ranges, presets, table), for
@@ -592,21 +348,7 @@ class Client:
         the server says is no configuration this version reads.
         """
         self._check_open()
-        if self._config is None:
-            self._config = self.lane.config if self.lane is not None else self._served_config()
-        return self._config
-
-    def _served_config(self) -> ArmConfig:
-        from al5d.arm.config import load_config
-        from al5d.ros.params import served_config
-
-        if not self._matched:
-            self.wait_for_server(self.wait_s)
-        config = served_config(self.node, self.names, ANSWER_S)
-        if config is None:
-            log.warning("the server did not say its configuration: judged by the shipped one")
-            return load_config(None)
-        return config
+        return self._way.config()
 
     def read(self, timeout: float | None = None) -> Reading:
         """The arm as last heard: its state, joints (degrees) and tool pose (`Reading`). The
@@ -615,7 +357,7 @@ class Client:
         timeout = self.wait_s if timeout is None else timeout
         reading = self._arm().wait(lambda r: bool(r.state and r.joints_told), timeout)
         if reading is None:
-            raise self._no_server(self.names.joint_states, timeout)
+            raise self._way.no_server(self.names.joint_states, timeout)
         return self._arm().reading
 
     def state(self) -> str:
@@ -652,290 +394,59 @@ class Client:
 
     def forget(self, ident: str) -> None:
         """The outcome of `ident` is not kept any more."""
-        self._futures.pop(ident, None)
-        if self.lane is None:
-            with self._cv:
-                self._sent.discard(ident)
-                self._outcomes.pop(ident, None)
+        self._way.forget(ident)
 
     def sent(self, ident: str) -> bool:
         """Whether this client sent `ident` (and has not forgotten it)."""
-        if self.lane is not None:
-            return ident in self._futures
-        with self._cv:
-            return ident in self._sent or ident in self._outcomes
+        return self._way.sent(ident)
 
     def pending(self) -> list[str]:
         """The ids of what this client sent whose outcome has not come (over the lane)."""
-        return [ident for ident, f in self._futures.items() if not f.done()]
+        return self._way.pending()
 
     def cancel(self, ident: str, reason: str = "cancelled by the client") -> bool:
         """Cancel what this client sent; False when it has ended (or over ROS 2, which has no
         cancel by id: the stop is the way there)."""
-        if self.lane is None:
-            return False
-        return self.lane.cancel(ident, reason)
+        return self._way.cancel(ident, reason)
 
     def stop(self, timeout: float = ANSWER_S) -> Answer:
         """The emergency stop, by the server's stop service and, over ROS 2, on the
-        instruction topic beside it (`_stop`): the arm halts and stays locked (refusing
-        moves) until a release."""
-        return self._trigger(Kind.STOP, timeout)
+        instruction topic beside it (`al5d.ros.rosway.RosWay._stop`): the arm halts and
+        stays locked (refusing moves) until a release."""
+        self._check_open()
+        return self._way.ask(Kind.STOP, timeout)
 
     def release(self, timeout: float = ANSWER_S) -> Answer:
         """Unlock the arm after a stop: over ROS 2 on the instruction topic, with this
-        client's lease (`_release`); on the local lane, by it."""
-        return self._trigger(Kind.RELEASE, timeout)
+        client's lease (`al5d.ros.rosway.RosWay._release`); on the local lane, by it."""
+        self._check_open()
+        return self._way.ask(Kind.RELEASE, timeout)
 
     def shutdown(self, timeout: float = ANSWER_S) -> Answer:
         """Park the arm and end the server, by its shutdown service (answered before the
         parking is done)."""
-        return self._trigger(Kind.SHUTDOWN, timeout)
-
-    def _trigger(self, kind: Kind, timeout: float) -> Answer:
-        """The stop (`_stop`), the release (`_release`), or the shutdown by its service (the
-        instruction topic instead if the server is there but its service is not:
-        `SERVICE_GRACE_S`)."""
         self._check_open()
-        if self.lane is not None:
-            return self._by_lane(kind, timeout)
-        if kind is Kind.RELEASE:
-            return self._release(timeout)
-        name, service = self._services[kind]
-        if kind is Kind.STOP:
-            return self._stop(name, service, timeout)
-        if not self._find_service(kind, name, service):
-            log.warning(
-                "%s: the service %s is not available; sent on the topic %s instead",
-                kind.value,
-                name,
-                self.names.instruction,
-            )
-            outcome = self.execute(Instruction(kind), timeout)
-            message = outcome.reason or f"{kind.value}: {outcome.result.value}"
-            return Answer(kind.value, outcome.ok, message, self.names.instruction, False)
-        # The server matches our reader of its answers a moment after we match its
-        # service; an answer it cannot deliver 100 ms on is dropped (`STOP_RETRY_S`).
-        time.sleep(self._settled[kind].left())
-        response = self._call(service, timeout)
-        if response is None:
-            raise NoOutcome(
-                f"{kind.value}: no answer from {name} within {timeout:g} s "
-                "(whether the server obeyed is unknown)"
-            )
-        return Answer(kind.value, bool(response.success), str(response.message), name)
-
-    def _release(self, timeout: float) -> Answer:
-        """The release on the instruction topic, with this client's lease, once its stops
-        have reached the server (`_in_flight`). Not by the release service: a service
-        request names no client, so the server could only take its time of sending on
-        this machine's clock, seconds off on another machine; a request on the topic
-        names its client, whose clock the server knows from its leases
-        (`al5d.ros.leases`), and comes after this client's stops on the topic, in order."""
-        deadline = Deadline(timeout)
-        self._in_flight(deadline)
-        outcome = self.execute(Instruction(Kind.RELEASE), deadline.left())
-        message = outcome.reason or f"release: {outcome.result.value}"
-        return Answer("release", outcome.ok, message, self.names.instruction, False)
-
-    def _stop(self, name: str, service: Any, timeout: float) -> Answer:
-        """The stop on the instruction topic at once and by its service as soon as that is
-        found, both sent again every `STOP_RETRY_S` until one is answered (the copy every
-        `STOP_FIRST_COPIES_S` in the first second), and on the topic again the moment a
-        reader of it matches. The copies are one stop (`<stop>~<n>`, this client's): the
-        server obeys the first to come and takes the others for it (each answered), so a
-        copy still on its way when another client releases the arm does not lock it again. `timeout`
-        counts from when the server is found; `NoServer` if it is not within `wait_s`.
-
-        Nothing waits for the service: the server's stop path is a DDS participant of its
-        own, found apart from its node (after a restart, under load, seconds apart), and
-        the node obeys the topic's copy too. A copy sent before our writer matched a new
-        server's reader reached nobody: a stop asked of a server just restarted goes again
-        once our writer has matched its reader (the stop watcher's, best effort, takes the
-        copies sent after its reader matched ours; the node's, reliable, asks for what it
-        missed at the writer's next heartbeat). On a lossy link a reliable writer's lost
-        sample is sent again only at its next heartbeat (Fast DDS: every 3 s; measured:
-        stops obeyed 3.5 and 6.0 s late at 13 to 17 % loss), and what the writer sent after
-        it waits behind it. The stop watcher reads the topic best effort: each copy that
-        gets through is obeyed at once, whatever was lost."""
-        from std_srvs.srv import Trigger
-
-        from al5d.ros.convert import COPY_MARK, to_message
-
-        finding = Deadline(self.wait_s)
-        deadline: Deadline | None = None  # from when the server is found
-        answered = threading.Event()
-        told: list[Outcome] = []
-        futures: list[Any] = []
-        start = time.monotonic()
-        copied = called = -STOP_RETRY_S  # when (monotonic) last sent, each way
-        found: float | None = None  # when the server was found (monotonic)
-        matched = -1
-        warned = False
-
-        def heard(outcome: Outcome) -> None:
-            told.append(outcome)
-            answered.set()
-
-        # One stop, however many copies: each names this client and is `<stop>~<n>`, so
-        # that the server obeys the first to come and answers each (a copy whose answer
-        # was lost is answered again), and a copy that comes after another client's release
-        # is the stop obeyed already (`convert.stop_key`).
-        stop = Instruction(Kind.STOP).id
-        copies: list[str] = []
-        try:
-            while True:
-                # The copy first: the graph's answers below (is the service there, the
-                # server) take their time, and the stop waits for nothing.
-                at = time.monotonic()
-                every = STOP_FIRST_COPIES_S if at - start < 1.0 else STOP_RETRY_S
-                if at - copied >= every or self._readers_matched > matched:
-                    matched = self._readers_matched
-                    ident = f"{stop}{COPY_MARK}{len(copies) + 1}"
-                    msg = to_message(Instruction(Kind.STOP, id=ident))
-                    msg.client = self.key  # no deadline: a stop is obeyed however late
-                    copies.append(ident)
-                    self.watch(ident, heard)
-                    with self._cv:
-                        self._sent.add(ident)
-                    self.pub.publish(msg)
-                    copied = at
-                if at - called >= STOP_RETRY_S:
-                    ready = service.service_is_ready()
-                    if deadline is None and (ready or self._server_seen()):
-                        deadline = Deadline(timeout)
-                        found = time.monotonic()
-                    if ready:
-                        future = service.call_async(Trigger.Request())
-                        future.add_done_callback(lambda _: answered.set())
-                        futures.append(future)
-                        called = at
-                if answered.wait(0.02):
-                    break
-                if not warned and time.monotonic() - start >= STOP_UNANSWERED_S:
-                    warned = True
-                    log.warning(
-                        "stop: no answer in %g s (the server not found yet, or its side has "
-                        "not found this client yet); still sending it: whether the arm has "
-                        "stopped is unknown",
-                        STOP_UNANSWERED_S,
-                    )
-                if deadline is None and finding.expired:
-                    raise self._no_server(name, self.wait_s)
-                if deadline is not None and deadline.expired:
-                    break
-        finally:
-            self.discovery_s += (found or time.monotonic()) - start
-            for future in futures:
-                if not future.done():
-                    self._stops_in_flight.append(future)
-            with self._cv:
-                for ident in copies:
-                    self._watchers.pop(ident, None)
-            for ident in copies:
-                self.forget(ident)
-        for future in futures:
-            if future.done() and future.result() is not None:
-                response = future.result()
-                return Answer("stop", bool(response.success), str(response.message), name)
-        if told:
-            message = told[0].reason or f"stop: {told[0].result.value}"
-            return Answer("stop", told[0].ok, message, self.names.instruction, False)
-        raise NoOutcome(
-            f"stop: no answer from {name} or {self.names.instruction} within "
-            f"{timeout:g} s (whether the server obeyed is unknown)"
-        )
-
-    def _by_lane(self, kind: Kind, timeout: float) -> Answer:
-        assert self.lane is not None
-        instr = Instruction(kind)
-        try:
-            outcome = self.lane.submit(instr).result(timeout)
-        except FutureTimeout:
-            raise NoOutcome(
-                f"{kind.value}: no answer on the local lane within {timeout:g} s "
-                "(whether the server obeyed is unknown)"
-            ) from None
-        except LaneClosed as e:
-            raise NoOutcome(f"{kind.value}: {e} (whether the server obeyed is unknown)") from None
-        message = outcome.reason or f"{kind.value}: {outcome.result.value}"
-        return Answer(kind.value, outcome.ok, message, "the local lane")
-
-    def _say_bye(self) -> None:
-        """Tell the server this client closes (what it commanded goes on), and wait a moment
-        for what it sent and that word to reach it: a client it never hears close, it takes
-        for lost."""
-        from al5d_interfaces.msg import ClientLease
-        from rclpy.duration import Duration
-
-        self._lease_pub.publish(ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=0))
-        with contextlib.suppress(Exception):  # what it sent, then its last word
-            self.pub.wait_for_all_acked(Duration(seconds=BYE_S))
-            self._lease_pub.wait_for_all_acked(Duration(seconds=BYE_S))
-
-    def _find_service(self, kind: Kind, name: str, service: Any) -> bool:
-        """True once `service` is available; False if the server's topics are there and it is
-        not, `SERVICE_GRACE_S` on. `NoServer` if neither comes within `wait_s`."""
-        if service.service_is_ready():
-            self._settled.setdefault(kind, Deadline(SERVICE_SETTLE_S))
-            return True
-        deadline = Deadline(self.wait_s)
-        grace: Deadline | None = None
-        start = time.monotonic()
-        try:
-            while not service.service_is_ready():
-                if grace is None and self._server_seen():
-                    grace = Deadline(SERVICE_GRACE_S)
-                if grace is not None and grace.expired:
-                    return False
-                if deadline.expired:
-                    raise self._no_server(name, self.wait_s)
-                time.sleep(0.02)
-        finally:
-            self.discovery_s += time.monotonic() - start
-        self._settled[kind] = Deadline(SERVICE_SETTLE_S)
-        return True
-
-    def _in_flight(self, deadline: Deadline) -> None:
-        """Wait (until `deadline`) for the answers of this client's stops still on their way.
-        On a slow or lossy link a stop asked again arrives after the first is answered:
-        were the release sent at once, that stop, sent before it, would lock the arm again
-        behind it, with nobody to release it. Answered, it is obeyed before the release."""
-        stop_service = self._services[Kind.STOP][1]
-        until = Deadline(min(deadline.left(), STOPS_ANSWERED_S))
-        while self._stops_in_flight and not until.expired:
-            if self._stops_in_flight[0].done():
-                self._stops_in_flight.pop(0)
-            else:
-                time.sleep(0.02)
-        for future in self._stops_in_flight:  # lost with its server, or too late
-            stop_service.remove_pending_request(future)
-        self._stops_in_flight.clear()
-
-    def _call(self, service: Any, timeout: float) -> Any:
-        """The service's response, or None if none came within `timeout`."""
-        from std_srvs.srv import Trigger
-
-        future = service.call_async(Trigger.Request())
-        answered = threading.Event()
-        future.add_done_callback(lambda _: answered.set())
-        answered.wait(timeout)
-        if future.done():
-            return future.result()
-        service.remove_pending_request(future)
-        return None
+        return self._way.ask(Kind.SHUTDOWN, timeout)
 
     def close(self) -> None:
-        """End the client's node and ROS context; again, or at exit, it does nothing."""
+        """End the client's lane, or its node and ROS context; again, or at exit, it does
+        nothing."""
         with self._closing:
             if self._closed:
                 return
             self._closed = True
             _open.discard(self)
-            if self.lane is not None:
-                self.lane.close()
-                return
-            self._leasing.set()
-            self._leaser.join()
-            self._say_bye()
-            self.spinner.close()
+            self._way.close()
+
+
+#: Every client not yet closed, closed at interpreter exit (`_close_open_clients`).
+_open: weakref.WeakSet[Client] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open_clients() -> None:
+    """Close what a script left open. rclpy's executor thread and context still alive when
+    the interpreter finalizes abort the process ("terminate called without an active
+    exception", exit 134) and hide the script's own exit code and traceback."""
+    for client in list(_open):
+        client.close()

@@ -1,0 +1,100 @@
+"""What a client of the server is told, or why it is not: the errors `Client` raises, the
+answer to a stop, a release or a shutdown, and what a client that finds no server says.
+
+Their public home is `al5d.ros.client` (as tracebacks name them); they are here so that
+both of the client's ways (`al5d.ros.client`'s lane, `al5d.ros.rosway`'s ROS 2) raise them.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any
+
+from al5d.owner import where
+from al5d.ros.names import Names, server_namespaces
+
+#: A stop, a release or a shutdown is answered at once.
+ANSWER_S = 10.0
+
+
+class NoServer(Exception):
+    """No `al5d serve` answers on this ROS domain."""
+
+
+class NoOutcome(TimeoutError):
+    """The server took too long to report an instruction's outcome, or to answer a service
+    call: what became of the instruction is unknown."""
+
+
+class LostContact(NoOutcome):
+    """Nothing has been heard from the server for longer than its lease of this client (and
+    a margin: `Client.lost_contact`): the link (or the server) is
+    gone. The client has given up on what it waited for; the server, once this client's
+    lease runs out, halts what it commanded and never runs what it sent meanwhile."""
+
+
+class LaneLost(NoOutcome):
+    """The server's local lane closed while an outcome was waited for (the server ended, or
+    was killed): whether the instruction ran is unknown."""
+
+
+@dataclass(frozen=True)
+class Answer:
+    """The server's answer to a stop, a release or a shutdown: whether it was obeyed and the
+    server's message, and `via` the service (or, as a fallback, the topic) that took it."""
+
+    instruction: str
+    success: bool
+    message: str
+    via: str
+    by_service: bool = True
+
+    @property
+    def ok(self) -> bool:
+        return self.success
+
+    def __str__(self) -> str:
+        text = f"{self.instruction}: {'done' if self.success else 'refused'}"
+        if self.message and self.message != text:
+            text += f": {self.message}"
+        return f"{text} (by {self.via})"
+
+
+def elsewhere(names: Names, node: Any) -> str:
+    """The end of a message that no server answers at `names`: the servers seen under other
+    namespaces (on this machine's lanes, and on the ROS graph as `node` sees it), or the
+    question whether one runs."""
+    seen = set(where.namespaces())
+    if node is not None:
+        seen |= server_namespaces(node)
+    seen.discard(names.node_namespace)
+    if not seen:
+        if node is None:
+            return ": is 'al5d serve' running?"
+        return ": is 'al5d serve' running?" + closed_hint()
+    found = sorted(seen)
+    listed = " and ".join([", ".join(found[:-1]), found[-1]] if len(found) > 1 else found)
+    hint = f"--namespace {found[0].strip('/')}" if found[0] != "/" else "no --namespace"
+    return f"; found {listed}: {hint}?"
+
+
+def closed_hint() -> str:
+    """What a client over ROS 2 that finds no server says of a server on another machine."""
+    here = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST").upper()
+    if here == "LOCALHOST":
+        return (
+            " This client looks on this machine only (ROS_AUTOMATIC_DISCOVERY_RANGE="
+            "LOCALHOST, the default); for a server on another machine, set "
+            "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET here and where it runs, with the same "
+            "ROS_DOMAIN_ID (docs/ros.md, 'Reaching the node from another machine')."
+        )
+    return (
+        " A server on another machine is closed to the network unless it was started with "
+        "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET (its default keeps it to its own machine) and "
+        "this ROS_DOMAIN_ID (docs/ros.md, 'Reaching the node from another machine')."
+    )
+
+
+for _public in (NoServer, NoOutcome, LostContact, LaneLost, Answer):
+    _public.__module__ = "al5d.ros.client"

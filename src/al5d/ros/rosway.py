@@ -1,0 +1,598 @@
+"""A client's way to a server over ROS 2: its node, the instruction topic and the outcomes
+on the result topic, its lease, the server's silence, and the stop, release and shutdown
+by the services and the topic (`al5d.ros.client.Client` takes this way where no lane of the
+server is on this machine).
+
+Only `al5d.ros.client` imports this module, once the ROS 2 way is taken: a client of a
+local server starts without rclpy and the messages (about half a second less).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import secrets
+import socket
+import threading
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from al5d_interfaces.msg import ArmInstruction, ClientLease, InstructionResult
+from rclpy.duration import Duration
+from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from al5d.arm.instruction import Instruction, Kind, Outcome, new_id
+from al5d.clock import Deadline
+from al5d.interrupts import ctrl_c_after
+from al5d.ros.answers import ANSWER_S, Answer, LostContact, NoOutcome, NoServer, elsewhere
+from al5d.ros.convert import COPY_MARK, outcome_from_message, to_message
+from al5d.ros.dds import start_context
+from al5d.ros.executors import Spinner
+from al5d.ros.names import PING, Names, server_nodes
+from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_LATEST, QOS_LEASES, QOS_SERVICES, QOS_STREAM
+from al5d.ros.reading import ArmView, follow_ros
+
+if TYPE_CHECKING:
+    from al5d.arm.config import ArmConfig
+
+log = logging.getLogger("al5d")
+
+#: The handshake's ping (`al5d.ros.names.PING`) is sent again this often until one is
+#: answered: a ping the server answered before its result writer had matched our reader
+#: reached nobody.
+PING_EVERY_S = 0.25
+#: How long the shutdown service may stay undiscovered once the server's topics are: after
+#: that the shutdown goes on the instruction topic instead (and says so). The services are
+#: on the stop path's DDS participant, discovered apart from the topics': beside two busy
+#: loops once more than 2 s after them. (A stop waits for nothing: `RosWay._stop`.)
+SERVICE_GRACE_S = 5.0
+#: A stop's service call unanswered this long is made again. rmw_fastrtps drops an answer
+#: whose client it has not matched 100 ms after the request (ros2/rmw_fastrtps#390), which
+#: on a loaded machine can befall a new client's first call. A second stop is harmless; a
+#: second release could undo a stop sent in between, so a release is never sent twice.
+STOP_RETRY_S = 1.0
+#: In a stop's first second its copy on the topic goes this often: a server just found (a
+#: restart) may not have matched our writer yet, and drops what comes before (seen beside
+#: two busy loops: a restarted server's stop obeyed 1.01 s after it was asked, by the copy
+#: sent again after a second).
+STOP_FIRST_COPIES_S = 0.25
+#: A stop unanswered this long is said to be so at once (a WARNING), while it is still
+#: sent: after a server's restart its side may take seconds to find this client (beside
+#: busy loops, a stop was obeyed 2.15 s after it was asked), and whoever asked must not
+#: believe the arm stopped meanwhile.
+STOP_UNANSWERED_S = 1.0
+#: A release waits at most this long for the answers of its client's stops still on their
+#: way (`RosWay._in_flight`): a lost request is sent again at the writer's next heartbeat,
+#: 3 s on; a server gone never answers, and must not cost the release its timeout.
+STOPS_ANSWERED_S = 4.0
+#: A release or a shutdown waits this long after its service is found: see `STOP_RETRY_S`.
+SERVICE_SETTLE_S = 0.5
+#: A client over ROS 2 sends its lease this often (`al5d.ros.leases`), and takes the server
+#: for lost when it has heard nothing from it (its joint states, 10 a second when idle)
+#: for the server's lease (`server.client_lease_s`, 1 s unless the client has read the
+#: server's configuration) and `LOST_AFTER_LEASE_S` more: by then the server, which
+#: checks its leases every tenth of a second, has halted what this client commanded. With
+#: equal times a move was done 80 ms after its sender had given up on it (a CI run).
+LEASE_EVERY_S = 0.1
+LOST_AFTER_LEASE_S = 0.5
+#: A silence this long is said at once (a WARNING) by a client that waits for the server,
+#: before it gives up.
+SILENCE_SAID_S = 1.0
+LOST_S = 1.0 + LOST_AFTER_LEASE_S
+#: How long a closing client waits for the server to have its last lease.
+BYE_S = 0.5
+
+
+class RosWay:
+    """A client's node on the server's topics and services in `names`; `wait_s`: how long
+    its first use waits for the server. What `al5d.ros.client.Client` asks of its way."""
+
+    def __init__(self, names: Names, wait_s: float) -> None:
+        self.names = names
+        self.wait_s = wait_s
+        self.via = "ROS 2"
+        #: Seconds spent waiting for the server (its topics or services) to be discovered.
+        self.discovery_s = 0.0
+        #: Whether a ping of ours has been answered (`wait_for_server`).
+        self.matched = False
+        self._config: ArmConfig | None = None
+        self.context = start_context()
+        try:
+            self.node = Node(
+                f"al5d_client_{os.getpid()}", namespace=names.node_namespace, context=self.context
+            )
+        except BaseException:
+            self.context.try_shutdown()
+            raise
+        #: Readers of our instructions ever matched (the matched event's total): a stop is
+        #: sent again the moment a new one matches (`_stop`).
+        self._readers_matched = 0
+        self.pub = self.node.create_publisher(
+            ArmInstruction,
+            names.instruction,
+            QOS_INSTRUCTIONS,
+            event_callbacks=PublisherEventCallbacks(matched=self._on_readers_matched),
+        )
+        self.results = self.node.create_subscription(
+            InstructionResult, names.result, self._on_result, QOS_STREAM
+        )
+        #: This client's lease (`al5d.ros.leases`), named in what it sends.
+        self.key = f"{socket.gethostname()[:40]}-{os.getpid()}-{secrets.token_hex(3)}"
+        self._lease_pub = self.node.create_publisher(ClientLease, names.clients, QOS_LEASES)
+        #: When the server was last heard (monotonic s; None: not yet).
+        self._heard: float | None = None
+        #: The last sign of the server whose silence has been said (once an outage).
+        self._silence_said: float | None = None
+        self.node.create_subscription(JointState, names.joint_states, self._on_sign, QOS_LATEST)
+        self._leasing = threading.Event()
+        self._leaser = threading.Thread(target=self._lease, name="al5d-lease", daemon=True)
+        self._leaser.start()
+        #: The stop's and the shutdown's services (a release goes on the topic: `_release`).
+        self._services: dict[Kind, tuple[str, Any]] = {
+            kind: (name, self.node.create_client(Trigger, name, qos_profile=QOS_SERVICES))
+            for name, kind in names.services.items()
+            if kind is not Kind.RELEASE
+        }
+        #: Only the outcomes of what this client sent are kept: every client's come by.
+        self._sent: set[str] = set()
+        self._outcomes: dict[str, Outcome] = {}
+        self._watchers: dict[str, Callable[[Outcome], None]] = {}
+        self._cv = threading.Condition()
+        #: Each service once found, and when its first call may go (`SERVICE_SETTLE_S`).
+        self._settled: dict[Kind, Deadline] = {}
+        #: Stop requests sent again (`STOP_RETRY_S`) whose answers have not come: each is a
+        #: stop the server may still obey. A release waits for them (`_in_flight`).
+        self._stops_in_flight: list[Any] = []
+        # rclpy's Python executor: its events executor is now and then told of one message
+        # too few, and the last one waits for the next; here that would be an outcome, or a
+        # service's answer, waited for until the timeout (and the test peer's spin thread
+        # crashed with it: `al5d_rig.rospeer.Peer`).
+        self.spinner = Spinner(self.node, self.context, kind="single")
+
+    # -- the lease and the server's silence --------------------------------------------
+
+    def _lease(self) -> None:
+        """Send this client's lease every `LEASE_EVERY_S` until it closes."""
+        every_ms = round(LEASE_EVERY_S * 1000)
+        while not self._leasing.wait(LEASE_EVERY_S):
+            self._lease_pub.publish(
+                ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=every_ms)
+            )
+
+    def _on_readers_matched(self, info: Any) -> None:
+        self._readers_matched = info.total_count
+
+    def _on_sign(self, msg: object) -> None:
+        self._heard = time.monotonic()
+
+    def lost_contact(self) -> float | None:
+        """Once the server has been heard: for how long it has not been, if more than
+        `lost_after_s` (None: not lost). A silence of `SILENCE_SAID_S` (of the server's
+        lease, if shorter) is said once, as a WARNING, before that."""
+        heard = self._heard
+        if heard is None:
+            return None
+        quiet = time.monotonic() - heard
+        lost_after = self.lost_after_s
+        said_after = min(SILENCE_SAID_S, lost_after - LOST_AFTER_LEASE_S)  # a short lease
+        if said_after < quiet <= lost_after and self._silence_said != heard:
+            self._silence_said = heard
+            log.warning(
+                "no sign of the server for %.1f s: the link may be lost; this client gives "
+                "up on what it waits for in %.1f s, once the server has halted what it "
+                "commanded",
+                quiet,
+                lost_after - quiet,
+            )
+        return quiet if quiet > lost_after else None
+
+    @property
+    def lost_after_s(self) -> float:
+        """How long the server may go unheard before this client takes it for lost: the
+        server's lease of this client and `LOST_AFTER_LEASE_S` (`LOST_S` until the server's
+        configuration is read), so that the server has halted what this client commanded
+        before the client gives up on it."""
+        if self._config is None:
+            return LOST_S
+        return self._config.server.client_lease_s + LOST_AFTER_LEASE_S
+
+    def _lost(self, what: str) -> LostContact:
+        quiet = self.lost_contact() or self.lost_after_s
+        return LostContact(
+            f"{what}: lost contact with the server (nothing heard from it for {quiet:.1f} s; "
+            "whether it ran is unknown): once this client's lease runs out the server halts "
+            "what it commanded, and never runs what it sent meanwhile"
+        )
+
+    # -- finding the server ------------------------------------------------------------
+
+    def _server_seen(self) -> bool:
+        """Our writer of instructions has matched every reader of them that discovery lists,
+        the server's node's among them, and our reader of results a writer of them.
+
+        A server has more than one reader of instructions (its stop watcher's, best effort):
+        one matched is not enough. An instruction published before our writer has matched
+        the node's reader never reaches it (seen: 2 `al5d run`s in 30 on a loaded machine
+        waited for ever for their first outcome, the server never told of it). The node is
+        the one that both reads instructions and publishes results, whatever its name: `-r
+        __node:=left_arm` renames it (looked for as `al5d`, no client over ROS found it)."""
+        readers = self.node.get_subscriptions_info_by_topic(self.names.instruction)
+        return (
+            bool(server_nodes(self.node, self.names))
+            and self.pub.get_subscription_count() >= len(readers)
+            and self.results.get_publisher_count() > 0
+        )
+
+    def no_server(self, name: str, timeout: float) -> NoServer:
+        domain = os.environ.get("ROS_DOMAIN_ID", "0")
+        return NoServer(
+            f"no al5d server answers on {name} (ROS_DOMAIN_ID={domain}) "
+            f"within {timeout:g} s{elsewhere(self.names, self.node)}"
+        )
+
+    def wait_for_server(self, timeout: float) -> None:
+        """Until our instructions reach a server and its results reach us: a ping of ours
+        answered. Each side of a topic matches the other when it hears of it, apart: our
+        reader can have matched the server's result writer long before that writer has
+        matched our reader, and a result published meanwhile reaches nobody (seen on a
+        loaded host: discovery took 9.6 s, then an outcome waited for 80 s and more)."""
+        deadline = Deadline(timeout)
+        start = time.monotonic()
+        pings: list[str] = []
+        next_ping = 0.0
+        try:
+            while not deadline.expired:
+                with self._cv:
+                    if any(p in self._outcomes for p in pings):
+                        self.matched = True
+                        return
+                if self._server_seen() and time.monotonic() >= next_ping:
+                    pings.append(self._ping())
+                    next_ping = time.monotonic() + PING_EVERY_S
+                time.sleep(0.02)
+            raise self.no_server(self.names.instruction, timeout)
+        finally:
+            self.discovery_s += time.monotonic() - start
+            with self._cv:  # an answer that comes later is not kept
+                for ping in pings:
+                    self._sent.discard(ping)
+                    self._outcomes.pop(ping, None)
+
+    def _ping(self) -> str:
+        """Send a ping; its id."""
+        msg = ArmInstruction(instruction=PING, id=new_id())
+        with self._cv:
+            self._sent.add(msg.id)
+        self.pub.publish(msg)
+        return str(msg.id)
+
+    # -- instructions and their outcomes -----------------------------------------------
+
+    def send(self, instr: Instruction, wait_s: float) -> None:
+        """Publish `instr` with this client's lease and `wait_s` (the server refuses it as
+        stale if it comes later). `LostContact` while the server is out of contact."""
+        if self.lost_contact() is not None:
+            raise self._lost(f"{instr.name} [{instr.id}]: not sent")
+        msg = to_message(instr)
+        msg.client = self.key
+        msg.wait_ms = min(round(wait_s * 1000), 2**32 - 1)
+        with ctrl_c_after():
+            with self._cv:
+                self._sent.add(instr.id)
+            self.pub.publish(msg)
+
+    def _on_result(self, msg: InstructionResult) -> None:
+        self._heard = time.monotonic()
+        with self._cv:
+            if msg.id not in self._sent and msg.id not in self._watchers:
+                return
+            outcome = outcome_from_message(msg)
+            self._outcomes[msg.id] = outcome
+            watcher = self._watchers.pop(msg.id, None)
+            self._cv.notify_all()
+        if watcher is not None:
+            watcher(outcome)
+
+    def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None:
+        with self._cv:
+            outcome = self._outcomes.get(ident)
+            if outcome is None:
+                self._watchers[ident] = watcher
+        if outcome is not None:
+            watcher(outcome)
+
+    def outcome(self, ident: str, timeout: float) -> Outcome | None:
+        if not self.sent(ident):
+            return None
+        deadline = Deadline(timeout)
+        with self._cv:
+            while ident not in self._outcomes:
+                if deadline.expired:
+                    return None
+                if self.lost_contact() is not None:
+                    raise self._lost(f"[{ident}]")
+                self._cv.wait(min(deadline.left(), LEASE_EVERY_S))
+            return self._outcomes[ident]
+
+    def forget(self, ident: str) -> None:
+        with self._cv:
+            self._sent.discard(ident)
+            self._outcomes.pop(ident, None)
+
+    def sent(self, ident: str) -> bool:
+        with self._cv:
+            return ident in self._sent or ident in self._outcomes
+
+    def pending(self) -> list[str]:
+        return []  # not known over ROS 2: an outcome comes only to those who wait for it
+
+    def cancel(self, ident: str, reason: str) -> bool:
+        return False  # ROS 2 has no cancel by id: the stop is the way there
+
+    def execute(self, instr: Instruction, timeout: float) -> Outcome:
+        """Send `instr` (once the server is found: `NoServer` if it is not within `wait_s`);
+        its outcome. `NoOutcome` if none comes within `timeout` s (`LostContact`: the
+        server went out of contact first)."""
+        if not self.matched:
+            self.wait_for_server(self.wait_s)
+        self.send(instr, timeout)
+        try:
+            outcome = self.outcome(instr.id, timeout)
+        except LostContact:
+            self.forget(instr.id)
+            raise self._lost(f"{instr.name} [{instr.id}]") from None
+        # Kept on Ctrl-C (KeyboardInterrupt), which cancels what is pending.
+        self.forget(instr.id)
+        if outcome is None:
+            raise NoOutcome(f"{instr.name} [{instr.id}]: no outcome within {timeout:g} s")
+        return outcome
+
+    # -- what the client hears of the arm ----------------------------------------------
+
+    def config(self) -> ArmConfig:
+        """The server's latched `al5d/config` (the parameters' values at its start
+        included), read once (`al5d.ros.client.Client.config`)."""
+        if self._config is None:
+            self._config = self._served_config()
+        return self._config
+
+    def _served_config(self) -> ArmConfig:
+        from al5d.arm.config import load_config
+        from al5d.ros.params import served_config
+
+        if not self.matched:
+            self.wait_for_server(self.wait_s)
+        config = served_config(self.node, self.names, ANSWER_S)
+        if config is None:
+            log.warning("the server did not say its configuration: judged by the shipped one")
+            return load_config(None)
+        return config
+
+    def view(self) -> ArmView:
+        """The arm as the server's state and joint states say it, in its configuration's
+        model."""
+        config = self.config()
+        prefix = config.server.joint_prefix_in(self.names.namespace)
+        view = ArmView(config.model)
+        follow_ros(self.node, self.names, prefix, view)
+        return view
+
+    # -- the stop, the release and the shutdown ----------------------------------------
+
+    def ask(self, kind: Kind, timeout: float) -> Answer:
+        """The stop (`_stop`), the release (`_release`), or the shutdown by its service (the
+        instruction topic instead if the server is there but its service is not:
+        `SERVICE_GRACE_S`)."""
+        if kind is Kind.RELEASE:
+            return self._release(timeout)
+        name, service = self._services[kind]
+        if kind is Kind.STOP:
+            return self._stop(name, service, timeout)
+        if not self._find_service(kind, name, service):
+            log.warning(
+                "%s: the service %s is not available; sent on the topic %s instead",
+                kind.value,
+                name,
+                self.names.instruction,
+            )
+            outcome = self.execute(Instruction(kind), timeout)
+            message = outcome.reason or f"{kind.value}: {outcome.result.value}"
+            return Answer(kind.value, outcome.ok, message, self.names.instruction, False)
+        # The server matches our reader of its answers a moment after we match its
+        # service; an answer it cannot deliver 100 ms on is dropped (`STOP_RETRY_S`).
+        time.sleep(self._settled[kind].left())
+        response = self._call(service, timeout)
+        if response is None:
+            raise NoOutcome(
+                f"{kind.value}: no answer from {name} within {timeout:g} s "
+                "(whether the server obeyed is unknown)"
+            )
+        return Answer(kind.value, bool(response.success), str(response.message), name)
+
+    def _release(self, timeout: float) -> Answer:
+        """The release on the instruction topic, with this client's lease, once its stops
+        have reached the server (`_in_flight`). Not by the release service: a service
+        request names no client, so the server could only take its time of sending on
+        this machine's clock, seconds off on another machine; a request on the topic
+        names its client, whose clock the server knows from its leases
+        (`al5d.ros.leases`), and comes after this client's stops on the topic, in order."""
+        deadline = Deadline(timeout)
+        self._in_flight(deadline)
+        outcome = self.execute(Instruction(Kind.RELEASE), deadline.left())
+        message = outcome.reason or f"release: {outcome.result.value}"
+        return Answer("release", outcome.ok, message, self.names.instruction, False)
+
+    def _stop(self, name: str, service: Any, timeout: float) -> Answer:
+        """The stop on the instruction topic at once and by its service as soon as that is
+        found, both sent again every `STOP_RETRY_S` until one is answered (the copy every
+        `STOP_FIRST_COPIES_S` in the first second), and on the topic again the moment a
+        reader of it matches. The copies are one stop (`<stop>~<n>`, this client's): the
+        server obeys the first to come and takes the others for it (each answered), so a
+        copy still on its way when another client releases the arm does not lock it again. `timeout`
+        counts from when the server is found; `NoServer` if it is not within `wait_s`.
+
+        Nothing waits for the service: the server's stop path is a DDS participant of its
+        own, found apart from its node (after a restart, under load, seconds apart), and
+        the node obeys the topic's copy too. A copy sent before our writer matched a new
+        server's reader reached nobody: a stop asked of a server just restarted goes again
+        once our writer has matched its reader (the stop watcher's, best effort, takes the
+        copies sent after its reader matched ours; the node's, reliable, asks for what it
+        missed at the writer's next heartbeat). On a lossy link a reliable writer's lost
+        sample is sent again only at its next heartbeat (Fast DDS: every 3 s; measured:
+        stops obeyed 3.5 and 6.0 s late at 13 to 17 % loss), and what the writer sent after
+        it waits behind it. The stop watcher reads the topic best effort: each copy that
+        gets through is obeyed at once, whatever was lost."""
+        finding = Deadline(self.wait_s)
+        deadline: Deadline | None = None  # from when the server is found
+        answered = threading.Event()
+        told: list[Outcome] = []
+        futures: list[Any] = []
+        start = time.monotonic()
+        copied = called = -STOP_RETRY_S  # when (monotonic) last sent, each way
+        found: float | None = None  # when the server was found (monotonic)
+        matched = -1
+        warned = False
+
+        def heard(outcome: Outcome) -> None:
+            told.append(outcome)
+            answered.set()
+
+        # One stop, however many copies: each names this client and is `<stop>~<n>`, so
+        # that the server obeys the first to come and answers each (a copy whose answer
+        # was lost is answered again), and a copy that comes after another client's release
+        # is the stop obeyed already (`convert.stop_key`).
+        stop = Instruction(Kind.STOP).id
+        copies: list[str] = []
+        try:
+            while True:
+                # The copy first: the graph's answers below (is the service there, the
+                # server) take their time, and the stop waits for nothing.
+                at = time.monotonic()
+                every = STOP_FIRST_COPIES_S if at - start < 1.0 else STOP_RETRY_S
+                if at - copied >= every or self._readers_matched > matched:
+                    matched = self._readers_matched
+                    ident = f"{stop}{COPY_MARK}{len(copies) + 1}"
+                    msg = to_message(Instruction(Kind.STOP, id=ident))
+                    msg.client = self.key  # no deadline: a stop is obeyed however late
+                    copies.append(ident)
+                    self.watch(ident, heard)
+                    with self._cv:
+                        self._sent.add(ident)
+                    self.pub.publish(msg)
+                    copied = at
+                if at - called >= STOP_RETRY_S:
+                    ready = service.service_is_ready()
+                    if deadline is None and (ready or self._server_seen()):
+                        deadline = Deadline(timeout)
+                        found = time.monotonic()
+                    if ready:
+                        future = service.call_async(Trigger.Request())
+                        future.add_done_callback(lambda _: answered.set())
+                        futures.append(future)
+                        called = at
+                if answered.wait(0.02):
+                    break
+                if not warned and time.monotonic() - start >= STOP_UNANSWERED_S:
+                    warned = True
+                    log.warning(
+                        "stop: no answer in %g s (the server not found yet, or its side has "
+                        "not found this client yet); still sending it: whether the arm has "
+                        "stopped is unknown",
+                        STOP_UNANSWERED_S,
+                    )
+                if deadline is None and finding.expired:
+                    raise self.no_server(name, self.wait_s)
+                if deadline is not None and deadline.expired:
+                    break
+        finally:
+            self.discovery_s += (found or time.monotonic()) - start
+            for future in futures:
+                if not future.done():
+                    self._stops_in_flight.append(future)
+            with self._cv:
+                for ident in copies:
+                    self._watchers.pop(ident, None)
+            for ident in copies:
+                self.forget(ident)
+        for future in futures:
+            if future.done() and future.result() is not None:
+                response = future.result()
+                return Answer("stop", bool(response.success), str(response.message), name)
+        if told:
+            message = told[0].reason or f"stop: {told[0].result.value}"
+            return Answer("stop", told[0].ok, message, self.names.instruction, False)
+        raise NoOutcome(
+            f"stop: no answer from {name} or {self.names.instruction} within "
+            f"{timeout:g} s (whether the server obeyed is unknown)"
+        )
+
+    def _say_bye(self) -> None:
+        """Tell the server this client closes (what it commanded goes on), and wait a moment
+        for what it sent and that word to reach it: a client it never hears close, it takes
+        for lost."""
+        self._lease_pub.publish(ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=0))
+        with contextlib.suppress(Exception):  # what it sent, then its last word
+            self.pub.wait_for_all_acked(Duration(seconds=BYE_S))
+            self._lease_pub.wait_for_all_acked(Duration(seconds=BYE_S))
+
+    def _find_service(self, kind: Kind, name: str, service: Any) -> bool:
+        """True once `service` is available; False if the server's topics are there and it is
+        not, `SERVICE_GRACE_S` on. `NoServer` if neither comes within `wait_s`."""
+        if service.service_is_ready():
+            self._settled.setdefault(kind, Deadline(SERVICE_SETTLE_S))
+            return True
+        deadline = Deadline(self.wait_s)
+        grace: Deadline | None = None
+        start = time.monotonic()
+        try:
+            while not service.service_is_ready():
+                if grace is None and self._server_seen():
+                    grace = Deadline(SERVICE_GRACE_S)
+                if grace is not None and grace.expired:
+                    return False
+                if deadline.expired:
+                    raise self.no_server(name, self.wait_s)
+                time.sleep(0.02)
+        finally:
+            self.discovery_s += time.monotonic() - start
+        self._settled[kind] = Deadline(SERVICE_SETTLE_S)
+        return True
+
+    def _in_flight(self, deadline: Deadline) -> None:
+        """Wait (until `deadline`) for the answers of this client's stops still on their way.
+        On a slow or lossy link a stop asked again arrives after the first is answered:
+        were the release sent at once, that stop, sent before it, would lock the arm again
+        behind it, with nobody to release it. Answered, it is obeyed before the release."""
+        stop_service = self._services[Kind.STOP][1]
+        until = Deadline(min(deadline.left(), STOPS_ANSWERED_S))
+        while self._stops_in_flight and not until.expired:
+            if self._stops_in_flight[0].done():
+                self._stops_in_flight.pop(0)
+            else:
+                time.sleep(0.02)
+        for future in self._stops_in_flight:  # lost with its server, or too late
+            stop_service.remove_pending_request(future)
+        self._stops_in_flight.clear()
+
+    def _call(self, service: Any, timeout: float) -> Any:
+        """The service's response, or None if none came within `timeout`."""
+        future = service.call_async(Trigger.Request())
+        answered = threading.Event()
+        future.add_done_callback(lambda _: answered.set())
+        answered.wait(timeout)
+        if future.done():
+            return future.result()
+        service.remove_pending_request(future)
+        return None
+
+    def close(self) -> None:
+        """End the lease, say goodbye, and end the node and its ROS context."""
+        self._leasing.set()
+        self._leaser.join()
+        self._say_bye()
+        self.spinner.close()
