@@ -984,6 +984,15 @@ def test_after_a_stop_mid_jog_the_sliders_show_where_the_arm_stopped(rig: Rig) -
         assert rig.peer.trigger("release").success
         rig.state.wait_for("ready", 10)
         wait_text(page, "#al5d-joints-status", lambda t: t == "drag a slider to move")
+        # Released, the sliders jog the arm again: the server has held its stream of
+        # set-points since the stop, and the page's new jog resumes it from where the arm
+        # stands (an outside try: every jog after a stop was refused, for good).
+        thumb.press("End")
+        wait_until(lambda: rig.emu.servo_degrees()["base"] > stopped + 10, 30, "the jog again")
+        assert "refused" not in status.inner_text(), status.inner_text()
+        # There, the jog is over: the status no longer says "jogging".
+        wait_text(page, "#al5d-joints-status", lambda t: t == "drag a slider to move", 30)
+        assert rig.emu.servo_degrees()["base"] > 85
     finally:
         rig.peer.node.destroy_subscription(sub)
         rig.server.popen.kill()
@@ -1215,7 +1224,11 @@ def test_a_sliders_value_is_the_users_however_late_viser_runs_its_handlers(
         wait_until(
             lambda: any(j.get("base") == top for j in commands.jogs), 10, "the jog to the end"
         )
-        assert all(j.get("base") == top for j in commands.jogs), commands.jogs
+        # The jog's first set-point is where the arm stands (it resumes the server's stream
+        # after a stop: `Jog.resume`); every one after it is the user's value.
+        resume, *jogs = commands.jogs
+        assert resume["base"] == pytest.approx(here) and len(resume) == len(JOINTS), resume
+        assert jogs and all(j.get("base") == top for j in jogs), commands.jogs
     finally:
         gate.set()
         for blocker in blockers:
