@@ -133,6 +133,15 @@ def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
             r"server\.stream_timeout_s: Input should be less than or equal to 60",
         ),
         (
+            # Said as what it is, not as beyond a bound (it was "less than or equal to 1000").
+            lambda d: d["server"].update(joint_state_rate_hz=float("nan")),
+            r"server\.joint_state_rate_hz: Input should be a finite number",
+        ),
+        (
+            lambda d: d["server"].update(idle_joint_state_rate_hz=0.5),
+            r"server\.idle_joint_state_rate_hz: Input should be greater than or equal to 2",
+        ),
+        (
             lambda d: d["server"].update(idle_joint_state_rate_hz=30),
             r"server: idle_joint_state_rate_hz 30 must not exceed joint_state_rate_hz 25",
         ),

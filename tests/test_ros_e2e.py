@@ -302,6 +302,10 @@ def test_stop_during_a_move_with_queued_moves_and_goals(server: Server, peer: Pe
     assert stops == [b"STOP2", b"STOP1", b"STOP0", b"STOP3", b"STOP4", b"STOP5"]
     peer.send("locked", "move", base=0)
     assert "send release first" in peer.result("locked").reason
+    # A goal of the move action is rejected at once, as the controllers' goals are (it was
+    # accepted, then aborted: an outside try).
+    rejected = peer.goal(base=0, accepted=False)
+    assert "send release first" in peer.result(bytes(rejected.goal_id.uuid).hex()).reason
     assert peer.trigger("release").success
     peer.send("after", "move", base=0)
     after = peer.result("after")

@@ -238,8 +238,20 @@ def test_a_change_the_server_cannot_take_is_refused_with_the_reason(served: Serv
     bad = set_one(peer, "server.joint_state_rate_hz", double(-3.0))
     assert not bad.successful
     assert bad.reason == (
-        "ROS parameters: server.joint_state_rate_hz: Input should be greater than 0 (value: -3.0)"
+        "ROS parameters: server.joint_state_rate_hz: Input should be greater than or equal to 2 "
+        "(value: -3.0)"
     )
+    # Too slow for the clients, whose sign of the server's life the joint states are.
+    slow = set_one(peer, "server.idle_joint_state_rate_hz", double(0.001))
+    assert not slow.successful and "greater than or equal to 2" in slow.reason, slow.reason
+    # Dynamically typed (so that 50 is taken for 50.0), but a flag or text is no rate: true
+    # was taken as 1 Hz, and the parameter read back as a boolean.
+    flag = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=True)
+    text = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value="40")
+    for value, said in ((flag, "true or false True"), (text, "text '40'")):
+        wrong = set_one(peer, "server.joint_state_rate_hz", value)
+        assert not wrong.successful
+        assert wrong.reason == f"server.joint_state_rate_hz: expected a number, got {said}"
     above = set_one(peer, "server.idle_joint_state_rate_hz", double(45.0))
     assert not above.successful
     assert "idle_joint_state_rate_hz 45 must not exceed joint_state_rate_hz 30" in above.reason
@@ -251,10 +263,13 @@ def test_a_change_the_server_cannot_take_is_refused_with_the_reason(served: Serv
 
 def test_a_change_the_server_can_take_is_applied(served: Served) -> None:
     peer = served.peer
-    done = set_one(peer, "server.joint_state_rate_hz", double(40.0))
+    # An integer, as `ros2 param set ... 40` sends it: taken as the double 40.0.
+    forty = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=40)
+    done = set_one(peer, "server.joint_state_rate_hz", forty)
     assert done.successful, done.reason
     served.proc.err.wait_for("parameters set: server.joint_state_rate_hz=40.0", 20)
-    assert get(peer, "server.joint_state_rate_hz") == {"server.joint_state_rate_hz": 40.0}
+    rate = get(peer, "server.joint_state_rate_hz")["server.joint_state_rate_hz"]
+    assert rate == 40.0 and type(rate) is float, rate
     # Now 45 is below it.
     assert set_one(peer, "server.idle_joint_state_rate_hz", double(35.0)).successful
     # The joint states come on, at the new rates, and moves go on as before.
@@ -279,7 +294,7 @@ def test_a_bad_parameter_gets_the_configs_message_and_exit_2(tmp_path: Path) -> 
     data["server"]["joint_state_rate_hz"] = -5
     in_file = tmp_path / "bad.yaml"
     in_file.write_text(yaml.safe_dump(data))
-    message = "server.joint_state_rate_hz: Input should be greater than 0 (value: -5)"
+    message = "server.joint_state_rate_hz: Input should be greater than or equal to 2 (value: -5)"
     assert f"{in_file}: {message}" in serve_refused(config=str(in_file))
     as_parameter = serve_refused("--ros-args", "-p", "server.joint_state_rate_hz:=-5")
     assert f"ROS parameters: {message}" in as_parameter

@@ -41,7 +41,7 @@ class ConfigError(ValueError):
 
 
 class _Frozen(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
 
 class ReferencePoint(_Frozen):
@@ -213,6 +213,12 @@ class Mount(_Frozen):
         return ModelMount(self.parent, self.xyz, self.rpy)
 
 
+#: The joint states are the server's sign of life: the web view takes the server for lost
+#: after 1 s without one, a client says so after 1 s. At 0.001 Hz (accepted once) both
+#: said the server was lost while it ran.
+MIN_JOINT_STATE_RATE_HZ = 2.0
+
+
 class ServerSettings(_Frozen):
     """How the high-level driver behaves, independent of the arm's geometry."""
 
@@ -224,12 +230,12 @@ class ServerSettings(_Frozen):
     startup_speed_fraction: float = Field(default=0.5, gt=0, le=1)
     max_move_time_ms: int = Field(default=60_000, ge=1, le=65_535)
     #: /joint_states, /tf and the tool pose while the arm moves (the web view wants >= 20)...
-    joint_state_rate_hz: float = Field(default=25.0, gt=0, le=1000)
+    joint_state_rate_hz: float = Field(default=25.0, ge=MIN_JOINT_STATE_RATE_HZ, le=1000)
     #: ...and once it has been at rest for a second: the same messages, restamped. Each
     #: publishing tick costs the server about 0.7 ms of CPU with one subscriber, the larger
     #: part of its idle load (bench: idle CPU); MoveIt waits for a state newer than its
     #: request, up to one period of this rate.
-    idle_joint_state_rate_hz: float = Field(default=10.0, gt=0, le=1000)
+    idle_joint_state_rate_hz: float = Field(default=10.0, ge=MIN_JOINT_STATE_RATE_HZ, le=1000)
     reconnect_interval_s: float = Field(default=0.5, gt=0, le=60)
     #: The link (and that the board has not reset) is checked with a `QP` of one channel
     #: (4 bytes) this often while the arm is idle...

@@ -24,6 +24,7 @@ from rclpy.node import Node
 from rclpy.task import Future as RosFuture
 
 from al5d.arm.instruction import Instruction, Kind, Outcome
+from al5d.arm.states import refusal
 from al5d.clock import wall_ns
 from al5d.model import ArmModel
 from al5d.owner.client import Judged, Remote
@@ -84,6 +85,12 @@ async def outcome_of(node: Node, future: Future[T]) -> T:
     future.add_done_callback(hand_over)
     outcome: T = await done
     return outcome
+
+
+def inactive(arm: Remote) -> str:
+    """Why the arm takes no moves now (stopped, faulted, shutting down), or "". Like an
+    inactive ros2_controllers controller, the goal is then rejected, not aborted later."""
+    return refusal(arm.state, "see /al5d/state")
 
 
 def goal_instruction(goal: Any, ident: str, model: ArmModel, sent: int) -> Instruction | str:
@@ -203,7 +210,10 @@ class MoveAction(GoalRunner):
 
     def judge(self, goal: Any, ident: str, sent: int) -> Judged | str:
         instr = goal_instruction(goal, ident, self.arm.config.model, sent)
-        return instr if isinstance(instr, str) else self.arm.judge(instr)
+        if isinstance(instr, str):
+            return instr
+        # Rejected at once, as the controllers' goals are (it was taken, then aborted).
+        return inactive(self.arm) or self.arm.judge(instr)
 
     async def _execute(self, handle: ServerGoalHandle) -> Move.Result:
         ident, ticket = self._take_judged(handle)

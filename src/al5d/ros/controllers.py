@@ -41,10 +41,9 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result
 from al5d.arm.jobs import Sent
 from al5d.arm.resample import Follow
-from al5d.arm.states import refusal
 from al5d.model import ArmModel, ModelError
 from al5d.owner.client import Judged, Remote
-from al5d.ros.actions import GoalRunner, action_server, outcome_of
+from al5d.ros.actions import GoalRunner, action_server, inactive, outcome_of
 from al5d.ros.convert import trajectory_from_message
 from al5d.ros.workarounds import preempted
 
@@ -80,12 +79,6 @@ def tolerances(
             return f"{t.name}: tolerance {t.position} is not a number"
         out.append(Tolerance(t.name[len(prefix) :], t.position if t.position > 0 else None))
     return out
-
-
-def inactive(arm: Remote) -> str:
-    """Why the arm takes no moves now (stopped, faulted, shutting down), or "". Like an
-    inactive ros2_controllers controller, the goal is then rejected, not aborted later."""
-    return refusal(arm.state, "see /al5d/state")
 
 
 @dataclass

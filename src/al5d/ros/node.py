@@ -106,12 +106,25 @@ class ArmNode(Node):
                 dynamic_typing=True,
             )
             self.declare_parameter(name, value, descriptor, ignore_override=True)
+        self.add_pre_set_parameters_callback(self._as_declared)
         self.add_on_set_parameters_callback(self._check)
         self.add_post_set_parameters_callback(self._apply)
 
+    def _as_declared(self, changed: list[Parameter]) -> list[Parameter]:
+        """An integer for a double parameter is set as that double: its type stays double."""
+        assert self.settings is not None
+        values = self.settings.values()
+        return [
+            Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+            if type(values.get(p.name)) is float and p.type_ is Parameter.Type.INTEGER
+            else p
+            for p in changed
+        ]
+
     def _check(self, changed: list[Parameter]) -> SetParametersResult:
         assert self.settings is not None
-        got = params.with_changes(self.settings, {p.name: p.value for p in changed})
+        changes = params.typed(self.settings, {p.name: p.value for p in changed})
+        got = changes if isinstance(changes, str) else params.with_changes(self.settings, changes)
         if isinstance(got, str):
             return SetParametersResult(successful=False, reason=got)
         return SetParametersResult(successful=True)
