@@ -7,7 +7,7 @@ from builtin_interfaces.msg import Duration
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d.arm.config import load_config
-from al5d.ros.convert import trajectory_from_message
+from al5d.ros.convert import URDF_SLACK, trajectory_from_message
 
 MODEL = load_config().model
 
@@ -51,3 +51,23 @@ def test_a_finger_of_the_urdf_is_refused_with_what_to_command_instead(finger: st
     assert reason.startswith(f"{finger} is a finger of the URDF's gripper") and (
         "command gripper, the gap between the fingers in metres" in reason
     )
+
+
+@pytest.mark.parametrize("joint", ["base", "shoulder", "elbow", "wrist", "wrist_rotate", "gripper"])
+def test_a_point_a_hair_beyond_a_urdf_limit_is_taken_at_the_ranges_end(joint: str) -> None:
+    """Within `URDF_SLACK` of a limit (a limit sent back from radians): the end of the range,
+    which the arm's check in degrees takes. It refused pi/2 + 1e-9 rad for the base, saying
+    `base: -90.0000001 deg is outside the range -90..90` (an outside try)."""
+    lo, hi = MODEL.urdf_limits(joint)
+    span = getattr(MODEL.ranges, joint)
+    for value in (lo - URDF_SLACK / 2, hi + URDF_SLACK / 2):
+        msg = JointTrajectory(joint_names=[joint])
+        msg.points.append(JointTrajectoryPoint(positions=[value], time_from_start=Duration(sec=2)))
+        instr = trajectory_from_message(msg, MODEL)
+        assert not isinstance(instr, str), instr
+        (degrees,) = (deg for _, deg in instr.points[0].joints)
+        assert degrees in (span.lo, span.hi), degrees
+    msg = JointTrajectory(joint_names=[joint])
+    msg.points.append(JointTrajectoryPoint(positions=[hi + 1e-3], time_from_start=Duration(sec=2)))
+    reason = trajectory_from_message(msg, MODEL)
+    assert isinstance(reason, str) and "outside its URDF limits" in reason, reason

@@ -26,7 +26,7 @@ from al5d.arm.instruction import (
 )
 from al5d.arm.validate import time_problem
 from al5d.model import ArmModel, ModelError
-from al5d.model.joints import GRIPPER_FINGERS
+from al5d.model.joints import GRIPPER_FINGERS, Range
 
 #: A `move_to` over ROS names its values in `joints` and gives them in `degrees`, in
 #: ROS units: x, y, z in metres (base_link), pitch and roll in radians, gripper the gap
@@ -342,8 +342,16 @@ def outside_urdf_limits(model: ArmModel, joint: str, value: float, prefix: str =
 
 def arm_degrees(model: ArmModel, joint: str, value: float) -> float:
     """A URDF joint value (REP 103 radians, the gripper's gap in metres) in the arm's degrees;
-    for a joint the URDF does not have, the value as degrees (for validation to name)."""
-    try:
-        return model.from_urdf({joint: value})[joint]
-    except ModelError:
+    for a joint the URDF does not have, the value as degrees (for validation to name). A
+    value that `outside_urdf_limits` takes, `URDF_SLACK` beyond a limit at most, is that
+    end of the joint's range: the arm's check in degrees has no slack, and refused
+    pi/2 + 1e-9 rad as "base: -90.0000001 deg is outside the range -90..90", in units and
+    a sign its sender never used."""
+    limits = _urdf_limits(model, joint)
+    if limits is None:
         return math.degrees(value)
+    degrees = model.from_urdf({joint: value})[joint]
+    if not limits[0] - URDF_SLACK <= value <= limits[1] + URDF_SLACK:
+        return degrees
+    span: Range = getattr(model.ranges, joint)
+    return min(max(degrees, span.lo), span.hi)
