@@ -299,3 +299,10 @@ def test_a_huge_target_is_said_in_a_few_digits() -> None:
     assert "x=1e+308 y=1e+308 z=1e+308 mm" in said and len(said) < 200, said
     huge = str(JointOutOfRange((("base", 1e300, -90.0, 90.0),)))
     assert huge == "base would need 1e+300 deg, its range is -90..90", huge
+
+
+def test_a_zero_is_said_without_a_sign() -> None:
+    """y=0 typed on the page came back as "y=-0 mm" (a -0.0 of the arm's frame)."""
+    with pytest.raises(Unreachable) as refused:
+        solve_nearest_pitch(MODEL, 0.5, -0.0, 0.1, 0.0, 0.0)
+    assert "x=500 y=0 z=100 mm" in str(refused.value), str(refused.value)

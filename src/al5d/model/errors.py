@@ -157,7 +157,8 @@ BIG = 1e7
 def whole_mm(value_m: float) -> str:
     """`value_m` (metres) in whole millimetres, or past `BIG` mm in four figures."""
     mm = value_m * 1000
-    return f"{mm:.4g}" if abs(mm) >= BIG else f"{mm:.0f}"
+    text = f"{mm:.4g}" if abs(mm) >= BIG else f"{mm:.0f}"
+    return "0" if text == "-0" else text  # y=-0 for a y of 0 the arm's frame made -0.0
 
 
 def _deg(value: float, *limits: float) -> str:

@@ -412,7 +412,8 @@ class Panel:
     # -- reading -------------------------------------------------------------------
 
     def xyz(self) -> tuple[float, float, float]:
-        x, y, z = (float(self.xyz_numbers[a].value) for a in "xyz")
+        # + 0.0: a field set from the tool's readout can hold -0.0, said "y -0".
+        x, y, z = (float(self.xyz_numbers[a].value) + 0.0 for a in "xyz")
         return (x, y, z)
 
     def time_ms(self) -> int | None:
