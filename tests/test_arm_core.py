@@ -18,7 +18,7 @@ from al5d.arm import instruction as ins
 from al5d.arm import link as lk
 from al5d.arm.config import ArmConfig
 from al5d.arm.corestate import Announce, Cancelled, Effect, Purpose, Received, Say, Send
-from al5d.arm.instruction import Point, Result
+from al5d.arm.instruction import FRESH_MARK, Point, Result
 from al5d.arm.resample import Follow
 from al5d.arm.states import State
 from al5d.arm.validate import judge
@@ -885,3 +885,26 @@ def test_the_queue_keeps_its_order_through_adds_takes_and_removals() -> None:
         again = again.add(each)
     assert many == again and hash(many) == hash(again) and many != again.rest()
     assert repr(many).startswith("Jobs(20000: ")
+
+
+def test_a_held_stream_resumes_on_a_set_point_its_source_says_is_new(sim: Sim) -> None:
+    """After a stop and a release the stream is held (ros2_control's hardware sends its old
+    target again and again); a set-point whose id ends with `FRESH_MARK` (the web view's
+    jog: a hand on a slider) is new since the stop, and resumes it. The page resumed it
+    before by a set-point where the arm stood, sent just before its target: on a busy host
+    the newer overwrote it unread (DDS keeps one), and every jog after a stop was refused."""
+    stream = "joint_commands"
+    sim.ask(ins.move(elbow=80), stream=stream, tell=False)
+    sim.run(0.1)
+    sim.ask(ins.stop())
+    sim.ask(ins.release())
+    sim.run(1.0)
+    stale = sim.ask(ins.move(elbow=80), stream=stream, tell=False)
+    assert "stream of set-points is held" in sim.outcomes[stale].reason
+    moves = sim.group_moves()
+    fresh = sim.ask(ins.move(elbow=70, id=f"web-jog-1{FRESH_MARK}"), stream=stream, tell=False)
+    assert sim.outcome(fresh).result is Result.DONE
+    assert len(sim.group_moves()) > len(moves)
+    # Resumed: the stream's next set-point, unmarked, is taken too.
+    then = sim.ask(ins.move(elbow=60), stream=stream, tell=False)
+    assert sim.outcome(then).result is Result.DONE

@@ -135,22 +135,3 @@ def test_a_judgement_that_comes_after_a_stop_sends_nothing() -> None:
     assert not jog.judge(target, "")
     assert jog.due(0.01, False, ARM) == (None, "")
     assert jog.target is None
-
-
-def test_a_new_jog_first_resumes_the_stream_from_where_the_idle_arm_stands() -> None:
-    """After a stop the server holds its stream of set-points until one comes where the arm
-    stands: each new jog sends one first (once), with the arm idle and its joints known."""
-    jog = Jog(SPEEDS)
-    assert jog.resume(False, ARM) is None  # no jog
-    take(jog, "base", 10.0, 0.0)
-    take(jog, "base", 12.0, 0.05)  # the same jog: one resume for it
-    here = {"base": 0.0, "shoulder": float("nan")}  # a joint not known since power-up
-    assert jog.resume(False, here) == {"base": 0.0}
-    assert jog.resume(False, here) is None
-    jog.let_go()
-    take(jog, "base", 20.0, 1.0)  # a new jog
-    assert jog.resume(True, ARM) is None  # moving: not where a set-point would leave it
-    assert jog.resume(False, ARM) is None  # once a jog, moving or not
-    jog.end()
-    take(jog, "shoulder", 5.0, 2.0)
-    assert jog.resume(False, ARM) == ARM

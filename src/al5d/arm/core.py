@@ -108,7 +108,7 @@ from al5d.arm.corestate import (
     posed,
     say,
 )
-from al5d.arm.instruction import Instruction, Kind, Result
+from al5d.arm.instruction import FRESH_MARK, Instruction, Kind, Result
 from al5d.arm.jobs import NO_JOBS, Job, Mode, outcome
 from al5d.arm.states import Event, State, next_state, refusal, release_refusal, stream_held
 from al5d.arm.validate import Step, from_start, judge
@@ -288,10 +288,11 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
         c = replace(c, stream_seen={**c.stream_seen, job.stream: ev.t})
         unchanged = _unchanged(c, job)
         if c.streams_held:
-            if not unchanged:
+            if not (unchanged or instr.id.endswith(FRESH_MARK)):
                 _refuse(ev, stream_held(c.streams_held), out)
                 return c
-            c = replace(c, streams_held="")  # the source holds where the arm is: it resumes
+            # The source holds where the arm is, or says it is new since the stop: it resumes.
+            c = replace(c, streams_held="")
         # The latest set-point wins: one that waits is replaced, never queued behind.
         replaced = next((j for j in c.queue if j.stream == job.stream), None)
         if replaced is not None:

@@ -71,6 +71,13 @@ def new_id() -> str:
     return f"{_prefix}-{next(_ids)}"
 
 
+#: A set-point whose id ends with this is new since the last stop, by its source's word (the
+#: web view's jog: a hand on a slider, which the page lets go at a stop): it resumes a
+#: stream held since a stop (`al5d.arm.core`), where a source that sends its last target
+#: again and again (ros2_control's hardware) must first send where the arm stands.
+FRESH_MARK = "~fresh"
+
+
 #: The longest id an instruction may carry, and the most of a word a reason quotes:
 #: a megabyte of id or word must not become a megabyte in every log line and result.
 MAX_ID = 256

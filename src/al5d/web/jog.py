@@ -48,14 +48,11 @@ class Jog:
     #: arm has been idle short of it (None: it is not).
     set_t: float = -math.inf
     short_t: float | None = field(default=None)
-    #: A new jog, whose first set-point goes after one where the arm stands (`resume`).
-    fresh: bool = False
 
     def take(self, joint: str, degrees: float, now: float) -> dict[str, float]:
         """The user moved `joint`'s slider to `degrees`: the jog's whole target now."""
         self.touched = self.set_t = now
         self.short_t = None
-        self.fresh |= self.target is None
         # A new dict, set whole: STOP ends the jog from viser's event loop, without the
         # page's lock, and must find either the old target or the new one.
         target = {**(self.target or {}), joint: degrees}
@@ -151,22 +148,6 @@ class Jog:
         self.set_t = now
         log.info("web: the jog stopped short of its target: sent again")
         return dict(jog), ""
-
-    def resume(self, moving: bool, degrees: Mapping[str, float] | None) -> dict[str, float] | None:
-        """Where the arm stands (its known joints), to send before a new jog's first
-        set-point, once a jog: after a stop, a fault or a shutdown the server holds its
-        stream of set-points until one comes where the arm is (`al5d.arm.states.stream_held`:
-        the source may be ros2_control, still sending its target from before), and the
-        user who drags a slider wants the stream again. Not while the arm moves: it is not
-        where a set-point would leave it then. Where the stream is not held, the server
-        writes nothing for it."""
-        if not self.fresh:
-            return None
-        self.fresh = False
-        if moving or not degrees:
-            return None
-        here = {j: v for j, v in degrees.items() if math.isfinite(v)}
-        return here or None
 
     def _way_s(self, jog: Mapping[str, float], here: Mapping[str, float]) -> float:
         """How long the arm takes from `here` to `jog`, at its servos' speed."""

@@ -33,7 +33,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory
 
-from al5d.arm.instruction import Instruction, Kind, Outcome, new_id
+from al5d.arm.instruction import FRESH_MARK, Instruction, Kind, Outcome, new_id
 from al5d.arm.instruction import stop as stop_instruction
 from al5d.model import ArmModel
 from al5d.model.chain import BASE_LINK
@@ -212,8 +212,12 @@ class WebNode:
         msg.name = [self.joint_prefix + n for n in values]
         msg.header.stamp = self.node.get_clock().now().to_msg()
         # The set-point's id on the result topic (`convert.trajectory_id`): the page knows
-        # its own jog's refusals by it.
-        msg.header.frame_id = f"{self.jog_prefix}{next(self._jog_ids)}"
+        # its own jog's refusals by it. Marked new since any stop (the page lets its jog go
+        # at one; a hand on a slider sent this), so that it resumes the server's stream of
+        # set-points, held since a stop (`FRESH_MARK`; a set-point where the arm stands
+        # would do too, but the newest set-point of the stream overwrites it, unread, on
+        # a busy host: a CI run).
+        msg.header.frame_id = f"{self.jog_prefix}{next(self._jog_ids)}{FRESH_MARK}"
         self.jog_pub.publish(msg)
         (matched, gone), (matched_then, gone_then) = self._jog_seen, self._jog_mark
         changed = matched > matched_then or gone > gone_then

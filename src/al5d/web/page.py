@@ -434,7 +434,6 @@ class Page:
                 moving = self.state == "moving"
                 jogging = self.jog.target is not None
                 jog, said = (None, "") if self.lost else self.jog.due(now, moving, self.degrees)
-                resume = None if jog is None else self.jog.resume(moving, self.degrees)
                 if said:
                     self.panel.show_joints_status(said, False)
                 elif jogging and self.jog.target is None:  # over: it said "jogging" since
@@ -445,8 +444,6 @@ class Page:
                     if now - self.last_change_t >= 1.0:  # moving, each state refreshes it
                         self._show_tool()
                     last_readout = now
-            if resume is not None and self.commands is not None:
-                self.commands.jog(resume)
             if jog is not None and self.commands is not None and not self.commands.jog(jog):
                 with self._lock:  # nobody read it: due again at the next tick
                     self.jog.unread()
