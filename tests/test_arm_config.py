@@ -139,7 +139,7 @@ def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
         ),
         (
             lambda d: d["server"].update(idle_joint_state_rate_hz=0.5),
-            r"server\.idle_joint_state_rate_hz: Input should be greater than or equal to 2",
+            r"server\.idle_joint_state_rate_hz: Input should be greater than or equal to 4",
         ),
         (
             lambda d: d["server"].update(idle_joint_state_rate_hz=30),

@@ -127,6 +127,54 @@ def test_a_client_cut_off_mid_move_leaves_nothing_moving_and_its_stale_request_n
     assert -55 < base < -5, base  # halted on its way to -60; never at 60
 
 
+ONE_WAY = """
+import sys
+from al5d.ros.client import Client, LostContact
+c = Client(wait_s=60)
+c.wait_for_server(60)
+c.execute("ready", timeout=60)
+print("sent", flush=True)
+try:
+    print("move:", c.execute("move base=60 time=8000", timeout=60), flush=True)
+except LostContact as e:
+    print("move: lost:", e, flush=True)
+sys.stdin.readline()  # the link is whole again
+print("base:", c.joints()["base"] if c.lost_contact() is None else "unknown", flush=True)
+"""
+
+
+def test_a_link_that_fails_one_way_halts_what_the_client_gave_up_on(
+    hosts: netrig.Hosts, server: Lines
+) -> None:
+    """The server's frames to the laptop lost, the laptop's still arriving (an outside try):
+    the client gives up and says the server halts what it commanded; its leases, still
+    arriving, kept the server from taking it for lost, and the move ran on to `done`. The
+    client now holds its lease back while it hears nothing."""
+    laptop = hosts.popen(hosts.laptop, [sys.executable, "-c", ONE_WAY])
+    assert laptop.stdout is not None and laptop.stdin is not None
+    out = Lines(laptop.stdout)
+    try:
+        said(out, "sent")
+        time.sleep(1.5)  # into the 8 s move
+        hosts.one_way(True)
+        try:
+            move = said(out, "move: ")
+            halted = said(server, ": halted")
+            time.sleep(1.0)
+        finally:
+            hosts.one_way(False)
+        laptop.stdin.write("whole\n")
+        laptop.stdin.flush()
+        base = said(out, "base: ")
+    finally:
+        laptop.kill()
+        laptop.wait(10)
+    assert "move: lost: " in move and "lost contact with the server" in move, move
+    assert "lost contact with the client" in halted, halted
+    print(f"the laptop read the base at {base.split()[-1]}")
+    assert base.split()[-1] == "unknown" or float(base.split()[-1]) < 55, base
+
+
 def test_a_remote_browser_says_it_lost_contact_within_two_seconds_of_a_cut(
     hosts: netrig.Hosts, server: Lines
 ) -> None:

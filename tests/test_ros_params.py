@@ -238,12 +238,12 @@ def test_a_change_the_server_cannot_take_is_refused_with_the_reason(served: Serv
     bad = set_one(peer, "server.joint_state_rate_hz", double(-3.0))
     assert not bad.successful
     assert bad.reason == (
-        "ROS parameters: server.joint_state_rate_hz: Input should be greater than or equal to 2 "
+        "ROS parameters: server.joint_state_rate_hz: Input should be greater than or equal to 4 "
         "(value: -3.0)"
     )
     # Too slow for the clients, whose sign of the server's life the joint states are.
     slow = set_one(peer, "server.idle_joint_state_rate_hz", double(0.001))
-    assert not slow.successful and "greater than or equal to 2" in slow.reason, slow.reason
+    assert not slow.successful and "greater than or equal to 4" in slow.reason, slow.reason
     # Dynamically typed (so that 50 is taken for 50.0), but a flag or text is no rate: true
     # was taken as 1 Hz, and the parameter read back as a boolean.
     flag = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=True)
@@ -294,7 +294,7 @@ def test_a_bad_parameter_gets_the_configs_message_and_exit_2(tmp_path: Path) -> 
     data["server"]["joint_state_rate_hz"] = -5
     in_file = tmp_path / "bad.yaml"
     in_file.write_text(yaml.safe_dump(data))
-    message = "server.joint_state_rate_hz: Input should be greater than or equal to 2 (value: -5)"
+    message = "server.joint_state_rate_hz: Input should be greater than or equal to 4 (value: -5)"
     assert f"{in_file}: {message}" in serve_refused(config=str(in_file))
     as_parameter = serve_refused("--ros-args", "-p", "server.joint_state_rate_hz:=-5")
     assert f"ROS parameters: {message}" in as_parameter

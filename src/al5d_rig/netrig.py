@@ -146,6 +146,11 @@ class Hosts:
     def mend(self) -> None:
         _ip("-n", self.laptop, "link", "set", self._veth[1], "up")
 
+    def one_way(self, on: bool) -> None:
+        """The arm's frames to the laptop dropped (`on`) or not, the laptop's to the arm still
+        arriving: a link that fails one way (a route on the arm's host that drops them)."""
+        _ip("-n", self.arm, "route", "add" if on else "del", "blackhole", f"{LAPTOP_IP}/32")
+
     def impair(self, delay_ms: float = 0.0, loss_percent: float = 0.0) -> None:
         """Each frame, both ways, lost with `loss_percent` and the others `delay_ms` late
         (from now on; frames in flight keep their delay). Needs `cable`."""

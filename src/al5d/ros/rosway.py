@@ -157,12 +157,25 @@ class RosWay:
     # -- the lease and the server's silence --------------------------------------------
 
     def _lease(self) -> None:
-        """Send this client's lease every `LEASE_EVERY_S` until it closes."""
+        """Send this client's lease every `LEASE_EVERY_S` until it closes, while it hears the
+        server: a lease says the client is there and hears it. Silent for more than
+        `LOST_AFTER_LEASE_S`, the client holds its lease back, so that where the link fails
+        one way only (the server's frames lost, the client's still arriving) the server
+        halts what this client commanded after its lease, as the client, giving up then
+        (`lost_after_s`), says it does. (An outside try: the client gave up and said so,
+        its leases still came, and the move ran on to `done`.)"""
         every_ms = round(LEASE_EVERY_S * 1000)
         while not self._leasing.wait(LEASE_EVERY_S):
+            if self._deaf():
+                continue
             self._lease_pub.publish(
                 ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=every_ms)
             )
+
+    def _deaf(self) -> bool:
+        """The server heard once, and not for more than `LOST_AFTER_LEASE_S` since."""
+        heard = self._heard
+        return heard is not None and time.monotonic() - heard > LOST_AFTER_LEASE_S
 
     def _on_readers_matched(self, info: Any) -> None:
         self._readers_matched = info.total_count
@@ -594,5 +607,9 @@ class RosWay:
         """End the lease, say goodbye, and end the node and its ROS context."""
         self._leasing.set()
         self._leaser.join()
-        self._say_bye()
+        # Out of contact, no goodbye (which says: what I commanded goes on): the server,
+        # if it hears this client still, takes it for lost and halts what it commanded, as
+        # this client said when it gave up.
+        if not self._deaf():
+            self._say_bye()
         self.spinner.close()
