@@ -280,7 +280,10 @@ class ArmNode(Node):
             if instr.kind is not Kind.STOP:  # a stop is obeyed, however late
                 self.refuse(instr.id, instr.name, stale)
                 return
-            log.warning("stop [%s]: obeyed, late: %s", instr.id, stale.split(": stale")[0])
+            # Said as what it is: the refusal's own words ("not run") would say the opposite.
+            log.warning(
+                "stop [%s]: obeyed, however late (a move would be refused: %s)", instr.id, stale
+            )
         # A stop the stop watcher has obeyed already (the same message, or a copy of the
         # same stop: `stop_key`) is obeyed once.
         key = stop_key(msg, info) if instr.kind is Kind.STOP else None
