@@ -253,10 +253,10 @@ def joint_command_from_message(
             return not_this_arms(given, prefix)
         if name in GRIPPER_FINGERS or (math.isnan(value) and _urdf_limits(model, name) is not None):
             continue
-        outside = outside_urdf_limits(model, name, value, prefix)
-        if outside:
-            return outside
-        joints.append((name, arm_degrees(model, name, value)))
+        degrees = arm_degrees(model, name, value, prefix)
+        if isinstance(degrees, str):
+            return degrees
+        joints.append((name, degrees))
     if not joints:
         return (
             "a joint command with no joint of the arm to move (NaN is ros2_control's "
@@ -300,14 +300,12 @@ def trajectory_from_message(
         if late:
             return late
         before = at_ms
+        degrees: list[tuple[str, float]] = []
         for name, value in zip(names, point.positions, strict=True):
-            outside = outside_urdf_limits(model, name, value, prefix)
-            if outside:
-                return f"point {i}: {outside}"
-        degrees = [
-            (name, arm_degrees(model, name, value))
-            for name, value in zip(names, point.positions, strict=True)
-        ]
+            deg = arm_degrees(model, name, value, prefix)
+            if isinstance(deg, str):
+                return f"point {i}: {deg}"
+            degrees.append((name, deg))
         points.append(Point(tuple(degrees), at_ms))
     return Instruction(Kind.TRAJECTORY, points=tuple(points), id=trajectory_id(msg), sent_ns=sent)
 
@@ -330,28 +328,24 @@ def outside_urdf_limits(model: ArmModel, joint: str, value: float, prefix: str =
     metres for the gripper's gap) and names (the model's `joint` behind the arm's joint
     `prefix`); "" if it is inside, or not a URDF joint (the driver's validation names
     those)."""
-    limits = _urdf_limits(model, joint)
-    if limits is None:
-        return ""
-    lo, hi = limits
-    if math.isfinite(value) and lo - URDF_SLACK <= value <= hi + URDF_SLACK:
-        return ""
-    unit = "m" if joint == "gripper" else "rad"
-    return f"{prefix}{joint}: {value:g} {unit} is outside its URDF limits {lo:.4g}..{hi:.4g} {unit}"
+    got = arm_degrees(model, joint, value, prefix)
+    return got if isinstance(got, str) else ""
 
 
-def arm_degrees(model: ArmModel, joint: str, value: float) -> float:
-    """A URDF joint value (REP 103 radians, the gripper's gap in metres) in the arm's degrees;
-    for a joint the URDF does not have, the value as degrees (for validation to name). A
-    value that `outside_urdf_limits` takes, `URDF_SLACK` beyond a limit at most, is that
-    end of the joint's range: the arm's check in degrees has no slack, and refused
-    pi/2 + 1e-9 rad as "base: -90.0000001 deg is outside the range -90..90", in units and
-    a sign its sender never used."""
+def arm_degrees(model: ArmModel, joint: str, value: float, prefix: str = "") -> float | str:
+    """A URDF joint value (REP 103 radians, the gripper's gap in metres) in the arm's degrees,
+    or why it is outside its URDF limits (`outside_urdf_limits`); for a joint the URDF does
+    not have, the value as degrees (for validation to name). A value `URDF_SLACK` beyond a
+    limit at most is that end of the joint's range: the arm's check in degrees has no
+    slack, and refused pi/2 + 1e-9 rad as "base: -90.0000001 deg is outside the range
+    -90..90", in units and a sign its sender never used."""
     limits = _urdf_limits(model, joint)
     if limits is None:
         return math.degrees(value)
-    degrees = model.from_urdf({joint: value})[joint]
-    if not limits[0] - URDF_SLACK <= value <= limits[1] + URDF_SLACK:
-        return degrees
+    lo, hi = limits
+    if not (math.isfinite(value) and lo - URDF_SLACK <= value <= hi + URDF_SLACK):
+        unit = "m" if joint == "gripper" else "rad"
+        limits_text = f"{lo:.4g}..{hi:.4g} {unit}"
+        return f"{prefix}{joint}: {value:g} {unit} is outside its URDF limits {limits_text}"
     span: Range = getattr(model.ranges, joint)
-    return min(max(degrees, span.lo), span.hi)
+    return min(max(model.from_urdf({joint: value})[joint], span.lo), span.hi)

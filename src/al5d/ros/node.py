@@ -123,8 +123,9 @@ class ArmNode(Node):
 
     def _check(self, changed: list[Parameter]) -> SetParametersResult:
         assert self.settings is not None
-        changes = params.typed(self.settings, {p.name: p.value for p in changed})
-        got = changes if isinstance(changes, str) else params.with_changes(self.settings, changes)
+        changes = {p.name: p.value for p in changed}
+        wrong = params.wrong_type(self.settings, changes)
+        got = wrong or params.with_changes(self.settings, changes)
         if isinstance(got, str):
             return SetParametersResult(successful=False, reason=got)
         return SetParametersResult(successful=True)

@@ -286,23 +286,19 @@ def _flat(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 _KINDS = {bool: "true or false", int: "an integer", float: "a number", str: "text"}
 
 
-def typed(settings: Settings, changes: Mapping[str, Any]) -> dict[str, Any] | str:
-    """Changes at run time (name -> value) in their parameters' types, an integer for a
-    double taken as that number (as a file takes 50 for 50.0); or why one is not of its
-    parameter's type. The parameters are declared with dynamic typing, so that rclpy takes
-    50 for 50.0: it would also take "40" or true, and change the parameter's type (true
-    set a rate to 1 Hz, `ros2 param get` then saying a boolean)."""
+def wrong_type(settings: Settings, changes: Mapping[str, Any]) -> str:
+    """Why a change at run time (name -> value) is not of its parameter's type, or "". The
+    parameters are declared with dynamic typing, so that rclpy takes 50 for 50.0 (the node
+    sets it as the double: `ArmNode._as_declared`): it would also take "40" or true, and
+    change the parameter's type (true set a rate to 1 Hz, `ros2 param get` then saying a
+    boolean)."""
     values = settings.values()
-    out: dict[str, Any] = {}
     for name, value in changes.items():
         was = values.get(name)
-        if type(was) is float and type(value) is int:
-            value = float(value)
-        elif type(was) in _KINDS and type(value) is not type(was):
+        if type(was) in _KINDS and type(value) is not type(was):
             got = "no value" if value is None else f"{_KINDS.get(type(value), 'a list')} {value!r}"
             return f"{name}: expected {_KINDS[type(was)]}, got {got}"
-        out[name] = value
-    return out
+    return ""
 
 
 def with_changes(settings: Settings, changes: Mapping[str, Any]) -> Settings | str:
