@@ -167,6 +167,37 @@ def test_cancel_halts_the_running_move_without_the_lock(sim: Sim) -> None:
     assert 5 < sim.degrees()["base"] < 40  # halted on its way
 
 
+def test_what_its_sender_gave_up_on_is_halted_cancelled_or_refused_at_its_deadline(
+    sim: Sim,
+) -> None:
+    """A sender that waits 500 ms for each outcome: the move running then is halted where it
+    is (no lock), the one behind it cancelled unrun, each at the deadline, not at its turn;
+    one that comes after its deadline (sent 600 ms ago) is refused as stale; one with no
+    wait (0) runs to its end."""
+    start = sim.t
+    running = sim.ask(replace(ins.move(base=60, time_ms=2000), wait_ms=500))
+    waiting = sim.ask(replace(ins.move(base=-60, time_ms=500), wait_ms=500))
+    sim.run(0.499)
+    assert running not in sim.outcomes and waiting not in sim.outcomes
+    moves = len(sim.group_moves())
+    sim.run(0.002)
+    for ref, end in ((running, "halted"), (waiting, "not run")):
+        outcome = sim.outcomes[ref]
+        assert outcome.result is Result.CANCELLED
+        assert outcome.reason == (
+            f"its sender waited 500 ms for an outcome and has given up on it: {end}"
+        )
+    assert sim.t - start < 0.51
+    sim.run(0.3)
+    assert sim.core.state is State.READY and not sim.core.locked
+    assert 5 < sim.degrees()["base"] < 40  # halted on its way
+    assert len(sim.group_moves()) == moves  # the waiting one never went to the board
+    stale = replace(ins.move(base=-10), wait_ms=500, sent_ns=sim.wall - 600_000_000)
+    assert sim.outcome(sim.ask(stale)).reason.endswith("stale, not run")
+    patient = sim.ask(ins.move(base=-20, time_ms=800))
+    assert sim.outcome(patient).result is Result.DONE
+
+
 def test_a_lost_client_s_motion_is_halted_and_its_waiting_moves_cancelled(sim: Sim) -> None:
     running = sim.ask(ins.move(base=60, time_ms=2000), client=7)
     waiting = sim.ask(ins.move(base=-60, time_ms=2000), client=7)

@@ -3,16 +3,19 @@ requests, board faults and time, in virtual time (`al5d_rig.sim`), checked after
 input the core takes.
 
 `hypothesis.stateful` plays clients on the pure core (`al5d.arm.core.step`) with an
-emulated board on a virtual wire: moves, set-points of a stream (bursts, a stream that
-goes quiet, one that goes on through a stop), trajectories, Cartesian lines, stops (some
-seen twice, as the bridge's node and the stop watcher both see a stop on the topic),
-releases (some sent before the last stop and arriving after it), cancels, lost clients,
-a board pulled and plugged back, a silent board, a reset, time passing and a shutdown;
-several of them at one instant, in any order. After every input:
+emulated board on a virtual wire: moves, moves whose sender waits only so long,
+set-points of a stream (bursts, a stream that goes quiet, one that goes on through a
+stop), trajectories, Cartesian lines, stops (some seen twice, as the bridge's node and
+the stop watcher both see a stop on the topic), releases (some sent before the last stop
+and arriving after it), cancels, lost clients, a board pulled and plugged back, a silent
+board, a reset, time passing and a shutdown; several of them at one instant, in any
+order. After every input:
 
 - the state and the outcomes agree: `ready`, `stopped`, `fault` and `shutting_down` only
   while no motion request is without its outcome, `moving` only while one is;
 - every request has at most one outcome, a stop and a release theirs at once;
+- a move whose sender waits for it only so long (`Instruction.wait_ms`) has its outcome
+  by then (`GIVE_UP_SLACK_S`), and is never given up on before;
 - no line on the wire holds a partial number (a line cut by a stop's ESC holds whole
   commands only), and one thread wrote every byte;
 
@@ -60,6 +63,9 @@ STREAM_TIMEOUT_S = 0.15
 STREAM_PENDING_MAX = 2
 #: Virtual time every outcome comes within, once nothing more is asked.
 OUTCOME_BOUND_S = 60.0
+#: A move whose sender has given up on it has its outcome this soon after (virtual s): a
+#: query's answer, or a line going out, may be waited for first.
+GIVE_UP_SLACK_S = 0.1
 MOTION = (Kind.MOVE, Kind.PRESET, Kind.MOVE_TO, Kind.TRAJECTORY)
 #: States in which no motion request may wait for its outcome.
 AT_REST = (State.READY, State.STOPPED, State.FAULT, State.SHUTTING_DOWN)
@@ -87,6 +93,12 @@ class Asked:
     wall: int
     late: bool = False
     client: int = 0
+
+
+def _gives_up(asked: Asked) -> float:
+    """When the sender of `asked` gives up on it (inf: it waits for ever)."""
+    wait_ms = asked.instr.wait_ms
+    return asked.t + wait_ms / 1000 if wait_ms else math.inf
 
 
 class CoreProtocol(RuleBasedStateMachine):
@@ -126,6 +138,13 @@ class CoreProtocol(RuleBasedStateMachine):
                 asked = self.by_ref.get(e.ref)
                 if asked is not None and asked.kind == "release" and e.outcome.ok:
                     self.released.append(self.sim.t)
+                if asked is not None and "given up" in e.outcome.reason:
+                    count("arm core: moves given up on by their senders")
+                    if self.sim.t < _gives_up(asked) - 1e-9:
+                        self.problems.append(f"{asked.instr.id} given up on before its time")
+                if asked is not None and self.sim.t > _gives_up(asked) + GIVE_UP_SLACK_S:
+                    late = self.sim.t - _gives_up(asked)
+                    self.problems.append(f"{e.outcome} {late:.3f} s after its sender gave up")
         state = self.sim.core.state
         pending = self._pending_motion()
         if state in AT_REST and pending:
@@ -133,6 +152,9 @@ class CoreProtocol(RuleBasedStateMachine):
             self.problems.append(f"state {state.value} while {len(pending)} move(s) wait: {ids}")
         if state is State.MOVING and not pending and self.sim.core.run is None:
             self.problems.append("state moving with no move running or waiting")
+        overdue = [a for a in pending if self.sim.t > _gives_up(a) + GIVE_UP_SLACK_S]
+        if overdue:
+            self.problems.append(f"{overdue[0].instr.id} goes on, given up on by its sender")
 
     def _above_the_table(self) -> None:
         """Where the board holds the servos now is above the table, within the path
@@ -182,6 +204,14 @@ class CoreProtocol(RuleBasedStateMachine):
             target = {j: self.ready[j] + rng.uniform(-4, 4) for j in joints}
             self._ask("move", ins.move(time_ms=time_ms, **target))
 
+    def _impatient(self, n: int, rng: random.Random) -> None:
+        """Moves whose sender waits only so long for each (some as long as its time, some
+        shorter), behind whatever else waits."""
+        for _ in range(n):
+            target = {j: self.ready[j] + rng.uniform(-4, 4) for j in rng.sample(JOINTS, 2)}
+            move = ins.move(time_ms=rng.choice([0, 300, 1500]), **target)
+            self._ask("move", dataclasses.replace(move, wait_ms=rng.randint(1, 900)))
+
     def _stop(self, twice: bool) -> None:
         if not twice:
             self._ask("stop", ins.stop())
@@ -206,8 +236,10 @@ class CoreProtocol(RuleBasedStateMachine):
         key = self.keyed[pick % len(self.keyed)]
         copy = ins.stop()
         told, locked, sent = len(self.sim.told), self.sim.core.locked, len(self.sim.sent)
-        first = self._ask("stop", copy, key=key)
-        again = self._ask("stop", copy, key=key)  # the copy seen by the other reader
+        # A copy, not a stop of its own: a release sent between the stop and its copy undoes
+        # the stop (`_release` judges by the last stop, not by a copy's later time).
+        first = self._ask("copy", copy, key=key)
+        again = self._ask("copy", copy, key=key)  # the copy seen by the other reader
         outcomes = self.sim.outcomes
         if outcomes[first.ref] != outcomes[again.ref] or outcomes[first.ref].id != copy.id:
             self.problems.append("a copy of a stop was not answered under its id, once")
@@ -262,6 +294,10 @@ class CoreProtocol(RuleBasedStateMachine):
         self._moves(n, random.Random(seed))
 
     @precondition(lambda self: not self.ended)
+    @rule(n=st.integers(1, 4), seed=st.integers(0, 2**16))
+    def impatient_moves(self, n: int, seed: int) -> None:
+        self._impatient(n, random.Random(seed))
+
     @rule(twice=st.booleans())
     def stop(self, twice: bool) -> None:
         self._stop(twice)
@@ -342,7 +378,9 @@ class CoreProtocol(RuleBasedStateMachine):
     @precondition(lambda self: not self.ended)
     @rule(
         actions=st.lists(
-            st.sampled_from(["moves", "stop", "stop twice", "release", "cancel", "set-points"]),
+            st.sampled_from(
+                ["moves", "impatient", "stop", "stop twice", "release", "cancel", "set-points"]
+            ),
             min_size=2,
             max_size=4,
         ),
@@ -353,6 +391,7 @@ class CoreProtocol(RuleBasedStateMachine):
         rng = random.Random(seed)
         runs: dict[str, Callable[[], None]] = {
             "moves": lambda: self._moves(3, rng),
+            "impatient": lambda: self._impatient(2, rng),
             "stop": lambda: self._stop(False),
             "stop twice": lambda: self._stop(True),
             "release": lambda: self._release(False),

@@ -76,6 +76,24 @@ def test_ctrl_c_on_send_cancels_what_it_sent(arm: Served) -> None:
     assert halted_on_its_way(arm, 80)
 
 
+@pytest.mark.parametrize("via", ["lane", "ros"])
+def test_a_move_its_sender_gave_up_on_is_halted_and_said_so(arm: Served, via: str) -> None:
+    """`al5d send --timeout 1` on a 4 s move: the server halts it where it is when its sender
+    gives up (no lock), and the command says so: the outcome, not a bare timeout."""
+    arm.ready()
+    send = Proc("send", "move", "base=-80", "time=4000", "--timeout", "1", "--via", via)
+    assert send.wait(CMD_S) == exits.NOT_DONE
+    out = send.out.drain()
+    assert any(
+        line.endswith(
+            "cancelled: its sender waited 1000 ms for an outcome and has given up on it: halted"
+        )
+        for line in out
+    ), out
+    wait_until(lambda: arm.states[-1] == "ready", CMD_S, "ready: halted, not locked")
+    assert halted_on_its_way(arm, -80)
+
+
 def test_ctrl_c_on_run_cancels_the_line_running_and_those_in_the_background(
     arm: Served, tmp_path: Path
 ) -> None:
@@ -203,6 +221,7 @@ def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:
         b'{"op": "ask", "ref": 2, "instr": {"kind": "wave"}}\n',
         b'{"op": "ask", "ref": 3, "instr": {"kind": "move", "joints": [["base", "x"]]}}\n',
         b'{"op": "ask", "ref": 4, "instr": {"kind": "move", "joints": [["base", 500]]}}\n',
+        b'{"op": "ask", "ref": 6, "instr": {"kind": "move", "wait_ms": -1}}\n',
         b'{"op": "ask", "ref": 5, "instr": {"kind": "move", "joints": [["base", 3]]}}\n',
     ]
     sock.sendall(b"".join(lines))
@@ -226,6 +245,7 @@ def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:
     assert "no op 'frobnicate'" in str(got[1]["error"])
     assert "no kind 'wave'" in str(got[2]["error"])
     assert "'x' is not a number" in str(got[3]["error"])
+    assert "wait_ms is how long its sender waits" in str(got[6]["error"])
     four, five = got[4]["outcome"], got[5]["outcome"]
     assert isinstance(four, dict) and four["result"] == "refused", four
     assert "outside the range" in str(four["reason"])

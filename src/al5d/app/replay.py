@@ -446,6 +446,7 @@ def _send(
     from al5d.app.terminal import Report
     from al5d.arm.config import load_config
     from al5d.arm.instruction import Instruction
+    from al5d.ros.answers import GIVE_UP_WORD_S, no_outcome, wait_ms
     from al5d.ros.client import Client, NoServer
     from al5d.ros.convert import from_message, to_message
 
@@ -454,7 +455,7 @@ def _send(
     # Over ROS 2 always, wherever the server is: the instructions go on its topic as they
     # were recorded, the outcomes come from its result topic (`_Outcomes`).
     client = Client(namespace, local=False)
-    report = Report(out)
+    report = Report(out, timeout)
     sent = 0
     try:
         outcomes = _Outcomes(client)
@@ -497,19 +498,21 @@ def _send(
             outcomes.expect(instr.id, outcome_of)
             msg = to_message(instr)
             msg.client = client.key  # a replay cut off or killed leaves nothing moving
+            msg.wait_ms = wait_ms(timeout)  # nor does what it gives up on
             client.pub.publish(msg)
             sent += 1
             last_sent = time.monotonic()
             arrived = functools.partial(outcomes.arrived, instr.id)
-            if rate != "recorded" and not outcomes.wait(arrived, timeout):
+            if rate != "recorded" and not outcomes.wait(arrived, timeout + GIVE_UP_WORD_S):
                 outcomes.forget(instr.id)
                 report.outcome(None, instr=instr)
         if not outcomes.wait(
-            lambda: not outcomes.pending(), timeout - (time.monotonic() - last_sent)
+            lambda: not outcomes.pending(),
+            timeout + GIVE_UP_WORD_S - (time.monotonic() - last_sent),
         ):
             for ident in outcomes.pending():
                 outcomes.forget(ident)
-                report.line(f"[{ident}]: no outcome (timed out)")
+                report.line(str(no_outcome(f"[{ident}]", timeout)))
             report.all_done = False
         return exits.DONE if report.all_done else exits.NOT_DONE
     except NoServer as e:

@@ -41,6 +41,7 @@ from al5d.arm.poses import PosesError, beside, load_poses
 from al5d.arm.sequence import SequenceJudge, judge_sequence, judged_steps, read_sequence
 from al5d.owner import where
 from al5d.owner.client import local_config
+from al5d.ros.answers import GIVE_UP_WORD_S, no_outcome
 from al5d.ros.client import (
     Answer,
     Client,
@@ -59,8 +60,9 @@ SLOW_DISCOVERY_S = 1.0
 class Report:
     """Prints each outcome when it comes, whichever thread it comes in; keeps the verdict."""
 
-    def __init__(self, out: TextIO) -> None:
+    def __init__(self, out: TextIO, timeout: float) -> None:
         self._out = out
+        self.timeout = timeout
         self._lock = threading.Lock()
         self.all_done = True
 
@@ -75,7 +77,7 @@ class Report:
 
     def outcome(self, outcome: Outcome | None, *, instr: Instruction) -> None:
         if outcome is None:
-            text = f"{instr.name} [{instr.id}]: no outcome (timed out)"
+            text = str(no_outcome(f"{instr.name} [{instr.id}]", self.timeout))
         else:
             text = str(outcome)
         with self._lock:
@@ -186,7 +188,7 @@ def send(
         print(f"al5d send: {e}", file=err)
         return exits.NO_SERVER
     timing.ros_started()
-    report = Report(out)
+    report = Report(out, timeout)
     try:
         if instr.kind in (Kind.STOP, Kind.RELEASE):
             answer = _stop_or_release(client, instr, timeout)
@@ -264,7 +266,7 @@ def run(
         print(f"al5d run: {e}", file=err)
         return exits.NO_SERVER
     timing.ros_started()
-    report = Report(out)
+    report = Report(out, timeout)
     sent: list[Instruction] = []
     background: list[Instruction] = []
     try:
@@ -327,7 +329,7 @@ def _step(
     client.send(item, timeout)
     if in_background:
         return True
-    outcome = client.outcome(item.id, timeout)
+    outcome = client.outcome(item.id, timeout + GIVE_UP_WORD_S)
     report.outcome(outcome, instr=item)
     if outcome is not None and item.kind is Kind.RELEASE:
         return True  # refused where nothing is stopped: nothing to release, nothing lost
@@ -339,7 +341,7 @@ def _drain(client: Client, report: Report, background: list[Instruction], timeou
     for item in background:
         if not client.sent(item.id):
             report.not_sent(item)
-        elif client.outcome(item.id, timeout) is None:
+        elif client.outcome(item.id, timeout + GIVE_UP_WORD_S) is None:
             report.outcome(None, instr=item)
     background.clear()
 
@@ -411,7 +413,7 @@ def shell(
         print(f"al5d shell: {e}", file=err)
         return exits.NO_SERVER
     timing.ros_started()
-    report = Report(out)
+    report = Report(out, timeout)
     bad = False
     background: list[Instruction] = []
     try:

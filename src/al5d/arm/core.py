@@ -18,7 +18,11 @@ The lanes
 - **Moves** are admitted in the order they come: refused, cancelled, queued, or, on an
   idle arm, started at once (its first line in the same step). One job runs at a time
   (`Core.run`); only its steps are written; whoever ends it (done, stop, cancel, fault,
-  shutdown) makes it not current, in one step.
+  shutdown) makes it not current, in one step. A move whose sender waits for its outcome
+  only so long (`Instruction.wait_ms`, from when it was sent) is refused as stale if that
+  has passed when it comes, cancelled if it passes while the move waits, and halted
+  where it is (as a cancel does) if it passes while the move runs: its sender has given
+  up on it, and what nobody waits for does not go on.
 - **Set-points** (a stream such as ros2_control's joint commands, or the web view's jog)
   are moves whose latest wins: a new one replaces the one of its stream that waits (it
   ends cancelled, never written), and one where the arm is heading already (within half
@@ -36,10 +40,11 @@ The lanes
   are refused until one comes that is where the arm is (its source has let go of the
   target it had before), so a target sent again and again is not driven to after a
   release.
-- **The core's own work**, in this order: the port opened and checked (and after a
-  fault, a move the board may still run halted and the pose read back), the shutdown
-  (halt, read back, park, end), the current run, the read-back of the pose after a
-  halt, the start-up park, the next queued move, and a check of the idle link.
+- **The core's own work**, in this order: the waiting moves whose senders have given
+  up on them cancelled, the port opened and checked (and after a fault, a move the
+  board may still run halted and the pose read back), the shutdown (halt, read back,
+  park, end), the current run, the read-back of the pose after a halt, the start-up
+  park, the next queued move, and a check of the idle link.
 
 The order across channels
 -------------------------
@@ -268,6 +273,12 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
     reason = (
         "the server is shutting down" if c.shutdown is not None else refusal(c.state, c.fault)
     ) or c.order.sent_while_locked(sent)
+    give_up_at = math.inf
+    if instr.wait_ms:
+        # Counted from when it was sent: the time on its way is part of the sender's wait.
+        give_up_at = ev.t + instr.wait_ms / 1000 - max(0, ev.wall - sent) / 1e9
+        if give_up_at <= ev.t:
+            reason = f"{given_up(instr)}: stale, not run"
     if reason:
         _refuse(ev, reason, out)
         return c
@@ -282,6 +293,7 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
         client=ev.client,
         tell=ev.tell,
         follow=ticket.follow,
+        give_up_at=give_up_at,
     )
     replaced = None
     if job.stream:
@@ -309,7 +321,7 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
                 # board drop it whole, and a stream faster than the wire would never move
                 # the arm (each line cut by the next: seen at 50 Hz and 9600 baud). The
                 # newest waits for the line and takes its place then (`_next`).
-                return replace(c, queue=c.queue.add(job))
+                return _enqueue(c, job)
             return _supersede(c, job, ev.t, out)
     if c.idle:
         return running.start(fire(c, Event.MOVE, out), job, ev.t, out)
@@ -317,8 +329,29 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
     if len(c.queue) >= capacity:
         finish(job, Result.REFUSED, f"the queue is full ({capacity} moves wait)", ev.t, out)
         return c
-    c = replace(c, queue=c.queue.add(job))
+    c = _enqueue(c, job)
     return fire(c, Event.MOVE, out) if c.state is State.READY else c
+
+
+def _enqueue(c: Core, job: Job) -> Core:
+    return replace(c, queue=c.queue.add(job), give_up_at=min(c.give_up_at, job.give_up_at))
+
+
+def given_up(instr: Instruction) -> str:
+    """Why an instruction whose sender no longer waits for it does not go on."""
+    return f"its sender waited {instr.wait_ms} ms for an outcome and has given up on it"
+
+
+def _given_up(c: Core, t: float, out: Out) -> Core:
+    """The waiting jobs whose senders have given up on them are cancelled, unrun."""
+    gone = [j for j in c.queue if j.give_up_at <= t]
+    queue = c.queue.where(lambda j: j.give_up_at > t) if gone else c.queue
+    c = replace(c, queue=queue, give_up_at=min((j.give_up_at for j in queue), default=math.inf))
+    for job in gone:
+        finish(job, Result.CANCELLED, f"{given_up(job.instr)}: not run", t, out)
+    if gone and c.run is None and not c.queue and c.state is State.MOVING:
+        c = fire(c, Event.MOVE_DONE, out)
+    return c
 
 
 def _heading(c: Core) -> dict[str, float | None] | None:
@@ -445,6 +478,8 @@ def _next(c: Core, t: float, wall: int, out: Out) -> Core:
     """One thing that can be done now; the core as it was if none."""
     if c.ended:
         return c
+    if t >= c.give_up_at:  # a waiting move needs no board to be cancelled
+        return _given_up(c, t, out)
     link = c.link
     if not link.open:
         if link.opening:
@@ -469,6 +504,11 @@ def _next(c: Core, t: float, wall: int, out: Out) -> Core:
     if c.state is State.FAULT:
         return c
     if c.run is not None:
+        job = c.run.job
+        if t >= job.give_up_at and job.mode is Mode.QUEUE:
+            reason = given_up(job.instr)
+            say(out, logging.WARNING, f"{job.instr.name} [{job.instr.id}]: {reason}: halted")
+            return running.end_run(c, f"{reason}: halted", t, out)
         # A set-point that waited for the running one's line takes its place once it is out,
         # ahead of what came after it.
         if c.queue and not c.link.rest and c.queue.first().stream:
@@ -519,6 +559,7 @@ def wake_at(c: Core) -> float:
         times.append(board.due(link.query, link.stalled))
     if link.rest:
         times.append(link.free_at - running.WIRE_HORIZON_S)
+    times.append(c.give_up_at)
     if c.run is not None:
-        times += running.wakes(c, c.run)
+        times += [*running.wakes(c, c.run), c.run.job.give_up_at]
     return min((x for x in times if x > t), default=math.inf)

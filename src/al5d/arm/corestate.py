@@ -380,6 +380,9 @@ class Core:
     #: once none has come for `server.stream_timeout_s`.
     stream_seen: Mapping[str, float] = field(default_factory=dict)
     queue: Jobs = NO_JOBS
+    #: When the sender of a waiting job gives up on it, at the earliest (an earlier time, of
+    #: a job gone meanwhile, only wakes the core for nothing).
+    give_up_at: float = math.inf
     run: Run | None = None
     link: Link = field(default_factory=Link)
     fault: SerialFault | None = None

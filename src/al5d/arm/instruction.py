@@ -141,6 +141,9 @@ class Instruction:
     #: (a DDS message's source timestamp); None: when the driver takes it. The order of
     #: a stop, a release and a move from different channels is judged on it (`arm.core`).
     sent_ns: int | None = field(default=None, compare=False)
+    #: How long its sender waits for its outcome, from when it was sent (ms; 0: for ever).
+    #: Then the sender has given up on it: it is cancelled if it waits, halted if it runs.
+    wait_ms: int = field(default=0, compare=False)
 
     @property
     def name(self) -> str:

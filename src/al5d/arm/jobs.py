@@ -5,6 +5,7 @@ Data only (frozen), handed between the protocol (`core`) and what it runs (`runn
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from enum import Enum
@@ -54,6 +55,8 @@ class Job:
     tell: bool = True
     #: A trajectory's tolerances, as its sender gave them.
     follow: Follow | None = None
+    #: When its sender gives up on it (the owner's clock, s; inf: never): `Instruction.wait_ms`.
+    give_up_at: float = math.inf
 
 
 #: A list of jobs as nested pairs (first, rest): adding to its head shares its tail.

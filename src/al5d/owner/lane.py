@@ -120,6 +120,8 @@ def instruction_out(instr: Instruction) -> dict[str, Any]:
         ]
     if instr.sent_ns is not None:
         out["sent_ns"] = instr.sent_ns
+    if instr.wait_ms:
+        out["wait_ms"] = instr.wait_ms
     return out
 
 
@@ -197,6 +199,9 @@ def instruction_in(data: Any) -> Instruction:
             bool(t[6]),
         )
     sent = data.get("sent_ns")
+    wait_ms = _int(data.get("wait_ms", 0), "wait_ms")
+    if wait_ms < 0:
+        raise LaneError("instr: wait_ms is how long its sender waits: 0 (for ever) or more")
     return Instruction(
         kind,
         preset=preset,
@@ -206,6 +211,7 @@ def instruction_in(data: Any) -> Instruction:
         points=points,
         tool=tool,
         sent_ns=None if sent is None else _int(sent, "sent_ns"),
+        wait_ms=wait_ms,
     )
 
 

@@ -7,6 +7,7 @@ both of the client's ways (`al5d.ros.client`'s lane, `al5d.ros.rosway`'s ROS 2) 
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from typing import Any
@@ -16,6 +17,15 @@ from al5d.ros.names import Names, server_namespaces
 
 #: A stop, a release or a shutdown is answered at once.
 ANSWER_S = 10.0
+#: How long a client waits past its timeout for the server's word on what it gave up on:
+#: the server cancels it, or halts it, at the same deadline (`Instruction.wait_ms`), and
+#: says so.
+GIVE_UP_WORD_S = 1.0
+
+
+def wait_ms(wait_s: float) -> int:
+    """`wait_s` as an instruction carries it: ms, within a message's uint32 (0: for ever)."""
+    return min(math.ceil(max(wait_s, 0.0) * 1000), 2**32 - 1)
 
 
 class NoServer(Exception):
@@ -37,6 +47,16 @@ class LostContact(NoOutcome):
 class LaneLost(NoOutcome):
     """The server's local lane closed while an outcome was waited for (the server ended, or
     was killed): whether the instruction ran is unknown."""
+
+
+def no_outcome(what: str, timeout: float) -> NoOutcome:
+    """No outcome of `what` (an instruction's name and `[id]`) within `timeout` s, nor the
+    server's word on it since."""
+    return NoOutcome(
+        f"{what}: no outcome within {timeout:g} s, nor word of it "
+        f"{GIVE_UP_WORD_S:g} s later (the server halts what its sender gave up on: "
+        "whether it ran is unknown)"
+    )
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ import weakref
 from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Protocol
 
 from al5d.arm.instruction import PRESET_NAMES, Instruction, Kind, Outcome, parse_instruction
@@ -29,12 +30,15 @@ from al5d.owner import where
 from al5d.owner.client import LaneClosed, Remote
 from al5d.ros.answers import (
     ANSWER_S,
+    GIVE_UP_WORD_S,
     Answer,
     LaneLost,
     LostContact,
     NoOutcome,
     NoServer,
     elsewhere,
+    no_outcome,
+    wait_ms,
 )
 from al5d.ros.names import Names
 from al5d.ros.reading import ArmView, Reading, Tool, follow_lane
@@ -113,6 +117,7 @@ class LaneWay:
         return None  # a lane that closes ends what waits on it (`LaneLost`)
 
     def send(self, instr: Instruction, wait_s: float) -> None:
+        instr = replace(instr, wait_ms=wait_ms(wait_s))
         with ctrl_c_after():
             future = self._futures[instr.id] = self.lane.submit(instr)
             watcher = self._watchers.pop(instr.id, None)
@@ -140,14 +145,14 @@ class LaneWay:
     def execute(self, instr: Instruction, timeout: float) -> Outcome:
         self.send(instr, timeout)
         try:
-            outcome = self.outcome(instr.id, timeout)
+            outcome = self.outcome(instr.id, timeout + GIVE_UP_WORD_S)
         except LaneLost as e:
             self.forget(instr.id)
             raise LaneLost(f"{instr.name} {e}") from None
         # Kept on Ctrl-C (KeyboardInterrupt), which cancels what is pending.
         self.forget(instr.id)
         if outcome is None:
-            raise NoOutcome(f"{instr.name} [{instr.id}]: no outcome within {timeout:g} s")
+            raise no_outcome(f"{instr.name} [{instr.id}]", timeout)
         return outcome
 
     def forget(self, ident: str) -> None:
@@ -295,7 +300,8 @@ class Client:
         """Send `instr` (or its text, in `al5d send`'s grammar) on the lane or the instruction
         topic, without waiting; its outcome is kept for `outcome`. The instruction sent (its
         `id` names the outcome). `wait_s`: how long its outcome will be waited for (0: for
-        ever): over ROS 2 the server refuses it as stale if it comes later than that.
+        ever), from now: the server refuses it as stale if it comes later than that, and
+        cancels it (halts it, if it runs) when that has passed without an outcome.
         Raises `GrammarError` for text that is not an instruction, `LostContact` while
         the server is out of contact (nothing is sent)."""
         if isinstance(instr, str):
@@ -319,9 +325,13 @@ class Client:
         """Send an instruction (or its text, in `al5d send`'s grammar) on the instruction topic
         and return its outcome: done, refused or cancelled.
 
+        The server cancels it (halts it, if it runs) once `timeout` seconds have passed
+        since it was sent: its outcome then is that cancel, which the client waits for up
+        to `GIVE_UP_WORD_S` more.
+
         Raises `GrammarError` for text that is not an instruction, `NoServer` if no server
-        is found within `wait_s` (on first use), `NoOutcome` if no outcome comes within
-        `timeout` seconds (`LostContact`, `LaneLost`: the server went out of contact first).
+        is found within `wait_s` (on first use), `NoOutcome` if no outcome comes, not even
+        the cancel (`LostContact`, `LaneLost`: the server went out of contact first).
         """
         if isinstance(instr, str):
             instr = parse_instruction(instr, PRESET_NAMES)

@@ -277,6 +277,8 @@ class ArmNode(Node):
         if isinstance(instr, str):
             self.refuse(msg.id or new_id(), msg.instruction, instr)
             return
+        if msg.wait_ms and instr.kind not in (Kind.STOP, Kind.RELEASE):
+            instr = replace(instr, wait_ms=msg.wait_ms)  # its sender gives up then (`arm.core`)
         if stale is not None:
             if instr.kind is not Kind.STOP:  # a stop is obeyed, however late
                 self.refuse(instr.id, instr.name, stale)

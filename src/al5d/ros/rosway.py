@@ -29,7 +29,17 @@ from std_srvs.srv import Trigger
 from al5d.arm.instruction import Instruction, Kind, Outcome, new_id
 from al5d.clock import Deadline
 from al5d.interrupts import ctrl_c_after
-from al5d.ros.answers import ANSWER_S, Answer, LostContact, NoOutcome, NoServer, elsewhere
+from al5d.ros.answers import (
+    ANSWER_S,
+    GIVE_UP_WORD_S,
+    Answer,
+    LostContact,
+    NoOutcome,
+    NoServer,
+    elsewhere,
+    no_outcome,
+    wait_ms,
+)
 from al5d.ros.convert import COPY_MARK, outcome_from_message, to_message
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
@@ -293,7 +303,7 @@ class RosWay:
             raise self._lost(f"{instr.name} [{instr.id}]: not sent")
         msg = to_message(instr)
         msg.client = self.key
-        msg.wait_ms = min(round(wait_s * 1000), 2**32 - 1)
+        msg.wait_ms = wait_ms(wait_s)
         with ctrl_c_after():
             with self._cv:
                 self._sent.add(instr.id)
@@ -349,20 +359,20 @@ class RosWay:
 
     def execute(self, instr: Instruction, timeout: float) -> Outcome:
         """Send `instr` (once the server is found: `NoServer` if it is not within `wait_s`);
-        its outcome. `NoOutcome` if none comes within `timeout` s (`LostContact`: the
-        server went out of contact first)."""
+        its outcome, the server's cancel once `timeout` s have passed (`Client.execute`).
+        `NoOutcome` if none comes (`LostContact`: the server went out of contact first)."""
         if not self.matched:
             self.wait_for_server(self.wait_s)
         self.send(instr, timeout)
         try:
-            outcome = self.outcome(instr.id, timeout)
+            outcome = self.outcome(instr.id, timeout + GIVE_UP_WORD_S)
         except LostContact:
             self.forget(instr.id)
             raise self._lost(f"{instr.name} [{instr.id}]") from None
         # Kept on Ctrl-C (KeyboardInterrupt), which cancels what is pending.
         self.forget(instr.id)
         if outcome is None:
-            raise NoOutcome(f"{instr.name} [{instr.id}]: no outcome within {timeout:g} s")
+            raise no_outcome(f"{instr.name} [{instr.id}]", timeout)
         return outcome
 
     # -- what the client hears of the arm ----------------------------------------------
