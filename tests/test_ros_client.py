@@ -227,7 +227,8 @@ def test_al5d_send_stops_and_releases_and_says_by_what(arm: Served) -> None:
         (
             'arm = Client(namespace="left", wait_s=2)\narm.stop()\n',
             1,
-            "al5d.ros.client.NoServer: no al5d server answers on /left/al5d/stop",
+            "al5d.ros.client.NoServer: stop: reached nobody: no al5d server answers on "
+            "/left/al5d/stop",
         ),
         (
             'with Client(wait_s=2) as arm:\n    arm.execute("move base=x")\n',
@@ -252,7 +253,53 @@ def test_without_a_server_the_client_says_so(
 def test_al5d_send_stop_without_a_server_is_the_no_server_exit() -> None:
     lost = Proc("send", "--wait", "1", "stop", env=alone())
     assert lost.wait(SCRIPT_S) == exits.NO_SERVER
-    assert any("no al5d server answers on /al5d/stop" in line for line in lost.err.drain())
+    err = lost.err.drain()
+    assert any("stop: reached nobody: no al5d server answers on /al5d/stop" in e for e in err)
+
+
+READER = """
+import time
+from al5d_interfaces.msg import ArmInstruction
+from rclpy.node import Node
+from al5d.ros.dds import start_context
+from al5d.ros.executors import Spinner
+from al5d.ros.qos import QOS_INSTRUCTIONS
+
+context = start_context()
+node = Node("not_a_server", context=context)
+node.create_subscription(ArmInstruction, "/al5d/instruction", lambda m: None, QOS_INSTRUCTIONS)
+Spinner(node, context)
+print("reading", flush=True)
+time.sleep(120)
+"""
+
+
+def test_a_stop_taken_by_a_reader_that_is_no_server_is_said_sent_and_unanswered(
+    tmp_path: Path,
+) -> None:
+    """Something reads the instruction topic, but no server answers: the stop was sent (the
+    reader may have obeyed it), so the command says so and that whether the arm stopped is
+    unknown, not that nothing was sent (exit 1, not the no-server exit)."""
+    script = tmp_path / "reader.py"
+    script.write_text(READER)
+    env = {**os.environ, **alone()}
+    with subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, env=env) as reader:
+        try:
+            assert reader.stdout is not None and reader.stdout.readline() == b"reading\n"
+            sent = Proc("send", "--wait", "4", "stop", env=alone())
+            assert sent.wait(SCRIPT_S) == exits.NOT_DONE
+            out = sent.out.drain()
+            assert any(
+                re.fullmatch(
+                    r"stop: sent \d+ times on /al5d/instruction, which 1 reader took, but no al5d "
+                    r"server was found within 4 s to answer it \(whether the arm has stopped is "
+                    r"unknown\)",
+                    line,
+                )
+                for line in out
+            ), (out, sent.err.drain())
+        finally:
+            reader.kill()
 
 
 def test_a_stop_unanswered_for_a_second_is_said_to_be_so_while_it_is_still_sent() -> None:

@@ -344,23 +344,21 @@ def served_config_file(node: Node, names: Names, timeout: float) -> Path | None:
     if not found:
         return None
     timeout = deadline.left()
+    # Kept until the node ends, as `served_config`'s reader is.
     service = node.create_client(GetParameters, names.private("get_parameters", min(found)))
-    try:
-        if not service.wait_for_service(timeout_sec=timeout):
-            return None
-        done = threading.Event()
-        future = service.call_async(GetParameters.Request(names=["config_file"]))
-        future.add_done_callback(lambda _: done.set())
-        if not done.wait(timeout) or future.result() is None:
-            service.remove_pending_request(future)
-            return None
-        values = future.result().values
-        if not values or values[0].type != ParameterType.PARAMETER_STRING:
-            return None
-        served = str(values[0].string_value)
-        return Path(served) if served else DEFAULT_CONFIG
-    finally:
-        node.destroy_client(service)
+    if not service.wait_for_service(timeout_sec=timeout):
+        return None
+    done = threading.Event()
+    future = service.call_async(GetParameters.Request(names=["config_file"]))
+    future.add_done_callback(lambda _: done.set())
+    if not done.wait(timeout) or future.result() is None:
+        service.remove_pending_request(future)
+        return None
+    values = future.result().values
+    if not values or values[0].type != ParameterType.PARAMETER_STRING:
+        return None
+    served = str(values[0].string_value)
+    return Path(served) if served else DEFAULT_CONFIG
 
 
 def served_config(node: Node, names: Names, timeout: float) -> ArmConfig | None:
@@ -381,9 +379,10 @@ def served_config(node: Node, names: Names, timeout: float) -> ArmConfig | None:
         said.append(msg.data)
         came.set()
 
-    reader = node.create_subscription(String, names.config, heard, QOS_LATCHED)
-    try:
-        came.wait(timeout)
-    finally:
-        node.destroy_subscription(reader)
+    # Kept until the node ends, where its spinner is halted first (`Spinner.close`): one
+    # destroyed while another thread spins the node's executor can make that executor raise
+    # `InvalidHandle` (rclpy's issues 1206 and 1284; seen once in CI: `al5d run` printed the
+    # executor's traceback). One reader, asked once per client.
+    node.create_subscription(String, names.config, heard, QOS_LATCHED)
+    came.wait(timeout)
     return parse_config(json.loads(said[0]), "the server's configuration") if said else None

@@ -529,7 +529,7 @@ class RosWay:
                         STOP_UNANSWERED_S,
                     )
                 if deadline is None and finding.expired:
-                    raise self.no_server(name, self.wait_s)
+                    raise self._stop_unfound(name, len(copies))
                 if deadline is not None and deadline.expired:
                     break
         finally:
@@ -552,6 +552,19 @@ class RosWay:
         raise NoOutcome(
             f"stop: no answer from {name} or {self.names.instruction} within "
             f"{timeout:g} s (whether the server obeyed is unknown)"
+        )
+
+    def _stop_unfound(self, name: str, copies: int) -> NoOutcome | NoServer:
+        """No server found to answer a stop within `wait_s`: `NoServer` where its `copies`
+        reached nobody, `NoOutcome` where a reader of the topic took them (something may
+        have obeyed: whether the arm stopped is unknown)."""
+        readers = self._readers_matched
+        if not readers:
+            return NoServer(f"stop: reached nobody: {self.no_server(name, self.wait_s)}")
+        return NoOutcome(
+            f"stop: sent {copies} times on {self.names.instruction}, which {readers} "
+            f"reader{'s'[: readers != 1]} took, but no al5d server was found within "
+            f"{self.wait_s:g} s to answer it (whether the arm has stopped is unknown)"
         )
 
     def _say_bye(self) -> None:
