@@ -522,11 +522,18 @@ class RosWay:
                     break
                 if not warned and time.monotonic() - start >= STOP_UNANSWERED_S:
                     warned = True
+                    last = self._heard
+                    why = (
+                        "the server not found yet, or its side has not found this client yet"
+                        if last is None or not self._deaf()
+                        else f"nothing heard from the server for {time.monotonic() - last:.1f}"
+                        " s: the link may be lost"
+                    )
                     log.warning(
-                        "stop: no answer in %g s (the server not found yet, or its side has "
-                        "not found this client yet); still sending it: whether the arm has "
+                        "stop: no answer in %g s (%s); still sending it: whether the arm has "
                         "stopped is unknown",
                         STOP_UNANSWERED_S,
+                        why,
                     )
                 if deadline is None and finding.expired:
                     raise self._stop_unfound(name, len(copies))
