@@ -65,6 +65,8 @@ class Report:
         self.timeout = timeout
         self._lock = threading.Lock()
         self.all_done = True
+        #: The instructions whose fate has been said: once each.
+        self.said: set[str] = set()
 
     def line(self, text: str) -> None:
         with self._lock:
@@ -80,9 +82,59 @@ class Report:
             text = str(no_outcome(f"{instr.name} [{instr.id}]", self.timeout))
         else:
             text = str(outcome)
+        self._say(instr, text, outcome is not None and outcome.result is Result.DONE)
+
+    def lost(self, instr: Instruction, error: NoOutcome) -> None:
+        """Contact with the server was lost (`LostContact`, `LaneLost`) while `instr` ran."""
+        self._say(instr, f"{instr.name} {error}", False)
+
+    def _say(self, instr: Instruction, text: str, done: bool) -> None:
         with self._lock:
-            self.all_done &= outcome is not None and outcome.result is Result.DONE
+            if instr.id in self.said:
+                return
+            self.said.add(instr.id)
+            self.all_done &= done
             print(text, file=self._out, flush=True)
+
+
+#: How often `LinkWatch` looks: the silence is said at 1 s, lost contact at 1.5 s.
+WATCH_EVERY_S = 0.1
+
+
+class LinkWatch:
+    """While lines run in the background and nothing waits for an outcome (a `wait` line,
+    the shell's prompt), the link is watched as a wait for an outcome watches it: a silence
+    of the server is said, and lost contact (a closed lane) is said at once for each of
+    them, not when the command next waits. `lost` is set then."""
+
+    def __init__(self, client: Client, report: Report, background: list[Instruction]) -> None:
+        self.client, self.report, self.background = client, report, background
+        self.lost = threading.Event()
+        self._ending = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="al5d-link-watch", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._ending.wait(WATCH_EVERY_S):
+            said, client = self.report.said, self.client
+            pending = [i for i in list(self.background) if i.id not in said and client.sent(i.id)]
+            for n, item in enumerate(pending):
+                try:
+                    outcome = client.outcome(item.id, 0.01)  # said by its watcher if it came
+                except NoOutcome as e:
+                    self.report.lost(item, e)
+                    self.lost.set()
+                    continue
+                if n == 0 and outcome is None:
+                    break  # one waiting on a link that holds: so are the others
+
+    def sleep(self, seconds: float) -> None:
+        """A `wait` line: `seconds`, or less if contact is lost meanwhile."""
+        self.lost.wait(seconds)
+
+    def close(self) -> None:
+        self._ending.set()
+        self._thread.join(1.0)
 
 
 class Timing:
@@ -269,6 +321,7 @@ def run(
     report = Report(out, timeout)
     sent: list[Instruction] = []
     background: list[Instruction] = []
+    watch = LinkWatch(client, report, background)
     try:
         client.wait_for_server(wait_s)
         timing.discovered(client)
@@ -280,7 +333,7 @@ def run(
         for n, (item, in_background) in enumerate(steps):
             if isinstance(item, Instruction):
                 sent.append(item)
-            if not _step(client, report, item, in_background, timeout, background):
+            if not _step(client, report, item, in_background, timeout, background, watch):
                 # As the web view's Teach tab: a line waited for and not done (refused, or
                 # cancelled: by a stop, say) ends the sequence, so that a release after a
                 # stop does not take up the rest of it.
@@ -298,6 +351,7 @@ def run(
     except KeyboardInterrupt:
         return interrupted(client, report, sent, {i.id for i in background})
     finally:
+        watch.close()
         client.close()
         timing.end()
 
@@ -309,18 +363,19 @@ def _step(
     in_background: bool,
     timeout: float,
     background: list[Instruction],
+    watch: LinkWatch,
     *,
     echo: bool = True,
 ) -> bool:
     """One step of a sequence, on the instruction topic: its outcome waited for and printed,
     or (in the background) printed when it comes; `echo`: the step is printed first. False
-    when its outcome, waited for, was not done (or did not come); a release refused (the
-    arm was not stopped) is not that."""
+    when its outcome, waited for, was not done (or did not come), or contact was lost
+    during a `wait`; a release refused (the arm was not stopped) is not that."""
     if isinstance(item, Wait):
         if echo:
             report.line(f"wait {item.ms} ms")
-        time.sleep(item.ms / 1000)
-        return True
+        watch.sleep(item.ms / 1000)
+        return not watch.lost.is_set()
     if echo:
         report.line(f"> {item}{' &' if in_background else ''}")
     if in_background:
@@ -339,6 +394,8 @@ def _step(
 def _drain(client: Client, report: Report, background: list[Instruction], timeout: float) -> None:
     """Wait for the outcomes of the lines run in the background (each printed as it came)."""
     for item in background:
+        if item.id in report.said:
+            continue
         if not client.sent(item.id):
             report.not_sent(item)
         elif client.outcome(item.id, timeout + GIVE_UP_WORD_S) is None:
@@ -416,6 +473,7 @@ def shell(
     report = Report(out, timeout)
     bad = False
     background: list[Instruction] = []
+    watch = LinkWatch(client, report, background)
     try:
         client.wait_for_server(wait_s)
         timing.discovered(client)
@@ -444,7 +502,7 @@ def shell(
             if step is None:
                 continue
             try:
-                _shell_step(client, report, step, timeout, background, interactive)
+                _shell_step(client, report, step, timeout, background, watch, interactive)
             except KeyboardInterrupt:
                 answer = client.stop()
                 report.line(f"Ctrl-C: {answer}")
@@ -466,6 +524,7 @@ def shell(
         print(f"al5d shell: {e}", file=err)
         return exits.NO_SERVER
     finally:
+        watch.close()
         client.close()
         timing.end()
 
@@ -476,6 +535,7 @@ def _shell_step(
     step: SequenceStep,
     timeout: float,
     background: list[Instruction],
+    watch: LinkWatch,
     interactive: bool,
 ) -> None:
     item, in_background = step
@@ -487,4 +547,4 @@ def _shell_step(
         report.line(str(answer))
         return
     # At a terminal the line typed is on the screen already: it is not echoed.
-    _step(client, report, item, in_background, timeout, background, echo=not interactive)
+    _step(client, report, item, in_background, timeout, background, watch, echo=not interactive)

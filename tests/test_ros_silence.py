@@ -1,0 +1,146 @@
+"""A client whose server goes silent (frozen whole: as a link lost) or away (killed: its lane
+closed) says so, and says it right: a stop unanswered then blames the link, not discovery;
+a line running in the background is said lost at once, whatever the command is doing.
+
+Each test has a server of its own, frozen or killed: the other files' servers are shared.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from al5d import exits
+from al5d.arm.config import ArmConfig
+from al5d_rig.proc import AL5D, Lines, dies_with_parent, family, freeze
+from al5d_rig.rospeer import wait_until
+from al5d_rig.served import served
+
+SCRIPT_S = 90.0
+STATE_S = 30.0
+
+
+SILENT = """
+import sys
+from al5d.ros.client import Client
+c = Client(wait_s=30, local=False)
+print(c.execute("ready", timeout=60), flush=True)
+sys.stdin.readline()  # the server is silent now
+print(c.stop(timeout=30), flush=True)
+c.close()
+"""
+
+
+def test_a_stop_unanswered_while_the_server_is_silent_says_the_link_may_be_lost(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """A client that has heard its server and then nothing for seconds (a link lost; here
+    the server frozen whole) says of a stop unanswered for a second that nothing has been
+    heard from the server, not that discovery has not found it; the server, back, obeys it."""
+    with served(config, tmp_path, "al5d_silent_peer") as arm:
+        script = tmp_path / "silent.py"
+        script.write_text(SILENT)
+        client = subprocess.Popen(
+            [sys.executable, str(script)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            preexec_fn=dies_with_parent,
+        )
+        assert client.stdin is not None and client.stdout is not None
+        assert client.stderr is not None
+        out, err = Lines(client.stdout), Lines(client.stderr)
+        server = family(arm.proc.popen.pid)
+        try:
+            out.wait_for(": done", SCRIPT_S)
+            for pid in server:
+                freeze(pid)
+            try:
+                time.sleep(2.0)  # the client has heard nothing for 1.5 s: lost contact
+                client.stdin.write("stop\n")
+                client.stdin.flush()
+                said = err.wait_for("stop: no answer in 1 s", SCRIPT_S)
+            finally:
+                for pid in server:
+                    os.kill(pid, signal.SIGCONT)
+            assert re.search(
+                r"nothing heard from the server for \d+\.\d s: the link may be lost", said
+            ), said
+            assert "discovery" not in said and "not found" not in said, said
+            assert out.wait_for("stop: ", SCRIPT_S).startswith("stop: done"), out.all
+            wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
+            assert client.wait(SCRIPT_S) == 0
+            assert not [line for line in err.all if "Traceback" in line], err.all
+        finally:
+            client.kill()
+            client.wait(10)
+
+
+@pytest.mark.parametrize(("command", "via"), [("shell", "ros"), ("shell", "lane"), ("run", "ros")])
+def test_a_background_line_that_lost_its_server_is_said_at_once(
+    config: ArmConfig, tmp_path: Path, command: str, via: str
+) -> None:
+    """A move running in the background, and nothing waited for: `al5d shell` at its prompt,
+    `al5d run` in a ten-minute `wait`. The server goes silent (frozen: as a lost link) or
+    its lane closes (killed): the command says so for the move at once, not when it next
+    waits for something (the run ends, its last line not sent). What the server does
+    with a lost client's move is `test_network.py`'s: a frozen server, thawed, may take the
+    leases sent before the client went deaf for fresh ones."""
+    seq = tmp_path / "long.seq"
+    seq.write_text("ready\nmove base=60 time=8000 &\nwait 600000\npark\n")
+    args = ["shell"] if command == "shell" else ["run", str(seq)]
+    with served(config, tmp_path, f"al5d_prompt_peer_{command}_{via}") as arm:
+        shell = subprocess.Popen(
+            [AL5D, *args, "--via", via],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            preexec_fn=dies_with_parent,
+        )
+        assert shell.stdin is not None and shell.stdout is not None
+        assert shell.stderr is not None
+        out, err = Lines(shell.stdout), Lines(shell.stderr)
+        server = family(arm.proc.popen.pid)
+        try:
+            shell.stdin.write("ready\nmove base=60 time=8000 &\n")
+            shell.stdin.flush()
+            out.wait_for("> move base=60 time=8000 &", SCRIPT_S)
+            if command == "run":
+                out.wait_for("wait 600000 ms", SCRIPT_S)
+            wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+            if via == "ros":
+                for pid in server:
+                    freeze(pid)
+            else:
+                for pid in server:
+                    os.kill(pid, signal.SIGKILL)
+            try:
+                lost = out.wait_for("move [", SCRIPT_S)
+            finally:
+                if via == "ros":
+                    for pid in server:
+                        os.kill(pid, signal.SIGCONT)
+            assert "whether it ran is unknown" in lost, lost
+            if via == "ros":
+                assert "lost contact with the server" in lost, lost
+                assert "no sign of the server for 1." in err.wait_for("no sign of", SCRIPT_S)
+            if command == "run":
+                ended = out.wait_for("not done", SCRIPT_S)
+                assert ended == "not done: the 1 step after it not sent", ended
+            else:
+                shell.stdin.write("exit\n")
+                shell.stdin.flush()
+            assert shell.wait(SCRIPT_S) == exits.NOT_DONE
+            assert len([line for line in out.all if line.startswith("move [")]) == 1, out.all
+        finally:
+            shell.kill()
+            shell.wait(10)
