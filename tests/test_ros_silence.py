@@ -27,6 +27,20 @@ SCRIPT_S = 90.0
 STATE_S = 30.0
 
 
+def talking(args: list[str]) -> tuple[subprocess.Popen[str], Lines, Lines]:
+    """A process of `args` that the test writes to; its lines out and its lines on stderr."""
+    proc = subprocess.Popen(
+        args,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=dies_with_parent,
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    return proc, Lines(proc.stdout), Lines(proc.stderr)
+
+
 SILENT = """
 import sys
 from al5d.ros.client import Client
@@ -47,17 +61,8 @@ def test_a_stop_unanswered_while_the_server_is_silent_says_the_link_may_be_lost(
     with served(config, tmp_path, "al5d_silent_peer") as arm:
         script = tmp_path / "silent.py"
         script.write_text(SILENT)
-        client = subprocess.Popen(
-            [sys.executable, str(script)],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            preexec_fn=dies_with_parent,
-        )
-        assert client.stdin is not None and client.stdout is not None
-        assert client.stderr is not None
-        out, err = Lines(client.stdout), Lines(client.stderr)
+        client, out, err = talking([sys.executable, str(script)])
+        assert client.stdin is not None
         server = family(arm.proc.popen.pid)
         try:
             out.wait_for(": done", SCRIPT_S)
@@ -98,17 +103,8 @@ def test_a_background_line_that_lost_its_server_is_said_at_once(
     seq.write_text("ready\nmove base=60 time=8000 &\nwait 600000\npark\n")
     args = ["shell"] if command == "shell" else ["run", str(seq)]
     with served(config, tmp_path, f"al5d_prompt_peer_{command}_{via}") as arm:
-        shell = subprocess.Popen(
-            [AL5D, *args, "--via", via],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            preexec_fn=dies_with_parent,
-        )
-        assert shell.stdin is not None and shell.stdout is not None
-        assert shell.stderr is not None
-        out, err = Lines(shell.stdout), Lines(shell.stderr)
+        shell, out, err = talking([AL5D, *args, "--via", via])
+        assert shell.stdin is not None
         server = family(arm.proc.popen.pid)
         try:
             shell.stdin.write("ready\nmove base=60 time=8000 &\n")
