@@ -5,9 +5,7 @@ second and names it in each instruction it sends (`ArmInstruction.client`). The 
 keeps one `Lease` per client here:
 
 - **Lost.** No lease heard for `server.client_lease_s`: the client is lost (cut off,
-  killed, hung), and what it commanded is halted (`al5d.arm.core`'s `Gone`). A lease
-  counts from when it was sent (by its clock, as below), not from when it came: leases
-  that waited while the server stalled, or the link resent them, are as old as they are. A client
+  killed, hung), and what it commanded is halted (`al5d.arm.core`'s `Gone`). A client
   that closes says so (`every_ms` 0) and is forgotten: what it commanded goes on.
 - **Its clock.** Each lease and each instruction is a sample of when it was sent (the
   client's clock) against when it came (the server's): the least difference over the
@@ -77,16 +75,11 @@ class Leases:
         lease = self._leases.get(key)
         if lease is None:
             lease = self._leases[key] = Lease(key, t)
-        lease.gaps.append(wall_ns - sent_ns)
-        # As old as it is, the quickest trip aside: a lease that waited (in the reader of a
-        # server that stalled, behind a lossy link's resends) is no sign of the client now.
-        age = max(0.0, (wall_ns - sent_ns - lease.offset_ns) / 1e9)
         if lease.lost:
-            if age > self.lease_s:
-                return  # sent before it was lost, or while: it is not back
             lease.lost = False
             lease.back_ns = sent_ns
-        lease.heard = max(lease.heard, t - age)
+        lease.heard = t
+        lease.gaps.append(wall_ns - sent_ns)
 
     def lapsed(self, t: float) -> list[str]:
         """The clients lost at `t`, each once: no lease of theirs heard for `lease_s`."""
