@@ -298,6 +298,7 @@ class CoreProtocol(RuleBasedStateMachine):
     def impatient_moves(self, n: int, seed: int) -> None:
         self._impatient(n, random.Random(seed))
 
+    @precondition(lambda self: not self.ended)
     @rule(twice=st.booleans())
     def stop(self, twice: bool) -> None:
         self._stop(twice)

@@ -222,6 +222,8 @@ def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:
         b'{"op": "ask", "ref": 3, "instr": {"kind": "move", "joints": [["base", "x"]]}}\n',
         b'{"op": "ask", "ref": 4, "instr": {"kind": "move", "joints": [["base", 500]]}}\n',
         b'{"op": "ask", "ref": 6, "instr": {"kind": "move", "wait_ms": -1}}\n',
+        b'{"op": "ask", "ref": 7, "instr": {"kind": "move", "wait_ms": 4294967296}}\n',
+        b'{"op": "ask", "ref": 8, "instr": {"kind": "move", "sent_ns": -5, "wait_ms": 9}}\n',
         b'{"op": "ask", "ref": 5, "instr": {"kind": "move", "joints": [["base", 3]]}}\n',
     ]
     sock.sendall(b"".join(lines))
@@ -245,7 +247,9 @@ def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:
     assert "no op 'frobnicate'" in str(got[1]["error"])
     assert "no kind 'wave'" in str(got[2]["error"])
     assert "'x' is not a number" in str(got[3]["error"])
-    assert "wait_ms is how long its sender waits" in str(got[6]["error"])
+    for ref in (6, 7):  # a number past a message's uint32 failed the owner's step
+        assert "wait_ms is how long its sender waits" in str(got[ref]["error"])
+    assert "sent_ns is a time in ns since 1970" in str(got[8]["error"])
     four, five = got[4]["outcome"], got[5]["outcome"]
     assert isinstance(four, dict) and four["result"] == "refused", four
     assert "outside the range" in str(four["reason"])

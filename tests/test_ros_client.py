@@ -291,7 +291,7 @@ def test_a_stop_taken_by_a_reader_that_is_no_server_is_said_sent_and_unanswered(
             out = sent.out.drain()
             assert any(
                 re.fullmatch(
-                    r"stop: sent \d+ times on /al5d/instruction, which 1 reader took, but no al5d "
+                    r"stop: sent \d+ times on /al5d/instruction, which a reader took, but no al5d "
                     r"server was found within 4 s to answer it \(whether the arm has stopped is "
                     r"unknown\)",
                     line,

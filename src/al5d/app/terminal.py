@@ -398,7 +398,13 @@ def _drain(client: Client, report: Report, background: list[Instruction], timeou
             continue
         if not client.sent(item.id):
             report.not_sent(item)
-        elif client.outcome(item.id, timeout + GIVE_UP_WORD_S) is None:
+            continue
+        try:
+            outcome = client.outcome(item.id, timeout + GIVE_UP_WORD_S)
+        except NoOutcome as e:  # contact lost: said for each line, once
+            report.lost(item, e)
+            continue
+        if outcome is None:
             report.outcome(None, instr=item)
     background.clear()
 
@@ -501,6 +507,7 @@ def shell(
                 continue
             if step is None:
                 continue
+            watch.lost.clear()  # the shell goes on after a loss: a later `wait` waits
             try:
                 _shell_step(client, report, step, timeout, background, watch, interactive)
             except KeyboardInterrupt:

@@ -553,7 +553,7 @@ def wake_at(c: Core) -> float:
         return math.inf
     link = c.link
     if not link.open:
-        return math.inf if link.opening else max(link.open_at, t)
+        return min(math.inf if link.opening else max(link.open_at, t), c.give_up_at)
     times = [link.watched + c.arm.settings.idle_check_interval_s, link.free_at]
     if link.query is not None:
         times.append(board.due(link.query, link.stalled))

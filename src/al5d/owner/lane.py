@@ -199,9 +199,11 @@ def instruction_in(data: Any) -> Instruction:
             bool(t[6]),
         )
     sent = data.get("sent_ns")
+    if sent is not None and not 0 <= _int(sent, "sent_ns") < 2**63:
+        raise LaneError("instr: sent_ns is a time in ns since 1970 (0 to 2**63 - 1)")
     wait_ms = _int(data.get("wait_ms", 0), "wait_ms")
-    if wait_ms < 0:
-        raise LaneError("instr: wait_ms is how long its sender waits: 0 (for ever) or more")
+    if not 0 <= wait_ms < 2**32:
+        raise LaneError("instr: wait_ms is how long its sender waits: 0 (for ever) to 2**32 - 1")
     return Instruction(
         kind,
         preset=preset,

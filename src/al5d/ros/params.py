@@ -344,8 +344,12 @@ def served_config_file(node: Node, names: Names, timeout: float) -> Path | None:
     if not found:
         return None
     timeout = deadline.left()
-    # Kept until the node ends, as `served_config`'s reader is.
-    service = node.create_client(GetParameters, names.private("get_parameters", min(found)))
+    # Kept until the node ends, as `served_config`'s reader is, and asked again the next time
+    # (the web view asks at each calibration it writes).
+    name = names.private("get_parameters", min(found))
+    service = next((c for c in node.clients if c.srv_name == name), None)
+    if service is None:
+        service = node.create_client(GetParameters, name)
     if not service.wait_for_service(timeout_sec=timeout):
         return None
     done = threading.Event()

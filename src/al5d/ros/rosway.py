@@ -26,7 +26,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from al5d.arm.instruction import Instruction, Kind, Outcome, new_id
+from al5d.arm.instruction import SAFETY, Instruction, Kind, Outcome, new_id
 from al5d.clock import Deadline
 from al5d.interrupts import ctrl_c_after
 from al5d.ros.answers import (
@@ -364,13 +364,18 @@ class RosWay:
         if not self.matched:
             self.wait_for_server(self.wait_s)
         self.send(instr, timeout)
+        # The server gives up on a move with its sender, and says so: listened for a while
+        # more. A release or a shutdown (sent here where their service is missing) it obeys.
+        safety = instr.kind in SAFETY
         try:
-            outcome = self.outcome(instr.id, timeout + GIVE_UP_WORD_S)
+            outcome = self.outcome(instr.id, timeout + (0.0 if safety else GIVE_UP_WORD_S))
         except LostContact:
             self.forget(instr.id)
             raise self._lost(f"{instr.name} [{instr.id}]") from None
         # Kept on Ctrl-C (KeyboardInterrupt), which cancels what is pending.
         self.forget(instr.id)
+        if outcome is None and safety:
+            raise NoOutcome(f"{instr.name} [{instr.id}]: no outcome within {timeout:g} s")
         if outcome is None:
             raise no_outcome(f"{instr.name} [{instr.id}]", timeout)
         return outcome
@@ -457,7 +462,8 @@ class RosWay:
         reader of it matches. The copies are one stop (`<stop>~<n>`, this client's): the
         server obeys the first to come and takes the others for it (each answered), so a
         copy still on its way when another client releases the arm does not lock it again. `timeout`
-        counts from when the server is found; `NoServer` if it is not within `wait_s`.
+        counts from when the server is found; if it is not within `wait_s`, `NoServer` where
+        no copy reached a reader, else `NoOutcome` (`_stop_unfound`).
 
         Nothing waits for the service: the server's stop path is a DDS participant of its
         own, found apart from its node (after a restart, under load, seconds apart), and
@@ -480,6 +486,7 @@ class RosWay:
         found: float | None = None  # when the server was found (monotonic)
         matched = -1
         warned = False
+        reached = False  # a copy went out while a reader of the topic was matched
 
         def heard(outcome: Outcome) -> None:
             told.append(outcome)
@@ -503,6 +510,7 @@ class RosWay:
                     msg = to_message(Instruction(Kind.STOP, id=ident))
                     msg.client = self.key  # no deadline: a stop is obeyed however late
                     copies.append(ident)
+                    reached = reached or self._readers_matched > 0
                     self.watch(ident, heard)
                     with self._cv:
                         self._sent.add(ident)
@@ -536,7 +544,7 @@ class RosWay:
                         why,
                     )
                 if deadline is None and finding.expired:
-                    raise self._stop_unfound(name, len(copies))
+                    raise self._stop_unfound(name, len(copies), reached)
                 if deadline is not None and deadline.expired:
                     break
         finally:
@@ -561,17 +569,16 @@ class RosWay:
             f"{timeout:g} s (whether the server obeyed is unknown)"
         )
 
-    def _stop_unfound(self, name: str, copies: int) -> NoOutcome | NoServer:
+    def _stop_unfound(self, name: str, copies: int, reached: bool) -> NoOutcome | NoServer:
         """No server found to answer a stop within `wait_s`: `NoServer` where its `copies`
-        reached nobody, `NoOutcome` where a reader of the topic took them (something may
-        have obeyed: whether the arm stopped is unknown)."""
-        readers = self._readers_matched
-        if not readers:
+        reached nobody, `NoOutcome` where one went out while a reader of the topic was
+        matched (something may have obeyed: whether the arm stopped is unknown)."""
+        if not reached:
             return NoServer(f"stop: reached nobody: {self.no_server(name, self.wait_s)}")
         return NoOutcome(
-            f"stop: sent {copies} times on {self.names.instruction}, which {readers} "
-            f"reader{'s'[: readers != 1]} took, but no al5d server was found within "
-            f"{self.wait_s:g} s to answer it (whether the arm has stopped is unknown)"
+            f"stop: sent {copies} times on {self.names.instruction}, which a reader took, "
+            f"but no al5d server was found within {self.wait_s:g} s to answer it (whether "
+            "the arm has stopped is unknown)"
         )
 
     def _say_bye(self) -> None:
