@@ -102,10 +102,10 @@ WATCH_EVERY_S = 0.1
 
 
 class LinkWatch:
-    """While lines run in the background and nothing waits for an outcome (a `wait` line,
-    the shell's prompt), the link is watched as a wait for an outcome watches it: a silence
-    of the server is said, and lost contact (a closed lane) is said at once for each of
-    them, not when the command next waits. `lost` is set then."""
+    """The lines running in the background, watched as a wait for an outcome watches its
+    line, also while nothing waits (a `wait` line, the shell's prompt): a silence of the
+    server is said, and lost contact (a closed lane) is said at once for each of them, not
+    when the command next waits for something. `lost` is set then."""
 
     def __init__(self, client: Client, report: Report, background: list[Instruction]) -> None:
         self.client, self.report, self.background = client, report, background
