@@ -35,7 +35,7 @@ from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
 from al5d.arm.config import ServerSettings
-from al5d.arm.instruction import MAX_ID, MAX_QUOTE, SAFETY, Kind, Outcome, Result, new_id
+from al5d.arm.instruction import MAX_ID, MAX_QUOTE, Kind, Outcome, Result, new_id
 from al5d.arm.jobs import Sent
 from al5d.arm.states import State
 from al5d.clock import now
@@ -277,9 +277,10 @@ class ArmNode(Node):
         if isinstance(instr, str):
             self.refuse(msg.id or new_id(), msg.instruction, instr)
             return
-        if msg.wait_ms and client and instr.kind not in SAFETY:
-            # Its sender gives up then (`arm.core`), counted from when it sent it, which only
-            # a client with a lease puts on this server's clock (`leases.on_server_clock`).
+        if msg.wait_ms and client:
+            # Its sender gives up on a move then (`arm.core`; a stop, a release, a shutdown
+            # are obeyed whatever it waits), counted from when it sent it, which only a client
+            # with a lease puts on this server's clock (`leases.on_server_clock`).
             instr = replace(instr, wait_ms=msg.wait_ms)
         if stale is not None:
             if instr.kind is not Kind.STOP:  # a stop is obeyed, however late
