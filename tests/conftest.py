@@ -25,7 +25,7 @@ from al5d.arm.states import State
 from al5d.owner.loop import Owner
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator
-from al5d_rig.armrig import Rig, make_rig
+from al5d_rig.armrig import ON_FAILURE, Rig, make_rig
 
 
 @pytest.fixture(scope="session")
@@ -200,6 +200,20 @@ LONGEST_FIRST = (
     "test_web_teach.py",
     "test_arm_reliability.py",
 )
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Any:
+    """A failed call's report carries what its fixtures would have its reader know
+    (`ON_FAILURE`), taken then, while the rig's processes are as the failure found them."""
+    report = yield
+    facts = item.stash.get(ON_FAILURE, None)
+    if report.when == "call" and report.failed and facts is not None:
+        try:
+            report.sections.append(("at the failure", facts()))
+        except Exception as error:  # the report must not be lost for its extra facts
+            report.sections.append(("at the failure", f"not found: {error!r}"))
+    return report
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

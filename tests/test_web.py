@@ -12,7 +12,6 @@ import math
 import os
 import shutil
 import signal
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -42,7 +41,7 @@ from al5d.ssc32u.emulator import Emulator
 from al5d.web import viewhold
 from al5d.web.jog import FOLLOW_AFTER_S, QUIET_S
 from al5d.web.page import LOOP_S, Page
-from al5d_rig.armrig import group_moves
+from al5d_rig.armrig import ON_FAILURE, group_moves
 from al5d_rig.proc import Proc, family, freeze, patient_config, run_state
 from al5d_rig.rospeer import Peer, wait_until
 from al5d_rig.webrig import (
@@ -127,19 +126,60 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
 
 @pytest.fixture(autouse=True)
 def web_faults(request: pytest.FixtureRequest) -> Iterator[None]:
-    """What the web view wrote on stderr during a test where it wrote a traceback or an
-    error, on this test's stderr (shown with a failure). In one CI run (four workers) a
-    page lost its web view for good after the long-drag test, and every later test of the
-    module failed behind its layer, with no word of what the web view went through."""
+    """A test during which the web view wrote a traceback or an error fails, with what it
+    wrote; a failed test's report says what the web view and the page were doing then. In
+    one CI run (four workers) a page lost its web view for good after the long-drag test,
+    and every later test of the module failed behind its layer, with no word of what the
+    web view went through."""
     if "rig" not in request.fixturenames:
         yield
         return
-    err = request.getfixturevalue("rig").web.proc.err
+    rig: Rig = request.getfixturevalue("rig")
+    err = rig.web.proc.err
     n = len(err.all)
+    # A failure under load left no word of which side had stalled (CI, two busy loops: a
+    # slider's key press not answered in 10 s, then no banner in 20 s): both sides' view.
+    request.node.stash[ON_FAILURE] = lambda: "\n".join(
+        (
+            "the web view's stderr:",
+            *err.all[n:][-60:],
+            "the web view's threads:",
+            rig.web.proc.stacks(),
+            "the page:",
+            page_facts(rig.page),
+            # Another server in this domain (one left behind) would keep the page's joint
+            # states coming after its own server's death.
+            f"ROS nodes seen: {sorted(rig.peer.node.get_node_names_and_namespaces())}",
+        )
+    )
     yield
     said = err.all[n:]
     if any(w in line for line in said for w in ("Traceback", "ERROR", "Exception in")):
-        print("the web view's stderr:", *said[-40:], sep="\n", file=sys.stderr)
+        # An error in the web view is the test's error even where the page held up (a
+        # thread of its that died said so only here, and a later test failed for it).
+        pytest.fail("\n".join(("the web view wrote an error:", *said[-40:])))
+
+
+def page_facts(page: Any) -> str:
+    """What the page shows of its links and its sliders' status, as text."""
+    facts = []
+    for selector in ("#al5d-page-lost", "#al5d-banner", "#al5d-state", "#al5d-joints-status"):
+        try:
+            found = page.locator(selector)
+            facts.append(
+                f"{selector}: {found.first.inner_text(timeout=2000)!r}"
+                if found.count()
+                else f"{selector}: absent"
+            )
+        except PlaywrightError as error:
+            facts.append(f"{selector}: {error}")
+    try:
+        facts.append(
+            f"pulse: {page.locator('#al5d-pulse').first.get_attribute('data-n', timeout=2000)}"
+        )
+    except PlaywrightError as error:
+        facts.append(f"pulse: {error}")
+    return "\n".join(facts)
 
 
 def serve(link: Path, speeds: tuple[tuple[str, float], ...] = (), **server: float) -> Proc:
