@@ -9,7 +9,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -31,16 +31,100 @@ S = 1_000_000_000  # ns
 # -- the bookkeeping, alone --------------------------------------------------------------
 
 
+def lapsed(leases: Leases, t: float) -> list[str]:
+    """The clients `leases` finds lost at `t`."""
+    return [key for key, _ in leases.lapsed(t)]
+
+
 def test_a_client_not_heard_for_its_lease_is_lost_once_and_one_that_closes_is_forgotten() -> None:
     leases = Leases(1.0)
     leases.heard("a", 0, 100, 10.0, 5 * S)
     leases.heard("b", 0, 100, 10.0, 5 * S)
-    assert leases.lapsed(10.9) == []
+    assert lapsed(leases, 10.9) == []
     leases.heard("b", S // 2, 0, 10.5, 5 * S)  # b closes: forgotten, never lost
-    assert leases.lapsed(11.1) == ["a"]
-    assert leases.lapsed(20.0) == []  # said once
+    assert lapsed(leases, 11.1) == ["a"]
+    assert lapsed(leases, 20.0) == []  # said once
     assert len(leases) == 1
-    assert leases.lapsed(10.0 + FORGET_S + 1) == [] and len(leases) == 0  # forgotten
+    assert lapsed(leases, 10.0 + FORGET_S + 1) == [] and len(leases) == 0  # forgotten
+
+
+def test_leases_that_waited_while_the_server_stalled_count_from_when_they_were_sent() -> None:
+    """Leases every 0.1 s, read as they come until 10.0 s; the server stalls from then to
+    13.0 s (its process frozen), and its client is cut off at 11.0 s. The leases that waited
+    are read at once after the stall: the client was there until 11.0 s, not 13.0 s, and
+    is lost as soon as the server runs again (it took every client for there a lease
+    longer: until 14.0 s)."""
+    leases = Leases(1.0)
+    for k in range(101):
+        leases.heard("c", k * S // 10, 100, k / 10, k * S // 10 + 1_000_000)
+    for k in range(101, 111):  # sent until the cut, read after the stall
+        leases.heard("c", k * S // 10, 100, 13.0 + k / 10000, 13 * S)
+    [(key, silent_s)] = leases.lapsed(13.1)
+    assert key == "c" and silent_s == pytest.approx(13.1 - 11.0, abs=0.05)
+
+
+def test_a_lease_that_waited_out_the_loss_of_its_client_does_not_bring_it_back() -> None:
+    """The server, run again after a stall, finds the client lost before it reads the lease
+    that waited (sent at 11.0 s, read at 13.0 s): lost it stays. One sent since is back."""
+    leases = Leases(1.0)
+    for k in range(101):
+        leases.heard("c", k * S // 10, 100, k / 10, k * S // 10 + 1_000_000)
+    assert lapsed(leases, 13.0) == ["c"]
+    leases.heard("c", 11 * S, 100, 13.01, 13 * S)
+    assert lapsed(leases, 20.0) == []  # said once: still lost, not lost again
+    assert leases.stale("c", 11 * S + 1, 0, 13.02, 13 * S) is not None
+    leases.heard("c", 20 * S, 100, 20.0, 20 * S + 1_000_000)  # the link is back
+    assert leases.stale("c", 20 * S + 1, 0, 20.01, 20 * S + 2_000_000) is None
+
+
+@pytest.mark.parametrize(
+    ("what", "skew_s", "trip_s", "within"),
+    [
+        ("as it was", 0.0, 0.001, 1),
+        ("0.7 s slower (a longer route)", 0.0, 0.7, 1),
+        ("its clock stepped back 5 s meanwhile", -5.0, 0.001, 70),
+    ],
+)
+def test_a_lost_client_whose_leases_come_again_is_back(
+    what: str, skew_s: float, trip_s: float, within: int
+) -> None:
+    """Cut off at 10.0 s and lost; from 20.0 s its leases come again, every 0.1 s: it is
+    back at once, or, its clock stepped back, once its clock's old samples are gone
+    (`SAMPLES` leases: a stepped clock's first leases look sent long ago)."""
+    leases = Leases(1.0)
+    for k in range(101):
+        leases.heard("c", k * S // 10, 100, k / 10, k * S // 10 + 1_000_000)
+    assert lapsed(leases, 11.5) == ["c"]
+    for k in range(within):
+        sent, came = 20 + k / 10, 20 + k / 10 + trip_s
+        leases.heard("c", int((sent + skew_s) * S), 100, came, int(came * S))
+        back = leases.stale("c", int((sent + skew_s) * S) + 1, 0, came, int(came * S)) is None
+        if back:
+            break
+    assert back, what
+    assert lapsed(leases, came + 0.5) == []
+
+
+@pytest.mark.parametrize(
+    ("what", "sent_s", "came_s"),
+    [
+        ("its clock stepped back 5 s", lambda k: k / 10 - (5 if k >= 50 else 0), lambda k: k / 10),
+        ("its clock stepped on 5 s", lambda k: k / 10 + (5 if k >= 50 else 0), lambda k: k / 10),
+        ("its clock 0.5 % slow", lambda k: k / 10 * 0.995, lambda k: k / 10),
+        ("its leases 0.3 s apart", lambda k: k * 0.3, lambda k: k * 0.3),
+        ("its leases bunched by the link", lambda k: k / 10, lambda k: (k // 5) / 2 + 0.45),
+    ],
+)
+def test_a_client_whose_leases_keep_coming_is_never_lost(
+    what: str, sent_s: Callable[[int], float], came_s: Callable[[int], float]
+) -> None:
+    """A client heard all the time, whatever its clock does or its leases' pace, is there:
+    only differences of its own times count, and never for more than they say."""
+    leases = Leases(1.0)
+    for k in range(20_000):
+        t = came_s(k)
+        leases.heard("c", int(sent_s(k) * S), 100, t, int(t * S))
+        assert lapsed(leases, t + 0.05) == [], (what, k)
 
 
 @pytest.mark.parametrize("skew_s", [-5.0, 0.0, 5.0])
@@ -66,7 +150,7 @@ def test_a_requests_age_is_judged_on_the_servers_clock_whatever_the_clients(
 def test_what_a_lost_client_sent_before_it_was_heard_again_is_stale() -> None:
     leases = Leases(1.0)
     leases.heard("c", 10 * S, 100, 10.0, 10 * S)
-    assert leases.lapsed(11.5) == ["c"]
+    assert lapsed(leases, 11.5) == ["c"]
     # Sent before the cut, delivered while it is lost.
     lost = leases.stale("c", 10 * S + 1, 0, 16.0, 16 * S)
     assert lost is not None and "is lost" in lost
@@ -81,11 +165,11 @@ def test_a_lost_clients_request_sent_since_the_link_came_back_runs_and_brings_it
     its lease: its first request, on time, is a sign of it."""
     leases = Leases(1.0)
     leases.heard("c", 10 * S, 100, 10.0, 10 * S + 2_000_000)  # trips take 2 ms
-    assert leases.lapsed(11.5) == ["c"]
+    assert lapsed(leases, 11.5) == ["c"]
     late = leases.stale("c", 10 * S + 500_000_000, 0, 16.0, 16 * S)  # sent into the cut
     assert late is not None and "is lost" in late
     assert leases.stale("c", 16 * S, 0, 16.0, 16 * S + 3_000_000) is None  # on time: back
-    assert leases.lapsed(16.5) == []
+    assert lapsed(leases, 16.5) == []
     older = leases.stale("c", 15 * S, 0, 16.1, 16 * S + 4_000_000)  # sent before that one
     assert older is not None and "out of contact" in older
 
@@ -96,8 +180,8 @@ def test_a_client_with_no_lease_yet_is_judged_by_its_first_request_and_lost_with
     assert leases.stale("new", 0, 100, 5.0, 60 * S) is None  # its first sample: not late
     assert leases.on_server_clock("new", 7) == 60 * S + 7
     # Its request was a sign of it; no lease followed within the lease's time: lost.
-    assert leases.lapsed(5.5) == []
-    assert leases.lapsed(6.1) == ["new"]
+    assert lapsed(leases, 5.5) == []
+    assert lapsed(leases, 6.1) == ["new"]
 
 
 # -- on a server ---------------------------------------------------------------------------

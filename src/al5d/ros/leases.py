@@ -6,7 +6,11 @@ keeps one `Lease` per client here:
 
 - **Lost.** No lease heard for `server.client_lease_s`: the client is lost (cut off,
   killed, hung), and what it commanded is halted (`al5d.arm.core`'s `Gone`). A client
-  that closes says so (`every_ms` 0) and is forgotten: what it commanded goes on.
+  that closes says so (`every_ms` 0) and is forgotten: what it commanded goes on. A lease
+  shows the client was there when it was sent, which is when it is read unless it waited
+  (a server frozen for seconds reads what waited for it at once): it counts from the last
+  lease's time on as far as its client's clock went on between the two, never later than
+  now (`PACE_SLACK`).
 - **Its clock.** Each lease and each instruction is a sample of when it was sent (the
   client's clock) against when it came (the server's): the least difference over the
   last samples is the client's clock offset plus the quickest trip, the one-way half of
@@ -33,6 +37,14 @@ SAMPLES = 64
 #: A lost client is forgotten this long after it was last heard: a server that runs for
 #: months meets many clients cut off for good.
 FORGET_S = 600.0
+#: A lease counts from the last one's on by what its client's clock went on between them,
+#: this much more: clocks that run at rates a few hundred parts a million apart never add
+#: up to a lease. Differences of one client's own times only, never the client's clock
+#: against the server's: a clock stepped back gives no time (a lease later), one stepped
+#: forward gives its step at most once (as any lease did before). Counting from when a
+#: lease was sent on the server's clock (its offset measured) took a clock stepped back by
+#: more than half a lease for a lost client, for as long as its old samples were kept.
+PACE_SLACK = 1.01
 
 
 @dataclass
@@ -40,8 +52,11 @@ class Lease:
     """What the server knows of one client."""
 
     key: str
-    #: When a lease of it was last heard (monotonic s, the server's).
+    #: Until when the client is known to have been there (monotonic s, the server's): when
+    #: its last lease was sent, as far as the server can tell.
     heard: float
+    #: When its last lease was sent (its own clock, ns), None before its first.
+    sent_ns: int | None = None
     #: (came, server's realtime ns) - (sent, client's realtime ns) of the last samples.
     gaps: deque[int] = field(default_factory=lambda: deque(maxlen=SAMPLES))
     #: Lost: no lease heard for the lease's time; said once (`lapsed`).
@@ -75,19 +90,28 @@ class Leases:
         lease = self._leases.get(key)
         if lease is None:
             lease = self._leases[key] = Lease(key, t)
-        if lease.lost:
-            lease.lost = False
-            lease.back_ns = sent_ns
-        lease.heard = t
+        heard = t
+        if lease.sent_ns is not None:
+            went_s = max(0, sent_ns - lease.sent_ns) / 1e9 * PACE_SLACK
+            heard = min(t, lease.heard + went_s)
+        if not lease.lost:
+            lease.heard = heard
+        elif t - heard <= self.lease_s or not lease.gaps or self._on_time(lease, sent_ns, wall_ns):
+            # Back: sent since the loss, by its clock's pace or as a request is judged
+            # (`stale`; a clock stepped back meanwhile). One that waited (sent before the
+            # loss, read after a stall) says nothing of the client now: lost it stays.
+            lease.lost, lease.back_ns, lease.heard = False, sent_ns, t
+        lease.sent_ns = sent_ns
         lease.gaps.append(wall_ns - sent_ns)
 
-    def lapsed(self, t: float) -> list[str]:
-        """The clients lost at `t`, each once: no lease of theirs heard for `lease_s`."""
+    def lapsed(self, t: float) -> list[tuple[str, float]]:
+        """The clients lost at `t`, each once: no lease of theirs heard for `lease_s`; with
+        how long none has been (s)."""
         lost = []
         for lease in list(self._leases.values()):
             if not lease.lost and t - lease.heard > self.lease_s:
                 lease.lost = True
-                lost.append(lease.key)
+                lost.append((lease.key, t - lease.heard))
             elif lease.lost and t - lease.heard > FORGET_S:
                 del self._leases[lease.key]
         return lost

@@ -250,8 +250,13 @@ class ArmNode(Node):
         while not self._ending.wait(min(0.1, lease_s / 10)):
             with self._leases_lock:
                 lost = self.leases.lapsed(now())
-            for key in lost:
-                log.warning("lost contact with client %s: no lease for %g s", key, lease_s)
+            for key, silent_s in lost:
+                log.warning(
+                    "lost contact with client %s: no lease for %.1f s (its lease: %g s)",
+                    key,
+                    silent_s,
+                    lease_s,
+                )
                 try:
                     self.arm.gone(key, f"no lease heard for {lease_s:g} s")
                 except LaneClosed:
