@@ -1,12 +1,14 @@
 """The arm across a network: two hosts (network namespaces joined by a veth pair), the server
 on one, a client on the other, the link cut mid-move. The server halts what the lost client
 commanded, the client says it lost contact, and what it gave up on never moves the arm
-when the link is back. A server closed to the network is said to be so."""
+when the link is back, and a server frozen meanwhile takes it for lost as soon as it
+runs. A server closed to the network is said to be so."""
 
 from __future__ import annotations
 
 import os
 import re
+import signal
 import sys
 import time
 from collections.abc import Iterator
@@ -15,7 +17,7 @@ import pytest
 
 from al5d import exits
 from al5d_rig import netfaults, netrig, webrig
-from al5d_rig.proc import AL5D, Lines, patient_config
+from al5d_rig.proc import AL5D, Lines, family, freeze, patient_config
 
 CMD_S = 60.0
 
@@ -231,6 +233,74 @@ def test_a_client_from_before_a_restart_has_its_stop_obeyed_or_says_it_was_not(
     print([(r.said, r.obeyed_s) for r in done])
     assert len(done) == 3
     assert netfaults.restart_problems(done) == []
+
+
+FROZEN = """
+import sys
+from al5d.arm import instruction as ins
+from al5d.ros.client import Client
+c = Client(wait_s=60)
+c.wait_for_server(60)
+c.execute("ready", timeout=60)
+print("key", c.key, flush=True)
+c.send(ins.move(base=80, time_ms=8000, id="frozen-1"), wait_s=60)
+print("sent", flush=True)
+sys.stdin.readline()
+"""
+
+
+def test_a_client_cut_off_while_its_server_was_frozen_is_lost_once_the_server_runs(
+    hosts: netrig.Hosts,
+) -> None:
+    """A server of its own frozen whole for 4 s (a process stopped, a host short of cores)
+    0.5 s into its client's 8 s move, and the link cut 0.3 s into the freeze. The leases
+    the client sent meanwhile wait in the server's socket and are read once it runs: they
+    show the client there until they were sent, not until they were read, and the client
+    is lost at once, once. They were taken for fresh before: the client was lost a lease
+    after the server ran again (seen: "no lease for 1.0 s"), or lost, back, and lost again."""
+    domain = {"ROS_DOMAIN_ID": str(int(os.environ["ROS_DOMAIN_ID"]) + 3)}  # its own
+    proc = hosts.popen(
+        hosts.arm, [AL5D, "serve", "--config", patient_config()], {**hosts.env(hosts.arm), **domain}
+    )
+    assert proc.stderr is not None
+    err = Lines(proc.stderr)
+    laptop = None
+    try:
+        err.wait_for("STATE: ready", CMD_S)
+        laptop = hosts.popen(
+            hosts.laptop, [sys.executable, "-c", FROZEN], {**hosts.env(hosts.laptop), **domain}
+        )
+        assert laptop.stdout is not None
+        out = Lines(laptop.stdout)
+        key = said(out, "key ").split()[1]
+        said(out, "sent")
+        time.sleep(0.5)
+        server = family(proc.pid)
+        for pid in server:
+            freeze(pid)
+        try:
+            time.sleep(0.3)
+            hosts.cut()
+            time.sleep(3.7)
+        finally:
+            for pid in server:
+                os.kill(pid, signal.SIGCONT)
+        lost = f"lost contact with client {key}: no lease for "
+        first = said(err, lost)
+        halted = said(err, "move [frozen-1]: ")
+        # A lease taken for a sign of the client would have it lost again within 2.5 s.
+        again = [line for line in err.drain(2.5) if lost in line]
+    finally:
+        hosts.mend()
+        if laptop is not None:
+            laptop.kill()
+            laptop.wait(10)
+        proc.kill()
+        proc.wait(10)
+    silent_s = float(first.split(lost, 1)[1].split()[0])
+    assert silent_s > 2.5, first
+    assert again == [first], again
+    assert "lost contact with the client" in halted and halted.endswith("halted"), halted
 
 
 def test_a_server_closed_to_the_network_is_said_to_be_so(hosts: netrig.Hosts) -> None:
