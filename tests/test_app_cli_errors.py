@@ -20,7 +20,7 @@ import pytest
 import yaml
 
 from al5d import exits
-from al5d.app.terminal import SLOW_DISCOVERY_S, Timing
+from al5d.app.report import SLOW_DISCOVERY_S, Timing
 from al5d.arm.config import ArmConfig
 from al5d.ros.client import Client, NoServer
 from al5d.ssc32u.emulator import Emulator

@@ -443,7 +443,7 @@ def _send(
     err: IO[str],
 ) -> int:
     from al5d import exits
-    from al5d.app.terminal import Report
+    from al5d.app.report import Report
     from al5d.arm.config import load_config
     from al5d.arm.instruction import Instruction
     from al5d.ros.answers import GIVE_UP_WORD_S, no_outcome, wait_ms

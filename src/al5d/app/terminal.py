@@ -18,13 +18,12 @@ from __future__ import annotations
 
 import functools
 import sys
-import threading
-import time
 from collections.abc import Collection, Iterator
 from pathlib import Path
 from typing import TextIO
 
 from al5d import exits
+from al5d.app.report import LinkWatch, Report, Timing
 from al5d.arm.config import load_config
 from al5d.arm.instruction import (
     PRESET_NAMES,
@@ -41,7 +40,7 @@ from al5d.arm.poses import PosesError, beside, load_poses
 from al5d.arm.sequence import SequenceJudge, judge_sequence, judged_steps, read_sequence
 from al5d.owner import where
 from al5d.owner.client import local_config
-from al5d.ros.answers import GIVE_UP_WORD_S, no_outcome
+from al5d.ros.answers import GIVE_UP_WORD_S
 from al5d.ros.client import (
     Answer,
     Client,
@@ -51,128 +50,6 @@ from al5d.ros.client import (
     NoServer,
 )
 from al5d.ros.names import Names
-
-#: Finding the server slower than this is said (where the time went), even without
-#: `--verbose`: a user waiting seconds for a command should know it was discovery.
-SLOW_DISCOVERY_S = 1.0
-
-
-class Report:
-    """Prints each outcome when it comes, whichever thread it comes in; keeps the verdict."""
-
-    def __init__(self, out: TextIO, timeout: float) -> None:
-        self._out = out
-        self.timeout = timeout
-        self._lock = threading.Lock()
-        self.all_done = True
-        #: The instructions whose fate has been said: once each.
-        self.said: set[str] = set()
-
-    def line(self, text: str) -> None:
-        with self._lock:
-            print(text, file=self._out, flush=True)
-
-    def not_sent(self, instr: Instruction) -> None:
-        """`instr` was never sent: a Ctrl-C came first."""
-        self.line(f"{instr.name} [{instr.id}]: not sent (Ctrl-C)")
-        self.all_done = False
-
-    def outcome(self, outcome: Outcome | None, *, instr: Instruction) -> None:
-        if outcome is None:
-            text = str(no_outcome(f"{instr.name} [{instr.id}]", self.timeout))
-        else:
-            text = str(outcome)
-        self._say(instr, text, outcome is not None and outcome.result is Result.DONE)
-
-    def lost(self, instr: Instruction, error: NoOutcome) -> None:
-        """Contact with the server was lost (`LostContact`, `LaneLost`) while `instr` ran."""
-        self._say(instr, f"{instr.name} {error}", False)
-
-    def _say(self, instr: Instruction, text: str, done: bool) -> None:
-        with self._lock:
-            if instr.id in self.said:
-                return
-            self.said.add(instr.id)
-            self.all_done &= done
-            print(text, file=self._out, flush=True)
-
-
-#: How often `LinkWatch` looks: the silence is said at 1 s, lost contact at 1.5 s.
-WATCH_EVERY_S = 0.1
-
-
-class LinkWatch:
-    """The lines running in the background, watched as a wait for an outcome watches its
-    line, also while nothing waits (a `wait` line, the shell's prompt): a silence of the
-    server is said, and lost contact (a closed lane) is said at once for each of them, not
-    when the command next waits for something. `lost` is set then."""
-
-    def __init__(self, client: Client, report: Report, background: list[Instruction]) -> None:
-        self.client, self.report, self.background = client, report, background
-        self.lost = threading.Event()
-        self._ending = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="al5d-link-watch", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._ending.wait(WATCH_EVERY_S):
-            said, client = self.report.said, self.client
-            pending = [i for i in list(self.background) if i.id not in said and client.sent(i.id)]
-            for n, item in enumerate(pending):
-                try:
-                    outcome = client.outcome(item.id, 0.01)  # said by its watcher if it came
-                except NoOutcome as e:
-                    self.report.lost(item, e)
-                    self.lost.set()
-                    continue
-                if n == 0 and outcome is None:
-                    break  # one waiting on a link that holds: so are the others
-
-    def sleep(self, seconds: float) -> None:
-        """A `wait` line: `seconds`, or less if contact is lost meanwhile."""
-        self.lost.wait(seconds)
-
-    def close(self) -> None:
-        self._ending.set()
-        self._thread.join(1.0)
-
-
-class Timing:
-    """Where a command's time went: ROS's start, the server's discovery, the rest. Said on
-    stderr: all of it with `--verbose`, the discovery alone whenever it was slow."""
-
-    def __init__(self, prog: str, verbose: bool, err: TextIO) -> None:
-        self.prog = prog
-        self.verbose = verbose
-        self.err = err
-        self.start = time.monotonic()
-        self.ros_s = 0.0
-        self._told = 0.0
-
-    def ros_started(self) -> None:
-        self.ros_s = time.monotonic() - self.start
-        if self.verbose:
-            self._say(f"ROS started in {self.ros_s:.2f} s")
-
-    def discovered(self, client: Client) -> None:
-        """Once the server is found (or not): how long that took, if slow or asked for."""
-        waited = client.discovery_s - self._told
-        self._told = client.discovery_s
-        if self.verbose:
-            self._say(f"waited {waited:.2f} s for the server to be discovered")
-        elif waited > SLOW_DISCOVERY_S:
-            self._say(
-                f"waited {waited:.1f} s for the server to be discovered (ROS 2 discovery, "
-                "which each new client pays: `al5d shell` pays it once for many instructions)"
-            )
-
-    def end(self) -> None:
-        if self.verbose:
-            self._say(f"{time.monotonic() - self.start:.2f} s in all")
-
-    def _say(self, text: str) -> None:
-        print(f"{self.prog}: {text}", file=self.err, flush=True)
-
 
 #: `--via`: the local lane where a server's is here (auto), only the lane, or only ROS 2.
 VIA = {"auto": None, "lane": True, "ros": False}
