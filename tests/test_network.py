@@ -287,7 +287,7 @@ def test_a_client_cut_off_while_its_server_was_frozen_is_lost_once_the_server_ru
                 os.kill(pid, signal.SIGCONT)
         lost = f"lost contact with client {key}: no lease for "
         first = said(err, lost)
-        halted = said(err, "move [frozen-1]: ")
+        halted = said(err, "move [frozen-1]: lost contact")
         # A lease taken for a sign of the client would have it lost again within 2.5 s.
         again = [line for line in err.drain(2.5) if lost in line]
     finally:

@@ -136,13 +136,13 @@ def web_faults(request: pytest.FixtureRequest) -> Iterator[None]:
         return
     rig: Rig = request.getfixturevalue("rig")
     err = rig.web.proc.err
-    n = len(err.all)
+    n = len(err.drain(0))  # lines come in as they are read: what came before is not this test's
     # A failure under load left no word of which side had stalled (CI, two busy loops: a
     # slider's key press not answered in 10 s, then no banner in 20 s): both sides' view.
     request.node.stash[ON_FAILURE] = lambda: "\n".join(
         (
             "the web view's stderr:",
-            *err.all[n:][-60:],
+            *err.drain(0)[n:][-60:],
             "the web view's threads:",
             rig.web.proc.stacks(),
             "the page:",
@@ -153,7 +153,7 @@ def web_faults(request: pytest.FixtureRequest) -> Iterator[None]:
         )
     )
     yield
-    said = err.all[n:]
+    said = err.drain(0)[n:]
     if any(w in line for line in said for w in ("Traceback", "ERROR", "Exception in")):
         # An error in the web view is the test's error even where the page held up (a
         # thread of its that died said so only here, and a later test failed for it).
@@ -161,24 +161,19 @@ def web_faults(request: pytest.FixtureRequest) -> Iterator[None]:
 
 
 def page_facts(page: Any) -> str:
-    """What the page shows of its links and its sliders' status, as text."""
+    """What the page shows of its links and its sliders' status, as text; each asked for a
+    second at most (a hung page must not hold the failure's report)."""
     facts = []
     for selector in ("#al5d-page-lost", "#al5d-banner", "#al5d-state", "#al5d-joints-status"):
         try:
-            found = page.locator(selector)
-            facts.append(
-                f"{selector}: {found.first.inner_text(timeout=2000)!r}"
-                if found.count()
-                else f"{selector}: absent"
-            )
+            facts.append(f"{selector}: {page.locator(selector).first.inner_text(timeout=1000)!r}")
         except PlaywrightError as error:
-            facts.append(f"{selector}: {error}")
+            facts.append(f"{selector}: absent, or not said within 1 s ({str(error)[:80]})")
     try:
-        facts.append(
-            f"pulse: {page.locator('#al5d-pulse').first.get_attribute('data-n', timeout=2000)}"
-        )
+        beat = page.locator("#al5d-pulse").first.get_attribute("data-n", timeout=1000)
+        facts.append(f"pulse: {beat}")
     except PlaywrightError as error:
-        facts.append(f"pulse: {error}")
+        facts.append(f"pulse: {str(error)[:80]}")
     return "\n".join(facts)
 
 

@@ -53,12 +53,12 @@ class Rig:
         )
 
 
-#: The link checks the driver makes on its own: `Q`, or `QP` of one channel (which also
-#: finds a board that has reset).
 #: What a fixture would have a failure's reader know (a rig's processes, a page): called when
 #: the test's call fails, its text a section of the failure's report (tests/conftest.py).
 ON_FAILURE = pytest.StashKey[Callable[[], str]]()
 
+#: The link checks the driver makes on its own: `Q`, or `QP` of one channel (which also
+#: finds a board that has reset).
 LINK_CHECK = re.compile(rb"Q|QP\d{1,2}")
 
 

@@ -38,13 +38,14 @@ SAMPLES = 64
 #: months meets many clients cut off for good.
 FORGET_S = 600.0
 #: A lease counts from the last one's on by what its client's clock went on between them,
-#: this much more: clocks that run at rates a few hundred parts a million apart never add
-#: up to a lease. Differences of one client's own times only, never the client's clock
-#: against the server's: a clock stepped back gives no time (a lease later), one stepped
-#: forward gives its step at most once (as any lease did before). Counting from when a
-#: lease was sent on the server's clock (its offset measured) took a clock stepped back by
-#: more than half a lease for a lost client, for as long as its old samples were kept.
-PACE_SLACK = 1.01
+#: this much more: clocks whose rates differ never add up to a lease, even while NTP slews
+#: one (chrony's fastest slew is 8.3 %, and the server's monotonic clock is slewed too).
+#: Differences of one client's own times only, never the client's clock against the
+#: server's: a clock stepped back gives no time (a lease later), one stepped forward gives
+#: its step at most once (as any lease did before). Counting from when a lease was sent on
+#: the server's clock (its offset measured) took a clock stepped back by more than half a
+#: lease for a lost client, for as long as its old samples were kept.
+PACE_SLACK = 1.25
 
 
 @dataclass
@@ -95,13 +96,13 @@ class Leases:
             went_s = max(0, sent_ns - lease.sent_ns) / 1e9 * PACE_SLACK
             heard = min(t, lease.heard + went_s)
         if not lease.lost:
-            lease.heard = heard
+            lease.heard, lease.sent_ns = heard, sent_ns
         elif t - heard <= self.lease_s or not lease.gaps or self._on_time(lease, sent_ns, wall_ns):
-            # Back: sent since the loss, by its clock's pace or as a request is judged
-            # (`stale`; a clock stepped back meanwhile). One that waited (sent before the
-            # loss, read after a stall) says nothing of the client now: lost it stays.
-            lease.lost, lease.back_ns, lease.heard = False, sent_ns, t
-        lease.sent_ns = sent_ns
+            # Back: sent since the loss, by its clock's pace from its last lease before the
+            # loss or as a request is judged (`stale`; a clock stepped back meanwhile).
+            lease.lost, lease.back_ns, lease.heard, lease.sent_ns = False, sent_ns, t, sent_ns
+        # Else one that waited (sent before the loss, read after a stall) says nothing of
+        # the client now: lost it stays, and the next counts from before the loss again.
         lease.gaps.append(wall_ns - sent_ns)
 
     def lapsed(self, t: float) -> list[tuple[str, float]]:
