@@ -155,8 +155,8 @@ def web_faults(request: pytest.FixtureRequest) -> Iterator[None]:
     yield
     said = err.drain(0)[n:]
     if any(w in line for line in said for w in ("Traceback", "ERROR", "Exception in")):
-        # An error in the web view is the test's error even where the page held up (a
-        # thread of its that died said so only here, and a later test failed for it).
+        # An error in the web view is the test's error even where the page held up: printed
+        # in a teardown, as it was, it reached no report.
         pytest.fail("\n".join(("the web view wrote an error:", *said[-40:])))
 
 
