@@ -56,6 +56,13 @@ RESTARTS_MAX = 3
 RESTARTS_WITHIN_S = 60.0
 #: A bridge the owner lost to its silence is killed if it has not ended in this long.
 HUNG_KILL_S = 5.0
+#: `server.answer_timeout_s` at least this on the embedded emulator. That board is threads
+#: of this process, sharing its interpreter (one GIL) and the host's cores with the owner:
+#: a late answer from it is this host's stall, never a cable (seen: `al5d demo --physics`
+#: beside a test run and two busy loops lost its link, "no answer to QP4, asked twice,
+#: 218 ms late"). A real board, or `al5d emulator` in a process of its own, keeps the
+#: configured timeout.
+EMBEDDED_ANSWER_S = 1.0
 
 
 @dataclass
@@ -98,6 +105,9 @@ def arm(
         from al5d.ssc32u.emulator import Emulator  # only where an emulated board is wanted
 
         emulator = Emulator(config, baud=baud).start()
+        if config.server.answer_timeout_s < EMBEDDED_ANSWER_S:
+            patient = config.server.model_copy(update={"answer_timeout_s": EMBEDDED_ANSWER_S})
+            config = config.model_copy(update={"server": patient})
         if options.physics is not None:  # the twin follows the board's pulses (al5d.twin)
             from al5d.twin.link import TwinLink
 
