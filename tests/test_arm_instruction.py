@@ -61,6 +61,16 @@ def test_parse(
         ("move base30", r"word 2 'base30': expected <name>=<value>"),
         ("move base=10 time=fast", r"word 3 'time=fast': 'fast' is not a whole number of ms"),
         ("move base=10 time=-5", r"word 3 'time=-5': time -5 ms is negative"),
+        # Python's float() and int() read these as 10 and 5: a number is typed in ASCII
+        # digits, or refused.
+        ("move base=1_0", r"word 2 'base=1_0': '1_0' is not a number of degrees"),
+        ("move base=\u0665", "word 2 'base=\u0665': '\u0665' is not a number of degrees"),
+        ("move_to x=\uff15 y=0 z=100", "'\uff15' is not a number of mm"),
+        ("move base=10 time=1_000", r"'1_000' is not a whole number of ms"),
+        ("move base=10 time=\uff15", "'\uff15' is not a whole number of ms"),
+        # More digits than Python's int() reads (4300): out of range, by its sign.
+        ("move base=10 time=" + "9" * 5000, r"\(5000 characters\) ms is above the limit"),
+        ("move base=10 time=-" + "9" * 5000, r"time '-9{39}'\.\.\. \(5001 characters\) ms is neg"),
         ("move base=10 time=5 time=6", r"word 4 'time=6': time given twice"),
         ("stop now=1", r"word 2 'now=1': stop takes no arguments"),
         ("park base=3", r"word 2 'base=3': a preset takes only time=<ms>"),
@@ -79,6 +89,12 @@ def test_parse(
 def test_grammar_errors_point_at_the_word(text: str, message: str) -> None:
     with pytest.raises(GrammarError, match=message):
         ins.parse_instruction(text)
+
+
+def test_a_number_is_read_as_it_is_typed() -> None:
+    joints = ins.parse_instruction("move base=+5 elbow=.5 wrist=-2. gripper=1E1").joints
+    assert joints == (("base", 5.0), ("elbow", 0.5), ("wrist", -2.0), ("gripper", 10.0))
+    assert ins.parse_instruction("move base=1e1 time=+0300").time_ms == 300
 
 
 @pytest.mark.parametrize(

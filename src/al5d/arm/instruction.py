@@ -23,6 +23,7 @@ import enum
 import itertools
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -281,17 +282,26 @@ TIME_FIELD_MAX_MS = 2**32 - 1
 WAIT_MAX_MS = 3_600_000
 
 
+#: A number as it is typed: ASCII digits, a sign, a point, an exponent. Python's own
+#: `float` and `int` also read `1_0` (as 10) and digits of every script (Arabic-Indic,
+#: full-width): in a file of moves, a word that reads as another number than it shows is
+#: refused, not guessed at.
+DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+WHOLE = re.compile(r"[+-]?[0-9]+")
+
+
 def _parse_ms(words: list[str], i: int, text: str, limit: int = TIME_FIELD_MAX_MS) -> int:
-    try:
-        ms = int(text)
-    except ValueError:
-        raise GrammarError(
-            f"{_where(words, i)}: {quote(text)} is not a whole number of ms"
-        ) from None
+    if not WHOLE.fullmatch(text):
+        raise GrammarError(f"{_where(words, i)}: {quote(text)} is not a whole number of ms")
+    # Python's int() reads at most 4300 digits; the sign of more says which way they are
+    # out of range (and a number that long is quoted in part).
+    huge = len(text) > 4000
+    ms = (-1 if text[0] == "-" else limit + 1) if huge else int(text)
+    shown = str(ms) if len(text) <= 40 else quote(text)
     if ms < 0:
-        raise GrammarError(f"{_where(words, i)}: time {ms} ms is negative")
+        raise GrammarError(f"{_where(words, i)}: time {shown} ms is negative")
     if ms > limit:
-        raise GrammarError(f"{_where(words, i)}: {ms} ms is above the limit of {limit} ms")
+        raise GrammarError(f"{_where(words, i)}: {shown} ms is above the limit of {limit} ms")
     return ms
 
 
@@ -304,11 +314,8 @@ METRES_HINT_MM = 1.0
 
 
 def _number(words: list[str], i: int, value: str, unit: str) -> float:
-    try:
-        number = float(value)
-    except ValueError:
-        number = math.nan
-    if not math.isfinite(number):  # Python reads "nan" and "inf"; no arm goes there
+    number = float(value) if DECIMAL.fullmatch(value) else math.nan
+    if not math.isfinite(number):  # 1e999 reads as inf; no arm goes there
         raise GrammarError(f"{_where(words, i)}: {quote(value)} is not a number of {unit}")
     return number
 
