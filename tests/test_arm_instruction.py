@@ -95,6 +95,8 @@ def test_a_number_is_read_as_it_is_typed() -> None:
     joints = ins.parse_instruction("move base=+5 elbow=.5 wrist=-2. gripper=1E1").joints
     assert joints == (("base", 5.0), ("elbow", 0.5), ("wrist", -2.0), ("gripper", 10.0))
     assert ins.parse_instruction("move base=1e1 time=+0300").time_ms == 300
+    # Leading zeros are not digits that int() counts against its 4300.
+    assert ins.parse_instruction("move base=1 time=" + "0" * 5000 + "5").time_ms == 5
 
 
 @pytest.mark.parametrize(

@@ -293,10 +293,13 @@ WHOLE = re.compile(r"[+-]?[0-9]+")
 def _parse_ms(words: list[str], i: int, text: str, limit: int = TIME_FIELD_MAX_MS) -> int:
     if not WHOLE.fullmatch(text):
         raise GrammarError(f"{_where(words, i)}: {quote(text)} is not a whole number of ms")
-    # Python's int() reads at most 4300 digits; the sign of more says which way they are
-    # out of range (and a number that long is quoted in part).
-    huge = len(text) > 4000
-    ms = (-1 if text[0] == "-" else limit + 1) if huge else int(text)
+    # Python's int() reads at most 4300 digits; the sign of more (leading zeros aside)
+    # says which way they are out of range (and a number that long is quoted in part).
+    negative, digits = text[0] == "-", text.lstrip("+-").lstrip("0") or "0"
+    if len(digits) > 4000:
+        ms = -1 if negative else limit + 1
+    else:
+        ms = -int(digits) if negative else int(digits)
     shown = str(ms) if len(text) <= 40 else quote(text)
     if ms < 0:
         raise GrammarError(f"{_where(words, i)}: time {shown} ms is negative")
