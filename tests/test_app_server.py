@@ -9,8 +9,8 @@ import sys
 import time
 from pathlib import Path
 
-from al5d.app.server import EMBEDDED_ANSWER_S, EXIT_NOT_PARKED, ServerOptions, arm
-from al5d.arm.config import load_config
+from al5d.app.server import EXIT_NOT_PARKED, ServerOptions, arm
+from al5d.arm.config import EMBEDDED_ANSWER_S, load_config
 from al5d.arm.instruction import parse_instruction
 from al5d.arm.states import State
 from al5d.ssc32u.emulator import Emulator, Fault

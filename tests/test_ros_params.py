@@ -18,7 +18,8 @@ from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.action import get_action_names_and_types
 from tf2_msgs.msg import TFMessage
 
-from al5d.arm.config import DEFAULT_CONFIG, ArmConfig
+from al5d.arm.config import DEFAULT_CONFIG, EMBEDDED_ANSWER_S, ArmConfig, load_config
+from al5d.ros import params
 from al5d.ros.robot import QOS_TF_STATIC
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import group_moves
@@ -319,3 +320,17 @@ def test_a_bad_parameter_gets_the_configs_message_and_exit_2(tmp_path: Path) -> 
     assert "ROS arguments: Failed to parse ROS arguments" in serve_refused(
         "--ros-args", "-r", "not-a-rule"
     )
+
+
+def test_the_parameters_say_the_answer_timeout_the_embedded_emulator_runs_with() -> None:
+    # The embedded board is threads of the server's process: its answers are awaited at
+    # least EMBEDDED_ANSWER_S (al5d.arm.config), and `ros2 param get` says so; a port's
+    # board keeps the file's (or the parameter's) timeout.
+    shipped = load_config().server.answer_timeout_s
+    assert shipped < EMBEDDED_ANSWER_S
+    embedded = params.resolve({}, params.Flags())
+    assert embedded.values()["server.answer_timeout_s"] == EMBEDDED_ANSWER_S
+    on_port = params.resolve({}, params.Flags(port="/dev/ttyUSB0"))
+    assert on_port.values()["server.answer_timeout_s"] == shipped
+    raised = params.resolve({"server.answer_timeout_s": 2.5}, params.Flags())
+    assert raised.config.server.answer_timeout_s == 2.5

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
 from al5d import exits
-from al5d.arm.config import ArmConfig, ConfigError, load_config
+from al5d.arm.config import ArmConfig, ConfigError, load_config, on_embedded_board
 from al5d.arm.instruction import GrammarError, Instruction, Outcome, parse_instruction, shutdown
 from al5d.owner import lane
 from al5d.owner.loop import Owner
@@ -56,13 +56,6 @@ RESTARTS_MAX = 3
 RESTARTS_WITHIN_S = 60.0
 #: A bridge the owner lost to its silence is killed if it has not ended in this long.
 HUNG_KILL_S = 5.0
-#: `server.answer_timeout_s` at least this on the embedded emulator. That board is threads
-#: of this process, sharing its interpreter (one GIL) and the host's cores with the owner:
-#: a late answer from it is this host's stall, never a cable (seen: `al5d demo --physics`
-#: beside a test run and two busy loops lost its link, "no answer to QP4, asked twice,
-#: 218 ms late"). A real board, or `al5d emulator` in a process of its own, keeps the
-#: configured timeout.
-EMBEDDED_ANSWER_S = 1.0
 
 
 @dataclass
@@ -104,10 +97,8 @@ def arm(
     if port is None:
         from al5d.ssc32u.emulator import Emulator  # only where an emulated board is wanted
 
+        config = on_embedded_board(config)  # what the bridge resolved holds it already
         emulator = Emulator(config, baud=baud).start()
-        if config.server.answer_timeout_s < EMBEDDED_ANSWER_S:
-            patient = config.server.model_copy(update={"answer_timeout_s": EMBEDDED_ANSWER_S})
-            config = config.model_copy(update={"server": patient})
         if options.physics is not None:  # the twin follows the board's pulses (al5d.twin)
             from al5d.twin.link import TwinLink
 

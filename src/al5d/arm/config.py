@@ -471,6 +471,23 @@ def parse_config(
         raise ConfigError(describe_errors(e, source, names or {})) from None
 
 
+#: `server.answer_timeout_s` at least this on the embedded emulator. That board is threads
+#: of the server's own process, sharing its interpreter (one GIL) and the host's cores with
+#: the owner: an answer late from it is this host's stall, never a cable (seen: `al5d demo
+#: --physics` beside a test run and two busy loops lost its link, "no answer to QP4, asked
+#: twice, 218 ms late"). A real board, or `al5d emulator` in a process of its own, keeps the
+#: configured timeout.
+EMBEDDED_ANSWER_S = 1.0
+
+
+def on_embedded_board(config: ArmConfig) -> ArmConfig:
+    """`config` as a server runs it on the embedded emulator (`EMBEDDED_ANSWER_S`)."""
+    if config.server.answer_timeout_s >= EMBEDDED_ANSWER_S:
+        return config
+    server = config.server.model_copy(update={"answer_timeout_s": EMBEDDED_ANSWER_S})
+    return config.model_copy(update={"server": server})
+
+
 def with_changes(
     config: ArmConfig,
     changes: Mapping[str, Any],

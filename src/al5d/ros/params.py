@@ -45,6 +45,7 @@ from al5d.arm.config import (
     GeometrySettings,
     ServerSettings,
     load_config,
+    on_embedded_board,
     parse_config,
 )
 from al5d.arm.config import with_changes as config_with
@@ -193,6 +194,8 @@ def resolve(
     if flags.baud is not None:
         changes["server.baud"] = flags.baud
     config = config_with(base, changes, SOURCE, RENAMED) if changes else base
+    if port is None:  # the parameters say what the server runs with
+        config = on_embedded_board(config)
     return Settings(config, port, config_file, record)
 
 
