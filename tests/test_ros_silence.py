@@ -19,7 +19,7 @@ import pytest
 
 from al5d import exits
 from al5d.arm.config import ArmConfig
-from al5d_rig.proc import AL5D, Lines, dies_with_parent, family, freeze
+from al5d_rig.proc import AL5D, Lines, dies_with_parent, family, freeze, kill_all
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import served
 
@@ -117,8 +117,7 @@ def test_a_background_line_that_lost_its_server_is_said_at_once(
                 for pid in server:
                     freeze(pid)
             else:
-                for pid in server:
-                    os.kill(pid, signal.SIGKILL)
+                kill_all(server)
             try:
                 lost = out.wait_for("move [", SCRIPT_S)
             finally:
@@ -140,3 +139,42 @@ def test_a_background_line_that_lost_its_server_is_said_at_once(
         finally:
             shell.kill()
             shell.wait(10)
+
+
+@pytest.mark.parametrize("via", ["ros", "lane"])
+def test_a_run_in_a_wait_with_nothing_running_says_its_server_is_gone(
+    config: ArmConfig, tmp_path: Path, via: str
+) -> None:
+    """`al5d run` in a ten-minute `wait`, nothing of its own running: the server goes silent
+    (frozen) or its lane closes (killed). The run says so within a few seconds and ends, not
+    done, its last line not sent (it said nothing until the wait was over)."""
+    seq = tmp_path / "wait.seq"
+    seq.write_text("ready\nwait 600000\npark\n")
+    with served(config, tmp_path, f"al5d_wait_peer_{via}") as arm:
+        run, out, err = talking([AL5D, "run", str(seq), "--via", via])
+        server = family(arm.proc.popen.pid)
+        try:
+            out.wait_for("wait 600000 ms", SCRIPT_S)
+            if via == "ros":
+                for pid in server:
+                    freeze(pid)
+            else:
+                kill_all(server)
+            try:
+                gone = out.wait_for("nothing of this command's runs", SCRIPT_S)
+            finally:
+                if via == "ros":
+                    for pid in server:
+                        os.kill(pid, signal.SIGCONT)
+            if via == "ros":
+                assert gone.startswith("lost contact with the server (nothing heard"), gone
+            else:
+                assert gone.startswith("the lane to the owner is closed"), gone
+            ended = out.wait_for("not done", SCRIPT_S)
+            assert ended == "not done: the 1 step after it not sent", ended
+            assert run.wait(SCRIPT_S) == exits.NOT_DONE
+            assert len([line for line in out.all if "nothing of this" in line]) == 1, out.all
+            assert not [line for line in err.all if "Traceback" in line], err.all
+        finally:
+            run.kill()
+            run.wait(10)

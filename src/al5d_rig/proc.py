@@ -276,6 +276,15 @@ def family(pid: int) -> list[int]:
     return found
 
 
+def kill_all(pids: list[int]) -> None:
+    """SIGKILL each of `pids` (a `family`). One already gone is not an error: the children
+    of `al5d serve` die with it (`dies_with_parent`) and are reaped at once (seen: a CI run
+    beside two busy loops found the bridge gone by the time the test came to kill it)."""
+    for pid in pids:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+
+
 def freeze(pid: int, timeout: float = 30.0) -> None:
     """SIGSTOP process `pid` and wait until it is stopped: the signal stops a process only
     once each of its threads is scheduled again (an idle CI run read the bridge as running

@@ -65,11 +65,14 @@ class LinkWatch:
     """The lines running in the background, watched as a wait for an outcome watches its
     line, also while nothing waits (a `wait` line, the shell's prompt): a silence of the
     server is said, and lost contact (a closed lane) is said at once for each of them, not
-    when the command next waits for something. `lost` is set then."""
+    when the command next waits for something; with none running, once, during a `wait`
+    line. `lost` is set then."""
 
     def __init__(self, client: Client, report: Report, background: list[Instruction]) -> None:
         self.client, self.report, self.background = client, report, background
         self.lost = threading.Event()
+        self._gone_said = False  # this loss of the server said
+        self._waiting = threading.Event()  # in a `wait` line
         self._ending = threading.Event()
         self._thread = threading.Thread(target=self._run, name="al5d-link-watch", daemon=True)
         self._thread.start()
@@ -84,13 +87,33 @@ class LinkWatch:
                 except NoOutcome as e:
                     self.report.lost(item, e)
                     self.lost.set()
+                    self._gone_said = True
                     continue
                 if n == 0 and outcome is None:
                     break  # one waiting on a link that holds: so are the others
+            if not pending and self._waiting.is_set():
+                self._watch_server()
+
+    def _watch_server(self) -> None:
+        """A `wait` line, and nothing of the command's runs: a server lost (a lane closed) is
+        said all the same, once (seen: `al5d run` in a ten-minute `wait` said nothing of a
+        server gone until the wait was over)."""
+        gone = self.client.out_of_contact()
+        if gone is None:
+            self._gone_said = False
+        elif not self._gone_said:
+            self._gone_said = True
+            self.report.line(f"{gone}: nothing of this command's runs")
+            self.lost.set()
 
     def sleep(self, seconds: float) -> None:
-        """A `wait` line: `seconds`, or less if contact is lost meanwhile."""
-        self.lost.wait(seconds)
+        """A `wait` line: `seconds`, or less if contact is lost meanwhile (then not done)."""
+        self._waiting.set()
+        try:
+            if self.lost.wait(seconds):
+                self.report.all_done = False
+        finally:
+            self._waiting.clear()
 
     def close(self) -> None:
         self._ending.set()

@@ -76,6 +76,7 @@ class Way(Protocol):
     def wait_for_server(self, timeout: float) -> None: ...
     def no_server(self, name: str, timeout: float) -> NoServer: ...
     def lost_contact(self) -> float | None: ...
+    def out_of_contact(self) -> str | None: ...
     def send(self, instr: Instruction, wait_s: float) -> None: ...
     def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None: ...
     def outcome(self, ident: str, timeout: float) -> Outcome | None: ...
@@ -115,6 +116,9 @@ class LaneWay:
 
     def lost_contact(self) -> float | None:
         return None  # a lane that closes ends what waits on it (`LaneLost`)
+
+    def out_of_contact(self) -> str | None:
+        return "the lane to the owner is closed" if self.lane.closed.is_set() else None
 
     def send(self, instr: Instruction, wait_s: float) -> None:
         instr = replace(instr, wait_ms=wait_ms(wait_s))
@@ -279,6 +283,11 @@ class Client:
         than the server's lease of this client and a margin (None: not lost; always None on
         the lane). A shorter silence is said once, as a WARNING, before that."""
         return self._way.lost_contact()
+
+    def out_of_contact(self) -> str | None:
+        """Why the server is out of contact (lost over ROS 2, its lane closed), whether or
+        not anything waits for it; None while it is in contact."""
+        return self._way.out_of_contact()
 
     @property
     def lost_after_s(self) -> float:

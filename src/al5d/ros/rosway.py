@@ -214,6 +214,12 @@ class RosWay:
             )
         return quiet if quiet > lost_after else None
 
+    def out_of_contact(self) -> str | None:
+        quiet = self.lost_contact()
+        if quiet is None:
+            return None
+        return f"lost contact with the server (nothing heard from it for {quiet:.1f} s)"
+
     @property
     def lost_after_s(self) -> float:
         """How long the server may go unheard before this client takes it for lost: the
