@@ -7,12 +7,14 @@ Each test has a server of its own, frozen or killed: the other files' servers ar
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -39,6 +41,23 @@ def talking(args: list[str]) -> tuple[subprocess.Popen[str], Lines, Lines]:
     )
     assert proc.stdout is not None and proc.stderr is not None
     return proc, Lines(proc.stdout), Lines(proc.stderr)
+
+
+@contextlib.contextmanager
+def gone(server: list[int], via: str) -> Iterator[None]:
+    """The server's processes (`family`) frozen whole, as a lost link is to a ROS client
+    (`via` "ros"), thawed on the way out; or killed, its lane closed (`via` "lane")."""
+    if via != "ros":
+        kill_all(server)
+        yield
+        return
+    for pid in server:
+        freeze(pid)
+    try:
+        yield
+    finally:
+        for pid in server:
+            os.kill(pid, signal.SIGCONT)
 
 
 SILENT = """
@@ -113,17 +132,8 @@ def test_a_background_line_that_lost_its_server_is_said_at_once(
             if command == "run":
                 out.wait_for("wait 600000 ms", SCRIPT_S)
             wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
-            if via == "ros":
-                for pid in server:
-                    freeze(pid)
-            else:
-                kill_all(server)
-            try:
+            with gone(server, via):
                 lost = out.wait_for("move [", SCRIPT_S)
-            finally:
-                if via == "ros":
-                    for pid in server:
-                        os.kill(pid, signal.SIGCONT)
             assert "whether it ran is unknown" in lost, lost
             if via == "ros":
                 assert "lost contact with the server" in lost, lost
@@ -155,21 +165,12 @@ def test_a_run_in_a_wait_with_nothing_running_says_its_server_is_gone(
         server = family(arm.proc.popen.pid)
         try:
             out.wait_for("wait 600000 ms", SCRIPT_S)
+            with gone(server, via):
+                said = out.wait_for("nothing of this command's runs", SCRIPT_S)
             if via == "ros":
-                for pid in server:
-                    freeze(pid)
+                assert said.startswith("lost contact with the server (nothing heard"), said
             else:
-                kill_all(server)
-            try:
-                gone = out.wait_for("nothing of this command's runs", SCRIPT_S)
-            finally:
-                if via == "ros":
-                    for pid in server:
-                        os.kill(pid, signal.SIGCONT)
-            if via == "ros":
-                assert gone.startswith("lost contact with the server (nothing heard"), gone
-            else:
-                assert gone.startswith("the lane to the owner is closed"), gone
+                assert said.startswith("the lane to the owner is closed"), said
             ended = out.wait_for("not done", SCRIPT_S)
             assert ended == "not done: the 1 step after it not sent", ended
             assert run.wait(SCRIPT_S) == exits.NOT_DONE
