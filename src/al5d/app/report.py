@@ -32,6 +32,11 @@ class Report:
         with self._lock:
             print(text, file=self._out, flush=True)
 
+    def fail(self) -> None:
+        """The command is not done, whatever outcomes come (a `wait` cut short)."""
+        with self._lock:
+            self.all_done = False
+
     def not_sent(self, instr: Instruction) -> None:
         """`instr` was never sent: a Ctrl-C came first."""
         self.line(f"{instr.name} [{instr.id}]: not sent (Ctrl-C)")
@@ -111,7 +116,7 @@ class LinkWatch:
         self._waiting.set()
         try:
             if self.lost.wait(seconds):
-                self.report.all_done = False
+                self.report.fail()
         finally:
             self._waiting.clear()
 
