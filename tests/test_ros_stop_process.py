@@ -14,19 +14,25 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from std_srvs.srv import Trigger
 
 from al5d.arm.config import ArmConfig
+from al5d.arm.instruction import Outcome, Result
 from al5d.arm.states import State
+from al5d.model.transforms import Transform
 from al5d.owner.loop import Owner
+from al5d.ros.names import Names
 from al5d.ros.processes import Child, Setup
+from al5d.ros.qos import QOS_SERVICES
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator, Record
-from al5d_rig.proc import Proc, family, freeze, patient_config, run_state
+from al5d.web.link import WebNode
+from al5d_rig.proc import Lines, Proc, family, freeze, patient_config, run_state
 from al5d_rig.rospeer import Peer, wait_until
 from al5d_rig.served import StopBursts
 
@@ -352,3 +358,82 @@ def test_a_stop_process_whose_owner_ends_as_it_starts_ends_with_it(
             os.kill(child.proc.pid, signal.SIGCONT)
         child.close(timeout=1)
         owner.close()
+
+
+def test_a_web_views_stop_to_a_server_elsewhere_is_one_stop_whatever_comes_after(
+    served: Served, config: ArmConfig, tmp_path: Path
+) -> None:
+    """The web view of a server on another machine (no lane of it here) sends its STOP on
+    the instruction topic, again until it is answered: one stop. The stop process frozen
+    (as a link that holds one way back): the server's node obeys the stop, the page
+    releases the arm, and the stop process, thawed, takes what it held for the stop obeyed
+    already, so the arm stays released. (The page called the stop service as well: a
+    second stop, which the thawed stop process obeyed after the release.)"""
+    heard = Heard()
+    link = WebNode(Names.of(""), heard, config.model, tuple(config.presets))
+    link.lane = tmp_path / "no-lane-here.sock"  # the server is elsewhere
+    stop_process = served.stop_process()
+    try:
+        wait_until(lambda: heard.joints > 0, 30, "the page's joint states")
+        # The stop service matched by the page's participant: a page that called it would now.
+        probe = link.node.create_client(Trigger, "/al5d/stop", qos_profile=QOS_SERVICES)
+        wait_until(probe.service_is_ready, 30, "the stop service")
+        freeze(stop_process)
+        try:
+            said = served.proc.err
+            way = link.stop()
+            stopped = said_after(said, len(said.drain(0)), "STATE: stopped")
+            link.release()
+            released = said_after(said, stopped, "STATE: ready")
+        finally:
+            os.kill(stop_process, signal.SIGCONT)
+        # The stop process runs again, and takes what waited for it: a move after it is run
+        # (one more stop would cancel it or refuse it) and the arm is not stopped again.
+        served.peer.send("after-the-thaw", "move", time_ms=1000, base=10)
+        result = served.peer.result("after-the-thaw", 30)
+        again = [line for line in said.drain(0)[released:] if "STATE: stopped" in line]
+        assert result.outcome == "done" and not again, (result.outcome, result.reason, again)
+        stop = heard.outcome(lambda o: o.instruction == "stop", 30)
+        assert way == "the topic" and stop.result is Result.DONE and "~" in stop.id, (way, stop)
+    finally:
+        link.close()
+
+
+def said_after(lines: Lines, since: int, text: str, timeout: float = 30.0) -> int:
+    """The index of the first line from `since` on that holds `text`, once one has come."""
+
+    def found() -> int | None:
+        return next((i for i, ln in enumerate(lines.drain(0)) if i >= since and text in ln), None)
+
+    wait_until(lambda: found() is not None, timeout, text)
+    at = found()
+    assert at is not None
+    return at
+
+
+class Heard:
+    """A page's listener that counts the joint states and keeps the outcomes."""
+
+    def __init__(self) -> None:
+        self.joints = 0
+        self.outcomes: list[Outcome] = []
+
+    def outcome(self, which: Callable[[Outcome], bool], timeout: float) -> Outcome:
+        wait_until(lambda: any(which(o) for o in self.outcomes), timeout, "the outcome")
+        return next(o for o in self.outcomes if which(o))
+
+    def on_joints(self, names: Sequence[str], positions: Sequence[float], t: float) -> None:
+        self.joints += 1
+
+    def on_outcome(self, outcome: Outcome) -> None:
+        self.outcomes.append(outcome)
+
+    def on_description(self, urdf: str) -> None: ...
+
+    def on_state(self, state: str) -> None: ...
+
+    def on_instruction(self, instr: object) -> None: ...
+
+    def on_mount(self, parent: str, mount: Transform) -> None: ...
+
+    def on_physical(self, degrees: dict[str, float]) -> None: ...

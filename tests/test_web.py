@@ -851,11 +851,24 @@ def test_the_page_says_when_it_lost_the_server(rig: Rig) -> None:
     )
     rig.server = serve(rig.link)
     wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
+    # That STOP went on until answered, for 10 s: obeyed by the new server if it came by
+    # then (the page then says so), else said unanswered; never silently lost.
+    wait_until(lambda: answers(rig, seen), 30, "the STOP's answer, or its lack, said")
+    answer = answers(rig, seen)[0]
+    if "no answer" not in answer:
+        rig.state.wait_for("stopped", 10)
+    # The new server's services have answered this peer once (a release: the arm is let go).
+    rig.peer.first_answer()
+    rig.state.wait_for("ready", 10)
     wait_until(lambda: shapes() == before, 10, "the controls back")
-    rig.peer.first_answer()  # the new server's services have answered this peer once
     stop.click()
     rig.state.wait_for("stopped", 10)
     assert rig.peer.trigger("release").success
+
+
+def answers(rig: Rig, since: int) -> list[str]:
+    """What the web view said of its STOPs on the topic, in its lines from `since` on."""
+    return [line for line in rig.web.proc.err.drain(0)[since:] if "web: STOP on the topic:" in line]
 
 
 def test_the_page_says_when_it_lost_its_web_view(rig: Rig) -> None:

@@ -1,5 +1,6 @@
 """The web view's ROS link (`al5d.web.link.WebNode`) against readers in processes of their own:
-whether a jog's set-point has a server to read it, across a server killed outright."""
+whether a jog's set-point has a server to read it, across a server killed outright; and
+against a server, the web view as a client with a lease."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import signal
 import subprocess
 import sys
 from collections.abc import Iterator, Sequence
+from pathlib import Path
 
 import pytest
 
@@ -17,8 +19,9 @@ from al5d.arm.instruction import Outcome
 from al5d.model.transforms import Transform
 from al5d.ros.names import Names
 from al5d.web.link import WebNode
-from al5d_rig.proc import said
+from al5d_rig.proc import dies_with_parent, freeze, said
 from al5d_rig.rospeer import wait_until
+from al5d_rig.served import served
 
 NAMES = Names.of("web_link_test")
 
@@ -114,3 +117,56 @@ def test_a_reader_matched_before_the_loss_was_noticed_reads_once_the_killed_one_
             assert not link.jog(here)  # both still matched: the killed one may be the reader
             wait_until(lambda: link.jog(here), 60, "the killed reader gone, the second reading")
             assert link.jog_pub.get_subscription_count() == 1
+
+
+#: A web view's link to a server elsewhere (no lane of it here: `argv[1]` names none), in a
+#: process of its own: it sends an 8 s move once it hears the server.
+WEB_MOVE = """
+import sys, time
+from pathlib import Path
+from al5d.arm import instruction as ins
+from al5d.arm.config import load_config
+from al5d.ros.names import Names
+from al5d.web.link import WebNode
+
+class Heard:
+    joints = 0
+    def on_joints(self, *args):
+        self.joints += 1
+    def __getattr__(self, name):
+        return lambda *args: None
+
+config = load_config()
+heard = Heard()
+link = WebNode(Names.of(""), heard, config.model, tuple(config.presets))
+link.lane = Path(sys.argv[1])
+while heard.joints == 0:
+    time.sleep(0.05)
+link.send(ins.move(base=80, time_ms=8000, id="web-long"))
+print("sent", flush=True)
+sys.stdin.readline()
+"""
+
+
+def test_a_web_view_that_goes_silent_has_its_move_halted(config: ArmConfig, tmp_path: Path) -> None:
+    """The web view is a client with a lease, as the Python client is: its process frozen
+    mid-move (as a web view cut off from its server), the server halts the move once the
+    lease has run out, and says why. (A page's moves named no lease, and ran on.)"""
+    with served(config, tmp_path, "al5d_web_lease_peer") as arm:
+        web = subprocess.Popen(
+            [sys.executable, "-c", WEB_MOVE, str(tmp_path / "no-lane-here.sock")],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            preexec_fn=dies_with_parent,
+        )
+        try:
+            assert web.stdout is not None and said(web.stdout) == "sent"
+            wait_until(lambda: arm.states[-1] == "moving", 30, "the page's move under way")
+            freeze(web.pid)
+            result = arm.peer.result("web-long", 30)
+            assert result.outcome != "done", (result.outcome, result.reason)
+            assert "lost contact with the client (web-" in result.reason, result.reason
+        finally:
+            web.kill()
+            web.wait(10)

@@ -29,7 +29,8 @@ client.
 - `reading`: what a client hears of the arm (its state, joints and tool pose), kept from
   the lane or the ROS topics, with waits and callbacks.
 - `leases`: the ROS clients' leases (who is still there, and each one's clock), and
-  which requests are stale (pure).
+  which requests are stale (pure); `leasing`: a client's side of its lease (its key, the
+  lease sent while it hears the server, its goodbye), for the client and the web view.
 
 This layer imports `al5d.owner`, `al5d.arm` (never the board's emulator) and rclpy.
 """

@@ -292,7 +292,7 @@ class Client:
     @property
     def lost_after_s(self) -> float:
         """Over ROS 2, how long the server may go unheard before this client takes it for
-        lost: its lease of this client and a margin (`al5d.ros.rosway.LOST_AFTER_LEASE_S`)."""
+        lost: its lease of this client and a margin (`al5d.ros.leasing.LOST_AFTER_LEASE_S`)."""
         return self._ros.lost_after_s
 
     def _check_open(self) -> None:

@@ -9,18 +9,14 @@ local server starts without rclpy and the messages (about half a second less).
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
-import secrets
-import socket
 import threading
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from al5d_interfaces.msg import ArmInstruction, ClientLease, InstructionResult
-from rclpy.duration import Duration
+from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -43,8 +39,9 @@ from al5d.ros.answers import (
 from al5d.ros.convert import COPY_MARK, outcome_from_message, to_message
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
+from al5d.ros.leasing import LEASE_EVERY_S, LOST_AFTER_LEASE_S, Leaser, new_key
 from al5d.ros.names import PING, Names, server_nodes
-from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_LATEST, QOS_LEASES, QOS_SERVICES, QOS_STREAM
+from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_LATEST, QOS_SERVICES, QOS_STREAM
 from al5d.ros.reading import ArmView, follow_ros
 
 if TYPE_CHECKING:
@@ -82,20 +79,14 @@ STOP_UNANSWERED_S = 1.0
 STOPS_ANSWERED_S = 4.0
 #: A release or a shutdown waits this long after its service is found: see `STOP_RETRY_S`.
 SERVICE_SETTLE_S = 0.5
-#: A client over ROS 2 sends its lease this often (`al5d.ros.leases`), and takes the server
-#: for lost when it has heard nothing from it (its joint states, 10 a second when idle)
-#: for the server's lease (`server.client_lease_s`, 1 s unless the client has read the
-#: server's configuration) and `LOST_AFTER_LEASE_S` more: by then the server, which
-#: checks its leases every tenth of a second, has halted what this client commanded. With
-#: equal times a move was done 80 ms after its sender had given up on it (a CI run).
-LEASE_EVERY_S = 0.1
-LOST_AFTER_LEASE_S = 0.5
 #: A silence this long is said at once (a WARNING) by a client that waits for the server,
 #: before it gives up.
 SILENCE_SAID_S = 1.0
+#: A client takes the server for lost when it has heard nothing from it (its joint states,
+#: 10 a second when idle) for the server's lease (`server.client_lease_s`, 1 s until the
+#: client has read the server's configuration) and `LOST_AFTER_LEASE_S` more
+#: (`al5d.ros.leasing`): by then the server has halted what this client commanded.
 LOST_S = 1.0 + LOST_AFTER_LEASE_S
-#: How long a closing client waits for the server to have its last lease.
-BYE_S = 0.5
 
 
 class RosWay:
@@ -132,16 +123,11 @@ class RosWay:
             InstructionResult, names.result, self._on_result, QOS_STREAM
         )
         #: This client's lease (`al5d.ros.leases`), named in what it sends.
-        self.key = f"{socket.gethostname()[:40]}-{os.getpid()}-{secrets.token_hex(3)}"
-        self._lease_pub = self.node.create_publisher(ClientLease, names.clients, QOS_LEASES)
-        #: When the server was last heard (monotonic s; None: not yet).
-        self._heard: float | None = None
+        self.lease = Leaser(self.node, names, new_key())
+        self.key = self.lease.key
         #: The last sign of the server whose silence has been said (once an outage).
         self._silence_said: float | None = None
-        self.node.create_subscription(JointState, names.joint_states, self._on_sign, QOS_LATEST)
-        self._leasing = threading.Event()
-        self._leaser = threading.Thread(target=self._lease, name="al5d-lease", daemon=True)
-        self._leaser.start()
+        self.node.create_subscription(JointState, names.joint_states, self.lease.sign, QOS_LATEST)
         #: The stop's and the shutdown's services (a release goes on the topic: `_release`).
         self._services: dict[Kind, tuple[str, Any]] = {
             kind: (name, self.node.create_client(Trigger, name, qos_profile=QOS_SERVICES))
@@ -166,38 +152,14 @@ class RosWay:
 
     # -- the lease and the server's silence --------------------------------------------
 
-    def _lease(self) -> None:
-        """Send this client's lease every `LEASE_EVERY_S` until it closes, while it hears the
-        server: a lease says the client is there and hears it. Silent for more than
-        `LOST_AFTER_LEASE_S`, the client holds its lease back, so that where the link fails
-        one way only (the server's frames lost, the client's still arriving) the server
-        halts what this client commanded after its lease, as the client, giving up then
-        (`lost_after_s`), says it does. (An outside try: the client gave up and said so,
-        its leases still came, and the move ran on to `done`.)"""
-        every_ms = round(LEASE_EVERY_S * 1000)
-        while not self._leasing.wait(LEASE_EVERY_S):
-            if self._deaf():
-                continue
-            self._lease_pub.publish(
-                ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=every_ms)
-            )
-
-    def _deaf(self) -> bool:
-        """The server heard once, and not for more than `LOST_AFTER_LEASE_S` since."""
-        heard = self._heard
-        return heard is not None and time.monotonic() - heard > LOST_AFTER_LEASE_S
-
     def _on_readers_matched(self, info: Any) -> None:
         self._readers_matched = info.total_count
-
-    def _on_sign(self, msg: object) -> None:
-        self._heard = time.monotonic()
 
     def lost_contact(self) -> float | None:
         """Once the server has been heard: for how long it has not been, if more than
         `lost_after_s` (None: not lost). A silence of `SILENCE_SAID_S` (of the server's
         lease, if shorter) is said once, as a WARNING, before that."""
-        heard = self._heard
+        heard = self.lease.heard
         if heard is None:
             return None
         quiet = time.monotonic() - heard
@@ -316,7 +278,7 @@ class RosWay:
             self.pub.publish(msg)
 
     def _on_result(self, msg: InstructionResult) -> None:
-        self._heard = time.monotonic()
+        self.lease.sign()
         with self._cv:
             if msg.id not in self._sent and msg.id not in self._watchers:
                 return
@@ -536,10 +498,10 @@ class RosWay:
                     break
                 if not warned and time.monotonic() - start >= STOP_UNANSWERED_S:
                     warned = True
-                    last = self._heard
+                    last = self.lease.heard
                     why = (
                         "the server not found yet, or its side has not found this client yet"
-                        if last is None or not self._deaf()
+                        if last is None or not self.lease.deaf()
                         else f"nothing heard from the server for {time.monotonic() - last:.1f}"
                         " s: the link may be lost"
                     )
@@ -586,15 +548,6 @@ class RosWay:
             f"but no al5d server was found within {self.wait_s:g} s to answer it (whether "
             "the arm has stopped is unknown)"
         )
-
-    def _say_bye(self) -> None:
-        """Tell the server this client closes (what it commanded goes on), and wait a moment
-        for what it sent and that word to reach it: a client it never hears close, it takes
-        for lost."""
-        self._lease_pub.publish(ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=0))
-        with contextlib.suppress(Exception):  # what it sent, then its last word
-            self.pub.wait_for_all_acked(Duration(seconds=BYE_S))
-            self._lease_pub.wait_for_all_acked(Duration(seconds=BYE_S))
 
     def _find_service(self, kind: Kind, name: str, service: Any) -> bool:
         """True once `service` is available; False if the server's topics are there and it is
@@ -647,12 +600,7 @@ class RosWay:
         return None
 
     def close(self) -> None:
-        """End the lease, say goodbye, and end the node and its ROS context."""
-        self._leasing.set()
-        self._leaser.join()
-        # Out of contact, no goodbye (which says: what I commanded goes on): the server,
-        # if it hears this client still, takes it for lost and halts what it commanded, as
-        # this client said when it gave up.
-        if not self._deaf():
-            self._say_bye()
+        """End the lease (with a goodbye if in contact: `Leaser.close`), and end the node
+        and its ROS context."""
+        self.lease.close([self.pub])
         self.spinner.close()

@@ -22,24 +22,23 @@ import socket
 import threading
 import time
 from collections.abc import Mapping, Sequence
-from typing import Any, Protocol
+from typing import Protocol
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
-from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory
 
 from al5d.arm.instruction import FRESH_MARK, Instruction, Kind, Outcome, new_id
-from al5d.arm.instruction import stop as stop_instruction
 from al5d.model import ArmModel
 from al5d.model.chain import BASE_LINK
 from al5d.model.transforms import Transform
 from al5d.owner import quick, where
 from al5d.ros.convert import (
+    COPY_MARK,
     from_message,
     outcome_from_message,
     to_message,
@@ -47,6 +46,7 @@ from al5d.ros.convert import (
 )
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
+from al5d.ros.leasing import Leaser, new_key
 from al5d.ros.names import PING, Names
 from al5d.ros.physical import PhysicalReader
 from al5d.ros.qos import (
@@ -54,7 +54,6 @@ from al5d.ros.qos import (
     QOS_INSTRUCTIONS,
     QOS_LATCHED,
     QOS_LATEST,
-    QOS_SERVICES,
     profile,
 )
 from al5d.ros.robot import QOS_TF_STATIC
@@ -69,6 +68,11 @@ log = logging.getLogger("al5d.web")
 #: not read its backlog), and how long its answer is waited for, in a thread of its own.
 LANE_HAND_S = 0.05
 LANE_STOP_S = 10.0
+#: A STOP on the topic (no lane of the server here) is sent again this often in its first
+#: second, then every second, until a copy is answered or `LANE_STOP_S` has passed: a
+#: server just found may not have matched this writer yet, and a lossy link loses copies.
+STOP_FIRST_COPIES_S = 0.25
+STOP_COPIES_S = 1.0
 
 
 #: The state: latched as the server writes it, and every change kept until this page takes
@@ -96,8 +100,10 @@ class Listener(Protocol):
 
 
 class WebNode:
-    """The web process's node: subscriptions to the server's outputs, the instruction topic,
-    and the stop and release services."""
+    """The web process's node: subscriptions to the server's outputs, the instruction topic
+    (the page's moves, STOP and RELEASE, each naming its lease), and its lease: a client
+    of the server as the Python client is, whose moves the server halts once it has lost
+    it (`al5d.ros.leasing`)."""
 
     def __init__(
         self,
@@ -118,6 +124,10 @@ class WebNode:
             f"al5d_web_{os.getpid()}", namespace=names.node_namespace, context=self.context
         )
         self.pub = node.create_publisher(ArmInstruction, names.instruction, QOS_INSTRUCTIONS)
+        #: Named in what the page sends, and sent while the page hears the server.
+        self.lease = Leaser(node, names, new_key("web-"))
+        #: The STOPs on the topic not answered yet: each one's id, and what its answer sets.
+        self._stops: dict[str, threading.Event] = {}
         #: The ids of this page's set-points start with it.
         self.jog_prefix = f"web-jog-{os.getpid():x}-"
         self._jog_ids = itertools.count(1)
@@ -141,11 +151,6 @@ class WebNode:
         node.create_subscription(TFMessage, "/tf_static", self._on_static, QOS_TF_STATIC)
         # Where an emulated arm truly stands, if one says (`al5d emulator --misalign`).
         PhysicalReader(node, names, model, listener.on_physical)
-        by_kind = {kind: name for name, kind in names.services.items()}
-        self.stop_client = node.create_client(Trigger, by_kind[Kind.STOP], qos_profile=QOS_SERVICES)
-        self.release_client = node.create_client(
-            Trigger, by_kind[Kind.RELEASE], qos_profile=QOS_SERVICES
-        )
         #: The local lane of a server of these names on this machine, where the STOP goes
         #: first (no discovery: `al5d.owner.quick`), if a server is there.
         self.lane = where.path(names.namespace)
@@ -157,6 +162,7 @@ class WebNode:
         self.listener.on_description(str(msg.data))
 
     def _on_joints(self, msg: JointState) -> None:
+        self.lease.sign()
         prefix = len(self.joint_prefix)
         names = [n[prefix:] if n.startswith(self.joint_prefix) else n for n in msg.name]
         self.listener.on_joints(names, list(msg.position), time.monotonic())
@@ -165,12 +171,18 @@ class WebNode:
         self.listener.on_state(str(msg.data))
 
     def _on_result(self, msg: InstructionResult) -> None:
+        self.lease.sign()
         if msg.instruction == PING:  # a client's handshake: no news of the arm
             return
         try:
             outcome = outcome_from_message(msg)
         except ValueError:  # an outcome word this page does not know: not the server's
             return
+        stop, mark, _ = outcome.id.partition(COPY_MARK)
+        answered = self._stops.get(stop) if mark else None
+        if answered is not None and not answered.is_set():
+            answered.set()
+            log.info("web: STOP on the topic: %s", outcome.reason or outcome.result.value)
         self.listener.on_outcome(outcome)
 
     def _on_instruction(self, msg: ArmInstruction) -> None:
@@ -195,7 +207,9 @@ class WebNode:
     # -- to the server ---------------------------------------------------------------
 
     def send(self, instr: Instruction) -> None:
-        self.pub.publish(to_message(instr))
+        msg = to_message(instr)
+        msg.client = self.lease.key
+        self.pub.publish(msg)
 
     def jog(self, degrees: Mapping[str, float]) -> bool:
         """A set-point of the jog (the arm's degrees) on the server's stream of set-points,
@@ -232,16 +246,15 @@ class WebNode:
 
     def stop(self) -> str:
         """The emergency stop: by the local lane where a server's is on this machine (no
-        discovery, no DDS: the owner has it as the socket is read), and only by it then: the
-        service and the topic end at the same owner, and a copy of them that came after a
-        release would lock the arm again (seen in a CI run: a STOPPED after the release).
-        Else by the service (it never waits behind instructions) and on the instruction
-        topic as well (the server's stop watcher obeys it at once). The topic reaches a
-        server whose service this process has not matched yet: the server's stop path is a
-        DDS participant of its own, discovered apart from the node whose state the page
-        shows (a server just restarted beside a page that saw it go), and a server killed
-        outright still looks ready for as long as DDS takes to notice (seconds). Returns
-        which ways it went."""
+        discovery, no DDS: the owner has it as the socket is read), else on the instruction
+        topic, where the server's stop watcher obeys it at once. Only one way: a copy that
+        came by the other after a release would lock the arm again (seen in a CI run: a
+        STOPPED after the release). For the same reason there is no stop service call here
+        (`std_srvs/Trigger` names no stop: the server cannot know it for this one): the
+        copies sent again on the topic until one is answered name this page's lease and
+        one stop (`<stop>~<n>`, `al5d.ros.convert.stop_key`), which the server obeys once,
+        however many of them come, and before or after whichever release. Returns which
+        way it went."""
         try:
             # Handed over here (a Unix socket takes it at once); only its answer is waited
             # for, in a thread of its own.
@@ -252,13 +265,38 @@ class WebNode:
         if sock is not None:
             threading.Thread(target=self._lane_answer, args=(sock,), daemon=True).start()
             return "the local lane"
-        ways = []
-        if self.stop_client.service_is_ready():
-            self.stop_client.call_async(Trigger.Request())
-            ways.append("service")
-        self.send(stop_instruction(id=new_id()))
-        ways.append("topic")
-        return " and ".join(ways)
+        stop, answered = f"web-stop-{new_id()}", threading.Event()
+        self._stops[stop] = answered
+        self._stop_copy(stop, 1)  # the first at once, in the click's own thread
+        threading.Thread(target=self._stop_again, args=(stop, answered), daemon=True).start()
+        return "the topic"
+
+    def _stop_copy(self, stop: str, n: int) -> None:
+        msg = to_message(Instruction(Kind.STOP, id=f"{stop}{COPY_MARK}{n}"))
+        msg.client = self.lease.key  # no deadline: a stop is obeyed however late
+        self.pub.publish(msg)
+
+    def _stop_again(self, stop: str, answered: threading.Event) -> None:
+        """The copies of `stop` after the first, until one is answered or `LANE_STOP_S`."""
+        start = time.monotonic()
+        n = 1
+        try:
+            while True:
+                elapsed = time.monotonic() - start
+                every = STOP_FIRST_COPIES_S if elapsed < 1.0 else STOP_COPIES_S
+                if answered.wait(every) or time.monotonic() - start >= LANE_STOP_S:
+                    break
+                n += 1
+                self._stop_copy(stop, n)
+        finally:
+            self._stops.pop(stop, None)
+        if not answered.is_set():
+            log.warning(
+                "web: STOP on the topic: no answer in %g s (sent %d times): whether the server "
+                "obeyed is unknown",
+                LANE_STOP_S,
+                n,
+            )
 
     def _lane_answer(self, sock: socket.socket) -> None:
         try:
@@ -268,11 +306,12 @@ class WebNode:
             return
         log.info("web: STOP by the local lane: %s", answer.get("result"))
 
-    def release(self) -> Any:
-        if self.release_client.service_is_ready():
-            return self.release_client.call_async(Trigger.Request())
+    def release(self) -> None:
+        """On the topic with the page's lease, as the Python client's: judged on the server's
+        clock, and after the page's own stops, which went before it on the same writer (the
+        release service takes no lease, and is judged on its sender's clock)."""
         self.send(Instruction(Kind.RELEASE))
-        return None
 
     def close(self) -> None:
+        self.lease.close([self.pub])
         self.spinner.close()

@@ -1,0 +1,93 @@
+"""A ROS client's side of its lease (`al5d.ros.leases` is the server's): the key it names in
+what it sends, the lease sent a few times a second while it hears the server, and its
+goodbye. The Python client's way (`al5d.ros.rosway`) and the web view's node
+(`al5d.web.link`) both hold one, so that the server halts what either commanded once it
+has lost them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+import socket
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from al5d_interfaces.msg import ClientLease
+from rclpy.duration import Duration
+from rclpy.node import Node
+
+from al5d.ros.names import Names
+from al5d.ros.qos import QOS_LEASES
+
+#: A client over ROS 2 sends its lease this often (`al5d.ros.leases`), and takes the server
+#: for lost when it has heard nothing from it (its joint states, 10 a second when idle)
+#: for the server's lease (`server.client_lease_s`, 1 s unless the client has read the
+#: server's configuration) and `LOST_AFTER_LEASE_S` more: by then the server, which
+#: checks its leases every tenth of a second, has halted what this client commanded. With
+#: equal times a move was done 80 ms after its sender had given up on it (a CI run).
+LEASE_EVERY_S = 0.1
+LOST_AFTER_LEASE_S = 0.5
+#: How long a closing client waits for the server to have its last lease.
+BYE_S = 0.5
+
+
+def new_key(kind: str = "") -> str:
+    """A client's key: its host, its process and a few random bytes (`kind` before them)."""
+    return f"{kind}{socket.gethostname()[:40]}-{os.getpid()}-{secrets.token_hex(3)}"
+
+
+class Leaser:
+    """The lease of the client with key `key` on `names.clients`, sent by a thread of its own
+    every `LEASE_EVERY_S` from creation until `close`, while the client hears the server.
+
+    Its holder says when it heard the server (`sign`, from its callbacks). Silent for more
+    than `LOST_AFTER_LEASE_S`, the lease is held back, so that where the link fails one way
+    only (the server's frames lost, the client's still arriving) the server halts what this
+    client commanded after its lease, as the client, giving up then, says it does. (An
+    outside try: the client gave up and said so, its leases still came, and the move ran
+    on to `done`.)"""
+
+    def __init__(self, node: Node, names: Names, key: str) -> None:
+        self.key = key
+        #: When the server was last heard (monotonic s; None: not yet).
+        self.heard: float | None = None
+        self._pub = node.create_publisher(ClientLease, names.clients, QOS_LEASES)
+        self._closing = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="al5d-lease", daemon=True)
+        self._thread.start()
+
+    def sign(self, *_: object) -> None:
+        """The server was heard now (a callback of any of its topics)."""
+        self.heard = time.monotonic()
+
+    def deaf(self) -> bool:
+        """The server heard once, and not for more than `LOST_AFTER_LEASE_S` since."""
+        heard = self.heard
+        return heard is not None and time.monotonic() - heard > LOST_AFTER_LEASE_S
+
+    def _run(self) -> None:
+        every_ms = round(LEASE_EVERY_S * 1000)
+        while not self._closing.wait(LEASE_EVERY_S):
+            if not self.deaf():
+                self._pub.publish(
+                    ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=every_ms)
+                )
+
+    def close(self, sent_by: Sequence[Any] = ()) -> None:
+        """End the lease. Still in contact, say goodbye (what this client commanded goes on)
+        and wait a moment for what it sent (on `sent_by`, its writers) and that word to
+        reach the server: a client it never hears close, it takes for lost. Out of contact,
+        no goodbye: the server, if it hears this client still, takes it for lost and halts
+        what it commanded, as this client said when it gave up."""
+        self._closing.set()
+        self._thread.join()
+        if self.deaf():
+            return
+        self._pub.publish(ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=0))
+        with contextlib.suppress(Exception):  # what it sent, then its last word
+            for pub in (*sent_by, self._pub):
+                pub.wait_for_all_acked(Duration(seconds=BYE_S))
