@@ -177,12 +177,23 @@ def page_facts(page: Any) -> str:
     return "\n".join(facts)
 
 
-def serve(link: Path, speeds: tuple[tuple[str, float], ...] = (), **server: float) -> Proc:
-    """`al5d serve` on the emulated board's link, once it is ready; `speeds` and `server`:
-    settings of its configuration (`patient_config`)."""
+def serve(
+    link: Path,
+    speeds: tuple[tuple[str, float], ...] = (),
+    started: str = "STATE: ready",
+    **server: float,
+) -> Proc:
+    """`al5d serve` on the emulated board's link, once it has said `started` (by default,
+    that it is ready); `speeds` and `server`: settings of its configuration
+    (`patient_config`). Ended if it does not say it: one left running would hold its lane,
+    and every server of the tests after it would find its namespace taken."""
     config = patient_config(speeds, **server)
     proc = Proc("serve", "--port", str(link), "--config", config, "--log-level", "DEBUG")
-    proc.err.wait_for("STATE: ready", 30)
+    try:
+        proc.err.wait_for(started, 30)
+    except BaseException:
+        proc.kill()
+        raise
     return proc
 
 
@@ -849,10 +860,11 @@ def test_the_page_says_when_it_lost_the_server(rig: Rig) -> None:
         5,
         "STOP on the topic",
     )
-    rig.server = serve(rig.link)
+    # That STOP goes on until answered, for 10 s: obeyed by the new server if it comes by
+    # then (the page then says so; the server may be stopped before it was ever ready),
+    # else said unanswered; never silently lost.
+    rig.server = serve(rig.link, started="ROS 2 node /al5d up")
     wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
-    # That STOP went on until answered, for 10 s: obeyed by the new server if it came by
-    # then (the page then says so), else said unanswered; never silently lost.
     wait_until(lambda: answers(rig, seen), 30, "the STOP's answer, or its lack, said")
     answer = answers(rig, seen)[0]
     if "no answer" not in answer:
