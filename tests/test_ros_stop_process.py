@@ -381,8 +381,9 @@ def test_a_web_views_stop_to_a_server_elsewhere_is_one_stop_whatever_comes_after
         freeze(stop_process)
         try:
             said = served.proc.err
+            before = len(said.drain(0))
             way = link.stop()
-            stopped = said_after(said, len(said.drain(0)), "STATE: stopped")
+            stopped = said_after(said, before, "STATE: stopped")
             link.release()
             released = said_after(said, stopped, "STATE: ready")
         finally:

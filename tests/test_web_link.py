@@ -9,17 +9,22 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import pytest
+from al5d_interfaces.msg import ArmInstruction
+from rclpy.node import Node
 
 from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Outcome
 from al5d.model.transforms import Transform
+from al5d.ros.dds import start_context
+from al5d.ros.executors import Spinner
 from al5d.ros.names import Names
 from al5d.web.link import WebNode
-from al5d_rig.proc import dies_with_parent, freeze, said
+from al5d_rig.proc import Lines, dies_with_parent, freeze, said
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import served
 
@@ -140,7 +145,11 @@ config = load_config()
 heard = Heard()
 link = WebNode(Names.of(""), heard, config.model, tuple(config.presets))
 link.lane = Path(sys.argv[1])
-while heard.joints == 0:
+# The server heard, and both its readers of instructions (its node's, its stop watcher's)
+# matched: a move sent before would reach nobody.
+deadline = time.monotonic() + 60
+while heard.joints == 0 or link.pub.get_subscription_count() < 2:
+    assert time.monotonic() < deadline, "no server found"
     time.sleep(0.05)
 link.send(ins.move(base=80, time_ms=8000, id="web-long"))
 print("sent", flush=True)
@@ -161,7 +170,8 @@ def test_a_web_view_that_goes_silent_has_its_move_halted(config: ArmConfig, tmp_
             preexec_fn=dies_with_parent,
         )
         try:
-            assert web.stdout is not None and said(web.stdout) == "sent"
+            assert web.stdout is not None
+            Lines(web.stdout).wait_for("sent", 90)
             wait_until(lambda: arm.states[-1] == "moving", 30, "the page's move under way")
             freeze(web.pid)
             result = arm.peer.result("web-long", 30)
@@ -170,3 +180,32 @@ def test_a_web_view_that_goes_silent_has_its_move_halted(config: ArmConfig, tmp_
         finally:
             web.kill()
             web.wait(10)
+
+
+def test_a_release_ends_the_copies_of_a_stop_still_unanswered(link: WebNode) -> None:
+    """A STOP on the topic is sent again until it is answered (here nobody answers: no server);
+    a RELEASE from the page ends its copies, so none follows the release: the stop watcher
+    could read a later copy before the node had read an earlier one (a lossy link), and
+    take it for a stop sent after the release."""
+    context = start_context()
+    seen: list[str] = []
+    node = Node("web_link_listener", context=context)
+    node.create_subscription(
+        ArmInstruction, NAMES.instruction, lambda m: seen.append(str(m.instruction)), 100
+    )
+    spinner = Spinner(node, context, kind="single")
+    try:
+        wait_until(lambda: link.pub.get_subscription_count() > 0, 20, "the listener matched")
+        assert link.stop() == "the topic"
+        wait_until(lambda: seen.count("stop") >= 3, 20, "the STOP sent again")
+        link.release()
+        wait_until(lambda: "release" in seen, 20, "the release")
+        wait_until(lambda: not copying(), 20, "the copies ended")
+        assert seen[-1] == "release", seen
+    finally:
+        spinner.close()
+
+
+def copying() -> bool:
+    """Whether a thread of this process still sends a STOP's copies."""
+    return any(t.name.startswith("web-stop-") and t.is_alive() for t in threading.enumerate())

@@ -215,7 +215,7 @@ class Mount(_Frozen):
 
 #: The joint states are the server's sign of life: the web view takes the server for lost
 #: after 1 s without one, a client says so after 1 s, and holds its lease back after 0.5 s
-#: (`al5d.ros.rosway.RosWay._lease`). At 0.001 Hz (accepted once) both said the server was
+#: (`al5d.ros.leasing.Leaser`). At 0.001 Hz (accepted once) both said the server was
 #: lost while it ran.
 MIN_JOINT_STATE_RATE_HZ = 4.0
 

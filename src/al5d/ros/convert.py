@@ -138,7 +138,8 @@ def stop_key(msg: ArmInstruction, info: Mapping[str, int | None]) -> Hashable:
     """What one stop is known by to every reader of its topic (the node and the stop watcher
     both see it; `al5d.arm.core`'s rule 3: obeyed once): a copy of a stop (its id
     `<stop>~<copy>`, `COPY_MARK`) that names its client, by that and the stop's id before
-    the mark (the copies `al5d.ros.client` sends until one is answered are one stop, so a
+    the mark (the copies `al5d.ros.client` and the web view send until one is answered are
+    one stop, so a
     copy that comes after another client's release is the stop obeyed already, and does
     not lock the arm again); any other, by its message (its source timestamp and
     publication sequence number): a stop sent again under the same id is a stop again."""

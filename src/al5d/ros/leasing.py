@@ -19,9 +19,10 @@ from typing import Any
 from al5d_interfaces.msg import ClientLease
 from rclpy.duration import Duration
 from rclpy.node import Node
+from sensor_msgs.msg import JointState
 
 from al5d.ros.names import Names
-from al5d.ros.qos import QOS_LEASES
+from al5d.ros.qos import QOS_LATEST, QOS_LEASES
 
 #: A client over ROS 2 sends its lease this often (`al5d.ros.leases`), and takes the server
 #: for lost when it has heard nothing from it (its joint states, 10 a second when idle)
@@ -44,7 +45,9 @@ class Leaser:
     """The lease of the client with key `key` on `names.clients`, sent by a thread of its own
     every `LEASE_EVERY_S` from creation until `close`, while the client hears the server.
 
-    Its holder says when it heard the server (`sign`, from its callbacks). Silent for more
+    It hears the server's joint states on `node` (its holder may say it heard the server
+    otherwise too: `sign`); a node whose executor runs nothing that can wait for long, or
+    a silence of the server is taken where there is none. Silent for more
     than `LOST_AFTER_LEASE_S`, the lease is held back, so that where the link fails one way
     only (the server's frames lost, the client's still arriving) the server halts what this
     client commanded after its lease, as the client, giving up then, says it does. (An
@@ -56,6 +59,7 @@ class Leaser:
         #: When the server was last heard (monotonic s; None: not yet).
         self.heard: float | None = None
         self._pub = node.create_publisher(ClientLease, names.clients, QOS_LEASES)
+        node.create_subscription(JointState, names.joint_states, self.sign, QOS_LATEST)
         self._closing = threading.Event()
         self._thread = threading.Thread(target=self._run, name="al5d-lease", daemon=True)
         self._thread.start()

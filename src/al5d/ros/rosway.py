@@ -19,7 +19,6 @@ from typing import TYPE_CHECKING, Any
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from al5d.arm.instruction import SAFETY, Instruction, Kind, Outcome, new_id
@@ -41,7 +40,7 @@ from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.leasing import LEASE_EVERY_S, LOST_AFTER_LEASE_S, Leaser, new_key
 from al5d.ros.names import PING, Names, server_nodes
-from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_LATEST, QOS_SERVICES, QOS_STREAM
+from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SERVICES, QOS_STREAM
 from al5d.ros.reading import ArmView, follow_ros
 
 if TYPE_CHECKING:
@@ -127,7 +126,6 @@ class RosWay:
         self.key = self.lease.key
         #: The last sign of the server whose silence has been said (once an outage).
         self._silence_said: float | None = None
-        self.node.create_subscription(JointState, names.joint_states, self.lease.sign, QOS_LATEST)
         #: The stop's and the shutdown's services (a release goes on the topic: `_release`).
         self._services: dict[Kind, tuple[str, Any]] = {
             kind: (name, self.node.create_client(Trigger, name, qos_profile=QOS_SERVICES))

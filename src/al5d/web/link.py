@@ -124,10 +124,23 @@ class WebNode:
             f"al5d_web_{os.getpid()}", namespace=names.node_namespace, context=self.context
         )
         self.pub = node.create_publisher(ArmInstruction, names.instruction, QOS_INSTRUCTIONS)
+        # The lease on a node of its own, which its own thread spins: this node's callbacks
+        # wait for the page's lock, and a lease that waited with them would be held back
+        # for a silence of the server that is the page's.
+        self.lease_node = Node(
+            f"al5d_web_lease_{os.getpid()}", namespace=names.node_namespace, context=self.context
+        )
         #: Named in what the page sends, and sent while the page hears the server.
-        self.lease = Leaser(node, names, new_key("web-"))
-        #: The STOPs on the topic not answered yet: each one's id, and what its answer sets.
+        self.lease = Leaser(self.lease_node, names, new_key("web-"))
+        # rclpy's Python executor: two of its events executors in one process are what
+        # `al5d_rig.rospeer.Peer` saw crash.
+        self.lease_spinner = Spinner(
+            self.lease_node, self.context, owns_context=False, kind="single"
+        )
+        #: The STOPs on the topic still sent again: each one's id, and what its answer sets.
         self._stops: dict[str, threading.Event] = {}
+        #: Held while a copy of a STOP or a RELEASE is published: no copy follows a release.
+        self._sending = threading.Lock()
         #: The ids of this page's set-points start with it.
         self.jog_prefix = f"web-jog-{os.getpid():x}-"
         self._jog_ids = itertools.count(1)
@@ -162,7 +175,6 @@ class WebNode:
         self.listener.on_description(str(msg.data))
 
     def _on_joints(self, msg: JointState) -> None:
-        self.lease.sign()
         prefix = len(self.joint_prefix)
         names = [n[prefix:] if n.startswith(self.joint_prefix) else n for n in msg.name]
         self.listener.on_joints(names, list(msg.position), time.monotonic())
@@ -171,7 +183,6 @@ class WebNode:
         self.listener.on_state(str(msg.data))
 
     def _on_result(self, msg: InstructionResult) -> None:
-        self.lease.sign()
         if msg.instruction == PING:  # a client's handshake: no news of the arm
             return
         try:
@@ -179,8 +190,8 @@ class WebNode:
         except ValueError:  # an outcome word this page does not know: not the server's
             return
         stop, mark, _ = outcome.id.partition(COPY_MARK)
-        answered = self._stops.get(stop) if mark else None
-        if answered is not None and not answered.is_set():
+        answered = self._stops.pop(stop, None) if mark else None
+        if answered is not None:
             answered.set()
             log.info("web: STOP on the topic: %s", outcome.reason or outcome.result.value)
         self.listener.on_outcome(outcome)
@@ -267,30 +278,42 @@ class WebNode:
             return "the local lane"
         stop, answered = f"web-stop-{new_id()}", threading.Event()
         self._stops[stop] = answered
+        copies = threading.Thread(
+            target=self._stop_again, args=(stop, answered), name=stop, daemon=True
+        )
+        copies.start()
         self._stop_copy(stop, 1)  # the first at once, in the click's own thread
-        threading.Thread(target=self._stop_again, args=(stop, answered), daemon=True).start()
         return "the topic"
 
-    def _stop_copy(self, stop: str, n: int) -> None:
+    def _stop_copy(self, stop: str, n: int) -> bool:
+        """Copy `n` of `stop`, unless it has ended (answered, or a release sent since);
+        whether it went."""
         msg = to_message(Instruction(Kind.STOP, id=f"{stop}{COPY_MARK}{n}"))
         msg.client = self.lease.key  # no deadline: a stop is obeyed however late
-        self.pub.publish(msg)
+        with self._sending:
+            if stop not in self._stops:
+                return False
+            self.pub.publish(msg)
+        return True
 
     def _stop_again(self, stop: str, answered: threading.Event) -> None:
-        """The copies of `stop` after the first, until one is answered or `LANE_STOP_S`."""
+        """The copies of `stop` after the first, until one is answered, a release is sent,
+        or `LANE_STOP_S` has passed."""
         start = time.monotonic()
         n = 1
-        try:
-            while True:
-                elapsed = time.monotonic() - start
-                every = STOP_FIRST_COPIES_S if elapsed < 1.0 else STOP_COPIES_S
-                if answered.wait(every) or time.monotonic() - start >= LANE_STOP_S:
+        while True:
+            elapsed = time.monotonic() - start
+            every = STOP_FIRST_COPIES_S if elapsed < 1.0 else STOP_COPIES_S
+            if answered.wait(every) or time.monotonic() - start >= LANE_STOP_S:
+                break
+            n += 1
+            try:
+                if not self._stop_copy(stop, n):
                     break
-                n += 1
-                self._stop_copy(stop, n)
-        finally:
-            self._stops.pop(stop, None)
-        if not answered.is_set():
+            except Exception:  # the next copy may go: only the context's end stops them
+                log.exception("web: STOP on the topic: copy %d not sent", n)
+        ended = self._stops.pop(stop, None) is not None
+        if ended and not answered.is_set():
             log.warning(
                 "web: STOP on the topic: no answer in %g s (sent %d times): whether the server "
                 "obeyed is unknown",
@@ -309,9 +332,19 @@ class WebNode:
     def release(self) -> None:
         """On the topic with the page's lease, as the Python client's: judged on the server's
         clock, and after the page's own stops, which went before it on the same writer (the
-        release service takes no lease, and is judged on its sender's clock)."""
-        self.send(Instruction(Kind.RELEASE))
+        release service takes no lease, and is judged on its sender's clock). A STOP still
+        sent again is not sent after it: a copy sent after the release, which the stop
+        watcher may read before the node has read an earlier one (a lossy link), would be
+        a stop sent after the release, and lock the arm again."""
+        with self._sending:
+            for stop in list(self._stops):
+                unanswered = self._stops.pop(stop, None)
+                if unanswered is not None:
+                    log.info("web: STOP on the topic: no more copies (a release was sent)")
+                    unanswered.set()
+            self.send(Instruction(Kind.RELEASE))
 
     def close(self) -> None:
         self.lease.close([self.pub])
+        self.lease_spinner.close()
         self.spinner.close()
