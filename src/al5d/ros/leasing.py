@@ -46,13 +46,13 @@ class Leaser:
     every `LEASE_EVERY_S` from creation until `close`, while the client hears the server.
 
     It hears the server's joint states on `node` (its holder may say it heard the server
-    otherwise too: `sign`); a node whose executor runs nothing that can wait for long, or
-    a silence of the server is taken where there is none. Silent for more
-    than `LOST_AFTER_LEASE_S`, the lease is held back, so that where the link fails one way
-    only (the server's frames lost, the client's still arriving) the server halts what this
-    client commanded after its lease, as the client, giving up then, says it does. (An
-    outside try: the client gave up and said so, its leases still came, and the move ran
-    on to `done`.)"""
+    otherwise too: `sign`), whose executor must run no callback that waits long: one that
+    did would hold the joint states back, and the lease with them, for a silence of the
+    server that is not one. Silent for more than `LOST_AFTER_LEASE_S`, the lease is held
+    back, so that where the link fails one way only (the server's frames lost, the
+    client's still arriving) the server halts what this client commanded after its lease,
+    as the client, giving up then, says it does. (An outside try: the client gave up and
+    said so, its leases still came, and the move ran on to `done`.)"""
 
     def __init__(self, node: Node, names: Names, key: str) -> None:
         self.key = key
