@@ -274,6 +274,36 @@ time.sleep(120)
 """
 
 
+def test_a_client_that_finds_a_reader_but_no_server_says_what_it_found(tmp_path: Path) -> None:
+    """Something reads the instruction topic, but no server answers: the client that waited
+    for a server says what it found (the readers listed, how many its instructions reach,
+    no server's node), not only that no server answers. (A CI run beside two busy loops
+    had two new clients find no server in 60 s while the server ran and its peer heard
+    it; the error said nothing more.)"""
+    script = tmp_path / "reader.py"
+    script.write_text(READER)
+    env = {**os.environ, **alone()}
+    with subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, env=env) as reader:
+        try:
+            assert reader.stdout is not None and reader.stdout.readline() == b"reading\n"
+            done = subprocess.run(
+                [sys.executable, "-c", "from al5d.ros.client import Client\n"
+                 "Client(wait_s=4, local=False).wait_for_server(4)\n"],
+                env=env,
+                capture_output=True,
+                text=True,
+                timeout=SCRIPT_S,
+            )  # fmt: skip
+            found = (
+                r"within 4 s \(found: the server's node not; this client's instructions reach "
+                r"[01] of the 1 readers listed \(/not_a_server\); its results come from 0 "
+                r"writer\(s\); 0 ping\(s\) unanswered\)"
+            )
+            assert re.search(found, done.stderr), done.stderr
+        finally:
+            reader.kill()
+
+
 def test_a_stop_taken_by_a_reader_that_is_no_server_is_said_sent_and_unanswered(
     tmp_path: Path,
 ) -> None:

@@ -217,11 +217,28 @@ class RosWay:
             and self.results.get_publisher_count() > 0
         )
 
-    def no_server(self, name: str, timeout: float) -> NoServer:
+    def no_server(self, name: str, timeout: float, seen: str = "") -> NoServer:
         domain = os.environ.get("ROS_DOMAIN_ID", "0")
         return NoServer(
             f"no al5d server answers on {name} (ROS_DOMAIN_ID={domain}) "
-            f"within {timeout:g} s{elsewhere(self.names, self.node)}"
+            f"within {timeout:g} s{seen}{elsewhere(self.names, self.node)}"
+        )
+
+    def _found(self, pings: int) -> str:
+        """What of a server this client found, where it found something (a server that
+        runs, seen but not matched, is not one that is absent): its node, the readers of
+        the instructions that the graph lists and how many of them ours reached, the
+        writers of results ours heard, and the pings unanswered."""
+        readers = self.node.get_subscriptions_info_by_topic(self.names.instruction)
+        if not readers:
+            return ""
+        nodes = sorted(server_nodes(self.node, self.names))
+        listed = ", ".join(sorted(f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in readers))
+        return (
+            f" (found: the server's node {', '.join(nodes) or 'not'}; this client's "
+            f"instructions reach {self.pub.get_subscription_count()} of the "
+            f"{len(readers)} readers listed ({listed}); its results come from "
+            f"{self.results.get_publisher_count()} writer(s); {pings} ping(s) unanswered)"
         )
 
     def wait_for_server(self, timeout: float) -> None:
@@ -244,7 +261,7 @@ class RosWay:
                     pings.append(self._ping())
                     next_ping = time.monotonic() + PING_EVERY_S
                 time.sleep(0.02)
-            raise self.no_server(self.names.instruction, timeout)
+            raise self.no_server(self.names.instruction, timeout, self._found(len(pings)))
         finally:
             self.discovery_s += time.monotonic() - start
             with self._cv:  # an answer that comes later is not kept
