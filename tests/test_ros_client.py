@@ -9,6 +9,7 @@ SIGABRT, exit 134, with rclpy's executor thread still alive at interpreter exit)
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
@@ -274,34 +275,42 @@ time.sleep(120)
 """
 
 
-def test_a_client_that_finds_a_reader_but_no_server_says_what_it_found(tmp_path: Path) -> None:
-    """Something reads the instruction topic, but no server answers: the client that waited
-    for a server says what it found (the readers listed, how many its instructions reach,
-    no server's node), not only that no server answers. (A CI run beside two busy loops
-    had two new clients find no server in 60 s while the server ran and its peer heard
-    it; the error said nothing more.)"""
+@contextlib.contextmanager
+def not_a_server(tmp_path: Path) -> Iterator[dict[str, str]]:
+    """A process that reads the instruction topic and is no server, reading, on a ROS domain
+    of this test's own (`alone`); the environment to reach it in."""
     script = tmp_path / "reader.py"
     script.write_text(READER)
     env = {**os.environ, **alone()}
     with subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, env=env) as reader:
         try:
             assert reader.stdout is not None and reader.stdout.readline() == b"reading\n"
-            done = subprocess.run(
-                [sys.executable, "-c", "from al5d.ros.client import Client\n"
-                 "Client(wait_s=4, local=False).wait_for_server(4)\n"],
-                env=env,
-                capture_output=True,
-                text=True,
-                timeout=SCRIPT_S,
-            )  # fmt: skip
-            found = (
-                r"within 4 s \(found: the server's node not; this client's instructions reach "
-                r"[01] of the 1 readers listed \(/not_a_server\); its results come from 0 "
-                r"writer\(s\); 0 ping\(s\) unanswered\)"
-            )
-            assert re.search(found, done.stderr), done.stderr
+            yield env
         finally:
             reader.kill()
+
+
+def test_a_client_that_finds_a_reader_but_no_server_says_what_it_found(tmp_path: Path) -> None:
+    """Something reads the instruction topic, but no server answers: the client that waited
+    for a server says what it found (the readers listed, how many its instructions reach,
+    no server's node), not only that no server answers. (A CI run beside two busy loops
+    had two new clients find no server in 60 s while the server ran and its peer heard
+    it; the error said nothing more.)"""
+    with not_a_server(tmp_path) as env:
+        done = subprocess.run(
+            [sys.executable, "-c", "from al5d.ros.client import Client\n"
+             "Client(wait_s=4, local=False).wait_for_server(4)\n"],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=SCRIPT_S,
+        )  # fmt: skip
+        found = (
+            r"within 4 s \(found: the server's node not; this client's instructions reach "
+            r"[01] of the 1 readers listed \(/not_a_server\); its results come from 0 "
+            r"writer\(s\); 0 ping\(s\) unanswered\)"
+        )
+        assert re.search(found, done.stderr), done.stderr
 
 
 def test_a_stop_taken_by_a_reader_that_is_no_server_is_said_sent_and_unanswered(
@@ -310,26 +319,19 @@ def test_a_stop_taken_by_a_reader_that_is_no_server_is_said_sent_and_unanswered(
     """Something reads the instruction topic, but no server answers: the stop was sent (the
     reader may have obeyed it), so the command says so and that whether the arm stopped is
     unknown, not that nothing was sent (exit 1, not the no-server exit)."""
-    script = tmp_path / "reader.py"
-    script.write_text(READER)
-    env = {**os.environ, **alone()}
-    with subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, env=env) as reader:
-        try:
-            assert reader.stdout is not None and reader.stdout.readline() == b"reading\n"
-            sent = Proc("send", "--wait", "4", "stop", env=alone())
-            assert sent.wait(SCRIPT_S) == exits.NOT_DONE
-            out = sent.out.drain()
-            assert any(
-                re.fullmatch(
-                    r"stop: sent \d+ times on /al5d/instruction, which a reader took, but no al5d "
-                    r"server was found within 4 s to answer it \(whether the arm has stopped is "
-                    r"unknown\)",
-                    line,
-                )
-                for line in out
-            ), (out, sent.err.drain())
-        finally:
-            reader.kill()
+    with not_a_server(tmp_path):
+        sent = Proc("send", "--wait", "4", "stop", env=alone())
+        assert sent.wait(SCRIPT_S) == exits.NOT_DONE
+        out = sent.out.drain()
+        assert any(
+            re.fullmatch(
+                r"stop: sent \d+ times on /al5d/instruction, which a reader took, but no al5d "
+                r"server was found within 4 s to answer it \(whether the arm has stopped is "
+                r"unknown\)",
+                line,
+            )
+            for line in out
+        ), (out, sent.err.drain())
 
 
 def test_a_stop_unanswered_for_a_second_is_said_to_be_so_while_it_is_still_sent() -> None:
