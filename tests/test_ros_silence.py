@@ -13,6 +13,7 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -179,3 +180,133 @@ def test_a_run_in_a_wait_with_nothing_running_says_its_server_is_gone(
         finally:
             run.kill()
             run.wait(10)
+
+
+class Tty:
+    """A process of `args` at a terminal of its own (a pseudo terminal): what it draws,
+    read whole (a prompt is no line), and what the test types."""
+
+    def __init__(self, args: list[str]) -> None:
+        self.master, slave = os.openpty()
+        env = {**os.environ, "TERM": "dumb"}  # no terminal's escapes but the shell's own
+        self.proc = subprocess.Popen(
+            args, stdin=slave, stdout=slave, stderr=slave, env=env, preexec_fn=dies_with_parent
+        )
+        os.close(slave)
+        self.drawn = ""
+        self._cursor = 0
+        self._lock = threading.Lock()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        while True:
+            try:
+                data = os.read(self.master, 4096)
+            except OSError:  # EIO: the process's end of the terminal closed
+                return
+            if not data:
+                return
+            with self._lock:
+                self.drawn += data.decode(errors="replace")
+
+    def type(self, text: str) -> None:
+        os.write(self.master, text.encode())
+
+    def wait_for(self, pattern: str, timeout: float) -> re.Match[str]:
+        """The first match of `pattern` drawn after the last match."""
+        deadline = time.monotonic() + timeout
+        while True:
+            with self._lock:
+                found = re.compile(pattern).search(self.drawn, self._cursor)
+                if found is not None:
+                    self._cursor = found.end()
+                    return found
+                if time.monotonic() > deadline:
+                    raise AssertionError(
+                        f"nothing drawn matches {pattern!r} in {timeout} s; drawn since the "
+                        f"last match:\n{self.drawn[self._cursor :]!r}"
+                    )
+            time.sleep(0.05)
+
+    def close(self) -> None:
+        self.proc.kill()
+        self.proc.wait(10)
+        os.close(self.master)
+
+
+def test_the_shells_prompt_says_its_server_lost_and_back_and_keeps_the_line_typed(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """`al5d shell` at a terminal, a line half typed at its prompt: the outcome of a line
+    run in the background comes; then, nothing of the shell's running, the server goes
+    silent (frozen, as a lost link). The shell says each at once, above its prompt, and
+    draws the prompt and the half line again below (it said the outcome in the middle of
+    the line typed, and nothing of the loss until the next line was refused); it says when
+    the server is heard again, and the line, finished, runs."""
+    with served(config, tmp_path, "al5d_prompt_tty_peer") as arm:
+        shell = Tty([AL5D, "shell", "--via", "ros"])
+        server = family(arm.proc.popen.pid)
+        try:
+            shell.wait_for(r"Ctrl-D ends\r\nal5d> ", SCRIPT_S)
+            shell.type("ready\r")
+            shell.wait_for(r"ready \[[^\]]+\]: done.*\r\nal5d> ", SCRIPT_S)
+            shell.type("move base=-5 time=4000 &\r")  # its outcome comes at the prompt
+            shell.wait_for(r"move base=-5 time=4000 &\r\nal5d> ", SCRIPT_S)
+            shell.type("move base=5")
+            shell.wait_for(r"move base=5", SCRIPT_S)  # echoed: the shell has it
+            shell.wait_for(r"\r\x1b\[Kmove \[[^\]]+\]: done.*\r\nal5d> move base=5", SCRIPT_S)
+            with gone(server, "ros"):
+                shell.wait_for(
+                    r"\r\x1b\[Klost contact with the server \(nothing heard from it for "
+                    r"\d+\.\d s\): nothing of this command's runs\r\nal5d> move base=5",
+                    SCRIPT_S,
+                )
+            shell.wait_for(
+                r"\r\x1b\[Kcontact with the server again \(\d+\.\d s after it was said lost\)"
+                r"\r\nal5d> move base=5",
+                SCRIPT_S,
+            )
+            shell.type(" time=300\r")
+            shell.wait_for(r"move \[[^\]]+\]: done", SCRIPT_S)
+            wait_until(lambda: abs(arm.emu.servo_degrees()["base"] - 5) < 0.2, STATE_S, "base 5")
+            shell.type("exit\r")
+            assert shell.proc.wait(SCRIPT_S) == exits.DONE
+            assert "Traceback" not in shell.drawn, shell.drawn
+        finally:
+            shell.close()
+
+
+@pytest.mark.parametrize("via", ["ros", "lane"])
+def test_a_piped_shell_waiting_for_its_next_line_says_its_server_is_gone(
+    config: ArmConfig, tmp_path: Path, via: str
+) -> None:
+    """`al5d shell` reading a pipe, nothing of its own running, waits for its next line:
+    the server goes silent (frozen) or its lane closes (killed). The shell says so once, and
+    (over ROS 2) when it hears the server again, and runs the next line; its input's end
+    ends it, done: a loss while it waited cost no instruction of its."""
+    with served(config, tmp_path, f"al5d_prompt_pipe_peer_{via}") as arm:
+        shell, out, err = talking([AL5D, "shell", "--via", via])
+        assert shell.stdin is not None
+        server = family(arm.proc.popen.pid)
+        try:
+            shell.stdin.write("ready\n")
+            shell.stdin.flush()
+            assert ": done" in out.wait_for("ready [", SCRIPT_S)
+            with gone(server, via):
+                said = out.wait_for("nothing of this command's runs", SCRIPT_S)
+            if via == "ros":
+                assert said.startswith("lost contact with the server (nothing heard"), said
+                back = out.wait_for("contact with the server again", SCRIPT_S)
+                assert re.fullmatch(r"contact with the server again \(\d+\.\d s after .*\)", back)
+                shell.stdin.write("move base=5 time=300\n")
+                shell.stdin.flush()
+                assert ": done" in out.wait_for("move [", SCRIPT_S)
+            else:
+                assert said.startswith("the lane to the owner is closed"), said
+            shell.stdin.close()
+            assert shell.wait(SCRIPT_S) == exits.DONE
+            assert len([line for line in out.all if "nothing of this" in line]) == 1, out.all
+            assert not [line for line in err.all if "Traceback" in line], err.all
+        finally:
+            shell.kill()
+            shell.wait(10)

@@ -4,8 +4,10 @@ nothing waits (`LinkWatch`), and where a command's time went (`Timing`)."""
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
+from collections.abc import Callable, Iterator
 from typing import TextIO
 
 from al5d.arm.instruction import Instruction, Outcome, Result
@@ -27,10 +29,23 @@ class Report:
         self.all_done = True
         #: The instructions whose fate has been said: once each.
         self.said: set[str] = set()
+        #: While a prompt at a terminal waits for a line: the prompt and what is typed after
+        #: it, drawn again below a line said meanwhile (an outcome of a line run in the
+        #: background, a lost server), as a shell draws its prompt again below a job's news.
+        self.prompt: Callable[[], str] | None = None
 
     def line(self, text: str) -> None:
         with self._lock:
+            self._print(text)
+
+    def _print(self, text: str) -> None:
+        """`text` on a line of its own (the lock held)."""
+        if self.prompt is None:
             print(text, file=self._out, flush=True)
+            return
+        # Over the prompt's line (carriage return, erase to its end), then the prompt again.
+        self._out.write(f"\r\x1b[K{text}\n{self.prompt()}")
+        self._out.flush()
 
     def fail(self) -> None:
         """The command is not done, whatever outcomes come (a `wait` cut short)."""
@@ -59,7 +74,7 @@ class Report:
                 return
             self.said.add(instr.id)
             self.all_done &= done
-            print(text, file=self._out, flush=True)
+            self._print(text)
 
 
 #: How often `LinkWatch` looks: the silence is said at 1 s, lost contact at 1.5 s.
@@ -70,14 +85,18 @@ class LinkWatch:
     """The lines running in the background, watched as a wait for an outcome watches its
     line, also while nothing waits (a `wait` line, the shell's prompt): a silence of the
     server is said, and lost contact (a closed lane) is said at once for each of them, not
-    when the command next waits for something; with none running, once, during a `wait`
-    line. `lost` is set then."""
+    when the command next waits for something; with none running, once, while the command
+    waits (`waiting`: a `wait` line, the shell's next line). `lost` is set then. Contact
+    that comes back after a loss was said is said too (`al5d shell` goes on after one)."""
 
     def __init__(self, client: Client, report: Report, background: list[Instruction]) -> None:
         self.client, self.report, self.background = client, report, background
         self.lost = threading.Event()
-        self._gone_said = False  # this loss of the server said
-        self._waiting = threading.Event()  # in a `wait` line
+        #: When this loss of the server was said (monotonic), None while in contact; the
+        #: command's thread says a loss too (what it waited for), hence the lock.
+        self._gone_said: float | None = None
+        self._gone_lock = threading.Lock()
+        self._waiting = threading.Event()  # in a `wait` line, at the shell's prompt
         self._ending = threading.Event()
         self._thread = threading.Thread(target=self._run, name="al5d-link-watch", daemon=True)
         self._thread.start()
@@ -91,34 +110,52 @@ class LinkWatch:
                     outcome = client.outcome(item.id, 0.01)  # said by its watcher if it came
                 except NoOutcome as e:
                     self.report.lost(item, e)
-                    self.lost.set()
-                    self._gone_said = True
+                    self.said_lost()
                     continue
                 if n == 0 and outcome is None:
                     break  # one waiting on a link that holds: so are the others
-            if not pending and self._waiting.is_set():
+            if self._gone_said is not None or (not pending and self._waiting.is_set()):
                 self._watch_server()
 
+    def said_lost(self) -> None:
+        """A loss of the server was said (by this watch, or by the command for what it
+        waited for): said again only once contact has come back."""
+        self.lost.set()
+        with self._gone_lock:
+            if self._gone_said is None:
+                self._gone_said = time.monotonic()
+
     def _watch_server(self) -> None:
-        """A `wait` line, and nothing of the command's runs: a server lost (a lane closed) is
-        said all the same, once (seen: `al5d run` in a ten-minute `wait` said nothing of a
-        server gone until the wait was over)."""
+        """A loss said: contact back is said. The command waits, and nothing of it runs: a
+        server lost (a lane closed) is said all the same, once (seen: `al5d run` in a
+        ten-minute `wait` said nothing of a server gone until the wait was over)."""
         gone = self.client.out_of_contact()
         if gone is None:
-            self._gone_said = False
-        elif not self._gone_said:
-            self._gone_said = True
+            with self._gone_lock:
+                said, self._gone_said = self._gone_said, None
+            if said is not None:
+                since = time.monotonic() - said
+                self.report.line(
+                    f"contact with the server again ({since:.1f} s after it was said lost)"
+                )
+        elif self._gone_said is None and self._waiting.is_set():
+            self.said_lost()
             self.report.line(f"{gone}: nothing of this command's runs")
-            self.lost.set()
+
+    @contextlib.contextmanager
+    def waiting(self) -> Iterator[None]:
+        """The command waits (for its next line, in a `wait`): the server is watched."""
+        self._waiting.set()
+        try:
+            yield
+        finally:
+            self._waiting.clear()
 
     def sleep(self, seconds: float) -> None:
         """A `wait` line: `seconds`, or less if contact is lost meanwhile (then not done)."""
-        self._waiting.set()
-        try:
+        with self.waiting():
             if self.lost.wait(seconds):
                 self.report.fail()
-        finally:
-            self._waiting.clear()
 
     def close(self) -> None:
         self._ending.set()

@@ -17,6 +17,7 @@ not told). Exit codes: `al5d.exits` (done, not done, bad input, no server, inter
 from __future__ import annotations
 
 import functools
+import logging
 import sys
 from collections.abc import Collection, Iterator
 from pathlib import Path
@@ -295,27 +296,33 @@ SHELL_PROMPT = "al5d> "
 CTRL_C = "\x03"
 
 
-def _lines(inp: TextIO, interactive: bool) -> Iterator[str]:
+def _lines(inp: TextIO, interactive: bool, report: Report) -> Iterator[str]:
     """The shell's input, a line at a time; at a terminal with a prompt and line editing,
     and Ctrl-C there drops the line typed, as a shell does. A Ctrl-C is `CTRL_C` (piped, the
-    input's end then)."""
+    input's end then). What `report` says while the prompt waits goes above it."""
     if not interactive:
         try:
             yield from inp
         except KeyboardInterrupt:
             yield CTRL_C
         return
-    import readline  # noqa: F401  (imported for its effect: input() gets editing and history)
+    import readline  # input() gets editing and history
 
     while True:
+        report.prompt = lambda: SHELL_PROMPT + readline.get_line_buffer()
         try:
-            yield input(SHELL_PROMPT)
+            line = input(SHELL_PROMPT)
         except KeyboardInterrupt:
-            print(file=sys.stdout)
-            yield CTRL_C
+            line = CTRL_C
         except EOFError:
+            line = None
+        finally:
+            report.prompt = None
+        if line is None or line == CTRL_C:
             print(file=sys.stdout)
+        if line is None:
             return
+        yield line
 
 
 def shell(
@@ -357,6 +364,9 @@ def shell(
     bad = False
     background: list[Instruction] = []
     watch = LinkWatch(client, report, background)
+    above = _AbovePrompt(report)
+    if interactive:  # the client's warnings (a silent server) above the prompt, not in it
+        logging.getLogger().addHandler(above)
     try:
         client.wait_for_server(wait_s)
         timing.discovered(client)
@@ -366,7 +376,12 @@ def shell(
                 "al5d shell: one instruction a line (as in a sequence file); Ctrl-C while "
                 "one runs stops the arm; exit or Ctrl-D ends"
             )
-        for line in _lines(inp, interactive):
+        lines = _lines(inp, interactive, report)
+        while True:
+            with watch.waiting():  # a server lost while the shell waits for a line is said
+                line = next(lines, None)
+            if line is None:
+                break
             if line == CTRL_C:
                 # Ctrl-C while a move of the shell's runs in the background stops the arm,
                 # as it does while one runs in the foreground (seen: the move ran on).
@@ -400,6 +415,8 @@ def shell(
             except NoOutcome as e:
                 report.line(str(e))
                 report.all_done = False
+                if isinstance(e, (LostContact, LaneLost)):
+                    watch.said_lost()  # contact back is said
         _drain(client, report, background, timeout)
         if bad:
             return exits.BAD_INPUT
@@ -408,9 +425,22 @@ def shell(
         print(f"al5d shell: {e}", file=err)
         return exits.NO_SERVER
     finally:
+        logging.getLogger().removeHandler(above)
         watch.close()
         client.close()
         timing.end()
+
+
+class _AbovePrompt(logging.Handler):
+    """The log's warnings (Python's last resort's, the message alone) said by `report`: at
+    a terminal, above the shell's prompt and what is typed after it."""
+
+    def __init__(self, report: Report) -> None:
+        super().__init__(logging.WARNING)
+        self.report = report
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.report.line(record.getMessage())
 
 
 def _shell_step(
