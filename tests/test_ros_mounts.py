@@ -189,6 +189,8 @@ class Listener:
 
     def on_physical(self, degrees: dict[str, float]) -> None: ...
 
+    def on_answer(self, text: str, ok: bool | None) -> None: ...
+
 
 def test_the_web_view_shows_its_arm_where_its_mount_puts_it(
     arms: list[Arm], config: ArmConfig

@@ -396,6 +396,11 @@ def test_a_web_views_stop_to_a_server_elsewhere_is_one_stop_whatever_comes_after
         assert result.outcome == "done" and not again, (result.outcome, result.reason, again)
         stop = heard.outcome(lambda o: o.instruction == "stop", 30)
         assert way == "the topic" and stop.result is Result.DONE and "~" in stop.id, (way, stop)
+        # The page said its STOP sent and then the release's answer (the STOP's may have come
+        # after the release, which ended the wait for it: not said then).
+        wait_until(lambda: heard.answers[-1:] == [("RELEASE: done", True)], 30, "released")
+        assert heard.answers[0][0].startswith("STOP on the topic: sent"), heard.answers
+        assert all(ok is not False for _, ok in heard.answers), heard.answers
     finally:
         link.close()
 
@@ -418,6 +423,8 @@ class Heard:
     def __init__(self) -> None:
         self.joints = 0
         self.outcomes: list[Outcome] = []
+        #: What the link said of the page's STOPs and RELEASEs.
+        self.answers: list[tuple[str, bool | None]] = []
 
     def outcome(self, which: Callable[[Outcome], bool], timeout: float) -> Outcome:
         wait_until(lambda: any(which(o) for o in self.outcomes), timeout, "the outcome")
@@ -438,3 +445,6 @@ class Heard:
     def on_mount(self, parent: str, mount: Transform) -> None: ...
 
     def on_physical(self, degrees: dict[str, float]) -> None: ...
+
+    def on_answer(self, text: str, ok: bool | None) -> None:
+        self.answers.append((text, ok))

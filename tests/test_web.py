@@ -404,10 +404,13 @@ def test_stop_and_release_from_the_page(rig: Rig) -> None:
     rig.every_channel_stopped(n0)
     assert rig.peer.result("web-slow").outcome == "cancelled"
     wait_text(page, "#al5d-state", lambda t: t == "STOPPED")
+    # Under STOP, its answer: the server's, by its local lane (this machine's).
+    wait_text(page, "#al5d-answer", lambda t: t == "STOP: done")
     release = page.get_by_role("button", name="release")
     release.click()  # shown once stopped: there is something to release
     rig.state.wait_for("ready", 5)
     wait_text(page, "#al5d-state", lambda t: t == "READY")
+    wait_text(page, "#al5d-answer", lambda t: t == "RELEASE: done")
     wait_until(lambda: not release.is_visible(), 5, "no release button in READY")
 
 
@@ -869,6 +872,9 @@ def test_the_page_says_when_it_lost_the_server(rig: Rig) -> None:
     answer = answers(rig, seen)[0]
     if "no answer" not in answer:
         rig.state.wait_for("stopped", 10)
+        wait_text(page, "#al5d-answer", lambda t: t == "STOP: done")
+    else:  # the page says it too, under STOP
+        wait_text(page, "#al5d-answer", lambda t: t.startswith("STOP on the topic: no answer"))
     # The new server's services have answered this peer once (a release: the arm is let go).
     rig.peer.first_answer()
     rig.state.wait_for("ready", 10)

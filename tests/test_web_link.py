@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import signal
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -23,6 +25,7 @@ from al5d.model.transforms import Transform
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.names import Names
+from al5d.web import link as web_link
 from al5d.web.link import WebNode
 from al5d_rig.proc import Lines, dies_with_parent, freeze, said
 from al5d_rig.rospeer import wait_until
@@ -60,6 +63,18 @@ class Quiet:
     def on_mount(self, parent: str, mount: Transform) -> None: ...
 
     def on_physical(self, degrees: dict[str, float]) -> None: ...
+
+    def on_answer(self, text: str, ok: bool | None) -> None: ...
+
+
+class Answers(Quiet):
+    """A listener that keeps what the link says of the page's STOPs and RELEASEs."""
+
+    def __init__(self) -> None:
+        self.said: list[tuple[str, bool | None]] = []
+
+    def on_answer(self, text: str, ok: bool | None) -> None:
+        self.said.append((text, ok))
 
 
 @contextlib.contextmanager
@@ -204,6 +219,38 @@ def test_a_release_ends_the_copies_of_a_stop_still_unanswered(link: WebNode) -> 
         assert seen[-1] == "release", seen
     finally:
         spinner.close()
+
+
+def test_a_stop_and_a_release_that_nobody_answers_are_said_unanswered(
+    link: WebNode, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """No server: the page says its STOP and its RELEASE sent and their answers awaited,
+    and then that none came (shorter waits than the page's 10 s here), never that they were
+    obeyed: whether the arm stopped, or was released, is unknown."""
+    monkeypatch.setattr(web_link, "LANE_STOP_S", 1.0)
+    monkeypatch.setattr(web_link, "RELEASE_ANSWER_S", 1.0)
+    answers = link.listener = Answers()
+    assert link.stop() == "the topic"
+    wait_until(lambda: len(answers.said) == 2, 20, "the STOP said unanswered")
+    link.release()
+    wait_until(lambda: len(answers.said) == 4, 20, "the RELEASE said unanswered")
+    time.sleep(0.5)  # nothing more is said of either
+    # Copies every 0.25 s in the first second: as many as a busy host's waits let go.
+    said = [(re.sub(r"sent [1-4] times", "sent N times", text), ok) for text, ok in answers.said]
+    assert said == [
+        ("STOP on the topic: sent, the server's answer awaited (sent again until it comes)", None),
+        (
+            "STOP on the topic: no answer in 1 s (sent N times): whether the arm has stopped "
+            "is unknown",
+            False,
+        ),
+        ("RELEASE on the topic: sent, the server's answer awaited", None),
+        (
+            "RELEASE on the topic: no answer in 1 s: whether the arm was released is unknown "
+            "(its state shows it)",
+            False,
+        ),
+    ]
 
 
 def copying() -> bool:

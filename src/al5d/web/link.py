@@ -32,7 +32,7 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory
 
-from al5d.arm.instruction import FRESH_MARK, Instruction, Kind, Outcome, new_id
+from al5d.arm.instruction import FRESH_MARK, Instruction, Kind, Outcome, Result, new_id
 from al5d.model import ArmModel
 from al5d.model.chain import BASE_LINK
 from al5d.model.transforms import Transform
@@ -73,12 +73,23 @@ LANE_STOP_S = 10.0
 #: server just found may not have matched this writer yet, and a lossy link loses copies.
 STOP_FIRST_COPIES_S = 0.25
 STOP_COPIES_S = 1.0
+#: How long a RELEASE's answer is waited for before the page says none came.
+RELEASE_ANSWER_S = 10.0
 
 
 #: The state: latched as the server writes it, and every change kept until this page takes
 #: it (a reader of depth 1 whose executor lagged a short move behind showed READY, READY:
 #: the MOVING between them was overwritten before it was taken).
 QOS_STATES = profile(20, latched=True)
+
+
+#: What the page says of a STOP or a RELEASE sent, until its answer comes.
+AWAITED = "sent, the server's answer awaited"
+
+
+def _answered(what: str, outcome: Outcome) -> str:
+    """`what`'s answer, as the page says it."""
+    return f"{what}: {outcome.result.value}{f': {outcome.reason}' if outcome.reason else ''}"
 
 
 class Listener(Protocol):
@@ -97,6 +108,11 @@ class Listener(Protocol):
     def on_mount(self, parent: str, mount: Transform) -> None: ...
 
     def on_physical(self, degrees: dict[str, float]) -> None: ...
+
+    def on_answer(self, text: str, ok: bool | None) -> None:
+        """What became of the page's last STOP or RELEASE: sent and its answer awaited
+        (`ok` None), answered (whether done), or no answer in time (False). Called in the
+        STOP's own thread too: it waits for nothing."""
 
 
 class WebNode:
@@ -141,6 +157,9 @@ class WebNode:
         self._stops: dict[str, threading.Event] = {}
         #: Held while a copy of a STOP or a RELEASE is published: no copy follows a release.
         self._sending = threading.Lock()
+        #: The RELEASEs whose answers are awaited; each one's popped once: by its answer or
+        #: by its timer (`RELEASE_ANSWER_S`).
+        self._releases: dict[str, threading.Timer] = {}
         #: The ids of this page's set-points start with it.
         self.jog_prefix = f"web-jog-{os.getpid():x}-"
         self._jog_ids = itertools.count(1)
@@ -194,6 +213,11 @@ class WebNode:
         if answered is not None:
             answered.set()
             log.info("web: STOP on the topic: %s", outcome.reason or outcome.result.value)
+            self.listener.on_answer(_answered("STOP", outcome), outcome.result is Result.DONE)
+        timer = self._releases.pop(outcome.id, None)
+        if timer is not None:
+            timer.cancel()
+            self.listener.on_answer(_answered("RELEASE", outcome), outcome.result is Result.DONE)
         self.listener.on_outcome(outcome)
 
     def _on_instruction(self, msg: ArmInstruction) -> None:
@@ -274,6 +298,7 @@ class WebNode:
             log.warning("web: STOP by the local lane %s failed: %s", self.lane, e)
             sock = None
         if sock is not None:
+            self.listener.on_answer(f"STOP by the local lane: {AWAITED}", None)
             threading.Thread(target=self._lane_answer, args=(sock,), daemon=True).start()
             return "the local lane"
         stop, answered = f"web-stop-{new_id()}", threading.Event()
@@ -281,6 +306,8 @@ class WebNode:
         copies = threading.Thread(
             target=self._stop_again, args=(stop, answered), name=stop, daemon=True
         )
+        # Said before the first copy goes, so that it never follows the answer.
+        self.listener.on_answer(f"STOP on the topic: {AWAITED} (sent again until it comes)", None)
         copies.start()
         self._stop_copy(stop, 1)  # the first at once, in the click's own thread
         return "the topic"
@@ -320,14 +347,27 @@ class WebNode:
                 LANE_STOP_S,
                 n,
             )
+            self.listener.on_answer(
+                f"STOP on the topic: no answer in {LANE_STOP_S:g} s (sent {n} times): "
+                "whether the arm has stopped is unknown",
+                False,
+            )
 
     def _lane_answer(self, sock: socket.socket) -> None:
         try:
             answer = quick.answer(sock, LANE_STOP_S)
         except (OSError, EOFError) as e:
             log.warning("web: STOP by the local lane %s: no answer (%s)", self.lane, e)
+            self.listener.on_answer(
+                f"STOP by the local lane: no answer ({e}): whether the arm has stopped is unknown",
+                False,
+            )
             return
         log.info("web: STOP by the local lane: %s", answer.get("result"))
+        result, reason = answer.get("result"), answer.get("reason")
+        self.listener.on_answer(
+            f"STOP: {result}{f': {reason}' if reason else ''}", result == Result.DONE.value
+        )
 
     def release(self) -> None:
         """On the topic with the page's lease, as the Python client's: judged on the server's
@@ -342,9 +382,26 @@ class WebNode:
                 if unanswered is not None:
                     log.info("web: STOP on the topic: no more copies (a release was sent)")
                     unanswered.set()
-            self.send(Instruction(Kind.RELEASE))
+            release = Instruction(Kind.RELEASE)
+            timer = threading.Timer(RELEASE_ANSWER_S, self._release_unanswered, (release.id,))
+            timer.daemon = True
+            self._releases[release.id] = timer
+            self.listener.on_answer(f"RELEASE on the topic: {AWAITED}", None)
+            timer.start()
+            self.send(release)
+
+    def _release_unanswered(self, ident: str) -> None:
+        if self._releases.pop(ident, None) is not None:
+            log.warning("web: RELEASE on the topic: no answer in %g s", RELEASE_ANSWER_S)
+            self.listener.on_answer(
+                f"RELEASE on the topic: no answer in {RELEASE_ANSWER_S:g} s: whether the arm "
+                "was released is unknown (its state shows it)",
+                False,
+            )
 
     def close(self) -> None:
+        for timer in list(self._releases.values()):
+            timer.cancel()
         self.lease.close([self.pub])
         self.lease_spinner.close()
         self.spinner.close()

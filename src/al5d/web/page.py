@@ -187,6 +187,10 @@ class Page:
             elif before in RELEASABLE and state not in RELEASABLE:
                 self.panel.show_joints_status("drag a slider to move", None)
 
+    def on_answer(self, text: str, ok: bool | None) -> None:
+        # No lock: the STOP's own thread says it, and the STOP waits for nothing.
+        self.panel.show_answer(text, ok)
+
     def on_outcome(self, outcome: Outcome) -> None:
         with self._lock:
             self.hold.hold()

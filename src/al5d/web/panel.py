@@ -207,6 +207,8 @@ def banner_html(text: str) -> str:
 
 #: The element of the sliders' status (tests find it by this id).
 JOINTS_STATUS = "al5d-joints-status"
+#: Under STOP: what became of the page's last STOP or RELEASE.
+ANSWER_STATUS = "al5d-answer"
 
 
 def status_html(text: str, ok: bool | None, ident: str = "al5d-target-status") -> str:
@@ -243,6 +245,8 @@ class Panel:
                 "STOP", color="red", icon=viser.Icon.HAND_STOP, hint="emergency stop (any state)"
             )
             gui.add_html(phone_style(self.stop._impl.uuid))
+            #: What became of the page's last STOP or RELEASE (`Page.on_answer`).
+            self.answer_html = gui.add_html("")
             gui.add_html(names_html())
             #: In STOP's window: always drawn, whatever tab or section the panel shows.
             self.pulse = gui.add_html(pulse_html(0))
@@ -389,6 +393,9 @@ class Panel:
 
     def show_status(self, text: str, ok: bool | None) -> None:
         self.target_status.content = status_html(text, ok)
+
+    def show_answer(self, text: str, ok: bool | None) -> None:
+        self.answer_html.content = status_html(text, ok, ANSWER_STATUS)
 
     def show_joints_status(self, text: str, ok: bool | None) -> None:
         self.joints_status.content = status_html(text, ok, JOINTS_STATUS)

@@ -486,3 +486,6 @@ class Listeners:
 
     def on_physical(self, degrees: dict[str, float]) -> None:
         self.page.on_physical(degrees)
+
+    def on_answer(self, text: str, ok: bool | None) -> None:
+        self.page.on_answer(text, ok)
