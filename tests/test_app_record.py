@@ -32,7 +32,7 @@ from al5d.ros.client import Client
 from al5d.ros.names import PING
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
-from al5d_rig.proc import Lines, Proc, patient_config
+from al5d_rig.proc import Lines, Proc, patient_config, to_another_thread
 from al5d_rig.rospeer import Peer, wait_future, wait_until
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -438,7 +438,9 @@ def test_a_recorder_that_finds_no_arm_says_so(tmp_path: Path) -> None:
     try:
         warning = recorder.out.wait_for("warning: no writer matched", 30)
         assert "nobody_here" in warning
-        recorder.popen.send_signal(signal.SIGINT)
+        # Ctrl-C, handed by the kernel to a thread that is not the main one (DDS's): the
+        # main thread that waited for it still wakes to end the recording.
+        to_another_thread(recorder.popen.pid, signal.SIGINT)
         assert recorder.wait(30) == 0
     finally:
         recorder.kill()

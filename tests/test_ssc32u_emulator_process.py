@@ -19,7 +19,7 @@ from al5d.ssc32u import protocol as p
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Mechanics, Record
 from al5d_rig.boardproc import BoardProcess
-from al5d_rig.proc import Proc, said
+from al5d_rig.proc import Proc, said, to_another_thread
 
 AL5D = Path(sys.executable).with_name("al5d")
 
@@ -43,6 +43,29 @@ def test_standalone_emulator(tmp_path: Path) -> None:
     finally:
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(timeout=10) == 0
+    assert not link.exists()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_the_kernel_hands_to_another_thread_ends_the_emulator(
+    tmp_path: Path, sig: signal.Signals
+) -> None:
+    """The kernel hands a process's signal to any thread that does not block it; Python runs
+    the handler in the main thread, when that thread next runs. Here SIGTERM (SIGINT) goes
+    to another thread than the main one: the emulator ends all the same (its main thread waited in
+    `Event.wait()` and never woke: seen as a 10 s teardown beside two busy loops, a board
+    stopped and continued, then told to end)."""
+    link = tmp_path / "ssc32u"
+    proc = subprocess.Popen(
+        [str(AL5D), "emulator", "--link", str(link)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout is not None and said(proc.stdout) == str(link)
+        to_another_thread(proc.pid, sig)
+        assert proc.wait(timeout=30) == 0
+    finally:
+        proc.kill()
+        proc.wait(10)
     assert not link.exists()
 
 

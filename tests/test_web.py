@@ -42,7 +42,7 @@ from al5d.web import viewhold
 from al5d.web.jog import FOLLOW_AFTER_S, QUIET_S
 from al5d.web.page import LOOP_S, Page
 from al5d_rig.armrig import ON_FAILURE, group_moves
-from al5d_rig.proc import Proc, family, freeze, patient_config, run_state
+from al5d_rig.proc import Proc, family, freeze, patient_config, run_state, to_another_thread
 from al5d_rig.rospeer import Peer, wait_until
 from al5d_rig.webrig import (
     PAGE_LOAD_S,
@@ -922,6 +922,10 @@ def test_a_host_not_loopback_is_warned_with_the_port_bound() -> None:
     try:
         line = web.proc.err.wait_for("anyone who can reach port", 10)
         assert f"listens on 0.0.0.0: anyone who can reach port {web.port} there" in line, line
+        # Ctrl-C, handed by the kernel to a thread that is not the main one (viser's, DDS's):
+        # the web view ends all the same.
+        to_another_thread(web.proc.popen.pid, signal.SIGINT)
+        assert web.proc.wait(30) == 0
     finally:
         web.close()
 

@@ -1,5 +1,6 @@
-"""Ctrl-C held off while a step that must be whole runs (a send and its record), and, in a
-command that cancels what it sent on Ctrl-C, while it cancels.
+"""Signals in the main thread: Ctrl-C held off while a step that must be whole runs (a send
+and its record), and, in a command that cancels what it sent on Ctrl-C, while it cancels;
+and a wait for what a signal's handler sets, which that handler always ends (`wait_set`).
 
 Python raises KeyboardInterrupt between any two bytecodes of the main thread: in the
 middle of a send, after the request went out and before the sender kept it, so that
@@ -13,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
+import time
 from collections.abc import Iterator
 
 #: The press that leaves a command's cancel at once (the first asked for the cancel, the
@@ -114,3 +116,28 @@ def ctrl_c_after() -> Iterator[None]:
         signal.signal(signal.SIGINT, signal.default_int_handler)
         if came:  # over any error of the block's: the user's Ctrl-C comes first
             raise KeyboardInterrupt
+
+
+#: How often `wait_set` looks again: at most this late, a signal's handler runs.
+SIGNAL_LOOK_S = 0.1
+
+
+def wait_set(event: threading.Event, timeout: float | None = None) -> bool:
+    """In the main thread, wait until `event` is set (by a signal's handler too) or
+    `timeout` s have passed (None: no end); whether it was set.
+
+    Python runs a signal's handler in the main thread, when that thread next runs. The
+    kernel hands a process's signal to any of its threads, and where it is not the main
+    thread, a main thread asleep in `Event.wait()` is not woken (seen: `al5d emulator`,
+    stopped and continued beside two busy loops, left 2 SIGTERMs in 8 unheard until it
+    was killed 10 s later, its main thread in `Event.wait()`). So the wait wakes each
+    `SIGNAL_LOOK_S`."""
+    deadline = None if timeout is None else time.monotonic() + timeout
+    while True:
+        left = (
+            SIGNAL_LOOK_S if deadline is None else min(SIGNAL_LOOK_S, deadline - time.monotonic())
+        )
+        if event.wait(max(0.0, left)):
+            return True
+        if deadline is not None and time.monotonic() >= deadline:
+            return False

@@ -315,3 +315,32 @@ def thread_nices(pid: int) -> list[int]:
             stat = (task / "stat").read_text()
             nices.append(int(stat.rsplit(")", 1)[1].split()[16]))
     return nices
+
+
+#: tgkill(2)'s number on x86-64.
+SYS_TGKILL = 234
+
+
+def to_another_thread(pid: int, sig: int) -> None:
+    """`sig` to a thread of the process `pid` other than its main one that does not block
+    it (tgkill(2)), as the kernel may hand a process's signal to any such thread; Python
+    then runs the handler only when the main thread next runs. Raises OSError where that
+    fails or there is no such thread."""
+    others = [
+        int(task.name)
+        for task in sorted(Path(f"/proc/{pid}/task").iterdir())
+        if int(task.name) != pid and not _blocked(task / "status", sig)
+    ]
+    if not others:
+        raise OSError(f"process {pid} has no thread but its main one that takes signal {sig}")
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.syscall(SYS_TGKILL, pid, others[0], sig) != 0:
+        raise OSError(ctypes.get_errno(), f"tgkill({pid}, {others[0]}, {sig})")
+
+
+def _blocked(status: Path, sig: int) -> bool:
+    """Whether the thread whose /proc status is `status` blocks `sig`."""
+    for line in status.read_text().splitlines():
+        if line.startswith("SigBlk:"):
+            return bool(int(line.split()[1], 16) >> (sig - 1) & 1)
+    return False

@@ -588,6 +588,7 @@ def record(path: str, namespaces: Sequence[str] | None, duration: float | None) 
     import signal
 
     from al5d import exits
+    from al5d.interrupts import wait_set
     from al5d.ros.dds import start_context
     from al5d.ros.names import Names
 
@@ -620,7 +621,7 @@ def record(path: str, namespaces: Sequence[str] | None, duration: float | None) 
     print(f"al5d record: recording to {path} (Ctrl-C ends it)", flush=True)
     try:
         first = NO_WRITERS_S if duration is None else min(duration, NO_WRITERS_S)
-        if not done.wait(first):
+        if not wait_set(done, first):  # set by a signal's handler, run in this thread
             if first >= NO_WRITERS_S and recorder.writers() == 0:
                 domain = os.environ.get("ROS_DOMAIN_ID", "0")
                 if namespaces:
@@ -631,7 +632,7 @@ def record(path: str, namespaces: Sequence[str] | None, duration: float | None) 
                     f"warning: no writer matched in {NO_WRITERS_S:g} s: is {where}, in "
                     f"ROS_DOMAIN_ID={domain}? Recording goes on"
                 )
-            done.wait(None if duration is None else max(0.0, duration - first))
+            wait_set(done, None if duration is None else max(0.0, duration - first))
     finally:
         if finder is not None:
             finder.close()

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
+from al5d.interrupts import wait_set
 
 log = logging.getLogger("al5d.web")
 
@@ -125,7 +126,7 @@ def serve_web(options: WebOptions) -> int:
         os.environ.get("ROS_DOMAIN_ID", "0"),
     )
     try:
-        done.wait()
+        wait_set(done)  # set by a signal's handler, which this main thread must run
     finally:
         view.close()
     return 0

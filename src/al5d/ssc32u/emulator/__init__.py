@@ -28,6 +28,7 @@ import signal
 import threading
 from typing import TYPE_CHECKING, TextIO
 
+from al5d.interrupts import wait_set
 from al5d.ssc32u.emulator import settings
 from al5d.ssc32u.emulator.board import (
     Answer,
@@ -166,7 +167,7 @@ def serve_forever(emulator: Emulator, stop: threading.Event, record: TextIO | No
         emulator.record_listeners.append(lines.put)
     with emulator:
         print(emulator.port, flush=True)
-        stop.wait()
+        wait_set(stop)  # set by a signal's handler, which this main thread must run
     if writer is not None:
         lines.put(None)
         writer.join(5)
