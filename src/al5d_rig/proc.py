@@ -7,6 +7,7 @@ import contextlib
 import ctypes
 import functools
 import os
+import platform
 import queue
 import re
 import signal
@@ -317,8 +318,8 @@ def thread_nices(pid: int) -> list[int]:
     return nices
 
 
-#: tgkill(2)'s number on x86-64.
-SYS_TGKILL = 234
+#: tgkill(2)'s number, by the machine (`platform.machine()`).
+SYS_TGKILL = {"x86_64": 234, "aarch64": 131}
 
 
 def to_another_thread(pid: int, sig: int) -> None:
@@ -333,8 +334,11 @@ def to_another_thread(pid: int, sig: int) -> None:
     ]
     if not others:
         raise OSError(f"process {pid} has no thread but its main one that takes signal {sig}")
+    number = SYS_TGKILL.get(platform.machine())
+    if number is None:
+        raise OSError(f"tgkill: its system call's number on {platform.machine()} is not known")
     libc = ctypes.CDLL(None, use_errno=True)
-    if libc.syscall(SYS_TGKILL, pid, others[0], sig) != 0:
+    if libc.syscall(number, pid, others[0], sig) != 0:
         raise OSError(ctypes.get_errno(), f"tgkill({pid}, {others[0]}, {sig})")
 
 

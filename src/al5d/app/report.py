@@ -29,22 +29,28 @@ class Report:
         self.all_done = True
         #: The instructions whose fate has been said: once each.
         self.said: set[str] = set()
-        #: While a prompt at a terminal waits for a line: the prompt and what is typed after
-        #: it, drawn again below a line said meanwhile (an outcome of a line run in the
-        #: background, a lost server), as a shell draws its prompt again below a job's news.
-        self.prompt: Callable[[], str] | None = None
+        # While a prompt at a terminal waits for a line: the prompt and what is typed after
+        # it, drawn again below a line said meanwhile (an outcome of a line run in the
+        # background, a lost server), as a shell draws its prompt again below a job's news.
+        self._prompt: Callable[[], str] | None = None
 
     def line(self, text: str) -> None:
         with self._lock:
             self._print(text)
 
+    def at_prompt(self, prompt: Callable[[], str] | None) -> None:
+        """A prompt at a terminal is drawn (`prompt`: it and what is typed after it), or is
+        no more (None)."""
+        with self._lock:
+            self._prompt = prompt
+
     def _print(self, text: str) -> None:
         """`text` on a line of its own (the lock held)."""
-        if self.prompt is None:
+        if self._prompt is None:
             print(text, file=self._out, flush=True)
             return
         # Over the prompt's line (carriage return, erase to its end), then the prompt again.
-        self._out.write(f"\r\x1b[K{text}\n{self.prompt()}")
+        self._out.write(f"\r\x1b[K{text}\n{self._prompt()}")
         self._out.flush()
 
     def fail(self) -> None:

@@ -296,10 +296,11 @@ SHELL_PROMPT = "al5d> "
 CTRL_C = "\x03"
 
 
-def _lines(inp: TextIO, interactive: bool, report: Report) -> Iterator[str]:
+def _lines(inp: TextIO, interactive: bool, report: Report | None) -> Iterator[str]:
     """The shell's input, a line at a time; at a terminal with a prompt and line editing,
     and Ctrl-C there drops the line typed, as a shell does. A Ctrl-C is `CTRL_C` (piped, the
-    input's end then). What `report` says while the prompt waits goes above it."""
+    input's end then). What `report` (its output a terminal) says while the prompt waits
+    goes above it."""
     if not interactive:
         try:
             yield from inp
@@ -308,21 +309,29 @@ def _lines(inp: TextIO, interactive: bool, report: Report) -> Iterator[str]:
         return
     import readline  # input() gets editing and history
 
-    while True:
-        report.prompt = lambda: SHELL_PROMPT + readline.get_line_buffer()
-        try:
-            line = input(SHELL_PROMPT)
-        except KeyboardInterrupt:
-            line = CTRL_C
-        except EOFError:
-            line = None
-        finally:
-            report.prompt = None
-        if line is None or line == CTRL_C:
-            print(file=sys.stdout)
-        if line is None:
-            return
-        yield line
+    def drawn() -> None:  # the prompt is on the screen: what is said goes above it now
+        if report is not None:
+            report.at_prompt(lambda: SHELL_PROMPT + readline.get_line_buffer())
+
+    readline.set_pre_input_hook(drawn)
+    try:
+        while True:
+            try:
+                line = input(SHELL_PROMPT)
+            except KeyboardInterrupt:
+                line = CTRL_C
+            except EOFError:
+                line = None
+            finally:
+                if report is not None:
+                    report.at_prompt(None)
+            if line is None or line == CTRL_C:
+                print(file=sys.stdout)
+            if line is None:
+                return
+            yield line
+    finally:
+        readline.set_pre_input_hook()
 
 
 def shell(
@@ -376,7 +385,8 @@ def shell(
                 "al5d shell: one instruction a line (as in a sequence file); Ctrl-C while "
                 "one runs stops the arm; exit or Ctrl-D ends"
             )
-        lines = _lines(inp, interactive, report)
+        # A prompt drawn again below what is said only where both ends are a terminal.
+        lines = _lines(inp, interactive, report if out.isatty() else None)
         while True:
             with watch.waiting():  # a server lost while the shell waits for a line is said
                 line = next(lines, None)

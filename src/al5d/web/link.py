@@ -18,6 +18,7 @@ from __future__ import annotations
 import itertools
 import logging
 import os
+import queue
 import socket
 import threading
 import time
@@ -87,9 +88,9 @@ QOS_STATES = profile(20, latched=True)
 AWAITED = "sent, the server's answer awaited"
 
 
-def _answered(what: str, outcome: Outcome) -> str:
-    """`what`'s answer, as the page says it."""
-    return f"{what}: {outcome.result.value}{f': {outcome.reason}' if outcome.reason else ''}"
+def _answered(what: str, result: object, reason: object) -> str:
+    """`what`'s answer (its result and reason), as the page says it."""
+    return f"{what}: {result or 'an answer with no result'}{f': {reason}' if reason else ''}"
 
 
 class Listener(Protocol):
@@ -111,8 +112,9 @@ class Listener(Protocol):
 
     def on_answer(self, text: str, ok: bool | None) -> None:
         """What became of the page's last STOP or RELEASE: sent and its answer awaited
-        (`ok` None), answered (whether done), or no answer in time (False). Called in the
-        STOP's own thread too: it waits for nothing."""
+        (`ok` None), answered (whether done), or no answer in time (False). Called in a
+        thread of the link's own, in order; never of a STOP or RELEASE older than the
+        last."""
 
 
 class WebNode:
@@ -153,13 +155,23 @@ class WebNode:
         self.lease_spinner = Spinner(
             self.lease_node, self.context, owns_context=False, kind="single"
         )
-        #: The STOPs on the topic still sent again: each one's id, and what its answer sets.
-        self._stops: dict[str, threading.Event] = {}
+        #: The STOPs on the topic still sent again: each one's id, what its answer sets and
+        #: its number (`_begin`).
+        self._stops: dict[str, tuple[threading.Event, int]] = {}
         #: Held while a copy of a STOP or a RELEASE is published: no copy follows a release.
         self._sending = threading.Lock()
-        #: The RELEASEs whose answers are awaited; each one's popped once: by its answer or
-        #: by its timer (`RELEASE_ANSWER_S`).
-        self._releases: dict[str, threading.Timer] = {}
+        #: The RELEASEs whose answers are awaited, with their numbers; each one's popped
+        #: once: by its answer or by its timer (`RELEASE_ANSWER_S`).
+        self._releases: dict[str, tuple[threading.Timer, int]] = {}
+        # What the page says of its STOPs and RELEASEs goes through a queue to a thread of
+        # its own: a STOP hands it over and waits for nothing (the page's widgets take
+        # viser's locks), and it is said in the order it was handed over, of the newest
+        # STOP or RELEASE only (an old one's late answer would hide the newer's).
+        self._numbers = itertools.count(1)
+        self._newest = 0
+        self._numbering = threading.Lock()  # held for a number and its assignment alone
+        self._answers: queue.SimpleQueue[tuple[int, str, bool | None] | None] = queue.SimpleQueue()
+        threading.Thread(target=self._say_answers, name="al5d-web-answers", daemon=True).start()
         #: The ids of this page's set-points start with it.
         self.jog_prefix = f"web-jog-{os.getpid():x}-"
         self._jog_ids = itertools.count(1)
@@ -209,15 +221,18 @@ class WebNode:
         except ValueError:  # an outcome word this page does not know: not the server's
             return
         stop, mark, _ = outcome.id.partition(COPY_MARK)
-        answered = self._stops.pop(stop, None) if mark else None
-        if answered is not None:
+        done = outcome.result is Result.DONE
+        stopping = self._stops.pop(stop, None) if mark else None
+        if stopping is not None:
+            answered, number = stopping
             answered.set()
             log.info("web: STOP on the topic: %s", outcome.reason or outcome.result.value)
-            self.listener.on_answer(_answered("STOP", outcome), outcome.result is Result.DONE)
-        timer = self._releases.pop(outcome.id, None)
-        if timer is not None:
+            self._say(number, _answered("STOP", outcome.result.value, outcome.reason), done)
+        releasing = self._releases.pop(outcome.id, None)
+        if releasing is not None:
+            timer, number = releasing
             timer.cancel()
-            self.listener.on_answer(_answered("RELEASE", outcome), outcome.result is Result.DONE)
+            self._say(number, _answered("RELEASE", outcome.result.value, outcome.reason), done)
         self.listener.on_outcome(outcome)
 
     def _on_instruction(self, msg: ArmInstruction) -> None:
@@ -297,20 +312,40 @@ class WebNode:
         except OSError as e:
             log.warning("web: STOP by the local lane %s failed: %s", self.lane, e)
             sock = None
+        number = self._begin()
         if sock is not None:
-            self.listener.on_answer(f"STOP by the local lane: {AWAITED}", None)
-            threading.Thread(target=self._lane_answer, args=(sock,), daemon=True).start()
+            self._say(number, f"STOP by the local lane: {AWAITED}", None)
+            threading.Thread(target=self._lane_answer, args=(sock, number), daemon=True).start()
             return "the local lane"
         stop, answered = f"web-stop-{new_id()}", threading.Event()
-        self._stops[stop] = answered
-        copies = threading.Thread(
-            target=self._stop_again, args=(stop, answered), name=stop, daemon=True
-        )
-        # Said before the first copy goes, so that it never follows the answer.
-        self.listener.on_answer(f"STOP on the topic: {AWAITED} (sent again until it comes)", None)
-        copies.start()
+        self._stops[stop] = answered, number
+        # Handed over before the first copy goes, so that it is never said after the answer.
+        self._say(number, f"STOP on the topic: {AWAITED} (sent again until it comes)", None)
         self._stop_copy(stop, 1)  # the first at once, in the click's own thread
+        # Then the thread of the copies after it (starting one waits for it to run).
+        threading.Thread(
+            target=self._stop_again, args=(stop, answered, number), name=stop, daemon=True
+        ).start()
         return "the topic"
+
+    def _begin(self) -> int:
+        """A new STOP or RELEASE: its number; what is said of those before it is not."""
+        with self._numbering:
+            number = self._newest = next(self._numbers)
+        return number
+
+    def _say(self, number: int, text: str, ok: bool | None) -> None:
+        """Hand over what to say of the STOP or RELEASE `number` (a queue's put: no wait)."""
+        self._answers.put((number, text, ok))
+
+    def _say_answers(self) -> None:
+        while (item := self._answers.get()) is not None:
+            number, text, ok = item
+            if number == self._newest:
+                try:
+                    self.listener.on_answer(text, ok)
+                except Exception:  # the next one is said all the same
+                    log.exception("web: %s: not shown", text)
 
     def _stop_copy(self, stop: str, n: int) -> bool:
         """Copy `n` of `stop`, unless it has ended (answered, or a release sent since);
@@ -323,7 +358,7 @@ class WebNode:
             self.pub.publish(msg)
         return True
 
-    def _stop_again(self, stop: str, answered: threading.Event) -> None:
+    def _stop_again(self, stop: str, answered: threading.Event, number: int) -> None:
         """The copies of `stop` after the first, until one is answered, a release is sent,
         or `LANE_STOP_S` has passed."""
         start = time.monotonic()
@@ -347,26 +382,28 @@ class WebNode:
                 LANE_STOP_S,
                 n,
             )
-            self.listener.on_answer(
+            self._say(
+                number,
                 f"STOP on the topic: no answer in {LANE_STOP_S:g} s (sent {n} times): "
                 "whether the arm has stopped is unknown",
                 False,
             )
 
-    def _lane_answer(self, sock: socket.socket) -> None:
+    def _lane_answer(self, sock: socket.socket, number: int) -> None:
         try:
             answer = quick.answer(sock, LANE_STOP_S)
         except (OSError, EOFError) as e:
             log.warning("web: STOP by the local lane %s: no answer (%s)", self.lane, e)
-            self.listener.on_answer(
+            self._say(
+                number,
                 f"STOP by the local lane: no answer ({e}): whether the arm has stopped is unknown",
                 False,
             )
             return
         log.info("web: STOP by the local lane: %s", answer.get("result"))
-        result, reason = answer.get("result"), answer.get("reason")
-        self.listener.on_answer(
-            f"STOP: {result}{f': {reason}' if reason else ''}", result == Result.DONE.value
+        result = answer.get("result")
+        self._say(
+            number, _answered("STOP", result, answer.get("reason")), result == Result.DONE.value
         )
 
     def release(self) -> None:
@@ -376,32 +413,42 @@ class WebNode:
         sent again is not sent after it: a copy sent after the release, which the stop
         watcher may read before the node has read an earlier one (a lossy link), would be
         a stop sent after the release, and lock the arm again."""
-        with self._sending:
-            for stop in list(self._stops):
-                unanswered = self._stops.pop(stop, None)
-                if unanswered is not None:
-                    log.info("web: STOP on the topic: no more copies (a release was sent)")
-                    unanswered.set()
-            release = Instruction(Kind.RELEASE)
-            timer = threading.Timer(RELEASE_ANSWER_S, self._release_unanswered, (release.id,))
-            timer.daemon = True
-            self._releases[release.id] = timer
-            self.listener.on_answer(f"RELEASE on the topic: {AWAITED}", None)
-            timer.start()
-            self.send(release)
+        release, number = Instruction(Kind.RELEASE), self._begin()
+        # Out of the lock a STOP's copy takes: starting a timer waits for its thread to run.
+        timer = threading.Timer(RELEASE_ANSWER_S, self._release_unanswered, (release.id,))
+        timer.daemon = True
+        self._releases[release.id] = timer, number
+        self._say(number, f"RELEASE on the topic: {AWAITED}", None)
+        timer.start()
+        try:
+            with self._sending:
+                for stop in list(self._stops):
+                    unanswered = self._stops.pop(stop, None)
+                    if unanswered is not None:
+                        log.info("web: STOP on the topic: no more copies (a release was sent)")
+                        unanswered[0].set()
+                self.send(release)
+        except Exception as e:
+            if self._releases.pop(release.id, None) is not None:
+                timer.cancel()
+                self._say(number, f"RELEASE: not sent ({e})", False)
+            raise
 
     def _release_unanswered(self, ident: str) -> None:
-        if self._releases.pop(ident, None) is not None:
+        releasing = self._releases.pop(ident, None)
+        if releasing is not None:
             log.warning("web: RELEASE on the topic: no answer in %g s", RELEASE_ANSWER_S)
-            self.listener.on_answer(
+            self._say(
+                releasing[1],
                 f"RELEASE on the topic: no answer in {RELEASE_ANSWER_S:g} s: whether the arm "
                 "was released is unknown (its state shows it)",
                 False,
             )
 
     def close(self) -> None:
-        for timer in list(self._releases.values()):
+        for timer, _ in list(self._releases.values()):
             timer.cancel()
+        self._answers.put(None)
         self.lease.close([self.pub])
         self.lease_spinner.close()
         self.spinner.close()

@@ -188,7 +188,7 @@ class Page:
                 self.panel.show_joints_status("drag a slider to move", None)
 
     def on_answer(self, text: str, ok: bool | None) -> None:
-        # No lock: the STOP's own thread says it, and the STOP waits for nothing.
+        # In the link's thread of its own; one widget, which nothing else writes: no lock.
         self.panel.show_answer(text, ok)
 
     def on_outcome(self, outcome: Outcome) -> None:
