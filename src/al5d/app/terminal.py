@@ -362,6 +362,8 @@ def shell(
         print(f"al5d shell: {e}", file=err)
         return exits.BAD_INPUT
     interactive = inp.isatty()
+    # A prompt drawn again below what is said only where both ends are a terminal.
+    redraw = interactive and out.isatty()
     timing = Timing("al5d shell", verbose, err)
     try:
         client = Client(namespace, wait_s=wait_s, local=VIA[via])
@@ -374,7 +376,7 @@ def shell(
     background: list[Instruction] = []
     watch = LinkWatch(client, report, background)
     above = _AbovePrompt(report)
-    if interactive:  # the client's warnings (a silent server) above the prompt, not in it
+    if redraw:  # the client's warnings (a silent server) above the prompt, not in it
         logging.getLogger().addHandler(above)
     try:
         client.wait_for_server(wait_s)
@@ -385,8 +387,7 @@ def shell(
                 "al5d shell: one instruction a line (as in a sequence file); Ctrl-C while "
                 "one runs stops the arm; exit or Ctrl-D ends"
             )
-        # A prompt drawn again below what is said only where both ends are a terminal.
-        lines = _lines(inp, interactive, report if out.isatty() else None)
+        lines = _lines(inp, interactive, report if redraw else None)
         while True:
             with watch.waiting():  # a server lost while the shell waits for a line is said
                 line = next(lines, None)
