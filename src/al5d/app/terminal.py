@@ -313,7 +313,9 @@ def _lines(inp: TextIO, interactive: bool, report: Report | None) -> Iterator[st
         if report is not None:
             report.at_prompt(lambda: SHELL_PROMPT + readline.get_line_buffer())
 
-    readline.set_pre_input_hook(drawn)
+    # GNU readline's; a readline without it (libedit) draws no prompt again.
+    hook = getattr(readline, "set_pre_input_hook", lambda *hook: None)
+    hook(drawn)
     try:
         while True:
             try:
@@ -331,7 +333,7 @@ def _lines(inp: TextIO, interactive: bool, report: Report | None) -> Iterator[st
                 return
             yield line
     finally:
-        readline.set_pre_input_hook()
+        hook()
 
 
 def shell(
