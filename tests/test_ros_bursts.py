@@ -27,19 +27,27 @@ pytestmark = pytest.mark.solo  # load suites: alone (see pyproject.toml)
 
 
 @pytest.fixture(scope="module")
-def server(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Peer]:
+def served(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Proc]:
+    """The server, its board in a process of its own."""
     link = tmp_path_factory.mktemp("bursts") / "ssc32u"
     emu = BoardProcess(link, config=config)  # its own GIL: the load here cannot starve it
     proc = Proc("serve", "--port", str(link), "--log-level", "INFO")
-    peer = Peer(results=False, name="al5d_burst_peer")
     try:
         proc.err.wait_for("STATE: ready", 30)
+        yield proc
+    finally:
+        proc.kill()
+        emu.close()
+
+
+@pytest.fixture(scope="module")
+def server(served: Proc) -> Iterator[Peer]:
+    peer = Peer(results=False, name="al5d_burst_peer")
+    try:
         peer.wait_for_server()
         yield peer
     finally:
         peer.close()
-        proc.kill()
-        emu.close()
 
 
 def all_done(futures: list[Any], timeout: float) -> int:
@@ -50,12 +58,17 @@ def all_done(futures: list[Any], timeout: float) -> int:
     return sum(f.done() for f in futures)
 
 
-def test_a_burst_of_300_goals_and_300_result_requests_are_all_answered(server: Peer) -> None:
+def test_a_burst_of_300_goals_and_300_result_requests_are_all_answered(
+    server: Peer, served: Proc
+) -> None:
     peer = server
     goals = [peer.move.send_goal_async(Move.Goal(preset="ready")) for _ in range(300)]
     assert all_done(goals, 30) == 300
     handles = [f.result() for f in goals]
-    assert all(h.accepted for h in handles)
+    # Why any was rejected is in the server's log (a CI run beside two busy loops saw
+    # some rejected, once in many runs, and did not say why).
+    rejected = sum(not h.accepted for h in handles)
+    assert rejected == 0, (rejected, served.err.drain(0.5)[-20:])
     peer.trigger("stop")  # cancels what waits: every goal has its result now
     results = [h.get_result_async() for h in handles]
     assert all_done(results, 30) == 300
