@@ -222,7 +222,7 @@ class Peer:
 
     def trigger(self, name: str) -> Trigger.Response:
         """A safety service's answer. A stop unanswered for a second is asked again, as the
-        packaged client does (`al5d.ros.rosway.STOP_RETRY_S`): the stop process's
+        packaged client does (`al5d.ros.rosstop.STOP_RETRY_S`): the stop process's
         participant may drop its first answer to this peer (ros2/rmw_fastrtps#390)."""
         client = self.services[name]
         if name != "stop":

@@ -430,7 +430,7 @@ class Client:
 
     def stop(self, timeout: float = ANSWER_S) -> Answer:
         """The emergency stop, by the server's stop service and, over ROS 2, on the
-        instruction topic beside it (`al5d.ros.rosway.RosWay._stop`): the arm halts and
+        instruction topic beside it (`al5d.ros.rosstop.StopCall`): the arm halts and
         stays locked (refusing moves) until a release. Raises `NoServer` where the stop
         reached nobody within `wait_s`, `NoOutcome` where it was sent (a reader of the
         topic took it) but not answered: whether the arm stopped is unknown."""

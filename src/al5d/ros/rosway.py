@@ -13,7 +13,7 @@ import logging
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, Any
 
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
@@ -35,13 +35,14 @@ from al5d.ros.answers import (
     no_outcome,
     wait_ms,
 )
-from al5d.ros.convert import COPY_MARK, outcome_from_message, to_message
+from al5d.ros.convert import outcome_from_message, to_message
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.leasing import LEASE_EVERY_S, LOST_AFTER_LEASE_S, Leaser, new_key
 from al5d.ros.names import PING, Names, server_nodes
 from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SERVICES, QOS_STREAM
 from al5d.ros.reading import ArmView, follow_ros
+from al5d.ros.rosstop import InFlight, StopCall
 
 if TYPE_CHECKING:
     from al5d.arm.config import ArmConfig
@@ -55,28 +56,10 @@ PING_EVERY_S = 0.25
 #: How long the shutdown service may stay undiscovered once the server's topics are: after
 #: that the shutdown goes on the instruction topic instead (and says so). The services are
 #: on the stop path's DDS participant, discovered apart from the topics': beside two busy
-#: loops once more than 2 s after them. (A stop waits for nothing: `RosWay._stop`.)
+#: loops once more than 2 s after them. (A stop waits for nothing: `rosstop.StopCall`.)
 SERVICE_GRACE_S = 5.0
-#: A stop's service call unanswered this long is made again. rmw_fastrtps drops an answer
-#: whose client it has not matched 100 ms after the request (ros2/rmw_fastrtps#390), which
-#: on a loaded machine can befall a new client's first call. A second stop is harmless; a
-#: second release could undo a stop sent in between, so a release is never sent twice.
-STOP_RETRY_S = 1.0
-#: In a stop's first second its copy on the topic goes this often: a server just found (a
-#: restart) may not have matched our writer yet, and drops what comes before (seen beside
-#: two busy loops: a restarted server's stop obeyed 1.01 s after it was asked, by the copy
-#: sent again after a second).
-STOP_FIRST_COPIES_S = 0.25
-#: A stop unanswered this long is said to be so at once (a WARNING), while it is still
-#: sent: after a server's restart its side may take seconds to find this client (beside
-#: busy loops, a stop was obeyed 2.15 s after it was asked), and whoever asked must not
-#: believe the arm stopped meanwhile.
-STOP_UNANSWERED_S = 1.0
-#: A release waits at most this long for the answers of its client's stops still on their
-#: way (`RosWay._in_flight`): a lost request is sent again at the writer's next heartbeat,
-#: 3 s on; a server gone never answers, and must not cost the release its timeout.
-STOPS_ANSWERED_S = 4.0
-#: A release or a shutdown waits this long after its service is found: see `STOP_RETRY_S`.
+#: A release or a shutdown waits this long after its service is found: see
+#: `al5d.ros.rosstop.STOP_RETRY_S`.
 SERVICE_SETTLE_S = 0.5
 #: A silence this long is said at once (a WARNING) by a client that waits for the server,
 #: before it gives up.
@@ -139,9 +122,9 @@ class RosWay:
         self._cv = threading.Condition()
         #: Each service once found, and when its first call may go (`SERVICE_SETTLE_S`).
         self._settled: dict[Kind, Deadline] = {}
-        #: Stop requests sent again (`STOP_RETRY_S`) whose answers have not come: each is a
-        #: stop the server may still obey. A release waits for them (`_in_flight`).
-        self._stops_in_flight: list[Any] = []
+        #: Stop requests whose answers have not come: each is a stop the server may still
+        #: obey. A release waits for them.
+        self._stops_in_flight = InFlight()
         # rclpy's Python executor: its events executor is now and then told of one message
         # too few, and the last one waits for the next; here that would be an outcome, or a
         # service's answer, waited for until the timeout (and the test peer's spin thread
@@ -200,7 +183,7 @@ class RosWay:
 
     # -- finding the server ------------------------------------------------------------
 
-    def _server_seen(self) -> bool:
+    def server_seen(self) -> bool:
         """Our writer of instructions has matched every reader of them that discovery lists,
         the server's node's among them, and our reader of results a writer of them.
 
@@ -257,7 +240,7 @@ class RosWay:
                     if any(p in self._outcomes for p in pings):
                         self.matched = True
                         return
-                if self._server_seen() and time.monotonic() >= next_ping:
+                if self.server_seen() and time.monotonic() >= next_ping:
                     pings.append(self._ping())
                     next_ping = time.monotonic() + PING_EVERY_S
                 time.sleep(0.02)
@@ -415,7 +398,7 @@ class RosWay:
             message = outcome.reason or f"{kind.value}: {outcome.result.value}"
             return Answer(kind.value, outcome.ok, message, self.names.instruction, False)
         # The server matches our reader of its answers a moment after we match its
-        # service; an answer it cannot deliver 100 ms on is dropped (`STOP_RETRY_S`).
+        # service; an answer it cannot deliver 100 ms on is dropped (`rosstop.STOP_RETRY_S`).
         time.sleep(self._settled[kind].left())
         response = self._call(service, timeout)
         if response is None:
@@ -427,142 +410,44 @@ class RosWay:
 
     def _release(self, timeout: float) -> Answer:
         """The release on the instruction topic, with this client's lease, once its stops
-        have reached the server (`_in_flight`). Not by the release service: a service
+        have reached the server (`InFlight.wait`). Not by the release service: a service
         request names no client, so the server could only take its time of sending on
         this machine's clock, seconds off on another machine; a request on the topic
         names its client, whose clock the server knows from its leases
         (`al5d.ros.leases`), and comes after this client's stops on the topic, in order."""
         deadline = Deadline(timeout)
-        self._in_flight(deadline)
+        self._stops_in_flight.wait(deadline, self._services[Kind.STOP][1])
         outcome = self.execute(Instruction(Kind.RELEASE), deadline.left())
         message = outcome.reason or f"release: {outcome.result.value}"
         return Answer("release", outcome.ok, message, self.names.instruction, False)
 
     def _stop(self, name: str, service: Any, timeout: float) -> Answer:
-        """The stop on the instruction topic at once and by its service as soon as that is
-        found, both sent again every `STOP_RETRY_S` until one is answered (the copy every
-        `STOP_FIRST_COPIES_S` in the first second), and on the topic again the moment a
-        reader of it matches. The copies are one stop (`<stop>~<n>`, this client's): the
-        server obeys the first to come and takes the others for it (each answered), so a
-        copy still on its way when another client releases the arm does not lock it again. `timeout`
-        counts from when the server is found; if it is not within `wait_s`, `NoServer` where
-        no copy reached a reader, else `NoOutcome` (`_stop_unfound`).
+        """The stop on the topic and by its service, until one is answered
+        (`al5d.ros.rosstop.StopCall`)."""
+        return StopCall(self, name, service, timeout, self._stops_in_flight).run()
 
-        Nothing waits for the service: the server's stop path is a DDS participant of its
-        own, found apart from its node (after a restart, under load, seconds apart), and
-        the node obeys the topic's copy too. A copy sent before our writer matched a new
-        server's reader reached nobody: a stop asked of a server just restarted goes again
-        once our writer has matched its reader (the stop watcher's, best effort, takes the
-        copies sent after its reader matched ours; the node's, reliable, asks for what it
-        missed at the writer's next heartbeat). On a lossy link a reliable writer's lost
-        sample is sent again only at its next heartbeat (Fast DDS: every 3 s; measured:
-        stops obeyed 3.5 and 6.0 s late at 13 to 17 % loss), and what the writer sent after
-        it waits behind it. The stop watcher reads the topic best effort: each copy that
-        gets through is obeyed at once, whatever was lost."""
-        finding = Deadline(self.wait_s)
-        deadline: Deadline | None = None  # from when the server is found
-        answered = threading.Event()
-        told: list[Outcome] = []
-        futures: list[Any] = []
-        start = time.monotonic()
-        copied = called = -STOP_RETRY_S  # when (monotonic) last sent, each way
-        found: float | None = None  # when the server was found (monotonic)
-        matched = -1
-        warned = False
-        reached = False  # a copy went out while a reader of the topic was matched
+    @property
+    def topic(self) -> str:
+        return self.names.instruction
 
-        def heard(outcome: Outcome) -> None:
-            told.append(outcome)
-            answered.set()
+    @property
+    def readers_matched(self) -> int:
+        return self._readers_matched
 
-        # One stop, however many copies: each names this client and is `<stop>~<n>`, so
-        # that the server obeys the first to come and answers each (a copy whose answer
-        # was lost is answered again), and a copy that comes after another client's release
-        # is the stop obeyed already (`convert.stop_key`).
-        stop = Instruction(Kind.STOP).id
-        copies: list[str] = []
-        try:
-            while True:
-                # The copy first: the graph's answers below (is the service there, the
-                # server) take their time, and the stop waits for nothing.
-                at = time.monotonic()
-                every = STOP_FIRST_COPIES_S if at - start < 1.0 else STOP_RETRY_S
-                if at - copied >= every or self._readers_matched > matched:
-                    matched = self._readers_matched
-                    ident = f"{stop}{COPY_MARK}{len(copies) + 1}"
-                    msg = to_message(Instruction(Kind.STOP, id=ident))
-                    msg.client = self.key  # no deadline: a stop is obeyed however late
-                    copies.append(ident)
-                    reached = reached or self._readers_matched > 0
-                    self.watch(ident, heard)
-                    with self._cv:
-                        self._sent.add(ident)
-                    self.pub.publish(msg)
-                    copied = at
-                if at - called >= STOP_RETRY_S:
-                    ready = service.service_is_ready()
-                    if deadline is None and (ready or self._server_seen()):
-                        deadline = Deadline(timeout)
-                        found = time.monotonic()
-                    if ready:
-                        future = service.call_async(Trigger.Request())
-                        future.add_done_callback(lambda _: answered.set())
-                        futures.append(future)
-                        called = at
-                if answered.wait(0.02):
-                    break
-                if not warned and time.monotonic() - start >= STOP_UNANSWERED_S:
-                    warned = True
-                    last = self.lease.heard
-                    why = (
-                        "the server not found yet, or its side has not found this client yet"
-                        if last is None or not self.lease.deaf()
-                        else f"nothing heard from the server for {time.monotonic() - last:.1f}"
-                        " s: the link may be lost"
-                    )
-                    log.warning(
-                        "stop: no answer in %g s (%s); still sending it: whether the arm has "
-                        "stopped is unknown",
-                        STOP_UNANSWERED_S,
-                        why,
-                    )
-                if deadline is None and finding.expired:
-                    raise self._stop_unfound(name, len(copies), reached)
-                if deadline is not None and deadline.expired:
-                    break
-        finally:
-            self.discovery_s += (found or time.monotonic()) - start
-            for future in futures:
-                if not future.done():
-                    self._stops_in_flight.append(future)
-            with self._cv:
-                for ident in copies:
-                    self._watchers.pop(ident, None)
-            for ident in copies:
-                self.forget(ident)
-        for future in futures:
-            if future.done() and future.result() is not None:
-                response = future.result()
-                return Answer("stop", bool(response.success), str(response.message), name)
-        if told:
-            message = told[0].reason or f"stop: {told[0].result.value}"
-            return Answer("stop", told[0].ok, message, self.names.instruction, False)
-        raise NoOutcome(
-            f"stop: no answer from {name} or {self.names.instruction} within "
-            f"{timeout:g} s (whether the server obeyed is unknown)"
-        )
+    def send_copy(self, ident: str, heard: Callable[[Outcome], None]) -> None:
+        msg = to_message(Instruction(Kind.STOP, id=ident))
+        msg.client = self.key  # no deadline: a stop is obeyed however late
+        self.watch(ident, heard)
+        with self._cv:
+            self._sent.add(ident)
+        self.pub.publish(msg)
 
-    def _stop_unfound(self, name: str, copies: int, reached: bool) -> NoOutcome | NoServer:
-        """No server found to answer a stop within `wait_s`: `NoServer` where its `copies`
-        reached nobody, `NoOutcome` where one went out while a reader of the topic was
-        matched (something may have obeyed: whether the arm stopped is unknown)."""
-        if not reached:
-            return NoServer(f"stop: reached nobody: {self.no_server(name, self.wait_s)}")
-        return NoOutcome(
-            f"stop: sent {copies} times on {self.names.instruction}, which a reader took, "
-            f"but no al5d server was found within {self.wait_s:g} s to answer it (whether "
-            "the arm has stopped is unknown)"
-        )
+    def drop_copies(self, idents: Iterable[str]) -> None:
+        with self._cv:
+            for ident in idents:
+                self._watchers.pop(ident, None)
+        for ident in idents:
+            self.forget(ident)
 
     def _find_service(self, kind: Kind, name: str, service: Any) -> bool:
         """True once `service` is available; False if the server's topics are there and it is
@@ -575,7 +460,7 @@ class RosWay:
         start = time.monotonic()
         try:
             while not service.service_is_ready():
-                if grace is None and self._server_seen():
+                if grace is None and self.server_seen():
                     grace = Deadline(SERVICE_GRACE_S)
                 if grace is not None and grace.expired:
                     return False
@@ -586,22 +471,6 @@ class RosWay:
             self.discovery_s += time.monotonic() - start
         self._settled[kind] = Deadline(SERVICE_SETTLE_S)
         return True
-
-    def _in_flight(self, deadline: Deadline) -> None:
-        """Wait (until `deadline`) for the answers of this client's stops still on their way.
-        On a slow or lossy link a stop asked again arrives after the first is answered:
-        were the release sent at once, that stop, sent before it, would lock the arm again
-        behind it, with nobody to release it. Answered, it is obeyed before the release."""
-        stop_service = self._services[Kind.STOP][1]
-        until = Deadline(min(deadline.left(), STOPS_ANSWERED_S))
-        while self._stops_in_flight and not until.expired:
-            if self._stops_in_flight[0].done():
-                self._stops_in_flight.pop(0)
-            else:
-                time.sleep(0.02)
-        for future in self._stops_in_flight:  # lost with its server, or too late
-            stop_service.remove_pending_request(future)
-        self._stops_in_flight.clear()
 
     def _call(self, service: Any, timeout: float) -> Any:
         """The service's response, or None if none came within `timeout`."""
