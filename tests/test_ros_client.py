@@ -154,12 +154,10 @@ def test_stop_by_its_service_and_topic_release_by_the_topic_lock_the_arm_between
     )
     assert ended_normally(done) and done.returncode == 0, done.stderr
     stop, locked, release, free, again = own_lines(done.stdout)
-    # The stop's answer is its service's or, had it come first, its topic copy's outcome;
-    # a release goes on the topic with the client's lease (judged on the server's clock).
-    assert stop in (
-        "stop|True|True|/al5d/stop|stop: done",
-        "stop|True|False|/al5d/instruction|stop: done",
-    )
+    # The stop goes on the topic, copies of one stop until one is answered (not by the
+    # stop service: `al5d.ros.rosstop`); a release goes on the topic with the client's
+    # lease (judged on the server's clock).
+    assert stop == "stop|True|False|/al5d/instruction|stop: done"
     assert locked.startswith("move [")
     assert locked.endswith("refused: the arm is stopped (emergency stop): send release first")
     assert release == "release|True|False|/al5d/instruction|release: done"
@@ -170,8 +168,8 @@ def test_stop_by_its_service_and_topic_release_by_the_topic_lock_the_arm_between
     )
     wait_until(lambda: arm.stops() > before, STATE_S, "the board stopped")
     wait_until(lambda: "stopped" in arm.states[seen:], STATE_S, "the state stopped")
-    # The stop goes on the topic too, beside its service (a copy the stop watcher obeys
-    # whatever a lossy link lost before it: docs/ros.md). This test's reader may miss the
+    # The stop goes on the topic (a copy the stop watcher obeys whatever a lossy link
+    # lost before it: docs/ros.md). This test's reader may miss the
     # script's words: its client need not have heard of this reader yet when it sends
     # (seen once beside two busy loops); the client's handshake (pings) is on the topic too.
     assert set(topic_words) <= {"move", PING, "stop", "release"}, topic_words
@@ -200,11 +198,8 @@ def test_the_client_gives_up_on_the_server_only_after_its_lease_has_run_out(
 def test_al5d_send_stops_and_releases_and_says_by_what(arm: Served) -> None:
     stop = Proc("send", "--via", "ros", "stop")
     assert stop.wait(SCRIPT_S) == 0, stop.err.drain()
-    # By whichever answered first: the service, or the stop's copy on the topic.
-    assert stop.out.drain() in (
-        ["stop: done (by /al5d/stop)"],
-        ["stop: done (by /al5d/instruction)"],
-    )
+    # On the topic: copies of one stop until one is answered (`al5d.ros.rosstop`).
+    assert stop.out.drain() == ["stop: done (by /al5d/instruction)"]
     locked = Proc("send", "--via", "ros", "move", "base=5")
     assert locked.wait(SCRIPT_S) == 1
     assert any("refused: the arm is stopped" in line for line in locked.out.drain())
@@ -229,7 +224,7 @@ def test_al5d_send_stops_and_releases_and_says_by_what(arm: Served) -> None:
             'arm = Client(namespace="left", wait_s=2)\narm.stop()\n',
             1,
             "al5d.ros.client.NoServer: stop: reached nobody: no al5d server answers on "
-            "/left/al5d/stop",
+            "/left/al5d/instruction",
         ),
         (
             'with Client(wait_s=2) as arm:\n    arm.execute("move base=x")\n',
@@ -255,7 +250,9 @@ def test_al5d_send_stop_without_a_server_is_the_no_server_exit() -> None:
     lost = Proc("send", "--wait", "1", "stop", env=alone())
     assert lost.wait(SCRIPT_S) == exits.NO_SERVER
     err = lost.err.drain()
-    assert any("stop: reached nobody: no al5d server answers on /al5d/stop" in e for e in err)
+    assert any(
+        "stop: reached nobody: no al5d server answers on /al5d/instruction" in e for e in err
+    )
 
 
 READER = """
@@ -342,7 +339,9 @@ def test_a_stop_unanswered_for_a_second_is_said_to_be_so_while_it_is_still_sent(
     assert lost.wait(SCRIPT_S) == exits.NO_SERVER
     err = lost.err.drain()
     said = [i for i, line in enumerate(err) if "stop: no answer in 1 s" in line]
-    ended = [i for i, line in enumerate(err) if "no al5d server answers on /al5d/stop" in line]
+    ended = [
+        i for i, line in enumerate(err) if "no al5d server answers on /al5d/instruction" in line
+    ]
     assert said and ended and said[0] < ended[0], err
     assert "whether the arm has stopped is unknown" in err[said[0]], err
 

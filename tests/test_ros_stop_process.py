@@ -32,7 +32,15 @@ from al5d.ros.qos import QOS_SERVICES
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator, Record
 from al5d.web.link import WebNode
-from al5d_rig.proc import Lines, Proc, family, freeze, patient_config, run_state
+from al5d_rig.proc import (
+    Lines,
+    Proc,
+    dies_with_parent,
+    family,
+    freeze,
+    patient_config,
+    run_state,
+)
 from al5d_rig.rospeer import Peer, wait_until
 from al5d_rig.served import StopBursts
 
@@ -403,6 +411,82 @@ def test_a_web_views_stop_to_a_server_elsewhere_is_one_stop_whatever_comes_after
         assert all(ok is not False for _, ok in heard.answers), heard.answers
     finally:
         link.close()
+
+
+#: A Python client of a server elsewhere (no lane of it here): it finds the stop service
+#: as well (a client that called it would call it then), then stops the arm on a line.
+HELD_STOP = """
+import sys
+from std_srvs.srv import Trigger
+from al5d.ros.client import Client
+from al5d.ros.qos import QOS_SERVICES
+from al5d_rig.rospeer import wait_until
+with Client(namespace="", local=False, wait_s=60) as arm:
+    arm.wait_for_server(60)
+    probe = arm._way.node.create_client(Trigger, "/al5d/stop", qos_profile=QOS_SERVICES)
+    wait_until(probe.service_is_ready, 60, "the stop service")
+    print("ready", flush=True)
+    sys.stdin.readline()
+    print("stop:", arm.stop(timeout=30), flush=True)
+    sys.stdin.readline()
+"""
+
+
+def test_a_python_clients_stop_held_on_its_way_does_not_lock_the_arm_after_a_release(
+    served: Served, tmp_path: Path
+) -> None:
+    """The Python client's stop to a server elsewhere goes on the instruction topic, again
+    until it is answered: one stop. The stop process frozen (as a link that holds one way
+    back): the server's node obeys the stop, another client releases the arm, and the stop
+    process, thawed, takes what it held for the stop obeyed already, so the arm stays
+    released. (The client called the stop service as well, and again each second: each
+    call a stop of its own, which the thawed stop process obeyed after the release.)"""
+    script = tmp_path / "held_stop.py"
+    script.write_text(HELD_STOP)
+    client = subprocess.Popen(
+        [sys.executable, str(script)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=dies_with_parent,
+    )
+    assert client.stdin is not None and client.stdout is not None and client.stderr is not None
+    out, err = Lines(client.stdout), Lines(client.stderr)
+    stop_process = served.stop_process()
+    try:
+        out.wait_for("ready", 120)
+        freeze(stop_process)
+        try:
+            said = served.proc.err
+            before = len(said.drain(0))
+            client.stdin.write("\n")
+            client.stdin.flush()
+            answer = out.wait_for("stop:", 60)
+            stopped = said_after(said, before, "STATE: stopped")
+            served.peer.send("another-clients-release", "release")
+            assert served.peer.result("another-clients-release", 30).outcome == "done"
+            released = said_after(said, stopped, "STATE: ready")
+            time.sleep(1.5)  # the client's copies and calls, had it gone on sending
+        finally:
+            os.kill(stop_process, signal.SIGCONT)
+        # The stop process runs again, and takes what waited for it: a move after it is run
+        # (one more stop would cancel it or refuse it) and the arm is not stopped again.
+        served.peer.send("after-the-held-stop", "move", time_ms=1000, base=10)
+        result = served.peer.result("after-the-held-stop", 30)
+        again = [line for line in said.drain(0)[released:] if "STATE: stopped" in line]
+        assert result.outcome == "done" and not again, (result.outcome, result.reason, again)
+        assert "stop: done" in answer and "(by /al5d/instruction)" in answer, answer
+    finally:
+        with contextlib.suppress(OSError):
+            client.stdin.write("\n")
+            client.stdin.flush()
+        try:
+            client.wait(30)
+        except subprocess.TimeoutExpired:
+            client.kill()
+            client.wait(5)
+    assert client.returncode == 0, err.drain(0.5)[-20:]
 
 
 def said_after(lines: Lines, since: int, text: str, timeout: float = 30.0) -> int:

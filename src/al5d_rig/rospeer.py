@@ -221,9 +221,10 @@ class Peer:
         return self.results[ident]
 
     def trigger(self, name: str) -> Trigger.Response:
-        """A safety service's answer. A stop unanswered for a second is asked again, as the
-        packaged client does (`al5d.ros.rosstop.STOP_RETRY_S`): the stop process's
-        participant may drop its first answer to this peer (ros2/rmw_fastrtps#390)."""
+        """A safety service's answer, as any ROS client (`ros2 service call`) has it. A stop
+        unanswered for a second is asked again: the stop process's participant may drop
+        its first answer to this peer (ros2/rmw_fastrtps#390). (The packaged client sends
+        its stop on the topic instead, copies of one stop: `al5d.ros.rosstop`.)"""
         client = self.services[name]
         if name != "stop":
             return wait_future(client.call_async(Trigger.Request()))

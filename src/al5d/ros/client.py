@@ -2,13 +2,14 @@
 and shutdown (the terminal's commands on it: `al5d.app.terminal`).
 
 A server on this machine is reached by its local lane (`al5d.owner.client.Remote`: no
-discovery, no DDS); any other over ROS 2, its instruction topic and its services.
+discovery, no DDS); any other over ROS 2, its instruction topic (the stop and the
+release too) and its shutdown service.
 
 `Client` is a context manager:
 
     with Client() as arm:
         print(arm.execute("move base=30 time=800"))   # an Outcome
-        print(arm.stop())                             # an Answer, by /al5d/stop
+        print(arm.stop())                             # an Answer
 """
 
 from __future__ import annotations
@@ -429,8 +430,8 @@ class Client:
         return self._way.cancel(ident, reason)
 
     def stop(self, timeout: float = ANSWER_S) -> Answer:
-        """The emergency stop, by the server's stop service and, over ROS 2, on the
-        instruction topic beside it (`al5d.ros.rosstop.StopCall`): the arm halts and
+        """The emergency stop, by the local lane, or over ROS 2 on the instruction topic,
+        sent again until it is answered (`al5d.ros.rosstop.StopCall`): the arm halts and
         stays locked (refusing moves) until a release. Raises `NoServer` where the stop
         reached nobody within `wait_s`, `NoOutcome` where it was sent (a reader of the
         topic took it) but not answered: whether the arm stopped is unknown."""

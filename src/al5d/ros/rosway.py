@@ -42,7 +42,7 @@ from al5d.ros.leasing import LEASE_EVERY_S, LOST_AFTER_LEASE_S, Leaser, new_key
 from al5d.ros.names import PING, Names, server_nodes
 from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SERVICES, QOS_STREAM
 from al5d.ros.reading import ArmView, follow_ros
-from al5d.ros.rosstop import InFlight, StopCall
+from al5d.ros.rosstop import StopCall
 
 if TYPE_CHECKING:
     from al5d.arm.config import ArmConfig
@@ -58,8 +58,9 @@ PING_EVERY_S = 0.25
 #: on the stop path's DDS participant, discovered apart from the topics': beside two busy
 #: loops once more than 2 s after them. (A stop waits for nothing: `rosstop.StopCall`.)
 SERVICE_GRACE_S = 5.0
-#: A release or a shutdown waits this long after its service is found: see
-#: `al5d.ros.rosstop.STOP_RETRY_S`.
+#: A shutdown waits this long after its service is found: rmw_fastrtps drops an answer
+#: whose client it has not matched 100 ms after the request (ros2/rmw_fastrtps#390), which
+#: on a loaded machine can befall a new client's first call.
 SERVICE_SETTLE_S = 0.5
 #: A silence this long is said at once (a WARNING) by a client that waits for the server,
 #: before it gives up.
@@ -109,11 +110,12 @@ class RosWay:
         self.key = self.lease.key
         #: The last sign of the server whose silence has been said (once an outage).
         self._silence_said: float | None = None
-        #: The stop's and the shutdown's services (a release goes on the topic: `_release`).
+        #: The shutdown's service (a stop and a release go on the topic: `StopCall`,
+        #: `_release`).
         self._services: dict[Kind, tuple[str, Any]] = {
             kind: (name, self.node.create_client(Trigger, name, qos_profile=QOS_SERVICES))
             for name, kind in names.services.items()
-            if kind is not Kind.RELEASE
+            if kind is Kind.SHUTDOWN
         }
         #: Only the outcomes of what this client sent are kept: every client's come by.
         self._sent: set[str] = set()
@@ -122,9 +124,6 @@ class RosWay:
         self._cv = threading.Condition()
         #: Each service once found, and when its first call may go (`SERVICE_SETTLE_S`).
         self._settled: dict[Kind, Deadline] = {}
-        #: Stop requests whose answers have not come: each is a stop the server may still
-        #: obey. A release waits for them.
-        self._stops_in_flight = InFlight()
         # rclpy's Python executor: its events executor is now and then told of one message
         # too few, and the last one waits for the next; here that would be an outcome, or a
         # service's answer, waited for until the timeout (and the test peer's spin thread
@@ -379,14 +378,14 @@ class RosWay:
     # -- the stop, the release and the shutdown ----------------------------------------
 
     def ask(self, kind: Kind, timeout: float) -> Answer:
-        """The stop (`_stop`), the release (`_release`), or the shutdown by its service (the
-        instruction topic instead if the server is there but its service is not:
-        `SERVICE_GRACE_S`)."""
+        """The stop (`al5d.ros.rosstop.StopCall`) and the release (`_release`) on the
+        instruction topic, the shutdown by its service (the topic instead if the server is
+        there but its service is not: `SERVICE_GRACE_S`)."""
+        if kind is Kind.STOP:
+            return StopCall(self, timeout).run()
         if kind is Kind.RELEASE:
             return self._release(timeout)
         name, service = self._services[kind]
-        if kind is Kind.STOP:
-            return self._stop(name, service, timeout)
         if not self._find_service(kind, name, service):
             log.warning(
                 "%s: the service %s is not available; sent on the topic %s instead",
@@ -398,7 +397,7 @@ class RosWay:
             message = outcome.reason or f"{kind.value}: {outcome.result.value}"
             return Answer(kind.value, outcome.ok, message, self.names.instruction, False)
         # The server matches our reader of its answers a moment after we match its
-        # service; an answer it cannot deliver 100 ms on is dropped (`rosstop.STOP_RETRY_S`).
+        # service; an answer it cannot deliver 100 ms on is dropped (`SERVICE_SETTLE_S`).
         time.sleep(self._settled[kind].left())
         response = self._call(service, timeout)
         if response is None:
@@ -409,22 +408,16 @@ class RosWay:
         return Answer(kind.value, bool(response.success), str(response.message), name)
 
     def _release(self, timeout: float) -> Answer:
-        """The release on the instruction topic, with this client's lease, once its stops
-        have reached the server (`InFlight.wait`). Not by the release service: a service
-        request names no client, so the server could only take its time of sending on
-        this machine's clock, seconds off on another machine; a request on the topic
-        names its client, whose clock the server knows from its leases
-        (`al5d.ros.leases`), and comes after this client's stops on the topic, in order."""
-        deadline = Deadline(timeout)
-        self._stops_in_flight.wait(deadline, self._services[Kind.STOP][1])
-        outcome = self.execute(Instruction(Kind.RELEASE), deadline.left())
+        """The release on the instruction topic, with this client's lease. Not by the release
+        service: a service request names no client, so the server could only take its time
+        of sending on this machine's clock, seconds off on another machine; a request on
+        the topic names its client, whose clock the server knows from its leases
+        (`al5d.ros.leases`), and comes after this client's stops on the topic, in order (a
+        copy of one that the stop watcher, reading best effort, takes after the release is
+        that stop, obeyed already: `al5d.ros.rosstop`)."""
+        outcome = self.execute(Instruction(Kind.RELEASE), timeout)
         message = outcome.reason or f"release: {outcome.result.value}"
         return Answer("release", outcome.ok, message, self.names.instruction, False)
-
-    def _stop(self, name: str, service: Any, timeout: float) -> Answer:
-        """The stop on the topic and by its service, until one is answered
-        (`al5d.ros.rosstop.StopCall`)."""
-        return StopCall(self, name, service, timeout, self._stops_in_flight).run()
 
     @property
     def topic(self) -> str:
