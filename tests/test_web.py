@@ -406,6 +406,18 @@ def test_stop_and_release_from_the_page(rig: Rig) -> None:
     wait_text(page, "#al5d-state", lambda t: t == "STOPPED")
     # Under STOP, its answer: the server's, by its local lane (this machine's).
     wait_text(page, "#al5d-answer", lambda t: t == "STOP: done")
+    # Stopped, the Target tab's move and a preset send nothing (the server would refuse
+    # them), as a slider then, and say why.
+    n1 = len(rig.emu.records)
+    page.get_by_role("tab", name="Target").click()
+    page.get_by_role("button", name="move to").click()
+    held = "not sent: the arm is stopped; release it first"
+    wait_text(page, "#al5d-target-status", lambda t: t == held)
+    page.get_by_role("tab", name="Joints").click()
+    page.get_by_role("button", name="straight_up").click()
+    wait_text(page, "#al5d-joints-status", lambda t: t == held)
+    time.sleep(0.5)
+    assert group_moves(rig.emu.records[n1:]) == []
     release = page.get_by_role("button", name="release")
     release.click()  # shown once stopped: there is something to release
     rig.state.wait_for("ready", 5)

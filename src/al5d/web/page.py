@@ -397,6 +397,13 @@ class Page:
         return True
 
     def _on_preset(self, event: Any) -> None:
+        with self._lock:
+            if self.state in RELEASABLE:
+                # As a slider then: the server refuses every move until a release.
+                self.panel.show_joints_status(
+                    f"not sent: the arm is {self.state}; release it first", False
+                )
+                return
         self.send_instruction(preset(str(event.target.value), time_ms=self.panel.time_ms()))
 
     def _on_release(self, event: Any) -> None:

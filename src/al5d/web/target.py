@@ -16,6 +16,7 @@ import numpy as np
 
 from al5d.arm.instruction import Instruction, move_to
 from al5d.model.transforms import Vec3
+from al5d.web.panel import RELEASABLE
 
 if TYPE_CHECKING:
     from al5d.web.parts import PageParts
@@ -58,6 +59,10 @@ class TargetTab:
         page.scene.place_target(tool)
         page.panel.set_xyz([v * 1000 for v in tool])
 
+    @staticmethod
+    def _held(state: str) -> str:
+        return f"not sent: the arm is {state}; release it first"
+
     def instr(self, xyz_mm: Sequence[float]) -> Instruction | str:
         """The Target tab's `move_to`, or what is wrong with one of its fields."""
         page = self._page
@@ -81,10 +86,12 @@ class TargetTab:
         if event.client is None:
             return
         with page.lock:
-            if page.lost:
+            if page.lost or page.state in RELEASABLE:
                 # A gizmo cannot be disabled (it has no handle left to grab): were it
                 # moved all the same, it goes back, and nothing is sent.
                 self.to_tool()
+                if not page.lost:
+                    page.panel.show_status(self._held(page.state), False)
                 return
             self.touched = time.monotonic()
             xyz = [round(v * 1000, 1) for v in page.scene.target_position]
@@ -133,6 +140,10 @@ class TargetTab:
         page = self._page
         with page.lock:
             if page.lost:
+                return
+            if page.state in RELEASABLE:
+                # As a slider then: the server refuses every move until a release.
+                page.panel.show_status(self._held(page.state), False)
                 return
             instr = self.instr(page.panel.xyz())
             self.touched = time.monotonic()
