@@ -136,7 +136,7 @@ def test_a_script_that_never_closes_its_client_exits_0(arm: Served, tmp_path: Pa
     assert done.stdout.startswith("ready [") and ": done" in done.stdout, done.stdout
 
 
-def test_stop_by_its_service_and_topic_release_by_the_topic_lock_the_arm_between(
+def test_stop_and_release_by_the_topic_lock_the_arm_between(
     arm: Served, topic_words: list[str], tmp_path: Path
 ) -> None:
     before, seen = arm.stops(), len(arm.states)

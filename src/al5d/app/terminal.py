@@ -2,13 +2,14 @@
 `al5d.ros.client.Client` (a local server by its lane, any other over ROS 2), and how they
 report.
 
-`al5d send` sends one instruction and waits for its outcome (a stop goes by the
-server's service and its topic; over ROS 2 a release goes on the topic, with the
-client's lease: `Client.release`). `al5d run` runs a sequence file: each instruction
-waits for its outcome before the next line, unless the line ends with `&` (then
-the client goes on at once, so that, say, a `stop` can land in the middle of a
-move); `wait <ms>` pauses. `al5d shell` reads instructions a line at a time and
-keeps its one connection: the server's discovery is paid once, not per command.
+`al5d send` sends one instruction and waits for its outcome (over ROS 2 a stop goes
+on the topic, copies of one stop until one is answered: `Client.stop`; a release goes
+on the topic too, with the client's lease: `Client.release`). `al5d run` runs a
+sequence file: each instruction waits for its outcome before the next line, unless
+the line ends with `&` (then the client goes on at once, so that, say, a `stop` can
+land in the middle of a move); `wait <ms>` pauses. `al5d shell` reads instructions a
+line at a time and keeps its one connection: the server's discovery is paid once, not
+per command.
 Ctrl-C on `al5d send` or `al5d run` cancels what the command sent and is still running or
 waiting, and says so (over ROS 2, which has no cancel by id, it says that the server was
 not told). Exit codes: `al5d.exits` (done, not done, bad input, no server, interrupted).

@@ -2,7 +2,8 @@
 answer to a stop, a release or a shutdown, and what a client that finds no server says.
 
 Their public home is `al5d.ros.client` (as tracebacks name them); they are here so that
-both of the client's ways (`al5d.ros.client`'s lane, `al5d.ros.rosway`'s ROS 2) raise them.
+both of the client's ways (`al5d.ros.client`'s lane, `al5d.ros.rosway`'s ROS 2, whose stop is
+`al5d.ros.rosstop`'s) raise them.
 """
 
 from __future__ import annotations
@@ -62,7 +63,9 @@ def no_outcome(what: str, timeout: float) -> NoOutcome:
 @dataclass(frozen=True)
 class Answer:
     """The server's answer to a stop, a release or a shutdown: whether it was obeyed and the
-    server's message, and `via` the service (or, as a fallback, the topic) that took it."""
+    server's message, and `via` what took it: the local lane, the instruction topic (a stop
+    or a release over ROS 2, `by_service` False), or the shutdown's service (the topic
+    where that is not found)."""
 
     instruction: str
     success: bool

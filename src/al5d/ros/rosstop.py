@@ -111,7 +111,7 @@ class StopCall:
         self._reached = False  # a copy went out while a reader of the topic was matched
         self._deadline: Deadline | None = None  # `timeout`, from when the server is found
         self._found: float | None = None  # when the server was found (monotonic)
-        self._looked = -STOP_RETRY_S  # when (monotonic) the graph was last looked at
+        self._looked = -STOP_FIRST_COPIES_S  # when (monotonic) the graph was last looked at
 
     def run(self) -> Answer:
         """Send the stop until it is answered; its answer. `NoOutcome` if none came within

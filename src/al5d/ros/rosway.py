@@ -1,7 +1,7 @@
 """A client's way to a server over ROS 2: its node, the instruction topic and the outcomes
-on the result topic, its lease, the server's silence, and the stop, release and shutdown
-by the services and the topic (`al5d.ros.client.Client` takes this way where no lane of the
-server is on this machine).
+on the result topic, its lease, the server's silence, the stop and the release on the
+topic (the stop's copies: `al5d.ros.rosstop`) and the shutdown by its service
+(`al5d.ros.client.Client` takes this way where no lane of the server is on this machine).
 
 Only `al5d.ros.client` imports this module, once the ROS 2 way is taken: a client of a
 local server starts without rclpy and the messages (about half a second less).
@@ -94,7 +94,7 @@ class RosWay:
             self.context.try_shutdown()
             raise
         #: Readers of our instructions ever matched (the matched event's total): a stop is
-        #: sent again the moment a new one matches (`_stop`).
+        #: sent again the moment a new one matches (`al5d.ros.rosstop.StopCall`).
         self._readers_matched = 0
         self.pub = self.node.create_publisher(
             ArmInstruction,
