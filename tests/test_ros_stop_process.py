@@ -534,3 +534,79 @@ class Heard:
 
     def on_answer(self, text: str, ok: bool | None) -> None:
         self.answers.append((text, ok))
+
+
+#: A Python client of a server elsewhere that floods it from a thread of its own (as
+#: `al5d run`'s lines that end with `&`), then stops on a line.
+FLOOD_STOP = """
+import sys, threading, time
+from al5d.arm import instruction as ins
+from al5d.ros.client import Client
+with Client(namespace="", local=False, wait_s=60) as arm:
+    arm.wait_for_server(60)
+    print("ready", flush=True)
+    sys.stdin.readline()
+    sent, errors = [0], []
+    def flood():
+        try:
+            for i in range(20000):
+                arm.send(ins.move(base=(i % 40) - 20, time_ms=50), wait_s=600)
+                sent[0] += 1
+        except Exception as e:
+            errors.append(f"{type(e).__name__}: {e}")
+    flooding = threading.Thread(target=flood, daemon=True)
+    flooding.start()
+    flooding.join(60)
+    print("flooded", sent[0], errors, flush=True)
+    print("stop:", arm.stop(timeout=60), flush=True)
+    sys.stdin.readline()
+"""
+
+
+def test_a_python_clients_stop_goes_while_its_own_flood_waits_unacknowledged(
+    served: Served, tmp_path: Path
+) -> None:
+    """A client that floods a server which takes nothing (its bridge frozen: its reader
+    acknowledges nothing, as a link that holds what goes one way) fills its writer: a
+    move more is not sent, and says so (`NotSent`). Its stop goes all the same, on a
+    writer of its own: the stop process obeys it while the bridge is still frozen, and
+    the bridge, thawed, answers it. (On the moves' writer it failed with them, "Failed to
+    publish" after 0.1 s, and never went out.)"""
+    script = tmp_path / "flood_stop.py"
+    script.write_text(FLOOD_STOP)
+    client = subprocess.Popen(
+        [sys.executable, str(script)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=dies_with_parent,
+    )
+    assert client.stdin is not None and client.stdout is not None and client.stderr is not None
+    out, err = Lines(client.stdout), Lines(client.stderr)
+    bridge = served.bridge
+    try:
+        out.wait_for("ready", 120)
+        n = len(served.emu.records)
+        freeze(bridge)
+        try:
+            client.stdin.write("\n")
+            client.stdin.flush()
+            flooded = out.wait_for("flooded", 90)
+            assert "NotSent: " in flooded and "not acknowledged" in flooded, flooded
+            served.emu.wait_for(lambda rs: any(r.raw.startswith(b"STOP") for r in rs[n:]), 30)
+            assert run_state(bridge) == "T"
+        finally:
+            os.kill(bridge, signal.SIGCONT)
+        answer = out.wait_for("stop:", 60)
+        assert "stop: done" in answer, answer
+    finally:
+        with contextlib.suppress(OSError):
+            client.stdin.write("\n")
+            client.stdin.flush()
+        try:
+            client.wait(60)
+        except subprocess.TimeoutExpired:
+            client.kill()
+            client.wait(5)
+    assert client.returncode == 0, err.drain(0.5)[-20:]

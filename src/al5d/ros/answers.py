@@ -45,6 +45,13 @@ class LostContact(NoOutcome):
     lease runs out, halts what it commanded and never runs what it sent meanwhile."""
 
 
+class NotSent(Exception):
+    """An instruction not sent: the server has not acknowledged what this client sent
+    before it (as many instructions as DDS keeps for it wait: a link that holds them, a
+    server that does not take them). Wait for outcomes before sending more (`execute`
+    does), or for the server; a stop still goes (`Client.stop`)."""
+
+
 class LaneLost(NoOutcome):
     """The server's local lane closed while an outcome was waited for (the server ended, or
     was killed): whether the instruction ran is unknown."""

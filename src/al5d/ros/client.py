@@ -37,6 +37,7 @@ from al5d.ros.answers import (
     LostContact,
     NoOutcome,
     NoServer,
+    NotSent,
     elsewhere,
     no_outcome,
     wait_ms,
@@ -59,6 +60,7 @@ __all__ = [
     "LostContact",
     "NoOutcome",
     "NoServer",
+    "NotSent",
 ]
 
 #: The defaults of `al5d send` and `al5d run`: finding the server, and an outcome.
@@ -313,7 +315,8 @@ class Client:
         ever), from now: the server refuses it as stale if it comes later than that, and
         cancels it (halts it, if it runs) when that has passed without an outcome.
         Raises `GrammarError` for text that is not an instruction, `LostContact` while
-        the server is out of contact (nothing is sent)."""
+        the server is out of contact, `NotSent` over ROS 2 while it has not acknowledged
+        what this client sent before (as many as DDS keeps): nothing is sent then."""
         if isinstance(instr, str):
             instr = parse_instruction(instr, PRESET_NAMES)
         self._check_open()

@@ -57,7 +57,7 @@ class StopWay(Protocol):
 
     @property
     def readers_matched(self) -> int:
-        """Readers of our instructions ever matched."""
+        """Readers of our stops ever matched."""
         ...
 
     def server_seen(self) -> bool: ...

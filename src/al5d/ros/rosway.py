@@ -31,6 +31,7 @@ from al5d.ros.answers import (
     LostContact,
     NoOutcome,
     NoServer,
+    NotSent,
     elsewhere,
     no_outcome,
     wait_ms,
@@ -40,9 +41,10 @@ from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.leasing import LEASE_EVERY_S, LOST_AFTER_LEASE_S, Leaser, new_key
 from al5d.ros.names import PING, Names, server_nodes
-from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SERVICES, QOS_STREAM
+from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SAFETY, QOS_SERVICES, QOS_STREAM
 from al5d.ros.reading import ArmView, follow_ros
 from al5d.ros.rosstop import StopCall
+from al5d.ros.workarounds import PublishFailed
 
 if TYPE_CHECKING:
     from al5d.arm.config import ArmConfig
@@ -93,13 +95,17 @@ class RosWay:
         except BaseException:
             self.context.try_shutdown()
             raise
-        #: Readers of our instructions ever matched (the matched event's total): a stop is
-        #: sent again the moment a new one matches (`al5d.ros.rosstop.StopCall`).
+        self.pub = self.node.create_publisher(ArmInstruction, names.instruction, QOS_INSTRUCTIONS)
+        #: Readers of our stops ever matched (the matched event's total): a stop is sent
+        #: again the moment a new one matches (`al5d.ros.rosstop.StopCall`).
         self._readers_matched = 0
-        self.pub = self.node.create_publisher(
+        #: The stop's copies, the release and the shutdown (where its service is not
+        #: found), on a writer of their own (`QOS_SAFETY`): a flood of moves never holds
+        #: them, and a release comes after this client's stops, in order.
+        self.safety_pub = self.node.create_publisher(
             ArmInstruction,
             names.instruction,
-            QOS_INSTRUCTIONS,
+            QOS_SAFETY,
             event_callbacks=PublisherEventCallbacks(matched=self._on_readers_matched),
         )
         self.results = self.node.create_subscription(
@@ -263,7 +269,8 @@ class RosWay:
 
     def send(self, instr: Instruction, wait_s: float) -> None:
         """Publish `instr` with this client's lease and `wait_s` (the server refuses it as
-        stale if it comes later). `LostContact` while the server is out of contact."""
+        stale if it comes later). `LostContact` while the server is out of contact,
+        `NotSent` while its writer is full of what the server has not acknowledged."""
         if self.lost_contact() is not None:
             raise self._lost(f"{instr.name} [{instr.id}]: not sent")
         msg = to_message(instr)
@@ -272,7 +279,16 @@ class RosWay:
         with ctrl_c_after():
             with self._cv:
                 self._sent.add(instr.id)
-            self.pub.publish(msg)
+            try:
+                (self.safety_pub if instr.kind in SAFETY else self.pub).publish(msg)
+            except PublishFailed as e:  # its writer is full of what the server has not taken
+                with self._cv:
+                    self._sent.discard(instr.id)
+                raise NotSent(
+                    f"{instr.name} [{instr.id}]: not sent: the server has not acknowledged "
+                    f"what this client sent before it ({e}); wait for outcomes before "
+                    "sending more"
+                ) from None
 
     def _on_result(self, msg: InstructionResult) -> None:
         self.lease.sign()
@@ -412,9 +428,9 @@ class RosWay:
         service: a service request names no client, so the server could only take its time
         of sending on this machine's clock, seconds off on another machine; a request on
         the topic names its client, whose clock the server knows from its leases
-        (`al5d.ros.leases`), and comes after this client's stops on the topic, in order (a
-        copy of one that the stop watcher, reading best effort, takes after the release is
-        that stop, obeyed already: `al5d.ros.rosstop`)."""
+        (`al5d.ros.leases`). On the writer of this client's stops, after them in order (a
+        copy that the stop watcher, reading best effort, takes after the release is that
+        stop, obeyed already: `al5d.ros.rosstop`)."""
         outcome = self.execute(Instruction(Kind.RELEASE), timeout)
         message = outcome.reason or f"release: {outcome.result.value}"
         return Answer("release", outcome.ok, message, self.names.instruction, False)
@@ -433,7 +449,7 @@ class RosWay:
         self.watch(ident, heard)
         with self._cv:
             self._sent.add(ident)
-        self.pub.publish(msg)
+        self.safety_pub.publish(msg)
 
     def drop_copies(self, idents: Iterable[str]) -> None:
         with self._cv:
@@ -479,5 +495,5 @@ class RosWay:
     def close(self) -> None:
         """End the lease (with a goodbye if in contact: `Leaser.close`), and end the node
         and its ROS context."""
-        self.lease.close([self.pub])
+        self.lease.close([self.pub, self.safety_pub])
         self.spinner.close()

@@ -19,8 +19,8 @@ before Python sees anything): a flood's moves never queue in it. The node `al5d`
 the same stop later, in order; both submit it with the message's identity, and the
 owner obeys and answers it once (rule 3). What no reader here can see is a stop still
 queued in its sender (a client that floods through the same publisher is slowed by
-back-pressure, stop included, the Python client's copies of its stop too): the stop
-service is the way for emergencies.
+back-pressure, stop included): the stop service is the way for emergencies, or a
+writer of the stop's own (the Python client's: `al5d.ros.rosway`).
 
 The stop service and the watcher are the node `al5d_stop` (`StopNode`), in a process of
 its own (`al5d.ros.stopproc`) at the stop path's priority: in the bridge, its thread

@@ -31,6 +31,11 @@ from al5d.priority import make_urgent
 
 log = logging.getLogger("al5d")
 
+#: What a publish that failed raises (a KEEP_ALL writer whose history is full of what its
+#: readers have not acknowledged: "Failed to publish: cannot publish data"). rclpy 7.1
+#: names it only in its private module; this name can go when `rclpy.exceptions` has it.
+PublishFailed: type[Exception] = _rclpy.RCLError
+
 #: A service callback that is also told when its request was sent (CLOCK_REALTIME ns).
 StampedCallback = Callable[[Any, Any, int], Any]
 _STAMPED = "al5d_stamped_callback"
