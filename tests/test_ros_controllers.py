@@ -26,8 +26,9 @@ from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import LINK_CHECK, board_pulses, group_moves, holds
 from al5d_rig.host import Shortage
-from al5d_rig.rospeer import LockedActionClient, Peer, wait_future, wait_until
+from al5d_rig.rospeer import LockedActionClient, Peer, first_goal_answer, wait_future, wait_until
 from al5d_rig.served import served
+from al5d_rig.trajectories import multi_dof_goal
 
 ARM = ["base", "shoulder", "elbow", "wrist", "wrist_rotate"]
 FJT = FollowJointTrajectory.Result
@@ -96,6 +97,7 @@ def rig(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator
         gripper = LockedActionClient(s.peer.node, GripperCommand, "/gripper_controller/gripper_cmd")
         try:
             assert fjt.wait_for_server(timeout_sec=10) and gripper.wait_for_server(timeout_sec=10)
+            first_goal_answer(fjt, multi_dof_goal())
             yield Rig(s.emu, s.peer, config, fjt, gripper, s.states)
         finally:
             s.peer.destroy(fjt, gripper)

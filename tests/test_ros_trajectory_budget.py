@@ -22,9 +22,9 @@ from control_msgs.msg import JointTolerance
 
 from al5d.arm.config import ArmConfig
 from al5d_rig.armrig import LINK_CHECK, group_moves
-from al5d_rig.rospeer import LockedActionClient, Peer, wait_future, wait_until
+from al5d_rig.rospeer import LockedActionClient, Peer, first_goal_answer, wait_future, wait_until
 from al5d_rig.served import Served, served
-from al5d_rig.trajectories import ARM, START, goal_of, wave
+from al5d_rig.trajectories import ARM, START, goal_of, multi_dof_goal, wave
 
 #: Each joint's travel out and back (degrees).
 TRAVEL = {"base": 25.0, "shoulder": 15.0, "elbow": -20.0, "wrist": 15.0, "wrist_rotate": 20.0}
@@ -37,6 +37,7 @@ class Rig:
             s.peer.node, FollowJointTrajectory, "/arm_controller/follow_joint_trajectory"
         )
         assert self.fjt.wait_for_server(timeout_sec=10)
+        first_goal_answer(self.fjt, multi_dof_goal())
 
     @property
     def peer(self) -> Peer:

@@ -35,6 +35,25 @@ def wait_future(future: Any, timeout: float = 10.0) -> Any:
     return future.result()
 
 
+def first_goal_answer(client: ActionClient, probe: Any, timeout: float = 30.0) -> None:
+    """Until the action server has answered `client` once, a `probe` goal it rejects at
+    once sent again every 2 s: rmw_fastrtps drops an answer whose client it has not matched
+    100 ms after the request (ros2/rmw_fastrtps#390, as `Peer.first_answer` says for the
+    services), and a first goal whose answer was dropped so is never answered (a CI run:
+    a module's first FollowJointTrajectory goal unanswered for 10 s, four workers on two
+    idle cores)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        future = client.send_goal_async(probe)
+        done = threading.Event()
+        future.add_done_callback(lambda f, done=done: done.set())
+        if done.wait(2.0):
+            assert not future.result().accepted, "the probe goal was accepted"
+            return
+        if time.monotonic() > deadline:
+            raise AssertionError(f"the action server answered no goal in {timeout} s")
+
+
 class LockedActionClient(ActionClient):
     """rclpy's ActionClient, safe to call from a thread other than its executor's.
 

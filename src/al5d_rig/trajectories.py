@@ -9,7 +9,7 @@ from typing import Any
 
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory
-from trajectory_msgs.msg import JointTrajectoryPoint
+from trajectory_msgs.msg import JointTrajectoryPoint, MultiDOFJointTrajectoryPoint
 
 from al5d.arm.config import ArmConfig
 
@@ -42,4 +42,12 @@ def goal_of(config: ArmConfig, points: Points) -> Any:
                 time_from_start=Duration(sec=sec, nanosec=round((t - sec) * 1e9)),
             )
         )
+    return goal
+
+
+def multi_dof_goal() -> Any:
+    """A goal the server rejects at once, moving nothing: a multi-DOF point (the AL5D has
+    none), to probe the action server (`rospeer.first_goal_answer`)."""
+    goal = FollowJointTrajectory.Goal()
+    goal.multi_dof_trajectory.points.append(MultiDOFJointTrajectoryPoint())
     return goal
