@@ -35,7 +35,6 @@ from al5d.web.link import WebNode
 from al5d_rig.proc import (
     Lines,
     Proc,
-    dies_with_parent,
     family,
     freeze,
     patient_config,
@@ -413,40 +412,6 @@ def test_a_web_views_stop_to_a_server_elsewhere_is_one_stop_whatever_comes_after
         link.close()
 
 
-class Script:
-    """A user's script in a process of its own, with the venv's Python: its stdout and
-    stderr lines, and a line on its stdin to go on (`go`); ended by `end` (a last line)."""
-
-    def __init__(self, tmp_path: Path, name: str, text: str) -> None:
-        script = tmp_path / name
-        script.write_text(text)
-        self.popen = subprocess.Popen(
-            [sys.executable, str(script)],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            preexec_fn=dies_with_parent,
-        )
-        assert self.popen.stdout is not None and self.popen.stderr is not None
-        self.out, self.err = Lines(self.popen.stdout), Lines(self.popen.stderr)
-
-    def go(self) -> None:
-        assert self.popen.stdin is not None
-        with contextlib.suppress(OSError):  # it has ended: what it said tells why
-            self.popen.stdin.write("\n")
-            self.popen.stdin.flush()
-
-    def end(self, timeout: float = 60.0) -> int:
-        """Its last line given, its exit code (killed if it has not ended in `timeout`)."""
-        self.go()
-        try:
-            return self.popen.wait(timeout)
-        except subprocess.TimeoutExpired:
-            self.popen.kill()
-            return self.popen.wait(5)
-
-
 #: A Python client of a server elsewhere (no lane of it here): it finds the stop service
 #: as well (a client that called it would call it then), then stops the arm on a line.
 HELD_STOP = """
@@ -475,7 +440,9 @@ def test_a_python_clients_stop_held_on_its_way_does_not_lock_the_arm_after_a_rel
     process, thawed, takes what it held for the stop obeyed already, so the arm stays
     released. (The client called the stop service as well: a stop of its own, which the
     thawed stop process obeyed after the release.)"""
-    client = Script(tmp_path, "held_stop.py", HELD_STOP)
+    script = tmp_path / "held_stop.py"
+    script.write_text(HELD_STOP)
+    client = Proc(str(script), program=sys.executable, stdin=True)
     stop_process = served.stop_process()
     try:
         client.out.wait_for("ready", 120)
@@ -483,7 +450,7 @@ def test_a_python_clients_stop_held_on_its_way_does_not_lock_the_arm_after_a_rel
         try:
             said = served.proc.err
             before = len(said.drain(0))
-            client.go()
+            client.send("")
             answer = client.out.wait_for("stop:", 60)
             stopped = said_after(said, before, "STATE: stopped")
             served.peer.send("another-clients-release", "release")
@@ -502,7 +469,9 @@ def test_a_python_clients_stop_held_on_its_way_does_not_lock_the_arm_after_a_rel
         assert result.outcome == "done" and not again, (result.outcome, result.reason, again)
         assert "stop: done" in answer and "(by /al5d/instruction)" in answer, answer
     finally:
-        code = client.end()
+        with contextlib.suppress(OSError):  # it has ended: what it said tells why
+            client.send("")
+        code = client.wait(60)
     assert code == 0, client.err.drain(0.5)[-20:]
 
 
@@ -587,14 +556,16 @@ def test_a_python_clients_stop_goes_while_its_own_flood_waits_unacknowledged(
     writer of its own: the stop process obeys it while the bridge is still frozen, and
     the bridge, thawed, answers it. (On the moves' writer it failed with them, "Failed to
     publish" after 0.1 s, and never went out.)"""
-    client = Script(tmp_path, "flood_stop.py", FLOOD_STOP)
+    script = tmp_path / "flood_stop.py"
+    script.write_text(FLOOD_STOP)
+    client = Proc(str(script), program=sys.executable, stdin=True)
     bridge = served.bridge
     try:
         client.out.wait_for("ready", 120)
         n = len(served.emu.records)
         freeze(bridge)
         try:
-            client.go()
+            client.send("")
             flooded = client.out.wait_for("flooded", 90)
             assert "NotSent: " in flooded and "not acknowledged" in flooded, flooded
             served.emu.wait_for(lambda rs: any(r.raw.startswith(b"STOP") for r in rs[n:]), 30)
@@ -604,5 +575,7 @@ def test_a_python_clients_stop_goes_while_its_own_flood_waits_unacknowledged(
         answer = client.out.wait_for("stop:", 60)
         assert "stop: done" in answer, answer
     finally:
-        code = client.end()
+        with contextlib.suppress(OSError):  # it has ended: what it said tells why
+            client.send("")
+        code = client.wait(60)
     assert code == 0, client.err.drain(0.5)[-20:]

@@ -220,13 +220,20 @@ def stacks(pid: int) -> str:
 
 
 class Proc:
-    """An `al5d` subcommand in its own process, with its stdout and stderr lines."""
+    """An `al5d` subcommand in its own process (or, with `program`, another program: the
+    venv's Python running a user's script), with its stdout and stderr lines."""
 
-    def __init__(self, *args: str, env: dict[str, str] | None = None, stdin: bool = False) -> None:
+    def __init__(
+        self,
+        *args: str,
+        env: dict[str, str] | None = None,
+        stdin: bool = False,
+        program: str = AL5D,
+    ) -> None:
         _LIVE.add(self)
-        self.command = " ".join(("al5d", *args))
+        self.command = " ".join(("al5d" if program == AL5D else Path(program).name, *args))
         self.popen = subprocess.Popen(
-            [AL5D, *args],
+            [program, *args],
             stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,

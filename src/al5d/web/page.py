@@ -26,7 +26,7 @@ from al5d.arm.instruction import Instruction, Outcome, Result, preset
 from al5d.model import JOINTS, ModelError
 from al5d.model.transforms import Transform
 from al5d.web.jog import Jog
-from al5d.web.panel import PULSE_S, RELEASABLE, STATE_WORDS, Panel
+from al5d.web.panel import PULSE_S, RELEASABLE, STATE_WORDS, Panel, held
 from al5d.web.plan import JointHistory, OutcomeLog, Planner, Target
 from al5d.web.scene import ArmScene
 from al5d.web.sliders import SliderInput
@@ -400,9 +400,7 @@ class Page:
         with self._lock:
             if self.state in RELEASABLE:
                 # As a slider then: the server refuses every move until a release.
-                self.panel.show_joints_status(
-                    f"not sent: the arm is {self.state}; release it first", False
-                )
+                self.panel.show_joints_status(held(self.state), False)
                 return
         self.send_instruction(preset(str(event.target.value), time_ms=self.panel.time_ms()))
 

@@ -37,6 +37,13 @@ STATE_COLOURS = {
 }
 #: The states a release is for: the release button is shown in these only.
 RELEASABLE = ("stopped", "fault")
+
+
+def held(state: str) -> str:
+    """Why a move asked on the page in `state` (one of RELEASABLE) is not sent."""
+    return f"not sent: the arm is {state}; release it first"
+
+
 #: The Target tab's optional fields: key, (label, hint).
 TOOL_FIELDS = {
     "pitch": ("pitch (deg)", "the gripper's axis to the horizontal, + up; empty: the nearest"),

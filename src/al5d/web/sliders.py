@@ -13,7 +13,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 from al5d.arm.instruction import Instruction, Kind
-from al5d.web.panel import RELEASABLE
+from al5d.web.panel import RELEASABLE, held
 
 if TYPE_CHECKING:
     from al5d.web.parts import PageParts
@@ -69,9 +69,7 @@ class SliderInput:
                 if page.degrees is not None and joint in page.degrees:
                     page.panel.set_slider(joint, page.degrees[joint])
                 page.panel.show_joints_status(
-                    f"not sent: the arm is {page.state}; release it first (the sliders "
-                    "show where it is)",
-                    False,
+                    f"{held(page.state)} (the sliders show where it is)", False
                 )
                 return
             jog = page.jog.take(joint, value, time.monotonic())

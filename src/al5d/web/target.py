@@ -16,7 +16,7 @@ import numpy as np
 
 from al5d.arm.instruction import Instruction, move_to
 from al5d.model.transforms import Vec3
-from al5d.web.panel import RELEASABLE
+from al5d.web.panel import RELEASABLE, held
 
 if TYPE_CHECKING:
     from al5d.web.parts import PageParts
@@ -59,10 +59,6 @@ class TargetTab:
         page.scene.place_target(tool)
         page.panel.set_xyz([v * 1000 for v in tool])
 
-    @staticmethod
-    def _held(state: str) -> str:
-        return f"not sent: the arm is {state}; release it first"
-
     def instr(self, xyz_mm: Sequence[float]) -> Instruction | str:
         """The Target tab's `move_to`, or what is wrong with one of its fields."""
         page = self._page
@@ -91,7 +87,7 @@ class TargetTab:
                 # moved all the same, it goes back, and nothing is sent.
                 self.to_tool()
                 if not page.lost:
-                    page.panel.show_status(self._held(page.state), False)
+                    page.panel.show_status(held(page.state), False)
                 return
             self.touched = time.monotonic()
             xyz = [round(v * 1000, 1) for v in page.scene.target_position]
@@ -143,7 +139,7 @@ class TargetTab:
                 return
             if page.state in RELEASABLE:
                 # As a slider then: the server refuses every move until a release.
-                page.panel.show_status(self._held(page.state), False)
+                page.panel.show_status(held(page.state), False)
                 return
             instr = self.instr(page.panel.xyz())
             self.touched = time.monotonic()
