@@ -179,6 +179,27 @@ def test_a_lost_clients_request_sent_since_the_link_came_back_runs_and_brings_it
     assert older is not None and "out of contact" in older
 
 
+def test_a_request_that_comes_after_its_clients_lease_ran_out_is_judged_after_that_loss() -> None:
+    """The server stalled (frozen) past a client's lease; running again, it reads a request
+    the client sent since (it heard the server again) before anything has looked at the
+    leases. The client's loss comes with the request's verdict, before it: what the client
+    commanded before the stall is halted, then the request runs; never the request taken,
+    then the client lost for the silence before it (which halted the request: a CI run)."""
+    leases = Leases(1.0)
+    leases.heard("c", 10 * S, 100, 10.0, 10 * S + 2_000_000)  # trips take 2 ms
+    verdict = leases.judge("c", 13 * S, 0, 13.0, 13 * S + 2_000_000)
+    assert [key for key, _ in verdict.lost] == ["c"] and verdict.stale is None, verdict
+    assert verdict.lost[0][1] == pytest.approx(3.0)
+    # Back, its request a sign of it: lost again only if no lease follows within the lease.
+    assert lapsed(leases, 13.9) == []
+    assert lapsed(leases, 14.1) == ["c"]
+    # One that it sent before the stall, read after it, is judged after the loss too: stale.
+    leases.heard("d", 10 * S, 100, 10.0, 10 * S + 2_000_000)
+    late = leases.judge("d", 10 * S + 500_000_000, 0, 13.1, 13 * S + 100_000_000)
+    assert [key for key, _ in late.lost] == ["d"], late
+    assert late.stale is not None and "is lost" in late.stale
+
+
 def test_a_client_with_no_lease_yet_is_judged_by_its_first_request_and_lost_without_one() -> None:
     leases = Leases(1.0)
     assert leases.stale("", 0, 100, 5.0, 60 * S) is None  # no client named: no lease

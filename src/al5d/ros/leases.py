@@ -72,6 +72,17 @@ class Lease:
         return min(self.gaps)
 
 
+@dataclass(frozen=True)
+class Verdict:
+    """A request judged (`Leases.judge`)."""
+
+    #: The clients lost meanwhile, each with how long none of its leases was heard (s):
+    #: what they commanded is halted, before the request is taken.
+    lost: tuple[tuple[str, float], ...]
+    #: Why the request is stale (`Leases.stale`); None: it is not.
+    stale: str | None
+
+
 class Leases:
     """Every client's lease, for a server whose lease is `lease_s` seconds."""
 
@@ -125,6 +136,14 @@ class Leases:
         """`sent_ns` of client `key`'s clock, on the server's (as it is, for an unknown client)."""
         lease = self._leases.get(key)
         return sent_ns if lease is None or not lease.gaps else sent_ns + lease.offset_ns
+
+    def judge(self, key: str, sent_ns: int, wait_ms: int, t: float, wall_ns: int) -> Verdict:
+        """A request, as `stale` says, after the clients lost by `t` (`lapsed`): the loss of
+        its own client, which the caller halts what that client commanded for, comes before
+        the request is taken, never after it (a request that came after its client's lease
+        had run out but before anyone looked was taken, then halted with that loss)."""
+        lost = tuple(self.lapsed(t))
+        return Verdict(lost, self.stale(key, sent_ns, wait_ms, t, wall_ns))
 
     def stale(self, key: str, sent_ns: int, wait_ms: int, t: float, wall_ns: int) -> str | None:
         """Why a request of client `key` (empty: none named), sent at `sent_ns` on its clock,

@@ -21,7 +21,7 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from concurrent.futures import Future
 from dataclasses import replace
 
@@ -245,22 +245,28 @@ class ArmNode(Node):
 
     def _keep_leases(self) -> None:
         """Every tenth of the lease: a client not heard for the lease is lost, and what it
-        commanded is halted (`al5d.ros.leases`)."""
+        commanded is halted. With the leases' lock held, as a request is judged and handed
+        over (`_on_instruction`): a client's loss reaches the owner before a request it sent
+        since, never after it."""
+        while not self._ending.wait(min(0.1, self.leases.lease_s / 10)):
+            try:
+                with self._leases_lock:
+                    self._halt(self.leases.lapsed(now()))
+            except LaneClosed:
+                return  # the owner has ended
+
+    def _halt(self, lost: Iterable[tuple[str, float]]) -> None:
+        """What the clients `lost` (each with how long it was silent, s) commanded is halted.
+        Raises LaneClosed: the owner has ended."""
         lease_s = self.leases.lease_s
-        while not self._ending.wait(min(0.1, lease_s / 10)):
-            with self._leases_lock:
-                lost = self.leases.lapsed(now())
-            for key, silent_s in lost:
-                log.warning(
-                    "lost contact with client %s: no lease for %.1f s (its lease: %g s)",
-                    key,
-                    silent_s,
-                    lease_s,
-                )
-                try:
-                    self.arm.gone(key, f"no lease heard for {lease_s:g} s")
-                except LaneClosed:
-                    return  # the owner has ended
+        for key, silent_s in lost:
+            log.warning(
+                "lost contact with client %s: no lease for %.1f s (its lease: %g s)",
+                key,
+                silent_s,
+                lease_s,
+            )
+            self.arm.gone(key, f"no lease heard for {lease_s:g} s")
 
     def _on_instruction(self, msg: ArmInstruction, info: dict[str, int]) -> None:
         if self.trace is not None:
@@ -268,14 +274,22 @@ class ArmNode(Node):
         if msg.instruction == PING:
             self.results.put(Outcome(msg.id or new_id(), PING, Result.DONE))
             return
+        # Judged and handed over with the leases' lock held: in one order with the clients'
+        # losses (`_keep_leases`, `Leases.judge`).
+        with self._leases_lock:
+            self._take_instruction(msg, info)
+
+    def _take_instruction(self, msg: ArmInstruction, info: dict[str, int]) -> None:
         sent = sent_ns(info)
         came = came_ns(info)
         client = str(msg.client)
         stale = None
         if sent is not None and client:
-            with self._leases_lock:
-                stale = self.leases.stale(client, sent, msg.wait_ms, now(), came)
-                sent = self.leases.on_server_clock(client, sent)
+            verdict = self.leases.judge(client, sent, msg.wait_ms, now(), came)
+            with contextlib.suppress(LaneClosed):  # the owner has ended: refused below
+                self._halt(verdict.lost)
+            stale = verdict.stale
+            sent = self.leases.on_server_clock(client, sent)
         if msg.instruction.strip().lower() == "stop":
             sent = stop_time(sent, came)  # as the stop watcher's
         instr = from_message(msg, self.presets, self.model, sent)
