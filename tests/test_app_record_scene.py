@@ -30,7 +30,8 @@ from al5d.arm.config import ArmConfig
 from al5d.model.transforms import Transform
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.proc import Proc, patient_config
-from al5d_rig.rospeer import LockedActionClient, Peer, wait_future, wait_until
+from al5d_rig.rospeer import LockedActionClient, Peer, first_goal_answer, wait_future, wait_until
+from al5d_rig.trajectories import multi_dof_goal
 
 #: Each arm's mount in the shared frame: xyz (m), rpy (rad).
 MOUNTS = {
@@ -134,6 +135,7 @@ def test_one_recorder_records_both_arms_and_the_file_alone_rebuilds_each_tool(
             left.peer.node, FollowJointTrajectory, left.peer.names.follow_joint_trajectory
         )
         assert fjt.wait_for_server(timeout_sec=10)
+        first_goal_answer(fjt, multi_dof_goal())
         goal = FollowJointTrajectory.Goal()
         goal.trajectory.joint_names = ["left_base", "left_elbow"]
         values = [config.model.to_urdf({"base": b, "elbow": e}) for b, e in ((20, 70), (-25, 50))]
@@ -173,9 +175,11 @@ def test_one_recorder_records_both_arms_and_the_file_alone_rebuilds_each_tool(
         assert all(n.startswith(f"{arm.name}_") for _, m in states for n in m.name)
     assert by_topic["/tf"] and by_topic["/tf_static"]
     assert [m.id for _, m in by_topic["/right/al5d/instruction"]] == ["r-scene"]
-    # The trajectory goal's points, under its id.
-    (goal_msg,) = [m for _, m in by_topic["/left/al5d/goals/follow_joint_trajectory"]]
-    assert goal_msg.header.frame_id == goal_id
+    # The trajectory goal's points, under its id; the probes before it (`first_goal_answer`),
+    # rejected, have none.
+    goals = {m.header.frame_id: m for _, m in by_topic["/left/al5d/goals/follow_joint_trajectory"]}
+    goal_msg = goals.pop(goal_id)
+    assert all(not m.points for m in goals.values()), goals
     assert list(goal_msg.joint_names) == ["left_base", "left_elbow"]
     assert [list(p.positions) for p in goal_msg.points] == [[v["base"], v["elbow"]] for v in values]
 

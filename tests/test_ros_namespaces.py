@@ -25,7 +25,8 @@ from al5d.ros.robot import QOS_TF_STATIC
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import group_moves
 from al5d_rig.proc import Proc, patient_config
-from al5d_rig.rospeer import LockedActionClient, Peer, wait_future, wait_until
+from al5d_rig.rospeer import LockedActionClient, Peer, first_goal_answer, wait_future, wait_until
+from al5d_rig.trajectories import multi_dof_goal, nan_gripper_goal
 
 
 @dataclass
@@ -168,6 +169,8 @@ def test_each_arms_control_actions_move_that_arm_only(arms: list[Arm], config: A
     gripper = LockedActionClient(right.peer.node, GripperCommand, right.peer.names.gripper_command)
     try:
         assert fjt.wait_for_server(timeout_sec=10) and gripper.wait_for_server(timeout_sec=10)
+        first_goal_answer(fjt, multi_dof_goal())
+        first_goal_answer(gripper, nan_gripper_goal())
         goal = FollowJointTrajectory.Goal()
         goal.trajectory.joint_names = ["left_elbow"]  # the namespace's joint prefix
         elbow = config.model.to_urdf({"elbow": 60.0})["elbow"]

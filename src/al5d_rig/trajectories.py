@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from builtin_interfaces.msg import Duration
-from control_msgs.action import FollowJointTrajectory
+from control_msgs.action import FollowJointTrajectory, GripperCommand
 from trajectory_msgs.msg import JointTrajectoryPoint, MultiDOFJointTrajectoryPoint
 
 from al5d.arm.config import ArmConfig
@@ -50,4 +50,12 @@ def multi_dof_goal() -> Any:
     none), to probe the action server (`rospeer.first_goal_answer`)."""
     goal = FollowJointTrajectory.Goal()
     goal.multi_dof_trajectory.points.append(MultiDOFJointTrajectoryPoint())
+    return goal
+
+
+def nan_gripper_goal() -> Any:
+    """A gripper goal the server rejects at once, moving nothing: a gap that is not a number
+    (`rospeer.first_goal_answer`)."""
+    goal = GripperCommand.Goal()
+    goal.command.position = math.nan
     return goal
