@@ -67,7 +67,7 @@ def test_a_stop_on_the_topic_and_a_release_never_wedge_the_queue(rig: Rig) -> No
         assert rig.driver.submit(stop, key=key).result(1).ok  # the watcher, at once
         reader.join(10)
         time.sleep(0.05)
-        assert rig.driver.execute(ins.release(), 1).ok, rep
+        assert rig.driver.execute(ins.release(), 30).ok, rep
         n = len(rig.emu.records)
         probes = [rig.driver.submit(near_ready(rig, rng)) for _ in range(3)]
         for f in futures:
@@ -85,14 +85,14 @@ def test_a_release_sent_before_a_stop_is_refused_and_the_arm_stays_locked(rig: R
     arrives: the release is refused, the 20 moves never run, 20 times."""
     rng = random.Random(23)
     for rep in range(REPEATS):
-        assert rig.driver.execute(ins.stop(), 1).ok
+        assert rig.driver.execute(ins.stop(), 30).ok
         topic = [sent(near_ready(rig, rng), wall_ns()) for _ in range(3000)]
         release = sent(ins.release(), wall_ns())
         after = [sent(near_ready(rig, rng), wall_ns()) for _ in range(20)]
-        assert rig.driver.execute(ins.stop(), 1).ok  # the service overtakes the topic
+        assert rig.driver.execute(ins.stop(), 30).ok  # the service overtakes the topic
         n = len(rig.emu.records)
         outcomes = [rig.driver.submit(i) for i in topic]
-        refused = rig.driver.execute(release, 1)
+        refused = rig.driver.execute(release, 30)
         late = [rig.driver.submit(i) for i in after]
         assert refused.result is Result.REFUSED, (rep, refused)
         assert refused.reason.startswith("this release was sent before the stop"), refused
@@ -100,4 +100,4 @@ def test_a_release_sent_before_a_stop_is_refused_and_the_arm_stays_locked(rig: R
         assert rig.driver.state is State.STOPPED
         time.sleep(0.05)
         assert moves_since(rig, n) == 0, rep
-        assert rig.driver.execute(ins.release(), 1).ok  # sent now: after the stop
+        assert rig.driver.execute(ins.release(), 30).ok  # sent now: after the stop

@@ -212,3 +212,46 @@ def test_a_stop_read_in_a_turn_goes_before_the_judgements_read_in_it(config: Arm
         for a, b in pairs:
             a.close()
             b.close()
+
+
+def test_a_wait_for_a_state_entered_and_left_before_the_waiter_runs_ends(
+    config: ArmConfig,
+) -> None:
+    """A state told and left again at once (a stop, then a release; a reset's fault, then
+    locked) before a waiter for it has run: the waiter still sees that it came. (It looked
+    only at the state told last: a test waiting for a reset's fault timed out on a busy
+    host when locked had followed.) Here the owner's teller is held while the stop and the
+    release are taken, so that the two are told back to back."""
+    owner = Owner(config, VirtualTransport(Board(config, baud=config.server.baud))).start()
+    try:
+        owner.wait_for_state(State.READY, 10)
+        held = threading.Event()
+        owner._teller.put(held.wait)
+        owner.submit(ins.stop())
+        stopped = time.monotonic() + 10
+        while owner.state is not State.STOPPED:
+            assert time.monotonic() < stopped, owner.state
+            time.sleep(0.01)
+        owner.submit(ins.release())
+        ready = time.monotonic() + 10
+        while owner.state is not State.READY:
+            assert time.monotonic() < ready, owner.state
+            time.sleep(0.01)
+        came: list[BaseException | None] = []
+
+        def wait() -> None:
+            try:
+                owner.wait_for_state(State.STOPPED, 10)
+                came.append(None)
+            except BaseException as e:  # handed to the test's thread
+                came.append(e)
+
+        waiter = threading.Thread(target=wait)
+        waiter.start()
+        time.sleep(0.1)  # the waiter waits (nothing told yet: it would wait all the same)
+        held.set()
+        waiter.join(30)
+        assert came == [None], came
+        assert owner.announced is State.READY
+    finally:
+        owner.close()

@@ -436,6 +436,10 @@ with Client(local={local}) as arm:
     print("stopped short", 0.5 < stopped_at < 59.5)
     print(arm.release())
     print("ready", arm.wait_for_state("ready", 30).locked)
+    # The listeners are called on the reader's thread after the waiters are woken.
+    heard_by = time.monotonic() + 30
+    while not (seen and seen[-1] == "ready") and time.monotonic() < heard_by:
+        time.sleep(0.01)
     print("heard", "moving" in seen and "stopped" in seen and seen[-1] == "ready")
     try:
         arm.wait_for_state("fault", 0.5)

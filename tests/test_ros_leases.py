@@ -366,7 +366,7 @@ def test_a_client_whose_clock_is_seconds_off_is_judged_on_the_servers_clock(
                 f"{errors.read_text()[-4000:]}\nits stacks:\n"
                 f"{stacks(skewed.pid) if code is None else '(ended)'}"
             ) from e
-        assert abs(said - time.time() - skew_s) < 1.0, said  # its clock is off indeed
+        assert abs(said - time.time() - skew_s) < 2.5, said  # its clock is off indeed
         # A stop by a client whose clock is right, then a release by the skewed one.
         assert lane.execute(ins.Instruction(ins.Kind.STOP), CMD_S).ok
         wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped")

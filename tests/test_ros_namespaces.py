@@ -120,7 +120,7 @@ def test_each_arm_has_its_joint_states_controllers_and_prefixed_frames(arms: lis
             FollowJointTrajectory.Impl.SendGoalService,
             f"{names.follow_joint_trajectory}/_action/send_goal",
         )
-        assert client.wait_for_service(timeout_sec=5)
+        assert client.wait_for_service(timeout_sec=30)
         arm.peer.destroy(client)
     frames: set[str] = set()
     sub = arms[0].peer.node.create_subscription(
@@ -128,7 +128,7 @@ def test_each_arm_has_its_joint_states_controllers_and_prefixed_frames(arms: lis
     )
     try:
         wait_until(
-            lambda: {f.split("/")[0] for f in frames} == {"left", "right"}, 5, "both arms' frames"
+            lambda: {f.split("/")[0] for f in frames} == {"left", "right"}, 30, "both arms' frames"
         )
     finally:
         arms[0].peer.destroy(sub)
@@ -246,9 +246,9 @@ def test_each_arms_description_and_static_frames_carry_its_prefix(arms: list[Arm
         )
     )
     try:
-        wait_until(lambda: len(urdfs) == 2, 5, "both robot descriptions")
+        wait_until(lambda: len(urdfs) == 2, 30, "both robot descriptions")
         wait_until(
-            lambda: {f.split("/")[0] for f in static} >= {"left", "right"}, 5, "static frames"
+            lambda: {f.split("/")[0] for f in static} >= {"left", "right"}, 30, "static frames"
         )
     finally:
         peer.destroy(*subs)

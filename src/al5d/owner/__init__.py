@@ -6,7 +6,7 @@ its inbox's lanes, and the local lane by which clients on this machine reach it.
 - `conns`: the lane's sockets, for the owner's thread: its clients' connections
   accepted, read, written, leased and dropped.
 - `teller`: the thread that tells in-process futures, listeners and the log, so that the
-  owner's thread never runs anyone else's code.
+  owner's thread never runs anyone else's code; and the state told, with its waits.
 - `lane`: the local lane's protocol (a Unix socket, one JSON object a line); `where`:
   where each server's socket is.
 - `client`: `Remote`, a client of the owner over the lane: the ROS bridges, the command

@@ -33,7 +33,7 @@ from al5d.arm.resample import Follow
 from al5d.arm.states import State
 from al5d.clock import now
 from al5d.owner import lane as ln
-from al5d.owner.teller import tell
+from al5d.owner.teller import StateTold, tell
 from al5d.priority import make_urgent
 
 log = logging.getLogger("al5d")
@@ -91,12 +91,11 @@ class Remote:
         )
         #: Set once when the lane closes (the owner has ended, or the socket failed).
         self.closed = threading.Event()
-        self._state_cv = threading.Condition()
         self._welcome: Future[dict[str, Any]] = Future()
         self._pose: dict[str, float | None] = {}
         self._motion: Motion | None = None
         self._running: tuple[str, int, int] | None = None
-        self.state = State.INITIALIZING
+        self._state = StateTold(State.INITIALIZING)
         self.locked = False
         self._reader = threading.Thread(target=self._read, name=f"{name}-lane", daemon=True)
         self._reader.start()
@@ -260,10 +259,16 @@ class Remote:
             return None
         return (running[1] + motion.progress(now())) / running[2]
 
+    @property
+    def state(self) -> State:
+        """The arm's state, as the owner last told it."""
+        return self._state.state
+
     def wait_for_state(self, state: State, timeout: float = 10.0) -> None:
-        with self._state_cv:
-            if not self._state_cv.wait_for(lambda: self.state is state, timeout):
-                raise TimeoutError(f"state {state.value} not reached in {timeout} s")
+        """Until `state` is the state told, or has been told since the call though left
+        again (`StateTold`). Raises TimeoutError."""
+        if not self._state.wait(state, timeout):
+            raise TimeoutError(f"state {state.value} not reached in {timeout} s")
 
     def _read(self) -> None:
         lines = ln.Lines()
@@ -318,9 +323,8 @@ class Remote:
             future.set_result(value)
 
     def _new_state(self, state: State, locked: bool) -> None:
-        with self._state_cv:
-            self.state, self.locked = state, locked
-            self._state_cv.notify_all()
+        self.locked = locked
+        self._state.told(state)
         tell(self.state_listeners, state, "state")
 
     def _posed(self, m: dict[str, Any]) -> None:

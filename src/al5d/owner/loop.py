@@ -66,7 +66,7 @@ from al5d.arm.validate import Ticket, judge
 from al5d.clock import Deadline, now, wall_ns
 from al5d.owner import lane as ln
 from al5d.owner.conns import Conn, Conns
-from al5d.owner.teller import Teller, tell
+from al5d.owner.teller import StateTold, Teller, tell
 from al5d.priority import cpu_waited_s, make_urgent
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.errors import LinkLost, SerialFault
@@ -125,8 +125,7 @@ class Owner:
         self.ending = threading.Event()
         self.ended: End | None = None
         self._teller = Teller()
-        self._announced = State.INITIALIZING
-        self._announced_cv = threading.Condition()
+        self._announced = StateTold(State.INITIALIZING)
         self._refs = itertools.count(1)
         self._futures: dict[int, Future[Any]] = {}
         self._lane_refs: dict[int, tuple[Conn, Any]] = {}
@@ -186,7 +185,7 @@ class Owner:
     @property
     def announced(self) -> State:
         """The state last told (logged, and to the state listeners)."""
-        return self._announced
+        return self._announced.state
 
     @property
     def locked(self) -> bool:
@@ -283,12 +282,11 @@ class Owner:
                     raise
 
     def wait_for_state(self, state: State, timeout: float = 10.0) -> None:
-        """Until `state` has been entered and told (logged, listeners told)."""
-        with self._announced_cv:
-            if not self._announced_cv.wait_for(lambda: self._announced is state, timeout):
-                raise TimeoutError(
-                    f"state {state.value} not reached in {timeout} s (now {self._announced.value})"
-                )
+        """Until `state` is the state told (logged, listeners told), or has been told since
+        the call though left again (`StateTold`). Raises TimeoutError."""
+        if not self._announced.wait(state, timeout):
+            now_ = self._announced.state.value
+            raise TimeoutError(f"state {state.value} not reached in {timeout} s (now {now_})")
 
     @property
     def parked_at_end(self) -> bool | None:
@@ -602,9 +600,7 @@ class Owner:
             if new is not old:
                 log.info("STATE: %s", new.value)
                 tell(self.state_listeners, new, "state")
-            with self._announced_cv:
-                self._announced = new
-                self._announced_cv.notify_all()
+            self._announced.told(new)
 
         self._teller.put(told)
         if new is not old:

@@ -1,5 +1,6 @@
 """What the owner's thread hands over so that it never runs anyone else's code: outcomes
-to in-process futures, the listeners, and the log, told in order by a thread of their own.
+to in-process futures, the listeners, and the log, told in order by a thread of their own;
+and the state told, with waits for one (`StateTold`).
 
 The owner's thread writes to the board and to its clients' sockets, and nothing else:
 a listener that takes long (a ROS publisher, a test's check) or a log handler that
@@ -14,6 +15,7 @@ import threading
 from collections.abc import Callable, Iterable
 from typing import TypeVar
 
+from al5d.arm.states import State
 from al5d.clock import now
 
 log = logging.getLogger("al5d")
@@ -140,3 +142,34 @@ class Teller:
         self._jobs.put(None)
         if self._thread is not threading.current_thread():
             self._thread.join(timeout)
+
+
+class StateTold:
+    """The arm's state as last told, and waits for one: a waiter for a state told and left
+    again before its thread ran (a reset's fault, then locked; a stop, then another's
+    release) sees that it came. (A wait that looked only at the state of the moment timed
+    out on a busy host.)"""
+
+    def __init__(self, state: State) -> None:
+        self.state = state
+        self._cv = threading.Condition()
+        #: How often each state has been told, for the waits.
+        self._entered: dict[State, int] = {}
+
+    def told(self, state: State) -> None:
+        with self._cv:
+            if state is not self.state:
+                self._entered[state] = self._entered.get(state, 0) + 1
+            self.state = state
+            self._cv.notify_all()
+
+    def wait(self, state: State, timeout: float) -> bool:
+        """Until `state` is the state told, or has been told since the call though left
+        again; False if neither within `timeout` seconds."""
+        with self._cv:
+            before = self._entered.get(state, 0)
+
+            def came() -> bool:
+                return self.state is state or self._entered.get(state, 0) > before
+
+            return self._cv.wait_for(came, timeout)

@@ -14,6 +14,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import astuple, dataclass, field, replace
 from typing import Any
@@ -24,6 +25,9 @@ from al5d.model.kinematics import forward
 
 log = logging.getLogger("al5d")
 
+#: Readings kept for the waits: more than a waiter woken late misses (joint states come
+#: 10 to 25 times a second).
+RECENT = 64
 #: The arm joints whose angles put the tool where it is (the gripper's opening does not).
 _TOOL_JOINTS = ("base", "shoulder", "elbow", "wrist", "wrist_rotate")
 
@@ -89,6 +93,11 @@ class ArmView:
         self._cv = threading.Condition()
         self._reading = Reading()
         self._listeners: list[Callable[[Reading], None]] = []
+        #: The last readings, each with its number (`_heard`: how many so far): a wait sees
+        #: one that came and went before its thread ran (a fault, then locked, told back
+        #: to back on a busy host).
+        self._heard = 0
+        self._recent: deque[tuple[int, Reading]] = deque(maxlen=RECENT)
 
     @property
     def reading(self) -> Reading:
@@ -123,6 +132,8 @@ class ArmView:
                 old.joints_told or joints is not None,
             )
             self._reading = new
+            self._heard += 1
+            self._recent.append((self._heard, new))
             self._cv.notify_all()
             listeners = list(self._listeners)
         for listener in listeners:
@@ -137,14 +148,21 @@ class ArmView:
             self._listeners.append(listener)
 
     def wait(self, until: Callable[[Reading], bool], timeout: float) -> Reading | None:
-        """The first reading for which `until` holds; None if none came within `timeout`."""
+        """The reading now if `until` holds for it, else the first heard since for which it
+        does, though others followed it; None if none came within `timeout`."""
         deadline = Deadline(timeout)
         with self._cv:
-            while not until(self._reading):
+            if until(self._reading):
+                return self._reading
+            since = self._heard
+            while True:
+                for number, reading in self._recent:
+                    if number > since and until(reading):
+                        return reading
+                since = self._heard
                 if deadline.expired:
                     return None
                 self._cv.wait(deadline.left())
-            return self._reading
 
 
 def follow_lane(remote: Any, view: ArmView) -> None:
