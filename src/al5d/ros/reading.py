@@ -148,14 +148,14 @@ class ArmView:
             self._listeners.append(listener)
 
     def wait(self, until: Callable[[Reading], bool], timeout: float) -> Reading | None:
-        """The reading now if `until` holds for it, else the first heard since for which it
-        does, though others followed it; None if none came within `timeout`."""
+        """The reading now if `until` holds for it, else the first heard since the call for
+        which it does, though others followed it; None if none came within `timeout`."""
         deadline = Deadline(timeout)
         with self._cv:
-            if until(self._reading):
-                return self._reading
             since = self._heard
             while True:
+                if until(self._reading):
+                    return self._reading
                 for number, reading in self._recent:
                     if number > since and until(reading):
                         return reading
