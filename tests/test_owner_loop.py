@@ -23,6 +23,7 @@ from al5d.owner.client import Remote
 from al5d.owner.loop import Owner
 from al5d.ssc32u.emulator.board import Board
 from al5d.ssc32u.emulator.virtual import VirtualTransport
+from al5d_rig.rospeer import wait_until
 
 #: How long a stop's write is held here: longer than a query's answer may take (its wire
 #: time, the USB chip's 16 ms and `answer_timeout_s`, 50 ms) and the excuse for the host's
@@ -228,15 +229,9 @@ def test_a_wait_for_a_state_entered_and_left_before_the_waiter_runs_ends(
         held = threading.Event()
         owner._teller.put(held.wait)
         owner.submit(ins.stop())
-        stopped = time.monotonic() + 10
-        while owner.state is not State.STOPPED:
-            assert time.monotonic() < stopped, owner.state
-            time.sleep(0.01)
+        wait_until(lambda: owner.state is State.STOPPED, 10, "stopped (the core's state)")
         owner.submit(ins.release())
-        ready = time.monotonic() + 10
-        while owner.state is not State.READY:
-            assert time.monotonic() < ready, owner.state
-            time.sleep(0.01)
+        wait_until(lambda: owner.state is State.READY, 10, "ready (the core's state)")
         came: list[BaseException | None] = []
 
         def wait() -> None:
