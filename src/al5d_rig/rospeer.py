@@ -28,10 +28,15 @@ def wait_until(predicate: Any, timeout: float = 10.0, what: str = "condition") -
         time.sleep(0.01)
 
 
-def wait_future(future: Any, timeout: float = 10.0) -> Any:
+def answered(future: Any, timeout: float) -> bool:
+    """Whether rclpy's `future` is done within `timeout` seconds."""
     done = threading.Event()
     future.add_done_callback(lambda f: done.set())
-    assert done.wait(timeout), "no answer in time"
+    return done.wait(timeout)
+
+
+def wait_future(future: Any, timeout: float = 10.0) -> Any:
+    assert answered(future, timeout), "no answer in time"
     return future.result()
 
 
@@ -45,9 +50,7 @@ def first_goal_answer(client: ActionClient, probe: Any, timeout: float = 30.0) -
     deadline = time.monotonic() + timeout
     while True:
         future = client.send_goal_async(probe)
-        done = threading.Event()
-        future.add_done_callback(lambda f, done=done: done.set())
-        if done.wait(2.0):
+        if answered(future, 2.0):
             assert not future.result().accepted, "the probe goal was accepted"
             return
         if time.monotonic() > deadline:
@@ -217,13 +220,10 @@ class Peer:
         server can go unanswered. A release changes nothing on an arm that is not stopped."""
         deadline = time.monotonic() + timeout
         while True:
-            future = self.services["release"].call_async(Trigger.Request())
-            try:
-                wait_future(future, 2.0)
+            if answered(self.services["release"].call_async(Trigger.Request()), 2.0):
                 return
-            except AssertionError:
-                if time.monotonic() > deadline:
-                    raise
+            if time.monotonic() > deadline:
+                raise AssertionError(f"the server answered no release in {timeout} s")
 
     def send(self, ident: str, instruction: str, time_ms: int = 0, **joints: float) -> None:
         msg = ArmInstruction(
@@ -250,9 +250,7 @@ class Peer:
         for _ in range(9):
             self.stops_asked += 1
             future = client.call_async(Trigger.Request())
-            done = threading.Event()
-            future.add_done_callback(lambda f, done=done: done.set())
-            if done.wait(1.0):
+            if answered(future, 1.0):
                 return future.result()
             print("rospeer: a stop unanswered for 1 s: asked again", flush=True)
         self.stops_asked += 1
