@@ -82,6 +82,22 @@ class Served:
         peer.send(ident, "park")
         result = peer.result(ident)
         assert result.outcome == "done", result.reason
+        # The park's done says its line was written, not that this process's emulated board
+        # has read it yet: cleared before, the park came after and was taken for a test's
+        # (a CI run: a trajectory of 4 points found 5 moves, the park's first).
+        park = self.config.presets["park"]
+        wait_until(
+            lambda: all(
+                abs(
+                    self.emu.pulse_us(self.config.joints[j].channel)
+                    - self.config.joints[j].to_us(d)
+                )
+                <= 1
+                for j, d in park.items()
+            ),
+            30,
+            "the board at the park",
+        )
         self.emu.clear_records()
 
     def shut_down(self, peer: Peer) -> None:

@@ -146,7 +146,7 @@ import sys, time
 from pathlib import Path
 from al5d.arm import instruction as ins
 from al5d.arm.config import load_config
-from al5d.ros.names import Names
+from al5d.ros.names import Names, reaches_server
 from al5d.web.link import WebNode
 
 class Heard:
@@ -160,10 +160,10 @@ config = load_config()
 heard = Heard()
 link = WebNode(Names.of(""), heard, config.model, tuple(config.presets))
 link.lane = Path(sys.argv[1])
-# The server heard, and both its readers of instructions (its node's, its stop watcher's)
-# matched: a move sent before would reach nobody.
+# The server heard, and its node's reader of instructions matched: a move sent before would
+# reach nobody. (Two readers counted were once this node's own and the stop watcher's.)
 deadline = time.monotonic() + 60
-while heard.joints == 0 or link.pub.get_subscription_count() < 2:
+while heard.joints == 0 or not reaches_server(link.node, link.pub, link.names):
     assert time.monotonic() < deadline, "no server found"
     time.sleep(0.05)
 link.send(ins.move(base=80, time_ms=8000, id="web-long"))

@@ -184,6 +184,18 @@ def server_nodes(node: Any, names: Names) -> set[str]:
     return readers & named(node.get_publishers_info_by_topic(names.result))
 
 
+def reaches_server(node: Any, pub: Any, names: Names) -> bool:
+    """Whether `pub`, rclpy's writer of `names.instruction` in `node`, has matched every reader
+    of instructions that the graph lists, the server's node's among them (`server_nodes`).
+
+    A count of readers alone says nothing of which: the stop watcher's reader is often
+    found first, and a node that also reads the topic (the web view's) matches its own
+    writer at once. An instruction published before the writer has matched the server
+    node's reader never reaches it (the topic is volatile)."""
+    readers = node.get_subscriptions_info_by_topic(names.instruction)
+    return bool(server_nodes(node, names)) and pub.get_subscription_count() >= len(readers)
+
+
 def server_namespaces(node: Any) -> set[str]:
     """The namespaces ("/" for none) of the servers that the ROS graph, as rclpy's `node`
     sees it, lists (`server_nodes`)."""

@@ -40,7 +40,7 @@ from al5d.ros.convert import outcome_from_message, to_message
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.leasing import LEASE_EVERY_S, LOST_AFTER_LEASE_S, Leaser, new_key
-from al5d.ros.names import PING, Names, server_nodes
+from al5d.ros.names import PING, Names, reaches_server, server_nodes
 from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SAFETY, QOS_SERVICES, QOS_STREAM
 from al5d.ros.reading import ArmView, follow_ros
 from al5d.ros.rosstop import StopCall
@@ -198,10 +198,8 @@ class RosWay:
         waited for ever for their first outcome, the server never told of it). The node is
         the one that both reads instructions and publishes results, whatever its name: `-r
         __node:=left_arm` renames it (looked for as `al5d`, no client over ROS found it)."""
-        readers = self.node.get_subscriptions_info_by_topic(self.names.instruction)
         return (
-            bool(server_nodes(self.node, self.names))
-            and self.pub.get_subscription_count() >= len(readers)
+            reaches_server(self.node, self.pub, self.names)
             and self.results.get_publisher_count() > 0
         )
 
