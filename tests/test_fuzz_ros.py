@@ -40,7 +40,6 @@ from hypothesis import strategies as st
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d.arm.config import ArmConfig, load_config
-from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d_rig.armrig import board_pulses, group_moves, holds
 from al5d_rig.boardproc import BoardProcess
 from al5d_rig.fuzzcount import count, examples
@@ -180,10 +179,7 @@ def target(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Target]:
     try:
         proc.err.wait_for("ROS 2 node", 30)
         peer.wait_for_server()
-        pub = peer.node.create_publisher(
-            JointTrajectory, "/al5d/joint_trajectory", QOS_INSTRUCTIONS
-        )
-        wait_until(lambda: pub.get_subscription_count() > 0, 10)
+        pub = peer.trajectory_writer()
         yield Target(emu, proc, peer, CONFIG, pub, Counter(peer), trace)
     finally:
         peer.close()
@@ -271,14 +267,7 @@ def test_instruction_messages(target: Target, batch: list[ArmInstruction]) -> No
 @given(traj=trajectories())
 def test_trajectory_messages(target: Target, traj: JointTrajectory) -> None:
     count("JointTrajectory messages")
-    peer = target.peer
-    pub = getattr(target, "_traj_pub", None)
-    if pub is None:
-        pub = peer.node.create_publisher(
-            JointTrajectory, "/al5d/joint_trajectory", QOS_INSTRUCTIONS
-        )
-        wait_until(lambda: pub.get_subscription_count() > 0, 10)
-        target._traj_pub = pub  # type: ignore[attr-defined]
+    peer, pub = target.peer, target.trajectories
     traj.header.frame_id = uuid.uuid4().hex
     moves_before = len(group_moves(target.emu.records))
     pulses_before = board_pulses(target.emu.model())

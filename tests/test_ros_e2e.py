@@ -24,7 +24,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d import exits
 from al5d.arm.config import ArmConfig, load_config
-from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_LATCHED
+from al5d.ros.qos import QOS_LATCHED
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import board_pulses, group_moves, holds, written
 from al5d_rig.host import Shortage
@@ -398,8 +398,7 @@ def trajectory(ident: str, *points: tuple[dict[str, float], float]) -> JointTraj
 
 @pytest.fixture
 def trajectories(peer: Peer) -> Any:
-    pub = peer.node.create_publisher(JointTrajectory, "/al5d/joint_trajectory", QOS_INSTRUCTIONS)
-    wait_until(lambda: pub.get_subscription_count() > 0, 10)
+    pub = peer.trajectory_writer()
     yield pub
     peer.destroy(pub)
 

@@ -35,7 +35,6 @@ from al5d.model.table import below
 from al5d.model.urdf import urdf
 from al5d.ros.client import Client
 from al5d.ros.names import Names
-from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
 from al5d.web import viewhold
@@ -673,20 +672,9 @@ def test_every_move_on_a_topic_has_its_ghost(rig: Rig) -> None:
     wait_text(page, "#al5d-tool", lambda t: "target: move [web-ghost]" in t, 15)
     assert rig.peer.result("web-ghost").outcome == "done"
     wait_text(page, "#al5d-tool", lambda t: "target:" not in t, 15)
-    pub = rig.peer.node.create_publisher(JointTrajectory, Names().trajectory, QOS_INSTRUCTIONS)
+    pub = rig.peer.trajectory_writer()
     try:
         wait_until(lambda: pub.get_subscription_count() >= 2, 10, "the server and the page")
-        # This writer seeing the server's reader is not that reader knowing this writer: a
-        # message sent before it does is lost (a volatile reader starts at the writer's
-        # current sample). Empty trajectories, which the server refuses, until one is answered.
-        probe = 0
-        while not any(i.startswith("web-probe-") for i in rig.peer.results_now()):
-            empty = JointTrajectory()
-            empty.header.frame_id = f"web-probe-{probe}"
-            pub.publish(empty)
-            probe += 1
-            assert probe < 100, "the server never answered a probe"
-            time.sleep(0.2)
         msg = JointTrajectory()
         msg.header.frame_id = "web-trajectory"
         msg.joint_names = ["base"]

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
+import uuid
+from collections.abc import Callable
 from typing import Any
 
 from al5d_interfaces.action import Move
@@ -12,6 +15,7 @@ from rclpy.action.client import ActionClient
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory
 
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
@@ -168,6 +172,35 @@ class Peer:
 
     def _on_result(self, msg: InstructionResult) -> None:
         self.results[msg.id] = msg
+
+    def trajectory_writer(self) -> Any:
+        """A writer of the server's trajectory topic that the server reads (`until_answered`,
+        with empty trajectories, which it refuses). Destroy it with `destroy`."""
+        pub = self.node.create_publisher(JointTrajectory, self.names.trajectory, QOS_INSTRUCTIONS)
+
+        def empty(ident: str) -> JointTrajectory:
+            probe = JointTrajectory()
+            probe.header.frame_id = ident
+            return probe
+
+        self.until_answered(pub, empty)
+        return pub
+
+    def until_answered(self, pub: Any, probe: Callable[[str], Any], timeout: float = 30.0) -> None:
+        """Until the server has answered a message of `pub`'s: `probe(ident)`, a message it
+        refuses under that id, sent every 0.2 s once `pub` has matched a reader. The
+        writer's count of readers is its own side of the match: a message sent before the
+        reader has matched the writer is lost (the topics are volatile: a reader starts at
+        the writer's sample of the moment)."""
+        prefix = f"probe-{uuid.uuid4().hex[:8]}-"
+        numbers = itertools.count()
+        deadline = time.monotonic() + timeout
+        while not any(i.startswith(prefix) for i in self.results_now()):
+            if time.monotonic() > deadline:
+                raise AssertionError(f"the server answered no probe in {timeout:g} s")
+            if pub.get_subscription_count() > 0:
+                pub.publish(probe(f"{prefix}{next(numbers)}"))
+            time.sleep(0.2)
 
     def results_now(self) -> dict[str, InstructionResult]:
         """A copy of the results so far, safe to iterate while the spin thread adds more

@@ -169,5 +169,13 @@ def commanded(
         )
         proc.err.wait_for("STATE: ready", 30)
         peer.wait_for_server()
-        wait_until(lambda: commands.get_subscription_count() > 0, 20, "the server's reader")
+        # Commands of 2 positions for 6 joints, which the server refuses, until one is answered.
+        peer.until_answered(commands, lambda ident: _short_command(peer, ident))
         yield Commanded(emu, proc, peer, config, commands)
+
+
+def _short_command(peer: Peer, ident: str) -> JointState:
+    msg = JointState(position=[0.0, 0.0])
+    msg.header.stamp = peer.node.get_clock().now().to_msg()
+    msg.header.frame_id = ident
+    return msg
