@@ -85,16 +85,12 @@ class Served:
         # The park's done says its line was written, not that this process's emulated board
         # has read it yet: cleared before, the park came after and was taken for a test's
         # (a CI run: a trajectory of 4 points found 5 moves, the park's first).
-        park = self.config.presets["park"]
+        joints = self.config.joints
+        park = {
+            joints[j].channel: joints[j].to_us(d) for j, d in self.config.presets["park"].items()
+        }
         wait_until(
-            lambda: all(
-                abs(
-                    self.emu.pulse_us(self.config.joints[j].channel)
-                    - self.config.joints[j].to_us(d)
-                )
-                <= 1
-                for j, d in park.items()
-            ),
+            lambda: all(abs(self.emu.pulse_us(ch) - us) <= 1 for ch, us in park.items()),
             30,
             "the board at the park",
         )

@@ -292,8 +292,10 @@ class Peer:
         while True:
             self.stops_asked += 1
             asked.append(client.call_async(Trigger.Request()))
-            if answered(asked[-1], 1.0) or any(f.done() for f in asked):
-                return next(f for f in asked if f.done()).result()
+            answered(asked[-1], 1.0)
+            done = [f for f in asked if f.done()]
+            if done:
+                return done[0].result()
             if time.monotonic() > deadline:
                 raise AssertionError(
                     f"no stop of {len(asked)} answered in {TRIGGER_S:g} s (the service "
