@@ -108,7 +108,8 @@ def test_a_client_cut_off_mid_move_leaves_nothing_moving_and_its_stale_request_n
         laptop.wait(10)
     # The client said the silence before it gave up, then that it lost contact, for both:
     # the move it waited for, and the one it sent into the cut.
-    assert "no sign of the server for 1." in said(err, "no sign of the server")
+    warning = re.search(r"no sign of the server for (\d+\.\d) s", said(err, "no sign of"))
+    assert warning is not None and float(warning.group(1)) >= 1.0
     assert "move: lost: " in move and "lost contact with the server" in move, move
     assert "late: lost: " in late and "lost contact with the server" in late, late
     # The server halted the move where the arm was, with the reason.

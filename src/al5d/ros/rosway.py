@@ -74,6 +74,28 @@ SILENCE_SAID_S = 1.0
 LOST_S = 1.0 + LOST_AFTER_LEASE_S
 
 
+def silence_warning(quiet: float, lost_after: float) -> str | None:
+    """What a client waiting for the server says (once an outage, as a WARNING) when the
+    server has been silent for `quiet` s and is taken for lost after `lost_after` s; None
+    while the silence is short (`SILENCE_SAID_S`, or the lease's margin if shorter).
+
+    Said also when the first look comes after `lost_after`: a thread that a loaded host
+    held back past the whole window would otherwise give up without the warning."""
+    said_after = min(SILENCE_SAID_S, lost_after - LOST_AFTER_LEASE_S)  # a short lease
+    if quiet <= said_after:
+        return None
+    left = lost_after - quiet
+    when = (
+        f"in {left:.1f} s, once the server has halted what it commanded"
+        if left > 0
+        else "now: the server has halted what it commanded"
+    )
+    return (
+        f"no sign of the server for {quiet:.1f} s: the link may be lost; this client gives "
+        f"up on what it waits for {when}"
+    )
+
+
 class RosWay:
     """A client's node on the server's topics and services in `names`; `wait_s`: how long
     its first use waits for the server. What `al5d.ros.client.Client` asks of its way."""
@@ -143,23 +165,16 @@ class RosWay:
 
     def lost_contact(self) -> float | None:
         """Once the server has been heard: for how long it has not been, if more than
-        `lost_after_s` (None: not lost). A silence of `SILENCE_SAID_S` (of the server's
-        lease, if shorter) is said once, as a WARNING, before that."""
+        `lost_after_s` (None: not lost). The silence is said once, as a WARNING, before that
+        is returned (`silence_warning`)."""
         heard = self.lease.heard
         if heard is None:
             return None
         quiet = time.monotonic() - heard
         lost_after = self.lost_after_s
-        said_after = min(SILENCE_SAID_S, lost_after - LOST_AFTER_LEASE_S)  # a short lease
-        if said_after < quiet <= lost_after and self._silence_said != heard:
+        if self._silence_said != heard and (warning := silence_warning(quiet, lost_after)):
             self._silence_said = heard
-            log.warning(
-                "no sign of the server for %.1f s: the link may be lost; this client gives "
-                "up on what it waits for in %.1f s, once the server has halted what it "
-                "commanded",
-                quiet,
-                lost_after - quiet,
-            )
+            log.warning("%s", warning)
         return quiet if quiet > lost_after else None
 
     def out_of_contact(self) -> str | None:
