@@ -20,6 +20,7 @@ from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Mechanics, Record
 from al5d_rig.boardproc import BoardProcess
 from al5d_rig.proc import Proc, said, to_another_thread
+from al5d_rig.rospeer import wait_until
 
 AL5D = Path(sys.executable).with_name("al5d")
 
@@ -108,9 +109,9 @@ class Standalone:
         not model" for a flush at once)."""
         for i in range(20):
             self.port.write(f"#0P{1000 + i * 10}\r".encode())
-        deadline = time.monotonic() + 2
-        while b'"#0P1000"' not in self.record.read_bytes() and time.monotonic() < deadline:
-            time.sleep(0.001)
+        # Waited for whole (a busy host may take seconds): flushed before the link has read
+        # the moves, the USB link's figure would count a flush the emulator does not model.
+        wait_until(lambda: b'"#0P1000"' in self.record.read_bytes(), 30.0, "the first move")
         self.port.reset_output_buffer()
         return self.ask(b"\x1bQP0\r", 1)[0]
 
