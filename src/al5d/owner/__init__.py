@@ -5,6 +5,8 @@ its inbox's lanes, and the local lane by which clients on this machine reach it.
   effects carried out (bytes to the board, outcomes and news to the clients).
 - `conns`: the lane's sockets, for the owner's thread: its clients' connections
   accepted, read, written, leased and dropped.
+- `desk`: what the lane's clients ask, read into the owner's inbox, and the answers
+  routed back to them.
 - `teller`: the thread that tells in-process futures, listeners and the log, so that the
   owner's thread never runs anyone else's code; and the state told, with its waits.
 - `lane`: the local lane's protocol (a Unix socket, one JSON object a line); `where`:

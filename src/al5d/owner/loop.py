@@ -66,6 +66,7 @@ from al5d.arm.validate import Ticket, judge
 from al5d.clock import Deadline, now, wall_ns
 from al5d.owner import lane as ln
 from al5d.owner.conns import Conn, Conns
+from al5d.owner.desk import Desk
 from al5d.owner.teller import StateTold, Teller, tell
 from al5d.priority import cpu_waited_s, make_urgent
 from al5d.ssc32u import protocol as p
@@ -128,7 +129,6 @@ class Owner:
         self._announced = StateTold(State.INITIALIZING)
         self._refs = itertools.count(1)
         self._futures: dict[int, Future[Any]] = {}
-        self._lane_refs: dict[int, tuple[Conn, Any]] = {}
         self._stops: deque[tuple[int, Instruction, Ticket | None, str, Hashable, int, bool]] = (
             deque()
         )
@@ -151,7 +151,8 @@ class Owner:
         #: ROS: the bridge records, and connects while the park may be on the wire
         #: already); None once told, or not kept.
         self._wire_kept: list[dict[str, Any]] | None = [] if keep_wire else None
-        self._lanes = Conns(self._selector, self._lost, lane)
+        self._lanes = Conns(self._selector, lambda conn, why: self._desk.dropped(conn, why), lane)
+        self._desk = Desk(self._lanes, self, config.server.client_lease_s)
         self._thread = threading.Thread(target=self._run, name="al5d-owner", daemon=True)
         self._closing = False
 
@@ -246,7 +247,7 @@ class Owner:
             return future
         ref = next(self._refs)
         self._futures[ref] = future
-        self._put(ref, instr, ticket, stream, key, client, listeners)
+        self.put(ref, instr, ticket, stream, key, client, listeners)
         return future
 
     def execute(self, instr: Instruction, timeout: float | None = None) -> Outcome:
@@ -318,7 +319,7 @@ class Owner:
 
     # -- taking inputs ---------------------------------------------------------------------
 
-    def _put(
+    def put(
         self,
         ref: int,
         instr: Instruction,
@@ -328,6 +329,7 @@ class Owner:
         client: int,
         tell_: bool,
     ) -> None:
+        """A request for the core, from any thread: a stop on the stops' lane."""
         item = (ref, instr, ticket, stream, key, client, tell_)
         if instr.kind is Kind.STOP:
             self._stops.append(item)
@@ -418,7 +420,7 @@ class Owner:
             if mask & selectors.EVENT_WRITE:
                 self._lanes.flush(data)
             if mask & selectors.EVENT_READ:
-                self._read_conn(data)
+                self._desk.read(data, self._stalled)
 
     def _read_board(self, t: float, ready: bool = False) -> None:
         """What the board has sent: when its descriptor is `ready`, or (a transport with
@@ -462,11 +464,7 @@ class Owner:
         elif what == "barrier":
             self._teller.put(lambda: _set(payload, True))
         elif what == "judge":
-            conn, their, m = payload
-            try:
-                self._lane_judge(conn, their, m)
-            except ln.LaneError as e:
-                self._lanes.write(conn, ln.dumps({"op": "error", "ref": their, "error": str(e)}))
+            self._desk.judge(*payload)
 
     def _input(self, ev: Input) -> None:
         """Step the core with `ev`, carry out its effects, then the inputs they made."""
@@ -571,11 +569,7 @@ class Owner:
         if future is not None:
             self._teller.put(lambda: _set(future, outcome))
         else:
-            routed = self._lane_refs.pop(effect.ref, None)
-            if routed is not None:
-                conn, their = routed
-                message = {"op": "outcome", "ref": their, "outcome": ln.outcome_out(outcome)}
-                self._lanes.write(conn, ln.dumps(message))
+            self._desk.outcome(effect.ref, outcome)
         if effect.tell:
             if self.outcome_listeners:
                 self._teller.put(lambda: tell(self.outcome_listeners, outcome, "outcome"))
@@ -585,11 +579,8 @@ class Owner:
         future = self._futures.pop(ref, None)
         if future is not None:
             self._teller.put(lambda: _set(future, ok))
-            return
-        routed = self._lane_refs.pop(ref, None)
-        if routed is not None:
-            conn, their = routed
-            self._lanes.write(conn, ln.dumps({"op": "reply", "ref": their, "ok": ok}))
+        else:
+            self._desk.reply(ref, ok)
 
     def _announce(self, effect: Announce) -> None:
         new, old, event = effect.new, effect.old, effect.event
@@ -637,58 +628,15 @@ class Owner:
             }
             self._lanes.news("pose", message)
 
-    # -- the lane ----------------------------------------------------------------------------
+    # -- the lane's requests (`al5d.owner.desk.Inbox`: the owner's thread only) -----------------
 
-    def _read_conn(self, conn: Conn) -> None:
-        for message in self._lanes.read(conn, self._stalled):
-            if isinstance(message, ln.LaneError):
-                self._lanes.write(conn, ln.dumps({"op": "error", "error": str(message)}))
-            else:
-                self._message(conn, message)
+    def new_ref(self) -> int:
+        return next(self._refs)
 
-    def _message(self, conn: Conn, m: dict[str, Any]) -> None:
-        """One request of a lane client; a bad one is answered with an `error`."""
-        op = m["op"]
-        ref = m.get("ref")
-        try:
-            if op == "ask":
-                self._lane_ask(conn, ref, m)
-            elif op == "judge":
-                # Judged in its turn among the requests, not as the connection is read: a
-                # trajectory's judgement takes milliseconds, and a stop read in the same turn
-                # from another connection is taken first (a client asks with a ticket only
-                # once it has the answer, so no ask can come before its judgement).
-                self._others.append(("judge", 0, (conn, ref, m)))
-            elif op == "cancel":
-                ident, reason = m.get("id"), m.get("reason") or "cancelled by the client"
-                if not isinstance(ident, str) or not isinstance(reason, str):
-                    raise ln.LaneError("cancel: id and reason must be text")
-                ours = next(self._refs)
-                self._lane_refs[ours] = (conn, ref)
-                self._others.append(("cancel", ours, (ident, reason[:200])))
-            elif op == "hello":
-                self._hello(conn, m)
-            elif op == "ping":
-                self._lanes.write(conn, ln.dumps({"op": "pong", "ref": ref, "t": now()}))
-            elif op == "sign":  # a leased client is there (`Conn.heard`, set as it was read)
-                pass
-            elif op == "bye":
-                conn.bye = True
-            elif op == "gone":
-                self._lane_gone(conn, m)
-            else:
-                raise ln.LaneError(f"no op {op[:40]!r}")
-        except ln.LaneError as e:
-            self._lanes.write(conn, ln.dumps({"op": "error", "ref": ref, "error": str(e)}))
+    def later(self, what: str, ref: int, payload: Any) -> None:
+        self._others.append((what, ref, payload))
 
-    def _hello(self, conn: Conn, m: dict[str, Any]) -> None:
-        watch = m.get("watch") or []
-        if not isinstance(watch, list) or not set(watch) <= set(ln.WATCHES):
-            raise ln.LaneError(f"hello: watch is a list of {', '.join(ln.WATCHES)}")
-        conn.name = str(m.get("name", "?"))[:80]
-        conn.watch = frozenset(watch)
-        if m.get("lease") is True:
-            conn.lease_s = self.config.server.client_lease_s
+    def welcome(self, conn: Conn, recorder: bool) -> list[dict[str, Any]]:
         c = self._core
         welcome = {
             "op": "welcome",
@@ -706,61 +654,10 @@ class Owner:
             "t": now(),
             "wall": wall_ns(),
         }
-        self._lanes.write(conn, ln.dumps(welcome))
-        if m.get("recorder") is True and "wire" in conn.watch and self._wire_kept is not None:
-            for message in self._wire_kept:
-                self._lanes.write(conn, ln.dumps(message))
-            self._wire_kept = None
-
-    def _lane_ask(self, conn: Conn, ref: Any, m: dict[str, Any]) -> None:
-        ticket = None
-        if "ticket" in m:
-            ticket = conn.tickets.pop(str(m["ticket"]), None)
-            if ticket is None:
-                raise ln.LaneError(f"ask: no ticket {str(m['ticket'])[:40]!r} (judged once each)")
-            instr = ticket.instr
-        else:
-            instr = ln.instruction_in(m.get("instr"))
-        stream = m.get("stream", "")
-        if not isinstance(stream, str):
-            raise ln.LaneError("ask: stream must be text")
-        key = _hashable(m.get("key"))
-        client = conn.ident
-        if "for" in m:
-            who = m["for"]
-            if not isinstance(who, str) or not who or len(who) > 200:
-                raise ln.LaneError("ask: for must be a client's key (text, 1 to 200 characters)")
-            client = conn.subs.get(who) or conn.subs.setdefault(who, self._lanes.new_ident())
-        ours = next(self._refs)
-        self._lane_refs[ours] = (conn, ref)
-        tell_ = bool(m.get("tell", True))
-        self._put(ours, instr, ticket, stream, key, client, tell_)
-
-    def _lane_gone(self, conn: Conn, m: dict[str, Any]) -> None:
-        """A client `conn` speaks for is lost (`why`): what it commanded does not go on; or
-        closed (`why` empty): it is forgotten, what it commanded goes on."""
-        who, why = m.get("for"), m.get("why", "")
-        if not isinstance(who, str) or not isinstance(why, str):
-            raise ln.LaneError("gone: for and why must be text")
-        client = conn.subs.pop(who, None)
-        if client is not None and why:
-            self._others.append(("gone", 0, (client, f"{who}: {why[:200]}")))
-
-    def _lane_judge(self, conn: Conn, ref: Any, m: dict[str, Any]) -> None:
-        instr = ln.instruction_in(m.get("instr"))
-        follow = ln.follow_in(m.get("follow"))
-        got = self.judge(instr, follow)
-        if isinstance(got, str):
-            self._lanes.write(conn, ln.dumps({"op": "judged", "ref": ref, "reason": got}))
-            return
-        name = f"{conn.ident}-{ref}"
-        conn.tickets[name] = got
-        while len(conn.tickets) > 10_000:  # judged and never asked: the oldest go
-            del conn.tickets[next(iter(conn.tickets))]
-        knots = [step.point for step in got.steps]
-        self._lanes.write(
-            conn, ln.dumps({"op": "judged", "ref": ref, "ticket": name, "knots": knots})
-        )
+        kept: list[dict[str, Any]] = []
+        if recorder and self._wire_kept is not None:  # told once, to the first recorder
+            kept, self._wire_kept = self._wire_kept, None
+        return [welcome, *kept]
 
     def _lapsed(self, t: float) -> None:
         """Each leased client not heard for its lease, the owner's own stalls since not
@@ -768,17 +665,6 @@ class Owner:
         for did, is halted); the lapsed listeners are told its socket."""
         for sock in self._lanes.lapsed(t, self._stalled):
             self._teller.put(lambda s=sock: tell(self.lapsed_listeners, s, "lapsed"))  # type: ignore[misc]
-
-    def _lost(self, conn: Conn, why: str) -> None:
-        """`conn` has been dropped (`Conns.drop`): its requests' answers go nowhere; and, when
-        it was lost (`why`), what it and the clients it speaks for commanded does not go on."""
-        for ref, (c, _) in list(self._lane_refs.items()):
-            if c is conn:
-                del self._lane_refs[ref]
-        if why:
-            self._others.append(("gone", 0, (conn.ident, f"{conn.name}: {why}")))
-            for who, client in conn.subs.items():
-                self._others.append(("gone", 0, (client, f"{who} by {conn.name}: {why}")))
 
     # -- the end -------------------------------------------------------------------------------
 
@@ -812,11 +698,3 @@ class Owner:
 def _set(future: Future[Any], value: Any) -> None:
     if not future.done():
         future.set_result(value)
-
-
-def _hashable(value: Any) -> Hashable | None:
-    if isinstance(value, list):
-        return tuple(_hashable(v) for v in value)
-    if value is None or isinstance(value, str | int | float | bool):
-        return value
-    raise ln.LaneError("key: not a JSON value")
