@@ -390,7 +390,13 @@ def test_a_reset_locks_the_arm_and_forgets_the_pose(sim: Sim) -> None:
     assert sim.core.locked
     assert sim.until(lambda: sim.core.state is State.STOPPED, 5.0)
     refused = sim.ask(ins.move(base=10))
-    assert "stopped" in sim.outcomes[refused].reason
+    # What locked it is said: no one sent a stop.
+    reason = sim.outcomes[refused].reason
+    assert reason == "the arm is stopped (the board has reset): send release first", reason
+    assert sim.outcome(sim.ask(ins.release())).ok
+    assert sim.outcome(sim.ask(ins.stop())).ok
+    reason = sim.outcome(sim.ask(ins.move(base=10))).reason
+    assert reason == "the arm is stopped (emergency stop): send release first", reason
 
 
 def test_shutdown_parks_then_ends(sim: Sim) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from al5d.arm.states import (
+    LOCKED_BY_RESET,
     MOVE_REFUSALS,
     TABLE,
     TAKES_MOVES,
@@ -111,6 +112,10 @@ def test_a_move_is_refused_with_a_reason_in_exactly_the_states_that_do_not_take_
     for state in State:
         assert (refusal(state) == "") == (state in TAKES_MOVES)
     assert refusal(S.STOPPED) == "the arm is stopped (emergency stop): send release first"
+    assert (
+        refusal(S.STOPPED, locked_by=LOCKED_BY_RESET)
+        == "the arm is stopped (the board has reset): send release first"
+    )
     assert (
         refusal(S.FAULT, "/dev/x: gone") == "the serial link is lost (/dev/x: gone); reconnecting"
     )

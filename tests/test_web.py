@@ -964,6 +964,11 @@ def test_the_demo_waits_for_a_page_then_runs(rig: Rig) -> None:
             # (software WebGL takes about a core while the arm moves on a page).
             page.close()
         assert demo.wait(90) == 0
+        # Its sequence ran to its end: the move refused while locked did not end it.
+        said = demo.out.all
+        assert any("refused: the arm is stopped" in x for x in said), said[-30:]
+        assert any(x.startswith("release [") and ": done" in x for x in said), said[-30:]
+        assert any(x.startswith("shutdown [") and ": done" in x for x in said), said[-30:]
     finally:
         if demo.popen.poll() is None:
             demo.popen.send_signal(signal.SIGINT)  # the demo ends its web view too

@@ -100,6 +100,7 @@ def run_demo(
     )
     placed: list[Placement] = []
     refused: int | None = None
+    ended = False
     options = ServerOptions(baud=baud, physics=physics)
     ros = RosSide(options)
     try:
@@ -122,7 +123,9 @@ def run_demo(
                 refused = subprocess.call([*client, str(REFUSED_SEQUENCE)])
             print(f"al5d demo: client: al5d run --via ros {sequence}", flush=True)
             code = subprocess.call([*client, str(sequence)])
-            owner.finished.wait(30)
+            # The sequence ends with its shutdown: a server still running means it stopped
+            # short of it (a line waited for that was not done ends `al5d run`).
+            ended = owner.finished.wait(30)
             if twin is not None:
                 time.sleep(SETTLE_S)  # the objects come to rest, and the twin says where
                 placed = placements(twin)
@@ -144,6 +147,9 @@ def run_demo(
     print(f"al5d demo: client exit {code}{expected}; {time.monotonic() - started:.1f} s in all")
     if code == 2:
         return 2
+    if not ended:
+        print(f"al5d demo: {sequence.name} ended before its shutdown: the server was shut down")
+        return 1
     if physics is not None and code != 0:
         return 1
     placed_ok = all(p.held for p in placed)

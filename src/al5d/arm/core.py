@@ -115,7 +115,15 @@ from al5d.arm.corestate import (
 )
 from al5d.arm.instruction import FRESH_MARK, Instruction, Kind, Result
 from al5d.arm.jobs import NO_JOBS, Job, Mode, outcome
-from al5d.arm.states import Event, State, next_state, refusal, release_refusal, stream_held
+from al5d.arm.states import (
+    LOCKED_BY_STOP,
+    Event,
+    State,
+    next_state,
+    refusal,
+    release_refusal,
+    stream_held,
+)
 from al5d.arm.validate import Step, from_start, judge
 
 
@@ -195,7 +203,7 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
             return replace(c, order=c.order.obeyed(copy, answer))
     sent = _sent(ev)
     c, jobs = drop(c, "cancelled by stop", sent)
-    c = lock_arm(c, "the stop", sent)
+    c = lock_arm(c, LOCKED_BY_STOP, sent)
     board_open = c.link.open
     c = fire(halt(c, ev.t, out), Event.STOP, out)
     note = (
@@ -271,7 +279,9 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
         _refuse(ev, cancelled, out, Result.CANCELLED)
         return c
     reason = (
-        "the server is shutting down" if c.shutdown is not None else refusal(c.state, c.fault)
+        "the server is shutting down"
+        if c.shutdown is not None
+        else refusal(c.state, c.fault, c.order.locked_by)
     ) or c.order.sent_while_locked(sent)
     give_up_at = math.inf
     if instr.wait_ms:

@@ -20,7 +20,7 @@ from al5d.arm.instruction import Instruction, Outcome, Result
 from al5d.arm.jobs import NO_JOBS, Job, Jobs, Mode, Sent, Written, stop_order
 from al5d.arm.order import Order
 from al5d.arm.pose import PoseBook
-from al5d.arm.states import Event, Guards, State, TransitionError, next_state
+from al5d.arm.states import LOCKED_BY_RESET, Event, Guards, State, TransitionError, next_state
 from al5d.arm.translate import Translator
 from al5d.arm.validate import Limits, Steps, Ticket
 from al5d.ssc32u import protocol as p
@@ -562,7 +562,7 @@ def lose(c: Core, error: SerialFault, t: float, wall: int, out: Out) -> Core:
     say(out, logging.ERROR, f"serial fault: {error}")
     if reset:
         # A safety event: nothing moves again until a person has looked at the arm.
-        c = replace(lock_arm(c, "the board's reset", wall), book=c.book.forget())
+        c = replace(lock_arm(c, LOCKED_BY_RESET, wall), book=c.book.forget())
         say(out, logging.WARNING, RESET_LOCKED)
     why = str(error) if reset else f"the serial link is lost: {error}"
     c, jobs = drop(c, why, wall)

@@ -42,7 +42,7 @@ from al5d.arm.corestate import (
     say,
     send,
 )
-from al5d.arm.states import Event, State
+from al5d.arm.states import LOCKED_BY_RESET, Event, State
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.errors import BoardReset, GarbageAnswer, NoAnswer, NotAnSSC32U, SerialFault
 from al5d.ssc32u.facts import FIRMWARE_PREFIX, QP_RESOLUTION_US
@@ -388,7 +388,7 @@ def _reconnected(
     if reset:
         say(out, logging.ERROR, f"serial fault: {_reset(c, next(iter(book.pose)))}")
         say(out, logging.WARNING, RESET_LOCKED)
-        c = lock_arm(c, "the board's reset", wall)
+        c = lock_arm(c, LOCKED_BY_RESET, wall)
         book = book.forget()
     exact = frozenset() if reset else _exact(c, pose)
     c = replace(c, book=book.read_back(pose, exact), fault=None, readback=False)

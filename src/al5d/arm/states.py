@@ -119,9 +119,14 @@ TRANSITIONS: frozenset[tuple[State, Event, State]] = frozenset(
     (s, e, n) for (s, e), rule in TABLE.items() for n in _outcomes(rule)
 )
 
+#: What locks the arm (`al5d.arm.order.Order.locked_by`), and how a refused move says it.
+LOCKED_BY_STOP = "the stop"
+LOCKED_BY_RESET = "the board's reset"
+LOCK_SAID = {LOCKED_BY_STOP: "emergency stop", LOCKED_BY_RESET: "the board has reset"}
+
 #: Why a move (or preset) is refused in a state that does not take moves.
 MOVE_REFUSALS: dict[State, str] = {
-    S.STOPPED: "the arm is stopped (emergency stop): send release first",
+    S.STOPPED: "the arm is stopped ({locked}): send release first",
     S.FAULT: "the serial link is lost ({fault}); reconnecting",
     S.SHUTTING_DOWN: "the server is shutting down",
 }
@@ -129,9 +134,11 @@ MOVE_REFUSALS: dict[State, str] = {
 TAKES_MOVES = (S.INITIALIZING, S.READY, S.MOVING)
 
 
-def refusal(state: State, fault: object = None) -> str:
-    """Why a move is refused in `state` (empty where moves are taken)."""
-    return MOVE_REFUSALS.get(state, "").format(fault=fault)
+def refusal(state: State, fault: object = None, locked_by: str = LOCKED_BY_STOP) -> str:
+    """Why a move is refused in `state` (empty where moves are taken): with the link's
+    `fault`, or what locked the arm (`locked_by`: a stop, or the board's reset)."""
+    locked = LOCK_SAID.get(locked_by, LOCK_SAID[LOCKED_BY_STOP])
+    return MOVE_REFUSALS.get(state, "").format(fault=fault, locked=locked)
 
 
 def release_refusal(state: State) -> str:
