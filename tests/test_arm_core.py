@@ -90,6 +90,20 @@ def test_a_move_refused_as_it_starts_leaves_the_arm_ready_with_its_outcome(sim: 
     assert sim.outcome(third, 2.0).result is Result.DONE
 
 
+def test_a_move_refused_as_it_starts_from_rest_never_says_moving(sim: Sim) -> None:
+    """From rest, a move whose path from where the arm is goes below the table is refused as
+    it starts: the state stays `ready` (it said `moving`, then `ready`, in one step: an
+    outside try saw both on the state topic for a move refused whole)."""
+    assert sim.outcome(sim.ask(FIRST)).result is Result.DONE
+    assert sim.until(lambda: sim.core.idle, 5.0)
+    told = len(sim.states)
+    outcome = sim.outcome(sim.ask(ins.move(**SECOND)))
+    assert outcome.result is Result.REFUSED and "below the table" in outcome.reason
+    assert sim.states[told:] == [] and sim.core.state is State.READY
+    assert sim.outcome(sim.ask(ins.move(base=10))).result is Result.DONE
+    assert sim.states[told:] == [State.MOVING, State.READY]
+
+
 def test_a_stop_mid_line_cuts_it_between_whole_commands_only(config: ArmConfig) -> None:
     """At 9600 baud a six-joint line goes in pieces; a stop between two of them ends it with
     its ESC, and the board never holds half a number (63 such lines were seen in one run)."""

@@ -334,7 +334,10 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
                 return _enqueue(c, job)
             return _supersede(c, job, ev.t, out)
     if c.idle:
-        return running.start(fire(c, Event.MOVE, out), job, ev.t, out)
+        # Started before the state is told: one refused as it starts (its path below the
+        # table from where the arm is) leaves the arm `ready`, never `moving` for an instant.
+        started = running.start(c, job, ev.t, out)
+        return started if started.run is None else fire(started, Event.MOVE, out)
     capacity = c.arm.settings.queue_capacity
     if len(c.queue) >= capacity:
         finish(job, Result.REFUSED, f"the queue is full ({capacity} moves wait)", ev.t, out)
