@@ -295,5 +295,10 @@ def test_a_bad_configuration_is_a_problem_naming_its_key(board: Emulator, tmp_pa
     assert code == exits.NOT_DONE, lines
     (problem,) = problems(lines)
     assert "joints.elbow.channel: channel 0 is already used by base" in problem
+    assert problem.count(str(path)) == 1, problem  # the file named once
     # The board is still checked, at the factory baud.
     assert any("answered VER at 9600" in line for line in lines)
+    code, lines = run_doctor("--port", board.port, "--config", str(tmp_path / "none.yaml"))
+    (problem,) = problems(lines)
+    assert "none.yaml: cannot read the configuration" in problem, problem
+    assert "give the path of a configuration file" in lines[lines.index(problem) + 1], lines

@@ -321,10 +321,14 @@ def check_config(path: str | None) -> tuple[ArmConfig | None, Check]:
     name = path or "the shipped configuration"
     try:
         config = load_config(path)
-    except ConfigError as e:
-        return None, Check(
-            "config", False, f"{name}: {e}".replace("\n", "; "), "fix the key it names"
+    except ConfigError as e:  # its text names the file
+        todo = (
+            "fix what it names"
+            if path is None or Path(path).is_file()
+            else "give the path of a configuration file (--config FILE), or none for the "
+            "shipped one"
         )
+        return None, Check("config", False, str(e).replace("\n", "; "), todo)
     channels = ", ".join(f"{j} {joint.channel}" for j, joint in config.joints.items())
     return config, Check(
         "config",
