@@ -130,6 +130,19 @@ def test_bad_input_is_its_own_code_and_needs_no_server(words: tuple[str, ...], e
     assert out == [] and err[0].startswith(error), err
 
 
+def test_an_option_among_an_instructions_words_leaves_them_one_instruction() -> None:
+    """`al5d send move base=10 --timeout 1 time=x`: every word is the instruction's (the third
+    is judged, and is bad), not an argument `al5d` does not know (argparse's top-level usage
+    and "unrecognized arguments: time=x", an outside try found). An unknown option is
+    still argparse's error."""
+    args = ("send", "--wait", "1", "move", "base=10", "--timeout", "1", "time=x")
+    code, out, err = ended(Proc(*args, env=alone()))
+    assert code == exits.BAD_INPUT and out == [], err
+    assert err[0] == "al5d send: word 3 'time=x': 'x' is not a whole number of ms", err
+    code, _, err = ended(Proc("send", "move", "--frob", "base=10", env=alone()))
+    assert code == exits.USAGE and "unrecognized arguments: --frob base=10" in err[-1], err
+
+
 def test_no_server_is_its_own_code_for_run_too(tmp_path: Path) -> None:
     seq = tmp_path / "ok.seq"
     seq.write_text("ready\n")

@@ -614,6 +614,19 @@ def _split_ros_args(argv: list[str]) -> tuple[list[str], list[str] | None]:
     return remove_ros_args(whole)[1:], whole
 
 
+def parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
+    """`argv` read by `parser`, as argparse does but for `al5d send`'s instruction: its words
+    after an option are its words too (`send move base=30 --timeout 1 time=800`: argparse
+    takes the words before the option only, and said `time=800` was unknown to `al5d`).
+    Exits with argparse's usage error (2) for anything else it does not know."""
+    args, extra = parser.parse_known_args(argv)
+    if extra and getattr(args, "instruction", None) and not any(e.startswith("-") for e in extra):
+        args.instruction += extra
+    elif extra:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    return args
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     try:
@@ -621,7 +634,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as e:  # rcl's own words for what it cannot parse
         print(f"al5d: ROS arguments: {e}", file=sys.stderr)
         return exits.USAGE
-    args = parser.parse_args(rest)
+    args = parse(parser, rest)
     args.ros_args = ros_args
     if ros_args is not None and args.command != "serve":
         parser.error("--ros-args: `al5d serve` is the ROS node that takes them")
