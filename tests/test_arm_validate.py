@@ -86,6 +86,22 @@ def test_a_trajectory_is_judged_whole_and_its_first_bad_point_named(limits: Limi
     assert "above the limit of 60000 ms" in str(check(ins.trajectory(too_long), limits))
 
 
+def test_a_trajectorys_joint_names_are_judged_as_its_own_not_a_points(limits: Limits) -> None:
+    """Every point names the same joints (a ROS trajectory's joint_names): a bad name is the
+    trajectory's, not "point 0"'s (an outside try); where points name different joints,
+    the point is named."""
+    twice = [ins.Point((("base", 1.0), ("base", 2.0)), t) for t in (500, 900)]
+    assert check(ins.trajectory(twice), limits) == "the joints it names: base is given twice"
+    foo = [ins.Point((("base", 1.0), ("elbw", 80.0)), t) for t in (500, 900)]
+    said = check(ins.trajectory(foo), limits)
+    assert said == (
+        "the joints it names: unknown joint 'elbw'; did you mean 'elbow'? joints are "
+        "base, shoulder, elbow, wrist, gripper, wrist_rotate"
+    ), said
+    mixed = [ins.Point((("base", 1.0),), 500), ins.Point((("elbw", 80.0),), 900)]
+    assert str(check(ins.trajectory(mixed), limits)).startswith("point 1: unknown joint 'elbw'")
+
+
 def test_a_trajectory_may_start_at_0_as_moveit_sends_it(limits: Limits) -> None:
     # MoveIt's first point is the start state at time_from_start 0: it goes at the servos'
     # speed (no time asked), and the next keeps its own time.

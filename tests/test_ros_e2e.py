@@ -189,10 +189,11 @@ def test_the_move_action(server: Server, peer: Peer) -> None:
     # the goal's UUID; nothing reaches the board.
     handle = peer.goal(shoulder=100, accepted=False)
     refusal = peer.result(bytes(handle.goal_id.uuid).hex())
-    assert refusal.outcome == "refused"
+    assert refusal.outcome == "refused" and refusal.instruction == "move", refusal
     assert "shoulder: 100 deg is outside the range -30..90" in refusal.reason
     ambiguous = peer.goal(preset="straight_up", elbow=500, accepted=False)
-    assert "ambiguous" in peer.result(bytes(ambiguous.goal_id.uuid).hex()).reason
+    said = peer.result(bytes(ambiguous.goal_id.uuid).hex())
+    assert "ambiguous" in said.reason and said.instruction == "straight_up", said
     time.sleep(0.2)
     assert written(server.emu.records) == n
 
@@ -460,7 +461,7 @@ def test_a_joint_trajectory_runs_its_points_in_order_as_one_instruction(
         ),
         ((({"base": 10}, 1.0), ({"base": 20}, 0.8)), "point 1: time_from_start 800 ms is not"),
         ((), "a trajectory has no points"),
-        ((({"finger": 10}, 1.0),), "point 0: unknown joint 'finger'"),
+        ((({"finger": 10}, 1.0),), "the joints it names: unknown joint 'finger'"),
     ],
 )
 def test_a_bad_trajectory_is_refused_whole_with_nothing_written(

@@ -222,6 +222,16 @@ def _target(joints: tuple[tuple[str, float], ...], limits: Limits) -> dict[str, 
     return target or None
 
 
+def _name_problem(name: str, seen: set[str], limits: Limits) -> str:
+    """Why a move cannot name the joint `name` after those `seen`, or ""."""
+    ranges = limits.ranges
+    if name not in ranges:
+        near = difflib.get_close_matches(name.lower(), ranges, n=1, cutoff=0.6)
+        hint = f"did you mean {near[0]!r}? " if near else ""
+        return f"unknown joint {quote(name)}; {hint}joints are {', '.join(ranges)}"
+    return f"{name} is given twice" if name in seen else ""
+
+
 def _joint_problems(joints: tuple[tuple[str, float], ...], limits: Limits) -> list[str]:
     if not joints:
         return ["a move names no joint"]
@@ -230,12 +240,9 @@ def _joint_problems(joints: tuple[tuple[str, float], ...], limits: Limits) -> li
     seen: set[str] = set()
     for name, deg in joints:
         r = ranges.get(name)
-        if r is None:
-            near = difflib.get_close_matches(name.lower(), ranges, n=1, cutoff=0.6)
-            hint = f"did you mean {near[0]!r}? " if near else ""
-            problems.append(f"unknown joint {quote(name)}; {hint}joints are {', '.join(ranges)}")
-        elif name in seen:
-            problems.append(f"{name} is given twice")
+        named = _name_problem(name, seen, limits)
+        if named or r is None:
+            problems.append(named)
         elif not math.isfinite(deg):
             problems.append(f"{name}: {deg} is not a finite number of degrees")
         elif not r[0] <= deg <= r[1]:
@@ -279,6 +286,17 @@ def _trajectory(
         return "a trajectory has no points"
     if len(points) > MAX_POINTS:
         return f"a trajectory of {len(points)} points is more than the {MAX_POINTS} taken"
+    names = [name for name, _ in points[0].joints]
+    if all([name for name, _ in point.joints] == names for point in points):
+        # The joints every point names (a ROS trajectory's joint_names): no point's fault.
+        seen: set[str] = set()
+        named = []
+        for name in names:
+            if problem := _name_problem(name, seen, limits):
+                named.append(problem)
+            seen.add(name)
+        if named:
+            return f"the joints it names: {_listed(named)}"
     targets: list[dict[str, float]] = []
     before = 0.0
     sent = 0  # the time of the point before, in the whole ms the board is sent
