@@ -242,6 +242,8 @@ def test_a_bad_trajectory_is_rejected_whole_and_writes_nothing(
     ident = bytes(handle.goal_id.uuid).hex()
     refusal = rig.peer.result(ident)
     assert refusal.outcome == "refused" and reason in refusal.reason, refusal.reason
+    # Named as an accepted goal's outcome is: the instruction it would have been.
+    assert refusal.instruction == "trajectory", refusal
     time.sleep(0.2)
     assert only_link_checks(rig), "a rejected goal wrote to the board"
 
@@ -493,5 +495,5 @@ def test_a_gripper_gap_beyond_its_opening_is_rejected(rig: Rig) -> None:
     handle = rig.send(rig.gripper, goal)
     assert not handle.accepted
     refusal = rig.peer.result(bytes(handle.goal_id.uuid).hex())
-    assert "outside" in refusal.reason
+    assert "outside" in refusal.reason and refusal.instruction == "move", refusal
     assert only_link_checks(rig), "a rejected goal wrote to the board"

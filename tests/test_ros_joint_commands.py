@@ -121,6 +121,8 @@ def test_a_bad_joint_command_is_refused_whole_and_writes_nothing(served: Command
         result = served.peer.result(f"bad-{ident}", 20)
         assert result.outcome == "refused", (ident, result.reason)
         assert reason in result.reason, (ident, result.reason)
+        # Whoever refused it (this side, or the owner: "unknown"), it is the move it would be.
+        assert result.instruction == "move", (ident, result)
     time.sleep(0.5)  # anything it wrongly wrote would be on the board by now
     assert group_moves(served.emu.records[since:]) == []
 

@@ -124,7 +124,7 @@ class GoalRunner:
     """What every action of ours shares: its running goals by instruction id (the goal's
     UUID in hex), and a cancel that halts the arm where it is (without the lock)."""
 
-    #: The instruction name a rejected goal's refusal carries on the result topic.
+    #: The action's name (its goals' topic: `~/goals/<name>`).
     name = "goal"
     server: IdentifiedActionServer
     #: The message a goal's contents are published as (`goal_message`), on `~/goals/<name>`.
@@ -153,12 +153,18 @@ class GoalRunner:
         """The goal's contents as `goal_type`, under its id."""
         raise NotImplementedError
 
+    def word(self, goal: Any) -> str:
+        """The instruction a goal is (`trajectory`, `move`, a preset's name): what a
+        rejected goal's refusal names on the result topic, as an accepted goal's outcome
+        does (a client that reads the results by instruction sees both)."""
+        return Kind.MOVE.value
+
     def _goal(self, goal: Any) -> GoalResponse:
         ident = self.server.goal_id_now
         self.goals.publish(self.goal_message(goal, ident))
         judged = self.judge(goal, ident, wall_ns())
         if isinstance(judged, str):
-            self.node_al5d_refuse(ident, judged)
+            self.node_al5d_refuse(ident, self.word(goal), judged)
             return GoalResponse.REJECT
         self.judged[ident] = judged
         return GoalResponse.ACCEPT
@@ -168,10 +174,11 @@ class GoalRunner:
         ident = bytes(handle.goal_id.uuid).hex()
         return ident, self.judged.pop(ident, None)
 
-    def node_al5d_refuse(self, ident: str, reason: str) -> None:
-        """A rejected goal's reason on the result topic too, under the goal's UUID."""
+    def node_al5d_refuse(self, ident: str, word: str, reason: str) -> None:
+        """A rejected goal's reason on the result topic too, under the goal's UUID, named as
+        the instruction `word` it would have been."""
         if self.refuse is not None:
-            self.refuse(ident, self.name, reason)
+            self.refuse(ident, word, reason)
 
     async def _run(self, ident: str, entry: Any, ticket: Judged) -> Outcome:
         """Submit the goal's ticket and await its outcome, listed as running meanwhile."""
@@ -200,10 +207,14 @@ class MoveAction(GoalRunner):
 
     name = "move"
 
+    def word(self, goal: Any) -> str:
+        if goal.preset:
+            return str(goal.preset)
+        return Kind.MOVE_TO.value if {"x", "y", "z"} & set(goal.joints) else Kind.MOVE.value
+
     def goal_message(self, goal: Any, ident: str) -> ArmInstruction:
         """The goal as the instruction it is (`ArmInstruction`'s words and units)."""
-        word = goal.preset or ("move_to" if {"x", "y", "z"} & set(goal.joints) else "move")
-        msg = ArmInstruction(instruction=word, joints=list(goal.joints), id=ident)
+        msg = ArmInstruction(instruction=self.word(goal), joints=list(goal.joints), id=ident)
         msg.degrees = list(goal.degrees)
         msg.time_ms = goal.time_ms
         return msg

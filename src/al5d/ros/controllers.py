@@ -161,6 +161,9 @@ class FollowTrajectoryAction(GoalRunner):
     name = "follow_joint_trajectory"
     goal_type = JointTrajectory
 
+    def word(self, goal: Any) -> str:
+        return Kind.TRAJECTORY.value
+
     def goal_message(self, goal: Any, ident: str) -> JointTrajectory:
         """The goal's trajectory, its header's frame the goal's id (as the trajectory topic's
         outcomes are named)."""

@@ -334,7 +334,8 @@ class ArmNode(Node):
         if isinstance(instr, str):
             said = self._said(instr)
             if said is not None:
-                self.refuse(trajectory_id(msg), JOINT_COMMANDS, said)
+                # Named as the move it would have been, as the owner's refusals of one are.
+                self.refuse(trajectory_id(msg), Kind.MOVE.value, said)
             return
         future = self.arm.submit(instr, listeners=False, stream=JOINT_COMMANDS)
         future.add_done_callback(self._publish_refusal)
