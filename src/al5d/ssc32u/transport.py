@@ -80,6 +80,9 @@ class SerialTransport(Transport):
         super().__init__(port, baud)
         self._ser: serial.Serial | None = None
         self._fd: int | None = None
+        #: The low-latency mode last said (None: not yet): said again only when it changes,
+        #: not at every try to reconnect (once a second while a port is in fault).
+        self._said: bool | None = None
 
     def open(self) -> bool:
         try:
@@ -105,15 +108,21 @@ class SerialTransport(Transport):
         try:
             ser.set_low_latency_mode(True)
         except (AttributeError, ValueError, *IO_ERRORS) as e:
-            log.info(
-                "%s: low-latency mode not available (%s): a short answer may wait for the "
-                "USB chip's latency timer (16 ms by default)",
-                self.port,
-                e,
+            self._say(
+                False,
+                f"{self.port}: low-latency mode not available ({e}): a short answer may wait "
+                "for the USB chip's latency timer (16 ms by default)",
             )
             return False
-        log.info("%s: low-latency mode set (answers wait 1 ms in the USB chip, not 16)", self.port)
+        self._say(
+            True, f"{self.port}: low-latency mode set (answers wait 1 ms in the USB chip, not 16)"
+        )
         return True
+
+    def _say(self, low: bool, text: str) -> None:
+        if self._said is not low:
+            log.info("%s", text)
+        self._said = low
 
     def fileno(self) -> int | None:
         return self._fd
