@@ -228,7 +228,8 @@ def test_an_instruction_dds_would_not_carry_is_refused_here(server: Proc, tmp_pa
     assert proc.wait(60) == exits.NOT_DONE
     lines = proc.out.drain(0.5)
     assert any("refused: the message holds" in line for line in lines), lines
-    assert outcomes(lines) == {"ok#2": "done"}
+    # Its outcome is told as any other's: its id, its place in the file.
+    assert outcomes(lines) == {"big#1": "refused", "ok#2": "done"}, lines
 
 
 def test_ctrl_c_ends_the_replay_with_a_line(server: Proc, tmp_path: Path) -> None:

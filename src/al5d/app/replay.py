@@ -34,7 +34,7 @@ from typing import IO, Any, TextIO
 from mcap.reader import NonSeekingReader
 from mcap.records import Channel, Message, Schema
 
-from al5d.arm.instruction import MAX_ID, TIME_FIELD_MAX_MS, quote
+from al5d.arm.instruction import MAX_ID, MAX_QUOTE, TIME_FIELD_MAX_MS
 from al5d.ros.names import NODE, PING
 
 INSTRUCTION_TYPE = "al5d_interfaces/msg/ArmInstruction"
@@ -476,8 +476,10 @@ def _send(
             )
             if isinstance(instr, str):  # as the server would refuse it: nothing is sent
                 report.all_done = False
-                shown = f"{quote(fields.instruction)} [{quote(fields.id, 60)}]"
-                report.line(f"> {shown}: refused: {instr}")
+                # One line, as an outcome is told (the file's words escaped: they were
+                # never judged), and no "> " line: a million of them would be two million.
+                name = repr(fields.instruction[:MAX_QUOTE])[1:-1]
+                report.line(f"{name} [{repr(_sent_id(each))[1:-1]}]: refused: {instr} (not sent)")
                 continue
             if rate == "recorded":
                 first = each.sent_ns if first is None else first
