@@ -241,7 +241,7 @@ def _joint_problems(joints: tuple[tuple[str, float], ...], limits: Limits) -> li
     for name, deg in joints:
         r = ranges.get(name)
         named = _name_problem(name, seen, limits)
-        if named or r is None:
+        if named or r is None:  # (no range: an unknown joint, named)
             problems.append(named)
         elif not math.isfinite(deg):
             problems.append(f"{name}: {deg} is not a finite number of degrees")
