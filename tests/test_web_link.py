@@ -16,7 +16,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import pytest
-from al5d_interfaces.msg import ArmInstruction
+from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rclpy.node import Node
 
 from al5d.arm.config import ArmConfig
@@ -26,7 +26,7 @@ from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.names import Names
 from al5d.web import link as web_link
-from al5d.web.link import WebNode
+from al5d.web.link import QOS_OUTCOMES, WebNode
 from al5d_rig.proc import Lines, dies_with_parent, freeze, said
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import served
@@ -147,7 +147,7 @@ from pathlib import Path
 from al5d.arm import instruction as ins
 from al5d.arm.config import load_config
 from al5d.ros.names import Names, reaches_server
-from al5d.web.link import WebNode
+from al5d.web.link import QOS_OUTCOMES, WebNode
 
 class Heard:
     joints = 0
@@ -251,6 +251,37 @@ def test_a_stop_and_a_release_that_nobody_answers_are_said_unanswered(
             False,
         ),
     ]
+
+
+def test_a_stop_answered_after_the_page_said_none_came_is_said_answered(
+    link: WebNode, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A server that stalled past the page's wait obeys its STOP later: the page had said no
+    answer came, and its note then said so for good (an outside try: SIGSTOP, STOP, 11 s,
+    SIGCONT, the arm STOPPED and the note still "unknown"). The late answer is said."""
+    monkeypatch.setattr(web_link, "LANE_STOP_S", 1.0)
+    answers = link.listener = Answers()
+    context = start_context()
+    node = Node("web_link_late_server", context=context)
+    copies: list[str] = []
+    node.create_subscription(ArmInstruction, NAMES.instruction, lambda m: copies.append(m.id), 100)
+    results = node.create_publisher(InstructionResult, NAMES.result, QOS_OUTCOMES)
+    spinner = Spinner(node, context, kind="single")
+    try:
+        wait_until(lambda: link.pub.get_subscription_count() > 0, 20, "the listener matched")
+        assert link.stop() == "the topic"
+        wait_until(lambda: len(answers.said) == 2, 20, "the STOP said unanswered")
+        assert answers.said[-1][1] is False and "no answer" in answers.said[-1][0], answers.said
+        late = InstructionResult(id=copies[0], instruction="stop", outcome="done")
+
+        def said_late() -> bool:
+            results.publish(late)  # again until the page's reader has matched this writer
+            return len(answers.said) == 3
+
+        wait_until(said_late, 20, "the late answer said")
+        assert answers.said[-1] == ("STOP: done", True), answers.said
+    finally:
+        spinner.close()
 
 
 def copying() -> bool:

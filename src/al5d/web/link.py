@@ -69,6 +69,8 @@ log = logging.getLogger("al5d.web")
 #: not read its backlog), and how long its answer is waited for, in a thread of its own.
 LANE_HAND_S = 0.05
 LANE_STOP_S = 10.0
+#: STOPs said unanswered that are kept for a late answer, at most (the newest).
+LATE_KEPT = 64
 #: A STOP on the topic (no lane of the server here) is sent again this often in its first
 #: second, then every second, until a copy is answered or `LANE_STOP_S` has passed: a
 #: server just found may not have matched this writer yet, and a lossy link loses copies.
@@ -158,6 +160,12 @@ class WebNode:
         #: The STOPs on the topic still sent again: each one's id, what its answer sets and
         #: its number (`_begin`).
         self._stops: dict[str, tuple[threading.Event, int]] = {}
+        #: The STOPs said unanswered (by the lane or on the topic), with their numbers: an
+        #: answer that comes on the result topic later (a server that stalled past
+        #: `LANE_STOP_S` obeyed them after) is said then. Held with `_late_lock` while an
+        #: answer is matched, or a STOP said unanswered, so that neither is said after the other.
+        self._late: dict[str, int] = {}
+        self._late_lock = threading.Lock()
         #: Held while a copy of a STOP or a RELEASE is published: no copy follows a release.
         self._sending = threading.Lock()
         #: The RELEASEs whose answers are awaited, with their numbers; each one's popped
@@ -222,12 +230,17 @@ class WebNode:
             return
         stop, mark, _ = outcome.id.partition(COPY_MARK)
         done = outcome.result is Result.DONE
-        stopping = self._stops.pop(stop, None) if mark else None
-        if stopping is not None:
-            answered, number = stopping
-            answered.set()
-            log.info("web: STOP on the topic: %s", outcome.reason or outcome.result.value)
-            self._say(number, _answered("STOP", outcome.result.value, outcome.reason), done)
+        with self._late_lock:
+            stopping = self._stops.pop(stop, None) if mark else None
+            late = self._late.pop(stop if mark else outcome.id, None)
+            if stopping is not None:
+                answered, number = stopping
+                answered.set()
+                log.info("web: STOP on the topic: %s", outcome.reason or outcome.result.value)
+                self._say(number, _answered("STOP", outcome.result.value, outcome.reason), done)
+            elif late is not None:
+                log.info("web: STOP %s answered late: %s", stop, outcome.result.value)
+                self._say(late, _answered("STOP", outcome.result.value, outcome.reason), done)
         releasing = self._releases.pop(outcome.id, None)
         if releasing is not None:
             timer, number = releasing
@@ -305,17 +318,20 @@ class WebNode:
         one stop (`<stop>~<n>`, `al5d.ros.convert.stop_key`), which the server obeys once,
         however many of them come, and before or after whichever release. Returns which
         way it went."""
+        by_lane = f"web-stop-{new_id()}"
         try:
             # Handed over here (a Unix socket takes it at once); only its answer is waited
             # for, in a thread of its own.
-            sock = quick.hand_stop(self.lane, f"web-stop-{new_id()}", LANE_HAND_S)
+            sock = quick.hand_stop(self.lane, by_lane, LANE_HAND_S)
         except OSError as e:
             log.warning("web: STOP by the local lane %s failed: %s", self.lane, e)
             sock = None
         number = self._begin()
         if sock is not None:
             self._say(number, f"STOP by the local lane: {AWAITED}", None)
-            threading.Thread(target=self._lane_answer, args=(sock, number), daemon=True).start()
+            threading.Thread(
+                target=self._lane_answer, args=(sock, by_lane, number), daemon=True
+            ).start()
             return "the local lane"
         stop, answered = f"web-stop-{new_id()}", threading.Event()
         self._stops[stop] = answered, number
@@ -374,31 +390,37 @@ class WebNode:
                     break
             except Exception:  # the next copy may go: only the context's end stops them
                 log.exception("web: STOP on the topic: copy %d not sent", n)
-        ended = self._stops.pop(stop, None) is not None
-        if ended and not answered.is_set():
-            log.warning(
-                "web: STOP on the topic: no answer in %g s (sent %d times): whether the server "
-                "obeyed is unknown",
-                LANE_STOP_S,
-                n,
-            )
-            self._say(
+        with self._late_lock:
+            ended = self._stops.pop(stop, None) is not None
+            if not ended or answered.is_set():
+                return
+            self._unanswered(
+                stop,
                 number,
                 f"STOP on the topic: no answer in {LANE_STOP_S:g} s (sent {n} times): "
                 "whether the arm has stopped is unknown",
-                False,
             )
 
-    def _lane_answer(self, sock: socket.socket, number: int) -> None:
+    def _unanswered(self, stop: str, number: int, text: str) -> None:
+        """The STOP `stop` (number `number`) said unanswered, with `text`; its answer, if
+        one comes later, said then (under `_late_lock`)."""
+        log.warning("web: %s", text)
+        self._late[stop] = number
+        while len(self._late) > LATE_KEPT:
+            del self._late[next(iter(self._late))]
+        self._say(number, text, False)
+
+    def _lane_answer(self, sock: socket.socket, stop: str, number: int) -> None:
         try:
             answer = quick.answer(sock, LANE_STOP_S)
         except (OSError, EOFError) as e:
-            log.warning("web: STOP by the local lane %s: no answer (%s)", self.lane, e)
-            self._say(
-                number,
-                f"STOP by the local lane: no answer ({e}): whether the arm has stopped is unknown",
-                False,
-            )
+            with self._late_lock:
+                self._unanswered(
+                    stop,
+                    number,
+                    f"STOP by the local lane: no answer ({e}): whether the arm has stopped is "
+                    "unknown",
+                )
             return
         log.info("web: STOP by the local lane: %s", answer.get("result"))
         result = answer.get("result")
