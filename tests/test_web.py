@@ -841,6 +841,8 @@ def test_the_page_says_when_it_lost_the_server(rig: Rig) -> None:
     # How soon (within 2 s of a cut): bench/network_cut.py's figure; here, that it comes.
     text = wait_text(page, "#al5d-banner", lambda t: "No contact with the server" in t, 10)
     assert "STOP is still sent" in text and "if it reaches the server" in text
+    # Its last state is not shown as if it held (it was READY, in green, above the banner).
+    wait_text(page, "#al5d-state", lambda t: t == "NO CONTACT")
     lost = shapes()
     assert lost.keys() == before.keys(), sorted(set(lost) ^ set(before))  # greyed, not gone
     assert [c for c, works in lost.items() if works] == []
@@ -870,6 +872,7 @@ def test_the_page_says_when_it_lost_the_server(rig: Rig) -> None:
     # else said unanswered; never silently lost.
     rig.server = serve(rig.link, started="ROS 2 node /al5d up")
     wait_until(lambda: page.locator("#al5d-banner").count() == 0, 20, "the banner gone")
+    wait_text(page, "#al5d-state", lambda t: t != "NO CONTACT")
     wait_until(lambda: answers(rig, seen), 30, "the STOP's answer, or its lack, said")
     answer = answers(rig, seen)[0]
     if "no answer" not in answer:

@@ -17,10 +17,11 @@ from typing import Any
 
 import pytest
 
-from al5d.arm.config import ArmConfig, load_config
+from al5d.arm.config import DEFAULT_CONFIG, ArmConfig, load_config
 from al5d.ros.names import Names
 from al5d.ros.physical import PhysicalPublisher
 from al5d.ssc32u.emulator import Emulator, Mechanics
+from al5d.web.calibrate import idle_text
 from al5d_rig.calibuser import User
 from al5d_rig.proc import Proc, patient_config_text
 from al5d_rig.webrig import WebProc, chromium, dismiss_notifications, open_page, wait_text
@@ -174,3 +175,16 @@ def settled_after(page: Any, pulse: int, timeout_s: float = 20.0) -> int:
         if time.monotonic() > deadline:
             raise AssertionError(f"the nudge from {pulse} us was not taken")
         time.sleep(0.05)
+
+
+def test_the_tab_says_before_a_calibration_that_the_shipped_file_cannot_be_written(
+    tmp_path: Path,
+) -> None:
+    """`al5d web` without `--config` calibrates against the shipped configuration, which
+    `write` refuses (an install owns it): said before the user calibrates for nothing (an
+    outside try saw `write` live, and the shipped file named as the one written)."""
+    shipped = idle_text(DEFAULT_CONFIG)
+    assert shipped.startswith(f"pick a joint and start; the file: {DEFAULT_CONFIG}. What is")
+    assert "cannot be written there" in shipped and "cp " in shipped, shipped
+    mine = tmp_path / "my-arm.yaml"
+    assert idle_text(mine) == f"pick a joint and start; the file: {mine}"

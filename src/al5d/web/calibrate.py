@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import viser
 
-from al5d.arm.calfile import write_calibration
+from al5d.arm.calfile import shipped_problem, write_calibration
 from al5d.arm.calibration import (
     DEFAULT_STEP_US,
     Awaiting,
@@ -55,6 +55,15 @@ def _html(ident: str, body: str, colour: str = "#495057") -> str:
         f'<div id="{ident}" style="color:{colour};font-size:0.85em;overflow-wrap:anywhere;'
         f'padding:0 0.6em">{body}</div>'
     )
+
+
+def idle_text(path: Path) -> str:
+    """What the tab says before a calibration: the file it writes, or, where that is the
+    shipped configuration, that it cannot be written there (before a joint is calibrated
+    for nothing: `write` would refuse it)."""
+    said = f"pick a joint and start; the file: {path}"
+    problem = shipped_problem(path)
+    return f"{said}. What is found cannot be written there: {problem}" if problem else said
 
 
 class CalibrationTab:
@@ -96,7 +105,7 @@ class CalibrationTab:
         self.controls = [self.joint, self.start, self.accept, self.cancel]
 
     def _idle_text(self) -> str:
-        return f"pick a joint and start; the file: {self.path}"
+        return idle_text(self.path)
 
     # -- the page's hooks (under its lock) -------------------------------------------
 

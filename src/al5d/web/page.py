@@ -26,7 +26,7 @@ from al5d.arm.instruction import Instruction, Outcome, Result, preset
 from al5d.model import JOINTS, ModelError
 from al5d.model.transforms import Transform
 from al5d.web.jog import Jog
-from al5d.web.panel import PULSE_S, RELEASABLE, STATE_WORDS, Panel, held
+from al5d.web.panel import NO_CONTACT, PULSE_S, RELEASABLE, STATE_WORDS, Panel, held
 from al5d.web.plan import JointHistory, OutcomeLog, Planner, Target
 from al5d.web.scene import ArmScene
 from al5d.web.sliders import SliderInput
@@ -341,6 +341,8 @@ class Page:
             self.state = "ended"
             self._show_state("ended")
         text = lost_text(ended, age_s) if lost else None
+        if changed and not ended:
+            self._show_state(NO_CONTACT if lost else self.state)
         if changed and not lost:
             self.jog.contact_back(time.monotonic())
         with self.server.atomic():

@@ -34,7 +34,11 @@ STATE_COLOURS = {
     "initializing": "#868e96",
     "shutting_down": "#868e96",
     "ended": "#495057",
+    "no_contact": "#868e96",
 }
+#: What the page shows for the state while the server is out of contact: its last state
+#: is not known to hold (a stop, a fault or its end may have come meanwhile).
+NO_CONTACT = "no_contact"
 #: The states a release is for: the release button is shown in these only.
 RELEASABLE = ("stopped", "fault")
 
@@ -190,7 +194,7 @@ def pulse_html(beat: int) -> str:
 
 
 #: The page's words for the server's states where the server's are not plain English.
-STATE_WORDS = {"shutting_down": "shutting down", "ended": "server ended"}
+STATE_WORDS = {"shutting_down": "shutting down", "ended": "server ended", NO_CONTACT: "no contact"}
 
 
 def state_html(state: str) -> str:
