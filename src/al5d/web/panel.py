@@ -26,6 +26,9 @@ from al5d.model import JOINTS
 from al5d.model.transforms import Vec3
 from al5d.web.plan import OutcomeLog
 
+#: What the page shows for the state while the server is out of contact: its last state
+#: is not known to hold (a stop, a fault or its end may have come meanwhile).
+NO_CONTACT = "no_contact"
 STATE_COLOURS = {
     "ready": "#2b8a3e",
     "moving": "#1971c2",
@@ -34,11 +37,8 @@ STATE_COLOURS = {
     "initializing": "#868e96",
     "shutting_down": "#868e96",
     "ended": "#495057",
-    "no_contact": "#868e96",
+    NO_CONTACT: "#868e96",
 }
-#: What the page shows for the state while the server is out of contact: its last state
-#: is not known to hold (a stop, a fault or its end may have come meanwhile).
-NO_CONTACT = "no_contact"
 #: The states a release is for: the release button is shown in these only.
 RELEASABLE = ("stopped", "fault")
 
