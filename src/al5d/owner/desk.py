@@ -10,6 +10,7 @@ A bad message is answered with an `error` and changes nothing.
 from __future__ import annotations
 
 from collections.abc import Hashable
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 from al5d.arm.instruction import Instruction, Outcome
@@ -23,6 +24,22 @@ from al5d.owner.conns import Conn, Conns
 TICKETS_KEPT = 10_000
 
 
+@dataclass(frozen=True, slots=True)
+class Request:
+    """A request for the core, as the owner's inbox holds it until its turn: the owner's
+    reference, the instruction (or its `ticket`), the `stream` of set-points it belongs to,
+    the `key` of a stop two readers may see, the `client` it counts for, and whether the
+    outcome listeners are told (`tell`)."""
+
+    ref: int
+    instr: Instruction
+    ticket: Ticket | None
+    stream: str
+    key: Hashable | None
+    client: int
+    tell: bool
+
+
 class Inbox(Protocol):
     """What the desk needs of the owner (`al5d.owner.loop.Owner`)."""
 
@@ -30,16 +47,7 @@ class Inbox(Protocol):
         """A reference of the owner's own, for a request whose answer is routed back."""
         ...
 
-    def put(
-        self,
-        ref: int,
-        instr: Instruction,
-        ticket: Ticket | None,
-        stream: str,
-        key: Hashable | None,
-        client: int,
-        tell_: bool,
-    ) -> None:
+    def put(self, request: Request) -> None:
         """A request for the core (a stop on the stops' lane)."""
         ...
 
@@ -198,8 +206,8 @@ class Desk:
             if not isinstance(who, str) or not who or len(who) > 200:
                 raise ln.LaneError("ask: for must be a client's key (text, 1 to 200 characters)")
             client = conn.subs.get(who) or conn.subs.setdefault(who, self._lanes.new_ident())
-        tell_ = bool(m.get("tell", True))
-        self._inbox.put(self._route(conn, ref), instr, ticket, stream, key, client, tell_)
+        tell = bool(m.get("tell", True))
+        self._inbox.put(Request(self._route(conn, ref), instr, ticket, stream, key, client, tell))
 
     def _gone(self, conn: Conn, m: dict[str, Any]) -> None:
         """A client `conn` speaks for is lost (`why`): what it commanded does not go on; or

@@ -66,7 +66,7 @@ from al5d.arm.validate import Ticket, judge
 from al5d.clock import Deadline, now, wall_ns
 from al5d.owner import lane as ln
 from al5d.owner.conns import Conn, Conns
-from al5d.owner.desk import Desk
+from al5d.owner.desk import Desk, Request
 from al5d.owner.teller import StateTold, Teller, tell
 from al5d.priority import cpu_waited_s, make_urgent
 from al5d.ssc32u import protocol as p
@@ -129,9 +129,7 @@ class Owner:
         self._announced = StateTold(State.INITIALIZING)
         self._refs = itertools.count(1)
         self._futures: dict[int, Future[Any]] = {}
-        self._stops: deque[tuple[int, Instruction, Ticket | None, str, Hashable, int, bool]] = (
-            deque()
-        )
+        self._stops: deque[Request] = deque()
         self._others: deque[tuple[str, int, Any]] = deque()
         self._pending: deque[Input] = deque()  # inputs the effects made (a port opened)
         self._selector = selectors.DefaultSelector()
@@ -247,7 +245,7 @@ class Owner:
             return future
         ref = next(self._refs)
         self._futures[ref] = future
-        self.put(ref, instr, ticket, stream, key, client, listeners)
+        self.put(Request(ref, instr, ticket, stream, key, client, listeners))
         return future
 
     def execute(self, instr: Instruction, timeout: float | None = None) -> Outcome:
@@ -319,22 +317,12 @@ class Owner:
 
     # -- taking inputs ---------------------------------------------------------------------
 
-    def put(
-        self,
-        ref: int,
-        instr: Instruction,
-        ticket: Ticket | None,
-        stream: str,
-        key: Hashable | None,
-        client: int,
-        tell_: bool,
-    ) -> None:
+    def put(self, request: Request) -> None:
         """A request for the core, from any thread: a stop on the stops' lane."""
-        item = (ref, instr, ticket, stream, key, client, tell_)
-        if instr.kind is Kind.STOP:
-            self._stops.append(item)
+        if request.instr.kind is Kind.STOP:
+            self._stops.append(request)
         else:
-            self._others.append(("ask", ref, item))
+            self._others.append(("ask", request.ref, request))
         self._wake()
 
     def _wake(self) -> None:
@@ -439,14 +427,15 @@ class Owner:
         if data:
             self._input(Received(now(), wall_ns(), data))
 
-    def _take_stop(self, item: tuple[Any, ...]) -> None:
-        self._ask(item)
+    def _take_stop(self, request: Request) -> None:
+        self._ask(request)
 
-    def _ask(self, item: tuple[Any, ...]) -> None:
-        ref, instr, ticket, stream, key, client, tell_ = item
-        if self.submit_listeners and tell_:
-            self._teller.put(lambda: tell(self.submit_listeners, instr, "submit"))
-        self._input(Ask(now(), wall_ns(), ref, instr, ticket, stream, key, client, tell_))
+    def _ask(self, r: Request) -> None:
+        if self.submit_listeners and r.tell:
+            self._teller.put(lambda: tell(self.submit_listeners, r.instr, "submit"))
+        self._input(
+            Ask(now(), wall_ns(), r.ref, r.instr, r.ticket, r.stream, r.key, r.client, r.tell)
+        )
 
     def _take(self, entry: tuple[str, int, Any]) -> None:
         what, ref, payload = entry
