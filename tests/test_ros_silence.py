@@ -53,13 +53,17 @@ def gone(server: list[int], via: str) -> Iterator[None]:
         kill_all(server)
         yield
         return
+    # A process of the family that has ended since it was listed (seen beside two busy
+    # loops: `ProcessLookupError` at the freeze) has nothing left to freeze.
     for pid in server:
-        freeze(pid)
+        with contextlib.suppress(ProcessLookupError, FileNotFoundError):  # its /proc gone
+            freeze(pid)
     try:
         yield
     finally:
         for pid in server:
-            os.kill(pid, signal.SIGCONT)
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGCONT)
 
 
 #: The client's WARNING of a silence, with the seconds it says.
