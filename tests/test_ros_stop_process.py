@@ -391,6 +391,9 @@ def test_a_web_views_stop_to_a_server_elsewhere_is_one_stop_whatever_comes_after
             before = len(said.drain(0))
             way = link.stop()
             stopped = said_after(said, before, "STATE: stopped")
+            # The page shows its STOP sent before its user can click RELEASE: a page tells
+            # only its newest STOP or RELEASE (a busy CI run's page had not yet told it).
+            wait_until(lambda: len(heard.answers) > 0, 30, "the page's STOP told")
             link.release()
             released = said_after(said, stopped, "STATE: ready")
         finally:
