@@ -25,7 +25,7 @@ from al5d.model.transforms import Transform
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.names import Names
-from al5d.web import link as web_link
+from al5d.web import stopping as web_stopping
 from al5d.web.link import QOS_OUTCOMES, WebNode
 from al5d_rig.proc import Lines, dies_with_parent, freeze, said
 from al5d_rig.rospeer import wait_until
@@ -227,8 +227,8 @@ def test_a_stop_and_a_release_that_nobody_answers_are_said_unanswered(
     """No server: the page says its STOP and its RELEASE sent and their answers awaited,
     and then that none came (shorter waits than the page's 10 s here), never that they were
     obeyed: whether the arm stopped, or was released, is unknown."""
-    monkeypatch.setattr(web_link, "LANE_STOP_S", 1.0)
-    monkeypatch.setattr(web_link, "RELEASE_ANSWER_S", 1.0)
+    monkeypatch.setattr(web_stopping, "LANE_STOP_S", 1.0)
+    monkeypatch.setattr(web_stopping, "RELEASE_ANSWER_S", 1.0)
     answers = link.listener = Answers()
     assert link.stop() == "the topic"
     wait_until(lambda: len(answers.said) == 2, 20, "the STOP said unanswered")
@@ -259,7 +259,7 @@ def test_a_stop_answered_after_the_page_said_none_came_is_said_answered(
     """A server that stalled past the page's wait obeys its STOP later: the page had said no
     answer came, and its note then said so for good (an outside try: SIGSTOP, STOP, 11 s,
     SIGCONT, the arm STOPPED and the note still "unknown"). The late answer is said."""
-    monkeypatch.setattr(web_link, "LANE_STOP_S", 1.0)
+    monkeypatch.setattr(web_stopping, "LANE_STOP_S", 1.0)
     answers = link.listener = Answers()
     context = start_context()
     node = Node("web_link_late_server", context=context)

@@ -8,7 +8,8 @@ this machine (`al5d.owner.quick`). The page is built with viser: the arm in
 running move as a ghost, sliders, a draggable target for the tool, presets,
 STOP, what happened, and teach and replay (named poses, sequences).
 
-    link.py    the ROS side: subscriptions, the instruction and jog publishers, the stop service
+    link.py    the ROS side: subscriptions, the instruction and jog publishers, the lease
+    stopping.py  the page's STOP and RELEASE: sent by the lane or the topic, answers said
     plan.py    pure: targets of instructions, the outcome log, the joint history
     guard.py   who may open the page's websocket (same origin, known host names)
     scene.py   the 3D view: the arm, its ghost, the straight path, the target gizmo

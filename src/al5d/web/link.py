@@ -18,9 +18,6 @@ from __future__ import annotations
 import itertools
 import logging
 import os
-import queue
-import socket
-import threading
 import time
 from collections.abc import Mapping, Sequence
 from typing import Protocol
@@ -33,13 +30,12 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory
 
-from al5d.arm.instruction import FRESH_MARK, Instruction, Kind, Outcome, Result, new_id
+from al5d.arm.instruction import FRESH_MARK, Instruction, Outcome
 from al5d.model import ArmModel
 from al5d.model.chain import BASE_LINK
 from al5d.model.transforms import Transform
-from al5d.owner import quick, where
+from al5d.owner import where
 from al5d.ros.convert import (
-    COPY_MARK,
     from_message,
     outcome_from_message,
     to_message,
@@ -58,6 +54,7 @@ from al5d.ros.qos import (
     profile,
 )
 from al5d.ros.robot import QOS_TF_STATIC
+from al5d.web.stopping import StopRelease
 
 #: Outcomes: reliable (a refusal's reason must reach the page) but shallow; the server's
 #: writer keeps its own history and is never slowed by a reader's.
@@ -65,34 +62,10 @@ QOS_OUTCOMES = profile(100)
 
 log = logging.getLogger("al5d.web")
 
-#: How long a STOP by the local lane may take to be handed over (a socket whose owner has
-#: not read its backlog), and how long its answer is waited for, in a thread of its own.
-LANE_HAND_S = 0.05
-LANE_STOP_S = 10.0
-#: STOPs said unanswered that are kept for a late answer, at most (the newest).
-LATE_KEPT = 64
-#: A STOP on the topic (no lane of the server here) is sent again this often in its first
-#: second, then every second, until a copy is answered or `LANE_STOP_S` has passed: a
-#: server just found may not have matched this writer yet, and a lossy link loses copies.
-STOP_FIRST_COPIES_S = 0.25
-STOP_COPIES_S = 1.0
-#: How long a RELEASE's answer is waited for before the page says none came.
-RELEASE_ANSWER_S = 10.0
-
-
 #: The state: latched as the server writes it, and every change kept until this page takes
 #: it (a reader of depth 1 whose executor lagged a short move behind showed READY, READY:
 #: the MOVING between them was overwritten before it was taken).
 QOS_STATES = profile(20, latched=True)
-
-
-#: What the page says of a STOP or a RELEASE sent, until its answer comes.
-AWAITED = "sent, the server's answer awaited"
-
-
-def _answered(what: str, result: object, reason: object) -> str:
-    """`what`'s answer (its result and reason), as the page says it."""
-    return f"{what}: {result or 'an answer with no result'}{f': {reason}' if reason else ''}"
 
 
 class Listener(Protocol):
@@ -157,29 +130,8 @@ class WebNode:
         self.lease_spinner = Spinner(
             self.lease_node, self.context, owns_context=False, kind="single"
         )
-        #: The STOPs on the topic still sent again: each one's id, what its answer sets and
-        #: its number (`_begin`).
-        self._stops: dict[str, tuple[threading.Event, int]] = {}
-        #: The STOPs said unanswered (by the lane or on the topic), with their numbers: an
-        #: answer that comes on the result topic later (a server that stalled past
-        #: `LANE_STOP_S` obeyed them after) is said then. Held with `_late_lock` while an
-        #: answer is matched, or a STOP said unanswered, so that neither is said after the other.
-        self._late: dict[str, int] = {}
-        self._late_lock = threading.Lock()
-        #: Held while a copy of a STOP or a RELEASE is published: no copy follows a release.
-        self._sending = threading.Lock()
-        #: The RELEASEs whose answers are awaited, with their numbers; each one's popped
-        #: once: by its answer or by its timer (`RELEASE_ANSWER_S`).
-        self._releases: dict[str, tuple[threading.Timer, int]] = {}
-        # What the page says of its STOPs and RELEASEs goes through a queue to a thread of
-        # its own: a STOP hands it over and waits for nothing (the page's widgets take
-        # viser's locks), and it is said in the order it was handed over, of the newest
-        # STOP or RELEASE only (an old one's late answer would hide the newer's).
-        self._numbers = itertools.count(1)
-        self._newest = 0
-        self._numbering = threading.Lock()  # held for a number and its assignment alone
-        self._answers: queue.SimpleQueue[tuple[int, str, bool | None] | None] = queue.SimpleQueue()
-        threading.Thread(target=self._say_answers, name="al5d-web-answers", daemon=True).start()
+        #: The page's STOPs and RELEASEs, and what is said of them.
+        self.buttons = StopRelease(self.pub, self.lease.key, self._on_answer)
         #: The ids of this page's set-points start with it.
         self.jog_prefix = f"web-jog-{os.getpid():x}-"
         self._jog_ids = itertools.count(1)
@@ -228,25 +180,11 @@ class WebNode:
             outcome = outcome_from_message(msg)
         except ValueError:  # an outcome word this page does not know: not the server's
             return
-        stop, mark, _ = outcome.id.partition(COPY_MARK)
-        done = outcome.result is Result.DONE
-        with self._late_lock:
-            stopping = self._stops.pop(stop, None) if mark else None
-            late = self._late.pop(stop if mark else outcome.id, None)
-            if stopping is not None:
-                answered, number = stopping
-                answered.set()
-                log.info("web: STOP on the topic: %s", outcome.reason or outcome.result.value)
-                self._say(number, _answered("STOP", outcome.result.value, outcome.reason), done)
-            elif late is not None:
-                log.info("web: STOP %s answered late: %s", stop, outcome.result.value)
-                self._say(late, _answered("STOP", outcome.result.value, outcome.reason), done)
-        releasing = self._releases.pop(outcome.id, None)
-        if releasing is not None:
-            timer, number = releasing
-            timer.cancel()
-            self._say(number, _answered("RELEASE", outcome.result.value, outcome.reason), done)
+        self.buttons.on_outcome(outcome)
         self.listener.on_outcome(outcome)
+
+    def _on_answer(self, text: str, ok: bool | None) -> None:
+        self.listener.on_answer(text, ok)  # the listener of now: a page may set its own
 
     def _on_instruction(self, msg: ArmInstruction) -> None:
         instr = from_message(msg, self.presets, self.model)
@@ -308,169 +246,16 @@ class WebNode:
         self._jog_seen = (info.total_count, info.total_count - info.current_count)
 
     def stop(self) -> str:
-        """The emergency stop: by the local lane where a server's is on this machine (no
-        discovery, no DDS: the owner has it as the socket is read), else on the instruction
-        topic, where the server's stop watcher obeys it at once. Only one way: a copy that
-        came by the other after a release would lock the arm again (seen in a CI run: a
-        STOPPED after the release). For the same reason there is no stop service call here
-        (`std_srvs/Trigger` names no stop: the server cannot know it for this one): the
-        copies sent again on the topic until one is answered name this page's lease and
-        one stop (`<stop>~<n>`, `al5d.ros.convert.stop_key`), which the server obeys once,
-        however many of them come, and before or after whichever release. Returns which
-        way it went."""
-        by_lane = f"web-stop-{new_id()}"
-        try:
-            # Handed over here (a Unix socket takes it at once); only its answer is waited
-            # for, in a thread of its own.
-            sock = quick.hand_stop(self.lane, by_lane, LANE_HAND_S)
-        except OSError as e:
-            log.warning("web: STOP by the local lane %s failed: %s", self.lane, e)
-            sock = None
-        number = self._begin()
-        if sock is not None:
-            self._say(number, f"STOP by the local lane: {AWAITED}", None)
-            threading.Thread(
-                target=self._lane_answer, args=(sock, by_lane, number), daemon=True
-            ).start()
-            return "the local lane"
-        stop, answered = f"web-stop-{new_id()}", threading.Event()
-        self._stops[stop] = answered, number
-        # Handed over before the first copy goes, so that it is never said after the answer.
-        self._say(number, f"STOP on the topic: {AWAITED} (sent again until it comes)", None)
-        self._stop_copy(stop, 1)  # the first at once, in the click's own thread
-        # Then the thread of the copies after it (starting one waits for it to run).
-        threading.Thread(
-            target=self._stop_again, args=(stop, answered, number), name=stop, daemon=True
-        ).start()
-        return "the topic"
-
-    def _begin(self) -> int:
-        """A new STOP or RELEASE: its number; what is said of those before it is not."""
-        with self._numbering:
-            number = self._newest = next(self._numbers)
-        return number
-
-    def _say(self, number: int, text: str, ok: bool | None) -> None:
-        """Hand over what to say of the STOP or RELEASE `number` (a queue's put: no wait)."""
-        self._answers.put((number, text, ok))
-
-    def _say_answers(self) -> None:
-        while (item := self._answers.get()) is not None:
-            number, text, ok = item
-            if number == self._newest:
-                try:
-                    self.listener.on_answer(text, ok)
-                except Exception:  # the next one is said all the same
-                    log.exception("web: %s: not shown", text)
-
-    def _stop_copy(self, stop: str, n: int) -> bool:
-        """Copy `n` of `stop`, unless it has ended (answered, or a release sent since);
-        whether it went."""
-        msg = to_message(Instruction(Kind.STOP, id=f"{stop}{COPY_MARK}{n}"))
-        msg.client = self.lease.key  # no deadline: a stop is obeyed however late
-        with self._sending:
-            if stop not in self._stops:
-                return False
-            self.pub.publish(msg)
-        return True
-
-    def _stop_again(self, stop: str, answered: threading.Event, number: int) -> None:
-        """The copies of `stop` after the first, until one is answered, a release is sent,
-        or `LANE_STOP_S` has passed."""
-        start = time.monotonic()
-        n = 1
-        while True:
-            elapsed = time.monotonic() - start
-            every = STOP_FIRST_COPIES_S if elapsed < 1.0 else STOP_COPIES_S
-            if answered.wait(every) or time.monotonic() - start >= LANE_STOP_S:
-                break
-            n += 1
-            try:
-                if not self._stop_copy(stop, n):
-                    break
-            except Exception:  # the next copy may go: only the context's end stops them
-                log.exception("web: STOP on the topic: copy %d not sent", n)
-        with self._late_lock:
-            ended = self._stops.pop(stop, None) is not None
-            if not ended or answered.is_set():
-                return
-            self._unanswered(
-                stop,
-                number,
-                f"STOP on the topic: no answer in {LANE_STOP_S:g} s (sent {n} times): "
-                "whether the arm has stopped is unknown",
-            )
-
-    def _unanswered(self, stop: str, number: int, text: str) -> None:
-        """The STOP `stop` (number `number`) said unanswered, with `text`; its answer, if
-        one comes later, said then (under `_late_lock`)."""
-        log.warning("web: %s", text)
-        self._late[stop] = number
-        while len(self._late) > LATE_KEPT:
-            del self._late[next(iter(self._late))]
-        self._say(number, text, False)
-
-    def _lane_answer(self, sock: socket.socket, stop: str, number: int) -> None:
-        try:
-            answer = quick.answer(sock, LANE_STOP_S)
-        except (OSError, EOFError) as e:
-            with self._late_lock:
-                self._unanswered(
-                    stop,
-                    number,
-                    f"STOP by the local lane: no answer ({e}): whether the arm has stopped is "
-                    "unknown",
-                )
-            return
-        log.info("web: STOP by the local lane: %s", answer.get("result"))
-        result = answer.get("result")
-        self._say(
-            number, _answered("STOP", result, answer.get("reason")), result == Result.DONE.value
-        )
+        """The emergency stop (`StopRelease.stop`), by the lane of a server of these names on
+        this machine if there is one; which way it went."""
+        return self.buttons.stop(self.lane)
 
     def release(self) -> None:
-        """On the topic with the page's lease, as the Python client's: judged on the server's
-        clock, and after the page's own stops, which went before it on the same writer (the
-        release service takes no lease, and is judged on its sender's clock). A STOP still
-        sent again is not sent after it: a copy sent after the release, which the stop
-        watcher may read before the node has read an earlier one (a lossy link), would be
-        a stop sent after the release, and lock the arm again."""
-        release, number = Instruction(Kind.RELEASE), self._begin()
-        # Out of the lock a STOP's copy takes: starting a timer waits for its thread to run.
-        timer = threading.Timer(RELEASE_ANSWER_S, self._release_unanswered, (release.id,))
-        timer.daemon = True
-        self._releases[release.id] = timer, number
-        self._say(number, f"RELEASE on the topic: {AWAITED}", None)
-        timer.start()
-        try:
-            with self._sending:
-                for stop in list(self._stops):
-                    unanswered = self._stops.pop(stop, None)
-                    if unanswered is not None:
-                        log.info("web: STOP on the topic: no more copies (a release was sent)")
-                        unanswered[0].set()
-                self.send(release)
-        except Exception as e:
-            if self._releases.pop(release.id, None) is not None:
-                timer.cancel()
-                self._say(number, f"RELEASE: not sent ({e})", False)
-            raise
-
-    def _release_unanswered(self, ident: str) -> None:
-        releasing = self._releases.pop(ident, None)
-        if releasing is not None:
-            log.warning("web: RELEASE on the topic: no answer in %g s", RELEASE_ANSWER_S)
-            self._say(
-                releasing[1],
-                f"RELEASE on the topic: no answer in {RELEASE_ANSWER_S:g} s: whether the arm "
-                "was released is unknown (its state shows it)",
-                False,
-            )
+        """The page's RELEASE (`StopRelease.release`)."""
+        self.buttons.release()
 
     def close(self) -> None:
-        for timer, _ in list(self._releases.values()):
-            timer.cancel()
-        self._answers.put(None)
+        self.buttons.close()
         self.lease.close([self.pub])
         self.lease_spinner.close()
         self.spinner.close()
