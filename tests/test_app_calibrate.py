@@ -38,10 +38,12 @@ def arm_file(tmp_path: Path) -> Path:
 
 @pytest.fixture
 def server(config: ArmConfig, arm_file: Path, tmp_path: Path) -> Iterator[Emulator]:
-    """`al5d serve` with `arm_file` on a misaligned emulated arm; the board."""
+    """`al5d serve` with `arm_file` on a misaligned emulated arm, named as a user in its
+    directory would (a relative path); the board."""
     link = tmp_path / "ssc32u"
     emu = Emulator(config, link=link, mechanics=MECHANICS).start()
-    proc = Proc("serve", "--port", str(link), "--config", str(arm_file), "--log-level", "INFO")
+    given = ("--config", arm_file.name)
+    proc = Proc("serve", "--port", str(link), *given, "--log-level", "INFO", cwd=arm_file.parent)
     try:
         proc.err.wait_for("STATE: ready", 30)
         yield emu
@@ -68,6 +70,14 @@ def test_calibrate_through_its_stdin_finds_the_offsets_and_writes_the_file(
     wrong = Proc("calibrate", "--config", str(other), "--wait", "30")
     assert wrong.wait(60) == exits.USAGE
     assert f"the server runs with {arm_file}" in "\n".join(wrong.err.drain())
+    # The server's file by its name in another directory, where a file has that name: that
+    # one is another file (an outside try: it was written, the server's left as it was).
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / arm_file.name).write_text(arm_file.read_text("utf-8"), "utf-8")
+    decoy = Proc("calibrate", "--config", arm_file.name, "--wait", "30", cwd=elsewhere)
+    assert decoy.wait(60) == exits.USAGE
+    assert f"the server runs with {arm_file}, not {arm_file.name}" in "\n".join(decoy.err.drain())
 
     before = arm_file.read_text("utf-8")
     cal = Proc(

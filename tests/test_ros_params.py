@@ -23,7 +23,7 @@ from al5d.ros import params
 from al5d.ros.robot import QOS_TF_STATIC
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import group_moves
-from al5d_rig.proc import Proc, patient_config
+from al5d_rig.proc import Proc, patient_config, patient_config_text
 from al5d_rig.rospeer import Peer, wait_future, wait_until
 
 #: The node `al5d`, renamed by `-r __node:=`: the others keep their names.
@@ -334,3 +334,19 @@ def test_the_parameters_say_the_answer_timeout_the_embedded_emulator_runs_with()
     assert on_port.values()["server.answer_timeout_s"] == shipped
     raised = params.resolve({"server.answer_timeout_s": 2.5}, params.Flags())
     assert raised.config.server.answer_timeout_s == 2.5
+
+
+def test_a_config_file_named_relative_to_the_server_is_said_whole(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`ros2 param get` (and a client that writes the file: the web view's calibration)
+    reads the whole path: a relative one, read in the client's directory, is another file."""
+    (tmp_path / "arm.yaml").write_text(patient_config_text(), "utf-8")
+    monkeypatch.chdir(tmp_path)
+    for given, flags in (
+        ({"config_file": "arm.yaml"}, params.Flags()),
+        ({}, params.Flags(config="arm.yaml")),
+    ):
+        settings = params.resolve(given, flags)
+        assert settings.values()["config_file"] == str(tmp_path / "arm.yaml"), given
+    assert params.resolve({}, params.Flags()).values()["config_file"] == ""

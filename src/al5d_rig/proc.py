@@ -229,6 +229,7 @@ class Proc:
         env: dict[str, str] | None = None,
         stdin: bool = False,
         program: str = AL5D,
+        cwd: Path | None = None,
     ) -> None:
         _LIVE.add(self)
         self.command = " ".join(("al5d" if program == AL5D else Path(program).name, *args))
@@ -240,6 +241,7 @@ class Proc:
             text=True,
             env={**os.environ, **(env or {})},
             preexec_fn=dies_with_parent,
+            cwd=cwd,
         )
         assert self.popen.stdout is not None and self.popen.stderr is not None
         self.out = Lines(self.popen.stdout)

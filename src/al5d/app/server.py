@@ -107,7 +107,7 @@ def arm(
         link = emulator.usb.describe()
         log.info("no --port: using the embedded SSC-32U emulator on %s, %s", port, link)
     given = config_file if config_file is not None else options.config
-    source = Path(given) if given else None
+    source = Path(given).absolute() if given else None  # the lane says the whole path
     owner = Owner(
         config, SerialTransport(port, baud), lane=lane_path, config_file=source, keep_wire=keep_wire
     )

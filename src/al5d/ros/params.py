@@ -28,6 +28,7 @@ reader sized for another topic.
 
 from __future__ import annotations
 
+import os
 import re
 import threading
 import time
@@ -174,6 +175,9 @@ def resolve(
     if problems:
         raise ConfigError("\n".join(problems))
     config_file = flags.config or _text("config_file", given.get("config_file", "")) or ""
+    # Said to clients as the whole path: a name relative to the server's directory, read
+    # in a client's own, named another file there (`al5d calibrate` wrote that one).
+    config_file = os.path.abspath(config_file) if config_file else ""
     port = flags.port or _text("port", given.get("port", "")) or None
     record = flags.record or _text("record", given.get("record", "")) or None
     if base is None:
