@@ -182,7 +182,7 @@ def test_quitting_writes_nothing(server: Emulator, arm_file: Path) -> None:
         stdin=True,
     )
     try:
-        cal.out.wait_for(PROMPT, 60)
+        assert cal.out.wait_for(PROMPT, 60).endswith(f"{PROMPT}, then ok")
         cal.send("+2")
         cal.out.wait_for(PROMPT, 60)
         cal.send("sideways")
@@ -211,6 +211,7 @@ def test_calibrate_at_a_terminal_takes_single_keys(server: Emulator, arm_file: P
     out, err = Lines(popen.stdout), Lines(popen.stderr)
     try:
         out.wait_for("keys: + - one step", 60)
+        out.wait_for(f"{PROMPT}, then Enter", 60)  # the key the help names, not a word
         # 42 us off: ten steps on (+50), two back (+40); the same at the second reference.
         for keys, seen in (
             ("]", "base at 1550 us"),

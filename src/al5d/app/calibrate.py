@@ -167,6 +167,7 @@ def run_procedure(
             say(f"  not moved: {outcome}")
 
     say(HELP_TTY if keys.interactive else HELP_LINES)
+    accept = "Enter" if keys.interactive else "ok"  # as the help just said
     begun: tuple[str, int] | None = None
     while procedure.step is Awaiting.NUDGE:
         joint, ref = procedure.joint, procedure.reference
@@ -189,7 +190,7 @@ def run_procedure(
             )
         say(
             f"  {joint.name} {where} {procedure.pulse} us ({offset:+.0f} us from the config's "
-            f"{ref.deg:g} deg); nudge until it is there, then ok"
+            f"{ref.deg:g} deg); nudge until it is there, then {accept}"
         )
         answer = keys.read()
         if answer is None:
