@@ -20,7 +20,7 @@ from al5d.arm.servos import SERVOS
 from al5d.model import build_chain
 from al5d.ssc32u.emulator import Board, Mechanics
 from al5d.twin.mjcf import KG_CM, drives
-from al5d.twin.physics import FRAME_S, Twin
+from al5d.twin.physics import FRAME_S, Held, Twin
 from al5d.twin.scene import Scene, load_scene, parse_scene
 from al5d_rig.sim import Sim
 from al5d_rig.twinrig import TwinRig
@@ -255,3 +255,17 @@ def test_the_shipped_scene_has_a_cup_in_reach(config: ArmConfig) -> None:
     reach = (config.model.geometry.humerus + config.model.geometry.ulna) * 1000
     assert math.hypot(x, y) < reach
     assert 2 * (cup.radius_mm or 0) < config.geometry.gripper_open_mm  # the open gripper goes round
+
+
+def test_a_joint_held_short_by_less_than_its_servo_gives_is_not_said_held_by_its_load() -> None:
+    """An outside try: a 600 g cup, the wrist "held 9 deg short of its target: 0 kg cm
+    needed, the servo gives 9.6", which says the servo gives more than it needs."""
+    by_load = Held("shoulder", 12.0, 24.7, needed_kg_cm=31.0)
+    assert by_load.text == (
+        "shoulder held 12 deg short of its target: 31 kg cm needed, the servo gives 24.7"
+    )
+    held_back = Held("wrist", 9.0, 9.6, needed_kg_cm=0.2)
+    assert held_back.text == (
+        "wrist held 9 deg short of its target by what it holds or touches, not by its load: "
+        "0 kg cm needed, the servo gives 9.6"
+    )

@@ -77,6 +77,13 @@ class Held:
                 f"{self.stall_kg_cm:.1f} kg cm"
             )
         needed = f"{self.needed_kg_cm:.0f}" if self.needed_kg_cm is not None else "more than that"
+        if self.needed_kg_cm is not None and self.needed_kg_cm < self.stall_kg_cm:
+            # Its load alone it could hold: what it carries is held back (a load too heavy
+            # for the fingers, still on the table), or the fingers' or the hand's contact.
+            return (
+                f"{self.joint} held {short} by what it holds or touches, not by its load: "
+                f"{needed} kg cm needed, the servo gives {self.stall_kg_cm:.1f}"
+            )
         return (
             f"{self.joint} held {short}: {needed} kg cm needed, the servo gives "
             f"{self.stall_kg_cm:.1f}"
