@@ -444,3 +444,32 @@ def test_a_recorder_that_finds_no_arm_says_so(tmp_path: Path) -> None:
         assert recorder.wait(30) == 0
     finally:
         recorder.kill()
+
+
+def test_a_servers_recording_holds_what_came_by_its_local_lane(tmp_path: Path) -> None:
+    """`al5d send` reaches a server on this machine by its local lane, on no ROS topic: the
+    server's recording holds it on the instruction topic all the same, once, and a replay
+    reads it (an outside try: its bytes and its outcome were recorded, the instruction not,
+    and a replay left it out without a word)."""
+    config = load_config()
+    served = tmp_path / "served.mcap"
+    link = tmp_path / "board"
+    emu = Emulator(config, link=link).start()
+    server = Proc(
+        "serve", "--port", str(link), "--config", patient_config(), "--record", str(served)
+    )
+    try:
+        server.err.wait_for("STATE: ready", 30)
+        for words in (["move", "base=30", "time=300"], ["park"]):
+            send = Proc("send", *words)
+            assert send.wait(60) == 0, send.err.drain(0.5)
+        server.popen.send_signal(signal.SIGTERM)
+        assert server.wait(30) == 0
+    finally:
+        server.kill()
+        emu.close()
+    _, by_topic = read_back(served)
+    recorded = [d for _, d in by_topic["/al5d/instruction"]]
+    assert [d.instruction for d in recorded] == ["move", "park"], recorded
+    assert len({d.id for d in recorded}) == 2
+    assert [r.fields.instruction for r in read_instructions(served)] == ["move", "park"]

@@ -78,7 +78,7 @@ def _serve(
         start.close()
         return 0
     stop_here = bool(go[1]) if len(go) > 1 else False
-    watch = ("state", "outcomes", "motion", "pose") + (("wire",) if recording else ())
+    watch = ("state", "outcomes", "motion", "pose") + (("wire", "asked") if recording else ())
     tap = recording.tap(start.names.namespace) if recording is not None else None
     on_wire = None if tap is None else (lambda w: tap(*w))
     try:
@@ -91,12 +91,15 @@ def _serve(
             on_wire=on_wire,
             recorder=tap is not None,
             lease=True,
+            ros=True,
         )
     except LaneClosed:  # the owner ended before it welcomed this one (a SIGTERM at start)
         start.close()
         return 0
     if recording is not None:
         recording.follow(start.names, start.settings.config.server.instruction_backlog)
+        on_asked = recording.asked(start.names)
+        arm.asked_listeners.append(lambda a: on_asked(*a))
     bridge = Bridge(arm, start, setup.trace, stop_here)
 
     def on_ctrl() -> None:

@@ -47,6 +47,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import Writer
 
 if TYPE_CHECKING:
+    from al5d.arm.instruction import Instruction
     from al5d.ros.names import Names
 
 log = logging.getLogger("al5d")
@@ -54,6 +55,7 @@ log = logging.getLogger("al5d")
 #: The topic of the bytes written to the board, in a server's recording (no DDS topic).
 BOARD_WRITES = "board_writes"
 BOARD_WRITE_TYPE = "al5d_interfaces/msg/BoardWrite"
+INSTRUCTION_TYPE = "al5d_interfaces/msg/ArmInstruction"
 #: The type's definition, as interfaces/al5d_interfaces/msg/BoardWrite.msg has it (a test
 #: checks that they are the same): it is written into every server's recording.
 BOARD_WRITE_MSG = """\
@@ -135,7 +137,7 @@ def topics(names: Names, instruction_depth: int = 1000) -> list[Topic]:
     status = "action_msgs/msg/GoalStatusArray"
     reliable = _reliable
     return [
-        Topic(names.instruction, "al5d_interfaces/msg/ArmInstruction", reliable(instruction_depth)),
+        Topic(names.instruction, INSTRUCTION_TYPE, reliable(instruction_depth)),
         Topic(names.result, "al5d_interfaces/msg/InstructionResult", reliable(10_000)),
         # The state's writer keeps the last only (latched): a reader a state behind would
         # miss one (a stop's "stopped" and a release's "ready" a millisecond apart).
@@ -145,7 +147,7 @@ def topics(names: Names, instruction_depth: int = 1000) -> list[Topic]:
         Topic(names.tool_pose, "geometry_msgs/msg/PoseStamped", reliable(100)),
         Topic(names.trajectory, "trajectory_msgs/msg/JointTrajectory", reliable(1000)),
         Topic(names.joint_commands, "sensor_msgs/msg/JointState", reliable(1000)),
-        Topic(names.goals("move"), "al5d_interfaces/msg/ArmInstruction", reliable(1000)),
+        Topic(names.goals("move"), INSTRUCTION_TYPE, reliable(1000)),
         Topic(
             names.goals("follow_joint_trajectory"),
             "trajectory_msgs/msg/JointTrajectory",
@@ -560,6 +562,22 @@ class ServerRecording:
         except Exception as e:  # the arm goes on; its board's bytes are still recorded
             log.error("recording %s: the topics cannot be recorded (%s)", self.file.path, e)
             self.close_ros()
+
+    def asked(self, names: Names) -> Callable[[Instruction, int], None]:
+        """What records an instruction that came by the owner's lane (`al5d send`, `run`,
+        `shell`: on no ROS topic) on the arm's instruction topic, as if sent there at its
+        wall time: a replay repeats it as it does those that came over ROS."""
+        from rclpy.serialization import serialize_message
+
+        from al5d.ros.convert import to_message
+
+        channel = self.file.channel(names.instruction, INSTRUCTION_TYPE)
+
+        def record(instr: Instruction, wall: int) -> None:
+            data = serialize_message(to_message(instr))
+            self.file.put(channel, data, wall, instr.sent_ns or wall)
+
+        return record
 
     def close_ros(self) -> None:
         if self._recorder is not None:

@@ -34,10 +34,10 @@ from typing import IO, Any, TextIO
 from mcap.reader import NonSeekingReader
 from mcap.records import Channel, Message, Schema
 
+from al5d.app.record import INSTRUCTION_TYPE
 from al5d.arm.instruction import MAX_ID, MAX_QUOTE, TIME_FIELD_MAX_MS
 from al5d.ros.names import NODE, PING
 
-INSTRUCTION_TYPE = "al5d_interfaces/msg/ArmInstruction"
 #: An arm's instruction topic ends so (`Names.instruction`: `<ns>/al5d/instruction`).
 INSTRUCTION_TOPIC = f"/{NODE}/instruction"
 RATES = ("recorded", "fast")

@@ -74,6 +74,7 @@ class Remote:
         on_wire: Callable[[tuple[bytes, float, float]], None] | None = None,
         recorder: bool = False,
         lease: bool = False,
+        ros: bool = False,
     ) -> None:
         self._sock = sock
         sock.setblocking(True)
@@ -84,6 +85,8 @@ class Remote:
         self.state_listeners: list[Callable[[State], None]] = []
         self.motion_listeners: list[Callable[[Sent], None]] = []
         self.pose_listeners: list[Callable[[], None]] = []
+        #: Each instruction another client of the lane asked, and when (wall clock, ns).
+        self.asked_listeners: list[Callable[[tuple[Instruction, int]], None]] = []
         #: `on_wire` among them from the start: the owner tells a `recorder` the writes it
         #: kept for it right after the welcome (`Owner`'s keep_wire).
         self.wire_listeners: list[Callable[[tuple[bytes, float, float]], None]] = (
@@ -104,6 +107,8 @@ class Remote:
             hello["recorder"] = True
         if lease:  # a process that hangs with its lane open is lost all the same
             hello["lease"] = True
+        if ros:  # what it asks came over ROS 2, where a recording has it already
+            hello["ros"] = True
         self._send(hello)
         try:
             welcome = self._welcome.result(timeout)
@@ -305,6 +310,9 @@ class Remote:
         elif op == "wire":
             data = str(m["data"]).encode("latin-1")
             tell(self.wire_listeners, (data, float(m["t"]), float(m.get("free_at", 0))), "wire")
+        elif op == "asked":
+            asked = (ln.instruction_in(m["instr"]), int(m["wall"]))
+            tell(self.asked_listeners, asked, "asked")
         elif op == "welcome":
             self._posed(m)
             self._new_state(State(m["state"]), bool(m.get("locked")))

@@ -49,6 +49,9 @@ class Conn:
     #: client of the core of its own, lost on its own (`gone`).
     subs: dict[str, int] = field(default_factory=dict)
     bye: bool = False
+    #: It asks what came over ROS 2 (the bridge, the stop process; its hello says so): a
+    #: recording has it from ROS, and is not told it again (`asked`).
+    ros: bool = False
     writing: bool = False
     #: A write to it failed: its peer has closed (or failed). Nothing more is written, and
     #: what it sent before is still read, to its end (a `bye` among it, or not).

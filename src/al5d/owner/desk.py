@@ -16,7 +16,7 @@ from typing import Any, Protocol
 from al5d.arm.instruction import Instruction, Outcome
 from al5d.arm.resample import Follow
 from al5d.arm.validate import Ticket
-from al5d.clock import now
+from al5d.clock import now, wall_ns
 from al5d.owner import lane as ln
 from al5d.owner.conns import Conn, Conns
 
@@ -183,6 +183,7 @@ class Desk:
         conn.watch = frozenset(watch)
         if m.get("lease") is True:
             conn.lease_s = self._lease_s
+        conn.ros = m.get("ros") is True
         recorder = m.get("recorder") is True and "wire" in conn.watch
         for message in self._inbox.welcome(conn, recorder):
             self._send(conn, message)
@@ -208,6 +209,9 @@ class Desk:
             client = conn.subs.get(who) or conn.subs.setdefault(who, self._lanes.new_ident())
         tell = bool(m.get("tell", True))
         self._inbox.put(Request(self._route(conn, ref), instr, ticket, stream, key, client, tell))
+        if not conn.ros and self._lanes.watching("asked"):  # a recording's: no ROS topic has it
+            asked = {"op": "asked", "instr": ln.instruction_out(instr), "wall": wall_ns()}
+            self._lanes.news("asked", asked)
 
     def _gone(self, conn: Conn, m: dict[str, Any]) -> None:
         """A client `conn` speaks for is lost (`why`): what it commanded does not go on; or

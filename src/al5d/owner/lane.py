@@ -9,7 +9,9 @@ does not go on (`al5d.arm.core`, `Gone`). A client that speaks for others (the R
 bridge for the ROS clients) names one in an `ask` (`for`: its key) and says when it has
 lost one (`gone`, with `why`) or one has closed (`gone` without `why`): each is a client
 of its own to the core. A recorder (`recorder` in its `hello`, watching `wire`) is told
-first the board's writes the owner kept for it from its start, where it keeps them.
+first the board's writes the owner kept for it from its start, where it keeps them; one
+watching `asked` is told each instruction asked by a client whose hello did not say `ros`
+(what came over ROS 2 a recording has from there): the bridge's recording holds them.
 
 Everything here is pure, and light to import (the standard library and
 `al5d.arm.instruction`): `al5d send stop`'s own path (`quick`) imports nothing else.
@@ -43,7 +45,7 @@ VERSION = 1
 #: The longest line either side takes (a trajectory of 10,000 points fits).
 MAX_LINE = 16 * 1024 * 1024
 #: What a client may ask to hear.
-WATCHES = ("state", "outcomes", "motion", "pose", "wire")
+WATCHES = ("state", "outcomes", "motion", "pose", "wire", "asked")
 
 
 class LaneError(ValueError):

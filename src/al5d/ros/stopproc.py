@@ -44,7 +44,7 @@ def main(argv: list[str]) -> int:
     # (its configuration).
     context = start_context(list(setup.args) or [STOP_NODE])
     try:
-        arm = Remote(lane, name="al5d-stop", watch=(), timeout=120.0)
+        arm = Remote(lane, name="al5d-stop", watch=(), timeout=120.0, ros=True)
     except LaneClosed:  # the owner ended before it welcomed this one (a SIGTERM at start)
         os._exit(0)
     node = StopNode(arm, context, Names.of(arm.settings.namespace))
