@@ -46,6 +46,7 @@ from al5d.ros import params
 from al5d.ros.actions import MoveAction
 from al5d.ros.controllers import FollowTrajectoryAction, GripperAction
 from al5d.ros.convert import (
+    COPY_MARK,
     came_ns,
     from_message,
     joint_command_from_message,
@@ -187,6 +188,8 @@ class ArmNode(Node):
             ClientLease, names.clients, taken_by_reader, QOS_LEASES, callback_group=group
         )
         self.leases = Leases(arm.config.server.client_lease_s)
+        #: The last stop said obeyed however late (`_take_instruction`).
+        self._late_stop = ""
         self._leases_lock = threading.Lock()
         self._ending = threading.Event()
         self._lease_keeper = threading.Thread(
@@ -305,10 +308,17 @@ class ArmNode(Node):
             if instr.kind is not Kind.STOP:  # a stop is obeyed, however late
                 self.refuse(instr.id, instr.name, stale)
                 return
-            # Said as what it is: the refusal's own words ("not run") would say the opposite.
-            log.warning(
-                "stop [%s]: obeyed, however late (a move would be refused: %s)", instr.id, stale
-            )
+            # Said as what it is (the refusal's own words, "not run", would say the opposite),
+            # once for a stop sent again until answered (its copies `<stop>~<n>`: one stop).
+            stop = instr.id.partition(COPY_MARK)[0]
+            if stop != self._late_stop:
+                self._late_stop = stop
+                log.warning(
+                    "stop [%s]: sent while its client %s was out of contact: obeyed all the "
+                    "same, as a stop always is",
+                    stop,
+                    client,
+                )
         # A stop the stop watcher has obeyed already (the same message, or a copy of the
         # same stop: `stop_key`) is obeyed once.
         key = stop_key(msg, info) if instr.kind is Kind.STOP else None
