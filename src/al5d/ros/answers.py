@@ -122,7 +122,9 @@ def closed_hint() -> str:
     return (
         " A server on another machine is closed to the network unless it was started with "
         "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET (its default keeps it to its own machine) and "
-        "this ROS_DOMAIN_ID (docs/ros.md, 'Reaching the node from another machine')."
+        "this ROS_DOMAIN_ID (docs/ros.md, 'Reaching the node from another machine'); one "
+        "that is open is not found while the network to it is down: run this again once "
+        "it is up."
     )
 
 
