@@ -131,7 +131,7 @@ class WebNode:
             self.lease_node, self.context, owns_context=False, kind="single"
         )
         #: The page's STOPs and RELEASEs, and what is said of them.
-        self.buttons = StopRelease(self.pub, self.lease.key, self._on_answer)
+        self.buttons = StopRelease(self.send, self._on_answer)
         #: The ids of this page's set-points start with it.
         self.jog_prefix = f"web-jog-{os.getpid():x}-"
         self._jog_ids = itertools.count(1)

@@ -18,11 +18,9 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from rclpy.publisher import Publisher
-
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result, new_id
 from al5d.owner import quick
-from al5d.ros.convert import COPY_MARK, to_message
+from al5d.ros.convert import COPY_MARK
 
 log = logging.getLogger("al5d.web")
 
@@ -51,14 +49,14 @@ def _answered(what: str, result: object, reason: object) -> str:
 
 class StopRelease:
     """The page's STOPs and RELEASEs (`stop`, `release`) and what is said of them: their
-    answers are found among the server's outcomes (`on_outcome`). Sent with the page's
-    lease `client` by `pub`, the page's writer of the instruction topic."""
+    answers are found among the server's outcomes (`on_outcome`). Sent by `send`, the
+    page's (on the instruction topic, with its lease: no deadline, so a stop is obeyed
+    however late)."""
 
     def __init__(
-        self, pub: Publisher, client: str, say: Callable[[str, bool | None], None]
+        self, send: Callable[[Instruction], None], say: Callable[[str, bool | None], None]
     ) -> None:
-        self.pub = pub
-        self.client = client
+        self._send = send
         self._tell = say
         #: The STOPs on the topic still sent again: each one's id, what its answer sets and
         #: its number (`_begin`).
@@ -143,12 +141,10 @@ class StopRelease:
     def _stop_copy(self, stop: str, n: int) -> bool:
         """Copy `n` of `stop`, unless it has ended (answered, or a release sent since);
         whether it went."""
-        msg = to_message(Instruction(Kind.STOP, id=f"{stop}{COPY_MARK}{n}"))
-        msg.client = self.client  # no deadline: a stop is obeyed however late
         with self._sending:
             if stop not in self._stops:
                 return False
-            self.pub.publish(msg)
+            self._send(Instruction(Kind.STOP, id=f"{stop}{COPY_MARK}{n}"))
         return True
 
     def _stop_again(self, stop: str, answered: threading.Event, number: int) -> None:
@@ -226,9 +222,7 @@ class StopRelease:
                     if unanswered is not None:
                         log.info("web: STOP on the topic: no more copies (a release was sent)")
                         unanswered[0].set()
-                msg = to_message(release)
-                msg.client = self.client
-                self.pub.publish(msg)
+                self._send(release)
         except Exception as e:
             if self._releases.pop(release.id, None) is not None:
                 timer.cancel()
