@@ -12,6 +12,7 @@ STOP, what happened, and teach and replay (named poses, sequences).
     stopping.py  the page's STOP and RELEASE: sent by the lane or the topic, answers said
     plan.py    pure: targets of instructions, the outcome log, the joint history
     guard.py   who may open the page's websocket (same origin, known host names)
+    loopsafe.py  viser's message buffers woken on their own loop, whichever thread sends
     scene.py   the 3D view: the arm, its ghost, the straight path, the target gizmo
     panel.py   the widgets: STOP in a window of its own, the side panel
     page.py    the page: what it knows of the arm, its decisions, the user's input

@@ -51,7 +51,7 @@ class WebView:
         from al5d.arm.poses import beside, load_poses
         from al5d.ros.names import Names
         from al5d.ros.params import served_config_file
-        from al5d.web import calibrate, guard
+        from al5d.web import calibrate, guard, loopsafe
         from al5d.web.link import WebNode
         from al5d.web.page import Page
         from al5d.web.teach import Listeners, Teach
@@ -70,6 +70,7 @@ class WebView:
         with contextlib.redirect_stdout(sys.stderr):
             self.server = viser.ViserServer(host=options.host, port=options.port, verbose=False)
         accepted = guard.install(self.server, options.host)
+        loopsafe.install(self.server)
         port = self.server.get_port()
         if not guard.is_loopback(options.host):
             # The port bound, not the one asked for (0, or a busy one viser skipped).
