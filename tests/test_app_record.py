@@ -19,12 +19,7 @@ from mcap_ros2.decoder import DecoderFactory
 from rclpy.serialization import serialize_message
 
 from al5d import exits
-from al5d.app.record import (
-    BOARD_WRITE_MSG,
-    BOARD_WRITE_TYPE,
-    RecordFile,
-    board_write_cdr,
-)
+from al5d.app.mcapfile import BOARD_WRITE_MSG, BOARD_WRITE_TYPE, RecordFile, board_write_cdr
 from al5d.app.replay import BadRecording, read_instructions, survey
 from al5d.arm.config import load_config
 from al5d.arm.instruction import PRESET_NAMES, Wait, parse_sequence
@@ -372,7 +367,7 @@ FAILING_DISK = """
 import os, resource, signal, sys, time
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write fails with EFBIG instead
 resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, 64 * 1024))
-from al5d.app.record import RecordFile
+from al5d.app.mcapfile import RecordFile
 file = RecordFile(sys.argv[1])
 channel = file.channel("/al5d/instruction", "al5d_interfaces/msg/ArmInstruction")
 for i in range(1500):  # a chunk's megabyte at once, random: compressed, still over the limit

@@ -19,7 +19,7 @@ from mcap.writer import Writer
 from rclpy.serialization import serialize_message
 
 from al5d import exits
-from al5d.app.record import RecordFile, message_definition
+from al5d.app.mcapfile import RecordFile, message_definition
 from al5d.app.replay import INSTRUCTION_TYPE, MAX_MESSAGE_BYTES
 from al5d_rig.proc import Proc, patient_config
 

@@ -16,7 +16,7 @@
 - `moveit`, `moveit_package`, `moveit_arms`: `al5d moveit`, a MoveIt 2 config package for
   the arm (`moveit_arms`: the launch files of a package of several).
 - `record`, `replay`: recordings in rosbag2's MCAP (`al5d record`, `serve --record`) and
-  `al5d replay`.
+  `al5d replay`; `mcapfile`: a recording's file (schemas, CDR, its writing thread).
 - `calibrate`: `al5d calibrate`, the guided calibration at the terminal (through the server).
 
 The top layer: it may import every other part of al5d.

@@ -49,7 +49,8 @@ def main(argv: list[str]) -> int:
             start.settings.record,
         )
     elif start.settings.record is not None:
-        from al5d.app.record import RecordingError, ServerRecording  # mcap: only to record
+        from al5d.app.mcapfile import RecordingError  # mcap: only to record
+        from al5d.app.record import ServerRecording
 
         try:
             recording = ServerRecording(start.settings.record)

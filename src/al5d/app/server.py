@@ -300,7 +300,8 @@ class RosSide:
 def _recording(options: ServerOptions) -> ServerRecording | None:
     """`--record` without ROS: the board's bytes, written by this process (with ROS the
     bridge records, the topics too); None (said) where the file cannot be made."""
-    from al5d.app.record import RecordingError, ServerRecording
+    from al5d.app.mcapfile import RecordingError
+    from al5d.app.record import ServerRecording
 
     assert options.record is not None
     try:
