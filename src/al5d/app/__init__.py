@@ -3,7 +3,8 @@
 - `entry`: the `al5d` command's entry: a plain `al5d send stop` by the local lane before
   anything is imported; everything else by `cli`.
 - `cli`: `al5d serve | emulator | send | run | shell | doctor | demo | urdf | moveit | web |
-  record | replay | calibrate`, and the exit codes' table in `--help`.
+  record | replay | calibrate`, and the exit codes' table in `--help`; `commands`: what each
+  command does with its parsed arguments.
 - `emulator`: `al5d emulator`, a standalone emulated SSC-32U on a pseudo terminal.
 - `terminal`: `al5d send`, `al5d run`, `al5d shell`, the client's commands at the terminal;
   `report`: how they report (outcomes, the link watched, where the time went).

@@ -1,5 +1,5 @@
-"""The `al5d` command line: serve, emulator, send, run, shell, doctor, demo, web, record,
-replay, calibrate."""
+"""The `al5d` command line: its parser (serve, emulator, send, run, shell, doctor, demo,
+web, record, replay, calibrate), each argument checked as it is read; `commands` runs them."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from al5d import exits
+from al5d.app import commands
 from al5d.app.emulator import add_emulator
-from al5d.arm.config import ConfigError, load_config
+from al5d.arm.config import ConfigError
 from al5d.ssc32u.facts import BAUDS
 
 #: `--log-level`, in any case (ROS users type `--log-level debug`).
@@ -36,47 +37,6 @@ def _namespace(text: str) -> str:
     return text
 
 
-def _cmd_serve(args: argparse.Namespace) -> int:
-    from al5d.app.server import ServerOptions, serve
-    from al5d.logs import setup_logging
-
-    setup_logging(args.log_level)
-    options = ServerOptions(
-        port=args.port,
-        baud=args.baud,
-        config=args.config,
-        stdin=args.stdin,
-        ros=not args.no_ros,
-        trace=args.trace,
-        namespace=args.namespace,
-        ros_args=args.ros_args,
-        record=args.record,
-        physics=args.physics,
-    )
-    if args.physics is not None:
-        if args.port is not None:  # the twin follows an emulated board's pulses
-            print(
-                "al5d serve: --physics runs the twin of the embedded emulated board; with "
-                "--port the board is real (for a twin beside an emulated board on a pty: al5d "
-                "emulator --physics, then al5d serve --port on it)",
-                file=sys.stderr,
-            )
-            return exits.USAGE
-        return with_twin(lambda: serve(options))
-    return serve(options)
-
-
-def with_twin(run: Callable[[], int]) -> int:
-    """`run()`; a physical twin that cannot start is said in a line (exit 2), not a traceback."""
-    from al5d.twin.link import TwinFailed
-
-    try:
-        return run()
-    except TwinFailed as e:
-        print(f"al5d: {e}", file=sys.stderr)
-        return exits.USAGE
-
-
 #: `--physics [SCENE]`: the physical twin (docs/physics.md).
 PHYSICS: dict[str, Any] = {
     "nargs": "?",
@@ -87,46 +47,6 @@ PHYSICS: dict[str, Any] = {
 }
 
 
-def _cmd_demo(args: argparse.Namespace) -> int:
-    from al5d.app.demo import run_demo
-    from al5d.logs import setup_logging
-
-    setup_logging(args.log_level)
-
-    def demo() -> int:
-        if args.physics is not None:
-            return with_twin(lambda: run_demo(baud=args.baud, physics=args.physics))
-        return run_demo(baud=args.baud)
-
-    if args.web:
-        import random
-
-        from al5d.web.app import web_beside
-
-        # One domain for the demo's server and the web view's process.
-        os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 199)))
-        with web_beside(args.web_port):
-            return demo()
-    return demo()
-
-
-def _cmd_web(args: argparse.Namespace) -> int:
-    from al5d.logs import setup_logging
-    from al5d.web.app import WebOptions, serve_web
-
-    setup_logging(args.log_level)
-    options = WebOptions(args.port, args.host, args.namespace, args.config, args.poses)
-    return serve_web(options)
-
-
-def _cmd_urdf(args: argparse.Namespace) -> int:
-    from al5d.app.moveit import ROBOT, arm_chain
-    from al5d.model import urdf_from_chain
-
-    print(urdf_from_chain(arm_chain(load_config(args.config), args.namespace), ROBOT))
-    return exits.DONE
-
-
 def _package_name(text: str) -> str:
     """A ROS package name (REP 144), or argparse's error naming why not."""
     from al5d.app.moveit_package import package_name_problem
@@ -135,28 +55,6 @@ def _package_name(text: str) -> str:
     if problem:
         raise argparse.ArgumentTypeError(problem)
     return text
-
-
-def _cmd_moveit(args: argparse.Namespace) -> int:
-    from al5d.app.moveit import Arm, moveit_files_of_arms, write_files, write_moveit_config
-
-    if args.arms is None:
-        config = load_config(args.config)
-        for path in write_moveit_config(args.out, config, args.namespace, args.name):
-            print(path)
-        return exits.DONE
-    if args.namespace is not None:
-        print("al5d moveit: --arms names each arm's namespace: no --namespace", file=sys.stderr)
-        return exits.USAGE
-    arms = [Arm(ns, load_config(file or args.config)) for ns, file in args.arms]
-    try:
-        files = moveit_files_of_arms(arms, args.name)
-    except ValueError as e:
-        print(f"al5d moveit: {e}", file=sys.stderr)
-        return exits.USAGE
-    for path in write_files(args.out, files):
-        print(path)
-    return exits.DONE
 
 
 def _arms(text: str) -> list[tuple[str, str | None]]:
@@ -172,113 +70,6 @@ def _arms(text: str) -> list[tuple[str, str | None]]:
             raise argparse.ArgumentTypeError(problem)
         arms.append((ns.strip("/"), file or None))
     return arms
-
-
-def _cmd_send(args: argparse.Namespace) -> int:
-    from al5d.app.terminal import send
-    from al5d.interrupts import cancelling
-
-    with cancelling():  # a second Ctrl-C does not cut the cancel the first one started
-        return send(
-            " ".join(args.instruction),
-            wait_s=args.wait,
-            timeout=args.timeout,
-            namespace=args.namespace,
-            verbose=args.verbose,
-            via=args.via,
-        )
-
-
-def _cmd_run(args: argparse.Namespace) -> int:
-    from al5d.app.terminal import run
-    from al5d.interrupts import cancelling
-
-    if args.check:
-        return _check(args.file, args.poses, args.namespace)
-    with cancelling():  # as in `_cmd_send`
-        return run(
-            args.file,
-            wait_s=args.wait,
-            timeout=args.timeout,
-            namespace=args.namespace,
-            verbose=args.verbose,
-            poses=args.poses,
-            via=args.via,
-        )
-
-
-def _check(path: str, poses: str | None, namespace: str | None) -> int:
-    """`al5d run --check`: the file judged whole as `al5d run` judges it, against the
-    configuration of the server on this machine's lane, else the shipped one; nothing sent."""
-    from al5d.arm.poses import PosesError, beside, load_poses
-    from al5d.arm.sequence import judge_sequence, read_sequence
-    from al5d.owner import where
-    from al5d.owner.client import local_config
-    from al5d.ros.names import Names
-
-    config = local_config(where.path(Names.of(namespace).namespace))
-    whose = "the server"
-    if config is None:
-        config = load_config()
-        whose = "a server with the shipped configuration (none on this machine's lane)"
-    try:
-        book = load_poses(beside(path) if poses is None else poses, required=poses is not None)
-        judged = judge_sequence(read_sequence(path), config, path, book)
-    except OSError as e:
-        print(f"al5d run: cannot read {path}: {e.strerror}", file=sys.stderr)
-        return exits.BAD_INPUT
-    except PosesError as e:
-        print(f"al5d run: {e}", file=sys.stderr)
-        return exits.BAD_INPUT
-    for problem in judged.problems:
-        print(f"al5d run: {problem.at(path)}", file=sys.stderr)
-    if not judged.ok:
-        return exits.BAD_INPUT
-    steps = len(judged.lines)
-    said = f"{path}: {steps} step{'s'[: steps != 1]}, none {whose} would refuse"
-    unknown = [str(line.number) for line in judged.lines if not line.known]
-    if unknown:
-        # Where the arm starts is not known here: those lines' paths (the table) and starts
-        # are the server's to judge as they start (seen: "none would refuse" of a move the
-        # server then refused as below the table).
-        which = unknown[0] if len(unknown) == 1 else ", ".join(unknown[:-1]) + " and " + unknown[-1]
-        one = len(unknown) == 1
-        said += (
-            " from where the lines before leave the arm; where it starts is not known, so "
-            f"the table is judged for line{'' if one else 's'} {which} only by the server, "
-            f"as {'it starts' if one else 'they start'} (from a preset, or a move naming "
-            "every joint, on it is known)"
-        )
-    print(f"{said}; nothing sent")
-    return exits.DONE
-
-
-def _cmd_shell(args: argparse.Namespace) -> int:
-    from al5d.app.terminal import shell
-
-    return shell(
-        wait_s=args.wait,
-        timeout=args.timeout,
-        namespace=args.namespace,
-        verbose=args.verbose,
-        poses=args.poses,
-        via=args.via,
-    )
-
-
-def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from al5d.app.calibrate import calibrate_command
-
-    return calibrate_command(
-        config_path=args.config,
-        joints=tuple(args.joints.split(",")) if args.joints else (),
-        step_us=args.step,
-        namespace=args.namespace,
-        wait_s=args.wait,
-        timeout=args.timeout,
-        yes=args.yes,
-        reference_ms=args.time,
-    )
 
 
 def _within(lo: int, hi: int, unit: str) -> Callable[[str], int]:
@@ -333,13 +124,7 @@ def _add_calibrate(sub: Any) -> None:
     cal.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
     cal.add_argument("--wait", type=_seconds, default=10.0, help="seconds to find the server")
     cal.add_argument("--timeout", type=_seconds, default=30.0, help="seconds to wait for a move")
-    cal.set_defaults(func=_cmd_calibrate)
-
-
-def _cmd_doctor(args: argparse.Namespace) -> int:
-    from al5d.app.doctor import doctor
-
-    return doctor(args.port, args.config)
+    cal.set_defaults(func=commands.cmd_calibrate)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -370,16 +155,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--record", metavar="FILE.mcap", help="record what happens, the board's bytes too (MCAP)"
     )
     srv.add_argument("--physics", **PHYSICS)
-    srv.set_defaults(func=_cmd_serve)
+    srv.set_defaults(func=commands.cmd_serve)
 
     add_emulator(sub)
 
     for name, func, what in (
-        ("send", _cmd_send, "send one instruction and print its outcome"),
-        ("run", _cmd_run, "run a sequence file (the client application)"),
+        ("send", commands.cmd_send, "send one instruction and print its outcome"),
+        ("run", commands.cmd_run, "run a sequence file (the client application)"),
         (
             "shell",
-            _cmd_shell,
+            commands.cmd_shell,
             "instructions a line at a time over one connection (discovery paid once); "
             "Ctrl-C while one runs stops the arm",
         ),
@@ -435,14 +220,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     doc.add_argument("--port", help="the board's serial device; default: every SSC-32U on USB")
     doc.add_argument("--config", help="arm configuration file; default: the shipped one")
-    doc.set_defaults(func=_cmd_doctor)
+    doc.set_defaults(func=commands.cmd_doctor)
 
     urdf = sub.add_parser("urdf", help="print the URDF of the arm, made from the configuration")
     urdf.add_argument("--config", help="arm configuration file; default: the shipped one")
     urdf.add_argument(
         "--namespace", type=_namespace, help=NAMESPACE_HELP + " (frames NS/...); default: config"
     )
-    urdf.set_defaults(func=_cmd_urdf)
+    urdf.set_defaults(func=commands.cmd_urdf)
 
     moveit = sub.add_parser(
         "moveit", help="write a MoveIt 2 config package (URDF, SRDF, controllers, launch files)"
@@ -465,7 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="al5d_moveit_config",
         help="the package's name; default: %(default)s",
     )
-    moveit.set_defaults(func=_cmd_moveit)
+    moveit.set_defaults(func=commands.cmd_moveit)
 
     demo = sub.add_parser("demo", help="the DE01 demo on the embedded emulator, with a QoS table")
     demo.add_argument("--baud", type=int, choices=BAUDS, help="default: config")
@@ -482,7 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
             "the shipped scene): the QoS table, then where the cup ended against its goal",
         },
     )
-    demo.set_defaults(func=_cmd_demo)
+    demo.set_defaults(func=commands.cmd_demo)
 
     web = sub.add_parser("web", help="the live web view and control panel (a ROS 2 client)")
     web.add_argument("--port", type=int, default=8080, help="default 8080 (0: any free port)")
@@ -497,32 +282,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--config, else in this directory",
     )
     web.add_argument("--log-level", **LOG_LEVEL)
-    web.set_defaults(func=_cmd_web)
+    web.set_defaults(func=commands.cmd_web)
     _add_recordings(sub)
     _add_calibrate(sub)
     return parser
-
-
-def _cmd_record(args: argparse.Namespace) -> int:
-    from al5d.app.record import record
-
-    return record(args.file, args.namespace, args.duration)
-
-
-def _cmd_replay(args: argparse.Namespace) -> int:
-    from al5d.app.replay import replay
-
-    return replay(
-        args.file,
-        rate=args.rate,
-        wait_s=args.wait,
-        timeout=args.timeout,
-        namespace=args.namespace,
-        config=args.config,
-        arm=args.arm,
-        max_gap_s=args.max_gap,
-        partial=args.partial,
-    )
 
 
 def _add_recordings(sub: Any) -> None:
@@ -540,7 +303,7 @@ def _add_recordings(sub: Any) -> None:
         "found, as it is found",
     )
     rec.add_argument("--duration", type=_seconds, help="seconds to record; default: until Ctrl-C")
-    rec.set_defaults(func=_cmd_record)
+    rec.set_defaults(func=commands.cmd_record)
 
     rep = sub.add_parser("replay", help="send a recording's instructions again")
     rep.add_argument("file", help="an MCAP file of al5d record or al5d serve --record")
@@ -581,7 +344,7 @@ def _add_recordings(sub: Any) -> None:
     rep.add_argument(
         "--timeout", type=_seconds, default=120.0, help="seconds to wait for an outcome"
     )
-    rep.set_defaults(func=_cmd_replay)
+    rep.set_defaults(func=commands.cmd_replay)
 
 
 #: The longest a command's wait may be (a week): longer ones are a mistake, and past about
