@@ -16,6 +16,8 @@ import pytest
 from al5d_interfaces.msg import ArmInstruction
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from rclpy.duration import Duration
+from rclpy.node import Node
 from rclpy.serialization import serialize_message
 
 from al5d import exits
@@ -24,7 +26,9 @@ from al5d.app.replay import BadRecording, read_instructions, survey
 from al5d.arm.config import load_config
 from al5d.arm.instruction import PRESET_NAMES, Wait, parse_sequence
 from al5d.ros.client import Client
+from al5d.ros.dds import start_context
 from al5d.ros.names import PING
+from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.proc import Lines, Proc, patient_config, to_another_thread
@@ -155,27 +159,25 @@ def writers(lines: Lines, topic: str) -> int:
     return int(said[-1].split(f" {topic}: ")[1].split()[0]) if said else 0
 
 
-def wait_for_recorders(client: Client, recorders: list[Lines]) -> None:
-    """Until both recorders have matched the server's writers and this client's, and the
-    client's writer of instructions every reader of them (the recorders' among them): a
-    recorder, as rosbag2's, misses what was sent before it had matched the writer, and
-    on a busy host a participant can be discovered seconds after another."""
+def wait_for_recorders(client: Client, server: Lines, recorder: Lines) -> None:
+    """Until both recorders have matched the server's writers, `al5d record`'s this client's
+    too, and the client's writer of instructions every reader of them (the recorder's among
+    them): a recorder, as rosbag2's, misses what was sent before it had matched the writer,
+    and on a busy host a participant can be discovered seconds after another. (The server's
+    own recording has the instructions its node read.)"""
     wait_until(
-        lambda: (
-            sum(
-                i.node_name == "al5d_recorder"
-                for i in client.node.get_subscriptions_info_by_topic("/al5d/instruction")
-            )
-            >= 2
+        lambda: any(
+            i.node_name == "al5d_recorder"
+            for i in client.node.get_subscriptions_info_by_topic("/al5d/instruction")
         ),
         30,
-        "the recorders, seen by the client",
+        "the recorder, seen by the client",
     )
     client.wait_for_server(30)
-    needed = {"/al5d/instruction": 2, "/al5d/result": 1, "/al5d/state": 1, "/joint_states": 1}
+    needed = {"/al5d/result": 1, "/al5d/state": 1, "/joint_states": 1}
     needed["/al5d/move/_action/status"] = 1
-    for topic, n in needed.items():
-        for lines in recorders:
+    for lines, more in ((server, {}), (recorder, {"/al5d/instruction": 2})):
+        for topic, n in {**needed, **more}.items():
             wait_until(
                 lambda lines=lines, topic=topic, n=n: writers(lines, topic) >= n,
                 30,
@@ -209,7 +211,7 @@ def test_record_then_replay_reproduces_the_boards_bytes(tmp_path: Path) -> None:
         recorder.out.wait_for("recording to", 30)
         peer.wait_for_server()
         with Client(local=False) as client:
-            wait_for_recorders(client, [server.err, recorder.out])
+            wait_for_recorders(client, server.err, recorder.out)
             assert run_sequence(client, SEQUENCE) == OUTCOMES
         goal_sent = time.monotonic()
         handle = peer.goal(preset="ready")
@@ -468,3 +470,40 @@ def test_a_servers_recording_holds_what_came_by_its_local_lane(tmp_path: Path) -
     assert [d.instruction for d in recorded] == ["move", "park"], recorded
     assert len({d.id for d in recorded}) == 2
     assert [r.fields.instruction for r in read_instructions(served)] == ["move", "park"]
+
+
+def test_a_servers_recording_holds_every_instruction_its_node_read(tmp_path: Path) -> None:
+    """One-shot senders, each a participant of its own that publishes as soon as it has
+    matched a reader of the server: every instruction the server answered is in the
+    server's recording. A reader of the recording's own missed those sent before it had
+    matched their writer (1 of 10 `al5d send --via ros` on a busy host), and a replay left
+    out what the arm had obeyed."""
+    served = tmp_path / "served.mcap"
+    server = Proc("serve", "--config", patient_config(), "--record", str(served))
+    peer = Peer(name="record_oneshot_peer")
+    sent = [f"oneshot-{k}" for k in range(20)]
+    try:
+        server.err.wait_for("STATE: ready", 30)
+        peer.wait_for_server()
+        for ident in sent:
+            context = start_context()
+            node = Node("record_oneshot", context=context)
+            try:
+                pub = node.create_publisher(ArmInstruction, "/al5d/instruction", QOS_INSTRUCTIONS)
+                wait_until(lambda pub=pub: pub.get_subscription_count() > 0, 30, "a reader")
+                pub.publish(ArmInstruction(instruction="frobnicate", id=ident))
+                assert pub.wait_for_all_acked(Duration(seconds=10))
+            finally:
+                node.destroy_node()
+                context.try_shutdown()
+        time.sleep(1.0)  # the last results reach the peer
+        answered = {i for i in sent if i in peer.results_now()}
+        server.popen.send_signal(signal.SIGTERM)
+        assert server.wait(30) == 0
+    finally:
+        peer.close()
+        server.kill()
+    _, by_topic = read_back(served)
+    recorded = {d.id for _, d in by_topic["/al5d/instruction"]}
+    assert len(answered) >= len(sent) // 2, f"the server answered {sorted(answered)}"
+    assert answered <= recorded, f"answered, not recorded: {sorted(answered - recorded)}"

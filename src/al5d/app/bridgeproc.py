@@ -98,7 +98,8 @@ def _serve(
         start.close()
         return 0
     if recording is not None:
-        recording.follow(start.names, start.settings.config.server.instruction_backlog)
+        recording.follow(start.names)
+        start.node.heard = recording.heard(start.names)  # before `Bridge` reads the topics
         on_asked = recording.asked(start.names)
         arm.asked_listeners.append(lambda a: on_asked(*a))
     bridge = Bridge(arm, start, setup.trace, stop_here)

@@ -6,7 +6,8 @@ each topic a channel of CDR messages, each message's type a schema of encoding `
 (its `.msg` text with every type it uses after it), so that `ros2 bag info`, Foxglove and
 the `mcap` tools open it without this package. Messages are recorded as DDS delivered
 them (their serialized bytes, never decoded and encoded again), with the time they were
-received (log time) and sent (publish time), as rosbag2 does.
+received (log time) and sent (publish time), as rosbag2 does; in a server's own
+recording, the arm's inputs as its node read them (encoded again, with their times).
 
 What is recorded, the whole scene: `/tf` and `/tf_static`, and of each arm (every arm
 `al5d record` finds, or the namespaces it is given; a server's own) its robot
@@ -71,14 +72,12 @@ def _reliable(depth: int, latched: bool = False) -> Any:
     )
 
 
-def topics(names: Names, instruction_depth: int = 1000) -> list[Topic]:
-    """What a recording of the arm named by `names` subscribes to. `instruction_depth`: the
-    instruction reader's history (within a server, its DDS profile bounds every reader
-    of that topic to `server.instruction_backlog`)."""
+def topics(names: Names) -> list[Topic]:
+    """What a recording of the arm named by `names` subscribes to."""
     status = "action_msgs/msg/GoalStatusArray"
     reliable = _reliable
     return [
-        Topic(names.instruction, INSTRUCTION_TYPE, reliable(instruction_depth)),
+        Topic(names.instruction, INSTRUCTION_TYPE, reliable(1000)),
         Topic(names.result, "al5d_interfaces/msg/InstructionResult", reliable(10_000)),
         # The state's writer keeps the last only (latched): a reader a state behind would
         # miss one (a stop's "stopped" and a release's "ready" a millisecond apart).
@@ -106,6 +105,19 @@ def topics(names: Names, instruction_depth: int = 1000) -> list[Topic]:
         Topic(names.camera_image, "sensor_msgs/msg/Image", reliable(10)),
         Topic(names.camera_info, "sensor_msgs/msg/CameraInfo", reliable(10)),
     ]
+
+
+def node_inputs(names: Names) -> frozenset[str]:
+    """The arm's input topics that the server's node reads: its own recording has what the
+    node read on them (`ServerRecording.heard`), not what a reader of its own matched."""
+    return frozenset({names.instruction, names.trajectory, names.joint_commands})
+
+
+def _put_as_delivered(put: Callable[..., None], channel: int, data: bytes, info: Any) -> None:
+    """A message handed to the file with the times and the sequence number of its info."""
+    received = info.get("received_timestamp") or time.time_ns()
+    sent = info.get("source_timestamp") or received
+    put(channel, data, received, sent, info.get("publication_sequence_number") or 0)
 
 
 def scene_topics() -> list[Topic]:
@@ -193,9 +205,7 @@ class Recorder:
         put = self.file.put
 
         def handle(data: bytes, info: dict[str, int]) -> None:
-            received = info.get("received_timestamp") or time.time_ns()
-            sent = info.get("source_timestamp") or received
-            put(channel, data, received, sent, info.get("publication_sequence_number") or 0)
+            _put_as_delivered(put, channel, data, info)
 
         return handle
 
@@ -252,10 +262,15 @@ class ArmFinder:
 
 
 class ServerRecording:
-    """`al5d serve --record`: the file, the board's writes (`tap`), and the topics of the
-    server's arm and the transforms, read by a DDS participant of its own (`follow`),
-    which outlives the server's nodes so that their last messages (the shutdown's result)
-    are recorded."""
+    """`al5d serve --record`: the file, the board's writes (`tap`), the arm's inputs as the
+    server read them (`heard`: its node's topics; `asked`: its local lane), and the other
+    topics of the server's arm and the transforms, read by a DDS participant of its own
+    (`follow`), which outlives the server's nodes so that their last messages (the
+    shutdown's result) are recorded.
+
+    A reader of its own would miss what a client sent as soon as it had matched the node's
+    reader and not yet this one's (a one-shot `al5d send --via ros`: 1 of 10 on a busy
+    host), and the arm would have obeyed an instruction that a replay leaves out."""
 
     def __init__(self, path: str) -> None:
         self.file = RecordFile(path)
@@ -269,20 +284,37 @@ class ServerRecording:
         self.file.record_board(Names.of(namespace).private(BOARD_WRITES))
         return self.file.board_tap
 
-    def follow(self, names: Names, instruction_depth: int) -> None:
+    def follow(self, names: Names) -> None:
         from al5d.ros.dds import start_context
 
+        inputs = node_inputs(names)
         try:
             self._context = start_context()
             self._recorder = Recorder(
                 self._context,
                 self.file,
-                [*scene_topics(), *topics(names, instruction_depth)],
+                [*scene_topics(), *(t for t in topics(names) if t.name not in inputs)],
                 names.node_namespace,
             )
         except Exception as e:  # the arm goes on; its board's bytes are still recorded
             log.error("recording %s: the topics cannot be recorded (%s)", self.file.path, e)
             self.close_ros()
+
+    def heard(self, names: Names) -> Callable[[str, Any, dict[str, int]], None]:
+        """What records a message the server's node read on one of its input topics, with
+        the times and sequence number of its info (the node's `heard`)."""
+        from rclpy.serialization import serialize_message
+
+        inputs = node_inputs(names)
+        channels = {
+            t.name: self.file.channel(t.name, t.type) for t in topics(names) if t.name in inputs
+        }
+        put = self.file.put
+
+        def record(topic: str, msg: Any, info: dict[str, int]) -> None:
+            _put_as_delivered(put, channels[topic], serialize_message(msg), info)
+
+        return record
 
     def asked(self, names: Names) -> Callable[[Instruction, int], None]:
         """What records an instruction that came by the owner's lane (`al5d send`, `run`,

@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import Future
 from dataclasses import replace
+from typing import Any
 
 from al5d_interfaces.msg import ArmInstruction, ClientLease, InstructionResult
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -63,7 +64,7 @@ from al5d.ros.names import ACTIONS_NODE, NODE, PING, ROBOT_NODE, Names, pinned
 from al5d.ros.params import Settings
 from al5d.ros.qos import QOS_COMMANDS, QOS_INSTRUCTIONS, QOS_LATCHED, QOS_LEASES, QOS_STREAM
 from al5d.ros.robot import RobotPublisher
-from al5d.ros.workarounds import Reader, ReaderOnly, taken_by_reader
+from al5d.ros.workarounds import Handler, Reader, ReaderOnly, taken_by_reader
 
 log = logging.getLogger("al5d")
 
@@ -92,6 +93,9 @@ class ArmNode(Node):
         # (id, monotonic ns) of each instruction message as its callback starts, when tracing
         # (`al5d serve --trace FILE`, used by the benchmarks): an append, nothing more.
         self.trace: list[tuple[str, str, int]] | None = None
+        #: Told each message the node read on its input topics, after its handling: (topic,
+        #: message, its info). Set before `attach` (`al5d serve --record` records them).
+        self.heard: Callable[[str, Any, dict[str, int]], None] | None = None
 
     # -- parameters -----------------------------------------------------------------
 
@@ -199,9 +203,9 @@ class ArmNode(Node):
         self.reader = Reader(
             self,
             [
-                (instructions, self._on_instruction),
-                (trajectories, self._on_trajectory),
-                (commands, self._on_joint_command),
+                (instructions, self._told(names.instruction, self._on_instruction)),
+                (trajectories, self._told(names.trajectory, self._on_trajectory)),
+                (commands, self._told(names.joint_commands, self._on_joint_command)),
                 (leases, self._on_lease),
             ],
             "al5d-inputs",
@@ -213,6 +217,20 @@ class ArmNode(Node):
         arm.outcome_listeners.append(self._publish_outcome)
         arm.state_listeners.append(self._publish_state)
         self._publish_state(arm.state)
+
+    def _told(self, topic: str, handle: Handler) -> Handler:
+        """`handle`, then `heard` told what it was handed (when set)."""
+        heard = self.heard
+        if heard is None:
+            return handle
+
+        def both(msg: Any, info: dict[str, int]) -> None:
+            try:
+                handle(msg, info)
+            finally:
+                heard(topic, msg, info)
+
+        return both
 
     def detach(self) -> None:
         """Hear the owner no more (once, before the node is destroyed)."""
