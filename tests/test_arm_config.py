@@ -104,6 +104,23 @@ def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
         ),
         (lambda d: d["presets"]["ready"].pop("wrist"), r"presets\.ready: no angle for wrist"),
         (
+            # A typo is an unknown joint and a missing one: the unknown is named.
+            lambda d: d["presets"]["ready"].update(elbw=d["presets"]["ready"].pop("elbow")),
+            r"presets\.ready\.elbw: no such joint; did you mean 'elbow'\?",
+        ),
+        (
+            # The server parks as it starts and ends without judging the park's path: an
+            # outside try's park drove the tool tip 220 mm into the table, twice.
+            lambda d: d["presets"]["park"].update(shoulder=90, elbow=90, wrist=0),
+            r"presets\.park: below the table: the tool tip would be at z=-220 mm",
+        ),
+        (
+            lambda d: d["presets"].update(
+                dip={**d["presets"]["ready"], "shoulder": 90, "elbow": 90, "wrist": 0}
+            ),
+            r"presets\.dip: below the table",
+        ),
+        (
             lambda d: d["presets"]["ready"].update(finger=3),
             r"presets\.ready\.finger: no such joint",
         ),

@@ -10,6 +10,7 @@ the driver expects of them come from one place.
 
 from __future__ import annotations
 
+import difflib
 import functools
 import math
 import re
@@ -415,18 +416,36 @@ class ArmConfig(_Frozen):
             if preset.strip().lower() in words:
                 # `stop` as a preset would be a move to the arm and a stop to whoever reads it.
                 raise ValueError(f"presets.{preset}: the name of an instruction, not a preset")
+            for jname in pose:
+                if jname not in self.joints:
+                    # Before the missing ones: a typo (`elbw`) is both, and this names it.
+                    near = difflib.get_close_matches(jname, self.joints, n=1, cutoff=0.6)
+                    hint = f"; did you mean {near[0]!r}?" if near else ""
+                    raise ValueError(f"presets.{preset}.{jname}: no such joint{hint}")
             missing = [j for j in self.joints if j not in pose]
             if missing:
                 raise ValueError(f"presets.{preset}: no angle for {', '.join(missing)}")
             for jname, deg in pose.items():
-                if jname not in self.joints:
-                    raise ValueError(f"presets.{preset}.{jname}: no such joint")
                 joint = self.joints[jname]
                 if not joint.in_range(deg):
                     lo, hi = joint.range_deg
                     raise ValueError(
                         f"presets.{preset}.{jname}: {deg} is outside the range {lo}..{hi}"
                     )
+        return self
+
+    @model_validator(mode="after")
+    def _presets_above_the_table(self) -> ArmConfig:
+        # The server parks as it starts and as it ends without judging the park's path (it
+        # is how the arm is made safe, from wherever it is): its pose at least must be above
+        # the table. Every other preset is a target too: one under the table is refused at
+        # every use, so it is said here, once.
+        from al5d.model.kinematics import below_table
+
+        for preset, pose in self.presets.items():
+            under = below_table(self.model, pose)
+            if under is not None:
+                raise ValueError(f"presets.{preset}: {under}")
         return self
 
     @property
