@@ -309,6 +309,11 @@ def test_bad_files_are_clear_errors(tmp_path: Path) -> None:
     param = Proc("serve", "--ros-args", "-p", f"record:={tmp_path / 'no' / 'param.mcap'}")
     assert param.wait(30) == 2
     assert "param.mcap: No such file" in param.err.wait_for("ERROR", 10)
+    # A trace (`--trace`, written as the server ends) that cannot be written is said at once:
+    # it was taken, and the trace silently never written (an outside try).
+    trace = Proc("serve", "--no-ros", "--trace", str(tmp_path / "no" / "trace.txt"))
+    assert trace.wait(30) == 2
+    assert "--trace: cannot write" in trace.err.wait_for("ERROR", 10)
 
 
 def test_a_recording_cut_short_is_an_error_or_with_partial_what_it_holds(tmp_path: Path) -> None:

@@ -17,7 +17,8 @@ from al5d.app.cli import build_parser
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.driver import SSC32U
-from al5d.ssc32u.emulator import Mechanics, Record
+from al5d.ssc32u.emulator import Emulator, Mechanics, Record
+from al5d.ssc32u.emulator.pty import ChooseAnotherLink
 from al5d_rig.boardproc import BoardProcess
 from al5d_rig.proc import Proc, said, to_another_thread
 from al5d_rig.rospeer import wait_until
@@ -259,3 +260,49 @@ def test_a_misaligned_arm_says_where_it_truly_stands(config: ArmConfig, tmp_path
     finally:
         spinner.close()
         assert "where the arm truly stands goes on /physical_joint_states" in board.close()
+
+
+def test_a_link_path_that_is_taken_is_refused_and_left_as_it_is(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """`--link` never replaces a file, a directory or another board's live link, and a
+    board removes only its own link (an outside try: a file named as the link was deleted,
+    and a second emulator took the first one's link, which the first removed as it ended)."""
+    precious = tmp_path / "important.txt"
+    precious.write_text("precious\n")
+    (tmp_path / "somedir").mkdir()
+    for path, why in (
+        (precious, "is a file, not a board's link"),
+        (tmp_path / "somedir", "is a directory, not a board's link"),
+        (tmp_path / "nodir" / "x", "there is no directory"),
+    ):
+        proc = Proc("emulator", "--link", str(path))
+        assert proc.wait(30) == exits.USAGE
+        assert why in "\n".join(proc.err.drain(0.5))
+    assert precious.read_text() == "precious\n"
+    assert not (tmp_path / "somedir.tmp").exists()
+    record = Proc("emulator", "--record", str(tmp_path / "nodir" / "x.jsonl"))
+    assert record.wait(30) == exits.USAGE
+    assert "--record: cannot write" in "\n".join(record.err.drain(0.5))
+
+    link = tmp_path / "ssc32u"
+    first = BoardProcess(link, 9600, config)
+    try:
+        device = os.readlink(link)
+        second = Proc("emulator", "--link", str(link))
+        assert second.wait(30) == exits.USAGE
+        assert "is in use" in "\n".join(second.err.drain(0.5))
+        assert os.readlink(link) == device
+    finally:
+        first.close()
+    assert not link.is_symlink()
+    # A link whose board has gone (killed before it could remove it) is taken over.
+    os.symlink("/dev/pts/no-such-board", link)
+    with Emulator(config, link=link):
+        assert os.readlink(link).startswith("/dev/pts/")
+    assert not link.is_symlink()
+    precious_link = tmp_path / "another.txt"
+    precious_link.write_text("kept\n")
+    with pytest.raises(ChooseAnotherLink, match="is a file"):
+        Emulator(config, link=precious_link).start()
+    assert precious_link.read_text() == "kept\n"

@@ -133,6 +133,24 @@ def _run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return exits.USAGE
+    if args.link is not None:
+        from pathlib import Path
+
+        from al5d.ssc32u.emulator.pty import link_problem
+
+        taken = link_problem(Path(args.link))
+        if taken is not None:
+            print(f"al5d emulator: --link: {taken}", file=sys.stderr)
+            return exits.USAGE
+    if args.record not in (None, "-"):
+        try:  # made now: a path that cannot be written is said before the board starts
+            open(args.record, "w", encoding="utf-8").close()
+        except OSError as e:
+            print(
+                f"al5d emulator: --record: cannot write {args.record}: {e.strerror}",
+                file=sys.stderr,
+            )
+            return exits.USAGE
     from al5d.arm.config import namespace_problem
 
     # The arm's namespace: where the misaligned arm's true angles and the twin go.

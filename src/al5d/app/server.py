@@ -353,6 +353,12 @@ def serve(options: ServerOptions) -> int:
             recording = _recording(options)
             if recording is None:
                 return 2
+        if options.trace is not None:
+            try:  # written as the server ends: a path that cannot be is said now
+                open(options.trace, "a", encoding="utf-8").close()
+            except OSError as e:
+                log.error("--trace: cannot write %s: %s", options.trace, e.strerror)
+                return 2
         where = lane.path(namespace)
         if answers(where):
             # One server per name, as on ROS: a second would answer ROS clients too (one of

@@ -60,6 +60,30 @@ class _Slot(NamedTuple):
     heard: bool  # sent at the board's baud; otherwise the board hears noise
 
 
+class ChooseAnotherLink(ValueError):
+    """The path asked for as the board's symlink is taken: choose another (or free it)."""
+
+
+def link_problem(link: Path) -> str | None:
+    """Why `link` cannot be made the board's symlink, or None. A file, a directory or a link
+    to a device that is there (another board's) is never replaced; a link whose device has
+    gone (a board that ended without removing it) is."""
+    if link.is_symlink():
+        if not link.exists():
+            return None
+        return (
+            f"{link} is in use: it points to {os.readlink(link)}, which is there (another "
+            "board's?); choose another path, or end that board (or remove the link if none "
+            "uses it)"
+        )
+    if link.exists():
+        kind = "a directory" if link.is_dir() else "a file"
+        return f"{link} is {kind}, not a board's link: choose another path (it is left as it is)"
+    if not link.parent.is_dir():
+        return f"{link}: there is no directory {link.parent}"
+    return None
+
+
 class PtyLink:
     """A pty whose master side is the board: opened by `open()`, ended by `close()`.
 
@@ -76,6 +100,7 @@ class PtyLink:
     ) -> None:
         self.board = board
         self.link = Path(link) if link is not None else None
+        self._linked = False  # the link is this board's (made at its first open)
         self.model = model if model is not None else LinkModel()
         self._master = -1
         self._slave = -1
@@ -128,9 +153,11 @@ class PtyLink:
         self._answers = queue.Queue()
 
     def remove_link(self) -> None:
-        if self.link is not None and self.link.is_symlink():
+        """The link, if it is still this board's (never a path it did not make)."""
+        if self._linked and self.link is not None and self.link.is_symlink():
             with contextlib.suppress(OSError):
-                self.link.unlink()
+                if os.readlink(self.link) == self.device:
+                    self.link.unlink()
 
     def _open_pty(self) -> None:
         master, slave = os.openpty()
@@ -147,6 +174,12 @@ class PtyLink:
         self.device = os.ttyname(slave)
         self._wake_r, self._wake_w = os.pipe()
         if self.link is not None:
+            # Once, at the first open: later opens (a replug) move this board's own link.
+            problem = None if self._linked else link_problem(self.link)
+            if problem is not None:
+                self.close()
+                raise ChooseAnotherLink(problem)
+            self._linked = True
             tmp = self.link.with_name(self.link.name + ".tmp")
             with contextlib.suppress(FileNotFoundError):
                 tmp.unlink()
