@@ -11,13 +11,14 @@ import logging
 import math
 import re
 from dataclasses import replace
+from typing import Any
 
 import pytest
 
 from al5d.arm import instruction as ins
 from al5d.arm import link as lk
 from al5d.arm.config import ArmConfig
-from al5d.arm.corestate import Announce, Cancelled, Effect, Purpose, Received, Say, Send
+from al5d.arm.corestate import Announce, Ask, Cancelled, Effect, Posed, Purpose, Received, Say, Send
 from al5d.arm.instruction import FRESH_MARK, Point, Result
 from al5d.arm.resample import Follow
 from al5d.arm.states import State
@@ -454,9 +455,22 @@ def test_a_stop_during_the_shutdown_park_ends_it_not_parked(sim: Sim) -> None:
     sim.run(0.3)
     ref = sim.ask(ins.shutdown())
     sim.run(0.1)
+    steps: list[tuple[Any, tuple[Effect, ...]]] = []
+    sim.watch = lambda ev, effects: steps.append((ev, effects))
     sim.ask(ins.stop())
     assert sim.outcomes[ref].result is Result.CANCELLED
     assert sim.ended is not None and not sim.ended.parked
+    # Those who show the arm hear where it halted, not the park it was going to, in the
+    # step that ends the owner (an outside try: the joint states said parked while the
+    # server said not parked).
+    (effects,) = [e for ev, e in steps if isinstance(ev, Ask)]
+    told_at = [e for e in effects if isinstance(e, Posed)]
+    assert told_at, "the halt is not told"
+    later = sim.t + 2.0
+    told = told_at[-1].book.positions(later)
+    assert told == sim.core.book.positions(later)
+    park = sim.config.presets["park"]
+    assert any(abs(told[j] - park[j]) > 1.0 for j in ("shoulder", "elbow", "wrist")), told
 
 
 def test_a_trajectory_whose_point_took_effect_too_late_ends_with_the_reason(

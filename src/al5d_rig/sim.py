@@ -33,6 +33,7 @@ from al5d.arm.corestate import (
     Moved,
     Open,
     Opened,
+    Posed,
     Received,
     Reply,
     Resolve,
@@ -71,6 +72,7 @@ class Sim:
     states: list[State] = field(default_factory=list)
     said: list[Say] = field(default_factory=list)
     moved: list[Moved] = field(default_factory=list)
+    posed: list[Posed] = field(default_factory=list)  # what the clients that show the arm hear
     sent: list[tuple[float, bytes]] = field(default_factory=list)
     writers: set[int] = field(default_factory=set)
     ended: End | None = None
@@ -150,6 +152,8 @@ class Sim:
                 self.states.append(effect.new)
         elif isinstance(effect, Moved):
             self.moved.append(effect)
+        elif isinstance(effect, Posed):
+            self.posed.append(effect)
         elif isinstance(effect, Say):
             self.said.append(effect)
         elif isinstance(effect, End):

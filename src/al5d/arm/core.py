@@ -219,11 +219,11 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
     cancel_all(jobs, "cancelled by stop", ev.t, out)
     if jobs:
         say(out, logging.INFO, f"stop: {len(jobs)} move(s) cancelled")
+    posed(c, out)  # halted where it is: a shutdown's park cut short too
     if c.shutdown is not None and not c.ended:
         return end_shutdown(
             c, "stopped before the arm reached park: the arm is not parked", ev.t, out
         )
-    posed(c, out)
     return c
 
 
