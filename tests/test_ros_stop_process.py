@@ -224,6 +224,22 @@ def test_when_the_stop_process_ends_the_bridge_serves_the_stop(served: Served) -
     assert answer.success, answer.message
     assert served.peer.result("after").reason == "cancelled by stop"
     wait_until(lambda: len(served.stops_since(n)) >= 6, 10, "the STOPs")
+    # A new stop process is started, and serves the stop while the bridge is frozen (an
+    # outside try: with the stop served by the bridge alone, a frozen bridge left none).
+    served.proc.err.wait_for_each(
+        ["the stop process was started again", "served by the stop process again"], 60
+    )
+    assert served.peer.trigger("release").success
+    n = long_move_running(served, "frozen")
+    bridge = served.bridge
+    freeze(bridge)
+    try:
+        answer = served.peer.trigger("stop")
+        assert answer.success, answer.message
+        wait_until(lambda: len(served.stops_since(n)) >= 6, 10, "the STOPs, the bridge frozen")
+    finally:
+        os.kill(bridge, signal.SIGCONT)
+    assert served.peer.result("frozen").reason == "cancelled by stop"
 
 
 def test_when_the_bridge_ends_its_motion_halts_and_a_new_bridge_serves_ros(

@@ -105,7 +105,8 @@ def _serve(
     bridge = Bridge(arm, start, setup.trace, stop_here)
 
     def on_ctrl() -> None:
-        # The owner says its stop process has ended: the stop is served here from now on.
+        # The owner says its stop process has ended: the stop is served here until it says
+        # that a new one serves it.
         while (message := receive(ctrl)) is not None:
             if message[0] == "serve-stop" and bridge.stop is None and not arm.closed.is_set():
                 log.error(
@@ -116,6 +117,11 @@ def _serve(
                     "al5d-stop-here", lambda: StopNode(arm, bridge.safety_context, bridge.names)
                 )
                 bridge.safety_spinner.add(bridge.stop)
+            elif message[0] == "unserve-stop" and bridge.stop is not None:
+                here, bridge.stop = bridge.stop, None
+                here.close()  # its watcher's thread
+                bridge.safety_spinner.remove(here)
+                log.info("the stop is served by the stop process again")
 
     threading.Thread(target=on_ctrl, name="al5d-bridge-ctrl", daemon=True).start()
     # The lane's own event, not a listener added now: a lane that closed before this line

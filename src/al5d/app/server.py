@@ -226,14 +226,50 @@ class RosSide:
                 bridge.proc.kill()
 
     def _watch_stop(self, stop: Child, owner: Owner) -> None:
-        from al5d.ros.processes import send
+        """A stop process that ends while the server serves: the bridge serves the stop at
+        once, and a new stop process is started, which takes it back once its node is up
+        (an outside try: with the stop only in the bridge, a frozen bridge left no stop at
+        all). Its bridge and it overlap for a moment; never is there neither."""
+        from al5d.ros.processes import Child, receive, send
 
-        code = stop.proc.wait()
-        # As the owner ends its lanes close, and the stop process ends as it should.
-        if self._serving and not owner.ending.is_set():
-            log.error("the stop process ended (exit code %s)", code)
+        restarts: list[float] = []
+        while True:
+            code = stop.proc.wait()
+            # As the owner ends its lanes close, and the stop process ends as it should.
+            if not self._serving or owner.ending.is_set():
+                return
             with self._swap:
                 send(self.bridge.ctrl, "serve-stop")
+            restarts = [t for t in restarts if t > time.monotonic() - RESTARTS_WITHIN_S]
+            if len(restarts) >= RESTARTS_MAX:
+                log.error(
+                    "the stop process ended (exit code %s), started again %d times in the "
+                    "last %.0f s already: not started again; the bridge serves the stop, "
+                    "where a busy host delays it: restart al5d serve",
+                    code,
+                    len(restarts),
+                    RESTARTS_WITHIN_S,
+                )
+                return
+            log.error(
+                "the stop process ended (exit code %s): the bridge serves the stop until it "
+                "is started again",
+                code,
+            )
+            restarts.append(time.monotonic())
+            with self._swap:
+                if not self._serving:
+                    return
+                stop = self.stop = Child("al5d.ros.stopproc", self._setup)
+            owner.adopt(stop.lane)
+            got = receive(stop.ctrl, SETTINGS_S)  # its node is up
+            if got is None or got[0] != "ready":
+                if self._serving and not owner.ending.is_set():
+                    log.error("the stop process could not start again; the bridge serves the stop")
+                return
+            with self._swap:
+                send(self.bridge.ctrl, "unserve-stop")
+            log.warning("the stop process was started again; it serves the stop")
 
     def _watch_bridge(self, owner: Owner) -> None:
         from dataclasses import replace

@@ -119,6 +119,13 @@ class Spinner:
         self.more.append(node)
         self.executor.add_node(node)
 
+    def remove(self, node: Node) -> None:
+        """A node of `add` no more: taken out while no callback runs, and destroyed."""
+        with self.paused():
+            self.executor.remove_node(node)
+            self.more.remove(node)
+            node.destroy_node()
+
     def _spin(self) -> None:
         if self.urgent:
             make_urgent(self._thread.name)

@@ -11,7 +11,8 @@ waiting, and the answer goes back when it has.
 `al5d serve` starts it at once (`al5d.ros.processes`), so that its imports and DDS
 start-up go on beside the board's; it waits for its lane's welcome (the owner and its
 configuration), and ends when the owner ends. If it cannot start, or ends, the bridge
-serves the stop (`al5d.ros.bridge`, in `al5d.app.bridgeproc`), and one log line says so.
+serves the stop (`al5d.ros.bridge`, in `al5d.app.bridgeproc`), and one log line says so;
+one that ends is started again (`al5d.app.server.RosSide`) and takes the stop back.
 
 Run as `python -m al5d.ros.stopproc CTRL LANE` by the owner; nothing else starts it.
 """
