@@ -230,7 +230,10 @@ class Proc:
         stdin: bool = False,
         program: str = AL5D,
         cwd: Path | None = None,
+        group: bool = False,
     ) -> None:
+        """`group`: in a process group of its own (its children too), as a shell or systemd
+        starts a service, for a signal to the whole group."""
         _LIVE.add(self)
         self.command = " ".join(("al5d" if program == AL5D else Path(program).name, *args))
         self.popen = subprocess.Popen(
@@ -242,6 +245,7 @@ class Proc:
             env={**os.environ, **(env or {})},
             preexec_fn=dies_with_parent,
             cwd=cwd,
+            process_group=0 if group else None,
         )
         assert self.popen.stdout is not None and self.popen.stderr is not None
         self.out = Lines(self.popen.stdout)

@@ -98,10 +98,23 @@ class Child:
 
 def child_start(argv: list[str]) -> tuple[socket.socket, socket.socket, Setup]:
     """In the child: its control and lane sockets and its setup. It ends with its parent,
-    and leaves Ctrl-C to the owner (which parks, then closes the lane)."""
+    and leaves Ctrl-C and SIGTERM to the owner (which parks, then closes the lane): a
+    SIGTERM to the server's whole process group (`timeout`, systemd) ended both children
+    in the middle of the park, logged as errors and a bridge started again. A SIGTERM
+    ends it only once the owner has gone (`PR_SET_PDEATHSIG` sends one then)."""
+    parent = os.getppid()
     with contextlib.suppress(OSError, AttributeError):
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+
+    def on_term(signum: int, frame: object) -> None:
+        if os.getppid() != parent:  # the owner has gone: end as SIGTERM ends a process
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    signal.signal(signal.SIGTERM, on_term)
+    if os.getppid() != parent:  # it went before the handler was set
+        os._exit(0)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     ctrl = socket.socket(fileno=int(argv[0]))
     lane = socket.socket(fileno=int(argv[1]))
