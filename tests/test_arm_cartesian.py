@@ -168,6 +168,18 @@ def test_a_timed_line_too_fast_for_the_servos_says_so_once_not_per_hop(
     assert "requested 200 ms; expected" in inf03[0]
 
 
+def test_a_timed_line_the_servos_can_keep_adds_up_to_its_time() -> None:
+    """Each hop's whole milliseconds fall where the line's schedule does: rounded up hop by
+    hop, a line of 2000 ms was sent as 2001 to 2004, and INF03 said of it (an outside try:
+    at 1000, 1500, 2000, 3000 and 5000 ms, and on the demo's line)."""
+    start = solve(CONFIG.model, 0.25, 0.0, 0.12, -30.0)
+    for time_ms in (1000, 1500, 2000, 3000, 5000):
+        moves = plan_from(start, ins.move_to(250, 50, 120, pitch=-30, line=True, time_ms=time_ms))
+        assert isinstance(moves, list) and len(moves) > 1, moves
+        assert all(ms is not None for _, ms in moves), moves
+        assert sum(ms for _, ms in moves) == time_ms
+
+
 def test_a_gripper_change_on_a_line_is_spread_over_its_group_moves(rig: Rig) -> None:
     assert rig.driver.execute(ins.preset("ready"), 10).ok  # gripper 0
     n = len(rig.moves())

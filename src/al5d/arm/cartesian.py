@@ -229,10 +229,18 @@ def _line(
     total = sum(times)
     if total > max_time_ms:
         return _too_long(line, shares, befores, targets, floors, total, max_time_ms, translator)
-    return [
-        (target, None if ms - floor < AT_FLOOR_MS else math.ceil(ms))
-        for target, ms, floor in zip(targets, times, floors, strict=True)
-    ]
+    moves: list[Move] = []
+    planned = 0.0  # the line's time so far, at the plan's pace (ms)
+    for target, ms, floor in zip(targets, times, floors, strict=True):
+        before = round(planned)
+        planned += ms
+        if ms - floor < AT_FLOOR_MS:
+            moves.append((target, None))
+        else:
+            # Whole ms where the line's schedule falls, not each hop's rounded up: those
+            # added up to a few ms over the requested time, and every timed line said INF03.
+            moves.append((target, max(math.ceil(floor), round(planned) - before)))
+    return moves
 
 
 def _too_long(
