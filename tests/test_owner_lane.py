@@ -76,6 +76,19 @@ def test_ctrl_c_on_send_cancels_what_it_sent(arm: Served) -> None:
     assert halted_on_its_way(arm, 80)
 
 
+def test_ctrl_c_before_a_server_is_found_says_nothing_was_sent() -> None:
+    """No server answers yet: Ctrl-C says that nothing was sent (an outside try was told
+    that ROS 2 has no cancel by id and that the move "may still run")."""
+    send = Proc("send", "--verbose", "--namespace", "nobody_here", "--wait", "60", "ready")
+    send.err.wait_for("ROS started in", CMD_S)
+    time.sleep(0.5)  # looking for the server
+    send.popen.send_signal(signal.SIGINT)
+    assert send.wait(CMD_S) == exits.INTERRUPTED
+    out = send.out.drain()
+    assert any(line.endswith("Ctrl-C before it was sent: nothing sent") for line in out), out
+    assert not any("may still run" in line for line in out), out
+
+
 @pytest.mark.parametrize("via", ["lane", "ros"])
 def test_a_move_its_sender_gave_up_on_is_halted_and_said_so(arm: Served, via: str) -> None:
     """`al5d send --timeout 1` on a 4 s move: the server halts it where it is when its sender

@@ -120,6 +120,7 @@ def send(
         return exits.NO_SERVER
     timing.ros_started()
     report = Report(out, timeout)
+    sent: list[Instruction] = []
     try:
         if instr.kind in (Kind.STOP, Kind.RELEASE):
             answer = _stop_or_release(client, instr, timeout)
@@ -128,6 +129,7 @@ def send(
             return exits.DONE if answer.success else exits.NOT_DONE
         client.wait_for_server(wait_s)
         timing.discovered(client)
+        sent.append(instr)  # from here it may have gone: Ctrl-C cancels it
         try:
             outcome: Outcome | None = client.execute(instr, timeout)
         except (LostContact, LaneLost) as e:  # said as it is, not as a timeout
@@ -144,7 +146,11 @@ def send(
         print(f"al5d send: {e}", file=err)
         return exits.NO_SERVER
     except KeyboardInterrupt:
-        return interrupted(client, report, [instr])
+        if not sent and instr.kind not in (Kind.STOP, Kind.RELEASE):
+            # Before a server was found: nothing can run (an outside try was told it may).
+            report.line(f"{instr.name} [{instr.id}]: Ctrl-C before it was sent: nothing sent")
+            return exits.INTERRUPTED
+        return interrupted(client, report, sent or [instr])
     finally:
         client.close()
         timing.end()
