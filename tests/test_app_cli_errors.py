@@ -286,6 +286,13 @@ def test_check_judges_a_file_without_a_server(tmp_path: Path) -> None:
     code, out, err = ended(Proc("run", "--check", str(partial), env=alone()))
     assert code == exits.DONE, err
     assert "the table is judged for lines 1, 2 and 3 only by the server" in out[0], out
+    # As many problems said as `al5d run` says: the first 100, then how many more (an
+    # outside try: 5000 lines said one by one by --check, 100 by run).
+    many = tmp_path / "many.seq"
+    many.write_text("move base=500\n" * 150)
+    code, out, err = ended(Proc("run", "--check", str(many), env=alone()))
+    assert code == exits.BAD_INPUT, err
+    assert len(err) == 101 and err[-1] == "al5d run: ... and 50 more bad lines", err[-3:]
 
 
 def test_a_file_that_cannot_be_read_is_bad_input(tmp_path: Path) -> None:

@@ -171,9 +171,9 @@ def check(path: str, poses: str | None, namespace: str | None) -> int:
     except PosesError as e:
         print(f"al5d run: {e}", file=sys.stderr)
         return exits.BAD_INPUT
-    for problem in judged.problems:
-        print(f"al5d run: {problem.at(path)}", file=sys.stderr)
     if not judged.ok:
+        # As `al5d run` says them: the first MAX_SEQUENCE_ERRORS, then how many more.
+        print(f"al5d run: {judged.error()}".replace("\n", "\nal5d run: "), file=sys.stderr)
         return exits.BAD_INPUT
     steps = len(judged.lines)
     said = f"{path}: {steps} step{'s'[: steps != 1]}, none {whose} would refuse"
