@@ -98,6 +98,18 @@ def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
             r"joints\.base\.calibration\.0\.us",
         ),
         (lambda d: d["joints"]["base"].update(colour="red"), r"joints\.base\.colour: Extra inputs"),
+        # An unknown key with the one meant (an outside try: a typo and a key out of its
+        # section were each said as "Extra inputs are not permitted", no more).
+        (
+            lambda d: d["server"].update(queue_capacty=5),
+            r"server\.queue_capacty: Extra inputs are not permitted; did you mean "
+            r"'server\.queue_capacity'\?",
+        ),
+        (
+            lambda d: d.update(queue_capacity=5),
+            r"queue_capacity: Extra inputs are not permitted; did you mean "
+            r"'server\.queue_capacity'\?",
+        ),
         (
             lambda d: d["presets"]["park"].update(elbow=170),
             r"presets\.park\.elbow: 170.* outside the range 0.0\.\.135\.0",

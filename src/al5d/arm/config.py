@@ -463,14 +463,45 @@ class ArmConfig(_Frozen):
         return {name: j.speed_deg_s for name, j in self.joints.items()}
 
 
+def _keys(model: type[BaseModel], prefix: str = "") -> list[str]:
+    """Every key of `model` a file may hold, dotted (`server.queue_capacity`); a mapping's
+    own keys (joints by name, presets) not followed."""
+    out = []
+    for name, field in model.model_fields.items():
+        out.append(prefix + name)
+        kind = field.annotation
+        if isinstance(kind, type) and issubclass(kind, BaseModel):
+            out += _keys(kind, f"{prefix}{name}.")
+    return out
+
+
+def _unknown_key_hint(loc: tuple[Any, ...]) -> str:
+    """"; did you mean ...?" for a key no section has: a close one beside it, or one of the
+    same name in a section (`queue_capacity` for `server.queue_capacity`)."""
+    keys = _keys(ArmConfig)
+    if "joints" in loc[:1] and len(loc) == 3:  # joints.<name>.<key>
+        keys = [f"joints.{loc[1]}.{k}" for k in _keys(JointSettings)]
+    dotted = ".".join(str(x) for x in loc)
+    parent = dotted.rpartition(".")[0]
+    last = str(loc[-1])
+    beside = {k.rpartition(".")[2]: k for k in keys if k.rpartition(".")[0] == parent}
+    near = [beside[n] for n in difflib.get_close_matches(last, beside, n=1, cutoff=0.75)]
+    if not near:
+        near = [k for k in keys if k.rpartition(".")[2] == last and k != dotted][:1]
+    return f"; did you mean {near[0]!r}?" if near else ""
+
+
 def describe_errors(err: ValidationError, source: str, names: Mapping[str, str]) -> str:
     """pydantic's errors as lines `SOURCE: the.key: why (value: ...)`, a key known to the user
-    by another name (a ROS parameter's) given by `names`."""
+    by another name (a ROS parameter's) given by `names`; an unknown key with the one meant,
+    where one is close."""
     lines = []
     for e in err.errors():
         loc = ".".join(str(x) for x in e["loc"]) or "(top level)"
         loc = names.get(loc, loc)
         msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "extra_forbidden":
+            msg += _unknown_key_hint(e["loc"])
         shown = e.get("input")
         value = "" if isinstance(shown, Mapping) else f" (value: {shown!r})"
         lines.append(f"{source}: {loc}: {msg}{value}")
