@@ -248,14 +248,24 @@ def test_when_the_bridge_ends_its_motion_halts_and_a_new_bridge_serves_ros(
     """The bridge killed mid-move: the owner halts what its ROS clients commanded (a lost
     client), the server says so and starts a bridge again, and a move sent by ROS is then
     done. Before, the server went on without a word and with no ROS side: every ROS client
-    found no server while `al5d send` on the machine still worked."""
+    found no server while `al5d send` on the machine still worked. What the owner halted
+    and cancelled as the bridge went has its outcome on the result topic once a new bridge
+    is there (an outside try: none ever came)."""
     n = long_move_running(served, "before")
+    served.peer.send("queued", "move", base=-30)
+    # Taken by the owner in order: once a move refused there is answered, so is the queued
+    # move the owner's.
+    served.peer.send("barrier", "move", base=1000)
+    assert served.peer.result("barrier").outcome == "refused"
     os.kill(served.bridge, signal.SIGKILL)
     served.proc.err.wait_for_each(
         ["before]: lost contact with the client", "the ROS 2 bridge ended (exit code -9)"], 20
     )
     wait_until(lambda: len(served.stops_since(n)) >= 1, 10, "the halt's STOP")
     served.proc.err.wait_for("the ROS 2 bridge was started again", 120)
+    for ident in ("before", "queued"):
+        result = served.peer.result(ident, 60)
+        assert result.outcome == "cancelled" and "lost contact with the client" in result.reason
     a_move_by_ros_is_done(served)
 
 

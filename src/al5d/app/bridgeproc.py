@@ -11,12 +11,14 @@ Run as `python -m al5d.app.bridgeproc CTRL LANE` by the owner; nothing else star
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import socket
 import sys
 import threading
-from typing import TYPE_CHECKING
+import time
+from typing import TYPE_CHECKING, Any
 
 from al5d.arm.config import ConfigError
 from al5d.logs import setup_logging
@@ -66,6 +68,23 @@ def main(argv: list[str]) -> int:
             recording.close()
 
 
+#: A new bridge waits until the readers of its results have held their number this long (s),
+#: and no longer than `SETTLE_MOST_S`, before it says the last one's outcomes.
+SETTLE_QUIET_S = 1.0
+SETTLE_MOST_S = 5.0
+
+
+def settled(pub: Any) -> None:
+    """Until the number of readers `pub` has matched has held for `SETTLE_QUIET_S`."""
+    deadline = time.monotonic() + SETTLE_MOST_S
+    count, since = pub.get_subscription_count(), time.monotonic()
+    while time.monotonic() < min(deadline, since + SETTLE_QUIET_S):
+        time.sleep(0.05)
+        now_count = pub.get_subscription_count()
+        if now_count != count:
+            count, since = now_count, time.monotonic()
+
+
 def _serve(
     ctrl: socket.socket,
     lane: socket.socket,
@@ -103,6 +122,13 @@ def _serve(
         on_asked = recording.asked(start.names)
         arm.asked_listeners.append(lambda a: on_asked(*a))
     bridge = Bridge(arm, start, setup.trace, stop_here)
+    if setup.again:
+        # The outcomes of what the last bridge's clients asked, halted as it ended, go on
+        # the result topic (an outside try: none ever came), once the clients that were
+        # there have matched this one's writer (the topic keeps nothing for a late reader).
+        settled(bridge.node.result_pub)
+        with contextlib.suppress(LaneClosed, TimeoutError):
+            arm.kept_outcomes()
 
     def on_ctrl() -> None:
         # The owner says its stop process has ended: the stop is served here until it says

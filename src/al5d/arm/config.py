@@ -476,8 +476,8 @@ def _keys(model: type[BaseModel], prefix: str = "") -> list[str]:
 
 
 def _unknown_key_hint(loc: tuple[Any, ...]) -> str:
-    """"; did you mean ...?" for a key no section has: a close one beside it, or one of the
-    same name in a section (`queue_capacity` for `server.queue_capacity`)."""
+    """The hint for a key no section has ("; did you mean ...?"): a close one beside it, or
+    one of the same name in a section (`queue_capacity` for `server.queue_capacity`)."""
     keys = _keys(ArmConfig)
     if "joints" in loc[:1] and len(loc) == 3:  # joints.<name>.<key>
         keys = [f"joints.{loc[1]}.{k}" for k in _keys(JointSettings)]

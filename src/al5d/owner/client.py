@@ -244,6 +244,12 @@ class Remote:
             return Judged(instr, str(answer["ticket"]), knots)
         return str(answer.get("reason", "refused"))
 
+    def kept_outcomes(self, timeout: float = 30.0) -> None:
+        """The outcomes the owner told while no ROS bridge heard them (the last one ended),
+        told now to this client's outcome listeners, before this returns. Raises
+        LaneClosed: the owner has ended; TimeoutError: no answer in `timeout`."""
+        self._request({"op": "kept"}).result(timeout)
+
     def ping(self, timeout: float = 5.0) -> float:
         """The owner's clock (CLOCK_MONOTONIC) when it answered."""
         answer: dict[str, Any] = self._request({"op": "ping"}).result(timeout)

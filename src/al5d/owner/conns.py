@@ -100,6 +100,10 @@ class Conns:
     def watching(self, what: str) -> bool:
         return any(what in conn.watch for conn in self.conns.values())
 
+    def ros_watching(self, what: str) -> bool:
+        """Whether a client that speaks for ROS 2 (the bridge) watches `what`."""
+        return any(conn.ros and what in conn.watch for conn in self.conns.values())
+
     def news(self, what: str, message: dict[str, Any]) -> None:
         """`message` to every connection that watches `what`."""
         line = b""

@@ -64,6 +64,10 @@ class Inbox(Protocol):
         watches the wire) the board's writes kept for it."""
         ...
 
+    def told_kept(self) -> list[dict[str, Any]]:
+        """The outcomes told while no bridge heard them (each once)."""
+        ...
+
 
 class Desk:
     """The lane's requests for the owner `inbox`, from the clients of `lanes`; a leased
@@ -162,6 +166,10 @@ class Desk:
                 self._inbox.later("cancel", self._route(conn, ref), (ident, reason[:200]))
             elif op == "hello":
                 self._hello(conn, m)
+            elif op == "kept":  # a new bridge: what its clients were told while none was
+                for message in self._inbox.told_kept():
+                    self._send(conn, message)
+                self._send(conn, {"op": "reply", "ref": ref, "ok": True})
             elif op == "ping":
                 self._send(conn, {"op": "pong", "ref": ref, "t": now()})
             elif op == "sign":  # a leased client is there (`Conn.heard`, set as it was read)

@@ -81,6 +81,11 @@ BATCH = 32
 #: The board's writes kept for a recorder that has not yet connected (`keep_wire`), at most:
 #: its bridge connects within a second of the start, the park's writes are a handful.
 WIRE_KEPT = 1000
+#: The outcomes told while no ROS bridge heard them (one ended, the next not yet there),
+#: kept for the next at most: so many, this long (s). Its clients' requests that the owner
+#: halted as it went are answered on the result topic then, not never.
+OUTCOMES_KEPT = 1000
+OUTCOMES_KEPT_S = 120.0
 #: The longest the owner sleeps without looking (a lost wake-up is found then).
 SLEEP_MAX_S = 0.5
 #: A thread that woke this much later than it asked was not running: the host's stall.
@@ -149,6 +154,9 @@ class Owner:
         #: ROS: the bridge records, and connects while the park may be on the wire
         #: already); None once told, or not kept.
         self._wire_kept: list[dict[str, Any]] | None = [] if keep_wire else None
+        #: Outcomes told while no bridge heard them, once one has (`OUTCOMES_KEPT`).
+        self._told_kept: deque[tuple[float, dict[str, Any]]] = deque(maxlen=OUTCOMES_KEPT)
+        self._bridge_seen = False
         self._lanes = Conns(self._selector, lambda conn, why: self._desk.dropped(conn, why), lane)
         self._desk = Desk(self._lanes, self, config.server.client_lease_s)
         self._thread = threading.Thread(target=self._run, name="al5d-owner", daemon=True)
@@ -562,7 +570,10 @@ class Owner:
         if effect.tell:
             if self.outcome_listeners:
                 self._teller.put(lambda: tell(self.outcome_listeners, outcome, "outcome"))
-            self._lanes.news("outcomes", {"op": "told", "outcome": ln.outcome_out(outcome)})
+            message = {"op": "told", "outcome": ln.outcome_out(outcome)}
+            self._lanes.news("outcomes", message)
+            if self._bridge_seen and not self._lanes.ros_watching("outcomes"):
+                self._told_kept.append((now(), message))
 
     def _reply(self, ref: int, ok: bool) -> None:
         future = self._futures.pop(ref, None)
@@ -646,7 +657,17 @@ class Owner:
         kept: list[dict[str, Any]] = []
         if recorder and self._wire_kept is not None:  # told once, to the first recorder
             kept, self._wire_kept = self._wire_kept, None
+        if conn.ros and "outcomes" in conn.watch:
+            self._bridge_seen = True
         return [welcome, *kept]
+
+    def told_kept(self) -> list[dict[str, Any]]:
+        """The outcomes told while no bridge heard them, newer than `OUTCOMES_KEPT_S`; each
+        once (a new bridge asks, once its nodes publish what it is told)."""
+        since = now() - OUTCOMES_KEPT_S
+        kept = [message for t, message in self._told_kept if t >= since]
+        self._told_kept.clear()
+        return kept
 
     def _lapsed(self, t: float) -> None:
         """Each leased client not heard for its lease, the owner's own stalls since not
