@@ -486,7 +486,7 @@ def test_a_servers_recording_holds_every_instruction_its_node_read(tmp_path: Pat
     served = tmp_path / "served.mcap"
     server = Proc("serve", "--config", patient_config(), "--record", str(served))
     peer = Peer(name="record_oneshot_peer")
-    sent = [f"oneshot-{k}" for k in range(20)]
+    sent = [f"oneshot-{k}" for k in range(10)]
     try:
         server.err.wait_for("STATE: ready", 30)
         peer.wait_for_server()

@@ -68,17 +68,18 @@ def main(argv: list[str]) -> int:
             recording.close()
 
 
-#: A new bridge waits until the readers of its results have held their number this long (s),
-#: and no longer than `SETTLE_MOST_S`, before it says the last one's outcomes.
+#: A new bridge waits until its results have a reader, and the number of readers has held
+#: this long (s), and no longer than `SETTLE_MOST_S`, before it says the last one's outcomes:
+#: a busy host's discovery takes seconds.
 SETTLE_QUIET_S = 1.0
-SETTLE_MOST_S = 5.0
+SETTLE_MOST_S = 10.0
 
 
 def settled(pub: Any) -> None:
-    """Until the number of readers `pub` has matched has held for `SETTLE_QUIET_S`."""
+    """Until `pub` has matched a reader and their number has held for `SETTLE_QUIET_S`."""
     deadline = time.monotonic() + SETTLE_MOST_S
     count, since = pub.get_subscription_count(), time.monotonic()
-    while time.monotonic() < min(deadline, since + SETTLE_QUIET_S):
+    while time.monotonic() < deadline and (not count or time.monotonic() < since + SETTLE_QUIET_S):
         time.sleep(0.05)
         now_count = pub.get_subscription_count()
         if now_count != count:
@@ -122,13 +123,6 @@ def _serve(
         on_asked = recording.asked(start.names)
         arm.asked_listeners.append(lambda a: on_asked(*a))
     bridge = Bridge(arm, start, setup.trace, stop_here)
-    if setup.again:
-        # The outcomes of what the last bridge's clients asked, halted as it ended, go on
-        # the result topic (an outside try: none ever came), once the clients that were
-        # there have matched this one's writer (the topic keeps nothing for a late reader).
-        settled(bridge.node.result_pub)
-        with contextlib.suppress(LaneClosed, TimeoutError):
-            arm.kept_outcomes()
 
     def on_ctrl() -> None:
         # The owner says its stop process has ended: the stop is served here until it says
@@ -144,12 +138,24 @@ def _serve(
                 )
                 bridge.safety_spinner.add(bridge.stop)
             elif message[0] == "unserve-stop" and bridge.stop is not None:
-                here, bridge.stop = bridge.stop, None
+                here = bridge.stop
                 here.close()  # its watcher's thread
-                bridge.safety_spinner.remove(here)
+                try:
+                    bridge.safety_spinner.remove(here)
+                except RuntimeError as e:  # a callback held the executor: it serves on too
+                    log.warning("the bridge's stop service stays beside the process's: %s", e)
+                    continue
+                bridge.stop = None
                 log.info("the stop is served by the stop process again")
 
     threading.Thread(target=on_ctrl, name="al5d-bridge-ctrl", daemon=True).start()
+    if setup.again:
+        # The outcomes of what the last bridge's clients asked, halted as it ended, go on
+        # the result topic (an outside try: none ever came), once the clients that were
+        # there have matched this one's writer (the topic keeps nothing for a late reader).
+        settled(bridge.node.result_pub)
+        with contextlib.suppress(LaneClosed, TimeoutError):
+            arm.kept_outcomes()
     # The lane's own event, not a listener added now: a lane that closed before this line
     # (a SIGTERM as the server started) has told its listeners already.
     arm.closed.wait()
