@@ -84,11 +84,18 @@ def test_a_served_pages_buffers_are_loop_safe_and_still_deliver() -> None:
             subprotocols=[f"viser-v{viser.__version__}"],
             open_timeout=WAIT_S,  # type: ignore[list-item]
         ) as conn:
+            # viser keeps the connection's state, then runs the connect callbacks (ours
+            # among them), then starts its sending: the class changes in between.
+            def swapped() -> bool:
+                states = list(ws._client_state_from_id.values())
+                return bool(states) and all(
+                    type(st.message_buffer.message_event) is loopsafe.LoopEvent for st in states
+                )
+
             deadline = time.monotonic() + WAIT_S
-            while not ws._client_state_from_id and time.monotonic() < deadline:
+            while not swapped() and time.monotonic() < deadline:
                 time.sleep(0.01)
-            (state,) = ws._client_state_from_id.values()
-            assert type(state.message_buffer.message_event) is loopsafe.LoopEvent
+            assert swapped(), "the connection's buffer was not made loop-safe"
             while True:  # what the server sends at once on a connection
                 try:
                     conn.recv(timeout=1.0)
