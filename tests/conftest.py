@@ -6,6 +6,7 @@ import faulthandler
 import json
 import logging
 import os
+import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -139,9 +140,19 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_testnodedown(node: Any, error: Any) -> None:
+    """A worker's fuzz counts; for one that died, what it wrote as it died, at once on the
+    controller's stderr: a run whose controller then waited on for its replacement (an
+    idle CI run, 98 % in) was stopped with the summary, and the record, never written."""
     from al5d_rig.fuzzcount import CASES
 
     CASES.update(getattr(node, "workeroutput", {}).get("fuzz_cases", {}))
+    if error is None:
+        return
+    worker = node.gateway.id
+    for record in sorted(FAULTS.glob(f"{worker}-*.txt")):
+        text = record.read_text(errors="replace").strip() or "(nothing: killed outright?)"
+        lines = [f"--- worker {record.stem} went down ({error}); it wrote:", *fault_summary(text)]
+        print("\n".join(lines), file=sys.stderr, flush=True)
 
 
 def fault_summary(text: str, frames: int = 8) -> list[str]:

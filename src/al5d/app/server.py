@@ -232,7 +232,7 @@ class RosSide:
         all). Its bridge and it overlap for a moment; never is there neither."""
         from al5d.ros.processes import Child, receive, send
 
-        restarts: list[float] = []
+        restarts = _Restarts()
         while True:
             code = stop.proc.wait()
             # As the owner ends its lanes close, and the stop process ends as it should.
@@ -240,23 +240,12 @@ class RosSide:
                 return
             with self._swap:
                 send(self.bridge.ctrl, "serve-stop")
-            restarts = [t for t in restarts if t > time.monotonic() - RESTARTS_WITHIN_S]
-            if len(restarts) >= RESTARTS_MAX:
-                log.error(
-                    "the stop process ended (exit code %s), started again %d times in the "
-                    "last %.0f s already: not started again; the bridge serves the stop, "
-                    "where a busy host delays it: restart al5d serve",
-                    code,
-                    len(restarts),
-                    RESTARTS_WITHIN_S,
-                )
+            if not restarts.allowed(
+                f"the stop process ended (exit code {code})",
+                again="the bridge serves the stop until it is started again",
+                not_again="the bridge serves the stop, where a busy host delays it",
+            ):
                 return
-            log.error(
-                "the stop process ended (exit code %s): the bridge serves the stop until it "
-                "is started again",
-                code,
-            )
-            restarts.append(time.monotonic())
             with self._swap:
                 if not self._serving:
                     return
@@ -277,29 +266,19 @@ class RosSide:
         from al5d.ros.params import Settings
         from al5d.ros.processes import Child
 
-        restarts: list[float] = []
+        restarts = _Restarts()
         while True:
             code = self.bridge.proc.wait()
             # As the owner ends its lanes close, and the bridge ends as it should.
             if not self._serving or owner.ending.is_set():
                 return
-            restarts = [t for t in restarts if t > time.monotonic() - RESTARTS_WITHIN_S]
-            if len(restarts) >= RESTARTS_MAX:
-                log.error(
-                    "the ROS 2 bridge ended (exit code %s), started again %d times in the last "
-                    "%.0f s already: not started again; the server goes on without it (its "
-                    "local lane and the stop service still work): restart al5d serve",
-                    code,
-                    len(restarts),
-                    RESTARTS_WITHIN_S,
-                )
+            if not restarts.allowed(
+                f"the ROS 2 bridge ended (exit code {code})",
+                again="what its clients commanded is halted; starting it again",
+                not_again="the server goes on without it (its local lane and the stop "
+                "service still work)",
+            ):
                 return
-            log.error(
-                "the ROS 2 bridge ended (exit code %s): what its clients commanded is halted; "
-                "starting it again",
-                code,
-            )
-            restarts.append(time.monotonic())
             with self._swap:
                 if not self._serving:
                     return
@@ -331,6 +310,33 @@ class RosSide:
             self.bridge.close(CLOSE_S)
         if self.stop is not None:
             self.stop.close()
+
+
+class _Restarts:
+    """How often one child of the server was started again: at most `RESTARTS_MAX` times
+    in `RESTARTS_WITHIN_S`."""
+
+    def __init__(self) -> None:
+        self._times: list[float] = []
+
+    def allowed(self, ended: str, *, again: str, not_again: str) -> bool:
+        """Whether the child that `ended` (said) is started again; said as an error either
+        way, with `again` or with `not_again` and the advice to restart the server."""
+        now = time.monotonic()
+        self._times = [t for t in self._times if t > now - RESTARTS_WITHIN_S]
+        if len(self._times) >= RESTARTS_MAX:
+            log.error(
+                "%s, started again %d times in the last %.0f s already: not started again; "
+                "%s: restart al5d serve",
+                ended,
+                len(self._times),
+                RESTARTS_WITHIN_S,
+                not_again,
+            )
+            return False
+        log.error("%s: %s", ended, again)
+        self._times.append(now)
+        return True
 
 
 def _recording(options: ServerOptions) -> ServerRecording | None:
