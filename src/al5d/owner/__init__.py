@@ -7,6 +7,8 @@ its inbox's lanes, and the local lane by which clients on this machine reach it.
   accepted, read, written, leased and dropped.
 - `desk`: what the lane's clients ask, read into the owner's inbox, and the answers
   routed back to them.
+- `news`: what the owner tells of what its core did, to its listeners and to the lane's
+  watchers, and what it keeps for a client not there yet (a recorder, a ROS bridge).
 - `teller`: the thread that tells in-process futures, listeners and the log, so that the
   owner's thread never runs anyone else's code; and the state told, with its waits.
 - `lane`: the local lane's protocol (a Unix socket, one JSON object a line); `where`:

@@ -5,8 +5,8 @@ the board.
 priority: it takes each input (a request from this process or from a client of its
 local lane, the board's bytes, the time passing), steps the core with it, and carries
 the effects out: bytes to the board through its `Transport`, outcomes and news to the
-lane's clients, and the rest (in-process futures, listeners, the log) to its teller
-thread, so that it never runs anyone else's code. Its inbox has two lanes: every stop
+lane's clients and its listeners (`al5d.owner.news`), and the rest (in-process futures,
+the log) to its teller thread, so that it never runs anyone else's code. Its inbox has two lanes: every stop
 waiting is taken before anything else, and goes to the wire in the same step.
 
     owner = Owner(config, SerialTransport(port, baud)).start()
@@ -24,7 +24,7 @@ import selectors
 import socket
 import threading
 from collections import deque
-from collections.abc import Callable, Hashable
+from collections.abc import Hashable
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import replace
@@ -59,7 +59,6 @@ from al5d.arm.corestate import (
     Tick,
 )
 from al5d.arm.instruction import Instruction, Kind, Outcome, Result
-from al5d.arm.jobs import Sent
 from al5d.arm.resample import Follow
 from al5d.arm.states import Event, State
 from al5d.arm.validate import Ticket, judge
@@ -67,7 +66,8 @@ from al5d.clock import Deadline, now, wall_ns
 from al5d.owner import lane as ln
 from al5d.owner.conns import Conn, Conns
 from al5d.owner.desk import Desk, Request
-from al5d.owner.teller import StateTold, Teller, tell
+from al5d.owner.news import News
+from al5d.owner.teller import Teller
 from al5d.priority import cpu_waited_s, make_urgent
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.errors import LinkLost, SerialFault
@@ -78,14 +78,6 @@ log = logging.getLogger("al5d")
 #: Requests other than stops taken in one turn, at most: a stop that comes meanwhile waits
 #: for no more than these.
 BATCH = 32
-#: The board's writes kept for a recorder that has not yet connected (`keep_wire`), at most:
-#: its bridge connects within a second of the start, the park's writes are a handful.
-WIRE_KEPT = 1000
-#: The outcomes told while no ROS bridge heard them (one ended, the next not yet there),
-#: kept for the next at most: so many, this long (s). Its clients' requests that the owner
-#: halted as it went are answered on the result topic then, not never.
-OUTCOMES_KEPT = 1000
-OUTCOMES_KEPT_S = 120.0
 #: The longest the owner sleeps without looking (a lost wake-up is found then).
 SLEEP_MAX_S = 0.5
 #: A thread that woke this much later than it asked was not running: the host's stall.
@@ -114,24 +106,12 @@ class Owner:
         self.settings = config.server
         self.arm = Arm.of(config, transport.port, transport.baud)
         self._core = Core.start(self.arm, now())
-        self.outcome_listeners: list[Callable[[Outcome], None]] = []
-        self.state_listeners: list[Callable[[State], None]] = []
-        self.motion_listeners: list[Callable[[Sent], None]] = []
-        self.pose_listeners: list[Callable[[Posed], None]] = []
-        #: Every write to the board: (its bytes, when written, when its last byte arrives).
-        self.wire_listeners: list[Callable[[tuple[bytes, float, float]], None]] = []
-        #: Told every instruction as the owner takes it (from any client), before it is judged.
-        self.submit_listeners: list[Callable[[Instruction], None]] = []
-        #: Told the socket of each leased lane client lost for its silence (`Conn.lease_s`),
-        #: from the teller's thread: the process behind it may hang for good.
-        self.lapsed_listeners: list[Callable[[socket.socket], None]] = []
         self.finished = threading.Event()
         #: Set as the owner begins to end, before it closes its lanes: a client that ends
         #: after this (its lane closed) ends as it should (`finished` comes later).
         self.ending = threading.Event()
         self.ended: End | None = None
         self._teller = Teller()
-        self._announced = StateTold(State.INITIALIZING)
         self._refs = itertools.count(1)
         self._futures: dict[int, Future[Any]] = {}
         self._stops: deque[Request] = deque()
@@ -149,16 +129,22 @@ class Owner:
         self._writes = 0
         self._stalled = 0.0
         self._cpu_waited = cpu_waited_s()
-        #: With `keep_wire`, the board's writes until a recorder watches them (a lane client
-        #: that says `recorder` in its hello), told to the first (`al5d serve --record` with
-        #: ROS: the bridge records, and connects while the park may be on the wire
-        #: already); None once told, or not kept.
-        self._wire_kept: list[dict[str, Any]] | None = [] if keep_wire else None
-        #: Outcomes told while no bridge heard them, once one has (`OUTCOMES_KEPT`).
-        self._told_kept: deque[tuple[float, dict[str, Any]]] = deque(maxlen=OUTCOMES_KEPT)
-        self._bridge_seen = False
         self._lanes = Conns(self._selector, lambda conn, why: self._desk.dropped(conn, why), lane)
         self._desk = Desk(self._lanes, self, config.server.client_lease_s)
+        self._news = News(self._teller, self._lanes, keep_wire=keep_wire)
+        # The listeners, told from the teller's thread (`al5d.owner.news`).
+        self.outcome_listeners = self._news.outcome_listeners
+        self.state_listeners = self._news.state_listeners
+        self.motion_listeners = self._news.motion_listeners
+        self.pose_listeners = self._news.pose_listeners
+        #: Every write to the board: (its bytes, when written, when its last byte arrives).
+        self.wire_listeners = self._news.wire_listeners
+        #: Told every instruction as the owner takes it (from any client), before it is judged.
+        self.submit_listeners = self._news.submit_listeners
+        #: Told the socket of each leased lane client lost for its silence (`Conn.lease_s`),
+        #: from the teller's thread: the process behind it may hang for good.
+        self.lapsed_listeners = self._news.lapsed_listeners
+        self._announced = self._news.announced
         self._thread = threading.Thread(target=self._run, name="al5d-owner", daemon=True)
         self._closing = False
 
@@ -439,8 +425,8 @@ class Owner:
         self._ask(request)
 
     def _ask(self, r: Request) -> None:
-        if self.submit_listeners and r.tell:
-            self._teller.put(lambda: tell(self.submit_listeners, r.instr, "submit"))
+        if r.tell:
+            self._news.submitted(r.instr)
         self._input(
             Ask(now(), wall_ns(), r.ref, r.instr, r.ticket, r.stream, r.key, r.client, r.tell)
         )
@@ -486,11 +472,11 @@ class Owner:
             for resolve in effect.resolves():
                 self._resolve(resolve)
         elif isinstance(effect, Posed):
-            self._posed(effect)
+            self._news.posed(effect)
         elif isinstance(effect, Moved):
-            self._moved(effect.sent)
+            self._news.moved(effect.sent)
         elif isinstance(effect, Announce):
-            self._announce(effect)
+            self._news.state(effect, self._core.locked)
         elif isinstance(effect, Reply):
             self._reply(effect.ref, effect.ok)
         elif isinstance(effect, Say):
@@ -513,22 +499,7 @@ class Owner:
             self._pending.append(Failed(now(), wall_ns(), e))
             return
         self._free_at = max(t, self._free_at) + p.wire_time_s(len(data), self.baud)
-        free_at = self._free_at
-        if self.wire_listeners:
-            self._teller.put(lambda: tell(self.wire_listeners, (data, t, free_at), "wire"))
-        kept = self._wire_kept
-        keep = kept is not None and len(kept) < WIRE_KEPT
-        if keep or self._lanes.watching("wire"):
-            message = {"op": "wire", "data": data.decode("latin-1"), "t": t, "free_at": free_at}
-            self._lanes.news("wire", message)
-            if keep and kept is not None:  # the recorder's, whoever else watches meanwhile
-                kept.append(message)
-                if len(kept) == WIRE_KEPT:
-                    log.warning(
-                        "no recorder has connected: the board's first %d writes are kept "
-                        "for it, the later ones will be missing from the recording",
-                        WIRE_KEPT,
-                    )
+        self._news.wire(data, t, self._free_at)
 
     def _open(self) -> None:
         t = now()
@@ -568,12 +539,7 @@ class Owner:
         else:
             self._desk.outcome(effect.ref, outcome)
         if effect.tell:
-            if self.outcome_listeners:
-                self._teller.put(lambda: tell(self.outcome_listeners, outcome, "outcome"))
-            message = {"op": "told", "outcome": ln.outcome_out(outcome)}
-            self._lanes.news("outcomes", message)
-            if self._bridge_seen and not self._lanes.ros_watching("outcomes"):
-                self._told_kept.append((now(), message))
+            self._news.outcome(outcome)
 
     def _reply(self, ref: int, ok: bool) -> None:
         future = self._futures.pop(ref, None)
@@ -581,52 +547,6 @@ class Owner:
             self._teller.put(lambda: _set(future, ok))
         else:
             self._desk.reply(ref, ok)
-
-    def _announce(self, effect: Announce) -> None:
-        new, old, event = effect.new, effect.old, effect.event
-        locked = self._core.locked
-
-        def told() -> None:
-            log.debug("EVENT: %s", event.value)
-            if new is not old:
-                log.info("STATE: %s", new.value)
-                tell(self.state_listeners, new, "state")
-            self._announced.told(new)
-
-        self._teller.put(told)
-        if new is not old:
-            message = {"op": "state", "state": new.value, "locked": locked}
-            self._lanes.news("state", message)
-
-    def _moved(self, sent: Sent) -> None:
-        if self.motion_listeners:
-            self._teller.put(lambda: tell(self.motion_listeners, sent, "motion"))
-        if self._lanes.watching("motion"):
-            message = {
-                "op": "moved",
-                "id": sent.instr.id,
-                "name": sent.instr.name,
-                "step": sent.step,
-                "steps": sent.steps,
-                "data": sent.data.decode("latin-1"),
-                "t_submit": sent.t_submit,
-                "t_write": sent.t_write,
-                "motion": ln.motion_out(sent.motion),
-            }
-            self._lanes.news("motion", message)
-
-    def _posed(self, effect: Posed) -> None:
-        if self.pose_listeners:
-            self._teller.put(lambda: tell(self.pose_listeners, effect, "pose"))
-        if self._lanes.watching("pose"):
-            book = effect.book
-            message = {
-                "op": "posed",
-                "pose": book.pose,
-                "motion": None if book.motion is None else ln.motion_out(book.motion),
-                "running": effect.running,
-            }
-            self._lanes.news("pose", message)
 
     # -- the lane's requests (`al5d.owner.desk.Inbox`: the owner's thread only) -----------------
 
@@ -654,27 +574,17 @@ class Owner:
             "t": now(),
             "wall": wall_ns(),
         }
-        kept: list[dict[str, Any]] = []
-        if recorder and self._wire_kept is not None:  # told once, to the first recorder
-            kept, self._wire_kept = self._wire_kept, None
-        if conn.ros and "outcomes" in conn.watch:
-            self._bridge_seen = True
-        return [welcome, *kept]
+        return [welcome, *self._news.welcomed(conn, recorder)]
 
     def told_kept(self) -> list[dict[str, Any]]:
-        """The outcomes told while no bridge heard them, newer than `OUTCOMES_KEPT_S`; each
-        once (a new bridge asks, once its nodes publish what it is told)."""
-        since = now() - OUTCOMES_KEPT_S
-        kept = [message for t, message in self._told_kept if t >= since]
-        self._told_kept.clear()
-        return kept
+        return self._news.told_kept()
 
     def _lapsed(self, t: float) -> None:
         """Each leased client not heard for its lease, the owner's own stalls since not
         counted, is lost (`Conns.lapsed`: what it commanded, and what the clients it speaks
         for did, is halted); the lapsed listeners are told its socket."""
         for sock in self._lanes.lapsed(t, self._stalled):
-            self._teller.put(lambda s=sock: tell(self.lapsed_listeners, s, "lapsed"))  # type: ignore[misc]
+            self._news.lapsed(sock)
 
     # -- the end -------------------------------------------------------------------------------
 
