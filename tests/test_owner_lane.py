@@ -22,7 +22,7 @@ from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
 from al5d.owner import where
 from al5d.owner.client import Remote
-from al5d_rig.proc import AL5D, Proc, said
+from al5d_rig.proc import AL5D, Proc, patient_config, said
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import Served, served
 
@@ -45,6 +45,30 @@ def test_the_lane_is_the_users_alone(arm: Served) -> None:
     assert stat.S_IMODE(path.parent.stat().st_mode) == 0o700
     assert stat.S_IMODE(path.stat().st_mode) == 0o600
     assert stat.S_ISSOCK(path.stat().st_mode)
+
+
+def test_each_namespace_has_a_lane_of_its_own(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two namespaces never share a lane, and the servers found by their lanes are named as
+    they serve (an outside try: with '_' for '/', `--namespace lab_left` reached the arm
+    of `/lab/left`, moved it and stopped it)."""
+    monkeypatch.setenv("AL5D_RUNTIME_DIR", str(tmp_path))
+    spaces = ["", "lab/left", "lab_left", "/lab/left/", "left", "lab/left_arm", "lab_left/arm"]
+    lanes = {where.path(n) for n in spaces}
+    assert len(lanes) == len(spaces) - 1  # "/lab/left/" is "lab/left"
+    assert where.path("x", "7") != where.path("x", "8")
+    listening = []
+    for name in ["", "lab/left", "lab_left", "lab_left/arm"]:
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        sock.bind(str(where.path(name)))
+        sock.listen()
+        listening.append(sock)
+    try:
+        assert where.namespaces() == ["/", "/lab/left", "/lab_left", "/lab_left/arm"]
+    finally:
+        for sock in listening:
+            sock.close()
 
 
 def test_send_goes_by_the_lane_and_stop_needs_no_import(arm: Served) -> None:
@@ -186,6 +210,40 @@ def test_a_client_that_sends_and_closes_at_once_leaves_its_move_running(arm: Ser
             CMD_S,
             f"round {k}: the base at {target:g}, not halted",
         )
+
+
+def test_a_client_whose_server_was_started_again_reaches_the_new_one() -> None:
+    """A client on the lane whose server ended and was started again (killed, then run
+    again in the same namespace): its next stop, release and move reach the new server;
+    what it asked while none was there says so. An outside try: the client stayed dead,
+    its stop refused "the lane to the owner is closed" for as long as it ran."""
+    from al5d.ros.client import Client, LaneLost, NoOutcome
+
+    namespace = "lane_again"
+    first = Proc("serve", "--namespace", namespace, "--config", patient_config())
+    again: Proc | None = None
+    try:
+        first.err.wait_for("STATE: ready", 60)
+        with Client(namespace, local=True, wait_s=1) as client:
+            assert client.execute("move base=10 time=100", 30).ok
+            first.popen.send_signal(signal.SIGKILL)
+            first.wait(30)
+            wait_until(lambda: client.lane is not None and client.lane.closed.is_set(), 30)
+            with pytest.raises((NoOutcome, LaneLost)):
+                client.stop(timeout=1)
+            again = Proc("serve", "--namespace", namespace, "--config", patient_config())
+            again.err.wait_for("STATE: ready", 60)
+            stop = client.stop(timeout=30)
+            assert stop.ok and stop.via.startswith("the local lane"), stop
+            assert client.release(timeout=30).ok
+            assert client.execute("move base=-10 time=100", 30).ok
+            assert client.read().state == "ready"
+    finally:
+        first.kill()
+        if again is not None:
+            again.popen.send_signal(signal.SIGTERM)
+            assert again.wait(60) == 0
+            again.kill()
 
 
 @pytest.mark.parametrize("how", ["killed", "hung"])

@@ -6,8 +6,9 @@ priority: it takes each input (a request from this process or from a client of i
 local lane, the board's bytes, the time passing), steps the core with it, and carries
 the effects out: bytes to the board through its `Transport`, outcomes and news to the
 lane's clients and its listeners (`al5d.owner.news`), and the rest (in-process futures,
-the log) to its teller thread, so that it never runs anyone else's code. Its inbox has two lanes: every stop
-waiting is taken before anything else, and goes to the wire in the same step.
+the log) to its teller thread, so that it never runs anyone else's code. Its inbox has
+two lanes: every stop waiting is taken before anything else, and goes to the wire in the
+same step.
 
     owner = Owner(config, SerialTransport(port, baud)).start()
     owner.execute(move(base=30, time_ms=800))      # an Outcome

@@ -22,10 +22,13 @@ def folder() -> Path:
 
 def path(namespace: str = "", domain: str | None = None) -> Path:
     """The lane of the server of `namespace` on ROS domain `domain` (the environment's
-    ROS_DOMAIN_ID, 0 by default): one server per name, as on ROS."""
+    ROS_DOMAIN_ID, 0 by default): one server per name, as on ROS. `d0.sock` for no
+    namespace, `d0-lab.left.sock` for `/lab/left`: a '.' is in no ROS name, so two
+    namespaces never share a lane (with '_' for '/', `/lab_left`'s clients reached
+    `/lab/left`'s arm)."""
     domain = domain if domain is not None else os.environ.get("ROS_DOMAIN_ID", "0")
-    name = namespace.strip("/").replace("/", "_") or "_"
-    return folder() / f"d{domain or 0}-{name}.sock"
+    name = namespace.strip("/").replace("/", ".")
+    return folder() / (f"d{domain or 0}-{name}.sock" if name else f"d{domain or 0}.sock")
 
 
 def answers(lane: Path) -> bool:
@@ -44,9 +47,7 @@ def namespaces(domain: str | None = None) -> list[str]:
     """The namespaces ("/" for none) of the servers on ROS domain `domain` whose lanes are
     here and take a connection (a lane left behind by a server that was killed does not)."""
     domain = domain if domain is not None else os.environ.get("ROS_DOMAIN_ID", "0")
-    found = []
-    for lane in sorted(folder().glob(f"d{domain or 0}-*.sock")):
-        if answers(lane):
-            name = lane.stem.split("-", 1)[1]
-            found.append("/" if name == "_" else "/" + name.replace("_", "/"))
-    return found
+    root = path("", domain)
+    found = ["/"] if answers(root) else []
+    named = [lane for lane in folder().glob(f"{root.stem}-*.sock") if answers(lane)]
+    return found + sorted("/" + lane.stem.split("-", 1)[1].replace(".", "/") for lane in named)

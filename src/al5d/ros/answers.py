@@ -8,6 +8,7 @@ both of the client's ways (`al5d.ros.client`'s lane, `al5d.ros.rosway`'s ROS 2, 
 
 from __future__ import annotations
 
+import difflib
 import math
 import os
 from dataclasses import dataclass
@@ -22,6 +23,9 @@ ANSWER_S = 10.0
 #: the server cancels it, or halts it, at the same deadline (`Instruction.wait_ms`), and
 #: says so.
 GIVE_UP_WORD_S = 1.0
+#: How like a namespace found the one asked for must be to be taken for its typo
+#: (`difflib`'s ratio, case aside): `rigth` is `right` (0.8), `right` is not `left`.
+TYPO = 0.75
 
 
 def wait_ms(wait_s: float) -> int:
@@ -105,8 +109,25 @@ def elsewhere(names: Names, node: Any) -> str:
         return ": is 'al5d serve' running?" + closed_hint()
     found = sorted(seen)
     listed = " and ".join([", ".join(found[:-1]), found[-1]] if len(found) > 1 else found)
-    hint = f"--namespace {found[0].strip('/')}" if found[0] != "/" else "no --namespace"
-    return f"; found {listed}: {hint}?"
+    return f"; found {listed}{_which(names.node_namespace, found)}"
+
+
+def _which(asked: str, found: list[str]) -> str:
+    """The one of `found` that `asked` likely meant, said as an option; where none is likely
+    (two servers and no namespace asked, or a namespace asked that is none of them: the
+    arm it names may be down), the namespace is left to the user: a hint to command
+    another arm than the one asked for could move, or stop, the wrong one."""
+
+    def said(namespace: str) -> str:
+        bare = namespace.strip("/")
+        return f"--namespace {bare}?" if bare else "no --namespace?"
+
+    if asked == "/":
+        return f": {said(found[0])}" if len(found) == 1 else ": name one with --namespace"
+    close = difflib.get_close_matches(asked.lower(), [f.lower() for f in found], 1, TYPO)
+    if close:
+        return f": {said(found[[f.lower() for f in found].index(close[0])])}"
+    return ""
 
 
 def closed_hint() -> str:

@@ -18,6 +18,7 @@ import atexit
 import logging
 import os
 import threading
+import time
 import weakref
 from collections.abc import Callable
 from concurrent.futures import Future
@@ -26,6 +27,7 @@ from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Protocol
 
 from al5d.arm.instruction import PRESET_NAMES, Instruction, Kind, Outcome, parse_instruction
+from al5d.clock import Deadline
 from al5d.interrupts import ctrl_c_after
 from al5d.owner import where
 from al5d.owner.client import LaneClosed, Remote
@@ -66,6 +68,8 @@ __all__ = [
 #: The defaults of `al5d send` and `al5d run`: finding the server, and an outcome.
 WAIT_S = 10.0
 OUTCOME_S = 120.0
+#: A lane found closed is tried again this often while a call waits for its server.
+REOPEN_EVERY_S = 0.1
 
 
 class Way(Protocol):
@@ -96,18 +100,51 @@ class Way(Protocol):
 
 class LaneWay:
     """A client's way to a server on this machine: its local lane (`Remote`: no discovery,
-    no DDS). Each instruction's outcome is a future."""
+    no DDS), opened by `connect`. Each instruction's outcome is a future. A lane that
+    closed (its server ended) is opened again by the next call once a server is there
+    (one started again): what was in flight on the old one is unknown, and said so
+    (`LaneLost`); `wait_s`: how long a call waits for that server."""
 
     matched = True
     discovery_s = 0.0
 
-    def __init__(self, lane: Remote, names: Names) -> None:
-        self.lane = lane
+    def __init__(self, connect: Callable[[], Remote], names: Names, wait_s: float) -> None:
+        self._connect = connect
+        self.lane = connect()
         self.names = names
+        self.wait_s = wait_s
         self.via = f"the local lane {where.path(names.namespace)}"
         self._futures: dict[str, Future[Outcome]] = {}
         #: Watched before they are sent: told once they are.
         self._watchers: dict[str, Callable[[Outcome], None]] = {}
+        self._view: ArmView | None = None
+        self._reopening = threading.Lock()
+
+    def _open(self, patience: float) -> Remote:
+        """The lane, opened again if it has closed and a server takes it within `patience` s
+        (an outside try: a client stayed dead after its server was started again, its
+        stop refused as "the lane to the owner is closed" for as long as it ran). Else the
+        closed one, whose calls raise `LaneClosed`."""
+        with self._reopening:
+            if not self.lane.closed.is_set():
+                return self.lane
+            deadline = Deadline(patience)
+            while True:
+                try:
+                    lane = self._connect()
+                except LaneClosed:
+                    if deadline.expired:
+                        return self.lane
+                    time.sleep(min(REOPEN_EVERY_S, max(deadline.left(), 0.0)))
+                    continue
+                log.warning(
+                    "the server's lane had closed (the server ended); opened again: "
+                    "what was in flight on the old one is unknown"
+                )
+                self.lane = lane
+                if self._view is not None:
+                    follow_lane(lane, self._view)
+                return lane
 
     def wait_for_server(self, timeout: float) -> None:
         pass  # the lane answered when it was opened
@@ -124,9 +161,10 @@ class LaneWay:
         return "the lane to the owner is closed" if self.lane.closed.is_set() else None
 
     def send(self, instr: Instruction, wait_s: float) -> None:
+        lane = self._open(self.wait_s)
         instr = replace(instr, wait_ms=wait_ms(wait_s))
         with ctrl_c_after():
-            future = self._futures[instr.id] = self.lane.submit(instr)
+            future = self._futures[instr.id] = lane.submit(instr)
             watcher = self._watchers.pop(instr.id, None)
             if watcher is not None:
                 _watch(future, watcher)
@@ -178,13 +216,16 @@ class LaneWay:
         return self.lane.config
 
     def view(self) -> ArmView:
-        view = ArmView(self.lane.config.model, live=self.lane.positions)
+        view = ArmView(self.lane.config.model, live=lambda: self.lane.positions())
         follow_lane(self.lane, view)
+        self._view = view
         return view
 
     def ask(self, kind: Kind, timeout: float) -> Answer:
+        deadline = Deadline(timeout)
+        lane = self._open(timeout)
         try:
-            outcome = self.lane.submit(Instruction(kind)).result(timeout)
+            outcome = lane.submit(Instruction(kind)).result(max(deadline.left(), 0.0))
         except FutureTimeout:
             raise NoOutcome(
                 f"{kind.value}: no answer on the local lane within {timeout:g} s "
@@ -227,22 +268,25 @@ class Client:
         self._closed = False
         self._view: ArmView | None = None
         self._way: Way
-        #: The server's local lane, where this client takes it (else None: ROS 2).
-        self.lane: Remote | None = None
+        lane: LaneWay | None = None
         if local is not False:
             path = where.path(names.namespace)
-            try:
-                self.lane = Remote.connect(
+
+            def connect() -> Remote:
+                return Remote.connect(
                     path, name=f"al5d-client-{os.getpid()}", watch=("state", "pose"), lease=True
                 )
+
+            try:
+                lane = LaneWay(connect, names, wait_s)
             except LaneClosed as e:
                 if local:
                     raise NoServer(
                         f"no al5d server on this machine's lane: {e}{elsewhere(names, None)}"
                     ) from None
                 log.debug("%s: ROS 2 then", e)
-        if self.lane is not None:
-            self._way = LaneWay(self.lane, names)
+        if lane is not None:
+            self._way = lane
         else:
             # rclpy and the messages are imported where the ROS 2 way is taken: a client of
             # a local server (its lane) starts without them (about half a second less).
@@ -253,6 +297,11 @@ class Client:
 
     def __enter__(self) -> Client:
         return self
+
+    @property
+    def lane(self) -> Remote | None:
+        """The server's local lane, where this client takes it (else None: ROS 2)."""
+        return self._way.lane if isinstance(self._way, LaneWay) else None
 
     def __exit__(self, *exc: object) -> None:
         self.close()
@@ -314,9 +363,11 @@ class Client:
         `id` names the outcome). `wait_s`: how long its outcome will be waited for (0: for
         ever), from now: the server refuses it as stale if it comes later than that, and
         cancels it (halts it, if it runs) when that has passed without an outcome.
-        Raises `GrammarError` for text that is not an instruction, `LostContact` while
-        the server is out of contact, `NotSent` over ROS 2 while it has not acknowledged
-        what this client sent before (as many as DDS keeps): nothing is sent then."""
+        Over ROS 2 the first use waits for the server (`NoServer` if it is not found
+        within the client's `wait_s`). Raises `GrammarError` for text that is not an instruction,
+        `LostContact` while the server is out of contact, `NotSent` over ROS 2 while it
+        has not acknowledged what this client sent before (as many as DDS keeps): nothing
+        is sent then."""
         if isinstance(instr, str):
             instr = parse_instruction(instr, PRESET_NAMES)
         self._check_open()

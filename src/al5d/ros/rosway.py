@@ -282,8 +282,12 @@ class RosWay:
 
     def send(self, instr: Instruction, wait_s: float) -> None:
         """Publish `instr` with this client's lease and `wait_s` (the server refuses it as
-        stale if it comes later). `LostContact` while the server is out of contact,
+        stale if it comes later), once the server is found (`NoServer` if it is not within
+        `wait_s`: one published before then reaches no server, or only its stop watcher,
+        and was lost without a word). `LostContact` while the server is out of contact,
         `NotSent` while its writer is full of what the server has not acknowledged."""
+        if not self.matched:
+            self.wait_for_server(self.wait_s)
         if self.lost_contact() is not None:
             raise self._lost(f"{instr.name} [{instr.id}]: not sent")
         msg = to_message(instr)
@@ -355,8 +359,6 @@ class RosWay:
         """Send `instr` (once the server is found: `NoServer` if it is not within `wait_s`);
         its outcome, the server's cancel once `timeout` s have passed (`Client.execute`).
         `NoOutcome` if none comes (`LostContact`: the server went out of contact first)."""
-        if not self.matched:
-            self.wait_for_server(self.wait_s)
         self.send(instr, timeout)
         # The server gives up on a move with its sender, and says so: listened for a while
         # more. A release or a shutdown (sent here where their service is missing) it obeys.
