@@ -230,20 +230,34 @@ def test_standalone_takes_a_misaligned_arm() -> None:
     assert "--misalign knee: no such joint" in wrong.err.wait_for("al5d emulator:", 5)
 
 
-def test_a_misaligned_arm_says_where_it_truly_stands(config: ArmConfig, tmp_path: Path) -> None:
+@pytest.mark.parametrize("namespace", ["", "right"])
+def test_a_misaligned_arm_says_where_it_truly_stands(
+    config: ArmConfig, tmp_path: Path, namespace: str
+) -> None:
     """`--misalign` publishes the arm's true angles on ROS (physical_joint_states), for the web
-    view and `al5d calibrate` to show: the base at the config's 0 deg stands 40 us off."""
+    view and `al5d calibrate` to show: the base at the config's 0 deg stands 40 us off. In
+    a namespace its joints are named as the server's are (an outside try: `right`'s were
+    `base`..., its `/right/joint_states` `right_base`...)."""
     from rclpy.node import Node
+    from sensor_msgs.msg import JointState
 
     from al5d.ros.dds import start_context
     from al5d.ros.executors import Spinner
     from al5d.ros.names import Names
     from al5d.ros.physical import PhysicalReader
+    from al5d.ros.qos import QOS_LATEST
 
-    board = Standalone(tmp_path, "--misalign", "base=40")
+    names = Names.of(namespace)
+    prefix = config.server.joint_prefix_in(names.namespace)
+    assert bool(prefix) == bool(namespace)
+    board = Standalone(tmp_path, "--misalign", "base=40", "--namespace", namespace)
     context = start_context()
     node = Node("al5d_test_physical", context=context)
-    reader = PhysicalReader(node, Names(), config.model)
+    reader = PhysicalReader(node, names, config.model, prefix=prefix)
+    heard: list[list[str]] = []
+    node.create_subscription(
+        JointState, names.physical_joint_states, lambda m: heard.append(list(m.name)), QOS_LATEST
+    )
     spinner = Spinner(node, context)
     try:
         base = config.joints["base"]
@@ -257,9 +271,12 @@ def test_a_misaligned_arm_says_where_it_truly_stands(config: ArmConfig, tmp_path
                 break
         assert seen is not None and abs(seen["base"] - want) < 0.05, (seen, want)
         assert abs(want) > 3  # 40 us is about 4 degrees: the misalignment is there to see
+        assert heard and all(name.startswith(prefix) for name in heard[-1]), heard[-1]
+        assert prefix + "base" in heard[-1], heard[-1]
     finally:
         spinner.close()
-        assert "where the arm truly stands goes on /physical_joint_states" in board.close()
+        said = f"where the arm truly stands goes on {names.physical_joint_states}"
+        assert said in board.close()
 
 
 def test_a_link_path_that_is_taken_is_refused_and_left_as_it_is(

@@ -347,14 +347,15 @@ def calibrate_command(
         print(f"al5d calibrate: {path}, joints {', '.join(procedure.joints)}", file=out)
         # Where an emulated arm truly stands is on ROS 2 only (`al5d emulator --misalign`).
         physical: PhysicalReader
+        prefix = config.server.joint_prefix_in(client.names.namespace)
         if client.lane is not None:
-            physical = own = OwnPhysicalReader(client.names, config.model)
+            physical = own = OwnPhysicalReader(client.names, config.model, prefix=prefix)
             if os.path.realpath(client.lane.port).startswith("/dev/pts/"):
                 # An emulated board (a pseudo-terminal): its true angles come over ROS 2, to
                 # a reader whose discovery, on a loaded host, outlasts the first move.
                 physical.next(WITNESS_FIND_S)
         else:
-            physical = PhysicalReader(client.node, client.names, config.model)
+            physical = PhysicalReader(client.node, client.names, config.model, prefix=prefix)
 
         def witness() -> Mapping[str, float] | None:
             # A sample taken after the move's outcome, where an emulated arm says any.

@@ -229,7 +229,8 @@ def _physical(config: ArmConfig, namespace: str) -> PhysicalPublisher:
         f"al5d emulator: where the arm truly stands goes on {names.physical_joint_states}",
         file=sys.stderr,
     )
-    return PhysicalPublisher(names, config.model)
+    prefix = config.server.joint_prefix_in(names.namespace)
+    return PhysicalPublisher(names, config.model, prefix=prefix)
 
 
 def _until_signal() -> threading.Event:

@@ -1,8 +1,9 @@
 """The arm as it physically stands, where something knows it: an emulated arm's true joint
 angles (`al5d emulator --misalign`: an arm other than its configuration says) on the topic
 `physical_joint_states` (sensor_msgs/JointState: the URDF's names and values, as
-/joint_states), so that the web view and `al5d calibrate` can show it beside what the model
-believes. A real arm has no such topic: nothing measures where it stands.
+/joint_states, the server's joint prefix in a namespace too), so that the web view and
+`al5d calibrate` can show it beside what the model believes. A real arm has no such
+topic: nothing measures where it stands.
 
 `PhysicalPublisher` publishes it from a process of its own (the emulator's);
 `PhysicalReader` keeps the latest, on a client's node.
@@ -31,10 +32,14 @@ FRESH_S = 1.0
 
 class PhysicalPublisher:
     """Publishes, once started, `read()` (arm degrees of every joint) RATE_HZ times a second
-    from a thread of its own, on a DDS participant of its own, until closed."""
+    from a thread of its own, on a DDS participant of its own, until closed; each URDF
+    joint named with `prefix` (the server's: `ServerSettings.joint_prefix_in`)."""
 
-    def __init__(self, names: Names, model: ArmModel, rate_hz: float = RATE_HZ) -> None:
+    def __init__(
+        self, names: Names, model: ArmModel, rate_hz: float = RATE_HZ, *, prefix: str = ""
+    ) -> None:
         self.model = model
+        self.prefix = prefix
         self._period = 1.0 / rate_hz
         self.context = start_context()
         self.node = Node(
@@ -60,7 +65,10 @@ class PhysicalPublisher:
         while not self._done.wait(self._period):
             assert self._read is not None
             values = self.model.to_urdf(dict(self._read()))
-            msg = JointState(name=list(values), position=[float(v) for v in values.values()])
+            msg = JointState(
+                name=[self.prefix + name for name in values],
+                position=[float(v) for v in values.values()],
+            )
             msg.header.stamp = self.node.get_clock().now().to_msg()
             self.pub.publish(msg)
 
@@ -74,7 +82,8 @@ class PhysicalPublisher:
 
 class PhysicalReader:
     """The latest physical pose published for one arm, read on `node` (which its owner spins);
-    `on_pose` is called with each (arm degrees) in the executor's thread."""
+    `on_pose` is called with each (arm degrees) in the executor's thread. Its joints'
+    names may carry `prefix` (the server's joint prefix), or none."""
 
     def __init__(
         self,
@@ -82,16 +91,20 @@ class PhysicalReader:
         names: Names,
         model: ArmModel,
         on_pose: Callable[[dict[str, float]], None] | None = None,
+        *,
+        prefix: str = "",
     ) -> None:
         self.model = model
         self.on_pose = on_pose
+        self.prefix = prefix
         self._latest: tuple[float, dict[str, float]] | None = None
         self._cv = threading.Condition()
         node.create_subscription(JointState, names.physical_joint_states, self._on, QOS_LATEST)
 
     def _on(self, msg: JointState) -> None:
         try:
-            degrees = self.model.from_urdf(dict(zip(msg.name, msg.position, strict=True)))
+            named = zip(map(self._bare, msg.name), msg.position, strict=True)
+            degrees = self.model.from_urdf(dict(named))
         except (ModelError, ValueError):
             return  # not this arm's joints
         with self._cv:
@@ -99,6 +112,9 @@ class PhysicalReader:
             self._cv.notify_all()
         if self.on_pose is not None:
             self.on_pose(degrees)
+
+    def _bare(self, name: str) -> str:
+        return name[len(self.prefix) :] if self.prefix and name.startswith(self.prefix) else name
 
     def degrees(self, fresh_s: float = FRESH_S) -> dict[str, float] | None:
         """Where the joints stand, if a sample came within `fresh_s` (None: nothing says)."""
@@ -126,12 +142,12 @@ class OwnPhysicalReader(PhysicalReader):
     """A `PhysicalReader` on a node and DDS participant of its own, spun until `close`: for a
     client that has no node (one on the server's local lane)."""
 
-    def __init__(self, names: Names, model: ArmModel) -> None:
+    def __init__(self, names: Names, model: ArmModel, *, prefix: str = "") -> None:
         from al5d.ros.executors import Spinner
 
         context = start_context()
         node = Node(f"al5d_witness_{os.getpid()}", namespace=names.node_namespace, context=context)
-        super().__init__(node, names, model)
+        super().__init__(node, names, model, prefix=prefix)
         self._spinner = Spinner(node, context)
 
     def close(self) -> None:

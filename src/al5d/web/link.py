@@ -154,7 +154,7 @@ class WebNode:
         node.create_subscription(JointTrajectory, names.trajectory, self._on_trajectory, QOS_LATEST)
         node.create_subscription(TFMessage, "/tf_static", self._on_static, QOS_TF_STATIC)
         # Where an emulated arm truly stands, if one says (`al5d emulator --misalign`).
-        PhysicalReader(node, names, model, listener.on_physical)
+        PhysicalReader(node, names, model, listener.on_physical, prefix=joint_prefix)
         #: The local lane of a server of these names on this machine, where the STOP goes
         #: first (no discovery: `al5d.owner.quick`), if a server is there.
         self.lane = where.path(names.namespace)
