@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import signal
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -164,6 +165,18 @@ def test_with_only_namespaced_servers_a_client_names_them(arms: list[Arm], via: 
     assert lost.wait(30) == exits.NO_SERVER
     said = "\n".join(lost.err.drain())
     assert "found /left and /right: name one with --namespace" in said, said
+
+
+def test_a_web_view_with_no_server_at_its_name_names_the_ones_it_sees(arms: list[Arm]) -> None:
+    """As `al5d send` does: an outside try's page waited with no word of /left and /right."""
+    web = Proc("web", "--port", "0")
+    try:
+        said = web.err.wait_for("no al5d server heard at /al5d/instruction", 60)
+        assert "found /left and /right: name one with --namespace" in said, said
+    finally:
+        web.popen.send_signal(signal.SIGTERM)
+        web.wait(60)
+        web.kill()
 
 
 def test_each_arms_control_actions_move_that_arm_only(arms: list[Arm], config: ArmConfig) -> None:

@@ -126,11 +126,32 @@ def serve_web(options: WebOptions) -> int:
         view.names.instruction,
         os.environ.get("ROS_DOMAIN_ID", "0"),
     )
+    threading.Thread(target=_say_where, args=(view, done), daemon=True).start()
     try:
         wait_set(done)  # set by a signal's handler, which this main thread must run
     finally:
         view.close()
     return 0
+
+
+#: A web view that has not heard its server in this long says which servers it can see.
+FIND_SERVER_S = 5.0
+
+
+def _say_where(view: WebView, done: threading.Event) -> None:
+    """Where the server has not been heard in `FIND_SERVER_S`, the servers seen under other
+    namespaces, said once (an outside try: with only /left and /right, the page waited
+    with no word of them, where `al5d send` names them)."""
+    from al5d.ros.answers import elsewhere
+
+    if view.link.heard.wait(FIND_SERVER_S) or done.is_set():
+        return
+    log.warning(
+        "web: no al5d server heard at %s in %g s%s",
+        view.names.instruction,
+        FIND_SERVER_S,
+        elsewhere(view.names, view.link.node),
+    )
 
 
 #: prctl(2): the signal a child gets when its parent ends.

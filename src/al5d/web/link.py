@@ -18,6 +18,7 @@ from __future__ import annotations
 import itertools
 import logging
 import os
+import threading
 import time
 from collections.abc import Mapping, Sequence
 from typing import Protocol
@@ -112,6 +113,8 @@ class WebNode:
         self.listener = listener
         self.model = model
         self.presets = presets
+        #: Set once the server's state has been heard.
+        self.heard = threading.Event()
         self.context = start_context()
         self.node = node = Node(
             f"al5d_web_{os.getpid()}", namespace=names.node_namespace, context=self.context
@@ -171,6 +174,7 @@ class WebNode:
         self.listener.on_joints(names, list(msg.position), time.monotonic())
 
     def _on_state(self, msg: String) -> None:
+        self.heard.set()
         self.listener.on_state(str(msg.data))
 
     def _on_result(self, msg: InstructionResult) -> None:
