@@ -20,7 +20,7 @@ from std_srvs.srv import Trigger
 
 from al5d.arm.config import ArmConfig
 from al5d_rig.boardproc import BoardProcess
-from al5d_rig.proc import Proc
+from al5d_rig.proc import Proc, patient_config
 from al5d_rig.rospeer import Peer, wait_until
 
 pytestmark = pytest.mark.solo  # load suites: alone (see pyproject.toml)
@@ -31,7 +31,10 @@ def served(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Itera
     """The server, its board in a process of its own."""
     link = tmp_path_factory.mktemp("bursts") / "ssc32u"
     emu = BoardProcess(link, config=config)  # its own GIL: the load here cannot starve it
-    proc = Proc("serve", "--port", str(link), "--log-level", "INFO")
+    # Patient with the board's answers: the busy loops beside it still take its core, and
+    # a fault the link's timeout took for one rejected the goals meanwhile (a CI run: 153
+    # of 300 rejected, beside two busy loops).
+    proc = Proc("serve", "--port", str(link), "--config", patient_config(), "--log-level", "INFO")
     try:
         proc.err.wait_for("STATE: ready", 30)
         yield proc
@@ -68,7 +71,9 @@ def test_a_burst_of_300_goals_and_300_result_requests_are_all_answered(
     # Why any was rejected is in the server's log (a CI run beside two busy loops saw
     # some rejected, once in many runs, and did not say why).
     rejected = sum(not h.accepted for h in handles)
-    assert rejected == 0, (rejected, served.err.drain(0.5)[-20:])
+    if rejected:  # printed whole: an assertion's message is cut short in the report
+        print("\n".join(served.err.drain(0.5)[-60:]))
+    assert rejected == 0, f"{rejected} of 300 rejected: the server's log is printed above"
     peer.trigger("stop")  # cancels what waits: every goal has its result now
     results = [h.get_result_async() for h in handles]
     assert all_done(results, 30) == 300

@@ -167,11 +167,31 @@ def test_with_only_namespaced_servers_a_client_names_them(arms: list[Arm], via: 
     assert "found /left and /right: name one with --namespace" in said, said
 
 
+def test_another_arm_is_offered_only_for_a_typo() -> None:
+    """A namespace that is not found is taken for another only where it is that one
+    mistyped; one a letter or digit apart is another arm, which may be down (a review:
+    `arm1` offered `arm2`, `lab_left` offered `lab/left`)."""
+    from al5d.ros.answers import _which
+
+    assert _which("/rigth", ["/left", "/right"]) == ": --namespace right?"
+    assert _which("/RIGHT", ["/left", "/right"]) == ": --namespace right?"
+    for asked, found in [
+        ("/arm1", ["/arm2"]),
+        ("/lab_left", ["/lab/left"]),
+        ("/left", ["/left2"]),
+        ("/right", ["/left"]),
+        ("/middle", ["/left", "/right"]),
+    ]:
+        assert _which(asked, found) == "", (asked, found)
+    assert _which("/", ["/left"]) == ": --namespace left?"  # no arm named: the only one
+    assert _which("/", ["/left", "/right"]) == ": name one with --namespace"
+
+
 def test_a_web_view_with_no_server_at_its_name_names_the_ones_it_sees(arms: list[Arm]) -> None:
     """As `al5d send` does: an outside try's page waited with no word of /left and /right."""
     web = Proc("web", "--port", "0")
     try:
-        said = web.err.wait_for("no al5d server heard at /al5d/instruction", 60)
+        said = web.err.wait_for("no al5d server heard at /al5d/instruction yet", 60)
         assert "found /left and /right: name one with --namespace" in said, said
     finally:
         web.popen.send_signal(signal.SIGTERM)

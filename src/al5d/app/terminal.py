@@ -406,7 +406,7 @@ def shell(
                 # Ctrl-C while a move of the shell's runs in the background stops the arm,
                 # as it does while one runs in the foreground (seen: the move ran on).
                 if any(client.sent(i.id) and client.outcome(i.id, 0) is None for i in background):
-                    report.line(f"Ctrl-C: {client.stop()}")
+                    report.line(f"Ctrl-C: {_stop(client)}")
                     report.all_done = False
                 continue
             if line.strip().lower() in SHELL_QUIT:
@@ -423,8 +423,7 @@ def shell(
             try:
                 _shell_step(client, report, step, timeout, background, watch, interactive)
             except KeyboardInterrupt:
-                answer = client.stop()
-                report.line(f"Ctrl-C: {answer}")
+                report.line(f"Ctrl-C: {_stop(client)}")
                 report.all_done = False
                 item, in_background = step
                 if isinstance(item, Instruction) and not in_background:
@@ -432,7 +431,7 @@ def shell(
                         report.outcome(client.outcome(item.id, timeout), instr=item)
                     else:
                         report.not_sent(item)
-            except NoOutcome as e:
+            except (NoOutcome, NoServer) as e:  # a server gone: said, and the shell goes on
                 report.line(str(e))
                 report.all_done = False
                 if isinstance(e, (LostContact, LaneLost)):
@@ -482,3 +481,12 @@ def _shell_step(
         return
     # At a terminal the line typed is on the screen already: it is not echoed.
     _step(client, report, item, in_background, timeout, background, watch, echo=not interactive)
+
+
+def _stop(client: Client) -> str:
+    """The shell's stop on Ctrl-C, said as answered, or why it was not (a server gone: the
+    shell goes on, where the error ended it)."""
+    try:
+        return str(client.stop())
+    except (NoOutcome, NoServer) as e:
+        return str(e)

@@ -109,13 +109,16 @@ class Remote:
             hello["lease"] = True
         if ros:  # what it asks came over ROS 2, where a recording has it already
             hello["ros"] = True
-        self._send(hello)
         try:
+            self._send(hello)
             welcome = self._welcome.result(timeout)
+            self.config: ArmConfig = parse_config(welcome["config"], "the server's configuration")
         except TimeoutError:
             self.close()
             raise LaneClosed(f"the owner did not answer hello within {timeout:g} s") from None
-        self.config: ArmConfig = parse_config(welcome["config"], "the server's configuration")
+        except BaseException:  # Ctrl-C, a welcome this version cannot read: nothing left open
+            self.close(bye=False)
+            raise
         self.settings = self.config.server
         #: The file the server read its configuration from (the shipped one if it said none).
         self.config_file: Path = (

@@ -8,7 +8,6 @@ both of the client's ways (`al5d.ros.client`'s lane, `al5d.ros.rosway`'s ROS 2, 
 
 from __future__ import annotations
 
-import difflib
 import math
 import os
 from dataclasses import dataclass
@@ -23,9 +22,6 @@ ANSWER_S = 10.0
 #: the server cancels it, or halts it, at the same deadline (`Instruction.wait_ms`), and
 #: says so.
 GIVE_UP_WORD_S = 1.0
-#: How like a namespace found the one asked for must be to be taken for its typo
-#: (`difflib`'s ratio, case aside): `rigth` is `right` (0.8), `right` is not `left`.
-TYPO = 0.75
 
 
 def wait_ms(wait_s: float) -> int:
@@ -124,10 +120,26 @@ def _which(asked: str, found: list[str]) -> str:
 
     if asked == "/":
         return f": {said(found[0])}" if len(found) == 1 else ": name one with --namespace"
-    close = difflib.get_close_matches(asked.lower(), [f.lower() for f in found], 1, TYPO)
-    if close:
-        return f": {said(found[[f.lower() for f in found].index(close[0])])}"
-    return ""
+    typos = [f for f in found if _typo(asked, f)]
+    return f": {said(typos[0])}" if len(typos) == 1 else ""
+
+
+def _typo(asked: str, found: str) -> bool:
+    """Whether `asked` is `found` mistyped: the same but for case, or two letters side by
+    side swapped (`rigth`). Never a name a letter or digit apart (`arm1`, `arm2`): that is
+    another arm, and so is `lab_left` for `lab/left`."""
+    a, f = asked.lower(), found.lower()
+    if a == f:
+        return True
+    if len(a) != len(f):
+        return False
+    apart = [k for k in range(len(a)) if a[k] != f[k]]
+    return (
+        len(apart) == 2
+        and apart[1] == apart[0] + 1
+        and a[apart[0]] == f[apart[1]]
+        and (a[apart[1]] == f[apart[0]])
+    )
 
 
 def closed_hint() -> str:

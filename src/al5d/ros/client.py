@@ -30,7 +30,7 @@ from al5d.arm.instruction import PRESET_NAMES, Instruction, Kind, Outcome, parse
 from al5d.clock import Deadline
 from al5d.interrupts import ctrl_c_after
 from al5d.owner import where
-from al5d.owner.client import LaneClosed, Remote
+from al5d.owner.client import WELCOME_S, LaneClosed, Remote
 from al5d.ros.answers import (
     ANSWER_S,
     GIVE_UP_WORD_S,
@@ -70,6 +70,8 @@ WAIT_S = 10.0
 OUTCOME_S = 120.0
 #: A lane found closed is tried again this often while a call waits for its server.
 REOPEN_EVERY_S = 0.1
+#: The least wait for the answer to a stop, release or shutdown sent on a lane just opened.
+ANSWER_MIN_S = 1.0
 
 
 class Way(Protocol):
@@ -108,9 +110,9 @@ class LaneWay:
     matched = True
     discovery_s = 0.0
 
-    def __init__(self, connect: Callable[[], Remote], names: Names, wait_s: float) -> None:
+    def __init__(self, connect: Callable[[float], Remote], names: Names, wait_s: float) -> None:
         self._connect = connect
-        self.lane = connect()
+        self.lane = connect(WELCOME_S)
         self.names = names
         self.wait_s = wait_s
         self.via = f"the local lane {where.path(names.namespace)}"
@@ -119,32 +121,45 @@ class LaneWay:
         self._watchers: dict[str, Callable[[Outcome], None]] = {}
         self._view: ArmView | None = None
         self._reopening = threading.Lock()
+        self._closed = False
 
-    def _open(self, patience: float) -> Remote:
-        """The lane, opened again if it has closed and a server takes it within `patience` s
-        (an outside try: a client stayed dead after its server was started again, its
-        stop refused as "the lane to the owner is closed" for as long as it ran). Else the
-        closed one, whose calls raise `LaneClosed`."""
-        with self._reopening:
-            if not self.lane.closed.is_set():
-                return self.lane
-            deadline = Deadline(patience)
-            while True:
-                try:
-                    lane = self._connect()
-                except LaneClosed:
-                    if deadline.expired:
-                        return self.lane
-                    time.sleep(min(REOPEN_EVERY_S, max(deadline.left(), 0.0)))
-                    continue
-                log.warning(
-                    "the server's lane had closed (the server ended); opened again: "
-                    "what was in flight on the old one is unknown"
-                )
-                self.lane = lane
-                if self._view is not None:
-                    follow_lane(lane, self._view)
-                return lane
+    def _open(self, what: str, patience: float) -> Remote:
+        """The lane for `what` (an instruction's name), opened again if it has closed and a
+        server takes it within `patience` s (an outside try: a client stayed dead after
+        its server was started again, its stop refused as "the lane to the owner is
+        closed" for as long as it ran). Raises `NoServer` where none does: nothing sent."""
+        deadline = Deadline(patience)
+        reopened = False
+        if self._reopening.acquire(timeout=max(patience, 0.0)):
+            try:
+                while self.lane.closed.is_set() and not self._closed:
+                    try:
+                        lane = self._connect(max(min(WELCOME_S, deadline.left()), 0.1))
+                    except LaneClosed:
+                        if deadline.expired:
+                            break
+                        time.sleep(min(REOPEN_EVERY_S, max(deadline.left(), 0.0)))
+                        continue
+                    if self._closed:  # closed meanwhile: the new lane is not kept
+                        lane.close()
+                        break
+                    self.lane, reopened = lane, True
+            finally:
+                self._reopening.release()
+        lane, view = self.lane, self._view
+        if reopened:
+            log.warning(
+                "the server's lane had closed (the server ended); opened again: what was "
+                "in flight on the old one is unknown"
+            )
+            if view is not None:  # outside the lock: the view's listeners may call back
+                follow_lane(lane, view)
+        if lane.closed.is_set():
+            raise NoServer(
+                f"{what}: not sent: the lane to the server is closed and no al5d server took "
+                f"it again within {patience:g} s ({where.path(self.names.namespace)})"
+            )
+        return lane
 
     def wait_for_server(self, timeout: float) -> None:
         pass  # the lane answered when it was opened
@@ -161,7 +176,7 @@ class LaneWay:
         return "the lane to the owner is closed" if self.lane.closed.is_set() else None
 
     def send(self, instr: Instruction, wait_s: float) -> None:
-        lane = self._open(self.wait_s)
+        lane = self._open(f"{instr.name} [{instr.id}]", self.wait_s)
         instr = replace(instr, wait_ms=wait_ms(wait_s))
         with ctrl_c_after():
             future = self._futures[instr.id] = lane.submit(instr)
@@ -223,9 +238,10 @@ class LaneWay:
 
     def ask(self, kind: Kind, timeout: float) -> Answer:
         deadline = Deadline(timeout)
-        lane = self._open(timeout)
+        lane = self._open(kind.value, timeout)
         try:
-            outcome = lane.submit(Instruction(kind)).result(max(deadline.left(), 0.0))
+            # A lane opened again late in the wait still gives the answer its moment.
+            outcome = lane.submit(Instruction(kind)).result(max(deadline.left(), ANSWER_MIN_S))
         except FutureTimeout:
             raise NoOutcome(
                 f"{kind.value}: no answer on the local lane within {timeout:g} s "
@@ -237,7 +253,9 @@ class LaneWay:
         return Answer(kind.value, outcome.ok, message, "the local lane")
 
     def close(self) -> None:
-        self.lane.close()
+        self._closed = True
+        with self._reopening:
+            self.lane.close()
 
 
 def _watch(future: Future[Outcome], watcher: Callable[[Outcome], None]) -> None:
@@ -272,9 +290,13 @@ class Client:
         if local is not False:
             path = where.path(names.namespace)
 
-            def connect() -> Remote:
+            def connect(timeout: float) -> Remote:
                 return Remote.connect(
-                    path, name=f"al5d-client-{os.getpid()}", watch=("state", "pose"), lease=True
+                    path,
+                    name=f"al5d-client-{os.getpid()}",
+                    watch=("state", "pose"),
+                    lease=True,
+                    timeout=timeout,
                 )
 
             try:

@@ -146,11 +146,15 @@ def _say_where(view: WebView, done: threading.Event) -> None:
 
     if view.link.heard.wait(FIND_SERVER_S) or done.is_set():
         return
+    try:
+        seen = elsewhere(view.names, view.link.node)
+    except Exception:  # the view ending meanwhile (its node destroyed): nothing to say
+        return
     log.warning(
-        "web: no al5d server heard at %s in %g s%s",
+        "web: no al5d server heard at %s yet (%g s; the page shows it once one is)%s",
         view.names.instruction,
         FIND_SERVER_S,
-        elsewhere(view.names, view.link.node),
+        seen,
     )
 
 
