@@ -138,7 +138,7 @@ def _typo(asked: str, found: str) -> bool:
         len(apart) == 2
         and apart[1] == apart[0] + 1
         and a[apart[0]] == f[apart[1]]
-        and (a[apart[1]] == f[apart[0]])
+        and a[apart[1]] == f[apart[0]]
     )
 
 

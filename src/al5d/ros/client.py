@@ -385,8 +385,9 @@ class Client:
         `id` names the outcome). `wait_s`: how long its outcome will be waited for (0: for
         ever), from now: the server refuses it as stale if it comes later than that, and
         cancels it (halts it, if it runs) when that has passed without an outcome.
-        Over ROS 2 the first use waits for the server (`NoServer` if it is not found
-        within the client's `wait_s`). Raises `GrammarError` for text that is not an instruction,
+        Over ROS 2 the first use waits for the server, and on the lane a lane that closed
+        waits for a server started again (`NoServer`, nothing sent, if none is there within
+        the client's `wait_s`). Raises `GrammarError` for text that is not an instruction,
         `LostContact` while the server is out of contact, `NotSent` over ROS 2 while it
         has not acknowledged what this client sent before (as many as DDS keeps): nothing
         is sent then."""

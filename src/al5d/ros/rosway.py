@@ -283,8 +283,8 @@ class RosWay:
     def send(self, instr: Instruction, wait_s: float) -> None:
         """Publish `instr` with this client's lease and `wait_s` (the server refuses it as
         stale if it comes later), once the server is found (`NoServer` if it is not within
-        `wait_s`: one published before then reaches no server, or only its stop watcher,
-        and was lost without a word). `LostContact` while the server is out of contact,
+        `self.wait_s`: one published before then reaches no server, or only its stop
+        watcher, and was lost without a word). `LostContact` while the server is out of contact,
         `NotSent` while its writer is full of what the server has not acknowledged."""
         if not self.matched:
             self.wait_for_server(self.wait_s)
