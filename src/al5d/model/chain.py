@@ -117,7 +117,7 @@ class Chain:
     def key(self, joint: str) -> str:
         """The model's name of a joint of the chain (`left_base` -> `base`), as the values
         of `ArmModel.to_urdf` are keyed."""
-        return joint[len(self.joint_prefix) :] if joint.startswith(self.joint_prefix) else joint
+        return joint.removeprefix(self.joint_prefix)
 
     def named(self, values: Mapping[str, float]) -> dict[str, float]:
         """Values keyed by the model's names (`base`), keyed by the chain's (`left_base`)."""

@@ -103,7 +103,8 @@ class PhysicalReader:
 
     def _on(self, msg: JointState) -> None:
         try:
-            named = zip(map(self._bare, msg.name), msg.position, strict=True)
+            bare = (name.removeprefix(self.prefix) for name in msg.name)
+            named = zip(bare, msg.position, strict=True)
             degrees = self.model.from_urdf(dict(named))
         except (ModelError, ValueError):
             return  # not this arm's joints
@@ -112,9 +113,6 @@ class PhysicalReader:
             self._cv.notify_all()
         if self.on_pose is not None:
             self.on_pose(degrees)
-
-    def _bare(self, name: str) -> str:
-        return name[len(self.prefix) :] if self.prefix and name.startswith(self.prefix) else name
 
     def degrees(self, fresh_s: float = FRESH_S) -> dict[str, float] | None:
         """Where the joints stand, if a sample came within `fresh_s` (None: nothing says)."""

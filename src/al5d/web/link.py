@@ -169,8 +169,7 @@ class WebNode:
         self.listener.on_description(str(msg.data))
 
     def _on_joints(self, msg: JointState) -> None:
-        prefix = len(self.joint_prefix)
-        names = [n[prefix:] if n.startswith(self.joint_prefix) else n for n in msg.name]
+        names = [n.removeprefix(self.joint_prefix) for n in msg.name]
         self.listener.on_joints(names, list(msg.position), time.monotonic())
 
     def _on_state(self, msg: String) -> None:
