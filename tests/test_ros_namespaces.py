@@ -167,6 +167,23 @@ def test_with_only_namespaced_servers_a_client_names_them(arms: list[Arm], via: 
     assert "found /left and /right: name one with --namespace" in said, said
 
 
+@pytest.mark.parametrize("what", ["stop", "ready"])
+def test_a_client_that_finds_no_server_names_the_others_while_it_still_looks(
+    arms: list[Arm], what: str
+) -> None:
+    """A stop meant for another arm is said so at once, not when it gives up (an outside
+    try: `al5d send stop` with only /left and /right running waited 10 s to name them)."""
+    lost = Proc("send", "--via", "ros", "--wait", "120", what)
+    try:
+        said = lost.err.wait_for("found /left and /right: name one with --namespace", 60)
+        assert lost.popen.poll() is None, said  # said while it looks on
+        assert "still" in said, said
+    finally:
+        lost.popen.send_signal(signal.SIGINT)
+        lost.wait(30)
+        lost.kill()
+
+
 def test_another_arm_is_offered_only_for_a_typo() -> None:
     """A namespace that is not found is taken for another only where it is that one
     mistyped; one a letter or digit apart is another arm, which may be down (a review:

@@ -95,14 +95,24 @@ def elsewhere(names: Names, node: Any) -> str:
     """The end of a message that no server answers at `names`: the servers seen under other
     namespaces (on this machine's lanes, and on the ROS graph as `node` sees it), or the
     question whether one runs."""
+    found = others(names, node)
+    if found:
+        return found
+    if node is None:
+        return ": is 'al5d serve' running?"
+    return ": is 'al5d serve' running?" + closed_hint()
+
+
+def others(names: Names, node: Any) -> str:
+    """The servers seen under other namespaces than `names`' (on this machine's lanes, and
+    on the ROS graph as `node`, if any, sees it), said as the end of a message with the one
+    meant where it is likely: "; found /left: --namespace left?". Empty where none is."""
     seen = set(where.namespaces())
     if node is not None:
         seen |= server_namespaces(node)
     seen.discard(names.node_namespace)
     if not seen:
-        if node is None:
-            return ": is 'al5d serve' running?"
-        return ": is 'al5d serve' running?" + closed_hint()
+        return ""
     found = sorted(seen)
     listed = " and ".join([", ".join(found[:-1]), found[-1]] if len(found) > 1 else found)
     return f"; found {listed}{_which(names.node_namespace, found)}"

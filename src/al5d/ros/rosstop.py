@@ -64,6 +64,10 @@ class StopWay(Protocol):
 
     def no_server(self, name: str, timeout: float, seen: str = "") -> NoServer: ...
 
+    def others(self) -> str:
+        """The servers seen under other namespaces, as `al5d.ros.answers.others` says them."""
+        ...
+
     def send_copy(self, ident: str, heard: Callable[[Outcome], None]) -> None:
         """Publish a copy `ident` of a stop, with this client's lease; its outcome to
         `heard`."""
@@ -169,8 +173,11 @@ class StopCall:
 
     def _warn(self) -> None:
         last = self.way.lease.heard
+        # A stop meant for another arm must say so at once, not when it gives up: with only
+        # /left and /right running, `al5d send stop` waited 10 s before it named them.
+        others = self.way.others() if self._found is None else ""
         why = (
-            "the server not found yet, or its side has not found this client yet"
+            f"the server not found yet, or its side has not found this client yet{others}"
             if last is None or not self.way.lease.deaf()
             else f"nothing heard from the server for {time.monotonic() - last:.1f} s: the "
             "link may be lost"

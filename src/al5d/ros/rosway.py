@@ -34,6 +34,7 @@ from al5d.ros.answers import (
     NotSent,
     elsewhere,
     no_outcome,
+    others,
     wait_ms,
 )
 from al5d.ros.convert import outcome_from_message, to_message
@@ -67,6 +68,9 @@ SERVICE_SETTLE_S = 0.5
 #: A silence this long is said at once (a WARNING) by a client that waits for the server,
 #: before it gives up.
 SILENCE_SAID_S = 1.0
+#: A client that has not found its server in this long names the servers it sees under other
+#: namespaces at once (a WARNING), before it gives up.
+OTHERS_SAID_AFTER_S = 1.0
 #: A client takes the server for lost when it has heard nothing from it (its joint states,
 #: 10 a second when idle) for the server's lease (`server.client_lease_s`, 1 s until the
 #: client has read the server's configuration) and `LOST_AFTER_LEASE_S` more
@@ -225,6 +229,10 @@ class RosWay:
             f"within {timeout:g} s{seen}{elsewhere(self.names, self.node)}"
         )
 
+    def others(self) -> str:
+        """The servers seen under other namespaces (`al5d.ros.answers.others`)."""
+        return others(self.names, self.node)
+
     def _found(self, pings: int) -> str:
         """What of a server this client found, where it found something (a server that
         runs, seen but not matched, is not one that is absent): its node, the readers of
@@ -252,15 +260,20 @@ class RosWay:
         start = time.monotonic()
         pings: list[str] = []
         next_ping = 0.0
+        warned = False
         try:
             while not deadline.expired:
                 with self._cv:
                     if any(p in self._outcomes for p in pings):
                         self.matched = True
                         return
-                if self.server_seen() and time.monotonic() >= next_ping:
-                    pings.append(self._ping())
-                    next_ping = time.monotonic() + PING_EVERY_S
+                if self.server_seen():
+                    if time.monotonic() >= next_ping:
+                        pings.append(self._ping())
+                        next_ping = time.monotonic() + PING_EVERY_S
+                elif not warned and time.monotonic() - start >= OTHERS_SAID_AFTER_S:
+                    warned = True
+                    self._say_others(timeout)
                 time.sleep(0.02)
             raise self.no_server(self.names.instruction, timeout, self._found(len(pings)))
         finally:
@@ -269,6 +282,19 @@ class RosWay:
                 for ping in pings:
                     self._sent.discard(ping)
                     self._outcomes.pop(ping, None)
+
+    def _say_others(self, timeout: float) -> None:
+        """Servers under other namespaces said at once (a WARNING), where this client's is
+        not found yet: a command meant for another arm need not wait out `timeout` to
+        learn so (discovery over a network takes seconds: nothing is said without them)."""
+        seen = self.others()
+        if seen:
+            log.warning(
+                "no al5d server found at %s yet (still looking, up to %g s)%s",
+                self.names.instruction,
+                timeout,
+                seen,
+            )
 
     def _ping(self) -> str:
         """Send a ping; its id."""
