@@ -184,6 +184,22 @@ def test_a_client_that_finds_no_server_names_the_others_while_it_still_looks(
         lost.kill()
 
 
+def test_a_check_with_no_server_at_its_name_names_the_ones_here(
+    arms: list[Arm], tmp_path: Path
+) -> None:
+    """`al5d run --check` judges against the shipped configuration where no server is at
+    its name, and names the servers here whose configuration may be the one meant."""
+    steps = tmp_path / "steps.txt"
+    steps.write_text("ready\n")
+    checked = Proc("run", "--check", str(steps))
+    assert checked.wait(60) == exits.DONE
+    said = "\n".join(checked.out.drain())
+    assert "shipped configuration (none on this machine's lane; found /left and /right" in said
+    named = Proc("run", "--check", "--namespace", "left", str(steps))
+    assert named.wait(60) == exits.DONE
+    assert "none the server would refuse" in "\n".join(named.out.drain())
+
+
 def test_another_arm_is_offered_only_for_a_typo() -> None:
     """A namespace that is not found is taken for another only where it is that one
     mistyped; one a letter or digit apart is another arm, which may be down (a review:
