@@ -23,9 +23,9 @@ client.
   arm's true angles): published beside the server, read by the web view and `al5d calibrate`.
 - `actions`: the move action; `controllers`: MoveIt's FollowJointTrajectory and
   GripperCommand (both `ActionsNode`'s).
-- `client`: `Client`, a client of the server: a local one by its lane (`LaneWay`), any
-  other over ROS 2 (`rosway`: `RosWay`; `rosstop`: its stop, copies on the topic sent
-  until one is answered); the terminal's commands on it are
+- `client`: `Client`, a client of the server: a local one by its lane (`laneway`:
+  `LaneWay`), any other over ROS 2 (`rosway`: `RosWay`; `rosstop`: its stop, copies on the
+  topic sent until one is answered); the terminal's commands on it are
   `al5d.app.terminal`'s. `answers`: what a client raises, and its stop's answer.
 - `reading`: what a client hears of the arm (its state, joints and tool pose), kept from
   the lane or the ROS topics, with waits and callbacks.

@@ -1,0 +1,235 @@
+"""A client's way to a server on this machine: its local lane (`al5d.owner.client.Remote`: no
+discovery, no DDS), opened again when it has closed and a server takes it; and `Way`, what
+`al5d.ros.client.Client` needs of either of its ways (the other: `al5d.ros.rosway.RosWay`).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
+from dataclasses import replace
+from typing import TYPE_CHECKING, Protocol
+
+from al5d.arm.instruction import Instruction, Kind, Outcome
+from al5d.clock import Deadline
+from al5d.interrupts import ctrl_c_after
+from al5d.owner import where
+from al5d.owner.client import WELCOME_S, LaneClosed, Remote
+from al5d.ros.answers import (
+    GIVE_UP_WORD_S,
+    Answer,
+    LaneLost,
+    NoOutcome,
+    NoServer,
+    elsewhere,
+    no_outcome,
+    wait_ms,
+)
+from al5d.ros.names import Names
+from al5d.ros.reading import ArmView, follow_lane
+
+if TYPE_CHECKING:
+    from al5d.arm.config import ArmConfig
+
+log = logging.getLogger("al5d")
+
+#: A lane found closed is tried again this often while a call waits for its server.
+REOPEN_EVERY_S = 0.1
+#: The least wait for the answer to a stop, release or shutdown sent on a lane just opened.
+ANSWER_MIN_S = 1.0
+
+
+class Way(Protocol):
+    """How a client reaches its server: by the local lane (`LaneWay`), or over ROS 2
+    (`al5d.ros.rosway.RosWay`). `Client` says what each call means."""
+
+    via: str
+    discovery_s: float
+    matched: bool
+
+    def wait_for_server(self, timeout: float) -> None: ...
+    def no_server(self, name: str, timeout: float) -> NoServer: ...
+    def lost_contact(self) -> float | None: ...
+    def out_of_contact(self) -> str | None: ...
+    def send(self, instr: Instruction, wait_s: float) -> None: ...
+    def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None: ...
+    def outcome(self, ident: str, timeout: float) -> Outcome | None: ...
+    def execute(self, instr: Instruction, timeout: float) -> Outcome: ...
+    def forget(self, ident: str) -> None: ...
+    def sent(self, ident: str) -> bool: ...
+    def pending(self) -> list[str]: ...
+    def cancel(self, ident: str, reason: str) -> bool: ...
+    def config(self) -> ArmConfig: ...
+    def view(self) -> ArmView: ...
+    def ask(self, kind: Kind, timeout: float) -> Answer: ...
+    def close(self) -> None: ...
+
+
+class LaneWay:
+    """A client's way to a server on this machine: its local lane (`Remote`: no discovery,
+    no DDS), opened by `connect`. Each instruction's outcome is a future. A lane that
+    closed (its server ended) is opened again by the next call once a server is there
+    (one started again): what was in flight on the old one is unknown, and said so
+    (`LaneLost`); `wait_s`: how long a call waits for that server."""
+
+    matched = True
+    discovery_s = 0.0
+
+    def __init__(self, connect: Callable[[float], Remote], names: Names, wait_s: float) -> None:
+        self._connect = connect
+        self.lane = connect(WELCOME_S)
+        self.names = names
+        self.wait_s = wait_s
+        self.via = f"the local lane {where.path(names.namespace)}"
+        self._futures: dict[str, Future[Outcome]] = {}
+        #: Watched before they are sent: told once they are.
+        self._watchers: dict[str, Callable[[Outcome], None]] = {}
+        self._view: ArmView | None = None
+        self._reopening = threading.Lock()
+        self._closed = False
+
+    def _open(self, what: str, patience: float) -> Remote:
+        """The lane for `what` (an instruction's name), opened again if it has closed and a
+        server takes it within `patience` s (an outside try: a client stayed dead after
+        its server was started again, its stop refused as "the lane to the owner is
+        closed" for as long as it ran). Raises `NoServer` where none does: nothing sent."""
+        deadline = Deadline(patience)
+        reopened = False
+        if self._reopening.acquire(timeout=max(patience, 0.0)):
+            try:
+                while self.lane.closed.is_set() and not self._closed:
+                    try:
+                        lane = self._connect(max(min(WELCOME_S, deadline.left()), 0.1))
+                    except LaneClosed:
+                        if deadline.expired:
+                            break
+                        time.sleep(min(REOPEN_EVERY_S, max(deadline.left(), 0.0)))
+                        continue
+                    if self._closed:  # closed meanwhile: the new lane is not kept
+                        lane.close()
+                        break
+                    self.lane, reopened = lane, True
+            finally:
+                self._reopening.release()
+        lane, view = self.lane, self._view
+        if reopened:
+            log.warning(
+                "the server's lane had closed (the server ended); opened again: what was "
+                "in flight on the old one is unknown"
+            )
+            if view is not None:  # outside the lock: the view's listeners may call back
+                follow_lane(lane, view)
+        if lane.closed.is_set():
+            raise NoServer(
+                f"{what}: not sent: the lane to the server is closed and no al5d server took "
+                f"it again within {patience:g} s ({where.path(self.names.namespace)})"
+            )
+        return lane
+
+    def wait_for_server(self, timeout: float) -> None:
+        pass  # the lane answered when it was opened
+
+    def no_server(self, name: str, timeout: float) -> NoServer:
+        return NoServer(
+            f"no al5d server answers on {name} within {timeout:g} s{elsewhere(self.names, None)}"
+        )
+
+    def lost_contact(self) -> float | None:
+        return None  # a lane that closes ends what waits on it (`LaneLost`)
+
+    def out_of_contact(self) -> str | None:
+        return "the lane to the owner is closed" if self.lane.closed.is_set() else None
+
+    def send(self, instr: Instruction, wait_s: float) -> None:
+        lane = self._open(f"{instr.name} [{instr.id}]", self.wait_s)
+        instr = replace(instr, wait_ms=wait_ms(wait_s))
+        with ctrl_c_after():
+            future = self._futures[instr.id] = lane.submit(instr)
+            watcher = self._watchers.pop(instr.id, None)
+            if watcher is not None:
+                _watch(future, watcher)
+
+    def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None:
+        future = self._futures.get(ident)
+        if future is not None:
+            _watch(future, watcher)
+        else:
+            self._watchers[ident] = watcher
+
+    def outcome(self, ident: str, timeout: float) -> Outcome | None:
+        future = self._futures.get(ident)
+        if future is None:
+            return None
+        try:
+            return future.result(timeout)
+        except FutureTimeout:
+            return None
+        except LaneClosed as e:
+            raise LaneLost(f"[{ident}]: {e}: whether it ran is unknown") from None
+
+    def execute(self, instr: Instruction, timeout: float) -> Outcome:
+        self.send(instr, timeout)
+        try:
+            outcome = self.outcome(instr.id, timeout + GIVE_UP_WORD_S)
+        except LaneLost as e:
+            self.forget(instr.id)
+            raise LaneLost(f"{instr.name} {e}") from None
+        # Kept on Ctrl-C (KeyboardInterrupt), which cancels what is pending.
+        self.forget(instr.id)
+        if outcome is None:
+            raise no_outcome(f"{instr.name} [{instr.id}]", timeout)
+        return outcome
+
+    def forget(self, ident: str) -> None:
+        self._futures.pop(ident, None)
+
+    def sent(self, ident: str) -> bool:
+        return ident in self._futures
+
+    def pending(self) -> list[str]:
+        return [ident for ident, f in self._futures.items() if not f.done()]
+
+    def cancel(self, ident: str, reason: str) -> bool:
+        return self.lane.cancel(ident, reason)
+
+    def config(self) -> ArmConfig:
+        return self.lane.config
+
+    def view(self) -> ArmView:
+        view = ArmView(self.lane.config.model, live=lambda: self.lane.positions())
+        follow_lane(self.lane, view)
+        self._view = view
+        return view
+
+    def ask(self, kind: Kind, timeout: float) -> Answer:
+        deadline = Deadline(timeout)
+        lane = self._open(kind.value, timeout)
+        try:
+            # A lane opened again late in the wait still gives the answer its moment.
+            outcome = lane.submit(Instruction(kind)).result(max(deadline.left(), ANSWER_MIN_S))
+        except FutureTimeout:
+            raise NoOutcome(
+                f"{kind.value}: no answer on the local lane within {timeout:g} s "
+                "(whether the server obeyed is unknown)"
+            ) from None
+        except LaneClosed as e:
+            raise NoOutcome(f"{kind.value}: {e} (whether the server obeyed is unknown)") from None
+        message = outcome.reason or f"{kind.value}: {outcome.result.value}"
+        return Answer(kind.value, outcome.ok, message, "the local lane")
+
+    def close(self) -> None:
+        self._closed = True
+        with self._reopening:
+            self.lane.close()
+
+
+def _watch(future: Future[Outcome], watcher: Callable[[Outcome], None]) -> None:
+    def told(done: Future[Outcome]) -> None:
+        if done.exception() is None:
+            watcher(done.result())
+
+    future.add_done_callback(told)
