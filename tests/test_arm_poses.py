@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from al5d.arm.instruction import (
+    MAX_SEQUENCE_ERRORS,
     Instruction,
     Kind,
     SequenceErrors,
@@ -17,6 +18,7 @@ from al5d.arm.instruction import (
     parse_sequence_step,
 )
 from al5d.arm.poses import (
+    NAME_RULE,
     NamedPoses,
     PosesError,
     beside,
@@ -68,6 +70,32 @@ def test_a_bad_poses_file_names_the_pose_and_the_joint(text: str, error: str) ->
     with pytest.raises(PosesError) as e:
         parse_poses(text, FILE)
     assert str(e.value).startswith(error), str(e.value)
+
+
+def test_every_bad_pose_and_joint_of_a_file_is_told_a_line_each() -> None:
+    """A file written by hand is mended in one go: each problem named, not only the first;
+    the good poses between them are no problem."""
+    text = (
+        "a: {base: x, elbow: 3, wrist: .inf}\n"
+        "ok: {base: 1}\n"
+        "b: {bse: 1}\n"
+        "my pose: {base: 0}\n"
+        "c: 30\n"
+    )
+    with pytest.raises(PosesError) as e:
+        parse_poses(text, FILE)
+    assert str(e.value).splitlines() == [
+        "/arm/poses.yaml: a.base: 'x' is not a number of degrees",
+        "/arm/poses.yaml: a.wrist: inf is not a finite number of degrees",
+        "/arm/poses.yaml: b.bse: no such joint; the joints: " + ", ".join(JOINTS),
+        "/arm/poses.yaml: pose 'my pose' is not a name: " + NAME_RULE,
+        "/arm/poses.yaml: c: joint angles by joint name, e.g. {base: 0, elbow: 90}",
+    ]
+    many = "".join(f"p{k}: {{base: x}}\n" for k in range(MAX_SEQUENCE_ERRORS + 7))
+    with pytest.raises(PosesError) as e:
+        parse_poses(many, FILE)
+    said = str(e.value).splitlines()
+    assert len(said) == MAX_SEQUENCE_ERRORS + 1 and said[-1] == "... and 7 more problems"
 
 
 @pytest.mark.parametrize(

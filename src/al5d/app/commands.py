@@ -175,7 +175,7 @@ def check(path: str, poses: str | None, namespace: str | None) -> int:
         print(f"al5d run: cannot read {path}: {e.strerror}", file=sys.stderr)
         return exits.BAD_INPUT
     except PosesError as e:
-        print(f"al5d run: {e}", file=sys.stderr)
+        print(f"al5d run: {e}".replace("\n", "\nal5d run: "), file=sys.stderr)
         return exits.BAD_INPUT
     if not judged.ok:
         # As `al5d run` says them: the first MAX_SEQUENCE_ERRORS, then how many more.

@@ -190,8 +190,8 @@ def run(
     except OSError as e:
         print(f"al5d run: cannot read {path}: {e.strerror}", file=err)
         return exits.BAD_INPUT
-    except PosesError as e:
-        print(f"al5d run: nothing sent: {e}", file=err)
+    except PosesError as e:  # each problem a line, as a sequence's
+        print(f"al5d run: nothing sent: {e}".replace("\n", "\nal5d run: "), file=err)
         return exits.BAD_INPUT
     except GrammarError as e:
         print(f"al5d run: nothing sent: {e}".replace("\n", "\nal5d run: "), file=err)
@@ -368,7 +368,7 @@ def shell(
     try:
         book = load_poses(beside(None) if poses is None else poses, required=poses is not None)
     except PosesError as e:
-        print(f"al5d shell: {e}", file=err)
+        print(f"al5d shell: {e}".replace("\n", "\nal5d shell: "), file=err)
         return exits.BAD_INPUT
     interactive = inp.isatty()
     # A prompt drawn again below what is said only where both ends are a terminal.

@@ -10,8 +10,8 @@ A sequence file names one with `pose <name> [time=<ms>]` (`al5d.arm.instruction`
 move of those joints, judged by the server as any other. By default the file is
 `poses.yaml` beside the sequence file (`al5d run`) or beside the configuration (`al5d
 web`, the current directory without `--config`), where the web view saves its
-sequences too. A file that is not valid is refused whole, the message naming the pose
-and the joint; ranges are the server's to judge, as for every move.
+sequences too. A file that is not valid is refused whole, the message naming each pose
+and joint that is wrong, a line each; ranges are the server's to judge, as for every move.
 """
 
 from __future__ import annotations
@@ -28,7 +28,12 @@ from typing import Any
 import yaml
 
 from al5d.arm.config import ConfigError, load_yaml
-from al5d.arm.instruction import PRESET_NAMES, SequenceStep, parse_sequence
+from al5d.arm.instruction import (
+    MAX_SEQUENCE_ERRORS,
+    PRESET_NAMES,
+    SequenceStep,
+    parse_sequence,
+)
 from al5d.model import JOINTS
 
 #: The poses file's name, beside the sequence files that use it.
@@ -140,23 +145,29 @@ def _key(name: str) -> str:
 
 
 def _pose(name: str, angles: Any, where: str) -> Pose:
+    """A pose of `angles`; PosesError naming every joint of it that is wrong, a line each."""
     if not isinstance(angles, dict):
         raise PosesError(f"{where}: joint angles by joint name, e.g. {{base: 0, elbow: 90}}")
     if not angles:
         raise PosesError(f"{where}: no joint angles")
+    problems = []
     for joint, value in angles.items():
         if joint not in JOINTS:
-            raise PosesError(f"{where}.{joint}: no such joint; the joints: {', '.join(JOINTS)}")
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise PosesError(f"{where}.{joint}: {value!r} is not a number of degrees")
-        if not math.isfinite(value):
-            raise PosesError(f"{where}.{joint}: {value!r} is not a finite number of degrees")
+            problems.append(f"{where}.{joint}: no such joint; the joints: {', '.join(JOINTS)}")
+        elif isinstance(value, bool) or not isinstance(value, int | float):
+            problems.append(f"{where}.{joint}: {value!r} is not a number of degrees")
+        elif not math.isfinite(value):
+            problems.append(f"{where}.{joint}: {value!r} is not a finite number of degrees")
+    if problems:
+        raise PosesError("\n".join(problems))
     joints = tuple((j, float(angles[j])) for j in JOINTS if j in angles)
     return Pose(name, joints)
 
 
 def parse_poses(text: str, path: Path) -> NamedPoses:
-    """The poses of a file's text; PosesError names the file, the pose and the joint."""
+    """The poses of a file's text. PosesError names the file, the pose and the joint of
+    every problem, a line each (the first `MAX_SEQUENCE_ERRORS`, then how many more), so
+    that a file written by hand is mended in one go."""
     try:
         data = load_yaml(text)
     except yaml.YAMLError as e:
@@ -166,13 +177,24 @@ def parse_poses(text: str, path: Path) -> NamedPoses:
     if not isinstance(data, dict):
         raise PosesError(f"{path}: the file must map pose names to joint angles")
     poses = []
+    problems: list[str] = []
     for name, angles in data.items():
-        if not isinstance(name, str):
-            raise PosesError(f'{path}: pose {name!r}: a name is text: write it in quotes, "{name}"')
-        problem = name_problem(name)
-        if problem:
-            raise PosesError(f"{path}: pose {problem}")
-        poses.append(_pose(name, angles, f"{path}: {name}"))
+        try:
+            if not isinstance(name, str):
+                raise PosesError(
+                    f'{path}: pose {name!r}: a name is text: write it in quotes, "{name}"'
+                )
+            problem = name_problem(name)
+            if problem:
+                raise PosesError(f"{path}: pose {problem}")
+            poses.append(_pose(name, angles, f"{path}: {name}"))
+        except PosesError as e:
+            problems.extend(str(e).splitlines())
+    if problems:
+        told = problems[:MAX_SEQUENCE_ERRORS]
+        if len(problems) > len(told):
+            told.append(f"... and {len(problems) - len(told)} more problems")
+        raise PosesError("\n".join(told))
     return NamedPoses(path, tuple(poses))
 
 
