@@ -18,7 +18,13 @@ from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.action import get_action_names_and_types
 from tf2_msgs.msg import TFMessage
 
-from al5d.arm.config import DEFAULT_CONFIG, EMBEDDED_ANSWER_S, ArmConfig, load_config
+from al5d.arm.config import (
+    DEFAULT_CONFIG,
+    EMBEDDED_ANSWER_S,
+    ArmConfig,
+    ConfigError,
+    load_config,
+)
 from al5d.ros import params
 from al5d.ros.robot import QOS_TF_STATIC
 from al5d.ssc32u.emulator import Emulator
@@ -304,6 +310,8 @@ def test_a_bad_parameter_gets_the_configs_message_and_exit_2(tmp_path: Path) -> 
     in_file.write_text(yaml.safe_dump(data))
     message = "server.joint_state_rate_hz: Input should be greater than or equal to 4 (value: -5)"
     assert f"{in_file}: {message}" in serve_refused(config=str(in_file))
+    # A parameter's integer is taken as its number (as `ros2 param set` is, at run time).
+    message = message.replace("-5)", "-5.0)")
     as_parameter = serve_refused("--ros-args", "-p", "server.joint_state_rate_hz:=-5")
     assert f"ROS parameters: {message}" in as_parameter
     # As a launch file gives parameters: a params file, for every node.
@@ -341,6 +349,23 @@ def test_the_parameters_say_the_answer_timeout_the_embedded_emulator_runs_with()
     assert on_port.values()["server.answer_timeout_s"] == shipped
     raised = params.resolve({"server.answer_timeout_s": 2.5}, params.Flags())
     assert raised.config.server.answer_timeout_s == 2.5
+
+
+def test_a_parameter_of_the_wrong_type_is_refused_at_the_start_as_at_run_time() -> None:
+    """Text for a rate was taken at the start (the config's validation reads "40" as 40) and
+    refused when set later: refused at both, in the same words; an integer for a number is
+    that number at both."""
+    for value, said in (("40", "text '40'"), (True, "true or false True")):
+        with pytest.raises(ConfigError) as e:
+            params.resolve({"server.joint_state_rate_hz": value}, params.Flags())
+        assert str(e.value) == (
+            f"ROS parameters: server.joint_state_rate_hz: expected a number, got {said}"
+        )
+    with pytest.raises(ConfigError, match=r"baud: expected an integer, got a number 9600\.0"):
+        params.resolve({"baud": 9600.0}, params.Flags())
+    rate = params.resolve({"server.joint_state_rate_hz": 40}, params.Flags())
+    taken = rate.values()["server.joint_state_rate_hz"]
+    assert taken == 40.0 and type(taken) is float
 
 
 def test_a_config_file_named_relative_to_the_server_is_said_whole(

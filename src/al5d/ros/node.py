@@ -129,7 +129,7 @@ class ArmNode(Node):
     def _check(self, changed: list[Parameter]) -> SetParametersResult:
         assert self.settings is not None
         changes = {p.name: p.value for p in changed}
-        wrong = params.wrong_type(self.settings, changes)
+        wrong = params.wrong_type(self.settings.values(), changes)
         got = wrong or params.with_changes(self.settings, changes)
         if isinstance(got, str):
             return SetParametersResult(successful=False, reason=got)

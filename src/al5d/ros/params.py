@@ -182,6 +182,16 @@ def resolve(
     record = flags.record or _text("record", given.get("record", "")) or None
     if base is None:
         base = load_config(config_file or None)  # the file's own errors name the file
+    # Typed as at run time (`wrong_type`): "40" for a rate was taken at the start, and
+    # refused when set later; an integer for a number is that number, as there.
+    declared = Settings(base, port, config_file, record).values()
+    given = {
+        k: float(v) if type(declared.get(k)) is float and type(v) is int else v
+        for k, v in given.items()
+    }
+    wrong = wrong_type(declared, given)
+    if wrong:
+        raise ConfigError(f"{SOURCE}: {wrong}")
     changes: dict[str, Any] = {}
     for name, value in given.items():
         if name in ("config_file", "port", "record") or name in MOUNT:
@@ -293,13 +303,12 @@ def _flat(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 _KINDS = {bool: "true or false", int: "an integer", float: "a number", str: "text"}
 
 
-def wrong_type(settings: Settings, changes: Mapping[str, Any]) -> str:
-    """Why a change at run time (name -> value) is not of its parameter's type, or "". The
-    parameters are declared with dynamic typing, so that rclpy takes 50 for 50.0 (the node
-    sets it as the double: `ArmNode._as_declared`): it would also take "40" or true, and
-    change the parameter's type (true set a rate to 1 Hz, `ros2 param get` then saying a
-    boolean)."""
-    values = settings.values()
+def wrong_type(values: Mapping[str, Any], changes: Mapping[str, Any]) -> str:
+    """Why a change (name -> value) is not of its parameter's type, its value now in
+    `values` (`Settings.values`), or "". The parameters are declared with dynamic typing,
+    so that rclpy takes 50 for 50.0 (the node sets it as the double:
+    `ArmNode._as_declared`): it would also take "40" or true, and change the parameter's
+    type (true set a rate to 1 Hz, `ros2 param get` then saying a boolean)."""
     for name, value in changes.items():
         was = values.get(name)
         if type(was) in _KINDS and type(value) is not type(was):
