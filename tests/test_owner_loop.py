@@ -250,3 +250,37 @@ def test_a_wait_for_a_state_entered_and_left_before_the_waiter_runs_ends(
         assert owner.announced is State.READY
     finally:
         owner.close()
+
+
+def test_a_motion_judged_while_the_arm_takes_no_moves_is_refused_then(config: ArmConfig) -> None:
+    """An action's goal is judged at the owner when it comes, and submitted later: one
+    judged just after a stop and submitted after a release ran (an outside try: 7 times in
+    27, a trajectory goal sent as the arm was stopped moved it after the release). The
+    judgement is refused while the arm is locked, as the submission would be then."""
+    owner = Owner(config, VirtualTransport(Board(config, baud=config.server.baud))).start()
+    ours, theirs = socket.socketpair()
+    try:
+        owner.wait_for_state(State.READY, 10)
+        owner.adopt(theirs)
+        owner.sync()
+        ours.settimeout(30)
+        lines = ours.makefile("rb")
+
+        def judged(ref: int) -> dict[str, object]:
+            instr = ln.instruction_out(ins.move(time_ms=500, base=10))
+            ours.sendall(ln.dumps({"op": "judge", "ref": ref, "instr": instr}))
+            while True:
+                message = ln.loads(lines.readline())
+                if message.get("op") == "judged" and message.get("ref") == ref:
+                    return message
+
+        assert "ticket" in judged(1)
+        assert owner.submit(ins.stop()).result(10).ok
+        refused = judged(2)
+        assert "ticket" not in refused and "send release first" in str(refused["reason"]), refused
+        assert owner.submit(ins.release()).result(10).ok
+        assert "ticket" in judged(3)
+    finally:
+        owner.close()
+        ours.close()
+        theirs.close()

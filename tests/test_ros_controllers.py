@@ -336,8 +336,43 @@ def test_goals_sent_back_to_back_leave_the_newest_running(rig: Rig) -> None:
         assert r.status == GoalStatus.STATUS_CANCELED, (k, r.status, r.result.error_string)
         by = re.match(r"preempted by goal (\w+)", r.result.error_string)
         assert by is not None and by.group(1) in ids[k + 1 :], (k, r.result.error_string)
+        # One outcome on /al5d/result too, naming the same goal (an outside try: a goal
+        # preempted while it waited had none; a running one's named another goal).
+        told = rig.peer.result(ids[k], 20)
+        assert told.outcome == "cancelled", (k, told)
+        assert told.reason == f"preempted by trajectory goal {by.group(1)}", (k, told.reason)
     assert results[-1].status == GoalStatus.STATUS_SUCCEEDED
     wait_until(lambda: abs(rig.emu.servo_degrees()["base"] + 10) < 0.5, 5, "the base at -10")
+    wait_until(lambda: rig.states[-1] == "ready", 10, "ready")
+
+
+def test_a_cancel_of_a_goal_waiting_for_the_one_it_preempts_is_obeyed(rig: Rig) -> None:
+    """A goal cancelled as soon as it is accepted, while it still waits for the halt of the
+    goal it preempts: the cancel is accepted and obeyed (an outside try: it was refused,
+    and the goal ran to SUCCEEDED). Where it came after the goal had started (a busy host),
+    the goal is halted instead; either way it ends CANCELED, with one outcome."""
+    rig.recover()
+    first = rig.send(rig.fjt, rig.trajectory([(2.0, pose(base=60)), (4.0, pose(base=-60))]))
+    assert first.accepted
+    time.sleep(0.3)
+    # The cancel is asked from the goal's answer's own callback: as soon as it is accepted.
+    cancels: list[Any] = []
+    sent = rig.fjt.send_goal_async(rig.trajectory([(1.5, pose(base=-40, elbow=50))]))
+    sent.add_done_callback(lambda f: cancels.append(f.result().cancel_goal_async()))
+    second = wait_future(sent, 10)
+    assert second.accepted
+    wait_until(lambda: cancels, 10, "the cancel asked")
+    cancel = wait_future(cancels[0], 10)
+    assert [bytes(g.goal_id.uuid) for g in cancel.goals_canceling] == [
+        bytes(second.goal_id.uuid)
+    ], cancel.return_code
+    answer = wait_future(second.get_result_async(), 20)
+    assert answer.status == GoalStatus.STATUS_CANCELED, answer.result.error_string
+    told = rig.peer.result(bytes(second.goal_id.uuid).hex(), 20)
+    assert told.outcome == "cancelled", told
+    if told.reason.startswith("cancelled by its client before it ran"):
+        time.sleep(0.3)
+        assert abs(rig.emu.servo_degrees()["elbow"] - 50) > 5, "the cancelled goal moved"
     wait_until(lambda: rig.states[-1] == "ready", 10, "ready")
 
 

@@ -265,6 +265,13 @@ def _shutdown(c: Core, ev: Ask, out: Out) -> Core:
     return c
 
 
+def takes_no_moves(c: Core) -> str:
+    """Why the arm takes no move now (stopped, faulted, shutting down), or ""."""
+    if c.shutdown is not None:
+        return "the server is shutting down"
+    return refusal(c.state, c.fault, c.order.locked_by)
+
+
 def _admit(c: Core, ev: Ask, out: Out) -> Core:
     """A motion instruction comes: judged whole (unless its ticket was), then cancelled,
     refused, queued, or started now."""
@@ -278,11 +285,7 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
     if cancelled:
         _refuse(ev, cancelled, out, Result.CANCELLED)
         return c
-    reason = (
-        "the server is shutting down"
-        if c.shutdown is not None
-        else refusal(c.state, c.fault, c.order.locked_by)
-    ) or c.order.sent_while_locked(sent)
+    reason = takes_no_moves(c) or c.order.sent_while_locked(sent)
     give_up_at = math.inf
     if instr.wait_ms:
         # Counted from when it was sent: the time on its way is part of the sender's wait.

@@ -34,7 +34,7 @@ from typing import Any
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.arm.core import step, wake_at
+from al5d.arm.core import step, takes_no_moves, wake_at
 from al5d.arm.corestate import (
     Announce,
     Arm,
@@ -205,7 +205,14 @@ class Owner:
     def judge(self, instr: Instruction, follow: Follow | None = None) -> Ticket | str:
         """The one judgement of a motion instruction (D3): its ticket, to submit as it is, or
         the reason to refuse it whole. `follow`: a trajectory's tolerances, where its sender
-        gives them; where the arm rests is known here."""
+        gives them; where the arm rests is known here. Refused while the arm takes no move
+        (stopped, faulted, shutting down), as its submission would be: a goal judged here
+        just after a stop, then submitted after a release, was sent before that release
+        (an outside try: a trajectory goal sent as the arm was stopped ran after the
+        release, 7 times in 27)."""
+        busy = takes_no_moves(self._core)
+        if busy:
+            return busy
         if follow is not None and follow.start is None and self._core.state is State.READY:
             pose = self._core.book.pose
             start = {j: v for j, v in pose.items() if v is not None}

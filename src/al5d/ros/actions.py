@@ -23,7 +23,7 @@ from rclpy.action.server import CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.node import Node
 from rclpy.task import Future as RosFuture
 
-from al5d.arm.instruction import Instruction, Kind, Outcome
+from al5d.arm.instruction import Instruction, Kind, Outcome, Result
 from al5d.arm.states import refusal
 from al5d.clock import wall_ns
 from al5d.model import ArmModel
@@ -33,6 +33,8 @@ from al5d.ros.names import Names
 from al5d.ros.qos import QOS_SERVICES, QOS_STREAM
 from al5d.ros.workarounds import IdentifiedActionServer
 
+#: The reason of a goal cancelled by its client before it was handed to the owner.
+CANCELLED_BEFORE_RUN = "cancelled by its client before it ran: the arm did not move for it"
 #: How long a finished goal's result is kept for its client to fetch (rclpy keeps them
 #: 900 s by default). Its status leaves the status messages sooner:
 #: `workarounds.IdentifiedActionServer` says why.
@@ -144,6 +146,9 @@ class GoalRunner:
         self.started: Callable[[], object] | None = None
         #: Publishes a rejected goal's reason on the result topic (the node `al5d`'s).
         self.refuse: Callable[[str, str, str], None] | None = None
+        #: Publishes on the result topic the outcome of a goal that ended before the owner
+        #: had it (cancelled, or preempted, while it waited): every goal has one there.
+        self.tell: Callable[[Outcome], None] | None = None
 
     def judge(self, goal: Any, ident: str, sent: int) -> Any:
         """What the goal asks for, ready to run, or the reason to reject it (a str)."""
@@ -190,11 +195,34 @@ class GoalRunner:
         finally:
             self.running.pop(ident, None)
 
+    def waiting(self, ident: str) -> bool:
+        """Whether goal `ident` is accepted and has not yet been handed to the owner."""
+        return ident in self.judged
+
     def _cancel(self, handle: ServerGoalHandle) -> CancelResponse:
+        """A running goal is halted where it is; one still waiting to run is taken off
+        before it runs (`ended_before_run`): a cancel the server accepts is always obeyed
+        (an outside try: one that came while its goal waited for the goal it preempted
+        was refused, and the goal then ran)."""
         ident = bytes(handle.goal_id.uuid).hex()
-        if ident not in self.running:
-            return CancelResponse.REJECT
-        return CancelResponse.ACCEPT if self.arm.cancel(ident) else CancelResponse.REJECT
+        if ident in self.running:
+            return CancelResponse.ACCEPT if self.arm.cancel(ident) else CancelResponse.REJECT
+        return CancelResponse.ACCEPT if self.waiting(ident) else CancelResponse.REJECT
+
+    def not_run(self, ident: str, word: str, reason: str) -> None:
+        """Goal `ident`, the instruction `word`, ended CANCELLED before the owner had it:
+        its outcome on the result topic too."""
+        if self.tell is not None:
+            self.tell(Outcome(ident, word, Result.CANCELLED, reason))
+
+    def ended_before_run(self, handle: ServerGoalHandle, ident: str) -> bool:
+        """Whether the goal's cancel was accepted while it waited: then it ends CANCELED,
+        said on the result topic, and is never handed to the owner (its ticket lapses)."""
+        if not handle.is_cancel_requested:
+            return False
+        handle.canceled()
+        self.not_run(ident, self.word(handle.request), CANCELLED_BEFORE_RUN)
+        return True
 
 
 class MoveAction(GoalRunner):
@@ -232,6 +260,9 @@ class MoveAction(GoalRunner):
         if ticket is None:  # rclpy executes only what the goal callback accepted
             result.outcome, result.reason = "refused", "the goal was never judged"
             handle.abort()
+            return result
+        if self.ended_before_run(handle, ident):
+            result.outcome, result.reason = Result.CANCELLED.value, CANCELLED_BEFORE_RUN
             return result
         outcome = await self._run(ident, handle, ticket)
         result.outcome = outcome.result.value

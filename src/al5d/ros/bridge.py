@@ -148,9 +148,10 @@ class Bridge:
         self.robot = RobotNode(arm, self.context, names)
         self.actions = ActionsNode(arm, self.context, names)
         self.node.appliers += [self.robot.set_rates, self.actions.set_rate]
-        for action in (self.actions.move_action, self.actions.trajectory_action):
+        actions = self.actions
+        for action in (actions.move_action, actions.trajectory_action, actions.gripper_action):
             action.refuse = self.node.refuse
-        self.actions.gripper_action.refuse = self.node.refuse
+            action.tell = self.node.results.put
         self.trace_path = trace
         if trace is not None:
             self.node.trace = events = []

@@ -43,12 +43,21 @@ from al5d.arm.jobs import Sent
 from al5d.arm.resample import Follow
 from al5d.model import ArmModel, ModelError
 from al5d.owner.client import Judged, Remote
-from al5d.ros.actions import GoalRunner, action_server, inactive, outcome_of
+from al5d.ros.actions import (
+    CANCELLED_BEFORE_RUN,
+    GoalRunner,
+    action_server,
+    inactive,
+    outcome_of,
+)
 from al5d.ros.convert import trajectory_from_message
 from al5d.ros.workarounds import preempted
 
 log = logging.getLogger("al5d")
 FJT = FollowJointTrajectory.Result
+#: The reason of a goal's halt, or its end, when a newer goal preempted it: then its goal
+#: ends CANCELED as preempted.
+PREEMPTED_BY = "preempted by trajectory goal"
 #: The gripper's gap counts as reached within this (metres): a quarter of a servo
 #: microsecond's worth is far below it, a visible miss far above.
 GRIPPER_REACHED_M = 0.0005
@@ -222,6 +231,9 @@ class FollowTrajectoryAction(GoalRunner):
 
     # -- running it -------------------------------------------------------------------
 
+    def waiting(self, ident: str) -> bool:
+        return super().waiting(ident) or ident in self.starting
+
     async def _execute(self, handle: ServerGoalHandle) -> Any:
         ident, judged = self._take_judged(handle)
         goal = handle.request
@@ -229,8 +241,11 @@ class FollowTrajectoryAction(GoalRunner):
             handle.abort()
             return _result(FJT.INVALID_GOAL, "the goal was never judged")
         if by := await self._preempt(ident):
+            self.not_run(ident, Kind.TRAJECTORY.value, f"{PREEMPTED_BY} {by}")
             preempted(handle)
             return _preempted_result(by)
+        if self.ended_before_run(handle, ident):
+            return _result(FJT.SUCCESSFUL, CANCELLED_BEFORE_RUN)
         # The model's names (the goal's carry the arm's joint prefix, as its feedback does).
         names = [n[len(self.prefix) :] for n in goal.trajectory.joint_names]
         here = self._actual(names)
@@ -252,13 +267,15 @@ class FollowTrajectoryAction(GoalRunner):
         or ""."""
         ended = list(self.running)
         for run in self.running.values():
-            run.preempted_by = ident
+            # The first goal to preempt it is the one its halt names (a goal that came
+            # while the halt was on its way said another: the newest).
+            run.preempted_by = run.preempted_by or ident
         for other in self.starting:
             self.starting[other] = ident
         if not ended:
             return ""
         self.starting[ident] = ""
-        reason = f"preempted by trajectory goal {ident}"
+        reason = f"{PREEMPTED_BY} {ident}"
         await outcome_of(
             self.node, self._halts.submit(lambda: [self.arm.cancel(o, reason) for o in ended])
         )
@@ -266,7 +283,8 @@ class FollowTrajectoryAction(GoalRunner):
 
     def _finish(self, run: Running, outcome: Outcome, end: list[Tolerance], goal: Any) -> Any:
         handle = run.handle
-        if outcome.result is Result.CANCELLED and run.preempted_by:
+        # Preempted, if its halt was the preemption's: a stop that came first aborts it.
+        if outcome.result is Result.CANCELLED and outcome.reason.startswith(PREEMPTED_BY):
             preempted(handle)
             return _preempted_result(run.preempted_by)
         if outcome.result is Result.CANCELLED and run.violated:
@@ -440,8 +458,11 @@ class GripperAction(GoalRunner):
         if ticket is None:  # rclpy executes only what the goal callback accepted
             handle.abort()
             return GripperCommand.Result()
-        outcome = await self._run(ident, handle, ticket)
         result = GripperCommand.Result()
+        if self.ended_before_run(handle, ident):
+            result.position = self._gap()
+            return result
+        outcome = await self._run(ident, handle, ticket)
         result.position = self._gap()
         result.effort = 0.0
         result.stalled = False
