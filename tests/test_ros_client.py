@@ -139,7 +139,7 @@ def test_a_script_that_never_closes_its_client_exits_0(arm: Served, tmp_path: Pa
 def test_stop_and_release_by_the_topic_lock_the_arm_between(
     arm: Served, topic_words: list[str], tmp_path: Path
 ) -> None:
-    before, seen = arm.stops(), len(arm.states)
+    before, logged = arm.stops(), len(arm.proc.err.drain(0))
     done = run_script(
         tmp_path,
         "from al5d.ros.client import Client\n"
@@ -167,7 +167,13 @@ def test_stop_and_release_by_the_topic_lock_the_arm_between(
         "the arm is not stopped (state ready): nothing to release"
     )
     wait_until(lambda: arm.stops() > before, STATE_S, "the board stopped")
-    wait_until(lambda: "stopped" in arm.states[seen:], STATE_S, "the state stopped")
+    # By the server's log: /al5d/state keeps its last state only, and a reader late by the
+    # release (a CI run beside two busy loops) heard ready, never stopped.
+    wait_until(
+        lambda: any("STATE: stopped" in line for line in arm.proc.err.drain(0)[logged:]),
+        STATE_S,
+        "the state stopped",
+    )
     # The stop goes on the topic (a copy the stop watcher obeys whatever a lossy link
     # lost before it: docs/ros.md). This test's reader may miss the
     # script's words: its client need not have heard of this reader yet when it sends
@@ -303,11 +309,14 @@ def test_a_client_that_finds_a_reader_but_no_server_says_what_it_found(tmp_path:
             timeout=SCRIPT_S,
         )  # fmt: skip
         found = (
-            r"within 4 s \(found: the server's node not; this client's instructions reach "
+            r"within 4 s \(found: no server node; this client's instructions reach "
             r"[01] of the 1 readers listed \(/not_a_server\); its results come from 0 "
-            r"writer\(s\); 0 ping\(s\) unanswered\)"
+            r"writer\(s\); 0 ping\(s\) unanswered\): something of it was found, but no "
+            r"answer came: a slow or lossy link, or its side has not found this client yet"
         )
         assert re.search(found, done.stderr), done.stderr
+        # A server seen is not said absent, nor closed to the network.
+        assert "is 'al5d serve' running?" not in done.stderr, done.stderr
 
 
 def test_a_stop_taken_by_a_reader_that_is_no_server_is_said_sent_and_unanswered(

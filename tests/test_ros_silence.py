@@ -140,6 +140,51 @@ def test_a_stop_unanswered_while_the_server_is_silent_says_the_link_may_be_lost(
             client.wait(10)
 
 
+GIVES_UP = """
+import sys
+from al5d.ros.client import Client, NoOutcome
+c = Client(wait_s=30, local=False)
+print(c.execute("ready", timeout=60), flush=True)
+sys.stdin.readline()  # the server is silent now
+try:
+    print(c.stop(timeout=2), flush=True)
+except NoOutcome as e:
+    print(f"gave up: {e}", flush=True)
+sys.stdin.readline()  # the server is back
+c.close()
+"""
+
+
+def test_a_stop_given_up_on_and_obeyed_later_is_said(config: ArmConfig, tmp_path: Path) -> None:
+    """A stop asked while the server is silent (here frozen whole; an outside try: a link
+    cut), given up on after its timeout, is obeyed once the server hears it, however late:
+    the client that gave up says so when the answer comes, and that the arm is locked (the
+    outside try: the arm locked when the link came back, and nobody was told)."""
+    with served(config, tmp_path, "al5d_late_stop_peer") as arm:
+        script = tmp_path / "gives_up.py"
+        script.write_text(GIVES_UP)
+        client, out, err = talking([sys.executable, str(script)])
+        assert client.stdin is not None
+        server = family(arm.proc.popen.pid)
+        try:
+            out.wait_for(": done", SCRIPT_S)
+            with gone(server, "ros"):
+                client.stdin.write("stop\n")
+                client.stdin.flush()
+                said = out.wait_for("gave up: ", SCRIPT_S)
+            assert "whether the server obeyed is unknown" in said, said
+            late = err.wait_for("obeyed after this client gave up on it", SCRIPT_S)
+            assert "the arm is locked (release it to go on)" in late, late
+            wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
+            client.stdin.write("\n")
+            client.stdin.flush()
+            assert client.wait(SCRIPT_S) == 0
+            assert not [line for line in err.all if "Traceback" in line], err.all
+        finally:
+            client.kill()
+            client.wait(10)
+
+
 @pytest.mark.parametrize(("command", "via"), [("shell", "ros"), ("shell", "lane"), ("run", "ros")])
 def test_a_background_line_that_lost_its_server_is_said_at_once(
     config: ArmConfig, tmp_path: Path, command: str, via: str

@@ -154,11 +154,12 @@ def _typo(asked: str, found: str) -> bool:
 
 def closed_hint() -> str:
     """What a client over ROS 2 that finds no server says of a server on another machine."""
-    here = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST").upper()
+    given = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "")
+    here = (given or "LOCALHOST").upper()
     if here == "LOCALHOST":
         return (
             " This client looks on this machine only (ROS_AUTOMATIC_DISCOVERY_RANGE="
-            "LOCALHOST, the default); for a server on another machine, set "
+            f"LOCALHOST{'' if given else ', the default'}); for a server on another machine, set "
             "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET here and where it runs, with the same "
             "ROS_DOMAIN_ID (docs/ros.md, 'Reaching the node from another machine')."
         )

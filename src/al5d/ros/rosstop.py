@@ -116,11 +116,17 @@ class StopCall:
         self._deadline: Deadline | None = None  # `timeout`, from when the server is found
         self._found: float | None = None  # when the server was found (monotonic)
         self._looked = -STOP_FIRST_COPIES_S  # when (monotonic) the graph was last looked at
+        self._asked = time.monotonic()
+        # Once this call has given up (when, monotonic), a copy's answer that comes later
+        # is said, not taken (`_heard`); the lock keeps the two apart.
+        self._gave_up: float | None = None
+        self._late_said = False
+        self._lock = threading.Lock()
 
     def run(self) -> Answer:
         """Send the stop until it is answered; its answer. `NoOutcome` if none came within
         `timeout` (whether the server obeyed is unknown), `NoServer` as the class says."""
-        start = time.monotonic()
+        start = self._asked = time.monotonic()
         finding = Deadline(self.way.wait_s)
         warned = False
         try:
@@ -141,7 +147,14 @@ class StopCall:
                     break
         finally:
             self.way.discovery_s += (self._found or time.monotonic()) - start
-            self.way.drop_copies(self._copies)
+            with self._lock:
+                if not self._told:
+                    self._gave_up = time.monotonic()
+            if self._gave_up is None:
+                self.way.drop_copies(self._copies)
+            # Else the copies are listened for on: one that is obeyed later, however late
+            # (a stop always is), is said (an outside try: a stop given up on during an
+            # outage locked the arm when the link came back, with nobody told).
         return self._answer()
 
     def _look(self, at: float) -> None:
@@ -155,8 +168,38 @@ class StopCall:
             self._found = time.monotonic()
 
     def _heard(self, outcome: Outcome) -> None:
-        self._told.append(outcome)
-        self._answered.set()
+        with self._lock:
+            late = self._gave_up is not None
+            if not late:
+                self._told.append(outcome)
+                self._answered.set()
+        if late:
+            self.way.drop_copies([outcome.id])
+            self._said_late(outcome)
+
+    def _said_late(self, outcome: Outcome) -> None:
+        """The answer to a stop this call gave up on, said once, as a WARNING."""
+        if self._late_said:
+            return
+        self._late_said = True
+        after = time.monotonic() - self._asked
+        stop = outcome.id.partition(COPY_MARK)[0]
+        if outcome.ok:
+            log.warning(
+                "stop [%s]: obeyed after this client gave up on it (%.1f s after it was "
+                "asked): the arm is locked (release it to go on)",
+                stop,
+                after,
+            )
+        else:
+            log.warning(
+                "stop [%s]: answered after this client gave up on it (%.1f s after it was "
+                "asked): %s%s",
+                stop,
+                after,
+                outcome.result.value,
+                f": {outcome.reason}" if outcome.reason else "",
+            )
 
     def _copy(self, at: float, since_start: float) -> None:
         """The stop's next copy on the topic, where one is due or a new reader matched."""
@@ -176,8 +219,16 @@ class StopCall:
         # A stop meant for another arm must say so at once, not when it gives up: with only
         # /left and /right running, `al5d send stop` waited 10 s before it named them.
         others = self.way.others() if self._found is None else ""
-        why = (
+        unfound = (
             f"the server not found yet, or its side has not found this client yet{others}"
+            if self._found is None
+            # Found, on a link that loses or delays (an outside try at 20 % loss: "not
+            # found yet" of a server it had found).
+            else "the server found, but its answer not heard yet: a slow or lossy link, or "
+            "its side has not found this client yet"
+        )
+        why = (
+            unfound
             if last is None or not self.way.lease.deaf()
             else f"nothing heard from the server for {time.monotonic() - last:.1f} s: the "
             "link may be lost"
