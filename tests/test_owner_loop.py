@@ -279,7 +279,13 @@ def test_a_motion_judged_while_the_arm_takes_no_moves_is_refused_then(config: Ar
         refused = judged(2)
         assert "ticket" not in refused and "send release first" in str(refused["reason"]), refused
         assert owner.submit(ins.release()).result(10).ok
-        assert "ticket" in judged(3)
+        ticket = judged(3)["ticket"]
+        # A goal that ends before it runs lets go of its ticket: the owner keeps none.
+        ours.sendall(ln.dumps({"op": "drop", "ticket": ticket}))
+        ours.sendall(ln.dumps({"op": "ask", "ref": 4, "ticket": ticket}))
+        while (message := ln.loads(lines.readline())).get("ref") != 4:
+            pass
+        assert message["op"] == "error" and "no ticket" in str(message["error"]), message
     finally:
         owner.close()
         ours.close()

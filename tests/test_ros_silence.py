@@ -158,7 +158,7 @@ c.close()
 def test_a_stop_given_up_on_and_obeyed_later_is_said(config: ArmConfig, tmp_path: Path) -> None:
     """A stop asked while the server is silent (here frozen whole; an outside try: a link
     cut), given up on after its timeout, is obeyed once the server hears it, however late:
-    the client that gave up says so when the answer comes, and that the arm is locked (the
+    the client that gave up says so when the answer comes, and that it locked the arm (the
     outside try: the arm locked when the link came back, and nobody was told)."""
     with served(config, tmp_path, "al5d_late_stop_peer") as arm:
         script = tmp_path / "gives_up.py"
@@ -173,8 +173,8 @@ def test_a_stop_given_up_on_and_obeyed_later_is_said(config: ArmConfig, tmp_path
                 client.stdin.flush()
                 said = out.wait_for("gave up: ", SCRIPT_S)
             assert "whether the server obeyed is unknown" in said, said
-            late = err.wait_for("obeyed after this client gave up on it", SCRIPT_S)
-            assert "the arm is locked (release it to go on)" in late, late
+            late = err.wait_for("answered after this client gave up on it", SCRIPT_S)
+            assert "the server obeyed it, which locked the arm until a release" in late, late
             wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
             client.stdin.write("\n")
             client.stdin.flush()

@@ -247,6 +247,12 @@ class Remote:
             return Judged(instr, str(answer["ticket"]), knots)
         return str(answer.get("reason", "refused"))
 
+    def drop(self, judged: Judged) -> None:
+        """Let go of a ticket of `judge` that will not be asked with (its goal ended before
+        it ran), so that the owner does not keep it. Raises LaneClosed: the owner has
+        ended (and keeps nothing)."""
+        self._send({"op": "drop", "ticket": judged.name})
+
     def kept_outcomes(self, timeout: float = 30.0) -> None:
         """The outcomes the owner told while no ROS bridge heard them (the last one ended),
         told now to this client's outcome listeners, before this returns. Raises

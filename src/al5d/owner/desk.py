@@ -159,6 +159,8 @@ class Desk:
                 # from another connection is taken first (a client asks with a ticket only
                 # once it has the answer, so no ask can come before its judgement).
                 self._inbox.later("judge", 0, (conn, ref, m))
+            elif op == "drop":  # a ticket its client will not ask with (a goal cancelled)
+                conn.tickets.pop(str(m.get("ticket")), None)
             elif op == "cancel":
                 ident, reason = m.get("id"), m.get("reason") or "cancelled by the client"
                 if not isinstance(ident, str) or not isinstance(reason, str):

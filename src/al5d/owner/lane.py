@@ -2,7 +2,8 @@
 
 A Unix socket (the user's own: its folder is the user's alone, nothing is on the
 network), one JSON object a line each way. A client says `hello` (and what it wants to
-hear: `watch`), then asks (`ask`, `judge`, `cancel`); the owner answers each request
+hear: `watch`), then asks (`ask`, `judge`, `cancel`; `drop` lets go of a ticket of
+`judge` it will not ask with, unanswered); the owner answers each request
 once under its `ref`, and tells watchers what happens (`state`, `told`, `moved`,
 `posed`, `wire`). A client that goes without `bye` is a lost client: what it commanded
 does not go on (`al5d.arm.core`, `Gone`). A client that speaks for others (the ROS

@@ -12,6 +12,7 @@ a goal is a service request, which no subscriber sees.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import replace
@@ -27,7 +28,7 @@ from al5d.arm.instruction import Instruction, Kind, Outcome, Result
 from al5d.arm.states import refusal
 from al5d.clock import wall_ns
 from al5d.model import ArmModel
-from al5d.owner.client import Judged, Remote
+from al5d.owner.client import Judged, LaneClosed, Remote
 from al5d.ros.convert import move_from_fields, tool_from_fields
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_SERVICES, QOS_STREAM
@@ -124,7 +125,8 @@ def _goal_instruction(goal: Any, ident: str, model: ArmModel) -> Instruction | s
 
 class GoalRunner:
     """What every action of ours shares: its running goals by instruction id (the goal's
-    UUID in hex), and a cancel that halts the arm where it is (without the lock)."""
+    UUID in hex), and a cancel that halts the arm where it is (without the lock), or, of
+    a goal accepted that has not yet run, ends it before it runs."""
 
     #: The action's name (its goals' topic: `~/goals/<name>`).
     name = "goal"
@@ -215,14 +217,20 @@ class GoalRunner:
         if self.tell is not None:
             self.tell(Outcome(ident, word, Result.CANCELLED, reason))
 
-    def ended_before_run(self, handle: ServerGoalHandle, ident: str) -> bool:
+    def ended_before_run(self, handle: ServerGoalHandle, ident: str, ticket: Judged) -> bool:
         """Whether the goal's cancel was accepted while it waited: then it ends CANCELED,
-        said on the result topic, and is never handed to the owner (its ticket lapses)."""
+        said on the result topic, and is never handed to the owner (its ticket dropped)."""
         if not handle.is_cancel_requested:
             return False
         handle.canceled()
         self.not_run(ident, self.word(handle.request), CANCELLED_BEFORE_RUN)
+        self.drop(ticket)
         return True
+
+    def drop(self, ticket: Judged) -> None:
+        """The owner lets go of a ticket that will not run (a goal that ended first)."""
+        with contextlib.suppress(LaneClosed):  # the owner has ended: it keeps nothing
+            self.arm.drop(ticket)
 
 
 class MoveAction(GoalRunner):
@@ -261,7 +269,7 @@ class MoveAction(GoalRunner):
             result.outcome, result.reason = "refused", "the goal was never judged"
             handle.abort()
             return result
-        if self.ended_before_run(handle, ident):
+        if self.ended_before_run(handle, ident, ticket):
             result.outcome, result.reason = Result.CANCELLED.value, CANCELLED_BEFORE_RUN
             return result
         outcome = await self._run(ident, handle, ticket)

@@ -10,7 +10,9 @@ do where it matters to a client:
   accepted (nothing is written for it; the reason is also published on the
   result topic, with the goal's UUID in hex as the id);
 - a new trajectory goal preempts a running one, which ends CANCELED and says so;
-- a cancel halts the arm where it is, without the emergency lock: CANCELED;
+- a cancel halts the arm where it is, without the emergency lock: CANCELED; a goal
+  cancelled while it waits to run (for the halt of the goal it preempts) ends
+  CANCELED before it runs;
 - an emergency stop aborts the goal, and the arm is locked as always.
 
 A trajectory denser than the serial link carries is thinned by the driver's
@@ -240,11 +242,15 @@ class FollowTrajectoryAction(GoalRunner):
         if judged is None:  # rclpy executes only what the goal callback accepted
             handle.abort()
             return _result(FJT.INVALID_GOAL, "the goal was never judged")
+        # A goal cancelled before it began does not preempt: it never would have run.
+        if self.ended_before_run(handle, ident, judged.ticket):
+            return _result(FJT.SUCCESSFUL, CANCELLED_BEFORE_RUN)
         if by := await self._preempt(ident):
             self.not_run(ident, Kind.TRAJECTORY.value, f"{PREEMPTED_BY} {by}")
+            self.drop(judged.ticket)
             preempted(handle)
             return _preempted_result(by)
-        if self.ended_before_run(handle, ident):
+        if self.ended_before_run(handle, ident, judged.ticket):
             return _result(FJT.SUCCESSFUL, CANCELLED_BEFORE_RUN)
         # The model's names (the goal's carry the arm's joint prefix, as its feedback does).
         names = [n[len(self.prefix) :] for n in goal.trajectory.joint_names]
@@ -276,10 +282,16 @@ class FollowTrajectoryAction(GoalRunner):
             return ""
         self.starting[ident] = ""
         reason = f"{PREEMPTED_BY} {ident}"
-        await outcome_of(
-            self.node, self._halts.submit(lambda: [self.arm.cancel(o, reason) for o in ended])
-        )
-        return self.starting.pop(ident)
+        try:
+            await outcome_of(
+                self.node, self._halts.submit(lambda: [self.arm.cancel(o, reason) for o in ended])
+            )
+        except Exception as e:  # the owner gone, or silent: rclpy aborts the goal
+            self.not_run(ident, Kind.TRAJECTORY.value, f"not run: the halt before it failed: {e}")
+            raise
+        finally:
+            by = self.starting.pop(ident, "")
+        return by
 
     def _finish(self, run: Running, outcome: Outcome, end: list[Tolerance], goal: Any) -> Any:
         handle = run.handle
@@ -459,7 +471,7 @@ class GripperAction(GoalRunner):
             handle.abort()
             return GripperCommand.Result()
         result = GripperCommand.Result()
-        if self.ended_before_run(handle, ident):
+        if self.ended_before_run(handle, ident, ticket):
             result.position = self._gap()
             return result
         outcome = await self._run(ident, handle, ticket)

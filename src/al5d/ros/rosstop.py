@@ -140,7 +140,9 @@ class StopCall:
                     break
                 if not warned and time.monotonic() - start >= STOP_UNANSWERED_S:
                     warned = True
-                    self._warn()
+                    # Said by a thread of its own: it looks at this machine's lanes and the
+                    # graph (`others`), which the stop's copies must not wait for.
+                    threading.Thread(target=self._warn, name="al5d-stop-warn", daemon=True).start()
                 if self._deadline is None and finding.expired:
                     raise self._unfound()
                 if self._deadline is not None and self._deadline.expired:
@@ -174,7 +176,7 @@ class StopCall:
                 self._told.append(outcome)
                 self._answered.set()
         if late:
-            self.way.drop_copies([outcome.id])
+            self.way.drop_copies(self._copies)  # one answer is the stop's: the rest go
             self._said_late(outcome)
 
     def _said_late(self, outcome: Outcome) -> None:
@@ -185,9 +187,12 @@ class StopCall:
         after = time.monotonic() - self._asked
         stop = outcome.id.partition(COPY_MARK)[0]
         if outcome.ok:
+            # The server obeyed it when it came (or before, its answer lost), which locked
+            # the arm; a release sent since may have unlocked it: not said locked now.
             log.warning(
-                "stop [%s]: obeyed after this client gave up on it (%.1f s after it was "
-                "asked): the arm is locked (release it to go on)",
+                "stop [%s]: answered after this client gave up on it (%.1f s after it was "
+                "asked): the server obeyed it, which locked the arm until a release sent "
+                "after it",
                 stop,
                 after,
             )

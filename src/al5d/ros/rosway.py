@@ -229,7 +229,7 @@ class RosWay:
         why = (
             ": something of it was found, but no answer came: a slow or lossy link, or its "
             "side has not found this client yet"
-            if seen
+            if seen and server_nodes(self.node, self.names)
             else elsewhere(self.names, self.node)
         )
         return NoServer(

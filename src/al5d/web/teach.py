@@ -149,7 +149,10 @@ class Teach:
         try:
             book = load_poses(self.path, required=False)
         except PosesError as e:
-            self._show(f"{e} (fix the file: nothing was changed)", False)
+            # Its first problem, and how many more (the file names each, a line each).
+            first, *more = str(e).splitlines() or [""]
+            also = f"; and {len(more)} more problems" if more else ""
+            self._show(f"{first}{also} (fix the file: nothing was changed)", False)
             return None
         self._show_poses(book)
         return book
