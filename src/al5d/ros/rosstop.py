@@ -238,6 +238,8 @@ class StopCall:
             else f"nothing heard from the server for {time.monotonic() - last:.1f} s: the "
             "link may be lost"
         )
+        if self._answered.is_set():  # answered while this looked: nothing to say
+            return
         log.warning(
             "stop: no answer in %g s (%s); still sending it: whether the arm has stopped is "
             "unknown",
