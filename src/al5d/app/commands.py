@@ -151,6 +151,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 def check(path: str, poses: str | None, namespace: str | None) -> int:
     """`al5d run --check`: the file judged whole as `al5d run` judges it, against the
     configuration of the server on this machine's lane, else the shipped one; nothing sent."""
+    from al5d.app.report import each_line
     from al5d.arm.poses import PosesError, beside, load_poses
     from al5d.arm.sequence import judge_sequence, read_sequence
     from al5d.owner import where
@@ -175,11 +176,11 @@ def check(path: str, poses: str | None, namespace: str | None) -> int:
         print(f"al5d run: cannot read {path}: {e.strerror}", file=sys.stderr)
         return exits.BAD_INPUT
     except PosesError as e:
-        print(f"al5d run: {e}".replace("\n", "\nal5d run: "), file=sys.stderr)
+        print(each_line("al5d run: ", str(e)), file=sys.stderr)
         return exits.BAD_INPUT
     if not judged.ok:
         # As `al5d run` says them: the first MAX_SEQUENCE_ERRORS, then how many more.
-        print(f"al5d run: {judged.error()}".replace("\n", "\nal5d run: "), file=sys.stderr)
+        print(each_line("al5d run: ", str(judged.error())), file=sys.stderr)
         return exits.BAD_INPUT
     steps = len(judged.lines)
     said = f"{path}: {steps} step{'s'[: steps != 1]}, none {whose} would refuse"

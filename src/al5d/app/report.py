@@ -19,6 +19,12 @@ from al5d.ros.client import Client, NoOutcome
 SLOW_DISCOVERY_S = 1.0
 
 
+def each_line(prefix: str, text: str) -> str:
+    """`text` with `prefix` before each of its lines: a command's error of several lines
+    (every bad line of a file) said as its one-line errors are."""
+    return prefix + text.replace("\n", "\n" + prefix)
+
+
 class Report:
     """Prints each outcome when it comes, whichever thread it comes in; keeps the verdict."""
 

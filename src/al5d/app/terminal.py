@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import TextIO
 
 from al5d import exits
-from al5d.app.report import LinkWatch, Report, Timing
+from al5d.app.report import LinkWatch, Report, Timing, each_line
 from al5d.arm.config import load_config
 from al5d.arm.instruction import (
     PRESET_NAMES,
@@ -190,11 +190,8 @@ def run(
     except OSError as e:
         print(f"al5d run: cannot read {path}: {e.strerror}", file=err)
         return exits.BAD_INPUT
-    except PosesError as e:  # each problem a line, as a sequence's
-        print(f"al5d run: nothing sent: {e}".replace("\n", "\nal5d run: "), file=err)
-        return exits.BAD_INPUT
-    except GrammarError as e:
-        print(f"al5d run: nothing sent: {e}".replace("\n", "\nal5d run: "), file=err)
+    except (PosesError, GrammarError) as e:  # each problem a line
+        print(each_line("al5d run: ", f"nothing sent: {e}"), file=err)
         return exits.BAD_INPUT
     timing = Timing("al5d run", verbose, err)
     try:
@@ -213,7 +210,7 @@ def run(
         try:
             steps = judged_steps(data, str(path), book, client.config())
         except GrammarError as e:
-            print(f"al5d run: nothing sent: {e}".replace("\n", "\nal5d run: "), file=err)
+            print(each_line("al5d run: ", f"nothing sent: {e}"), file=err)
             return exits.BAD_INPUT
         for n, (item, in_background) in enumerate(steps):
             if isinstance(item, Instruction):
@@ -368,7 +365,7 @@ def shell(
     try:
         book = load_poses(beside(None) if poses is None else poses, required=poses is not None)
     except PosesError as e:
-        print(f"al5d shell: {e}".replace("\n", "\nal5d shell: "), file=err)
+        print(each_line("al5d shell: ", str(e)), file=err)
         return exits.BAD_INPUT
     interactive = inp.isatty()
     # A prompt drawn again below what is said only where both ends are a terminal.

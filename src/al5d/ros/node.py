@@ -121,7 +121,7 @@ class ArmNode(Node):
         values = self.settings.values()
         return [
             Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
-            if type(values.get(p.name)) is float and p.type_ is Parameter.Type.INTEGER
+            if params.widened(values.get(p.name), p.value)
             else p
             for p in changed
         ]

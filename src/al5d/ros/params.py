@@ -185,10 +185,7 @@ def resolve(
     # Typed as at run time (`wrong_type`): "40" for a rate was taken at the start, and
     # refused when set later; an integer for a number is that number, as there.
     declared = Settings(base, port, config_file, record).values()
-    given = {
-        k: float(v) if type(declared.get(k)) is float and type(v) is int else v
-        for k, v in given.items()
-    }
+    given = {k: float(v) if widened(declared.get(k), v) else v for k, v in given.items()}
     wrong = wrong_type(declared, given)
     if wrong:
         raise ConfigError(f"{SOURCE}: {wrong}")
@@ -301,6 +298,12 @@ def _flat(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 #: What a parameter's value is, by its type, as a refusal says it.
 _KINDS = {bool: "true or false", int: "an integer", float: "a number", str: "text"}
+
+
+def widened(was: Any, value: Any) -> bool:
+    """Whether `value` is an integer given for a parameter of numbers (now `was`), taken as
+    that number (`ros2 param set ... 40` for 40.0), at the start as at run time."""
+    return type(was) is float and type(value) is int
 
 
 def wrong_type(values: Mapping[str, Any], changes: Mapping[str, Any]) -> str:
