@@ -212,6 +212,25 @@ def test_a_client_that_sends_and_closes_at_once_leaves_its_move_running(arm: Ser
         )
 
 
+def test_a_clients_stop_does_not_wait_behind_what_its_lane_carries(arm: Served) -> None:
+    """A second reading: the Python client's stop went on its lane, behind another
+    thread's send (a trajectory's megabyte, written under the lane's lock) and behind its
+    bytes in the stream. Here that send is held for the whole of the stop: the stop goes
+    on a connection of its own, as the web view's and `al5d send stop`'s do."""
+    from al5d.ros.client import Client
+
+    arm.ready()
+    with Client(local=True) as client:
+        assert client.lane is not None
+        client.send("move base=40 time=3000")
+        wait_until(lambda: "moving" in arm.states[-1:], CMD_S, "moving")
+        with client.lane._send_lock:  # another thread's send, under way
+            stop = client.stop(timeout=CMD_S)
+        assert stop.ok and stop.via == "the local lane", stop
+        assert client.release(timeout=CMD_S).ok
+    assert halted_on_its_way(arm, 40.0)
+
+
 def test_a_client_whose_server_was_started_again_reaches_the_new_one() -> None:
     """A client on the lane whose server ended and was started again (killed, then run
     again in the same namespace): its stop, asked as the new server starts, waits for it

@@ -3,6 +3,8 @@ itself must get right, apart from the core's rules."""
 
 from __future__ import annotations
 
+import itertools
+import json
 import logging
 import shutil
 import socket
@@ -13,14 +15,17 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.arm.instruction import Point
+from al5d.arm.instruction import Kind, Point
 from al5d.arm.states import State
 from al5d.owner import lane as ln
 from al5d.owner.client import Remote
 from al5d.owner.loop import Owner
+from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator.board import Board
 from al5d.ssc32u.emulator.virtual import VirtualTransport
 from al5d_rig.rospeer import wait_until
@@ -290,3 +295,249 @@ def test_a_motion_judged_while_the_arm_takes_no_moves_is_refused_then(config: Ar
         owner.close()
         ours.close()
         theirs.close()
+
+
+#: Lines a lane client sent that ended the owner's thread (an outside reading: a client of
+#: the lane is any process of the user's), each with what its error says now.
+KILLING_LINES = [
+    (b'{"op": "hello", "watch": [[1]]}', "hello: watch is a list of"),
+    (b'{"op": "ask", "ref": 1, "instr": {"kind": "move", "points": 5}}', "points is not a list"),
+    (b'{"op": "ask", "ref": 2, "instr": {"kind": "move", "points": true}}', "points is not a"),
+    (b'{"op": "ping", "ref": NaN}', "NaN is not JSON"),
+    (b'{"op": "ping", "x": ' + b"[" * 50_000 + b"]" * 50_000 + b"}", "nested too deep"),
+    (
+        b'{"op": "ask", "ref": 3, "instr": {"kind": "move", "joints": [["base", 1'
+        + b"0" * 400
+        + b"]]}}",
+        "no number a double holds",
+    ),
+]
+
+
+def _answers(sock: socket.socket, ref: str, timeout: float = 30) -> list[dict[str, object]]:
+    """The owner's messages on `sock` up to the pong of the ping `ref` sent now; an
+    AssertionError if the connection ends first (the owner gone)."""
+    sock.sendall(ln.dumps({"op": "ping", "ref": ref}))
+    sock.settimeout(timeout)
+    got: list[dict[str, object]] = []
+    buf = b""
+    while True:
+        data = sock.recv(1 << 16)
+        assert data, f"the owner closed the lane before the pong of {ref}: {got[-5:]}"
+        buf += data
+        while b"\n" in buf:
+            line, buf = buf.split(b"\n", 1)
+            message = ln.loads(line)
+            if message.get("op") == "pong" and message.get("ref") == ref:
+                return got
+            got.append(message)
+
+
+def test_a_lane_line_that_ended_the_owner_gets_its_error_and_the_owner_goes_on(
+    config: ArmConfig,
+) -> None:
+    owner = Owner(config, VirtualTransport(Board(config, baud=config.server.baud))).start()
+    ours, theirs = socket.socketpair()
+    try:
+        owner.wait_for_state(State.READY, 10)
+        owner.adopt(theirs)
+        for k, (line, error) in enumerate(KILLING_LINES):
+            ours.sendall(line + b"\n")
+            errors = [str(m.get("error")) for m in _answers(ours, f"p{k}") if m["op"] == "error"]
+            assert any(error in e for e in errors), (line[:80], errors)
+        assert not owner.ending.is_set()
+        assert owner.submit(ins.move(base=5, time_ms=100)).result(10).ok
+    finally:
+        owner.close()
+        ours.close()
+        theirs.close()
+
+
+def _json() -> st.SearchStrategy[object]:
+    leaves = (
+        st.none()
+        | st.booleans()
+        | st.integers()
+        | st.integers(min_value=10**300, max_value=10**320)
+        | st.floats()
+        | st.sampled_from(["nan", "inf", "-inf", "base", "wire", "move", ""])
+        | st.text(max_size=8)
+    )
+    return st.recursive(
+        leaves,
+        lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=6), inner),
+        max_leaves=12,
+    )
+
+
+def _lane_messages() -> st.SearchStrategy[dict[str, object]]:
+    """Messages as a client of the lane might send them: every op, every field the desk
+    reads, each a value of the right shape or any JSON at all (no shutdown: it ends the
+    owner as asked; no lease: this connection would be lost while the test waits)."""
+    anything = _json()
+    kinds = st.sampled_from([k.value for k in Kind if k is not Kind.SHUTDOWN]) | anything
+    pair = st.tuples(st.sampled_from(["base", "elbow", "x"]) | anything, anything).map(list)
+    joints = st.lists(pair, max_size=3) | anything
+    point = st.tuples(joints, anything).map(list)
+    instr = st.fixed_dictionaries(
+        {"kind": kinds},
+        optional={
+            name: anything | shaped
+            for name, shaped in {
+                "id": st.text(max_size=8),
+                "preset": st.sampled_from(["park", "ready", "nope"]),
+                "time_ms": st.integers(-10, 5000),
+                "joints": joints,
+                "points": st.lists(point, max_size=3),
+                "tool": st.lists(anything, min_size=7, max_size=7),
+                "sent_ns": st.integers(),
+                "wait_ms": st.integers(),
+            }.items()
+        },
+    )
+    fields = {
+        "ref": anything,
+        "instr": instr | anything,
+        "follow": st.fixed_dictionaries({}, optional={"tolerance": anything, "late_ms": anything})
+        | anything,
+        "ticket": anything,
+        "id": anything,
+        "reason": anything,
+        "watch": st.lists(st.sampled_from(ln.WATCHES) | anything, max_size=3) | anything,
+        "name": anything,
+        "recorder": anything,
+        "ros": anything,
+        "for": anything,
+        "why": anything,
+        "stream": anything,
+        "key": anything,
+        "tell": anything,
+    }
+    ops = st.sampled_from(
+        ["ask", "judge", "drop", "cancel", "hello", "kept", "ping", "sign", "bye", "gone", "no"]
+    )
+    return st.fixed_dictionaries({"op": ops}, optional=fields)
+
+
+def test_no_message_of_a_lane_client_ends_the_owner(config: ArmConfig) -> None:
+    """Whatever a lane client sends, each message gets its answer or its error and the owner
+    goes on (hypothesis: messages of every op with fields of any JSON)."""
+    owner = Owner(config, VirtualTransport(Board(config, baud=config.server.baud))).start()
+    ours, theirs = socket.socketpair()
+    sent = itertools.count()
+    try:
+        owner.wait_for_state(State.READY, 10)
+        owner.adopt(theirs)
+
+        @settings(max_examples=400, deadline=None, database=None)
+        @given(_lane_messages())
+        def one(message: dict[str, object]) -> None:
+            ours.sendall(json.dumps(message).encode() + b"\n")  # NaN as JSON never says
+            _answers(ours, f"p{next(sent)}")
+            assert not owner.ending.is_set(), message
+
+        one()
+        assert owner.submit(ins.stop()).result(10).ok
+        assert owner.submit(ins.release()).result(10).ok
+        assert owner.submit(ins.move(base=5, time_ms=100)).result(10).ok
+    finally:
+        owner.close()
+        ours.close()
+        theirs.close()
+
+
+class FailsOnRead(VirtualTransport):
+    """The virtual board, whose reading raises once `fail` is set (an owner's bug); every
+    write is kept (`writes`)."""
+
+    def __init__(self, board: Board) -> None:
+        super().__init__(board)
+        self.fail = False
+        self.writes: list[bytes] = []
+
+    def _write(self, data: bytes) -> None:
+        super()._write(data)
+        self.writes.append(data)
+
+    def read(self) -> bytes:
+        if self.fail:
+            raise RuntimeError("a bug of the test's own, in the owner's thread")
+        return super().read()
+
+
+def test_an_owner_that_fails_stops_the_board_with_its_last_write(config: ArmConfig) -> None:
+    """Without it, the board ran the group move it held to its end with nobody to stop it."""
+    transport = FailsOnRead(Board(config, baud=config.server.baud))
+    owner = Owner(config, transport).start()
+    try:
+        owner.wait_for_state(State.READY, 10)
+        moving = owner.submit(ins.move(base=60, time_ms=5000))
+        owner.wait_for_state(State.MOVING, 10)
+        transport.fail = True
+        assert owner.ending.wait(10)
+        outcome = moving.result(10)
+        assert not outcome.ok and "the owner failed" in outcome.reason, outcome
+        last = transport.writes[-1]
+        assert last == p.CANCEL + p.encode_stop(sorted(owner.arm.channels.values())), last
+        assert len(transport.writers) == 1  # the owner's thread, to its end
+    finally:
+        owner.close()
+
+
+class SlowJudge(Owner):
+    """The owner, whose every judgement takes `JUDGE_S`, as a long trajectory's does."""
+
+    JUDGE_S = 0.02
+
+    def judge(self, instr: ins.Instruction, follow: object = None) -> object:  # type: ignore[override]
+        time.sleep(self.JUDGE_S)
+        return super().judge(instr)
+
+
+def test_a_stop_sent_while_the_owner_judges_waits_for_one_judgement_not_the_turns(
+    config: ArmConfig,
+) -> None:
+    """Ten judgements read in one turn, each taking 20 ms: a stop sent on another connection
+    once the first is answered goes out after at most two more (the turn's work is
+    bounded, `TURN_WORK_S`), not after the ten (a second reading: the 32 requests a turn
+    took held a stop that long)."""
+    transport = HeldOnce(Board(config, baud=config.server.baud))
+    owner = SlowJudge(config, transport).start()
+    pairs = [socket.socketpair() for _ in range(2)]
+    try:
+        owner.wait_for_state(State.READY, 10)
+        (judges, judges_end), (stops, stops_end) = pairs
+        for end in (judges_end, stops_end):
+            owner.adopt(end)
+        owner.sync()
+        instr = ln.instruction_out(ins.move(time_ms=500, base=10))
+        burst = b"".join(ln.dumps({"op": "judge", "ref": k, "instr": instr}) for k in range(10))
+        transport.hold = True
+        owner.submit(ins.move(base=1))  # a write, which the transport holds
+        assert transport.holding.wait(10)
+        judges.sendall(burst)  # read whole in the owner's next turn
+        transport.release.set()
+        judges.settimeout(30)
+        first = judges.recv(1 << 16)
+        assert b'"judged"' in first, first
+        answered = first.count(b'"judged"')
+
+        def waiting() -> int:
+            try:
+                return answered + judges.recv(1 << 20, socket.MSG_PEEK).count(b'"judged"')
+            except BlockingIOError:
+                return answered
+
+        judges.setblocking(False)
+        transport.peek = waiting
+        stops.sendall(ln.dumps({"op": "ask", "ref": 1, "instr": ln.instruction_out(ins.stop())}))
+        owner.wait_for_state(State.STOPPED, 10)
+        owner.sync()
+        judged_before = [peeked for data, peeked in transport.writes if b"STOP" in data]
+        assert judged_before and judged_before[0] <= answered + 2, judged_before
+    finally:
+        transport.release.set()
+        owner.close()
+        for a, b in pairs:
+            a.close()
+            b.close()

@@ -187,7 +187,7 @@ class Desk:
 
     def _hello(self, conn: Conn, m: dict[str, Any]) -> None:
         watch = m.get("watch") or []
-        if not isinstance(watch, list) or not set(watch) <= set(ln.WATCHES):
+        if not isinstance(watch, list) or not all(w in ln.WATCHES for w in watch):
             raise ln.LaneError(f"hello: watch is a list of {', '.join(ln.WATCHES)}")
         conn.name = str(m.get("name", "?"))[:80]
         conn.watch = frozenset(watch)

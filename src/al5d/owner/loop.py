@@ -79,6 +79,11 @@ log = logging.getLogger("al5d")
 #: Requests other than stops taken in one turn, at most: a stop that comes meanwhile waits
 #: for no more than these.
 BATCH = 32
+#: The work a turn does on those requests, at most (s of the owner's time): a stop that
+#: comes meanwhile on a lane waits for the owner's next look at its lanes, and the
+#: judgement of a long trajectory takes milliseconds (a second reading: 32 of them in one
+#: turn held a stop that long). One request is always taken.
+TURN_WORK_S = 0.005
 #: The longest the owner sleeps without looking (a lost wake-up is found then).
 SLEEP_MAX_S = 0.5
 #: A thread that woke this much later than it asked was not running: the host's stall.
@@ -345,6 +350,7 @@ class Owner:
                 self._turn()
         except BaseException as e:
             log.exception("the owner failed; the server ends")
+            self._halt_as_it_fails()
             self._fail_all(f"the owner failed: {e!r}")
         finally:
             self._end()
@@ -372,11 +378,12 @@ class Owner:
             self._take_stop(self._stops.popleft())
         if woke >= lease_due:  # after the stops: they go to the wire first
             self._lapsed(woke)
+        taking = now()
         for _ in range(BATCH):
             if not self._others:
                 break
             self._take(self._others.popleft())
-            if self._stops:
+            if self._stops or now() - taking > TURN_WORK_S:
                 break
         if self._core.link.query is not None:
             # The tick judges the query's deadline: an answer that came while this turn's
@@ -595,6 +602,18 @@ class Owner:
             self._news.lapsed(sock)
 
     # -- the end -------------------------------------------------------------------------------
+
+    def _halt_as_it_fails(self) -> None:
+        """The owner's last write, as it fails: ESC and a STOP on every channel, by this
+        thread, still the board's one writer. Without it the board would run on what it was
+        given (the end of a group move, a trajectory's point) with nobody to stop it."""
+        if not self._core.link.open or self._broken:
+            return
+        data = p.CANCEL + p.encode_stop(sorted(self.arm.channels.values()))
+        try:
+            self.transport.write(data)
+        except Exception:  # the port is the owner's failure, perhaps: nothing more to do
+            log.exception("the STOP as the owner failed was not written")
 
     def _fail_all(self, why: str) -> None:
         for ref, future in list(self._futures.items()):

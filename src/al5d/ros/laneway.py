@@ -14,11 +14,12 @@ from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import replace
 from typing import TYPE_CHECKING, Protocol
 
-from al5d.arm.instruction import Instruction, Kind, Outcome
+from al5d.arm.instruction import Instruction, Kind, Outcome, new_id
 from al5d.clock import Deadline
 from al5d.interrupts import ctrl_c_after
-from al5d.owner import where
+from al5d.owner import quick, where
 from al5d.owner.client import WELCOME_S, LaneClosed, Remote
+from al5d.owner.lane import outcome_in
 from al5d.ros.answers import (
     GIVE_UP_WORD_S,
     Answer,
@@ -206,20 +207,47 @@ class LaneWay:
         return view
 
     def ask(self, kind: Kind, timeout: float) -> Answer:
-        deadline = Deadline(timeout)
-        lane = self._open(kind.value, timeout)
-        try:
-            # A lane opened again late in the wait still gives the answer its moment.
-            outcome = lane.submit(Instruction(kind)).result(max(deadline.left(), ANSWER_MIN_S))
-        except FutureTimeout:
-            raise NoOutcome(
-                f"{kind.value}: no answer on the local lane within {timeout:g} s "
-                "(whether the server obeyed is unknown)"
-            ) from None
-        except LaneClosed as e:
-            raise NoOutcome(f"{kind.value}: {e} (whether the server obeyed is unknown)") from None
+        if kind is Kind.STOP:
+            outcome = self._stop(timeout)
+        else:
+            deadline = Deadline(timeout)
+            lane = self._open(kind.value, timeout)
+            try:
+                # A lane opened again late in the wait still gives the answer its moment.
+                outcome = lane.submit(Instruction(kind)).result(max(deadline.left(), ANSWER_MIN_S))
+            except FutureTimeout:
+                raise NoOutcome(
+                    f"{kind.value}: no answer on the local lane within {timeout:g} s "
+                    "(whether the server obeyed is unknown)"
+                ) from None
+            except LaneClosed as e:
+                raise NoOutcome(
+                    f"{kind.value}: {e} (whether the server obeyed is unknown)"
+                ) from None
         message = outcome.reason or f"{kind.value}: {outcome.result.value}"
         return Answer(kind.value, outcome.ok, message, "the local lane")
+
+    def _stop(self, timeout: float) -> Outcome:
+        """A stop on a connection of its own (`quick.hand_stop`), as the web view's and
+        `al5d send stop`'s: not behind what this client's lane carries (a trajectory's
+        bytes on their way, another thread's send holding the lane). A server started
+        again meanwhile takes it: the lane is looked for again until `timeout`."""
+        deadline = Deadline(timeout)
+        path = where.path(self.names.namespace)
+        ident = new_id()
+        try:
+            while (sock := quick.hand_stop(path, ident, max(deadline.left(), 0.1))) is None:
+                if deadline.expired or self._closed:
+                    raise NoServer(
+                        f"stop: not sent: no al5d server takes its lane within {timeout:g} s "
+                        f"({path})"
+                    )
+                time.sleep(REOPEN_EVERY_S)
+            return outcome_in(quick.answer(sock, max(deadline.left(), ANSWER_MIN_S)))
+        except (OSError, EOFError) as e:
+            raise NoOutcome(
+                f"stop: no answer on the local lane: {e} (whether the server obeyed is unknown)"
+            ) from None
 
     def close(self) -> None:
         self._closed = True
