@@ -227,11 +227,19 @@ def test_a_lost_client_s_motion_is_halted_and_its_waiting_moves_cancelled(sim: S
 
 def test_a_newer_set_point_replaces_the_one_that_waits(sim: Sim) -> None:
     sim.ask(ins.move(base=40, time_ms=500))
-    a = sim.ask(ins.move(elbow=80), stream="joint_commands", tell=False)
-    b = sim.ask(ins.move(elbow=70), stream="joint_commands", tell=False)
+    a = sim.ask(ins.move(elbow=80, id="a"), stream="joint_commands", tell=False)
+    b = sim.ask(ins.move(elbow=70, id="b"), stream="joint_commands", tell=False)
     assert sim.outcomes[a].result is Result.CANCELLED
-    assert "replaced by set-point" in sim.outcomes[a].reason
-    assert sim.outcome(b).result is Result.DONE
+    assert sim.outcomes[a].reason == "replaced by set-point b"
+    # Its source alive, as a source sends its target at its rate (one gone quiet for
+    # `server.stream_timeout_s` is not written, or held: the watchdog).
+    deadline = sim.t + 10
+    while sim.degrees()["elbow"] != pytest.approx(70, abs=0.5):
+        assert sim.t < deadline, sim.outcomes
+        sim.run(0.1)
+        sim.ask(ins.move(elbow=70), stream="joint_commands", tell=False)
+    assert sim.outcomes[b].reason.startswith("replaced by set-point")
+    assert not any("went quiet" in o.reason for o in sim.outcomes.values())
 
 
 def test_a_newer_set_point_retargets_the_running_one_mid_move(sim: Sim) -> None:
@@ -259,6 +267,27 @@ def test_the_watchdog_holds_the_arm_when_the_stream_goes_quiet(config: ArmConfig
     assert "went quiet" in outcome.reason
     assert outcome.elapsed_ms == pytest.approx(config.server.stream_timeout_s * 1000, abs=30)
     assert not sim.core.locked
+
+
+def test_a_set_point_whose_stream_went_quiet_while_it_waited_is_not_written(
+    config: ArmConfig,
+) -> None:
+    """An outside try: a stream's last set-point waited behind a 3 s move; its source was
+    killed; when the move ended the set-point was written, 2.8 s after its source was
+    gone (the base swung 69 degrees), and its watchdog counted from its write."""
+    sim = Sim(config, baud=115_200).ready()
+    move = sim.ask(ins.move(elbow=100, time_ms=2000))
+    sim.run(0.2)
+    before = len(sim.group_moves())
+    waiting = sim.ask(ins.move(base=60, time_ms=200), stream="joint_commands", tell=False)
+    assert sim.outcome(move).result is Result.DONE
+    outcome = sim.outcome(waiting)
+    assert outcome.result is Result.CANCELLED, outcome
+    assert "went quiet" in outcome.reason and "not written" in outcome.reason, outcome
+    base = sim.config.joints["base"]
+    assert all(t.channel != base.channel for m in sim.group_moves()[before:] for t in m.targets)
+    sim.run(0.5)
+    assert sim.core.state is State.READY
 
 
 def test_a_pulled_board_is_a_fault_its_moves_cancelled_and_none_replayed(sim: Sim) -> None:

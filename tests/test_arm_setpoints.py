@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import threading
 import time
+from concurrent.futures import Future
 
 import pytest
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import load_config
-from al5d.arm.instruction import Result
+from al5d.arm.instruction import Outcome, Result
 from al5d.arm.states import State
 from al5d.model.table import PATH_TOLERANCE_M, below
 from al5d.ssc32u import protocol as p
@@ -32,16 +33,34 @@ def moves_since(rig: Rig, before: int, n: int) -> list[Record]:
     return rig.moves()[before:]
 
 
+def alive(
+    rig: Rig, while_: Future[Outcome], **target: float
+) -> tuple[Future[Outcome], list[Future[Outcome]]]:
+    """A source alive while the move `while_` runs: its set-point `target` sent again every
+    0.1 s, as a source sends its target at its rate (one whose source has gone quiet for
+    `server.stream_timeout_s` is not written: the watchdog). The last one, and those it
+    replaced."""
+    sent = [rig.driver.submit(ins.move(id="alive-0", **target), stream=STREAM)]
+    while not while_.done():
+        time.sleep(0.1)
+        again = ins.move(id=f"alive-{len(sent)}", **target)
+        sent.append(rig.driver.submit(again, stream=STREAM))
+    return sent[-1], sent[:-1]
+
+
 def test_a_newer_set_point_replaces_the_one_that_waits(rig: Rig) -> None:
     driver = rig.driver
     before = len(rig.moves())
     running = driver.submit(ins.move(base=60, time_ms=1200))  # the set-points wait behind it
     older = [driver.submit(ins.move(base=b, id=f"p{b}"), stream=STREAM) for b in (10, 20, 30)]
-    newest = driver.submit(ins.move(base=40, elbow=80, id="p40"), stream=STREAM)
-    for future, by in zip(older, ("p20", "p30", "p40"), strict=True):
+    newest, replaced = alive(rig, running, base=40, elbow=80)
+    for future, by in zip(older, ("p20", "p30", "alive-0"), strict=True):
         outcome = future.result(5)
         assert outcome.result is Result.CANCELLED
         assert outcome.reason == f"replaced by set-point {by}"
+    for future in replaced:  # replaced while it waited, or where the arm already heads
+        said = future.result(5)
+        assert "replaced by set-point alive-" in said.reason or said.ok, said
     assert running.result(10).ok and newest.result(10).ok
     moves = moves_since(rig, before, 2)
     assert len(moves) == 2  # the long move and the newest set-point: nothing of the others
@@ -54,7 +73,7 @@ def test_a_set_point_does_not_replace_other_moves(rig: Rig) -> None:
     before = len(rig.moves())
     running = driver.submit(ins.move(wrist=30, time_ms=800))
     queued = driver.submit(ins.move(wrist=-30, time_ms=200))
-    point = driver.submit(ins.move(wrist=10), stream=STREAM)
+    point, _ = alive(rig, queued, wrist=10)
     assert running.result(10).ok and queued.result(10).ok and point.result(10).ok
     assert len(rig.moves()) - before == 3
     # Where the wrist comes to rest, not where it is when the outcome comes: the emulated

@@ -376,6 +376,25 @@ def test_a_cancel_of_a_goal_waiting_for_the_one_it_preempts_is_obeyed(rig: Rig) 
     wait_until(lambda: rig.states[-1] == "ready", 10, "ready")
 
 
+def test_a_goal_cancelled_while_it_waits_behind_another_move_says_it_did_not_move(
+    rig: Rig,
+) -> None:
+    """An outside try: a goal queued at the owner behind a move of another channel, then
+    cancelled, said "cancelled: the arm halted where it was", which it never moved."""
+    rig.recover()
+    rig.peer.send("ahead", "move", 1500, elbow=60)
+    wait_until(lambda: rig.states[-1] == "moving", 10, "the topic's move running")
+    handle = rig.send(rig.fjt, rig.trajectory([(0.5, pose(base=-30, elbow=60))]))
+    assert handle.accepted
+    wait_future(handle.cancel_goal_async())
+    answer = wait_future(handle.get_result_async(), 20)
+    assert answer.status == GoalStatus.STATUS_CANCELED, answer.result.error_string
+    assert answer.result.error_string.startswith("cancelled by its client before it ran")
+    assert rig.peer.result("ahead", 20).outcome == "done"
+    assert abs(rig.emu.servo_degrees()["base"] + 30) > 5, "the cancelled goal moved"
+    wait_until(lambda: rig.states[-1] == "ready", 10, "ready")
+
+
 def test_a_result_is_kept_after_its_goal_has_left_the_status_messages(rig: Rig) -> None:
     """The status messages carry only recent goals (each message lists every goal kept, so
     a long list costs every goal), while a result stays for a client that asks late."""

@@ -401,6 +401,8 @@ def _supersede(c: Core, job: Job, t: float, out: Out) -> Core:
     that one has the arm at `t`; refused where that path would leave the table. Never while
     a line of the running one is going out: no set-point cuts a line."""
     assert c.run is not None and not (c.link.rest and not c.link.rest_is_halt)
+    if running.stale_set_point(c, job, t, out):
+        return c  # the running one's watchdog holds the arm
     superseded = c.run.job
     # Judged against the table from where the running one has the arm now (again
     # when its bytes go: `running`).

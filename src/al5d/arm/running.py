@@ -87,6 +87,10 @@ def start(c: Core, job: Job, t: float, out: Out) -> Core:
     reason = ""
     pose = c.book.pose
     limits = c.arm.limits
+    if stale_set_point(c, job, t, out):
+        if c.state is State.MOVING and not c.queue:
+            c = fire(c, Event.MOVE_DONE, out)
+        return c
     if not steps:
         got = planned(job.instr, pose, limits, c.arm.translator)
         if isinstance(got, str):
@@ -339,9 +343,35 @@ def _watch_at(c: Core, written: Written) -> float:
 
 
 def _quiet_at(c: Core, run: Run, written: Written) -> float:
-    """When a set-point's stream has been quiet for `server.stream_timeout_s`."""
-    seen = c.stream_seen.get(run.job.stream, written.t_write)
-    return max(seen, written.t_write) + c.arm.settings.stream_timeout_s
+    """When a running set-point's stream has been quiet for `server.stream_timeout_s`."""
+    return _quiet_since(c, run.job.stream, written.t_write)
+
+
+def _quiet_since(c: Core, stream: str, t: float) -> float:
+    """When `stream` has been quiet for `server.stream_timeout_s` (counted from `t` where it
+    has not been seen)."""
+    return c.stream_seen.get(stream, t) + c.arm.settings.stream_timeout_s
+
+
+def stale_set_point(c: Core, job: Job, t: float, out: Out) -> bool:
+    """A set-point about to be written whose stream went quiet while it waited (behind a
+    move, for the wire) is cancelled, not written: the target of a source that stopped or
+    lost its link is not driven to (an outside try: a killed stream's last set-point
+    swung the base 69 degrees 2.8 s after the kill). Whether it was."""
+    if not job.stream or _quiet_since(c, job.stream, t) > t:
+        return False
+    why = f"{went_quiet(c, job.stream)} before it was written: not written"
+    say(out, logging.WARNING, f"watchdog: {job.instr.name} [{job.instr.id}]: {why}")
+    finish(job, Result.CANCELLED, why, t, out)
+    return True
+
+
+def went_quiet(c: Core, stream: str) -> str:
+    """Why the watchdog holds `stream`'s set-point."""
+    timeout = c.arm.settings.stream_timeout_s
+    return (
+        f"the stream {stream} went quiet (no set-point for {timeout:g} s, server.stream_timeout_s)"
+    )
 
 
 # -- waiting for a step -----------------------------------------------------------------
@@ -400,11 +430,7 @@ def _hold(c: Core, t: float, out: Out) -> Core:
     (no lock: the next set-point moves it again)."""
     run = c.run
     assert run is not None
-    timeout = c.arm.settings.stream_timeout_s
-    reason = (
-        f"the stream {run.job.stream} went quiet (no set-point for {timeout:g} s, "
-        "server.stream_timeout_s): the arm is held where it is"
-    )
+    reason = f"{went_quiet(c, run.job.stream)}: the arm is held where it is"
     say(out, logging.WARNING, f"watchdog: {run.job.instr.name} [{run.job.instr.id}]: {reason}")
     return end_run(c, reason, t, out)
 

@@ -304,6 +304,8 @@ class FollowTrajectoryAction(GoalRunner):
             return _result(FJT.PATH_TOLERANCE_VIOLATED, run.violated)
         if outcome.result is Result.CANCELLED and handle.is_cancel_requested:
             handle.canceled()
+            if run.t0 is None and not run.written:  # it waited at the owner: dropped there
+                return _result(FJT.SUCCESSFUL, CANCELLED_BEFORE_RUN)
             return _result(FJT.SUCCESSFUL, "cancelled: the arm halted where it was")
         if outcome.result is Result.REFUSED:  # the state changed between accept and run
             handle.abort()
