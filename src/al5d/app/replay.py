@@ -479,7 +479,8 @@ def _send(
                 # One line, as an outcome is told (the file's words escaped: they were
                 # never judged), and no "> " line: a million of them would be two million.
                 name = repr(fields.instruction[:MAX_QUOTE])[1:-1]
-                report.line(f"{name} [{repr(_sent_id(each))[1:-1]}]: refused: {instr} (not sent)")
+                said = f"{name} [{repr(_sent_id(each))[1:-1]}]: refused: {instr} (not sent)"
+                report.line(said, flush=False)  # out with the next line sent, or at the end
                 continue
             if rate == "recorded":
                 first = each.sent_ns if first is None else first

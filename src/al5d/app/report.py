@@ -40,9 +40,11 @@ class Report:
         # background, a lost server), as a shell draws its prompt again below a job's news.
         self._prompt: Callable[[], str] | None = None
 
-    def line(self, text: str) -> None:
+    def line(self, text: str, flush: bool = True) -> None:
+        """`text` on a line of its own; without `flush`, it may wait in the buffer for the
+        next line flushed (a replay's refusals, a million of them, a write each)."""
         with self._lock:
-            self._print(text)
+            self._print(text, flush)
 
     def at_prompt(self, prompt: Callable[[], str] | None) -> None:
         """A prompt at a terminal is drawn (`prompt`: it and what is typed after it), or is
@@ -50,10 +52,10 @@ class Report:
         with self._lock:
             self._prompt = prompt
 
-    def _print(self, text: str) -> None:
+    def _print(self, text: str, flush: bool = True) -> None:
         """`text` on a line of its own (the lock held)."""
         if self._prompt is None:
-            print(text, file=self._out, flush=True)
+            print(text, file=self._out, flush=flush)
             return
         # Over the prompt's line (carriage return, erase to its end), then the prompt again.
         self._out.write(f"\r\x1b[K{text}\n{self._prompt()}")

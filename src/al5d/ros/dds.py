@@ -49,6 +49,14 @@ SHM_PORT_QUEUE = 8192
 #: a writer tracks (Fast DDS's default `reader_filters_allocation`: 532 bytes) however Fast
 #: DDS packs a fragment, and costs a 1 MB sample no fragment more (16 either way).
 WRITER_MESSAGE = 64_900
+#: How often a reliable writer asks its readers what they lack (Fast DDS's heartbeat, 3 s
+#: by default; in ns, below a second). A reader says what it has when asked: with the
+#: default, a sample lost on a lossy link went again up to 3 s later, and a writer waiting
+#: for its readers to have what it sent (`Publisher.wait_for_all_acked`: a closing client's
+#: last words, `al5d.ros.leasing.Leaser.close`) waited for the heartbeat, 1.0 to 2.9 s
+#: here, where the closing client waits 0.5 s at most and so waited that long every time
+#: (`al5d replay`, the Python client over ROS 2). With 100 ms: 0.1 s.
+HEARTBEAT_NS = 100_000_000
 _PROFILES = """<?xml version="1.0" encoding="UTF-8"?>
 <dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">{library}
   <profiles>
@@ -72,8 +80,15 @@ _PROFILES = """<?xml version="1.0" encoding="UTF-8"?>
         <useBuiltinTransports>false</useBuiltinTransports>
       </rtps>
     </participant>
-    <!-- al5d: every writer's fragments leave room for the content filters' inline QoS. -->
+    <!-- al5d: every writer's fragments leave room for the content filters' inline QoS,
+         and it asks its readers what they lack more often than every 3 s. -->
     <data_writer profile_name="al5d_writer" is_default_profile="true">
+      <times>
+        <heartbeatPeriod>
+          <sec>0</sec>
+          <nanosec>{heartbeat_ns}</nanosec>
+        </heartbeatPeriod>
+      </times>
       <propertiesPolicy>
         <properties>
           <property>
@@ -178,6 +193,7 @@ def dds_profile(instructions: tuple[str, int] | None = None, in_process: bool = 
         loopback=_LOOPBACK if local else "",
         reader=reader,
         writer_message=WRITER_MESSAGE,
+        heartbeat_ns=HEARTBEAT_NS,
         library="" if in_process else _NOT_IN_PROCESS,
     )
     fd, path = tempfile.mkstemp(prefix="al5d-dds-", suffix=".xml")
