@@ -254,6 +254,10 @@ def test_a_client_whose_server_was_started_again_reaches_the_new_one() -> None:
             again = Proc("serve", "--namespace", namespace, "--config", patient_config())
             stop = client.stop(timeout=60)  # asked before the new server's lane is there
             assert stop.ok and stop.via.startswith("the local lane"), stop
+            # The client's own lane is open again, to the new server (a second reading: a
+            # stop on a connection of its own left it closed, and the reads on the old one).
+            client.wait_for_state("stopped", 30)
+            assert client.read().locked
             assert client.release(timeout=30).ok
             assert client.execute("move base=-10 time=100", 30).ok
             assert client.read().state == "ready"

@@ -3,6 +3,7 @@ itself must get right, apart from the core's rules."""
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import logging
@@ -11,7 +12,7 @@ import socket
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -165,6 +166,29 @@ class HeldOnce(VirtualTransport):
             self.release.wait(10)
 
 
+@contextlib.contextmanager
+def two_lanes(
+    config: ArmConfig, kind: type[Owner]
+) -> Iterator[tuple[Owner, HeldOnce, socket.socket, socket.socket]]:
+    """An owner of `kind` on a board whose writes can be held (`HeldOnce`), ready, with two
+    lane connections: the owner, the board, and the client ends (judges, stops)."""
+    transport = HeldOnce(Board(config, baud=config.server.baud))
+    owner = kind(config, transport).start()
+    pairs = [socket.socketpair() for _ in range(2)]
+    try:
+        owner.wait_for_state(State.READY, 10)
+        for _, end in pairs:
+            owner.adopt(end)
+        owner.sync()
+        yield owner, transport, pairs[0][0], pairs[1][0]
+    finally:
+        transport.release.set()
+        owner.close()
+        for a, b in pairs:
+            a.close()
+            b.close()
+
+
 def test_a_stop_read_in_a_turn_goes_before_the_judgements_read_in_it(config: ArmConfig) -> None:
     """A trajectory's judgement takes milliseconds. Judged as its connection was read, a
     burst of them held a stop that the same turn read from another connection until all
@@ -173,15 +197,7 @@ def test_a_stop_read_in_a_turn_goes_before_the_judgements_read_in_it(config: Arm
     connections: when the stop's STOP goes out, no judgement has been answered yet. (The
     twenty are 60 kB: they fit in the socket's buffer, 208 kB by default on Linux, while
     the owner is held.)"""
-    transport = HeldOnce(Board(config, baud=config.server.baud))
-    owner = Owner(config, transport).start()
-    pairs = [socket.socketpair() for _ in range(2)]
-    try:
-        owner.wait_for_state(State.READY, 10)
-        (judges, judges_end), (stops, stops_end) = pairs
-        for end in (judges_end, stops_end):
-            owner.adopt(end)
-        owner.sync()
+    with two_lanes(config, Owner) as (owner, transport, judges, stops):
         judges.setblocking(False)
 
         def waiting() -> int:
@@ -212,12 +228,6 @@ def test_a_stop_read_in_a_turn_goes_before_the_judgements_read_in_it(config: Arm
         answered = b""
         while answered.count(b'"judged"') < 20:
             answered += judges.recv(1 << 16)
-    finally:
-        transport.release.set()
-        owner.close()
-        for a, b in pairs:
-            a.close()
-            b.close()
 
 
 def test_a_wait_for_a_state_entered_and_left_before_the_waiter_runs_ends(
@@ -304,6 +314,14 @@ KILLING_LINES = [
     (b'{"op": "ask", "ref": 1, "instr": {"kind": "move", "points": 5}}', "points is not a list"),
     (b'{"op": "ask", "ref": 2, "instr": {"kind": "move", "points": true}}', "points is not a"),
     (b'{"op": "ping", "ref": NaN}', "NaN is not JSON"),
+    (
+        b'{"op": "ask", "ref": 4, "key": '
+        + b"[" * 600
+        + b"]" * 600
+        + b', "instr": {"kind": "stop"}}',
+        "key: nested deeper than",
+    ),
+    (b'{"op": "ask", "ref": ' + b"[" * 980 + b"]" * 980 + b"}", "ref must be a number or text"),
     (b'{"op": "ping", "x": ' + b"[" * 50_000 + b"]" * 50_000 + b"}", "nested too deep"),
     (
         b'{"op": "ask", "ref": 3, "instr": {"kind": "move", "joints": [["base", 1'
@@ -353,6 +371,15 @@ def test_a_lane_line_that_ended_the_owner_gets_its_error_and_the_owner_goes_on(
         theirs.close()
 
 
+def _nested(depth: int) -> object:
+    """A list nested `depth` deep (Python reads JSON, and hashes and writes it, by
+    recursion: near its limit a value a client sent ended the owner's thread)."""
+    value: list[object] = []
+    for _ in range(depth - 1):
+        value = [value]
+    return value
+
+
 def _json() -> st.SearchStrategy[object]:
     leaves = (
         st.none()
@@ -362,6 +389,7 @@ def _json() -> st.SearchStrategy[object]:
         | st.floats()
         | st.sampled_from(["nan", "inf", "-inf", "base", "wire", "move", ""])
         | st.text(max_size=8)
+        | st.integers(1, 900).map(_nested)
     )
     return st.recursive(
         leaves,
@@ -501,15 +529,7 @@ def test_a_stop_sent_while_the_owner_judges_waits_for_one_judgement_not_the_turn
     once the first is answered goes out after at most two more (the turn's work is
     bounded, `TURN_WORK_S`), not after the ten (a second reading: the 32 requests a turn
     took held a stop that long)."""
-    transport = HeldOnce(Board(config, baud=config.server.baud))
-    owner = SlowJudge(config, transport).start()
-    pairs = [socket.socketpair() for _ in range(2)]
-    try:
-        owner.wait_for_state(State.READY, 10)
-        (judges, judges_end), (stops, stops_end) = pairs
-        for end in (judges_end, stops_end):
-            owner.adopt(end)
-        owner.sync()
+    with two_lanes(config, SlowJudge) as (owner, transport, judges, stops):
         instr = ln.instruction_out(ins.move(time_ms=500, base=10))
         burst = b"".join(ln.dumps({"op": "judge", "ref": k, "instr": instr}) for k in range(10))
         transport.hold = True
@@ -535,9 +555,30 @@ def test_a_stop_sent_while_the_owner_judges_waits_for_one_judgement_not_the_turn
         owner.sync()
         judged_before = [peeked for data, peeked in transport.writes if b"STOP" in data]
         assert judged_before and judged_before[0] <= answered + 2, judged_before
+
+
+def test_a_lane_stop_stamped_in_the_future_is_taken_as_sent_when_it_came(
+    config: ArmConfig,
+) -> None:
+    """An outside try: a stop sent with `sent_ns` of 2**63 - 1 held every release refused
+    ("sent before the stop") until the server ended. And a connection says hello once: a
+    flood of them, each welcomed as it was read, held other lanes' stops up to 0.9 s."""
+    owner = Owner(config, VirtualTransport(Board(config, baud=config.server.baud))).start()
+    ours, theirs = socket.socketpair()
+    try:
+        owner.wait_for_state(State.READY, 10)
+        owner.adopt(theirs)
+        hello = {"op": "hello", "name": "twice", "watch": []}
+        ours.sendall(ln.dumps(hello) + ln.dumps(hello))
+        errors = [str(m.get("error")) for m in _answers(ours, "h") if m["op"] == "error"]
+        assert errors == ["hello: once a connection"], errors
+        stop = {"kind": "stop", "id": "ahead", "sent_ns": 2**63 - 1}
+        ours.sendall(ln.dumps({"op": "ask", "ref": 1, "instr": stop}))
+        owner.wait_for_state(State.STOPPED, 10)
+        released = owner.submit(ins.release()).result(10)
+        assert released.ok, released
+        assert owner.submit(ins.move(base=5, time_ms=100)).result(10).ok
     finally:
-        transport.release.set()
         owner.close()
-        for a, b in pairs:
-            a.close()
-            b.close()
+        ours.close()
+        theirs.close()

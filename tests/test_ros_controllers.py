@@ -386,6 +386,7 @@ def test_a_goal_cancelled_while_it_waits_behind_another_move_says_it_did_not_mov
     wait_until(lambda: rig.states[-1] == "moving", 10, "the topic's move running")
     handle = rig.send(rig.fjt, rig.trajectory([(0.5, pose(base=-30, elbow=60))]))
     assert handle.accepted
+    time.sleep(0.3)  # handed to the owner, where it waits (cancelled before that, it said so)
     wait_future(handle.cancel_goal_async())
     answer = wait_future(handle.get_result_async(), 20)
     assert answer.status == GoalStatus.STATUS_CANCELED, answer.result.error_string

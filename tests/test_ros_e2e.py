@@ -140,8 +140,10 @@ def test_every_instruction_through_the_topic(server: Server, peer: Peer) -> None
         # (beside other tests: none recorded yet as the outcome came).
         want = server.pulses_of(cfg.presets[word])
         server.emu.wait_for(
-            lambda rs, want=want: bool(moves := group_moves(rs))
-            and {t.channel: t.pulse_us for t in moves[-1].targets} == want,
+            lambda rs, want=want: (
+                bool(moves := group_moves(rs))
+                and {t.channel: t.pulse_us for t in moves[-1].targets} == want
+            ),
             30,
         )
     peer.send("t-move", "move", base=30, elbow=90)

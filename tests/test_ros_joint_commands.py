@@ -158,6 +158,13 @@ def test_the_latest_command_wins(served: Commanded) -> None:
     for k in range(1, 61):
         last = start | {"base": -60.0 + k, "elbow": 60.0 + k / 2}
         served.command(last)
+    # Its source alive, as ros2_control's hardware sends its command at its rate: one that
+    # waits while its stream is quiet for `server.stream_timeout_s` is not written.
+    deadline = time.monotonic() + 30
+    while "hold" not in served.peer.results_now():
+        assert time.monotonic() < deadline, said(served)
+        time.sleep(0.1)
+        served.command(last)
     assert served.peer.result("hold", 30).outcome == "done"
     settled(served, last)
     moves = group_moves(served.emu.records[since:])

@@ -480,7 +480,8 @@ def _send(
                 # never judged), and no "> " line: a million of them would be two million.
                 name = repr(fields.instruction[:MAX_QUOTE])[1:-1]
                 said = f"{name} [{repr(_sent_id(each))[1:-1]}]: refused: {instr} (not sent)"
-                report.line(said, flush=False)  # out with the next line sent, or at the end
+                # Out with the next line sent, or before a wait (a million, a write each).
+                report.line(said, flush=rate == "recorded")
                 continue
             if rate == "recorded":
                 first = each.sent_ns if first is None else first
@@ -509,6 +510,7 @@ def _send(
             if rate != "recorded" and not outcomes.wait(arrived, timeout + GIVE_UP_WORD_S):
                 outcomes.forget(instr.id)
                 report.outcome(None, instr=instr)
+        out.flush()  # the refusals after the last sent, before the wait for its outcome
         if not outcomes.wait(
             lambda: not outcomes.pending(),
             timeout + GIVE_UP_WORD_S - (time.monotonic() - last_sent),

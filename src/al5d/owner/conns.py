@@ -49,6 +49,8 @@ class Conn:
     #: client of the core of its own, lost on its own (`gone`).
     subs: dict[str, int] = field(default_factory=dict)
     bye: bool = False
+    #: It said hello, and was welcomed (once a connection).
+    welcomed: bool = False
     #: It asks what came over ROS 2 (the bridge, the stop process; its hello says so): a
     #: recording has it from ROS, and is not told it again (`asked`).
     ros: bool = False

@@ -10,7 +10,7 @@ A bad message is answered with an `error` and changes nothing.
 from __future__ import annotations
 
 from collections.abc import Hashable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 from al5d.arm.instruction import Instruction, Outcome
@@ -150,6 +150,11 @@ class Desk:
         """One request of a lane client; a bad one is answered with an `error`."""
         op = m["op"]
         ref = m.get("ref")
+        if not (ref is None or isinstance(ref, int | str)) or isinstance(ref, bool):
+            # Echoed in the answer: a ref nested near the interpreter's depth failed the
+            # owner's writing of it (a second reading).
+            self._send(conn, {"op": "error", "error": f"{op[:40]}: ref must be a number or text"})
+            return
         try:
             if op == "ask":
                 self._ask(conn, ref, m)
@@ -184,8 +189,12 @@ class Desk:
                 raise ln.LaneError(f"no op {op[:40]!r}")
         except ln.LaneError as e:
             self._send(conn, {"op": "error", "ref": ref, "error": str(e)})
+        except RecursionError:  # a value nested deep, read by Python's recursion
+            self._send(conn, {"op": "error", "ref": ref, "error": f"{op[:40]}: nested too deep"})
 
     def _hello(self, conn: Conn, m: dict[str, Any]) -> None:
+        if conn.welcomed:  # each is answered with the whole welcome, read before any stop
+            raise ln.LaneError("hello: once a connection")
         watch = m.get("watch") or []
         if not isinstance(watch, list) or not all(w in ln.WATCHES for w in watch):
             raise ln.LaneError(f"hello: watch is a list of {', '.join(ln.WATCHES)}")
@@ -195,6 +204,9 @@ class Desk:
             conn.lease_s = self._lease_s
         conn.ros = m.get("ros") is True
         recorder = m.get("recorder") is True and "wire" in conn.watch
+        # Once: a flood of hellos on one connection, each welcomed, held the other lanes'
+        # stops 0.3 to 0.9 s (an outside try).
+        conn.welcomed = True
         for message in self._inbox.welcome(conn, recorder):
             self._send(conn, message)
 
@@ -207,6 +219,13 @@ class Desk:
             instr = ticket.instr
         else:
             instr = ln.instruction_in(m.get("instr"))
+        if instr.sent_ns is not None and instr.sent_ns > (came := wall_ns()):
+            # Sent no later than it came (this machine's clock on both sides): a stop stamped
+            # in the future held every release refused until the server ended (an outside
+            # try), as a stop over ROS 2 is held to when it came (`convert.stop_time`).
+            instr = replace(instr, sent_ns=came)
+            if ticket is not None:
+                ticket = replace(ticket, instr=instr)
         stream = m.get("stream", "")
         if not isinstance(stream, str):
             raise ln.LaneError("ask: stream must be text")
@@ -234,9 +253,15 @@ class Desk:
             self._inbox.later("gone", 0, (client, f"{who}: {why[:200]}"))
 
 
-def _hashable(value: Any) -> Hashable | None:
+#: How deep a stop's key may nest (a client's own; the bridge's is a flat list).
+KEY_DEPTH = 8
+
+
+def _hashable(value: Any, depth: int = 0) -> Hashable | None:
     if isinstance(value, list):
-        return tuple(_hashable(v) for v in value)
+        if depth >= KEY_DEPTH:  # 500 deep ended the owner's thread (a second reading)
+            raise ln.LaneError(f"key: nested deeper than {KEY_DEPTH}")
+        return tuple(_hashable(v, depth + 1) for v in value)
     if value is None or isinstance(value, str | int | float | bool):
         return value
     raise ln.LaneError("key: not a JSON value")

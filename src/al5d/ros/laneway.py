@@ -5,6 +5,7 @@ discovery, no DDS), opened again when it has closed and a server takes it; and `
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
@@ -243,11 +244,16 @@ class LaneWay:
                         f"({path})"
                     )
                 time.sleep(REOPEN_EVERY_S)
-            return outcome_in(quick.answer(sock, max(deadline.left(), ANSWER_MIN_S)))
-        except (OSError, EOFError) as e:
+            outcome = outcome_in(quick.answer(sock, max(deadline.left(), ANSWER_MIN_S)))
+        except (OSError, EOFError, ValueError) as e:  # a garbled answer: LaneError, JSON's
             raise NoOutcome(
                 f"stop: no answer on the local lane: {e} (whether the server obeyed is unknown)"
             ) from None
+        # The client's own lane, closed by a server that ended, is opened again to the one
+        # that answered, as any call opens it (its reads hear the stopped arm).
+        with contextlib.suppress(NoServer):
+            self._open("stop", ANSWER_MIN_S)
+        return outcome
 
     def close(self) -> None:
         self._closed = True
