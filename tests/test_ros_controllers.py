@@ -218,6 +218,11 @@ def test_joints_not_named_keep_their_place(rig: Rig) -> None:
         ("decreasing time", "not after point 0"),
         ("out of range", "point 1"),
         ("sizes", "positions for 5 joints"),
+        # Taken whole, as positions are: a velocity or acceleration that is no number was
+        # ignored (they are not used), and a negative goal_time_tolerance taken as none.
+        ("nan velocity", "point 1: velocities hold nan"),
+        ("inf acceleration", "point 2: accelerations hold inf"),
+        ("negative goal time tolerance", "goal_time_tolerance -0.5 s is negative"),
     ],
 )
 def test_a_bad_trajectory_is_rejected_whole_and_writes_nothing(
@@ -234,6 +239,12 @@ def test_a_bad_trajectory_is_rejected_whole_and_writes_nothing(
         pts[1].time_from_start = Duration(sec=0, nanosec=200_000_000)
     elif change == "out of range":
         pts[1].positions = rig.urdf(**pose(elbow=170))  # its range is 0..135
+    elif change == "nan velocity":
+        pts[1].velocities = [0.0, math.nan, 0.0, 0.0, 0.0]
+    elif change == "inf acceleration":
+        pts[2].accelerations = [0.0, 0.0, 0.0, 0.0, math.inf]
+    elif change == "negative goal time tolerance":
+        goal.goal_time_tolerance = Duration(sec=-1, nanosec=500_000_000)
     else:
         pts[2].positions = pts[2].positions[:4]
     rig.emu.clear_records()

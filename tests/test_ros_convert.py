@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
+from al5d_interfaces.msg import ArmInstruction
 from builtin_interfaces.msg import Duration
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d.arm.config import load_config
-from al5d.ros.convert import URDF_SLACK, trajectory_from_message
+from al5d.arm.instruction import Instruction, Kind
+from al5d.ros.convert import URDF_SLACK, from_message, trajectory_from_message
 
-MODEL = load_config().model
+CONFIG = load_config()
+MODEL = CONFIG.model
+PRESETS = tuple(CONFIG.presets)
 
 
 def trajectory(points: list[tuple[int, float]]) -> JointTrajectory:
@@ -71,3 +77,25 @@ def test_a_point_a_hair_beyond_a_urdf_limit_is_taken_at_the_ranges_end(joint: st
     msg.points.append(JointTrajectoryPoint(positions=[hi + 1e-3], time_from_start=Duration(sec=2)))
     reason = trajectory_from_message(msg, MODEL)
     assert isinstance(reason, str) and "outside its URDF limits" in reason, reason
+
+
+@pytest.mark.parametrize("word", ["release", "shutdown"])
+@pytest.mark.parametrize(
+    "fields", [{"joints": ["base"], "degrees": [10.0]}, {"degrees": [10.0]}, {"time_ms": 500}]
+)
+def test_a_release_or_shutdown_with_joints_or_a_time_is_refused_as_ambiguous(
+    word: str, fields: dict[str, Any]
+) -> None:
+    """As a preset with joints is: a shutdown with joints was taken (an outside try), the
+    joints dropped without a word."""
+    reason = from_message(ArmInstruction(instruction=word, **fields), PRESETS, MODEL)
+    assert reason == f"{word} takes no joints or time (ambiguous); send it alone"
+    assert isinstance(from_message(ArmInstruction(instruction=word), PRESETS, MODEL), Instruction)
+
+
+@pytest.mark.parametrize(
+    "fields", [{}, {"joints": ["base"], "degrees": [10.0]}, {"time_ms": 500}, {"degrees": [1.0]}]
+)
+def test_a_stop_is_taken_whatever_else_its_message_carries(fields: dict[str, Any]) -> None:
+    instr = from_message(ArmInstruction(instruction="stop", id="s", **fields), PRESETS, MODEL)
+    assert isinstance(instr, Instruction) and instr.kind is Kind.STOP and instr.id == "s"

@@ -1265,6 +1265,39 @@ def test_a_target_field_that_is_no_number_sends_nothing(config: ArmConfig) -> No
         server.stop()
 
 
+def test_a_time_box_crafted_past_its_range_sends_nothing_and_says_why(config: ArmConfig) -> None:
+    """The browser keeps a time box within 0..max_move_time_ms; an update crafted past it
+    (negative, more than a message carries) is said on the page and nothing is sent. It
+    raised in the web process (5e9 ms does not fit the message)."""
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    page = Page(server, config, "al5d test")
+    commands = Recorder()
+    page.commands = commands
+    top = config.server.max_move_time_ms
+    try:
+        ready = config.model.to_urdf(config.presets["ready"])
+        page.on_state("ready")
+        for value in (-100, top + 1, 5e9):  # viser's own check keeps NaN out of a whole box
+            page.on_joints(list(ready), list(ready.values()), time.monotonic())  # not lost
+            page.panel.time_ms_number.value = value
+            page._on_preset(SimpleNamespace(target=SimpleNamespace(value="ready")))
+            said = page.panel.joints_status.content
+            held = page.panel.time_ms_number.value  # viser's, as an update would leave it
+            assert f"not sent: time {held!r} ms is outside the box&#x27;s 0..{top}" in said
+            page.panel.target_time_number.value = value
+            page.target_tab.send()
+            said = page.panel.target_status.content
+            assert f"not sent: time {held!r} ms is outside the box&#x27;s 0..{top}" in said
+        assert commands.sent == []
+        # The box's own range is taken.
+        page.panel.time_ms_number.value = top
+        page._on_preset(SimpleNamespace(target=SimpleNamespace(value="ready")))
+        assert [i.time_ms for i in commands.sent] == [top]
+    finally:
+        page.close()
+        server.stop()
+
+
 def test_a_sliders_value_is_the_users_however_late_viser_runs_its_handlers(
     rig: Rig, config: ArmConfig
 ) -> None:

@@ -198,10 +198,13 @@ class FollowTrajectoryAction(GoalRunner):
             if isinstance(t, str):
                 return t
         assert not isinstance(path, str) and not isinstance(end, str)
+        late_s = _seconds(goal.goal_time_tolerance)
+        if late_s < 0:  # 0 is the default's; a negative one is no tolerance at all
+            return f"goal_time_tolerance {late_s:g} s is negative"
         busy = inactive(self.arm)
         if busy:
             return busy
-        ticket = self.arm.judge(instr, self._follow(path, _seconds(goal.goal_time_tolerance)))
+        ticket = self.arm.judge(instr, self._follow(path, late_s))
         if isinstance(ticket, str):
             return ticket
         return Accepted(ticket, path, end)

@@ -178,6 +178,9 @@ def from_message(
         return move if isinstance(move, str) else replace(move, sent_ns=sent)
     for kind in SAFETY:
         if word == kind.value:
+            if kind is not Kind.STOP and (len(msg.joints) or len(msg.degrees) or time_ms):
+                # A stop is obeyed whatever else its message carries.
+                return f"{word} takes no joints or time (ambiguous); send it alone"
             return Instruction(kind, id=ident, sent_ns=sent)
     known = " | ".join((*presets, "move", "move_to", *(k.value for k in SAFETY)))
     return f"unknown instruction {quote(msg.instruction)}; expected {known}"
@@ -291,9 +294,13 @@ def trajectory_from_message(
         if len(point.positions) != len(names):
             return f"point {i}: {len(point.positions)} positions for {len(names)} joints"
         for field in ("velocities", "accelerations"):
-            given = len(getattr(point, field))
-            if given and given != len(names):  # empty: not given, as the JTC allows
-                return f"point {i}: {given} {field} for {len(names)} joints"
+            values = getattr(point, field)
+            if len(values) and len(values) != len(names):  # empty: not given, as the JTC allows
+                return f"point {i}: {len(values)} {field} for {len(names)} joints"
+            # Not used (the servos' speeds come from the times), but a goal is taken whole.
+            if not all(math.isfinite(v) for v in values):
+                bad = next(v for v in values if not math.isfinite(v))
+                return f"point {i}: {field} hold {bad:g}"
         t = point.time_from_start
         at_ms = t.sec * 1000.0 + t.nanosec * 1e-6
         # Here too, so that the reason names the first bad point whatever is wrong with it.

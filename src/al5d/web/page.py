@@ -26,7 +26,15 @@ from al5d.arm.instruction import Instruction, Outcome, Result, preset
 from al5d.model import JOINTS, ModelError
 from al5d.model.transforms import Transform
 from al5d.web.jog import Jog
-from al5d.web.panel import NO_CONTACT, PULSE_S, RELEASABLE, STATE_WORDS, Panel, held
+from al5d.web.panel import (
+    NO_CONTACT,
+    PULSE_S,
+    RELEASABLE,
+    STATE_WORDS,
+    Panel,
+    TimeNotTaken,
+    held,
+)
 from al5d.web.plan import JointHistory, OutcomeLog, Planner, Target
 from al5d.web.scene import ArmScene
 from al5d.web.sliders import SliderInput
@@ -404,7 +412,13 @@ class Page:
                 # As a slider then: the server refuses every move until a release.
                 self.panel.show_joints_status(held(self.state), False)
                 return
-        self.send_instruction(preset(str(event.target.value), time_ms=self.panel.time_ms()))
+        try:
+            time_ms = self.panel.time_ms()
+        except TimeNotTaken as e:
+            with self._lock:
+                self.panel.show_joints_status(f"not sent: {e}", False)
+            return
+        self.send_instruction(preset(str(event.target.value), time_ms=time_ms))
 
     def _on_release(self, event: Any) -> None:
         if self.commands is not None and not self.lost:

@@ -26,6 +26,21 @@ from al5d.model import JOINTS
 from al5d.model.transforms import Vec3
 from al5d.web.plan import OutcomeLog
 
+
+class TimeNotTaken(ValueError):
+    """A time box holds a value outside its own range: send nothing, say why."""
+
+
+def _box_ms(number: Any) -> int | None:
+    """A time box's whole ms, None for 0. The browser keeps a box to its range; an update
+    crafted past it (a negative time, 5e9 ms) is refused here, before it becomes an
+    instruction that no message can carry."""
+    value, top = number.value, number.max
+    if not isinstance(value, int | float) or not (math.isfinite(value) and 0 <= value <= top):
+        raise TimeNotTaken(f"time {value!r} ms is outside the box's 0..{top} ms")
+    return int(value) or None
+
+
 #: What the page shows for the state while the server is out of contact: its last state
 #: is not known to hold (a stop, a fault or its end may have come meanwhile).
 NO_CONTACT = "no_contact"
@@ -435,10 +450,16 @@ class Panel:
         return (x, y, z)
 
     def time_ms(self) -> int | None:
-        return int(self.time_ms_number.value) or None
+        """The Joints tab's move time (None: 0, as fast as the servos allow).
+
+        Raises:
+            TimeNotTaken: the box holds what it cannot (only a crafted update puts it there).
+        """
+        return _box_ms(self.time_ms_number)
 
     def target_time_ms(self) -> int | None:
-        return int(self.target_time_number.value) or None
+        """The Target tab's move time, as `time_ms`."""
+        return _box_ms(self.target_time_number)
 
     def tool_fields(self) -> dict[str, float | None] | str:
         """The Target tab's pitch, roll and gripper (None: empty), or what is wrong with one."""

@@ -13,7 +13,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 from al5d.arm.instruction import Instruction, Kind
-from al5d.web.panel import RELEASABLE, held
+from al5d.web.panel import RELEASABLE, TimeNotTaken, held
 
 if TYPE_CHECKING:
     from al5d.web.parts import PageParts
@@ -72,8 +72,13 @@ class SliderInput:
                     f"{held(page.state)} (the sliders show where it is)", False
                 )
                 return
+            try:
+                time_ms = page.panel.time_ms()
+            except TimeNotTaken as e:
+                page.panel.show_joints_status(f"will not be sent: {e}", False)
+                return
             jog = page.jog.take(joint, value, time.monotonic())
-            move = Instruction(Kind.MOVE, joints=tuple(jog.items()), time_ms=page.panel.time_ms())
+            move = Instruction(Kind.MOVE, joints=tuple(jog.items()), time_ms=time_ms)
         # Judged while dragging, as the server will judge it: a set-point it would refuse
         # is not sent (the arm stays at the last one it took), and the page says why.
         reason = page.precheck(move)

@@ -16,7 +16,7 @@ import numpy as np
 
 from al5d.arm.instruction import Instruction, move_to
 from al5d.model.transforms import Vec3
-from al5d.web.panel import RELEASABLE, held
+from al5d.web.panel import RELEASABLE, TimeNotTaken, held
 
 if TYPE_CHECKING:
     from al5d.web.parts import PageParts
@@ -66,6 +66,10 @@ class TargetTab:
         tool = page.panel.tool_fields()
         if isinstance(tool, str):
             return tool
+        try:
+            time_ms = page.panel.target_time_ms()
+        except TimeNotTaken as e:
+            return str(e)
         return move_to(
             x,
             y,
@@ -74,7 +78,7 @@ class TargetTab:
             roll=tool["roll"],
             gripper=tool["gripper"],
             line=page.panel.line(),
-            time_ms=page.panel.target_time_ms(),
+            time_ms=time_ms,
         )
 
     def on_drag(self, event: Any) -> None:
