@@ -152,7 +152,7 @@ def test_straight_lines_keep_the_emulated_tip_within_a_millimetre(rig: Rig) -> N
         )
         assert distance(tips[-1], end) < 0.001
         assert planned <= 0.001, report
-        assert worst <= 0.0025, report
+        assert worst <= 0.004, report
 
 
 def test_a_timed_line_too_fast_for_the_servos_says_so_once_not_per_hop(

@@ -325,6 +325,10 @@ def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:
         b'{"op": "ask", "ref": 6, "instr": {"kind": "move", "wait_ms": -1}}\n',
         b'{"op": "ask", "ref": 7, "instr": {"kind": "move", "wait_ms": 4294967296}}\n',
         b'{"op": "ask", "ref": 8, "instr": {"kind": "move", "sent_ns": -5, "wait_ms": 9}}\n',
+        b'{"op": "ask", "ref": 9, "instr": {"kind": "release", "time_ms": 500}}\n',
+        b'{"op": "ask", "ref": 10, "instr": {"kind": "shutdown", "joints": [["base", 3]]}}\n',
+        b'{"op": "ask", "ref": 11, "instr": {"kind": "preset", "preset": "park", '
+        b'"joints": [["base", 3]]}}\n',
         b'{"op": "ask", "ref": 5, "instr": {"kind": "move", "joints": [["base", 3]]}}\n',
     ]
     sock.sendall(b"".join(lines))
@@ -351,6 +355,10 @@ def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:
     for ref in (6, 7):  # a number past a message's uint32 failed the owner's step
         assert "wait_ms is how long its sender waits" in str(got[ref]["error"])
     assert "sent_ns is a time in ns since 1970" in str(got[8]["error"])
+    # As over ROS 2: what the instruction does not take is not dropped without a word.
+    assert "release takes no joints, time, points or tool" in str(got[9]["error"])
+    assert "shutdown takes no joints, time, points or tool" in str(got[10]["error"])
+    assert "a preset takes no joints, points or tool" in str(got[11]["error"])
     four, five = got[4]["outcome"], got[5]["outcome"]
     assert isinstance(four, dict) and four["result"] == "refused", four
     assert "outside the range" in str(four["reason"])

@@ -219,10 +219,12 @@ def test_joints_not_named_keep_their_place(rig: Rig) -> None:
         ("out of range", "point 1"),
         ("sizes", "positions for 5 joints"),
         # Taken whole, as positions are: a velocity or acceleration that is no number was
-        # ignored (they are not used), and a negative goal_time_tolerance taken as none.
+        # ignored (they are not used), and a negative goal_time_tolerance taken as none
+        # (but -1 s: no limit, below).
         ("nan velocity", "point 1: velocities hold nan"),
         ("inf acceleration", "point 2: accelerations hold inf"),
         ("negative goal time tolerance", "goal_time_tolerance -0.5 s is negative"),
+        ("effort", "point 0: gives effort: the AL5D's servos take positions only"),
     ],
 )
 def test_a_bad_trajectory_is_rejected_whole_and_writes_nothing(
@@ -245,6 +247,8 @@ def test_a_bad_trajectory_is_rejected_whole_and_writes_nothing(
         pts[2].accelerations = [0.0, 0.0, 0.0, 0.0, math.inf]
     elif change == "negative goal time tolerance":
         goal.goal_time_tolerance = Duration(sec=-1, nanosec=500_000_000)
+    elif change == "effort":
+        pts[0].effort = [1.0] * 5
     else:
         pts[2].positions = pts[2].positions[:4]
     rig.emu.clear_records()
@@ -458,6 +462,11 @@ def test_tolerances_report_a_point_faster_than_the_servos(rig: Rig) -> None:
     assert reason.startswith("servo speed: point "), reason
     assert "its servo does 333 deg/s" in reason and "time tolerance of 100 ms" in reason
     assert only_link_checks(rig), "a rejected goal wrote to the board"
+    # -1 s is no limit, as ros2_controllers' controller takes it: accepted.
+    goal.goal_time_tolerance = Duration(sec=-1, nanosec=0)
+    limitless = rig.send(rig.fjt, goal)
+    assert limitless.accepted
+    wait_future(limitless.get_result_async(), 15)
     there = wait_future(
         rig.send(rig.fjt, rig.trajectory([(1.0, pose(base=80))])).get_result_async(), 15
     )

@@ -8,6 +8,7 @@ A browser that cannot start fails the test with the reason: it is never skipped.
 
 from __future__ import annotations
 
+import asyncio
 import math
 import os
 import shutil
@@ -1288,6 +1289,15 @@ def test_a_time_box_crafted_past_its_range_sends_nothing_and_says_why(config: Ar
             page.target_tab.send()
             said = page.panel.target_status.content
             assert f"not sent: time {held!r} ms is outside the box&#x27;s 0..{top}" in said
+        # A slider moved with such a time: nothing is taken for the jog, and it says why.
+        on_base = page.sliders.handler("base")
+        asyncio.run(on_base(SimpleNamespace(client=object(), target=SimpleNamespace(value=40.0))))
+        wait_until(
+            lambda: "will not be sent: time" in page.panel.joints_status.content,
+            10,
+            "the slider's status",
+        )
+        assert page.jog.target is None and commands.jogs == []
         assert commands.sent == []
         # The box's own range is taken.
         page.panel.time_ms_number.value = top

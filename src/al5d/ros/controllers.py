@@ -65,6 +65,11 @@ PREEMPTED_BY = "preempted by trajectory goal"
 GRIPPER_REACHED_M = 0.0005
 
 
+#: A goal_time_tolerance of -1 s is no limit, as ros2_controllers' trajectory controller
+#: takes it (its "erase" value); 0 is the default (here none either).
+NO_LIMIT_S = -1.0
+
+
 def _seconds(duration: Any) -> float:
     return float(duration.sec) + float(duration.nanosec) * 1e-9
 
@@ -199,8 +204,8 @@ class FollowTrajectoryAction(GoalRunner):
                 return t
         assert not isinstance(path, str) and not isinstance(end, str)
         late_s = _seconds(goal.goal_time_tolerance)
-        if late_s < 0:  # 0 is the default's; a negative one is no tolerance at all
-            return f"goal_time_tolerance {late_s:g} s is negative"
+        if late_s < 0 and late_s != NO_LIMIT_S:
+            return f"goal_time_tolerance {late_s:g} s is negative (-1: no limit; 0: the default)"
         busy = inactive(self.arm)
         if busy:
             return busy

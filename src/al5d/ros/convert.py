@@ -301,6 +301,8 @@ def trajectory_from_message(
             if not all(math.isfinite(v) for v in values):
                 bad = next(v for v in values if not math.isfinite(v))
                 return f"point {i}: {field} hold {bad:g}"
+        if len(point.effort):  # as the JTC refuses it where it commands no effort
+            return f"point {i}: gives effort: the AL5D's servos take positions only"
         t = point.time_from_start
         at_ms = t.sec * 1000.0 + t.nanosec * 1e-6
         # Here too, so that the reason names the first bad point whatever is wrong with it.
