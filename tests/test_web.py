@@ -16,6 +16,7 @@ import signal
 import threading
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
@@ -1291,7 +1292,10 @@ def test_a_time_box_crafted_past_its_range_sends_nothing_and_says_why(config: Ar
             assert f"not sent: time {held!r} ms is outside the box&#x27;s 0..{top}" in said
         # A slider moved with such a time: nothing is taken for the jog, and it says why.
         on_base = page.sliders.handler("base")
-        asyncio.run(on_base(SimpleNamespace(client=object(), target=SimpleNamespace(value=40.0))))
+        moved = on_base(SimpleNamespace(client=object(), target=SimpleNamespace(value=40.0)))
+        # On a loop of its own, as viser's: this thread may hold a browser's loop already.
+        with ThreadPoolExecutor(1) as loop:
+            loop.submit(asyncio.run, moved).result(10)
         wait_until(
             lambda: "will not be sent: time" in page.panel.joints_status.content,
             10,
