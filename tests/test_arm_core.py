@@ -150,6 +150,27 @@ def test_a_release_sent_before_the_stop_is_refused_one_sent_after_unlocks(sim: S
     assert sim.core.state is State.READY
 
 
+def test_what_a_word_does_not_take_is_refused_and_a_stop_is_obeyed_whatever_it_carries(
+    sim: Sim,
+) -> None:
+    """Whatever the channel (the lane, a Python caller): a preset with joints, a release or
+    a shutdown with joints or a time is refused, nothing written; they were taken with
+    those dropped. A stop carrying them is obeyed."""
+    sent = len(sim.sent)
+    for instr, said in (
+        (replace(ins.preset("park"), joints=(("base", 10.0),)), "park is a preset: it takes no"),
+        (replace(ins.release(), time_ms=500), "release takes no joints or time"),
+        (replace(ins.shutdown(), joints=(("base", 10.0),)), "shutdown takes no joints or time"),
+    ):
+        refused = sim.outcomes[sim.ask(instr)]
+        assert refused.result is Result.REFUSED and said in refused.reason, refused
+    sim.run(0.2)
+    assert [data for _, data in sim.sent[sent:] if data.startswith(b"#")] == []
+    assert sim.core.shutdown is None and sim.core.state is State.READY
+    stop = sim.ask(replace(ins.stop(), joints=(("base", 10.0),), time_ms=500))
+    assert sim.outcomes[stop].result is Result.DONE and sim.core.state is State.STOPPED
+
+
 def test_a_stop_seen_twice_is_obeyed_and_answered_once(sim: Sim) -> None:
     told = len(sim.told)
     first = sim.ask(ins.stop(id="s"), key=("stamp", 1))

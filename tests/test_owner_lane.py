@@ -355,10 +355,15 @@ def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:
     for ref in (6, 7):  # a number past a message's uint32 failed the owner's step
         assert "wait_ms is how long its sender waits" in str(got[ref]["error"])
     assert "sent_ns is a time in ns since 1970" in str(got[8]["error"])
-    # As over ROS 2: what the instruction does not take is not dropped without a word.
-    assert "release takes no joints, time, points or tool" in str(got[9]["error"])
-    assert "shutdown takes no joints, time, points or tool" in str(got[10]["error"])
-    assert "a preset takes no joints, points or tool" in str(got[11]["error"])
+    # As over ROS 2: what the word does not take is refused, not dropped without a word.
+    for ref, reason in (
+        (9, "release takes no joints or time (ambiguous)"),
+        (10, "shutdown takes no joints or time (ambiguous)"),
+        (11, "park is a preset: it takes no joints (ambiguous)"),
+    ):
+        refused = got[ref]["outcome"]
+        assert isinstance(refused, dict) and refused["result"] == "refused", refused
+        assert reason in str(refused["reason"]), refused
     four, five = got[4]["outcome"], got[5]["outcome"]
     assert isinstance(four, dict) and four["result"] == "refused", four
     assert "outside the range" in str(four["reason"])

@@ -113,7 +113,7 @@ from al5d.arm.corestate import (
     posed,
     say,
 )
-from al5d.arm.instruction import FRESH_MARK, Instruction, Kind, Result
+from al5d.arm.instruction import FRESH_MARK, Instruction, Kind, Result, beyond_its_word
 from al5d.arm.jobs import NO_JOBS, Job, Mode, outcome
 from al5d.arm.states import (
     LOCKED_BY_STOP,
@@ -169,6 +169,10 @@ def _ask(c: Core, ev: Ask, out: Out) -> Core:
     kind = ev.instr.kind
     if kind is Kind.STOP:
         return _stop(c, ev, out)
+    ambiguous = beyond_its_word(ev.instr)
+    if ambiguous:
+        _refuse(ev, ambiguous, out)
+        return c
     if kind is Kind.RELEASE:
         return _release(c, ev, out)
     if kind is Kind.SHUTDOWN:

@@ -155,6 +155,19 @@ class Instruction:
         return format_instruction(self)
 
 
+def beyond_its_word(instr: Instruction) -> str:
+    """Why `instr` carries what its word does not take (ambiguous: which did its sender
+    mean?), or "". A preset takes a time only; a release or a shutdown nothing; a stop is
+    obeyed whatever it carries."""
+    if instr.kind is Kind.PRESET and (instr.joints or instr.points or instr.tool):
+        return f"{instr.preset} is a preset: it takes no joints (ambiguous); send a move instead"
+    if instr.kind in (Kind.RELEASE, Kind.SHUTDOWN) and (
+        instr.joints or instr.time_ms or instr.points or instr.tool or instr.preset
+    ):
+        return f"{instr.kind.value} takes no joints or time (ambiguous); send it alone"
+    return ""
+
+
 def preset(name: str, time_ms: int | None = None, id: str | None = None) -> Instruction:
     return Instruction(Kind.PRESET, preset=name, time_ms=time_ms, id=id or new_id())
 

@@ -224,7 +224,7 @@ def instruction_in(data: Any) -> Instruction:
     wait_ms = _int(data.get("wait_ms", 0), "wait_ms")
     if not 0 <= wait_ms < 2**32:
         raise LaneError("instr: wait_ms is how long its sender waits: 0 (for ever) to 2**32 - 1")
-    instr = Instruction(
+    return Instruction(
         kind,
         preset=preset,
         joints=_joints(data.get("joints") or [], "joints"),
@@ -235,15 +235,6 @@ def instruction_in(data: Any) -> Instruction:
         sent_ns=None if sent is None else _int(sent, "sent_ns"),
         wait_ms=wait_ms,
     )
-    # What a word does not take is refused, as over ROS 2, not dropped without a word (a
-    # stop is taken whatever it carries).
-    if kind in (Kind.RELEASE, Kind.SHUTDOWN) and (
-        instr.joints or instr.time_ms or instr.points or instr.tool
-    ):
-        raise LaneError(f"instr: {kind.value} takes no joints, time, points or tool (ambiguous)")
-    if kind is Kind.PRESET and (instr.joints or instr.points or instr.tool):
-        raise LaneError("instr: a preset takes no joints, points or tool; send a move instead")
-    return instr
 
 
 def outcome_out(outcome: Outcome) -> dict[str, Any]:
