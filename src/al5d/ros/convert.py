@@ -298,8 +298,8 @@ def trajectory_from_message(
             if len(values) and len(values) != len(names):  # empty: not given, as the JTC allows
                 return f"point {i}: {len(values)} {field} for {len(names)} joints"
             # Not used (the servos' speeds come from the times), but a goal is taken whole.
-            if not all(math.isfinite(v) for v in values):
-                bad = next(v for v in values if not math.isfinite(v))
+            bad = next((v for v in values if not math.isfinite(v)), None)
+            if bad is not None:
                 return f"point {i}: {field} hold {bad:g}"
         if len(point.effort):  # as the JTC refuses it where it commands no effort
             return f"point {i}: gives effort: the AL5D's servos take positions only"
