@@ -32,6 +32,7 @@ from al5d.ros.qos import QOS_SERVICES
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator, Record
 from al5d.web.link import WebNode
+from al5d_rig.boardproc import BoardProcess
 from al5d_rig.proc import (
     Lines,
     Proc,
@@ -46,7 +47,7 @@ from al5d_rig.served import StopBursts
 
 @dataclass
 class Served:
-    emu: Emulator
+    emu: BoardProcess
     proc: Proc
     peer: Peer
 
@@ -101,7 +102,11 @@ def leased(config: ArmConfig, tmp_path: Path) -> Iterator[Served]:
 
 def serve(config: ArmConfig, tmp_path: Path, lease_s: float) -> Iterator[Served]:
     link = tmp_path / "ssc32u"
-    emu = Emulator(config, link=link).start()
+    # The board in a process of its own: a stall of this busy process (its peer, its
+    # readers) must not silence the board's answers, which the owner would rightly take
+    # for a lost link (an idle CI run: "no answer to QP3, asked twice" while the bridge
+    # was frozen, and this process's stop asked again after 1 s).
+    emu = BoardProcess(link, config=config)
     patient = patient_config(client_lease_s=lease_s)
     proc = Proc("serve", "--port", str(link), "--config", patient, "--log-level", "INFO")
     peer = Peer()
