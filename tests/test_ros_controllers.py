@@ -104,19 +104,27 @@ def rig(config: ArmConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator
 
 
 def test_a_trajectory_runs_one_group_move_per_point_in_order_at_its_times(rig: Rig) -> None:
-    rig.recover()
     points = [
         (0.4, pose(base=20, shoulder=10, elbow=60)),
         (0.9, pose(base=-20, shoulder=20, elbow=80, wrist=-10)),
         (1.2, pose(base=0, shoulder=30, elbow=90, wrist_rotate=30)),
     ]
-    rig.emu.clear_records()
-    feedback: list[Any] = []
-    short = Shortage()
-    handle = rig.send(rig.fjt, rig.trajectory(points), feedback)
-    assert handle.accepted
-    answer = wait_future(handle.get_result_async(), 15)
-    assert answer.status == GoalStatus.STATUS_SUCCEEDED
+    for _ in range(3):
+        rig.recover()
+        rig.emu.clear_records()
+        feedback: list[Any] = []
+        short = Shortage()
+        handle = rig.send(rig.fjt, rig.trajectory(points), feedback)
+        assert handle.accepted
+        answer = wait_future(handle.get_result_async(), 15)
+        if not (
+            answer.status == GoalStatus.STATUS_ABORTED and short.excuses(answer.result.error_string)
+        ):
+            break
+        # An idle CI run, four workers on two cores: point 1 written 36 ms late, its base
+        # 2.88 deg off the path. The server kept its word; the times are judged on a goal
+        # the host ran in time.
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result.error_string
     assert answer.result.error_code == FJT.SUCCESSFUL, answer.result.error_string
     records = [r for r in rig.emu.records if any(isinstance(c, p.GroupMove) for c in r.commands)]
     moves = group_moves(rig.emu.records)
