@@ -72,7 +72,7 @@ def test_parse(
         ("move base=10 time=" + "9" * 5000, r"\(5000 characters\) ms is above the limit"),
         ("move base=10 time=-" + "9" * 5000, r"time '-9{39}'\.\.\. \(5001 characters\) ms is neg"),
         ("move base=10 time=5 time=6", r"word 4 'time=6': time given twice"),
-        ("stop now=1", r"word 2 'now=1': stop takes no arguments"),
+        ("release now=1", r"word 2 'now=1': release takes no arguments"),
         ("park base=3", r"word 2 'base=3': a preset takes only time=<ms>"),
         # The word that is wrong is the first: named with the nearest instruction.
         ("mvoe base=30", r"word 1 'mvoe': unknown instruction; did you mean 'move'\? expected "),
@@ -89,6 +89,14 @@ def test_parse(
 def test_grammar_errors_point_at_the_word(text: str, message: str) -> None:
     with pytest.raises(GrammarError, match=message):
         ins.parse_instruction(text)
+
+
+@pytest.mark.parametrize("text", ["stop now=1", "STOP base=3", "stop please", "stop\tnow"])
+def test_a_stop_is_read_whatever_follows_it(text: str) -> None:
+    # Refused for its words, as any other instruction is, a stop typed in a hurry left the
+    # arm moving (`al5d send stop now`, a line of `al5d shell`).
+    read = ins.parse_instruction(text)
+    assert read == Instruction(Kind.STOP, id=read.id)
 
 
 def test_a_number_is_read_as_it_is_typed() -> None:

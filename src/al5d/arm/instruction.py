@@ -369,11 +369,16 @@ def _tool(words: list[str], values: dict[str, tuple[int, str]]) -> ToolTarget:
 
 
 def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Instruction:
-    """Read one instruction. Range checks are the driver's: this only reads the words."""
+    """Read one instruction. Range checks are the driver's: this only reads the words.
+
+    A stop is read whatever follows it (`stop now`, `stop base=3`): nothing typed after it
+    makes it less of a stop, and one refused for its words left the arm moving."""
     words = text.split()
     if not words:
         raise GrammarError("empty instruction: expected a word such as move, ready or stop")
     head = words[0].lower()
+    if head == Kind.STOP.value:
+        return Instruction(Kind.STOP)
     known = (*presets, "move", "move_to", *(kind.value for kind in SAFETY))
     if head not in known:
         raise UnknownInstruction(f"word 1 {quote(words[0])}: {_unknown(head, known)}")
