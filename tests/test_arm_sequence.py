@@ -9,7 +9,15 @@ import pytest
 
 from al5d.arm import validate
 from al5d.arm.config import ArmConfig, load_config
-from al5d.arm.instruction import GrammarError, Instruction, Kind, SequenceErrors, Wait, move
+from al5d.arm.instruction import (
+    GrammarError,
+    Instruction,
+    Kind,
+    SequenceErrors,
+    Wait,
+    move,
+    parse_sequence,
+)
 from al5d.arm.poses import NamedPoses
 from al5d.arm.sequence import SequenceJudge, judged_steps
 
@@ -108,6 +116,23 @@ def test_the_shell_judges_a_line_alone(judge: SequenceJudge) -> None:
         judge.judge_line("move base=200")
     with pytest.raises(GrammarError, match=r"^word 1 'mvoe': unknown instruction; did you"):
         judge.judge_line("mvoe base=30")
+
+
+def test_a_stop_with_words_is_a_stop_at_the_shell_and_an_error_in_a_file(
+    judge: SequenceJudge,
+) -> None:
+    # Typed at a prompt, a stop refused for its words left the arm moving; a file is judged
+    # whole before it runs, and such a line is likelier two lines run together.
+    for line in ("stop now", "STOP base=3 &", "stop move base=3"):
+        step = judge.judge_line(line)
+        assert step is not None and step[0] == Instruction(Kind.STOP, id=step[0].id)
+    judged = judge.judge_text("move base=10\nstop move base=3  # two lines\nstop &\n")
+    assert [p.at("f.seq") for p in judged.problems] == [
+        "f.seq:2: word 2 'move': in a sequence file, stop takes no words"
+    ]
+    assert judged.problems[0].grammar
+    with pytest.raises(GrammarError, match=r"f\.seq:1: word 2 'now': in a sequence file, stop"):
+        parse_sequence(b"stop now\n", "f.seq")
 
 
 def test_a_preset_the_configuration_adds_is_an_instruction(config: ArmConfig) -> None:

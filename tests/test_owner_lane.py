@@ -20,7 +20,7 @@ import pytest
 from al5d import exits
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
-from al5d.owner import where
+from al5d.owner import quick, where
 from al5d.owner.client import Remote
 from al5d_rig.proc import AL5D, Proc, patient_config, said
 from al5d_rig.rospeer import wait_until
@@ -76,15 +76,39 @@ def test_send_goes_by_the_lane_and_stop_needs_no_import(arm: Served) -> None:
     moved = Proc("send", "move", "base=20", "time=300")
     assert moved.wait(CMD_S) == 0
     assert any(": done" in line for line in moved.out.drain())
-    # A stop from a bare interpreter: none of al5d's heavy imports (a -X importtime trace).
+    # A stop from a bare interpreter: none of al5d's heavy imports (a -X importtime trace),
+    # typed alone or with words after it (read as a stop whatever follows).
     env = {**os.environ, "PYTHONPROFILEIMPORTTIME": "1"}
-    done = subprocess.run([AL5D, "send", "stop"], capture_output=True, text=True, env=env)
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.strip().endswith("done (by the local lane)")
-    imported = {line.split("|")[-1].strip() for line in done.stderr.splitlines() if "|" in line}
-    assert not imported & {"rclpy", "numpy", "pydantic", "al5d.arm.config", "serial"}, imported
-    wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped")
-    assert Proc("send", "release").wait(CMD_S) == 0
+    for words in (["stop"], ["stop", "now"]):
+        done = subprocess.run([AL5D, "send", *words], capture_output=True, text=True, env=env)
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.strip().endswith("done (by the local lane)")
+        lines = done.stderr.splitlines()
+        imported = {line.split("|")[-1].strip() for line in lines if "|" in line}
+        assert not imported & {"rclpy", "numpy", "pydantic", "al5d.arm.config", "serial"}, imported
+        wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped")
+        assert Proc("send", "release").wait(CMD_S) == 0
+        wait_until(lambda: arm.states[-1] == "ready", CMD_S, "ready")
+
+
+@pytest.mark.parametrize(
+    ("argv", "asked"),
+    [
+        (["send", "stop"], ("", 10.0)),
+        (["send", "STOP", "now", "--timeout", "3"], ("", 3.0)),
+        (["send", "-n", "left", "stop", "--wait", "5"], ("left", 10.0)),
+        (["send", "move", "base=3"], None),
+        (["send", "now", "stop"], None),  # not a stop in the grammar: the full way says why
+        (["send", "stop", "--via", "ros"], None),
+        (["send", "stop", "--timeout"], None),
+        (["send", "stop", "--timeout", "soon"], None),
+        (["run", "stop"], None),
+    ],
+)
+def test_the_fast_stop_takes_what_the_grammar_reads_as_a_stop(
+    argv: list[str], asked: tuple[str, float] | None
+) -> None:
+    assert quick.parse(argv) == asked
 
 
 def test_ctrl_c_on_send_cancels_what_it_sent(arm: Served) -> None:
@@ -310,11 +334,62 @@ def test_a_client_killed_or_hung_mid_move_leaves_nothing_moving(arm: Served, how
         client.wait(10)
 
 
-def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:
-    arm.ready()
+def lane_socket() -> socket.socket:
+    """A raw connection to the server's lane: the lines a client of any language writes."""
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     sock.connect(str(where.path()))
     sock.settimeout(CMD_S)
+    return sock
+
+
+def answers(sock: socket.socket, *refs: int) -> tuple[dict[object, dict[str, object]], list[str]]:
+    """What the lane said until it answered each of `refs`: the answers by ref (an outcome,
+    or an error naming its ref), and every error's words."""
+    got: dict[object, dict[str, object]] = {}
+    errors: list[str] = []
+    buf = b""
+    while not all(ref in got for ref in refs):
+        buf += sock.recv(65536)
+        while b"\n" in buf:
+            line, buf = buf.split(b"\n", 1)
+            message = json.loads(line)
+            if message["op"] == "error":
+                errors.append(str(message["error"]))
+                if message.get("ref") is not None:
+                    got[message["ref"]] = message
+            elif message["op"] == "outcome":
+                got[message["ref"]] = message
+    return got, errors
+
+
+def test_a_stop_on_the_lane_is_obeyed_whatever_it_carries(arm: Served) -> None:
+    """As over ROS 2: a stop that carries joints, a time or a preset is a stop, never
+    refused for them (a release or a shutdown so carrying is refused: the test below)."""
+    arm.ready()
+    with lane_socket() as sock:
+        sock.sendall(
+            b'{"op": "ask", "ref": 1, "instr": {"kind": "move", "joints": [["base", 40]], '
+            b'"time_ms": 3000}}\n'
+        )
+        wait_until(lambda: "moving" in arm.states[-1:], CMD_S, "moving")
+        sock.sendall(
+            b'{"op": "ask", "ref": 2, "instr": {"kind": "stop", "joints": [["base", 3]], '
+            b'"time_ms": 500, "preset": "park"}}\n'
+        )
+        got, _ = answers(sock, 1, 2)
+        moved, stopped = got[1]["outcome"], got[2]["outcome"]
+        assert isinstance(stopped, dict) and stopped["result"] == "done", stopped
+        assert isinstance(moved, dict) and moved["result"] == "cancelled", moved
+        assert "stop" in str(moved["reason"]), moved
+        sock.sendall(b'{"op": "ask", "ref": 3, "instr": {"kind": "release"}}\n')
+        released = answers(sock, 3)[0][3]["outcome"]
+        assert isinstance(released, dict) and released["result"] == "done", released
+    assert halted_on_its_way(arm, 40.0)
+
+
+def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:
+    arm.ready()
+    sock = lane_socket()
     lines = [
         b"not json\n",
         b"[1, 2]\n",
@@ -332,20 +407,7 @@ def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:
         b'{"op": "ask", "ref": 5, "instr": {"kind": "move", "joints": [["base", 3]]}}\n',
     ]
     sock.sendall(b"".join(lines))
-    got: dict[object, dict[str, object]] = {}
-    errors: list[str] = []
-    buf = b""
-    while 5 not in got:
-        buf += sock.recv(65536)
-        while b"\n" in buf:
-            line, buf = buf.split(b"\n", 1)
-            message = json.loads(line)
-            if message["op"] == "error":
-                errors.append(str(message["error"]))
-                if message.get("ref") is not None:
-                    got[message["ref"]] = message
-            elif message["op"] == "outcome":
-                got[message["ref"]] = message
+    got, errors = answers(sock, 5)
     sock.close()
     assert any(e.startswith("not JSON") for e in errors), errors
     assert any('not an object with an "op"' in e for e in errors), errors

@@ -109,8 +109,13 @@ def test_a_trajectory_runs_one_group_move_per_point_in_order_at_its_times(rig: R
         (0.9, pose(base=-20, shoulder=20, elbow=80, wrist=-10)),
         (1.2, pose(base=0, shoulder=30, elbow=90, wrist_rotate=30)),
     ]
-    for _ in range(3):
+    for attempt in range(3):
         rig.recover()
+        if attempt:
+            # The goal halted below left joints known only within a step of QP, which the
+            # next goal's first line would hold: a preset makes them known again.
+            rig.peer.send(f"known-{attempt}", "ready")
+            assert rig.peer.result(f"known-{attempt}").outcome == "done"
         rig.emu.clear_records()
         feedback: list[Any] = []
         short = Shortage()

@@ -541,10 +541,16 @@ def sequence_line(
     raw: bytes, presets: tuple[str, ...] = PRESET_NAMES, poses: SavedPoses | None = None
 ) -> SequenceStep | None:
     """One line of a sequence file as its bytes (`parse_sequence_step`); text that is not
-    UTF-8 is a GrammarError naming the byte."""
+    UTF-8 is a GrammarError naming the byte, and so is a stop with words after it: a file is
+    judged whole before it runs, and such a line (`stop move base=3`) is more likely two
+    lines run together than a stop (typed at a prompt, a stop is a stop whatever follows)."""
     try:
         line = raw.decode("utf-8")
     except UnicodeDecodeError as e:
         byte = raw[e.start : e.start + 1].hex()
         raise GrammarError(f"not UTF-8 text (byte 0x{byte} at column {e.start + 1})") from None
-    return parse_sequence_step(line, presets, poses)
+    step = parse_sequence_step(line, presets, poses)
+    words = line.split("#", 1)[0].strip().removesuffix("&").split()
+    if step is not None and len(words) > 1 and words[0].lower() == Kind.STOP.value:
+        raise GrammarError(f"{_where(words, 1)}: in a sequence file, stop takes no words")
+    return step

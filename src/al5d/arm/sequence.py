@@ -157,7 +157,11 @@ class SequenceJudge:
 
     def judge_line(self, line: str, poses: NamedPoses | None = None) -> SequenceStep | None:
         """One line (`al5d shell`): its step, None for a blank line or a comment; GrammarError
-        with the grammar's or the server's reason. Judged alone: where the arm is is not known."""
+        with the grammar's or the server's reason. Judged alone: where the arm is is not known.
+        A stop is a stop whatever words follow it (a file's line takes none)."""
+        words = line.split("#", 1)[0].split()
+        if words and words[0].lower() == Kind.STOP.value:
+            return Instruction(Kind.STOP), False
         judged = self.judge_text(line, poses=poses)
         if judged.problems:
             raise GrammarError(judged.problems[0].reason)

@@ -22,24 +22,30 @@ _FLAGS = ("--namespace", "-n", "--timeout", "--wait")
 
 
 def parse(argv: list[str]) -> tuple[str, float] | None:
-    """`send [--namespace NS] [--timeout S] [--wait S] stop`: the namespace and the timeout;
-    None for any other command line."""
-    if len(argv) < 2 or argv[0] != "send" or argv[-1].lower() != "stop":
+    """`send stop [words]` with the options `_FLAGS` (each with its value) anywhere among its
+    words: the namespace and the timeout; None for any other command line. A stop is read
+    whatever words follow it, as the grammar reads it (`al5d send stop now`)."""
+    if len(argv) < 2 or argv[0] != "send":
         return None
     namespace, timeout = "", 10.0
-    words = argv[1:-1]
-    if len(words) % 2:
+    words: list[str] = []
+    rest = iter(argv[1:])
+    for word in rest:
+        if word.startswith("-"):
+            value = next(rest, None)
+            if word not in _FLAGS or value is None:
+                return None  # --help, --via, -v, an option without its value: the full way
+            if word in ("--namespace", "-n"):
+                namespace = value
+            elif word == "--timeout":
+                try:
+                    timeout = float(value)
+                except ValueError:
+                    return None
+        else:
+            words.append(word)
+    if not words or words[0].lower() != "stop":
         return None
-    for flag, value in zip(words[::2], words[1::2], strict=True):
-        if flag not in _FLAGS:
-            return None
-        if flag in ("--namespace", "-n"):
-            namespace = value
-        elif flag == "--timeout":
-            try:
-                timeout = float(value)
-            except ValueError:
-                return None
     return namespace, timeout
 
 
