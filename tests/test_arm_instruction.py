@@ -91,7 +91,9 @@ def test_grammar_errors_point_at_the_word(text: str, message: str) -> None:
         ins.parse_instruction(text)
 
 
-@pytest.mark.parametrize("text", ["stop now=1", "STOP base=3", "stop please", "stop\tnow"])
+@pytest.mark.parametrize(
+    "text", ["stop now=1", "STOP base=3", "stop please", "stop\tnow", "stop!", "Stop. now"]
+)
 def test_a_stop_is_read_whatever_follows_it(text: str) -> None:
     # Refused for its words, as any other instruction is, a stop typed in a hurry left the
     # arm moving (`al5d send stop now`, a line of `al5d shell`).

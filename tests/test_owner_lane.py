@@ -96,7 +96,9 @@ def test_send_goes_by_the_lane_and_stop_needs_no_import(arm: Served) -> None:
     [
         (["send", "stop"], ("", 10.0)),
         (["send", "STOP", "now", "--timeout", "3"], ("", 3.0)),
-        (["send", "-n", "left", "stop", "--wait", "5"], ("left", 10.0)),
+        (["send", "--namespace", "left", "stop", "--wait", "5"], ("left", 10.0)),
+        (["send", "Stop!"], ("", 10.0)),
+        (["send", "-n", "left", "stop"], None),  # not an option of `al5d send`: it says so
         (["send", "move", "base=3"], None),
         (["send", "now", "stop"], None),  # not a stop in the grammar: the full way says why
         (["send", "stop", "--via", "ros"], None),
@@ -109,6 +111,14 @@ def test_the_fast_stop_takes_what_the_grammar_reads_as_a_stop(
     argv: list[str], asked: tuple[str, float] | None
 ) -> None:
     assert quick.parse(argv) == asked
+
+
+@pytest.mark.parametrize(
+    "word", ["stop", "STOP", "stop!", "Stop.", "stop!!", "stop,", "stopp", "sto", "!stop", "stop-"]
+)
+def test_the_fast_stop_and_the_grammar_read_the_same_words_as_a_stop(word: str) -> None:
+    # The fast path imports nothing of the grammar's: the two must agree all the same.
+    assert (quick.parse(["send", word]) is not None) is ins.is_stop(word)
 
 
 def test_ctrl_c_on_send_cancels_what_it_sent(arm: Served) -> None:

@@ -368,17 +368,27 @@ def _tool(words: list[str], values: dict[str, tuple[int, str]]) -> ToolTarget:
     )
 
 
+#: What may end the word `stop` typed in a hurry (`stop!`, `Stop.`).
+STOP_MARKS = "!.,;:"
+
+
+def is_stop(word: str) -> bool:
+    """Whether `word`, the first of a typed instruction, is a stop: `stop` in any case, with
+    any of `STOP_MARKS` after it (`al5d.owner.quick` reads it the same way)."""
+    return word.lower().rstrip(STOP_MARKS) == Kind.STOP.value
+
+
 def parse_instruction(text: str, presets: tuple[str, ...] = PRESET_NAMES) -> Instruction:
     """Read one instruction. Range checks are the driver's: this only reads the words.
 
-    A stop is read whatever follows it (`stop now`, `stop base=3`): nothing typed after it
-    makes it less of a stop, and one refused for its words left the arm moving."""
+    A stop is read whatever follows it (`stop now`, `stop base=3`, `stop!`): nothing typed
+    with it makes it less of a stop, and one refused for its words left the arm moving."""
     words = text.split()
     if not words:
         raise GrammarError("empty instruction: expected a word such as move, ready or stop")
-    head = words[0].lower()
-    if head == Kind.STOP.value:
+    if is_stop(words[0]):
         return Instruction(Kind.STOP)
+    head = words[0].lower()
     known = (*presets, "move", "move_to", *(kind.value for kind in SAFETY))
     if head not in known:
         raise UnknownInstruction(f"word 1 {quote(words[0])}: {_unknown(head, known)}")
@@ -551,6 +561,6 @@ def sequence_line(
         raise GrammarError(f"not UTF-8 text (byte 0x{byte} at column {e.start + 1})") from None
     step = parse_sequence_step(line, presets, poses)
     words = line.split("#", 1)[0].strip().removesuffix("&").split()
-    if step is not None and len(words) > 1 and words[0].lower() == Kind.STOP.value:
+    if step is not None and len(words) > 1 and is_stop(words[0]):
         raise GrammarError(f"{_where(words, 1)}: in a sequence file, stop takes no words")
     return step

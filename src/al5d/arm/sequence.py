@@ -31,6 +31,7 @@ from al5d.arm.instruction import (
     SequenceErrors,
     SequenceStep,
     UnknownInstruction,
+    is_stop,
     sequence_line,
 )
 from al5d.arm.poses import NamedPoses
@@ -160,7 +161,7 @@ class SequenceJudge:
         with the grammar's or the server's reason. Judged alone: where the arm is is not known.
         A stop is a stop whatever words follow it (a file's line takes none)."""
         words = line.split("#", 1)[0].split()
-        if words and words[0].lower() == Kind.STOP.value:
+        if words and is_stop(words[0]):
             return Instruction(Kind.STOP), False
         judged = self.judge_text(line, poses=poses)
         if judged.problems:

@@ -18,7 +18,10 @@ from pathlib import Path
 from al5d.owner import where
 
 #: The options of `al5d send` this path knows; anything else goes the full way.
-_FLAGS = ("--namespace", "-n", "--timeout", "--wait")
+_FLAGS = ("--namespace", "--timeout", "--wait")
+#: `al5d.arm.instruction.STOP_MARKS`, which this path does not import (a test holds the two
+#: alike): what may end the word `stop` typed in a hurry.
+_STOP_MARKS = "!.,;:"
 
 
 def parse(argv: list[str]) -> tuple[str, float] | None:
@@ -35,7 +38,7 @@ def parse(argv: list[str]) -> tuple[str, float] | None:
             value = next(rest, None)
             if word not in _FLAGS or value is None:
                 return None  # --help, --via, -v, an option without its value: the full way
-            if word in ("--namespace", "-n"):
+            if word == "--namespace":
                 namespace = value
             elif word == "--timeout":
                 try:
@@ -44,7 +47,7 @@ def parse(argv: list[str]) -> tuple[str, float] | None:
                     return None
         else:
             words.append(word)
-    if not words or words[0].lower() != "stop":
+    if not words or words[0].lower().rstrip(_STOP_MARKS) != "stop":
         return None
     return namespace, timeout
 
