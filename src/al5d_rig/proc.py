@@ -5,6 +5,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import ctypes
+import errno
 import functools
 import os
 import platform
@@ -338,26 +339,33 @@ SYS_TGKILL = {"x86_64": 234, "aarch64": 131}
 def to_another_thread(pid: int, sig: int) -> None:
     """`sig` to a thread of the process `pid` other than its main one that does not block
     it (tgkill(2)), as the kernel may hand a process's signal to any such thread; Python
-    then runs the handler only when the main thread next runs. Raises OSError where that
-    fails or there is no such thread."""
+    then runs the handler only when the main thread next runs. A thread that ends on the
+    way is passed over (an idle CI run: its /proc status gone as it was read). Raises
+    OSError where that fails or there is no such thread."""
     others = [
         int(task.name)
         for task in sorted(Path(f"/proc/{pid}/task").iterdir())
         if int(task.name) != pid and not _blocked(task / "status", sig)
     ]
-    if not others:
-        raise OSError(f"process {pid} has no thread but its main one that takes signal {sig}")
     number = SYS_TGKILL.get(platform.machine())
     if number is None:
         raise OSError(f"tgkill: its system call's number on {platform.machine()} is not known")
     libc = ctypes.CDLL(None, use_errno=True)
-    if libc.syscall(number, pid, others[0], sig) != 0:
-        raise OSError(ctypes.get_errno(), f"tgkill({pid}, {others[0]}, {sig})")
+    for tid in others:
+        if libc.syscall(number, pid, tid, sig) == 0:
+            return
+        if ctypes.get_errno() != errno.ESRCH:
+            raise OSError(ctypes.get_errno(), f"tgkill({pid}, {tid}, {sig})")
+    raise OSError(f"process {pid} has no thread but its main one that takes signal {sig}")
 
 
 def _blocked(status: Path, sig: int) -> bool:
-    """Whether the thread whose /proc status is `status` blocks `sig`."""
-    for line in status.read_text().splitlines():
+    """Whether the thread whose /proc status is `status` blocks `sig` (or has ended)."""
+    try:
+        text = status.read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return True  # it has ended: it takes no signal
+    for line in text.splitlines():
         if line.startswith("SigBlk:"):
             return bool(int(line.split()[1], 16) >> (sig - 1) & 1)
     return False
