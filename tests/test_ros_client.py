@@ -346,7 +346,7 @@ def test_a_stop_unanswered_for_a_second_is_said_to_be_so_while_it_is_still_sent(
     lost = Proc("send", "--wait", "3", "stop", env=alone())
     assert lost.wait(SCRIPT_S) == exits.NO_SERVER
     err = lost.err.drain()
-    said = [i for i, line in enumerate(err) if "stop: no answer in 1 s" in line]
+    said = [i for i, line in enumerate(err) if "stop: no answer in 0.8 s" in line]
     ended = [
         i for i, line in enumerate(err) if "no al5d server answers on /al5d/instruction" in line
     ]
