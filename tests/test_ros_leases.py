@@ -317,23 +317,63 @@ c.close()
 """
 
 
+#: The skewed client's DDS: UDP on the loopback interface, no shared memory, as a client on
+#: another machine has. Fast DDS's shared-memory ports are checked for health by every
+#: process that opens them, against the time each wrote there on its own wall clock: with
+#: one process 5 s off, the others took its ports' last check for seconds old (or for
+#: seconds ahead) on every round, and twice in full runs the skewed client never found the
+#: server in 60 s, nothing on its stderr.
+ANOTHER_MACHINE_DDS = """<?xml version="1.0" encoding="UTF-8"?>
+<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <profiles>
+    <transport_descriptors>
+      <transport_descriptor>
+        <transport_id>udp_only</transport_id>
+        <type>UDPv4</type>
+        <interfaceWhiteList><address>127.0.0.1</address></interfaceWhiteList>
+      </transport_descriptor>
+    </transport_descriptors>
+    <participant profile_name="another_machine" is_default_profile="true">
+      <rtps>
+        <userTransports><transport_id>udp_only</transport_id></userTransports>
+        <useBuiltinTransports>false</useBuiltinTransports>
+      </rtps>
+    </participant>
+  </profiles>
+</dds>
+"""
+
+
+def shared_memory_mapped(pid: int) -> list[str]:
+    """The Fast DDS shared-memory files process `pid` has mapped."""
+    maps = Path(f"/proc/{pid}/maps").read_text().splitlines()
+    return sorted({line.split()[-1] for line in maps if "/dev/shm/fastrtps_" in line})
+
+
 @pytest.mark.parametrize("skew_s", [-5, 5])
 def test_a_client_whose_clock_is_seconds_off_is_judged_on_the_servers_clock(
     arm: Served, skew_s: int, tmp_path: Path
 ) -> None:
-    """A client on a machine whose clock is 5 s behind or ahead (libfaketime): a stop and a
+    """A client on a machine whose clock is 5 s behind or ahead (libfaketime; its DDS
+    without shared memory, as across a network): a stop and a
     release, each by it (the stop by the service and the topic, the release on the topic,
     as `Client.stop` and `Client.release` send them) or by a client
     whose clock is right, are taken in the order they were sent, and its move sent after
     the release runs."""
     assert FAKETIME_LIB.exists(), "libfaketime: `make faketime` installs it"
     arm.ready()
+    profile = tmp_path / "another-machine.xml"
+    profile.write_text(ANOTHER_MACHINE_DDS)
     env = {
         **os.environ,
         "LD_PRELOAD": str(FAKETIME_LIB),
         "FAKETIME": f"{skew_s:+d}s",
         # Its monotonic clock faked too, libfaketime 0.9.10's timed waits never end.
         "FAKETIME_DONT_FAKE_MONOTONIC": "1",
+        "FASTRTPS_DEFAULT_PROFILES_FILE": str(profile),
+        # As the server's participant is told at its start, so that rmw_fastrtps adds no
+        # transport of its own (`al5d.ros.workarounds.discovery_on_our_transports`).
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET",
     }
     errors = tmp_path / "skewed.err"
     skewed = subprocess.Popen(
@@ -367,6 +407,7 @@ def test_a_client_whose_clock_is_seconds_off_is_judged_on_the_servers_clock(
                 f"{stacks(skewed.pid) if code is None else '(ended)'}"
             ) from e
         assert abs(said - time.time() - skew_s) < 2.5, said  # its clock is off indeed
+        assert shared_memory_mapped(skewed.pid) == []
         # A stop by a client whose clock is right, then a release by the skewed one.
         assert lane.execute(ins.Instruction(ins.Kind.STOP), CMD_S).ok
         wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped")
@@ -383,8 +424,14 @@ def test_a_client_whose_clock_is_seconds_off_is_judged_on_the_servers_clock(
         assert ": done" in ask(f"move base={10 + skew_s} time=300")
     finally:
         lane.close()
-        skewed.kill()
-        skewed.wait(10)
+        # Its end closes the client, and libfaketime removes its files in /dev/shm, which
+        # a kill leaves behind.
+        skewed.stdin.close()
+        try:
+            skewed.wait(CMD_S)
+        except subprocess.TimeoutExpired:
+            skewed.kill()
+            skewed.wait(10)
 
 
 def test_a_copy_of_a_clients_stop_that_comes_after_another_clients_release_is_that_stop(
