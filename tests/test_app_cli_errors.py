@@ -20,6 +20,7 @@ import pytest
 import yaml
 
 from al5d import exits
+from al5d.app import cli
 from al5d.app.report import SLOW_DISCOVERY_S, Timing
 from al5d.arm.config import ArmConfig
 from al5d.ros.client import Client, NoServer
@@ -134,13 +135,37 @@ def test_an_option_among_an_instructions_words_leaves_them_one_instruction() -> 
     """`al5d send move base=10 --timeout 1 time=x`: every word is the instruction's (the third
     is judged, and is bad), not an argument `al5d` does not know (argparse's top-level usage
     and "unrecognized arguments: time=x", an outside try found). An unknown option is
-    still argparse's error."""
+    still argparse's error, under `al5d send`'s usage (it was the top level's)."""
     args = ("send", "--wait", "1", "move", "base=10", "--timeout", "1", "time=x")
     code, out, err = ended(Proc(*args, env=alone()))
     assert code == exits.BAD_INPUT and out == [], err
     assert err[0] == "al5d send: word 3 'time=x': 'x' is not a whole number of ms", err
     code, _, err = ended(Proc("send", "move", "--frob", "base=10", env=alone()))
-    assert code == exits.USAGE and "unrecognized arguments: --frob base=10" in err[-1], err
+    assert code == exits.USAGE, err
+    assert err[-1] == "al5d send: error: unrecognized arguments: --frob base=10", err
+    assert err[0].startswith("usage: al5d send "), err
+
+
+@pytest.mark.parametrize(
+    ("command", "said"),
+    [
+        ("send", ["find the server; default 10", "for an outcome; default 120"]),
+        ("run", ["find the server; default 10", "for an outcome; default 120"]),
+        ("replay", ["find the server; default 10", "for an outcome; default 120"]),
+        ("calibrate", ["find the server; default 10", "for a move; default 30"]),
+    ],
+)
+def test_a_clients_help_says_how_long_it_waits(
+    command: str, said: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An outside try: `al5d send stop` with no server took 10.9 s, and --help did not say
+    that it looks for one for 10 s."""
+    with pytest.raises(SystemExit) as ended_with:
+        cli.main([command, "--help"])
+    assert ended_with.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for words in said:
+        assert words in text, text
 
 
 def test_no_server_is_its_own_code_for_run_too(tmp_path: Path) -> None:
@@ -456,6 +481,24 @@ def test_ctrl_c_in_the_shell_stops_a_move_in_the_background(arm: Served) -> None
     assert code == exits.NOT_DONE, (out, err)
     assert any(re.match(r"move \[\S+\]: cancelled", line) for line in out), out
     assert arm.peer.trigger("release").success
+
+
+def test_help_in_the_shell_says_its_grammar_and_sends_nothing(arm: Served) -> None:
+    """An outside try: `help` at the shell's prompt was an unknown instruction (exit 4)."""
+    moves = len(group_moves(arm.emu.records))
+    shell = Proc("shell", stdin=True)
+    try:
+        for line in ("help", "?", "exit"):
+            shell.send(line)
+        code, out, err = ended(shell)
+    finally:
+        shell.kill()
+    assert code == exits.DONE, (out, err)
+    said = [line for line in out if line.startswith("move <joint>=<degrees>")]
+    assert len(said) == 2, out
+    assert any(line.startswith("park | ready | straight_up") for line in out), out
+    assert "joints: base shoulder elbow wrist gripper wrist_rotate" in out, out
+    assert len(group_moves(arm.emu.records)) == moves
 
 
 def test_ctrl_c_in_the_shell_stops_the_arm(arm: Served) -> None:

@@ -133,6 +133,11 @@ def test_nothing_of_a_move_follows_its_stop(sim: Sim) -> None:
     moves_after = [t for t, data in sim.sent if t > stopped_at and data.startswith(b"#")]
     assert moves_after == []
     assert sim.core.state is State.STOPPED
+    # Where it stopped, read back, is said to the user: on its way to base=30.
+    said = [s for s in sim.said if s.text.startswith("stopped at: ")]
+    assert len(said) == 1 and said[0].level == logging.INFO, sim.said
+    base = float(said[0].text.split("base ")[1].split(",")[0])
+    assert 0 < base < 30 and base == pytest.approx(sim.core.book.pose["base"], abs=0.05), said
 
 
 def test_a_release_sent_before_the_stop_is_refused_one_sent_after_unlocks(sim: Sim) -> None:

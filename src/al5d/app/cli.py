@@ -122,8 +122,7 @@ def _add_calibrate(sub: Any) -> None:
     )
     cal.add_argument("--yes", action="store_true", help="write without asking")
     cal.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
-    cal.add_argument("--wait", type=_seconds, default=10.0, help="seconds to find the server")
-    cal.add_argument("--timeout", type=_seconds, default=30.0, help="seconds to wait for a move")
+    _add_waits(cal, 30.0, "a move")
     cal.set_defaults(func=commands.cmd_calibrate)
 
 
@@ -192,11 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
                 "--poses",
                 help=f"the poses file that `pose <name>` lines name; default: poses.yaml {where}",
             )
-        cmd.add_argument("--wait", type=_seconds, default=10.0, help="seconds to find the server")
         cmd.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
-        cmd.add_argument(
-            "--timeout", type=_seconds, default=120.0, help="seconds to wait for an outcome"
-        )
+        _add_waits(cmd, 120.0)
         cmd.add_argument(
             "--verbose",
             action="store_true",
@@ -285,7 +281,27 @@ def build_parser() -> argparse.ArgumentParser:
     web.set_defaults(func=commands.cmd_web)
     _add_recordings(sub)
     _add_calibrate(sub)
+    for each in sub.choices.values():
+        # Its own usage with a mistake on its line, not the top level's (`parse`).
+        each.set_defaults(command_parser=each)
     return parser
+
+
+def _add_waits(cmd: argparse.ArgumentParser, timeout: float, what: str = "an outcome") -> None:
+    """A client command's --wait and --timeout, their defaults said in --help (an outside
+    try: `al5d send stop` with no server took 10.9 s, and --help did not say why)."""
+    cmd.add_argument(
+        "--wait",
+        type=_seconds,
+        default=10.0,
+        help="seconds to find the server; default %(default)g",
+    )
+    cmd.add_argument(
+        "--timeout",
+        type=_seconds,
+        default=timeout,
+        help=f"seconds to wait for {what}; default %(default)g",
+    )
 
 
 def _add_recordings(sub: Any) -> None:
@@ -340,10 +356,7 @@ def _add_recordings(sub: Any) -> None:
         help="a file cut short (its recorder killed): replay the instructions before the cut",
     )
     rep.add_argument("--config", help="arm configuration (presets, geometry); default: shipped")
-    rep.add_argument("--wait", type=_seconds, default=10.0, help="seconds to find the server")
-    rep.add_argument(
-        "--timeout", type=_seconds, default=120.0, help="seconds to wait for an outcome"
-    )
+    _add_waits(rep, 120.0)
     rep.set_defaults(func=commands.cmd_replay)
 
 
@@ -386,7 +399,8 @@ def parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespac
     if extra and getattr(args, "instruction", None) and not any(e.startswith("-") for e in extra):
         args.instruction += extra
     elif extra:
-        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        command: argparse.ArgumentParser = getattr(args, "command_parser", parser)
+        command.error(f"unrecognized arguments: {' '.join(extra)}")
     return args
 
 

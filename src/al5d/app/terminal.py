@@ -20,7 +20,7 @@ from __future__ import annotations
 import functools
 import logging
 import sys
-from collections.abc import Collection, Iterator
+from collections.abc import Collection, Iterable, Iterator
 from pathlib import Path
 from typing import TextIO
 
@@ -294,6 +294,25 @@ def _drain(client: Client, report: Report, background: list[Instruction], timeou
 #: What ends `al5d shell`, besides the end of its input.
 SHELL_QUIT = ("exit", "quit")
 SHELL_PROMPT = "al5d> "
+#: What asks `al5d shell` for its grammar (an outside try: `help` was an unknown instruction).
+SHELL_HELP = ("help", "?")
+
+
+def shell_help(presets: Iterable[str], joints: Iterable[str]) -> list[str]:
+    """What `help` says at `al5d shell`'s prompt: its grammar (docs/server.md, Instructions),
+    with the server's presets and joints."""
+    return [
+        f"{' | '.join(presets)}  [time=<ms>]",
+        "move <joint>=<degrees> [...]  [time=<ms>]",
+        "move_to x=<mm> y=<mm> z=<mm> [pitch=<deg>] [roll=<deg>] [gripper=<deg>] [time=<ms>] "
+        "[path=joint|line]",
+        "stop | release | shutdown",
+        "pose <name>  [time=<ms>]  (a pose of the poses file)",
+        "wait <ms>  (the shell pauses)",
+        "<instruction> &  (runs in the background)    # a comment",
+        "exit | quit | Ctrl-D ends the shell; Ctrl-C while a move runs stops the arm",
+        f"joints: {' '.join(joints)}",
+    ]
 
 
 #: What `_lines` yields for a Ctrl-C while the input was read (at the prompt).
@@ -391,7 +410,7 @@ def shell(
         if interactive:
             report.line(
                 "al5d shell: one instruction a line (as in a sequence file); Ctrl-C while "
-                "one runs stops the arm; exit or Ctrl-D ends"
+                "one runs stops the arm; help lists them; exit or Ctrl-D ends"
             )
         lines = _lines(inp, interactive, report if redraw else None)
         while True:
@@ -408,6 +427,11 @@ def shell(
                 continue
             if line.strip().lower() in SHELL_QUIT:
                 break
+            if line.strip().lower() in SHELL_HELP:
+                config = judge.config
+                for said in shell_help(config.presets, config.joints):
+                    report.line(said)
+                continue
             try:
                 step = judge.judge_line(line, book)
             except GrammarError as e:

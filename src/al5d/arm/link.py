@@ -347,11 +347,13 @@ def _pose(c: Core, pose: Mapping[str, float | None], t: float, wall: int, out: O
     following = c.link.next
     if lost and following is not Next.RECONNECT:
         return lose(c, _reset(c, lost[0]), t, wall, out)
-    say(
-        out,
-        logging.DEBUG,
-        f"read back: { {j: (None if v is None else round(v, 1)) for j, v in pose.items()} }",
-    )
+    read = ", ".join(f"{j} {'?' if v is None else round(v, 1)}" for j, v in pose.items())
+    if following is None and c.state is State.STOPPED:
+        # Where an emergency stop left the arm is what its user asks next (an outside try:
+        # it was said at DEBUG only).
+        say(out, logging.INFO, f"stopped at: {read} (read back from the board)")
+    else:
+        say(out, logging.DEBUG, f"read back: {read}")
     if following is Next.RECONNECT:
         c = _reconnected(c, pose, bool(lost), wall, out)
     else:
