@@ -147,6 +147,24 @@ def test_an_option_among_an_instructions_words_leaves_them_one_instruction() -> 
 
 
 @pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        (["--frob", "send", "stop"], "al5d: error: unrecognized arguments: --frob"),
+        (["send", "--frob", "stop"], "al5d send: error: unrecognized arguments: --frob"),
+        (["run", "x.seq", "--frob"], "al5d run: error: unrecognized arguments: --frob"),
+    ],
+)
+def test_an_unknown_option_is_said_under_the_usage_it_is_on(
+    argv: list[str], said: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as ended_with:
+        cli.main(argv)
+    assert ended_with.value.code == exits.USAGE
+    err = capsys.readouterr().err.splitlines()
+    assert err[-1] == said, err
+
+
+@pytest.mark.parametrize(
     ("command", "said"),
     [
         ("send", ["find the server; default 10", "for an outcome; default 120"]),

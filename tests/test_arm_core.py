@@ -430,6 +430,10 @@ def test_a_stop_asked_while_the_board_is_unreachable_is_written_once_it_answers(
     stops = [t - asked for t, data in sim.sent if t >= asked and b"STOP" in data]
     assert stops and stops[0] < 0.1, stops
     assert sim.core.locked
+    # Where it stopped (at the move's end, base=30) is said once read back.
+    assert sim.until(lambda: any(s.text.startswith("stopped at: ") for s in sim.said), 2.0)
+    said = next(s for s in sim.said if s.text.startswith("stopped at: "))
+    assert said.level == logging.INFO and "base 30" in said.text, said
 
 
 def test_late_answers_from_before_a_fault_do_not_fail_the_reconnect(sim: Sim) -> None:

@@ -19,6 +19,7 @@ from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig
 from al5d.owner import where
 from al5d.owner.client import Remote
+from al5d.ros.dds import HEARTBEAT_NS, WRITER_MESSAGE
 from al5d.ros.leases import FORGET_S, PACE_SLACK, Leases
 from al5d_rig.proc import Lines, said, stacks
 from al5d_rig.rospeer import wait_until
@@ -317,13 +318,13 @@ c.close()
 """
 
 
-#: The skewed client's DDS: UDP on the loopback interface, no shared memory, as a client on
-#: another machine has. Fast DDS's shared-memory ports are checked for health by every
-#: process that opens them, against the time each wrote there on its own wall clock: with
-#: one process 5 s off, the others took its ports' last check for seconds old (or for
-#: seconds ahead) on every round, and twice in full runs the skewed client never found the
-#: server in 60 s, nothing on its stderr.
-ANOTHER_MACHINE_DDS = """<?xml version="1.0" encoding="UTF-8"?>
+#: The skewed client's DDS: the project's (`al5d.ros.dds`) but UDP on the loopback interface
+#: only, no shared memory, as a client on another machine has. Fast DDS's shared-memory
+#: ports are checked for health by every process that opens them, against the time each
+#: wrote there on its own wall clock: with one process 5 s off, the others took its ports'
+#: last check for seconds old (or for seconds ahead) on every round, and twice in full runs
+#: the skewed client never found the server in 60 s, nothing on its stderr.
+ANOTHER_MACHINE_DDS = f"""<?xml version="1.0" encoding="UTF-8"?>
 <dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
   <profiles>
     <transport_descriptors>
@@ -339,6 +340,12 @@ ANOTHER_MACHINE_DDS = """<?xml version="1.0" encoding="UTF-8"?>
         <useBuiltinTransports>false</useBuiltinTransports>
       </rtps>
     </participant>
+    <data_writer profile_name="al5d_writer" is_default_profile="true">
+      <times><heartbeatPeriod><sec>0</sec><nanosec>{HEARTBEAT_NS}</nanosec></heartbeatPeriod></times>
+      <propertiesPolicy><properties><property>
+        <name>fastdds.max_message_size</name><value>{WRITER_MESSAGE}</value>
+      </property></properties></propertiesPolicy>
+    </data_writer>
   </profiles>
 </dds>
 """

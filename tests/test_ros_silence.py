@@ -107,7 +107,7 @@ def test_a_stop_unanswered_while_the_server_is_silent_says_the_link_may_be_lost(
     config: ArmConfig, tmp_path: Path
 ) -> None:
     """A client that has heard its server and then nothing for seconds (a link lost; here
-    the server frozen whole) says of a stop unanswered for a second that nothing has been
+    the server frozen whole) says of a stop unanswered for 0.8 s that nothing has been
     heard from the server, not that discovery has not found it; the server, back, obeys it."""
     with served(config, tmp_path, "al5d_silent_peer") as arm:
         script = tmp_path / "silent.py"

@@ -400,6 +400,9 @@ def parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespac
         args.instruction += extra
     elif extra:
         command: argparse.ArgumentParser = getattr(args, "command_parser", parser)
+        first = next((i for i, word in enumerate(argv) if word in extra), len(argv))
+        if args.command not in argv[:first]:  # `al5d --frob send`: the top level's mistake
+            command = parser
         command.error(f"unrecognized arguments: {' '.join(extra)}")
     return args
 

@@ -428,6 +428,8 @@ def shell(
             if line.strip().lower() in SHELL_QUIT:
                 break
             if line.strip().lower() in SHELL_HELP:
+                if not interactive:  # piped, what answers which line is marked
+                    report.line(f"> {line.strip()}")
                 config = judge.config
                 for said in shell_help(config.presets, config.joints):
                     report.line(said)

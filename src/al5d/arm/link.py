@@ -347,19 +347,19 @@ def _pose(c: Core, pose: Mapping[str, float | None], t: float, wall: int, out: O
     following = c.link.next
     if lost and following is not Next.RECONNECT:
         return lose(c, _reset(c, lost[0]), t, wall, out)
-    read = ", ".join(f"{j} {'?' if v is None else round(v, 1)}" for j, v in pose.items())
-    if following is None and c.state is State.STOPPED:
-        # Where an emergency stop left the arm is what its user asks next (an outside try:
-        # it was said at DEBUG only).
-        say(out, logging.INFO, f"stopped at: {read} (read back from the board)")
-    else:
-        say(out, logging.DEBUG, f"read back: {read}")
     if following is Next.RECONNECT:
         c = _reconnected(c, pose, bool(lost), wall, out)
     else:
         c = replace(c, book=c.book.read_back(pose, _exact(c, pose)))
         if c.run is None:
             c = replace(c, readback=False)
+    read = ", ".join(f"{j} {'?' if v is None else round(v, 1)}" for j, v in pose.items())
+    if following in (None, Next.RECONNECT) and c.state is State.STOPPED:
+        # Where a stop left the arm (also one asked while the board was away, written when
+        # it came back) is what its user asks next (an outside try: said at DEBUG only).
+        say(out, logging.INFO, f"stopped at: {read} (read back from the board)")
+    else:
+        say(out, logging.DEBUG, f"read back: {read}")
     c = replace(c, link=replace(c.link, next=None))
     posed(c, out)
     return c
