@@ -141,6 +141,14 @@ def test_calibration_sets_scale_and_direction(data: dict[str, Any]) -> None:
             r"presets\.Stop: the name of an instruction, not a preset",
         ),
         (
+            lambda d: d["presets"].update(Help=d["presets"]["park"]),
+            r"presets\.Help: a word of sequence files or al5d shell, not a preset",
+        ),
+        (
+            lambda d: d["presets"].update(wait=d["presets"]["park"]),
+            r"presets\.wait: a word of sequence files or al5d shell, not a preset",
+        ),
+        (
             lambda d: d["presets"].pop("straight_up"),
             r"presets\.straight_up: this preset is required",
         ),

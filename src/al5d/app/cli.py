@@ -348,7 +348,7 @@ def _add_recordings(sub: Any) -> None:
         type=_seconds,
         default=10.0,
         help="at the recorded rate, a longer gap between two instructions is cut to this "
-        "(and said); default %(default)s s",
+        "(and said); default %(default)g s",
     )
     rep.add_argument(
         "--partial",

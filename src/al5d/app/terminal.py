@@ -29,6 +29,8 @@ from al5d.app.report import LinkWatch, Report, Timing, each_line
 from al5d.arm.config import load_config
 from al5d.arm.instruction import (
     PRESET_NAMES,
+    SHELL_HELP,
+    SHELL_QUIT,
     GrammarError,
     Instruction,
     Kind,
@@ -291,11 +293,7 @@ def _drain(client: Client, report: Report, background: list[Instruction], timeou
     background.clear()
 
 
-#: What ends `al5d shell`, besides the end of its input.
-SHELL_QUIT = ("exit", "quit")
 SHELL_PROMPT = "al5d> "
-#: What asks `al5d shell` for its grammar (an outside try: `help` was an unknown instruction).
-SHELL_HELP = ("help", "?")
 
 
 def shell_help(presets: Iterable[str], joints: Iterable[str]) -> list[str]:

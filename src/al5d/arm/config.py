@@ -21,7 +21,7 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from al5d.arm.instruction import PRESET_NAMES, Kind
+from al5d.arm.instruction import PRESET_NAMES, SEQUENCE_ONLY, SHELL_HELP, SHELL_QUIT, Kind
 from al5d.arm.servos import SERVOS
 from al5d.model import JOINTS as AL5D_JOINTS
 from al5d.model import ArmModel
@@ -412,10 +412,17 @@ class ArmConfig(_Frozen):
             if preset not in self.presets:
                 raise ValueError(f"presets.{preset}: this preset is required")
         words = {k.value for k in Kind}
+        typed = {*SEQUENCE_ONLY, *SHELL_QUIT, *SHELL_HELP}
         for preset, pose in self.presets.items():
             if preset.strip().lower() in words:
                 # `stop` as a preset would be a move to the arm and a stop to whoever reads it.
                 raise ValueError(f"presets.{preset}: the name of an instruction, not a preset")
+            if preset.strip().lower() in typed:
+                # A sequence file's `wait`, the shell's `help`: read as theirs, the preset
+                # could never be sent from either.
+                raise ValueError(
+                    f"presets.{preset}: a word of sequence files or al5d shell, not a preset"
+                )
             for jname in pose:
                 if jname not in self.joints:
                     # Before the missing ones: a typo (`elbw`) is both, and this names it.

@@ -437,6 +437,11 @@ SEQUENCE_ONLY = {
 }
 
 
+#: The words `al5d shell` reads itself (`al5d.app.terminal`): to end it, and for its grammar.
+SHELL_QUIT = ("exit", "quit")
+SHELL_HELP = ("help", "?")
+
+
 def _unknown(head: str, known: tuple[str, ...]) -> str:
     """Why `head` is no instruction: a word of sequence files only, or the nearest there is."""
     if head in SEQUENCE_ONLY:
