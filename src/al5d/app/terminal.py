@@ -20,12 +20,13 @@ from __future__ import annotations
 import functools
 import logging
 import sys
-from collections.abc import Collection, Iterable, Iterator
+from collections.abc import Collection, Iterator
 from pathlib import Path
 from typing import TextIO
 
 from al5d import exits
 from al5d.app.report import LinkWatch, Report, Timing, each_line
+from al5d.app.shellhelp import shell_help
 from al5d.arm.config import load_config
 from al5d.arm.instruction import (
     PRESET_NAMES,
@@ -296,23 +297,6 @@ def _drain(client: Client, report: Report, background: list[Instruction], timeou
 SHELL_PROMPT = "al5d> "
 
 
-def shell_help(presets: Iterable[str], joints: Iterable[str]) -> list[str]:
-    """What `help` says at `al5d shell`'s prompt: its grammar (docs/server.md, Instructions),
-    with the server's presets and joints."""
-    return [
-        f"{' | '.join(presets)}  [time=<ms>]",
-        "move <joint>=<degrees> [...]  [time=<ms>]",
-        "move_to x=<mm> y=<mm> z=<mm> [pitch=<deg>] [roll=<deg>] [gripper=<deg>] [time=<ms>] "
-        "[path=joint|line]",
-        "stop | release | shutdown",
-        "pose <name>  [time=<ms>]  (a pose of the poses file)",
-        "wait <ms>  (the shell pauses)",
-        "<instruction> &  (runs in the background)    # a comment",
-        "exit | quit | Ctrl-D ends the shell; Ctrl-C while a move runs stops the arm",
-        f"joints: {' '.join(joints)}",
-    ]
-
-
 #: What `_lines` yields for a Ctrl-C while the input was read (at the prompt).
 CTRL_C = "\x03"
 
@@ -423,9 +407,10 @@ def shell(
                     report.line(f"Ctrl-C: {_stop(client)}")
                     report.all_done = False
                 continue
-            if line.strip().lower() in SHELL_QUIT:
+            word = line.strip().lower()
+            if word in SHELL_QUIT:
                 break
-            if line.strip().lower() in SHELL_HELP:
+            if word in SHELL_HELP:
                 if not interactive:  # piped, what answers which line is marked
                     report.line(f"> {line.strip()}")
                 config = judge.config
