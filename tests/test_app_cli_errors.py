@@ -27,7 +27,7 @@ from al5d.ros.client import Client, NoServer
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import group_moves
 from al5d_rig.domains import alone
-from al5d_rig.proc import Proc, patient_config
+from al5d_rig.proc import AL5D, Proc, Tty, patient_config
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import Served, served
 
@@ -519,7 +519,9 @@ def test_help_in_the_shell_says_its_grammar_and_sends_nothing(arm: Served) -> No
     assert len(group_moves(arm.emu.records)) == moves
 
 
-def test_ctrl_c_in_the_shell_stops_the_arm(arm: Served) -> None:
+def test_ctrl_c_in_a_piped_shell_stops_the_arm_and_ends_its_input(arm: Served) -> None:
+    """Piped, the shell's input is a script: after Ctrl-C stopped the arm, the rest of it
+    is not run (as `al5d run`'s is not)."""
     shell = Proc("shell", stdin=True)
     try:
         shell.send("move base=80 time=5000")
@@ -531,10 +533,50 @@ def test_ctrl_c_in_the_shell_stops_the_arm(arm: Served) -> None:
         assert "cancelled" in shell.out.wait_for("move [", CMD_S)
         wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
         assert abs(arm.emu.servo_degrees()["base"] - 80) > 5  # halted on its way
-        shell.send("release")
-        assert shell.out.wait_for("release: ", CMD_S) == "release: done (by the local lane)"
-        shell.send("exit")
         code, _, err = ended(shell)
     finally:
         shell.kill()
     assert code == exits.NOT_DONE, err  # the move was cancelled
+    assert arm.peer.trigger("release").success
+
+
+def test_ctrl_c_in_a_shells_wait_stops_its_move_in_the_background(arm: Served) -> None:
+    """Ctrl-C in a line that is not a move (a `wait`), a move of the shell's running in
+    the background: the arm stops, and piped the input ends (seen: the shell went on
+    reading its input, the test's pipe open, and never ended)."""
+    shell = Proc("shell", stdin=True)
+    try:
+        shell.send("move base=-80 time=5000 &")
+        shell.send("wait 60000")
+        shell.out.wait_for("wait 60000 ms", CMD_S)
+        wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+        shell.popen.send_signal(signal.SIGINT)
+        said = shell.out.wait_for("Ctrl-C: stop: ", CMD_S)
+        assert said == "Ctrl-C: stop: done (by the local lane)"
+        code, out, err = ended(shell)
+    finally:
+        shell.kill()
+    assert code == exits.NOT_DONE, (out, err)
+    assert any(re.match(r"move \[\S+\]: cancelled", line) for line in out), out
+    assert abs(arm.emu.servo_degrees()["base"] + 80) > 5  # halted on its way
+    assert arm.peer.trigger("release").success
+
+
+def test_ctrl_c_at_the_shells_terminal_stops_the_arm_and_prompts_again(arm: Served) -> None:
+    """At a terminal Ctrl-C stops the arm and the prompt comes back: the user goes on."""
+    shell = Tty([AL5D, "shell"])
+    try:
+        shell.wait_for(r"Ctrl-D ends\r\nal5d> ", CMD_S)
+        shell.type("move base=80 time=5000\r")
+        wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+        shell.proc.send_signal(signal.SIGINT)
+        shell.wait_for(r"Ctrl-C: stop: done \(by the local lane\)", CMD_S)
+        shell.wait_for(r"move \[[^\]]+\]: cancelled.*\r\nal5d> ", CMD_S)
+        wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
+        assert abs(arm.emu.servo_degrees()["base"] - 80) > 5  # halted on its way
+        shell.type("release\r")
+        shell.wait_for(r"release: done \(by the local lane\)\r\nal5d> ", CMD_S)
+        shell.type("exit\r")
+        assert shell.proc.wait(CMD_S) == exits.NOT_DONE, shell.drawn  # the move cancelled
+    finally:
+        shell.close()

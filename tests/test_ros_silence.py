@@ -13,7 +13,6 @@ import re
 import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,7 +22,7 @@ import pytest
 from al5d import exits
 from al5d.arm.config import ArmConfig
 from al5d.ros.rosway import silence_warning
-from al5d_rig.proc import AL5D, Lines, dies_with_parent, family, freeze, kill_all
+from al5d_rig.proc import AL5D, Lines, Tty, dies_with_parent, family, freeze, kill_all
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import served
 
@@ -256,58 +255,6 @@ def test_a_run_in_a_wait_with_nothing_running_says_its_server_is_gone(
         finally:
             run.kill()
             run.wait(10)
-
-
-class Tty:
-    """A process of `args` at a terminal of its own (a pseudo terminal): what it draws,
-    read whole (a prompt is no line), and what the test types."""
-
-    def __init__(self, args: list[str]) -> None:
-        self.master, slave = os.openpty()
-        env = {**os.environ, "TERM": "dumb"}  # no terminal's escapes but the shell's own
-        self.proc = subprocess.Popen(
-            args, stdin=slave, stdout=slave, stderr=slave, env=env, preexec_fn=dies_with_parent
-        )
-        os.close(slave)
-        self.drawn = ""
-        self._cursor = 0
-        self._lock = threading.Lock()
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self) -> None:
-        while True:
-            try:
-                data = os.read(self.master, 4096)
-            except OSError:  # EIO: the process's end of the terminal closed
-                return
-            if not data:
-                return
-            with self._lock:
-                self.drawn += data.decode(errors="replace")
-
-    def type(self, text: str) -> None:
-        os.write(self.master, text.encode())
-
-    def wait_for(self, pattern: str, timeout: float) -> re.Match[str]:
-        """The first match of `pattern` drawn after the last match."""
-        deadline = time.monotonic() + timeout
-        while True:
-            with self._lock:
-                found = re.compile(pattern).search(self.drawn, self._cursor)
-                if found is not None:
-                    self._cursor = found.end()
-                    return found
-                if time.monotonic() > deadline:
-                    raise AssertionError(
-                        f"nothing drawn matches {pattern!r} in {timeout} s; drawn since the "
-                        f"last match:\n{self.drawn[self._cursor :]!r}"
-                    )
-            time.sleep(0.05)
-
-    def close(self) -> None:
-        self.proc.kill()
-        self.proc.wait(10)
-        os.close(self.master)
 
 
 def test_the_shells_prompt_says_its_server_lost_and_back_and_keeps_the_line_typed(

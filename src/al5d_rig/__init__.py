@@ -5,7 +5,8 @@ tests (tests/) and the benchmarks (bench/) import it as any package, and the scr
 among its modules run as `python -m al5d_rig.NAME`. It sits above every subpackage of
 `al5d` and may import any of them; nothing in `al5d` imports it. The modules:
 
-- `proc`: `al5d` commands as processes of their own, their output read as it comes.
+- `proc`: `al5d` commands as processes of their own (at a terminal of their own too:
+  `Tty`), their output read as it comes.
 - `shm`: Fast DDS's shared-memory files of processes gone, removed before a run.
 - `boardproc`: `al5d emulator` in a process of its own, its records streamed back.
 - `armrig`: an owner on an emulated board in this process, and what tests read of the

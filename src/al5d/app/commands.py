@@ -202,7 +202,7 @@ def check(path: str, poses: str | None, namespace: str | None) -> int:
 
 
 def cmd_shell(args: argparse.Namespace) -> int:
-    from al5d.app.terminal import shell
+    from al5d.app.shell import shell
 
     return shell(
         wait_s=args.wait,

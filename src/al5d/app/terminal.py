@@ -1,15 +1,13 @@
-"""The client commands at the terminal: `al5d send`, `al5d run` and `al5d shell`, on
-`al5d.ros.client.Client` (a local server by its lane, any other over ROS 2), and how they
-report.
+"""The client commands at the terminal: `al5d send` and `al5d run` (and the steps that
+`al5d shell`, `al5d.app.shell`, runs as they do), on `al5d.ros.client.Client` (a local
+server by its lane, any other over ROS 2).
 
 `al5d send` sends one instruction and waits for its outcome (over ROS 2 a stop goes
 on the topic, copies of one stop until one is answered: `Client.stop`; a release goes
 on the topic too, with the client's lease: `Client.release`). `al5d run` runs a
 sequence file: each instruction waits for its outcome before the next line, unless
 the line ends with `&` (then the client goes on at once, so that, say, a `stop` can
-land in the middle of a move); `wait <ms>` pauses. `al5d shell` reads instructions a
-line at a time and keeps its one connection: the server's discovery is paid once, not
-per command.
+land in the middle of a move); `wait <ms>` pauses.
 Ctrl-C on `al5d send` or `al5d run` cancels what the command sent and is still running or
 waiting, and says so (over ROS 2, which has no cancel by id, it says that the server was
 not told). Exit codes: `al5d.exits` (done, not done, bad input, no server, interrupted).
@@ -18,31 +16,26 @@ not told). Exit codes: `al5d.exits` (done, not done, bad input, no server, inter
 from __future__ import annotations
 
 import functools
-import logging
 import sys
-from collections.abc import Collection, Iterator
+from collections.abc import Collection
 from pathlib import Path
 from typing import TextIO
 
 from al5d import exits
 from al5d.app.report import LinkWatch, Report, Timing, each_line
-from al5d.app.shellhelp import shell_help
 from al5d.arm.config import load_config
 from al5d.arm.instruction import (
     PRESET_NAMES,
-    SHELL_HELP,
-    SHELL_QUIT,
     GrammarError,
     Instruction,
     Kind,
     Outcome,
     Result,
-    SequenceStep,
     Wait,
     parse_instruction,
 )
 from al5d.arm.poses import PosesError, beside, load_poses
-from al5d.arm.sequence import SequenceJudge, judge_sequence, judged_steps, read_sequence
+from al5d.arm.sequence import judge_sequence, judged_steps, read_sequence
 from al5d.owner import where
 from al5d.owner.client import local_config
 from al5d.ros.answers import GIVE_UP_WORD_S
@@ -58,6 +51,21 @@ from al5d.ros.names import Names
 
 #: `--via`: the local lane where a server's is here (auto), only the lane, or only ROS 2.
 VIA = {"auto": None, "lane": True, "ros": False}
+
+
+def connect(
+    prog: str, namespace: str | None, wait_s: float, via: str, verbose: bool, err: TextIO
+) -> tuple[Client, Timing] | None:
+    """The client of the command `prog` (`via`: a key of `VIA`), and its timing, started;
+    None where there is no server to reach (`--via lane` with none here), said on `err`."""
+    timing = Timing(prog, verbose, err)
+    try:
+        client = Client(namespace, wait_s=wait_s, local=VIA[via])
+    except NoServer as e:
+        print(f"{prog}: {e}", file=err)
+        return None
+    timing.ros_started()
+    return client, timing
 
 
 def interrupted(
@@ -91,7 +99,7 @@ def interrupted(
     return exits.INTERRUPTED
 
 
-def _stop_or_release(client: Client, instr: Instruction, timeout: float) -> Answer:
+def stop_or_release(client: Client, instr: Instruction, timeout: float) -> Answer:
     """A stop or a release, as `Client.stop` and `Client.release` send them."""
     call = client.stop if instr.kind is Kind.STOP else client.release
     return call(timeout)
@@ -115,18 +123,15 @@ def send(
     except GrammarError as e:
         print(f"al5d send: {e}", file=err)
         return exits.BAD_INPUT
-    timing = Timing("al5d send", verbose, err)
-    try:
-        client = Client(namespace, wait_s=wait_s, local=VIA[via])
-    except NoServer as e:
-        print(f"al5d send: {e}", file=err)
+    started = connect("al5d send", namespace, wait_s, via, verbose, err)
+    if started is None:
         return exits.NO_SERVER
-    timing.ros_started()
+    client, timing = started
     report = Report(out, timeout)
     sent: list[Instruction] = []
     try:
         if instr.kind in (Kind.STOP, Kind.RELEASE):
-            answer = _stop_or_release(client, instr, timeout)
+            answer = stop_or_release(client, instr, timeout)
             timing.discovered(client)
             report.line(str(answer))
             return exits.DONE if answer.success else exits.NOT_DONE
@@ -196,13 +201,10 @@ def run(
     except (PosesError, GrammarError) as e:  # each problem a line
         print(each_line("al5d run: ", f"nothing sent: {e}"), file=err)
         return exits.BAD_INPUT
-    timing = Timing("al5d run", verbose, err)
-    try:
-        client = Client(namespace, wait_s=wait_s, local=VIA[via])
-    except NoServer as e:
-        print(f"al5d run: {e}", file=err)
+    started = connect("al5d run", namespace, wait_s, via, verbose, err)
+    if started is None:
         return exits.NO_SERVER
-    timing.ros_started()
+    client, timing = started
     report = Report(out, timeout)
     sent: list[Instruction] = []
     background: list[Instruction] = []
@@ -218,14 +220,14 @@ def run(
         for n, (item, in_background) in enumerate(steps):
             if isinstance(item, Instruction):
                 sent.append(item)
-            if not _step(client, report, item, in_background, timeout, background, watch):
+            if not run_step(client, report, item, in_background, timeout, background, watch):
                 # As the web view's Teach tab: a line waited for and not done (refused, or
                 # cancelled: by a stop, say) ends the sequence, so that a release after a
                 # stop does not take up the rest of it.
                 if left := len(steps) - n - 1:
                     report.line(f"not done: the {left} step{'s'[: left != 1]} after it not sent")
                 break
-        _drain(client, report, background, timeout)
+        drain(client, report, background, timeout)
         return exits.DONE if report.all_done else exits.NOT_DONE
     except NoServer as e:
         print(f"al5d run: {e}", file=err)
@@ -241,7 +243,7 @@ def run(
         timing.end()
 
 
-def _step(
+def run_step(
     client: Client,
     report: Report,
     item: Instruction | Wait,
@@ -276,7 +278,7 @@ def _step(
     return outcome is not None and outcome.result is Result.DONE
 
 
-def _drain(client: Client, report: Report, background: list[Instruction], timeout: float) -> None:
+def drain(client: Client, report: Report, background: list[Instruction], timeout: float) -> None:
     """Wait for the outcomes of the lines run in the background (each printed as it came)."""
     for item in background:
         if item.id in report.said:
@@ -292,207 +294,3 @@ def _drain(client: Client, report: Report, background: list[Instruction], timeou
         if outcome is None:
             report.outcome(None, instr=item)
     background.clear()
-
-
-SHELL_PROMPT = "al5d> "
-
-
-#: What `_lines` yields for a Ctrl-C while the input was read (at the prompt).
-CTRL_C = "\x03"
-
-
-def _lines(inp: TextIO, interactive: bool, report: Report | None) -> Iterator[str]:
-    """The shell's input, a line at a time; at a terminal with a prompt and line editing,
-    and Ctrl-C there drops the line typed, as a shell does. A Ctrl-C is `CTRL_C` (piped, the
-    input's end then). What `report` (its output a terminal) says while the prompt waits
-    goes above it."""
-    if not interactive:
-        try:
-            yield from inp
-        except KeyboardInterrupt:
-            yield CTRL_C
-        return
-    import readline  # input() gets editing and history
-
-    def drawn() -> None:  # the prompt is on the screen: what is said goes above it now
-        if report is not None:
-            report.at_prompt(lambda: SHELL_PROMPT + readline.get_line_buffer())
-
-    # GNU readline's; a readline without it (libedit) draws no prompt again.
-    hook = getattr(readline, "set_pre_input_hook", lambda *hook: None)
-    hook(drawn)
-    try:
-        while True:
-            try:
-                line = input(SHELL_PROMPT)
-            except KeyboardInterrupt:
-                line = CTRL_C
-            except EOFError:
-                line = None
-            finally:
-                if report is not None:
-                    report.at_prompt(None)
-            if line is None or line == CTRL_C:
-                print(file=sys.stdout)
-            if line is None:
-                return
-            yield line
-    finally:
-        hook()
-
-
-def shell(
-    *,
-    wait_s: float,
-    timeout: float,
-    inp: TextIO = sys.stdin,
-    out: TextIO = sys.stdout,
-    err: TextIO = sys.stderr,
-    namespace: str | None = None,
-    verbose: bool = False,
-    poses: str | Path | None = None,
-    via: str = "auto",
-) -> int:
-    """Read instructions a line at a time (the grammar of a sequence file: `wait`, `&`, `#`,
-    `pose <name>` of the file `poses`, by default `poses.yaml` here if there) and run each
-    over one connection kept throughout: the server is discovered once.
-
-    A stop or a release goes as with `al5d send`. A bad line is
-    said and skipped. Ctrl-C while an instruction runs (in the background too, `&`) is the
-    emergency stop. The exit
-    code at the end: no server; else bad input if a line was bad; else whether every
-    instruction was done.
-    """
-    try:
-        book = load_poses(beside(None) if poses is None else poses, required=poses is not None)
-    except PosesError as e:
-        print(each_line("al5d shell: ", str(e)), file=err)
-        return exits.BAD_INPUT
-    interactive = inp.isatty()
-    # A prompt drawn again below what is said only where both ends are a terminal.
-    redraw = interactive and out.isatty()
-    timing = Timing("al5d shell", verbose, err)
-    try:
-        client = Client(namespace, wait_s=wait_s, local=VIA[via])
-    except NoServer as e:
-        print(f"al5d shell: {e}", file=err)
-        return exits.NO_SERVER
-    timing.ros_started()
-    report = Report(out, timeout)
-    bad = False
-    background: list[Instruction] = []
-    watch = LinkWatch(client, report, background)
-    above = _AbovePrompt(report)
-    if redraw:  # the client's warnings (a silent server) above the prompt, not in it
-        logging.getLogger().addHandler(above)
-    try:
-        client.wait_for_server(wait_s)
-        timing.discovered(client)
-        judge = SequenceJudge(client.config())
-        if interactive:
-            report.line(
-                "al5d shell: one instruction a line (as in a sequence file); Ctrl-C while "
-                "one runs stops the arm; help lists them; exit or Ctrl-D ends"
-            )
-        lines = _lines(inp, interactive, report if redraw else None)
-        while True:
-            with watch.waiting():  # a server lost while the shell waits for a line is said
-                line = next(lines, None)
-            if line is None:
-                break
-            if line == CTRL_C:
-                # Ctrl-C while a move of the shell's runs in the background stops the arm,
-                # as it does while one runs in the foreground (seen: the move ran on).
-                if any(client.sent(i.id) and client.outcome(i.id, 0) is None for i in background):
-                    report.line(f"Ctrl-C: {_stop(client)}")
-                    report.all_done = False
-                continue
-            word = line.strip().lower()
-            if word in SHELL_QUIT:
-                break
-            if word in SHELL_HELP:
-                if not interactive:  # piped, what answers which line is marked
-                    report.line(f"> {line.strip()}")
-                config = judge.config
-                for said in shell_help(config.presets, config.joints):
-                    report.line(said)
-                continue
-            try:
-                step = judge.judge_line(line, book)
-            except GrammarError as e:
-                print(f"al5d shell: {e}", file=err, flush=True)
-                bad = True
-                continue
-            if step is None:
-                continue
-            watch.lost.clear()  # the shell goes on after a loss: a later `wait` waits
-            try:
-                _shell_step(client, report, step, timeout, background, watch, interactive)
-            except KeyboardInterrupt:
-                report.line(f"Ctrl-C: {_stop(client)}")
-                report.all_done = False
-                item, in_background = step
-                if isinstance(item, Instruction) and not in_background:
-                    if client.sent(item.id):
-                        report.outcome(client.outcome(item.id, timeout), instr=item)
-                    else:
-                        report.not_sent(item)
-            except (NoOutcome, NoServer) as e:  # a server gone: said, and the shell goes on
-                report.line(str(e))
-                report.all_done = False
-                if isinstance(e, (LostContact, LaneLost)):
-                    watch.said_lost()  # contact back is said
-        _drain(client, report, background, timeout)
-        if bad:
-            return exits.BAD_INPUT
-        return exits.DONE if report.all_done else exits.NOT_DONE
-    except NoServer as e:
-        print(f"al5d shell: {e}", file=err)
-        return exits.NO_SERVER
-    finally:
-        logging.getLogger().removeHandler(above)
-        watch.close()
-        client.close()
-        timing.end()
-
-
-class _AbovePrompt(logging.Handler):
-    """The log's warnings (Python's last resort's, the message alone) said by `report`: at
-    a terminal, above the shell's prompt and what is typed after it."""
-
-    def __init__(self, report: Report) -> None:
-        super().__init__(logging.WARNING)
-        self.report = report
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.report.line(record.getMessage())
-
-
-def _shell_step(
-    client: Client,
-    report: Report,
-    step: SequenceStep,
-    timeout: float,
-    background: list[Instruction],
-    watch: LinkWatch,
-    interactive: bool,
-) -> None:
-    item, in_background = step
-    if isinstance(item, Instruction) and item.kind in (Kind.STOP, Kind.RELEASE):
-        if not interactive:
-            report.line(f"> {item}")
-        answer = _stop_or_release(client, item, timeout)
-        report.all_done &= answer.success
-        report.line(str(answer))
-        return
-    # At a terminal the line typed is on the screen already: it is not echoed.
-    _step(client, report, item, in_background, timeout, background, watch, echo=not interactive)
-
-
-def _stop(client: Client) -> str:
-    """The shell's stop on Ctrl-C, said as answered, or why it was not (a server gone: the
-    shell goes on, where the error ended it)."""
-    try:
-        return str(client.stop())
-    except (NoOutcome, NoServer) as e:
-        return str(e)

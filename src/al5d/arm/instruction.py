@@ -437,7 +437,7 @@ SEQUENCE_ONLY = {
 }
 
 
-#: The words `al5d shell` reads itself (`al5d.app.terminal`): to end it, and for its grammar.
+#: The words `al5d shell` reads itself (`al5d.app.shell`): to end it, and for its grammar.
 SHELL_QUIT = ("exit", "quit")
 SHELL_HELP = ("help", "?")
 

@@ -1,0 +1,284 @@
+"""`al5d shell`: instructions read a line at a time, at a terminal's prompt or piped, over
+one connection kept throughout (the server is discovered once); its `help`, and its Ctrl-C.
+
+A line is a sequence file's (`wait`, `&`, `#`, `pose <name>`), run as `al5d run` runs
+one (`al5d.app.terminal`). Ctrl-C, wherever it comes, stops the arm where a line of the
+shell's runs (in the background too) and says so; at a terminal the prompt comes back,
+piped the input ends, as `al5d run` does.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import TextIO
+
+from al5d import exits
+from al5d.app.report import LinkWatch, Report, each_line
+from al5d.app.terminal import connect, drain, run_step, stop_or_release
+from al5d.arm.instruction import (
+    SHELL_HELP,
+    SHELL_QUIT,
+    GrammarError,
+    Instruction,
+    Kind,
+    SequenceStep,
+)
+from al5d.arm.poses import PosesError, beside, load_poses
+from al5d.arm.sequence import SequenceJudge
+from al5d.ros.client import Client, LaneLost, LostContact, NoOutcome, NoServer
+
+SHELL_PROMPT = "al5d> "
+
+
+#: What `_lines` yields for a Ctrl-C while the input was read (at the prompt).
+CTRL_C = "\x03"
+
+
+def _lines(inp: TextIO, interactive: bool, report: Report | None) -> Iterator[str]:
+    """The shell's input, a line at a time; at a terminal with a prompt and line editing,
+    and Ctrl-C there drops the line typed, as a shell does. A Ctrl-C is `CTRL_C` (piped, the
+    input's end then). What `report` (its output a terminal) says while the prompt waits
+    goes above it."""
+    if not interactive:
+        try:
+            yield from inp
+        except KeyboardInterrupt:
+            yield CTRL_C
+        return
+    import readline  # input() gets editing and history
+
+    def drawn() -> None:  # the prompt is on the screen: what is said goes above it now
+        if report is not None:
+            report.at_prompt(lambda: SHELL_PROMPT + readline.get_line_buffer())
+
+    # GNU readline's; a readline without it (libedit) draws no prompt again.
+    hook = getattr(readline, "set_pre_input_hook", lambda *hook: None)
+    hook(drawn)
+    try:
+        while True:
+            try:
+                line = input(SHELL_PROMPT)
+            except KeyboardInterrupt:
+                line = CTRL_C
+            except EOFError:
+                line = None
+            finally:
+                if report is not None:
+                    report.at_prompt(None)
+            if line is None or line == CTRL_C:
+                print(file=sys.stdout)
+            if line is None:
+                return
+            yield line
+    finally:
+        hook()
+
+
+def shell(
+    *,
+    wait_s: float,
+    timeout: float,
+    inp: TextIO = sys.stdin,
+    out: TextIO = sys.stdout,
+    err: TextIO = sys.stderr,
+    namespace: str | None = None,
+    verbose: bool = False,
+    poses: str | Path | None = None,
+    via: str = "auto",
+) -> int:
+    """Read instructions a line at a time (the grammar of a sequence file: `wait`, `&`, `#`,
+    `pose <name>` of the file `poses`, by default `poses.yaml` here if there) and run each
+    over one connection kept throughout: the server is discovered once.
+
+    A stop or a release goes as with `al5d send`. A bad line is said and skipped. Ctrl-C
+    while an instruction runs (in the background too, `&`) is the emergency stop; piped, it
+    ends the input too. The exit code at the end: no server; else bad input if a line was
+    bad; else whether every instruction was done.
+    """
+    try:
+        book = load_poses(beside(None) if poses is None else poses, required=poses is not None)
+    except PosesError as e:
+        print(each_line("al5d shell: ", str(e)), file=err)
+        return exits.BAD_INPUT
+    interactive = inp.isatty()
+    # A prompt drawn again below what is said only where both ends are a terminal.
+    redraw = interactive and out.isatty()
+    started = connect("al5d shell", namespace, wait_s, via, verbose, err)
+    if started is None:
+        return exits.NO_SERVER
+    client, timing = started
+    report = Report(out, timeout)
+    bad = False
+    background: list[Instruction] = []
+    watch = LinkWatch(client, report, background)
+    above = _AbovePrompt(report)
+    if redraw:  # the client's warnings (a silent server) above the prompt, not in it
+        logging.getLogger().addHandler(above)
+    try:
+        client.wait_for_server(wait_s)
+        timing.discovered(client)
+        judge = SequenceJudge(client.config())
+        if interactive:
+            report.line(
+                "al5d shell: one instruction a line (as in a sequence file); Ctrl-C while "
+                "one runs stops the arm; help lists them; exit or Ctrl-D ends"
+            )
+        lines = _lines(inp, interactive, report if redraw else None)
+        while True:
+            step: SequenceStep | None = None  # the line running: a Ctrl-C's is said
+            try:
+                with watch.waiting():  # a server lost while the shell waits for a line is said
+                    line = next(lines, None)
+                if line is None:
+                    break
+                if line != CTRL_C:
+                    word = line.strip().lower()
+                    if word in SHELL_QUIT:
+                        break
+                    if word in SHELL_HELP:
+                        if not interactive:  # piped, what answers which line is marked
+                            report.line(f"> {line.strip()}")
+                        config = judge.config
+                        for said in shell_help(config.presets, config.joints):
+                            report.line(said)
+                        continue
+                    try:
+                        step = judge.judge_line(line, book)
+                    except GrammarError as e:
+                        print(f"al5d shell: {e}", file=err, flush=True)
+                        bad = True
+                        continue
+                    if step is None:
+                        continue
+                    watch.lost.clear()  # the shell goes on after a loss: a later `wait` waits
+                    try:
+                        _shell_step(client, report, step, timeout, background, watch, interactive)
+                    except (NoOutcome, NoServer) as e:  # a server gone: said, the shell goes on
+                        report.line(str(e))
+                        report.all_done = False
+                        if isinstance(e, (LostContact, LaneLost)):
+                            watch.said_lost()  # contact back is said
+                    continue
+            except KeyboardInterrupt:
+                pass
+            # Ctrl-C, wherever it found the shell (at the prompt, in a line, between lines):
+            # one place decides, so that what it does is not a matter of when it came.
+            _ctrl_c(client, report, step, background, timeout)
+            if not interactive:
+                break  # piped, it ends the input too, as it ends `al5d run`
+            lines = _lines(inp, interactive, report if redraw else None)  # one Ctrl-C ended
+        try:
+            drain(client, report, background, timeout)
+        except KeyboardInterrupt:  # the outcomes waited for at the input's end
+            _ctrl_c(client, report, None, background, timeout)
+            drain(client, report, background, timeout)
+        if bad:
+            return exits.BAD_INPUT
+        return exits.DONE if report.all_done else exits.NOT_DONE
+    except NoServer as e:
+        print(f"al5d shell: {e}", file=err)
+        return exits.NO_SERVER
+    finally:
+        logging.getLogger().removeHandler(above)
+        watch.close()
+        client.close()
+        timing.end()
+
+
+class _AbovePrompt(logging.Handler):
+    """The log's warnings (Python's last resort's, the message alone) said by `report`: at
+    a terminal, above the shell's prompt and what is typed after it."""
+
+    def __init__(self, report: Report) -> None:
+        super().__init__(logging.WARNING)
+        self.report = report
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.report.line(record.getMessage())
+
+
+def _shell_step(
+    client: Client,
+    report: Report,
+    step: SequenceStep,
+    timeout: float,
+    background: list[Instruction],
+    watch: LinkWatch,
+    interactive: bool,
+) -> None:
+    item, in_background = step
+    if isinstance(item, Instruction) and item.kind in (Kind.STOP, Kind.RELEASE):
+        if not interactive:
+            report.line(f"> {item}")
+        answer = stop_or_release(client, item, timeout)
+        report.all_done &= answer.success
+        report.line(str(answer))
+        return
+    # At a terminal the line typed is on the screen already: it is not echoed.
+    run_step(client, report, item, in_background, timeout, background, watch, echo=not interactive)
+
+
+def _stop(client: Client) -> str:
+    """The shell's stop on Ctrl-C, said as answered, or why it was not (a server gone: the
+    shell goes on, where the error ended it)."""
+    try:
+        return str(client.stop())
+    except (NoOutcome, NoServer) as e:
+        return str(e)
+
+
+def _ctrl_c(
+    client: Client,
+    report: Report,
+    step: SequenceStep | None,
+    background: list[Instruction],
+    timeout: float,
+) -> None:
+    """Ctrl-C in the shell, `step` the line it came in (None: at the prompt): where a line
+    of the shell's runs (that one, or one in the background) the arm is stopped, and said;
+    the line's outcome is said (or that it was not sent). Nothing running, nothing is said."""
+    item = None if step is None or step[1] else step[0]
+    if not isinstance(item, Instruction):
+        item = None  # a `wait`: nothing of its own runs
+    if item is None and not any(_running(client, i) for i in background):
+        return
+    report.line(f"Ctrl-C: {_stop(client)}")
+    report.all_done = False
+    if item is None:
+        return
+    if not client.sent(item.id):
+        report.not_sent(item)
+        return
+    try:
+        report.outcome(client.outcome(item.id, timeout), instr=item)
+    except NoOutcome as e:  # its server gone meanwhile: said, as a line's loss is
+        report.line(str(e))
+
+
+def _running(client: Client, instr: Instruction) -> bool:
+    """Whether `instr`, sent, may still run: its outcome has not come (or contact with its
+    server was lost: it may run on there)."""
+    try:
+        return client.sent(instr.id) and client.outcome(instr.id, 0) is None
+    except NoOutcome:
+        return True
+
+
+def shell_help(presets: Iterable[str], joints: Iterable[str]) -> list[str]:
+    """What `help` says at `al5d shell`'s prompt: its grammar (docs/server.md, Instructions),
+    with the server's presets and joints."""
+    return [
+        f"{' | '.join(presets)}  [time=<ms>]",
+        "move <joint>=<degrees> [...]  [time=<ms>]",
+        "move_to x=<mm> y=<mm> z=<mm> [pitch=<deg>] [roll=<deg>] [gripper=<deg>] [time=<ms>] "
+        "[path=joint|line]",
+        "stop | release | shutdown",
+        "pose <name>  [time=<ms>]  (a pose of the poses file)",
+        "wait <ms>  (the shell pauses)",
+        "<instruction> &  (runs in the background)    # a comment",
+        "exit | quit | Ctrl-D ends the shell; Ctrl-C while a move runs stops the arm",
+        f"joints: {' '.join(joints)}",
+    ]
