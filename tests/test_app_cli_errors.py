@@ -496,8 +496,9 @@ def test_ctrl_c_in_the_shell_stops_a_move_in_the_background(arm: Served) -> None
         code, out, err = ended(shell)  # Ctrl-C ended its piped input
     finally:
         shell.kill()
-    assert code == exits.NOT_DONE, (out, err)
+    assert code == exits.INTERRUPTED, (out, err)
     assert any(re.match(r"move \[\S+\]: cancelled", line) for line in out), out
+    assert out[-1] == "Ctrl-C: the shell's input ends here: no line after it runs", out
     assert arm.peer.trigger("release").success
 
 
@@ -533,10 +534,11 @@ def test_ctrl_c_in_a_piped_shell_stops_the_arm_and_ends_its_input(arm: Served) -
         assert "cancelled" in shell.out.wait_for("move [", CMD_S)
         wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
         assert abs(arm.emu.servo_degrees()["base"] - 80) > 5  # halted on its way
-        code, _, err = ended(shell)
+        code, out, err = ended(shell)
     finally:
         shell.kill()
-    assert code == exits.NOT_DONE, err  # the move was cancelled
+    assert code == exits.INTERRUPTED, (out, err)
+    assert out[-1] == "Ctrl-C: the shell's input ends here: no line after it runs", out
     assert arm.peer.trigger("release").success
 
 
@@ -556,10 +558,29 @@ def test_ctrl_c_in_a_shells_wait_stops_its_move_in_the_background(arm: Served) -
         code, out, err = ended(shell)
     finally:
         shell.kill()
-    assert code == exits.NOT_DONE, (out, err)
+    assert code == exits.INTERRUPTED, (out, err)
     assert any(re.match(r"move \[\S+\]: cancelled", line) for line in out), out
+    assert out[-1] == "Ctrl-C: the shell's input ends here: no line after it runs", out
     assert abs(arm.emu.servo_degrees()["base"] + 80) > 5  # halted on its way
     assert arm.peer.trigger("release").success
+
+
+def test_ctrl_c_in_a_piped_shell_with_nothing_running_stops_nothing(arm: Served) -> None:
+    """Nothing of the shell's runs: its Ctrl-C ends its input and stops no one's motion (the
+    stop is the arm's, another client's move would be cut)."""
+    seen = len(arm.states)
+    shell = Proc("shell", stdin=True)
+    try:
+        shell.send("ready")
+        assert ": done" in shell.out.wait_for("ready [", CMD_S)
+        shell.popen.send_signal(signal.SIGINT)
+        code, out, err = ended(shell)
+    finally:
+        shell.kill()
+    assert code == exits.INTERRUPTED, (out, err)
+    assert out[-1] == "Ctrl-C: the shell's input ends here: no line after it runs", out
+    assert not [line for line in out if line.startswith("Ctrl-C: stop")], out
+    assert "stopped" not in arm.states[seen:], arm.states[seen:]
 
 
 def test_ctrl_c_at_the_shells_terminal_stops_the_arm_and_prompts_again(arm: Served) -> None:

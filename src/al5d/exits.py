@@ -21,7 +21,8 @@ NOT_PARKED: Final = 3
 BAD_INPUT: Final = 4
 #: No al5d server was found within `--wait` seconds: nothing was sent.
 NO_SERVER: Final = 5
-#: Ctrl-C: what the command sent was cancelled (as a shell's 128 + SIGINT).
+#: Ctrl-C: what the command sent was cancelled, or (`al5d shell`) stopped; as a shell's
+#: 128 + SIGINT.
 INTERRUPTED: Final = 130
 
 TABLE: Final = (
@@ -31,7 +32,11 @@ TABLE: Final = (
     (NOT_PARKED, "serve: the arm could not be parked at the end"),
     (BAD_INPUT, "bad input: an instruction or sequence file not in the grammar; nothing sent"),
     (NO_SERVER, "no server found within --wait seconds; nothing sent"),
-    (INTERRUPTED, "Ctrl-C: what the command sent is cancelled (send, run; over ROS 2 said not)"),
+    (
+        INTERRUPTED,
+        "Ctrl-C: what send or run sent is cancelled (over ROS 2 said not); shell, piped: "
+        "the arm stopped where its lines ran, the input ended",
+    ),
 )
 
 

@@ -2,16 +2,17 @@
 one connection kept throughout (the server is discovered once); its `help`, and its Ctrl-C.
 
 A line is a sequence file's (`wait`, `&`, `#`, `pose <name>`), run as `al5d run` runs
-one (`al5d.app.terminal`). Ctrl-C, wherever it comes, stops the arm where a line of the
-shell's runs (in the background too) and says so; at a terminal the prompt comes back,
-piped the input ends, as `al5d run` does.
+one (`al5d.app.terminal`). Ctrl-C, wherever it comes in the shell's loop, stops the arm
+where a line of the shell's runs (in the background too) and says so; at a terminal the
+prompt comes back, piped the input ends, as `al5d run` does; a second Ctrl-C while the
+first one's answers are awaited ends the shell.
 """
 
 from __future__ import annotations
 
 import logging
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Generator, Iterable
 from pathlib import Path
 from typing import TextIO
 
@@ -37,7 +38,7 @@ SHELL_PROMPT = "al5d> "
 CTRL_C = "\x03"
 
 
-def _lines(inp: TextIO, interactive: bool, report: Report | None) -> Iterator[str]:
+def _lines(inp: TextIO, interactive: bool, report: Report | None) -> Generator[str, None, None]:
     """The shell's input, a line at a time; at a terminal with a prompt and line editing,
     and Ctrl-C there drops the line typed, as a shell does. A Ctrl-C is `CTRL_C` (piped, the
     input's end then). What `report` (its output a terminal) says while the prompt waits
@@ -112,6 +113,7 @@ def shell(
     client, timing = started
     report = Report(out, timeout)
     bad = False
+    interrupted = False  # by a Ctrl-C that ended the shell
     background: list[Instruction] = []
     watch = LinkWatch(client, report, background)
     above = _AbovePrompt(report)
@@ -166,15 +168,24 @@ def shell(
                 pass
             # Ctrl-C, wherever it found the shell (at the prompt, in a line, between lines):
             # one place decides, so that what it does is not a matter of when it came.
-            _ctrl_c(client, report, step, background, timeout)
-            if not interactive:
-                break  # piped, it ends the input too, as it ends `al5d run`
-            lines = _lines(inp, interactive, report if redraw else None)  # one Ctrl-C ended
+            whole = _ctrl_c(client, report, step, background, timeout)
+            if not whole:
+                return exits.INTERRUPTED  # a second Ctrl-C: the user leaves, now
+            if not interactive:  # piped, it ends the input too, as it ends `al5d run`
+                interrupted = True
+                break
+            lines.close()  # a Ctrl-C may have ended it: a new one, its prompt drawn again
+            lines = _lines(inp, interactive, report if redraw else None)
         try:
             drain(client, report, background, timeout)
         except KeyboardInterrupt:  # the outcomes waited for at the input's end
-            _ctrl_c(client, report, None, background, timeout)
+            if not _ctrl_c(client, report, None, background, timeout):
+                return exits.INTERRUPTED
+            interrupted = True
             drain(client, report, background, timeout)
+        if interrupted:  # said last, below the outcomes of the lines it cut
+            report.line("Ctrl-C: the shell's input ends here: no line after it runs")
+            return exits.INTERRUPTED
         if bad:
             return exits.BAD_INPUT
         return exits.DONE if report.all_done else exits.NOT_DONE
@@ -222,8 +233,8 @@ def _shell_step(
 
 
 def _stop(client: Client) -> str:
-    """The shell's stop on Ctrl-C, said as answered, or why it was not (a server gone: the
-    shell goes on, where the error ended it)."""
+    """The shell's stop on Ctrl-C, said as answered, or why it was not (a server gone: said,
+    where the error ended the shell)."""
     try:
         return str(client.stop())
     except (NoOutcome, NoServer) as e:
@@ -236,26 +247,35 @@ def _ctrl_c(
     step: SequenceStep | None,
     background: list[Instruction],
     timeout: float,
-) -> None:
-    """Ctrl-C in the shell, `step` the line it came in (None: at the prompt): where a line
-    of the shell's runs (that one, or one in the background) the arm is stopped, and said;
-    the line's outcome is said (or that it was not sent). Nothing running, nothing is said."""
+) -> bool:
+    """Ctrl-C in the shell, `step` the line it came in (None: at the prompt, between lines,
+    at the end): where a line of the shell's runs (that one, or one in the background) the
+    arm is stopped, and said; that line's outcome is said (or that it was not sent).
+    Nothing running, nothing is stopped. False where a second Ctrl-C cut this short (said):
+    the shell ends then."""
     item = None if step is None or step[1] else step[0]
     if not isinstance(item, Instruction):
         item = None  # a `wait`: nothing of its own runs
-    if item is None and not any(_running(client, i) for i in background):
-        return
-    report.line(f"Ctrl-C: {_stop(client)}")
-    report.all_done = False
-    if item is None:
-        return
-    if not client.sent(item.id):
-        report.not_sent(item)
-        return
+    # A stop or a release line is not kept by id: a Ctrl-C in one stops (again), to be sure.
+    answered = item is not None and item.kind in (Kind.STOP, Kind.RELEASE)
     try:
-        report.outcome(client.outcome(item.id, timeout), instr=item)
+        if answered or any(_running(client, i) for i in (item, *background) if i is not None):
+            report.line(f"Ctrl-C: {_stop(client)}")
+            report.all_done = False
+        if item is None or answered:
+            return True
+        if not client.sent(item.id):
+            report.not_sent(item)
+        else:
+            report.outcome(client.outcome(item.id, timeout), instr=item)
     except NoOutcome as e:  # its server gone meanwhile: said, as a line's loss is
         report.line(str(e))
+    except KeyboardInterrupt:
+        report.line(
+            "Ctrl-C again: the shell ends before every answer came (`al5d send stop` halts the arm)"
+        )
+        return False
+    return True
 
 
 def _running(client: Client, instr: Instruction) -> bool:

@@ -26,7 +26,8 @@ client.
 - `client`: `Client`, a client of the server: a local one by its lane (`laneway`:
   `LaneWay`), any other over ROS 2 (`rosway`: `RosWay`; `rosstop`: its stop, copies on the
   topic sent until one is answered); the terminal's commands on it are
-  `al5d.app.terminal`'s. `answers`: what a client raises, and its stop's answer.
+  `al5d.app.terminal`'s and `al5d.app.shell`'s. `answers`: what a client raises, and its
+  stop's answer.
 - `reading`: what a client hears of the arm (its state, joints and tool pose), kept from
   the lane or the ROS topics, with waits and callbacks.
 - `leases`: the ROS clients' leases (who is still there, and each one's clock), and

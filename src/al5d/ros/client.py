@@ -1,5 +1,5 @@
 """The client of the server: instructions sent, their outcomes waited for, the stop, release
-and shutdown (the terminal's commands on it: `al5d.app.terminal`).
+and shutdown (the terminal's commands on it: `al5d.app.terminal`, `al5d.app.shell`).
 
 A server on this machine is reached by its local lane (`al5d.owner.client.Remote`: no
 discovery, no DDS); any other over ROS 2, its instruction topic (the stop and the
