@@ -334,3 +334,32 @@ def test_a_piped_shell_waiting_for_its_next_line_says_its_server_is_gone(
         finally:
             shell.kill()
             shell.wait(10)
+
+
+def test_a_shells_ctrl_c_unanswered_by_a_frozen_server_does_not_wait_for_the_move(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """An outside try: the server frozen as a move ran, Ctrl-C in a piped shell; its stop
+    unanswered (said after 10 s), the shell then waited for the move's outcome as long as
+    `--timeout` (here 600 s), saying nothing. Now the move is said not waited for, and the
+    shell ends (exit 130)."""
+    with served(config, tmp_path, "al5d_ctrl_c_frozen_peer") as arm:
+        shell, out, err = talking([AL5D, "shell", "--via", "lane", "--timeout", "600"])
+        assert shell.stdin is not None
+        server = family(arm.proc.popen.pid)
+        try:
+            shell.stdin.write("move base=60 time=8000\n")
+            shell.stdin.flush()
+            out.wait_for("> move base=60 time=8000", SCRIPT_S)
+            wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+            with gone(server, "ros"):  # frozen, its lane open
+                shell.send_signal(signal.SIGINT)
+                said = out.wait_for("Ctrl-C: stop: ", SCRIPT_S)
+                assert "no answer" in said, said
+                line = out.wait_for("move [", SCRIPT_S)
+                assert "not waited for: the stop was not answered" in line, line
+                assert shell.wait(SCRIPT_S) == exits.INTERRUPTED, (out.all, err.all)
+            assert out.drain()[-1] == "Ctrl-C: the shell's input ends here: no line after it runs"
+        finally:
+            shell.kill()
+            shell.wait(10)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import time
 from collections.abc import Generator, Iterable
 from pathlib import Path
 from typing import TextIO
@@ -232,13 +233,18 @@ def _shell_step(
     run_step(client, report, item, in_background, timeout, background, watch, echo=not interactive)
 
 
-def _stop(client: Client) -> str:
+def _stop(client: Client) -> tuple[str, bool]:
     """The shell's stop on Ctrl-C, said as answered, or why it was not (a server gone: said,
-    where the error ended the shell)."""
+    where the error ended the shell); and whether it was answered."""
     try:
-        return str(client.stop())
+        return str(client.stop()), True
     except (NoOutcome, NoServer) as e:
-        return str(e)
+        return str(e), False
+
+
+#: After a stop answered, how long the shell waits for the outcomes of the lines it cut,
+#: said before the prompt comes back (at once, as a rule: the owner tells them first).
+CUT_SAID_S = 5.0
 
 
 def _ctrl_c(
@@ -250,25 +256,36 @@ def _ctrl_c(
 ) -> bool:
     """Ctrl-C in the shell, `step` the line it came in (None: at the prompt, between lines,
     at the end): where a line of the shell's runs (that one, or one in the background) the
-    arm is stopped, and said; that line's outcome is said (or that it was not sent).
-    Nothing running, nothing is stopped. False where a second Ctrl-C cut this short (said):
-    the shell ends then."""
+    arm is stopped, and said; the outcomes of the lines it cut are said (or that the line
+    was not sent, or, the stop unanswered, that it is not waited for). Nothing running,
+    nothing is stopped. False where a second Ctrl-C cut this short (said): the shell ends."""
     item = None if step is None or step[1] else step[0]
     if not isinstance(item, Instruction):
         item = None  # a `wait`: nothing of its own runs
     # A stop or a release line is not kept by id: a Ctrl-C in one stops (again), to be sure.
     answered = item is not None and item.kind in (Kind.STOP, Kind.RELEASE)
     try:
-        if answered or any(_running(client, i) for i in (item, *background) if i is not None):
-            report.line(f"Ctrl-C: {_stop(client)}")
+        cut = [i for i in (item, *background) if i is not None and _running(client, i)]
+        if answered or cut:
+            said, obeyed = _stop(client)
+            report.line(f"Ctrl-C: {said}")
             report.all_done = False
-        if item is None or answered:
-            return True
-        if not client.sent(item.id):
-            report.not_sent(item)
-        else:
-            report.outcome(client.outcome(item.id, timeout), instr=item)
-    except NoOutcome as e:  # its server gone meanwhile: said, as a line's loss is
+            if not obeyed:  # a server that does not answer would keep the shell for `timeout`
+                for instr in cut:
+                    report.lost(instr, NoOutcome(_NOT_WAITED.format(instr.id)))
+                return True
+        if item is not None and not answered and item not in cut:
+            if client.sent(item.id):  # its outcome came as the Ctrl-C did: said (once)
+                report.outcome(client.outcome(item.id, 0), instr=item)
+            else:
+                report.not_sent(item)
+        deadline = time.monotonic() + CUT_SAID_S
+        for instr in cut:  # said here, before the prompt is drawn again (not in its middle)
+            if instr is item:  # the line waited for: as long as it would have been
+                report.outcome(client.outcome(instr.id, timeout), instr=instr)
+            elif outcome := client.outcome(instr.id, max(0.0, deadline - time.monotonic())):
+                report.outcome(outcome, instr=instr)  # else its watcher says it, later
+    except NoOutcome as e:  # the server gone meanwhile: said, as a line's loss is
         report.line(str(e))
     except KeyboardInterrupt:
         report.line(
@@ -276,6 +293,12 @@ def _ctrl_c(
         )
         return False
     return True
+
+
+_NOT_WAITED = (
+    "[{}]: not waited for: the stop was not answered, whether it runs on is unknown "
+    "(`al5d send stop` halts the arm)"
+)
 
 
 def _running(client: Client, instr: Instruction) -> bool:

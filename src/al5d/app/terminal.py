@@ -279,7 +279,9 @@ def run_step(
 
 
 def drain(client: Client, report: Report, background: list[Instruction], timeout: float) -> None:
-    """Wait for the outcomes of the lines run in the background (each printed as it came)."""
+    """Wait for the outcomes of the lines run in the background (each printed as it came),
+    every one said when this returns: its watcher's callback may run just after the wait
+    ends, and what is said next would come above it."""
     for item in background:
         if item.id in report.said:
             continue
@@ -291,6 +293,5 @@ def drain(client: Client, report: Report, background: list[Instruction], timeout
         except NoOutcome as e:  # contact lost: said for each line, once
             report.lost(item, e)
             continue
-        if outcome is None:
-            report.outcome(None, instr=item)
+        report.outcome(outcome, instr=item)  # once: where its watcher said it, not again
     background.clear()
