@@ -35,20 +35,17 @@ from al5d.ros.client import Client, LaneLost, LostContact, NoOutcome, NoServer
 SHELL_PROMPT = "al5d> "
 
 
-#: What `_lines` yields for a Ctrl-C while the input was read (at the prompt).
+#: What `_lines` yields for a Ctrl-C at a terminal's prompt.
 CTRL_C = "\x03"
 
 
 def _lines(inp: TextIO, interactive: bool, report: Report | None) -> Generator[str, None, None]:
     """The shell's input, a line at a time; at a terminal with a prompt and line editing,
-    and Ctrl-C there drops the line typed, as a shell does. A Ctrl-C is `CTRL_C` (piped, the
-    input's end then). What `report` (its output a terminal) says while the prompt waits
-    goes above it."""
+    and Ctrl-C there drops the line typed, as a shell does: it is `CTRL_C`, after a new
+    line. What `report` (its output a terminal) says while the prompt waits goes above it.
+    Piped, a Ctrl-C is raised through this, as anywhere else in the shell."""
     if not interactive:
-        try:
-            yield from inp
-        except KeyboardInterrupt:
-            yield CTRL_C
+        yield from inp
         return
     import readline  # input() gets editing and history
 
@@ -137,34 +134,35 @@ def shell(
                     line = next(lines, None)
                 if line is None:
                     break
-                if line != CTRL_C:
-                    word = line.strip().lower()
-                    if word in SHELL_QUIT:
-                        break
-                    if word in SHELL_HELP:
-                        if not interactive:  # piped, what answers which line is marked
-                            report.line(f"> {line.strip()}")
-                        config = judge.config
-                        for said in shell_help(config.presets, config.joints):
-                            report.line(said)
-                        continue
-                    try:
-                        step = judge.judge_line(line, book)
-                    except GrammarError as e:
-                        print(f"al5d shell: {e}", file=err, flush=True)
-                        bad = True
-                        continue
-                    if step is None:
-                        continue
-                    watch.lost.clear()  # the shell goes on after a loss: a later `wait` waits
-                    try:
-                        _shell_step(client, report, step, timeout, background, watch, interactive)
-                    except (NoOutcome, NoServer) as e:  # a server gone: said, the shell goes on
-                        report.line(str(e))
-                        report.all_done = False
-                        if isinstance(e, (LostContact, LaneLost)):
-                            watch.said_lost()  # contact back is said
+                if line == CTRL_C:  # at the prompt: decided below, as everywhere else
+                    raise KeyboardInterrupt
+                word = line.strip().lower()
+                if word in SHELL_QUIT:
+                    break
+                if word in SHELL_HELP:
+                    if not interactive:  # piped, what answers which line is marked
+                        report.line(f"> {line.strip()}")
+                    config = judge.config
+                    for said in shell_help(config.presets, config.joints):
+                        report.line(said)
                     continue
+                try:
+                    step = judge.judge_line(line, book)
+                except GrammarError as e:
+                    print(f"al5d shell: {e}", file=err, flush=True)
+                    bad = True
+                    continue
+                if step is None:
+                    continue
+                watch.lost.clear()  # the shell goes on after a loss: a later `wait` waits
+                try:
+                    _shell_step(client, report, step, timeout, background, watch, interactive)
+                except (NoOutcome, NoServer) as e:  # a server gone: said, the shell goes on
+                    report.line(str(e))
+                    report.all_done = False
+                    if isinstance(e, (LostContact, LaneLost)):
+                        watch.said_lost()  # contact back is said
+                continue
             except KeyboardInterrupt:
                 pass
             # Ctrl-C, wherever it found the shell (at the prompt, in a line, between lines):
@@ -263,18 +261,18 @@ def _ctrl_c(
     if not isinstance(item, Instruction):
         item = None  # a `wait`: nothing of its own runs
     # A stop or a release line is not kept by id: a Ctrl-C in one stops (again), to be sure.
-    answered = item is not None and item.kind in (Kind.STOP, Kind.RELEASE)
+    stop_line = item is not None and item.kind in (Kind.STOP, Kind.RELEASE)
     try:
         cut = [i for i in (item, *background) if i is not None and _running(client, i)]
-        if answered or cut:
+        if stop_line or cut:
             said, obeyed = _stop(client)
             report.line(f"Ctrl-C: {said}")
-            report.all_done = False
+            report.fail()
             if not obeyed:  # a server that does not answer would keep the shell for `timeout`
                 for instr in cut:
                     report.lost(instr, NoOutcome(_NOT_WAITED.format(instr.id)))
                 return True
-        if item is not None and not answered and item not in cut:
+        if item is not None and not stop_line and item not in cut:
             if client.sent(item.id):  # its outcome came as the Ctrl-C did: said (once)
                 report.outcome(client.outcome(item.id, 0), instr=item)
             else:
