@@ -363,3 +363,54 @@ def test_a_shells_ctrl_c_unanswered_by_a_frozen_server_does_not_wait_for_the_mov
         finally:
             shell.kill()
             shell.wait(10)
+
+
+LANE_STOP = """
+import sys
+from al5d.ros.client import Client
+c = Client(wait_s=30, local=True)
+print("ready", flush=True)
+sys.stdin.readline()  # the server is frozen now
+print(c.stop(timeout=60), flush=True)
+c.close()
+"""
+
+
+def test_a_stop_by_the_local_lane_unanswered_says_so_while_it_waits(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """A stop by the local lane that a frozen server does not answer: `al5d send stop` and
+    the client's `stop()` say after 0.8 s that no answer has come, and wait on (an outside
+    try: said only when the 10 s timeout ran out, where over ROS 2 the client warns at
+    0.8 s); the server, thawed, obeys, and each says it done."""
+    with served(config, tmp_path, "al5d_lane_unanswered_peer") as arm:
+        script = tmp_path / "lane_stop.py"
+        script.write_text(LANE_STOP)
+        client, out, err = talking([sys.executable, str(script)])
+        assert client.stdin is not None
+        server = family(arm.proc.popen.pid)
+        send: subprocess.Popen[str] | None = None
+        try:
+            out.wait_for("ready", SCRIPT_S)
+            with gone(server, "ros"):  # frozen, its lane open
+                send, send_out, send_err = talking([AL5D, "send", "stop", "--timeout", "60"])
+                client.stdin.write("stop\n")
+                client.stdin.flush()
+                said = send_err.wait_for("no answer in 0.8 s by the local lane", SCRIPT_S)
+                assert "whether the arm has stopped is unknown" in said, said
+                warned = err.wait_for("no answer in 0.8 s by the local lane", SCRIPT_S)
+                assert "whether the arm has stopped is unknown" in warned, warned
+                # Said while the stop is still awaited: neither has given up.
+                assert send.poll() is None and client.poll() is None
+            answer = send_out.wait_for("stop [", SCRIPT_S)
+            assert answer.endswith("done (by the local lane)"), answer
+            assert send.wait(SCRIPT_S) == 0
+            assert out.wait_for("stop", SCRIPT_S).startswith("stop: done"), out.all
+            wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
+            assert client.wait(SCRIPT_S) == 0
+            assert not [x for x in err.all + send_err.all if "Traceback" in x], err.all
+        finally:
+            for proc in (client, send):
+                if proc is not None:
+                    proc.kill()
+                    proc.wait(10)

@@ -12,7 +12,9 @@ from __future__ import annotations
 import json
 import os
 import socket
+import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from al5d.owner import where
@@ -22,6 +24,11 @@ _FLAGS = ("--namespace", "--timeout", "--wait")
 #: `al5d.arm.instruction.STOP_MARKS`, which this path does not import (a test holds the two
 #: alike): what may end the word `stop` typed in a hurry.
 _STOP_MARKS = "!.,;:"
+#: A stop unanswered this long is said to be so at once, while it is still awaited, by
+#: the local lane as over ROS 2 (`al5d.ros.rosstop`): whoever asked must not believe the arm
+#: stopped meanwhile. Under a second, so that a stop not obeyed within one is said before
+#: the second is up.
+UNANSWERED_S = 0.8
 
 
 def parse(argv: list[str]) -> tuple[str, float] | None:
@@ -56,8 +63,18 @@ def stop(namespace: str, timeout: float) -> int | None:
     """Ask the local server for the stop and print its answer as `al5d send` does; the exit
     code, or None where no server's lane answers here (then ROS 2 is the way)."""
     ident = f"{os.getpid():x}-stop"
+
+    def unanswered() -> None:
+        print(
+            f"stop [{ident}]: no answer in {UNANSWERED_S:g} s by the local lane (the server "
+            f"busy or stalled); still waiting, up to {timeout:g} s: whether the arm has "
+            "stopped is unknown",
+            file=sys.stderr,
+            flush=True,
+        )
+
     try:
-        outcome = ask_stop(where.path(namespace), ident, timeout)
+        outcome = ask_stop(where.path(namespace), ident, timeout, unanswered)
     except OSError as e:
         print(f"stop [{ident}]: no answer from the server ({e}): it may not have stopped")
         return 1
@@ -73,13 +90,16 @@ def stop(namespace: str, timeout: float) -> int | None:
     return 0 if ok else 1
 
 
-def ask_stop(lane: Path, ident: str, timeout: float) -> dict[str, object] | None:
+def ask_stop(
+    lane: Path, ident: str, timeout: float, unanswered: Callable[[], None] | None = None
+) -> dict[str, object] | None:
     """The stop `ident` asked of the server whose lane is `lane`, and its outcome as the lane
-    carries it; None where no server's lane takes a connection there. Raises OSError where
-    the lane failed or no answer came within `timeout` s (the stop may have been obeyed),
-    EOFError where the server closed it without answering."""
+    carries it; None where no server's lane takes a connection there. `unanswered` as
+    `answer` says. Raises OSError where the lane failed or no answer came within `timeout`
+    s (the stop may have been obeyed), EOFError where the server closed it without
+    answering."""
     sock = hand_stop(lane, ident, timeout)
-    return None if sock is None else answer(sock, timeout)
+    return None if sock is None else answer(sock, timeout, unanswered)
 
 
 def hand_stop(lane: Path, ident: str, timeout: float) -> socket.socket | None:
@@ -107,13 +127,15 @@ def hand_stop(lane: Path, ident: str, timeout: float) -> socket.socket | None:
     return sock
 
 
-def answer(sock: socket.socket, timeout: float) -> dict[str, object]:
-    """The outcome of the stop handed over on `sock` (`hand_stop`), which is then closed.
-    Raises OSError where none came within `timeout` s, EOFError where the server closed
-    the lane without answering."""
-    sock.settimeout(timeout)
+def answer(
+    sock: socket.socket, timeout: float, unanswered: Callable[[], None] | None = None
+) -> dict[str, object]:
+    """The outcome of the stop handed over on `sock` (`hand_stop`), which is then closed;
+    `unanswered` is called once, on this thread, where none has come within `UNANSWERED_S`
+    (the wait goes on). Raises OSError where none came within `timeout` s, EOFError where
+    the server closed the lane without answering."""
     try:
-        outcome = _answer(sock)
+        outcome = _answer(sock, timeout, unanswered)
     finally:
         sock.close()
     if outcome is None:
@@ -121,11 +143,24 @@ def answer(sock: socket.socket, timeout: float) -> dict[str, object]:
     return outcome
 
 
-def _answer(sock: socket.socket) -> dict[str, object] | None:
-    """The outcome of our request (ref 1): the first line that is one."""
+def _answer(
+    sock: socket.socket, timeout: float, unanswered: Callable[[], None] | None
+) -> dict[str, object] | None:
+    """The outcome of our request (ref 1): the first line that is one, within `timeout` s."""
+    end = time.monotonic() + timeout
+    warn_at = time.monotonic() + UNANSWERED_S if unanswered and timeout > UNANSWERED_S else None
     data = b""
     while True:
-        chunk = sock.recv(65536)
+        # A positive timeout: zero would make the socket non-blocking.
+        sock.settimeout(max((warn_at or end) - time.monotonic(), 0.001))
+        try:
+            chunk = sock.recv(65536)
+        except TimeoutError:
+            if warn_at is None or unanswered is None:
+                raise
+            warn_at = None
+            unanswered()
+            continue
         if not chunk:
             return None
         data += chunk

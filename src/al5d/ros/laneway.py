@@ -244,7 +244,19 @@ class LaneWay:
                         f"({path})"
                     )
                 time.sleep(REOPEN_EVERY_S)
-            outcome = outcome_in(quick.answer(sock, max(deadline.left(), ANSWER_MIN_S)))
+            left = max(deadline.left(), ANSWER_MIN_S)
+
+            def unanswered() -> None:
+                log.warning(
+                    "stop [%s]: no answer in %g s by the local lane (the server busy or "
+                    "stalled); still waiting, up to %.1f s more: whether the arm has stopped "
+                    "is unknown",
+                    ident,
+                    quick.UNANSWERED_S,
+                    left - quick.UNANSWERED_S,
+                )
+
+            outcome = outcome_in(quick.answer(sock, left, unanswered))
         except (OSError, EOFError, ValueError) as e:  # a garbled answer: LaneError, JSON's
             raise NoOutcome(
                 f"stop: no answer on the local lane: {e} (whether the server obeyed is unknown)"

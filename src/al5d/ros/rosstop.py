@@ -23,6 +23,7 @@ from typing import Protocol
 
 from al5d.arm.instruction import Instruction, Kind, Outcome
 from al5d.clock import Deadline
+from al5d.owner import quick
 from al5d.ros.answers import Answer, NoOutcome, NoServer
 from al5d.ros.convert import COPY_MARK
 from al5d.ros.leasing import Leaser
@@ -37,12 +38,13 @@ STOP_RETRY_S = 1.0
 #: sent again after a second).
 STOP_FIRST_COPIES_S = 0.25
 #: A stop unanswered this long is said to be so at once (a WARNING), while it is still
-#: sent: after a server's restart its side may take seconds to find this client (beside
-#: busy loops, a stop was obeyed 2.15 s after it was asked), and whoever asked must not
-#: believe the arm stopped meanwhile. Under a second, so that a stop not obeyed within one
-#: is said before the second is up (an idle CI run: a restarted server's stop obeyed
-#: 1.012 s after it was asked, answered before a warning at 1 s could be said).
-STOP_UNANSWERED_S = 0.8
+#: sent, as by the local lane (`quick.UNANSWERED_S`): after a server's restart its side may
+#: take seconds to find this client (beside busy loops, a stop was obeyed 2.15 s after it
+#: was asked), and whoever asked must not believe the arm stopped meanwhile. Under a
+#: second, so that a stop not obeyed within one is said before the second is up (an idle
+#: CI run: a restarted server's stop obeyed 1.012 s after it was asked, answered before a
+#: warning at 1 s could be said).
+STOP_UNANSWERED_S = quick.UNANSWERED_S
 
 
 class StopWay(Protocol):
