@@ -414,3 +414,41 @@ def test_a_stop_by_the_local_lane_unanswered_says_so_while_it_waits(
                 if proc is not None:
                     proc.kill()
                     proc.wait(10)
+
+
+def test_a_client_of_a_stalled_server_on_this_machine_says_so_and_keeps_its_wait(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """An outside try: with the server frozen, a new `al5d send --wait 3` said nothing for
+    10 s (the lane's own wait for its welcome), then looked for the server over ROS 2 and
+    ended "no al5d server answers ... is 'al5d serve' running?" with a server there; `al5d
+    run --check` judged the file against the shipped configuration "(none on this
+    machine's lane)". Now each says after 0.8 s that the server here has not answered, the
+    send ends within its --wait as a server busy or stalled, nothing sent, and the check
+    says whose configuration it judged with and why."""
+    sequence = tmp_path / "one.seq"
+    sequence.write_text("move base=10\n")
+    with served(config, tmp_path, "al5d_stalled_peer") as arm:
+        server = family(arm.proc.popen.pid)
+        n0 = len(arm.emu.records)
+        with gone(server, "ros"):  # frozen, its lane open
+            send, _, send_err = talking([AL5D, "send", "--wait", "3", "move base=30"])
+            check, check_out, _ = talking([AL5D, "run", "--check", str(sequence)])
+            try:
+                said = send_err.wait_for("has not answered in 0.8 s", SCRIPT_S)
+                assert "busy or stalled" in said, said
+                assert send.wait(SCRIPT_S) == exits.NO_SERVER
+                ended = send_err.drain(0.5)
+                assert [x for x in ended if "did not answer" in x and "busy or stalled" in x], (
+                    send_err.all
+                )
+                assert not [x for x in send_err.all if "is 'al5d serve' running" in x]
+                judged = check_out.wait_for("nothing sent", SCRIPT_S)
+                assert "the server on this machine's lane did not answer" in judged, judged
+                assert check.wait(SCRIPT_S) == 0
+            finally:
+                for proc in (send, check):
+                    proc.kill()
+                    proc.wait(10)
+        wait_until(lambda: arm.peer.trigger("release") is not None, STATE_S, "the server back")
+        assert not [r for r in arm.emu.records[n0:] if b"#0P" in r.raw], "the move was sent"

@@ -155,20 +155,29 @@ def check(path: str, poses: str | None, namespace: str | None) -> int:
     from al5d.arm.poses import PosesError, beside, load_poses
     from al5d.arm.sequence import judge_sequence, read_sequence
     from al5d.owner import where
-    from al5d.owner.client import local_config
+    from al5d.owner.client import LaneStalled, local_config
     from al5d.ros.answers import others
     from al5d.ros.names import Names
 
     names = Names.of(namespace)
-    config = local_config(where.path(names.namespace))
     whose = "the server"
+    try:
+        config = local_config(where.path(names.namespace))
+    except LaneStalled as e:
+        config = None
+        whose = (
+            "a server with the shipped configuration (the server on this machine's lane did "
+            f"not answer: {e}: it is busy or stalled)"
+        )
+    else:
+        if config is None:
+            # Another arm's server here is named: its configuration may be the one meant.
+            whose = (
+                "a server with the shipped configuration (none on this machine's lane"
+                f"{others(names, None)})"
+            )
     if config is None:
         config = load_config()
-        # Another arm's server here is named: its configuration may be the one meant.
-        whose = (
-            "a server with the shipped configuration (none on this machine's lane"
-            f"{others(names, None)})"
-        )
     try:
         book = load_poses(beside(path) if poses is None else poses, required=poses is not None)
         judged = judge_sequence(read_sequence(path), config, path, book)

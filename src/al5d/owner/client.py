@@ -33,6 +33,7 @@ from al5d.arm.resample import Follow
 from al5d.arm.states import State
 from al5d.clock import now
 from al5d.owner import lane as ln
+from al5d.owner import quick
 from al5d.owner.teller import StateTold, tell
 from al5d.priority import make_urgent
 
@@ -49,6 +50,11 @@ SIGNS_PER_LEASE = 4
 
 class LaneClosed(ConnectionError):
     """The owner is not there (any more): its lane is closed."""
+
+
+class LaneStalled(LaneClosed):
+    """The owner took the connection but did not answer its hello in time: a server on this
+    machine that is busy or stalled (a frozen process), not one that is absent."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,7 +81,11 @@ class Remote:
         recorder: bool = False,
         lease: bool = False,
         ros: bool = False,
+        slow: Callable[[], None] | None = None,
     ) -> None:
+        """Say hello on `sock` and wait `timeout` s for the welcome; `slow` is called once, on
+        this thread, where it has not come within `quick.UNANSWERED_S` (the wait goes on).
+        Raises LaneStalled where it does not come, LaneClosed where the lane closes first."""
         self._sock = sock
         sock.setblocking(True)
         self._send_lock = threading.Lock()
@@ -111,11 +121,18 @@ class Remote:
             hello["ros"] = True
         try:
             self._send(hello)
-            welcome = self._welcome.result(timeout)
+            left = timeout
+            if slow is not None and timeout > quick.UNANSWERED_S:
+                with contextlib.suppress(TimeoutError):
+                    self._welcome.result(quick.UNANSWERED_S)
+                if not self._welcome.done():
+                    slow()
+                left -= quick.UNANSWERED_S
+            welcome = self._welcome.result(left)
             self.config: ArmConfig = parse_config(welcome["config"], "the server's configuration")
         except TimeoutError:
             self.close()
-            raise LaneClosed(f"the owner did not answer hello within {timeout:g} s") from None
+            raise LaneStalled(f"the owner did not answer hello within {timeout:g} s") from None
         except BaseException:  # Ctrl-C, a welcome this version cannot read: nothing left open
             self.close(bye=False)
             raise
@@ -413,11 +430,15 @@ def _call(listeners: list[Callable[[], None]], what: str) -> None:
             log.exception("%s listener %r failed", what, listener)
 
 
-def local_config(path: Path) -> ArmConfig | None:
+def local_config(path: Path, timeout: float = WELCOME_S) -> ArmConfig | None:
     """The configuration the server on the lane at `path` judges with (its `welcome`'s), for
-    a client that judges before it has found a server its own way; None where none answers."""
+    a client that judges before it has found a server its own way; None where none is
+    there. Raises LaneStalled where one took the connection but did not answer within
+    `timeout` s."""
     try:
-        with Remote.connect(path, name="al5d-config", watch=()) as lane:
+        with Remote.connect(path, name="al5d-config", watch=(), timeout=timeout) as lane:
             return lane.config
+    except LaneStalled:
+        raise
     except LaneClosed:
         return None

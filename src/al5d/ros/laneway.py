@@ -83,7 +83,9 @@ class LaneWay:
 
     def __init__(self, connect: Callable[[float], Remote], names: Names, wait_s: float) -> None:
         self._connect = connect
-        self.lane = connect(WELCOME_S)
+        # Within the client's own wait for a server, not the owner's (a stalled one: an
+        # outside try's `al5d send --wait 2` waited 10 s).
+        self.lane = connect(max(wait_s, ANSWER_MIN_S))
         self.names = names
         self.wait_s = wait_s
         self.via = f"the local lane {where.path(names.namespace)}"
