@@ -452,3 +452,50 @@ def test_a_client_of_a_stalled_server_on_this_machine_says_so_and_keeps_its_wait
                     proc.wait(10)
         wait_until(lambda: arm.peer.trigger("release") is not None, STATE_S, "the server back")
         assert not [r for r in arm.emu.records[n0:] if b"#0P" in r.raw], "the move was sent"
+
+
+KILLED = """
+from al5d.ros.client import Client, LaneLost, NoOutcome, NoServer
+c = Client(wait_s=2, local=True)
+c.send("move base=-50 time=6000")
+c.wait_for_state("moving", 30)
+print("waiting", flush=True)
+try:
+    c.wait_for_state("ready", 120)
+    print("ready", flush=True)
+except LaneLost as e:
+    print(f"lost: {e}", flush=True)
+except NoOutcome as e:
+    print(f"no outcome: {e}", flush=True)
+try:
+    print(f"state: {c.state()}", flush=True)
+except NoServer as e:
+    print(f"no server: {e}", flush=True)
+c.close()
+"""
+
+
+def test_a_lane_client_whose_server_was_killed_does_not_say_the_arm_moves(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """An outside try: the server killed mid-move, the client's `state()` still said
+    'moving', and `wait_for_state("ready", 3)` waited its 3 s to say "it is 'moving'". Now
+    a wait for a state ends as the lane closes, saying the state is unknown, and a read
+    after it, no server taking the lane again, says so too."""
+    with served(config, tmp_path, "al5d_killed_reader_peer") as arm:
+        script = tmp_path / "killed.py"
+        script.write_text(KILLED)
+        client, out, err = talking([sys.executable, str(script)])
+        try:
+            out.wait_for("waiting", SCRIPT_S)
+            with gone(family(arm.proc.popen.pid), "lane"):  # killed, its lane closed
+                lost = out.wait_for(": ", SCRIPT_S)
+                assert lost.startswith("lost: the lane to the owner closed"), out.all
+                assert "its state is unknown" in lost, lost
+                read = out.wait_for(": ", SCRIPT_S)
+                assert read.startswith("no server: the lane to the server closed"), out.all
+                assert "the arm's state is unknown" in read, read
+                assert client.wait(SCRIPT_S) == 0, err.all
+        finally:
+            client.kill()
+            client.wait(10)

@@ -23,6 +23,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from al5d.arm.instruction import PRESET_NAMES, Instruction, Kind, Outcome, parse_instruction
+from al5d.clock import Deadline
 from al5d.owner import quick, where
 from al5d.owner.client import LaneClosed, LaneStalled, Remote
 from al5d.ros.answers import (
@@ -265,6 +266,7 @@ class Client:
         first read waits for the server's news up to `timeout` (default `wait_s`); raises
         NoServer if none came."""
         timeout = self.wait_s if timeout is None else timeout
+        self._lane_back(timeout)
         reading = self._arm().wait(lambda r: bool(r.state and r.joints_told), timeout)
         if reading is None:
             raise self._way.no_server(self.names.joint_states, timeout)
@@ -288,13 +290,41 @@ class Client:
 
     def wait_for_state(self, state: str, timeout: float = OUTCOME_S) -> Reading:
         """Until the arm's state is `state` (a word, as `state` says it); the reading then.
-        Raises NoOutcome if it was not within `timeout` seconds."""
-        reading = self._arm().wait(lambda r: r.state == state, timeout)
-        if reading is None:
-            raise NoOutcome(
-                f"the arm was not {state} within {timeout:g} s (it is {self.read(0).state!r})"
-            )
-        return reading
+        Raises NoOutcome if it was not within `timeout` seconds, `LaneLost` where the lane
+        closed meanwhile (the server ended: the arm's state is unknown)."""
+        deadline = Deadline(timeout)
+        self._lane_back(timeout)
+        while True:
+            # In slices: a lane that closes tells the view nothing (an outside try: the
+            # server killed, this waited its whole timeout and said the arm was 'moving').
+            reading = self._arm().wait(lambda r: r.state == state, min(deadline.left(), 0.25))
+            if reading is not None:
+                return reading
+            lane = self.lane
+            if lane is not None and lane.closed.is_set():
+                raise LaneLost(
+                    f"the lane to the owner closed while the arm was waited for to be {state}: "
+                    "its state is unknown"
+                )
+            if deadline.expired:
+                raise NoOutcome(
+                    f"the arm was not {state} within {timeout:g} s (it is {self.read(0).state!r})"
+                )
+
+    def _lane_back(self, timeout: float) -> None:
+        """Over the lane, one that has closed (its server ended) opened again to a server
+        started since: what was last heard on the old one is not the arm now (an outside
+        try: the server killed mid-move, `state()` still said 'moving'). Raises NoServer
+        where no server takes it within `timeout`."""
+        way = self._way
+        if isinstance(way, LaneWay) and way.lane.closed.is_set():
+            try:
+                way.reopen(timeout)
+            except NoServer:
+                raise NoServer(
+                    "the lane to the server closed (the server ended) and no al5d server "
+                    f"took it again within {timeout:g} s: the arm's state is unknown"
+                ) from None
 
     def on_change(self, listener: Callable[[Reading], None]) -> None:
         """Call `listener` with each news of the arm (a `Reading`) on the client's own thread:
