@@ -142,7 +142,7 @@ def test_a_stop_unanswered_while_the_server_is_silent_says_the_link_may_be_lost(
 GIVES_UP = """
 import sys
 from al5d.ros.client import Client, NoOutcome
-c = Client(wait_s=30, local=False)
+c = Client(wait_s=30, local=sys.argv[1] == "lane")
 print(c.execute("ready", timeout=60), flush=True)
 sys.stdin.readline()  # the server is silent now
 try:
@@ -154,15 +154,20 @@ c.close()
 """
 
 
-def test_a_stop_given_up_on_and_obeyed_later_is_said(config: ArmConfig, tmp_path: Path) -> None:
+@pytest.mark.parametrize("via", ["ros", "lane"])
+def test_a_stop_given_up_on_and_obeyed_later_is_said(
+    config: ArmConfig, tmp_path: Path, via: str
+) -> None:
     """A stop asked while the server is silent (here frozen whole; an outside try: a link
     cut), given up on after its timeout, is obeyed once the server hears it, however late:
     the client that gave up says so when the answer comes, and that it locked the arm (the
-    outside try: the arm locked when the link came back, and nobody was told)."""
-    with served(config, tmp_path, "al5d_late_stop_peer") as arm:
+    outside try: the arm locked when the link came back, and nobody was told; over the
+    local lane too, of a frozen server). `al5d send stop`, which ends when it gives up,
+    says that the server obeys it however late."""
+    with served(config, tmp_path, f"al5d_late_stop_{via}_peer") as arm:
         script = tmp_path / "gives_up.py"
         script.write_text(GIVES_UP)
-        client, out, err = talking([sys.executable, str(script)])
+        client, out, err = talking([sys.executable, str(script), via])
         assert client.stdin is not None
         server = family(arm.proc.popen.pid)
         try:
@@ -171,6 +176,11 @@ def test_a_stop_given_up_on_and_obeyed_later_is_said(config: ArmConfig, tmp_path
                 client.stdin.write("stop\n")
                 client.stdin.flush()
                 said = out.wait_for("gave up: ", SCRIPT_S)
+                if via == "lane":
+                    send, send_out, _ = talking([AL5D, "send", "stop", "--timeout", "2"])
+                    ended = send_out.wait_for("stop [", SCRIPT_S)
+                    assert "the server obeys a stop however late it takes it" in ended, ended
+                    assert send.wait(SCRIPT_S) == 1
             assert "whether the server obeyed is unknown" in said, said
             late = err.wait_for("answered after this client gave up on it", SCRIPT_S)
             assert "the server obeyed it, which locked the arm until a release" in late, late

@@ -73,13 +73,22 @@ def stop(namespace: str, timeout: float) -> int | None:
             flush=True,
         )
 
+    unknown = "whether the arm has stopped is unknown"
     try:
         outcome = ask_stop(where.path(namespace), ident, timeout, unanswered)
+    except TimeoutError:
+        # The stop waits in the server's lane: one that comes back obeys it then.
+        print(
+            f"stop [{ident}]: no answer within {timeout:g} s by the local lane: {unknown}; the "
+            "server obeys a stop however late it takes it (the arm then stays locked until a "
+            "release)"
+        )
+        return 1
     except OSError as e:
-        print(f"stop [{ident}]: no answer from the server ({e}): it may not have stopped")
+        print(f"stop [{ident}]: no answer from the server ({e.strerror or e}): {unknown}")
         return 1
     except EOFError:
-        print(f"stop [{ident}]: the server closed the lane without answering")
+        print(f"stop [{ident}]: the server closed the lane without answering: {unknown}")
         return 1
     if outcome is None:
         return None
@@ -128,31 +137,67 @@ def hand_stop(lane: Path, ident: str, timeout: float) -> socket.socket | None:
 
 
 def answer(
-    sock: socket.socket, timeout: float, unanswered: Callable[[], None] | None = None
+    sock: socket.socket,
+    timeout: float,
+    unanswered: Callable[[], None] | None = None,
+    late: Callable[[dict[str, object]], None] | None = None,
 ) -> dict[str, object]:
     """The outcome of the stop handed over on `sock` (`hand_stop`), which is then closed;
     `unanswered` is called once, on this thread, where none has come within `UNANSWERED_S`
-    (the wait goes on). Raises OSError where none came within `timeout` s, EOFError where
-    the server closed the lane without answering."""
+    (the wait goes on). Where none came within `timeout` s, the answer is still listened
+    for with `late`, which a thread of its own calls with it if it comes (a stop waits in
+    the lane of a stalled server, which obeys it when it can). Raises OSError
+    (TimeoutError) where none came within `timeout` s, EOFError where the server closed
+    the lane without answering."""
     try:
         outcome = _answer(sock, timeout, unanswered)
-    finally:
+    except TimeoutError:
+        if late is None:
+            sock.close()
+        else:
+            import threading  # here: `al5d send stop`'s path imports as little as it can
+
+            threading.Thread(
+                target=_listen_late, args=(sock, late), name="al5d-stop-late", daemon=True
+            ).start()
+        raise
+    except BaseException:
         sock.close()
+        raise
+    sock.close()
     if outcome is None:
         raise EOFError("the server closed the lane without answering")
     return outcome
 
 
+def _listen_late(sock: socket.socket, late: Callable[[dict[str, object]], None]) -> None:
+    """The answer that came after its asker gave up, given to `late` (none: nothing)."""
+    try:
+        sock.settimeout(None)
+        outcome = _answer(sock, None, None)
+    except (OSError, ValueError):  # the lane closed or garbled: nothing came to tell
+        return
+    finally:
+        sock.close()
+    if outcome is not None:
+        late(outcome)
+
+
 def _answer(
-    sock: socket.socket, timeout: float, unanswered: Callable[[], None] | None
+    sock: socket.socket, timeout: float | None, unanswered: Callable[[], None] | None
 ) -> dict[str, object] | None:
     """The outcome of our request (ref 1): the first line that is one, within `timeout` s."""
-    end = time.monotonic() + timeout
-    warn_at = time.monotonic() + UNANSWERED_S if unanswered and timeout > UNANSWERED_S else None
+    end = None if timeout is None else time.monotonic() + timeout
+    warn_at = (
+        time.monotonic() + UNANSWERED_S
+        if unanswered and (timeout is None or timeout > UNANSWERED_S)
+        else None
+    )
     data = b""
     while True:
+        until = warn_at or end
         # A positive timeout: zero would make the socket non-blocking.
-        sock.settimeout(max((warn_at or end) - time.monotonic(), 0.001))
+        sock.settimeout(None if until is None else max(until - time.monotonic(), 0.001))
         try:
             chunk = sock.recv(65536)
         except TimeoutError:

@@ -8,6 +8,7 @@ both of the client's ways (`al5d.ros.client`'s lane, `al5d.ros.rosway`'s ROS 2, 
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from dataclasses import dataclass
@@ -15,6 +16,8 @@ from typing import Any
 
 from al5d.owner import where
 from al5d.ros.names import Names, server_namespaces
+
+log = logging.getLogger("al5d")
 
 #: A stop, a release or a shutdown is answered at once.
 ANSWER_S = 10.0
@@ -174,3 +177,27 @@ def closed_hint() -> str:
 
 for _public in (NoServer, NoOutcome, LostContact, LaneLost, Answer):
     _public.__module__ = "al5d.ros.client"
+
+
+def said_late(stop: str, after_s: float, ok: bool, result: str, reason: str) -> None:
+    """The answer to the stop `stop` that its client had given up on, `after_s` after it
+    was asked, said as a WARNING (over ROS 2 and the local lane alike): a stop is obeyed
+    however late, and whoever asked must hear that it locked the arm."""
+    if ok:
+        # The server obeyed it when it came (or before, its answer lost), which locked
+        # the arm; a release sent since may have unlocked it: not said locked now.
+        log.warning(
+            "stop [%s]: answered after this client gave up on it (%.1f s after it was "
+            "asked): the server obeyed it, which locked the arm until a release sent "
+            "after it",
+            stop,
+            after_s,
+        )
+    else:
+        log.warning(
+            "stop [%s]: answered after this client gave up on it (%.1f s after it was asked): %s%s",
+            stop,
+            after_s,
+            result,
+            f": {reason}" if reason else "",
+        )

@@ -29,6 +29,7 @@ from al5d.ros.answers import (
     NoServer,
     elsewhere,
     no_outcome,
+    said_late,
     wait_ms,
 )
 from al5d.ros.names import Names
@@ -243,6 +244,7 @@ class LaneWay:
         deadline = Deadline(timeout)
         path = where.path(self.names.namespace)
         ident = new_id()
+        asked = time.monotonic()
         try:
             while (sock := quick.hand_stop(path, ident, max(deadline.left(), 0.1))) is None:
                 if deadline.expired or self._closed:
@@ -263,7 +265,21 @@ class LaneWay:
                     left - quick.UNANSWERED_S,
                 )
 
-            outcome = outcome_in(quick.answer(sock, left, unanswered))
+            def late(answer: dict[str, object]) -> None:
+                try:
+                    told = outcome_in(answer)
+                except ValueError:  # garbled: nothing to tell of it
+                    return
+                after = time.monotonic() - asked
+                said_late(ident, after, told.ok, told.result.value, told.reason)
+
+            outcome = outcome_in(quick.answer(sock, left, unanswered, late))
+        except TimeoutError:
+            raise NoOutcome(
+                f"stop: no answer on the local lane within {timeout:g} s (whether the server "
+                "obeyed is unknown; it obeys a stop however late it takes it, and this client "
+                "says so if the answer comes)"
+            ) from None
         except (OSError, EOFError, ValueError) as e:  # a garbled answer: LaneError, JSON's
             raise NoOutcome(
                 f"stop: no answer on the local lane: {e} (whether the server obeyed is unknown)"

@@ -24,7 +24,7 @@ from typing import Protocol
 from al5d.arm.instruction import Instruction, Kind, Outcome
 from al5d.clock import Deadline
 from al5d.owner import quick
-from al5d.ros.answers import Answer, NoOutcome, NoServer
+from al5d.ros.answers import Answer, NoOutcome, NoServer, said_late
 from al5d.ros.convert import COPY_MARK
 from al5d.ros.leasing import Leaser
 
@@ -193,25 +193,7 @@ class StopCall:
         self._late_said = True
         after = time.monotonic() - self._asked
         stop = outcome.id.partition(COPY_MARK)[0]
-        if outcome.ok:
-            # The server obeyed it when it came (or before, its answer lost), which locked
-            # the arm; a release sent since may have unlocked it: not said locked now.
-            log.warning(
-                "stop [%s]: answered after this client gave up on it (%.1f s after it was "
-                "asked): the server obeyed it, which locked the arm until a release sent "
-                "after it",
-                stop,
-                after,
-            )
-        else:
-            log.warning(
-                "stop [%s]: answered after this client gave up on it (%.1f s after it was "
-                "asked): %s%s",
-                stop,
-                after,
-                outcome.result.value,
-                f": {outcome.reason}" if outcome.reason else "",
-            )
+        said_late(stop, after, outcome.ok, outcome.result.value, outcome.reason)
 
     def _copy(self, at: float, since_start: float) -> None:
         """The stop's next copy on the topic, where one is due or a new reader matched."""
