@@ -171,22 +171,32 @@ def test_a_second_server_of_the_same_name_on_this_machine_is_refused() -> None:
         first.kill()
 
 
-def test_a_send_whose_server_is_killed_says_the_lane_closed_not_a_timeout() -> None:
-    """The server killed while `al5d send` waits for a move's outcome: the command says the
-    lane closed and that whether the move ran is unknown (seen: "no outcome (timed out)"
-    after 2 s, the client's own reason dropped)."""
+@pytest.mark.parametrize("command", ["send", "run"])
+def test_a_send_whose_server_is_killed_says_the_lane_closed_not_a_timeout(
+    command: str, tmp_path: Path
+) -> None:
+    """The server killed while `al5d send` (or `al5d run`) waits for a move's outcome: the
+    command says, naming the move, that the lane closed and that whether it ran is unknown
+    (seen: "no outcome (timed out)" after 2 s, the client's own reason dropped; `al5d run`
+    said it without the move's name, "[4558-3]: the lane ...")."""
     from al5d.ros.client import Client
 
+    sequence = tmp_path / "one.seq"
+    sequence.write_text("move base=60 time=5000\n")
     server = Proc("serve", "--no-ros")
     try:
         server.err.wait_for("STATE: ready")
-        send = Proc("send", "move", "base=60", "time=5000")
+        args = ["move", "base=60", "time=5000"] if command == "send" else [str(sequence)]
+        send = Proc(command, *args)
         with Client(local=True) as arm:
             arm.wait_for_state("moving", 60)
         server.kill()
         assert send.wait(60) == 1
         out = send.out.drain()
-        assert any("lane" in line and "whether it ran is unknown" in line for line in out), out
+        assert any(
+            line.startswith("move [") and "lane" in line and "whether it ran is unknown" in line
+            for line in out
+        ), out
         assert not any("timed out" in line for line in out), out
     finally:
         server.kill()

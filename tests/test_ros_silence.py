@@ -444,6 +444,7 @@ def test_a_client_of_a_stalled_server_on_this_machine_says_so_and_keeps_its_wait
         with gone(server, "ros"):  # frozen, its lane open
             send, _, send_err = talking([AL5D, "send", "--wait", "3", "move base=30"])
             check, check_out, _ = talking([AL5D, "run", "--check", str(sequence)])
+            run, _, run_err = talking([AL5D, "run", "--wait", "3", str(sequence)])
             try:
                 said = send_err.wait_for("has not answered in 0.8 s", SCRIPT_S)
                 assert "busy or stalled" in said, said
@@ -454,10 +455,17 @@ def test_a_client_of_a_stalled_server_on_this_machine_says_so_and_keeps_its_wait
                 )
                 assert not [x for x in send_err.all if "is 'al5d serve' running" in x]
                 judged = check_out.wait_for("nothing sent", SCRIPT_S)
-                assert "the server on this machine's lane did not answer" in judged, judged
+                assert "lane" in judged and "took the connection but" in judged, judged
+                assert "busy or stalled" in judged, judged
                 assert check.wait(SCRIPT_S) == 0
+                said = run_err.wait_for("has not answered in 0.8 s", SCRIPT_S)
+                assert "busy or stalled" in said, said
+                assert run.wait(SCRIPT_S) == exits.NO_SERVER
+                ended = run_err.drain(0.5)
+                assert [x for x in ended if "took the connection but" in x], run_err.all
+                assert not [x for x in run_err.all if "cannot read" in x], run_err.all
             finally:
-                for proc in (send, check):
+                for proc in (send, check, run):
                     proc.kill()
                     proc.wait(10)
         wait_until(lambda: arm.peer.trigger("release") is not None, STATE_S, "the server back")
@@ -509,3 +517,28 @@ def test_a_lane_client_whose_server_was_killed_does_not_say_the_arm_moves(
         finally:
             client.kill()
             client.wait(10)
+
+
+def test_ctrl_c_on_a_send_whose_server_is_frozen_says_its_cancel_unanswered(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """An outside try: Ctrl-C on `al5d send` while the server was frozen said nothing for
+    12 s, until the server came back and answered the cancel. Now the cancel unanswered is
+    said after 0.8 s, while it is still awaited; the server back, the move is cancelled,
+    said, and the command ends 130."""
+    with served(config, tmp_path, "al5d_cancel_frozen_peer") as arm:
+        send, out, err = talking([AL5D, "send", "move base=80 time=6000"])
+        server = family(arm.proc.popen.pid)
+        try:
+            wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+            with gone(server, "ros"):  # frozen, its lane open
+                send.send_signal(signal.SIGINT)
+                said = out.wait_for("its cancel not answered in 0.8 s", SCRIPT_S)
+                assert "busy or stalled" in said, said
+                assert send.poll() is None
+            assert out.wait_for("cancelled (Ctrl-C)", SCRIPT_S).startswith("move [")
+            assert send.wait(SCRIPT_S) == exits.INTERRUPTED
+            assert not [x for x in err.all if "Traceback" in x], err.all
+        finally:
+            send.kill()
+            send.wait(10)

@@ -31,7 +31,11 @@ TABLE: Final = (
     (USAGE, "usage: a wrong option or argument, or a bad configuration file"),
     (NOT_PARKED, "serve: the arm could not be parked at the end"),
     (BAD_INPUT, "bad input: an instruction or sequence file not in the grammar; nothing sent"),
-    (NO_SERVER, "no server found within --wait seconds; nothing sent"),
+    (
+        NO_SERVER,
+        "no server found within --wait seconds, or the one on this machine not answering; "
+        "nothing sent",
+    ),
     (
         INTERRUPTED,
         "Ctrl-C: what send or run sent is cancelled (over ROS 2 said not); shell, piped: "

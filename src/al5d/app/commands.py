@@ -165,10 +165,7 @@ def check(path: str, poses: str | None, namespace: str | None) -> int:
         config = local_config(where.path(names.namespace))
     except LaneStalled as e:
         config = None
-        whose = (
-            "a server with the shipped configuration (the server on this machine's lane did "
-            f"not answer: {e}: it is busy or stalled)"
-        )
+        whose = f"a server with the shipped configuration ({e})"
     else:
         if config is None:
             # Another arm's server here is named: its configuration may be the one meant.

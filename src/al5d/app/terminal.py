@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import functools
 import sys
+import threading
 from collections.abc import Collection
 from pathlib import Path
 from typing import TextIO
@@ -36,8 +37,8 @@ from al5d.arm.instruction import (
 )
 from al5d.arm.poses import PosesError, beside, load_poses
 from al5d.arm.sequence import judge_sequence, judged_steps, read_sequence
-from al5d.owner import where
-from al5d.owner.client import local_config
+from al5d.owner import quick, where
+from al5d.owner.client import LaneStalled, local_config
 from al5d.ros.answers import GIVE_UP_WORD_S
 from al5d.ros.client import (
     Answer,
@@ -87,7 +88,7 @@ def interrupted(
                 )
             # The owner tells the outcome before it answers the cancel: a watched line's
             # outcome has come, and its watcher said it.
-            elif client.cancel(instr.id, "cancelled by Ctrl-C") and (
+            elif _cancel(client, report, instr) and (
                 instr.id not in watched or client.outcome(instr.id, 0) is None
             ):
                 report.line(f"{instr.name} [{instr.id}]: cancelled (Ctrl-C)")
@@ -97,6 +98,33 @@ def interrupted(
             "run (`al5d send stop` halts the arm)"
         )
     return exits.INTERRUPTED
+
+
+def _cancel(client: Client, report: Report, instr: Instruction) -> bool:
+    """Ctrl-C's cancel of `instr` by the lane: whether it was cancelled. One the server does
+    not answer within `quick.UNANSWERED_S` (busy or stalled) is said so at once, while it
+    is still awaited (an outside try: a frozen server's Ctrl-C said nothing for 12 s)."""
+    what = f"{instr.name} [{instr.id}]: Ctrl-C"
+    timer = threading.Timer(
+        quick.UNANSWERED_S,
+        report.line,
+        [
+            f"{what}: its cancel not answered in {quick.UNANSWERED_S:g} s (the server busy or "
+            "stalled); still waiting: Ctrl-C again leaves (`al5d send stop` halts the arm)"
+        ],
+    )
+    timer.daemon = True
+    timer.start()
+    try:
+        return client.cancel(instr.id, "cancelled by Ctrl-C")
+    except TimeoutError:
+        report.line(
+            f"{what}: its cancel not answered: whether it runs on is unknown (`al5d send "
+            "stop` halts the arm)"
+        )
+        return False
+    finally:
+        timer.cancel()
 
 
 def stop_or_release(client: Client, instr: Instruction, timeout: float) -> Answer:
@@ -191,10 +219,13 @@ def run(
         # A line of bad grammar is bad for every server: said at once, before one is found
         # its own way, with every other problem as the server on this machine's lane
         # judges it (instantly), or a server with the shipped configuration.
-        here = local_config(where.path(Names.of(namespace).namespace))
+        here = local_config(where.path(Names.of(namespace).namespace), max(wait_s, 1.0))
         first = judge_sequence(data, here or load_config(), str(path), book)
         if any(problem.grammar for problem in first.problems):
             raise first.error()
+    except LaneStalled as e:  # before OSError, of which it is one
+        print(f"al5d run: {e}; nothing sent", file=err)
+        return exits.NO_SERVER
     except OSError as e:
         print(f"al5d run: cannot read {path}: {e.strerror}", file=err)
         return exits.BAD_INPUT
@@ -271,7 +302,10 @@ def run_step(
     client.send(item, timeout)
     if in_background:
         return True
-    outcome = client.outcome(item.id, timeout + GIVE_UP_WORD_S)
+    try:
+        outcome = client.outcome(item.id, timeout + GIVE_UP_WORD_S)
+    except (LostContact, LaneLost) as e:  # "[id]: ...": said with its name, as `Report.lost`
+        raise type(e)(f"{item.name} {e}") from None
     report.outcome(outcome, instr=item)
     if outcome is not None and item.kind is Kind.RELEASE:
         return True  # refused where nothing is stopped: nothing to release, nothing lost

@@ -172,7 +172,13 @@ class Remote:
         except OSError as e:
             sock.close()
             raise LaneClosed(f"no al5d server on {path}: {e.strerror or e}") from None
-        return cls(sock, **kwargs)
+        try:
+            return cls(sock, **kwargs)
+        except LaneStalled as e:
+            raise LaneStalled(
+                f"the al5d server on this machine's lane ({path}) took the connection but {e}: "
+                "it is busy or stalled (a frozen process?)"
+            ) from None
 
     def __enter__(self) -> Remote:
         return self
@@ -430,13 +436,31 @@ def _call(listeners: list[Callable[[], None]], what: str) -> None:
             log.exception("%s listener %r failed", what, listener)
 
 
+def said_slow(path: Path, timeout: float) -> Callable[[], None]:
+    """What a client says where the owner on the lane at `path` has not welcomed it within
+    `quick.UNANSWERED_S` of its `timeout` s (`Remote`'s `slow`): a WARNING."""
+
+    def slow() -> None:
+        log.warning(
+            "the al5d server on this machine's lane (%s) has not answered in %g s (busy or "
+            "stalled); waiting up to %.1f s more",
+            path,
+            quick.UNANSWERED_S,
+            timeout - quick.UNANSWERED_S,
+        )
+
+    return slow
+
+
 def local_config(path: Path, timeout: float = WELCOME_S) -> ArmConfig | None:
     """The configuration the server on the lane at `path` judges with (its `welcome`'s), for
     a client that judges before it has found a server its own way; None where none is
-    there. Raises LaneStalled where one took the connection but did not answer within
-    `timeout` s."""
+    there. After `quick.UNANSWERED_S` without a welcome it says so (`said_slow`). Raises
+    LaneStalled where one took the connection but did not answer within `timeout` s."""
     try:
-        with Remote.connect(path, name="al5d-config", watch=(), timeout=timeout) as lane:
+        with Remote.connect(
+            path, name="al5d-config", watch=(), timeout=timeout, slow=said_slow(path, timeout)
+        ) as lane:
             return lane.config
     except LaneStalled:
         raise

@@ -24,8 +24,8 @@ from typing import TYPE_CHECKING, Any
 
 from al5d.arm.instruction import PRESET_NAMES, Instruction, Kind, Outcome, parse_instruction
 from al5d.clock import Deadline
-from al5d.owner import quick, where
-from al5d.owner.client import LaneClosed, LaneStalled, Remote
+from al5d.owner import where
+from al5d.owner.client import LaneClosed, LaneStalled, Remote, said_slow
 from al5d.ros.answers import (
     ANSWER_S,
     Answer,
@@ -88,33 +88,20 @@ class Client:
             path = where.path(names.namespace)
 
             def connect(timeout: float) -> Remote:
-                def slow() -> None:
-                    log.warning(
-                        "the al5d server on this machine's lane (%s) has not answered in %g s "
-                        "(busy or stalled); waiting up to %.1f s more",
-                        path,
-                        quick.UNANSWERED_S,
-                        timeout - quick.UNANSWERED_S,
-                    )
-
                 return Remote.connect(
                     path,
                     name=f"al5d-client-{os.getpid()}",
                     watch=("state", "pose"),
                     lease=True,
                     timeout=timeout,
-                    slow=slow,
+                    slow=said_slow(path, timeout),
                 )
 
             try:
                 lane = LaneWay(connect, names, wait_s)
             except LaneStalled as e:
                 # A server is here: ROS 2 would reach it only through the same owner.
-                raise NoServer(
-                    f"the al5d server on this machine's lane ({path}) took the connection but "
-                    f"did not answer: {e}: it is busy or stalled (a frozen process?); nothing "
-                    "sent"
-                ) from None
+                raise NoServer(f"{e}; nothing sent") from None
             except LaneClosed as e:
                 if local:
                     raise NoServer(
