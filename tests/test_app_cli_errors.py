@@ -23,6 +23,7 @@ from al5d import exits
 from al5d.app import cli
 from al5d.app.report import SLOW_DISCOVERY_S, Timing
 from al5d.arm.config import ArmConfig
+from al5d.ros.answers import ANSWER_S
 from al5d.ros.client import Client, NoServer
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import group_moves
@@ -167,7 +168,18 @@ def test_an_unknown_option_is_said_under_the_usage_it_is_on(
 @pytest.mark.parametrize(
     ("command", "said"),
     [
-        ("send", ["find the server; default 10", "for an outcome; default 120"]),
+        (
+            "send",
+            [
+                "find the server; default 10",
+                "for an outcome; default 120",
+                f"(a stop's or release's answer: {ANSWER_S:g})",
+            ],
+        ),
+        (
+            "shell",
+            ["for an outcome; default 120", f"(a stop's or release's answer: {ANSWER_S:g})"],
+        ),
         ("run", ["find the server; default 10", "for an outcome; default 120"]),
         ("replay", ["find the server; default 10", "for an outcome; default 120"]),
         ("calibrate", ["find the server; default 10", "for a move; default 30"]),

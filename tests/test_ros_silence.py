@@ -542,3 +542,33 @@ def test_ctrl_c_on_a_send_whose_server_is_frozen_says_its_cancel_unanswered(
         finally:
             send.kill()
             send.wait(10)
+
+
+def test_a_shells_stop_line_waits_for_its_answer_as_al5d_send_stop_does(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """An outside try: a `stop` typed in a shell whose server was frozen was waited for up
+    to the shell's --timeout (120 s), where `al5d send stop` gives up after 10 s. Now the
+    shell's stop line waits as long (said after 0.8 s, given up on after 10 s, the shell
+    going on), unless --timeout is given."""
+    with served(config, tmp_path, "al5d_shell_stop_frozen_peer") as arm:
+        shell, out, err = talking([AL5D, "shell", "--via", "lane"])
+        assert shell.stdin is not None
+        server = family(arm.proc.popen.pid)
+        try:
+            shell.stdin.write("ready\n")
+            shell.stdin.flush()
+            out.wait_for("ready [", SCRIPT_S)
+            with gone(server, "ros"):  # frozen, its lane open
+                shell.stdin.write("stop\n")
+                shell.stdin.flush()
+                said = err.wait_for("no answer in 0.8 s by the local lane", SCRIPT_S)
+                assert "up to 9.2 s more" in said, said
+                gave_up = out.wait_for("stop: no answer", SCRIPT_S)
+                assert "within 10 s" in gave_up, gave_up
+                assert shell.poll() is None  # the shell goes on
+            shell.stdin.close()
+            assert shell.wait(SCRIPT_S) == exits.NOT_DONE
+        finally:
+            shell.kill()
+            shell.wait(10)

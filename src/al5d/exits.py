@@ -39,7 +39,7 @@ TABLE: Final = (
     (
         INTERRUPTED,
         "Ctrl-C: what send or run sent is cancelled (over ROS 2 said not); shell, piped: "
-        "the arm stopped where its lines ran, the input ended",
+        "a stop asked where its lines ran, the input ended",
     ),
 )
 

@@ -192,7 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
                 help=f"the poses file that `pose <name>` lines name; default: poses.yaml {where}",
             )
         cmd.add_argument("--namespace", type=_namespace, help=NAMESPACE_HELP + "; default: none")
-        _add_waits(cmd, 120.0)
+        _add_waits(cmd, 120.0, stops=name != "run")
         cmd.add_argument(
             "--verbose",
             action="store_true",
@@ -287,9 +287,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _add_waits(cmd: argparse.ArgumentParser, timeout: float, what: str = "an outcome") -> None:
+class Default(float):
+    """--timeout's default, told from a value given on the command line: argparse keeps a
+    default that is no string as it is. A stop's or a release's answer is waited for its own
+    default (`answer_s`), as `al5d send stop`'s quick path waits, unless --timeout is given."""
+
+
+def answer_s(timeout: float) -> float:
+    """How long a stop's or a release's answer is waited for, by --timeout's value."""
+    from al5d.ros.answers import ANSWER_S
+
+    return ANSWER_S if isinstance(timeout, Default) else timeout
+
+
+def _add_waits(
+    cmd: argparse.ArgumentParser, timeout: float, what: str = "an outcome", stops: bool = False
+) -> None:
     """A client command's --wait and --timeout, their defaults said in --help (an outside
-    try: `al5d send stop` with no server took 10.9 s, and --help did not say why)."""
+    try: `al5d send stop` with no server took 10.9 s, and --help did not say why); `stops`:
+    the command sends a stop and a release as `Client.stop` and `release` (`answer_s`)."""
     cmd.add_argument(
         "--wait",
         type=_seconds,
@@ -299,8 +315,10 @@ def _add_waits(cmd: argparse.ArgumentParser, timeout: float, what: str = "an out
     cmd.add_argument(
         "--timeout",
         type=_seconds,
-        default=timeout,
-        help=f"seconds to wait for {what}; default %(default)g",
+        default=Default(timeout),
+        help=f"seconds to wait for {what}; default %(default)g"
+        # `al5d.ros.answers.ANSWER_S`, not imported here: it imports the configuration.
+        + (" (a stop's or release's answer: 10)" if stops else ""),
     )
 
 

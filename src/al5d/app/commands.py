@@ -116,6 +116,7 @@ def cmd_moveit(args: argparse.Namespace) -> int:
 
 
 def cmd_send(args: argparse.Namespace) -> int:
+    from al5d.app.cli import answer_s
     from al5d.app.terminal import send
     from al5d.interrupts import cancelling
 
@@ -124,6 +125,7 @@ def cmd_send(args: argparse.Namespace) -> int:
             " ".join(args.instruction),
             wait_s=args.wait,
             timeout=args.timeout,
+            answer_s=answer_s(args.timeout),
             namespace=args.namespace,
             verbose=args.verbose,
             via=args.via,
@@ -208,11 +210,13 @@ def check(path: str, poses: str | None, namespace: str | None) -> int:
 
 
 def cmd_shell(args: argparse.Namespace) -> int:
+    from al5d.app.cli import answer_s
     from al5d.app.shell import shell
 
     return shell(
         wait_s=args.wait,
         timeout=args.timeout,
+        answer_s=answer_s(args.timeout),
         namespace=args.namespace,
         verbose=args.verbose,
         poses=args.poses,

@@ -30,6 +30,7 @@ from al5d.arm.instruction import (
 )
 from al5d.arm.poses import PosesError, beside, load_poses
 from al5d.arm.sequence import SequenceJudge
+from al5d.ros.answers import ANSWER_S
 from al5d.ros.client import Client, LaneLost, LostContact, NoOutcome, NoServer
 
 SHELL_PROMPT = "al5d> "
@@ -87,12 +88,14 @@ def shell(
     verbose: bool = False,
     poses: str | Path | None = None,
     via: str = "auto",
+    answer_s: float = ANSWER_S,
 ) -> int:
     """Read instructions a line at a time (the grammar of a sequence file: `wait`, `&`, `#`,
     `pose <name>` of the file `poses`, by default `poses.yaml` here if there) and run each
     over one connection kept throughout: the server is discovered once.
 
-    A stop or a release goes as with `al5d send`. A bad line is said and skipped. Ctrl-C
+    A stop or a release goes as with `al5d send` (its answer waited for `answer_s` s, each
+    outcome `timeout` s). A bad line is said and skipped. Ctrl-C
     while an instruction runs (in the background too, `&`) is the emergency stop; piped, it
     ends the input too. The exit code at the end: no server; else bad input if a line was
     bad; else whether every instruction was done.
@@ -156,7 +159,9 @@ def shell(
                     continue
                 watch.lost.clear()  # the shell goes on after a loss: a later `wait` waits
                 try:
-                    _shell_step(client, report, step, timeout, background, watch, interactive)
+                    _shell_step(
+                        client, report, step, (timeout, answer_s), background, watch, interactive
+                    )
                 except (NoOutcome, NoServer) as e:  # a server gone: said, the shell goes on
                     report.line(str(e))
                     report.all_done = False
@@ -214,16 +219,18 @@ def _shell_step(
     client: Client,
     report: Report,
     step: SequenceStep,
-    timeout: float,
+    waits: tuple[float, float],
     background: list[Instruction],
     watch: LinkWatch,
     interactive: bool,
 ) -> None:
+    """One line: `waits`, how long its outcome and a stop's or release's answer are waited for."""
     item, in_background = step
+    timeout, answer_s = waits
     if isinstance(item, Instruction) and item.kind in (Kind.STOP, Kind.RELEASE):
         if not interactive:
             report.line(f"> {item}")
-        answer = stop_or_release(client, item, timeout)
+        answer = stop_or_release(client, item, answer_s)
         report.all_done &= answer.success
         report.line(str(answer))
         return

@@ -39,7 +39,7 @@ from al5d.arm.poses import PosesError, beside, load_poses
 from al5d.arm.sequence import judge_sequence, judged_steps, read_sequence
 from al5d.owner import quick, where
 from al5d.owner.client import LaneStalled, local_config
-from al5d.ros.answers import GIVE_UP_WORD_S
+from al5d.ros.answers import ANSWER_S, GIVE_UP_WORD_S
 from al5d.ros.client import (
     Answer,
     Client,
@@ -143,9 +143,11 @@ def send(
     namespace: str | None = None,
     verbose: bool = False,
     via: str = "auto",
+    answer_s: float = ANSWER_S,
 ) -> int:
-    """Send one instruction and print its outcome; a stop or a release as `Client.stop`
-    and `Client.release` send them, printed with what carried it."""
+    """Send one instruction and print its outcome within `timeout` s; a stop or a release as
+    `Client.stop` and `Client.release` send them, their answer waited for `answer_s` s,
+    printed with what carried it."""
     try:
         instr = parse_instruction(text, PRESET_NAMES)
     except GrammarError as e:
@@ -159,7 +161,7 @@ def send(
     sent: list[Instruction] = []
     try:
         if instr.kind in (Kind.STOP, Kind.RELEASE):
-            answer = stop_or_release(client, instr, timeout)
+            answer = stop_or_release(client, instr, answer_s)
             timing.discovered(client)
             report.line(str(answer))
             return exits.DONE if answer.success else exits.NOT_DONE
