@@ -170,6 +170,7 @@ def test_a_stop_given_up_on_and_obeyed_later_is_said(
         client, out, err = talking([sys.executable, str(script), via])
         assert client.stdin is not None
         server = family(arm.proc.popen.pid)
+        send: subprocess.Popen[str] | None = None
         try:
             out.wait_for(": done", SCRIPT_S)
             with gone(server, "ros"):
@@ -190,8 +191,10 @@ def test_a_stop_given_up_on_and_obeyed_later_is_said(
             assert client.wait(SCRIPT_S) == 0
             assert not [line for line in err.all if "Traceback" in line], err.all
         finally:
-            client.kill()
-            client.wait(10)
+            for proc in (client, send):
+                if proc is not None:
+                    proc.kill()
+                    proc.wait(10)
 
 
 @pytest.mark.parametrize(("command", "via"), [("shell", "ros"), ("shell", "lane"), ("run", "ros")])
@@ -412,6 +415,14 @@ def test_a_stop_by_the_local_lane_unanswered_says_so_while_it_waits(
                 assert "whether the arm has stopped is unknown" in warned, warned
                 # Said while the stop is still awaited: neither has given up.
                 assert send.poll() is None and client.poll() is None
+                # A second one, left by Ctrl-C while it waits: said, no traceback.
+                cut, cut_out, cut_err = talking([AL5D, "send", "stop", "--timeout", "60"])
+                cut_err.wait_for("no answer in 0.8 s by the local lane", SCRIPT_S)
+                cut.send_signal(signal.SIGINT)
+                left = cut_out.wait_for("Ctrl-C: left before its answer", SCRIPT_S)
+                assert "whether the arm has stopped is unknown" in left, left
+                assert cut.wait(SCRIPT_S) == exits.INTERRUPTED
+                assert not [x for x in cut_err.drain(5.0) if "Traceback" in x], cut_err.all
             answer = send_out.wait_for("stop [", SCRIPT_S)
             assert answer.endswith("done (by the local lane)"), answer
             assert send.wait(SCRIPT_S) == 0
@@ -449,7 +460,7 @@ def test_a_client_of_a_stalled_server_on_this_machine_says_so_and_keeps_its_wait
                 said = send_err.wait_for("has not answered in 0.8 s", SCRIPT_S)
                 assert "busy or stalled" in said, said
                 assert send.wait(SCRIPT_S) == exits.NO_SERVER
-                ended = send_err.drain(0.5)
+                ended = send_err.drain(5.0)
                 assert [x for x in ended if "did not answer" in x and "busy or stalled" in x], (
                     send_err.all
                 )
@@ -461,7 +472,7 @@ def test_a_client_of_a_stalled_server_on_this_machine_says_so_and_keeps_its_wait
                 said = run_err.wait_for("has not answered in 0.8 s", SCRIPT_S)
                 assert "busy or stalled" in said, said
                 assert run.wait(SCRIPT_S) == exits.NO_SERVER
-                ended = run_err.drain(0.5)
+                ended = run_err.drain(5.0)
                 assert [x for x in ended if "took the connection but" in x], run_err.all
                 assert not [x for x in run_err.all if "cannot read" in x], run_err.all
             finally:
@@ -485,6 +496,8 @@ except LaneLost as e:
     print(f"lost: {e}", flush=True)
 except NoOutcome as e:
     print(f"no outcome: {e}", flush=True)
+except NoServer as e:  # killed before the wait began: no server took the lane again
+    print(f"no server: {e}", flush=True)
 try:
     print(f"state: {c.state()}", flush=True)
 except NoServer as e:
@@ -498,8 +511,10 @@ def test_a_lane_client_whose_server_was_killed_does_not_say_the_arm_moves(
 ) -> None:
     """An outside try: the server killed mid-move, the client's `state()` still said
     'moving', and `wait_for_state("ready", 3)` waited its 3 s to say "it is 'moving'". Now
-    a wait for a state ends as the lane closes, saying the state is unknown, and a read
-    after it, no server taking the lane again, says so too."""
+    a wait for a state ends as the lane closes, saying the state is unknown (one that
+    begins after it closed waits `wait_s` for a server to take the lane again, as a read
+    does: a CI run beside two busy loops killed the server first), and a read after it,
+    no server taking the lane again, says so too."""
     with served(config, tmp_path, "al5d_killed_reader_peer") as arm:
         script = tmp_path / "killed.py"
         script.write_text(KILLED)
@@ -508,8 +523,11 @@ def test_a_lane_client_whose_server_was_killed_does_not_say_the_arm_moves(
             out.wait_for("waiting", SCRIPT_S)
             with gone(family(arm.proc.popen.pid), "lane"):  # killed, its lane closed
                 lost = out.wait_for(": ", SCRIPT_S)
-                assert lost.startswith("lost: the lane to the owner closed"), out.all
-                assert "its state is unknown" in lost, lost
+                # The lane closed during the wait, or (a busy host) before it began.
+                assert lost.startswith(
+                    ("lost: the lane to the owner closed", "no server: the lane to the server")
+                ), out.all
+                assert "state is unknown" in lost, lost
                 read = out.wait_for(": ", SCRIPT_S)
                 assert read.startswith("no server: the lane to the server closed"), out.all
                 assert "the arm's state is unknown" in read, read
@@ -527,7 +545,8 @@ def test_ctrl_c_on_a_send_whose_server_is_frozen_says_its_cancel_unanswered(
     said after 0.8 s, while it is still awaited; the server back, the move is cancelled,
     said, and the command ends 130."""
     with served(config, tmp_path, "al5d_cancel_frozen_peer") as arm:
-        send, out, err = talking([AL5D, "send", "move base=80 time=6000"])
+        # Long: the move must still run when the cancel is taken (after the freeze).
+        send, out, err = talking([AL5D, "send", "move base=80 time=30000"])
         server = family(arm.proc.popen.pid)
         try:
             wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
@@ -563,7 +582,8 @@ def test_a_shells_stop_line_waits_for_its_answer_as_al5d_send_stop_does(
                 shell.stdin.write("stop\n")
                 shell.stdin.flush()
                 said = err.wait_for("no answer in 0.8 s by the local lane", SCRIPT_S)
-                assert "up to 9.2 s more" in said, said
+                # 10 s from the stop's start, less the 0.8 s and its hand-over.
+                assert re.search(r"up to 9\.\d s more", said), said
                 gave_up = out.wait_for("stop: no answer", SCRIPT_S)
                 assert "within 10 s" in gave_up, gave_up
                 assert shell.poll() is None  # the shell goes on

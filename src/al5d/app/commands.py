@@ -137,7 +137,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from al5d.interrupts import cancelling
 
     if args.check:
-        return check(args.file, args.poses, args.namespace)
+        return check(args.file, args.poses, args.namespace, args.wait)
     with cancelling():  # as in `cmd_send`
         return run(
             args.file,
@@ -150,9 +150,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         )
 
 
-def check(path: str, poses: str | None, namespace: str | None) -> int:
+def check(path: str, poses: str | None, namespace: str | None, wait_s: float) -> int:
     """`al5d run --check`: the file judged whole as `al5d run` judges it, against the
-    configuration of the server on this machine's lane, else the shipped one; nothing sent."""
+    configuration of the server on this machine's lane (waited for up to `wait_s`), else
+    the shipped one; nothing sent."""
     from al5d.app.report import each_line
     from al5d.arm.poses import PosesError, beside, load_poses
     from al5d.arm.sequence import judge_sequence, read_sequence
@@ -164,7 +165,7 @@ def check(path: str, poses: str | None, namespace: str | None) -> int:
     names = Names.of(namespace)
     whose = "the server"
     try:
-        config = local_config(where.path(names.namespace))
+        config = local_config(where.path(names.namespace), max(wait_s, 1.0))
     except LaneStalled as e:
         config = None
         whose = f"a server with the shipped configuration ({e})"

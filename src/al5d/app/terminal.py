@@ -19,6 +19,7 @@ import functools
 import sys
 import threading
 from collections.abc import Collection
+from concurrent.futures import TimeoutError as FutureTimeout
 from pathlib import Path
 from typing import TextIO
 
@@ -110,14 +111,15 @@ def _cancel(client: Client, report: Report, instr: Instruction) -> bool:
         report.line,
         [
             f"{what}: its cancel not answered in {quick.UNANSWERED_S:g} s (the server busy or "
-            "stalled); still waiting: Ctrl-C again leaves (`al5d send stop` halts the arm)"
+            "stalled); still waiting: Ctrl-C twice more leaves (`al5d send stop` halts the "
+            "arm)"
         ],
     )
     timer.daemon = True
     timer.start()
     try:
         return client.cancel(instr.id, "cancelled by Ctrl-C")
-    except TimeoutError:
+    except FutureTimeout:  # `Remote.cancel`'s own wait (the built-in one from 3.11 on)
         report.line(
             f"{what}: its cancel not answered: whether it runs on is unknown (`al5d send "
             "stop` halts the arm)"
@@ -221,7 +223,11 @@ def run(
         # A line of bad grammar is bad for every server: said at once, before one is found
         # its own way, with every other problem as the server on this machine's lane
         # judges it (instantly), or a server with the shipped configuration.
-        here = local_config(where.path(Names.of(namespace).namespace), max(wait_s, 1.0))
+        here = (
+            None
+            if via == "ros"  # the lane not asked: the way the user chose is ROS 2
+            else local_config(where.path(Names.of(namespace).namespace), max(wait_s, 1.0))
+        )
         first = judge_sequence(data, here or load_config(), str(path), book)
         if any(problem.grammar for problem in first.problems):
             raise first.error()

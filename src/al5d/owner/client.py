@@ -21,6 +21,7 @@ import threading
 import time
 from collections.abc import Callable, Hashable, Iterable
 from concurrent.futures import Future, InvalidStateError
+from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import TracebackType
@@ -123,14 +124,14 @@ class Remote:
             self._send(hello)
             left = timeout
             if slow is not None and timeout > quick.UNANSWERED_S:
-                with contextlib.suppress(TimeoutError):
+                with contextlib.suppress(FutureTimeout):
                     self._welcome.result(quick.UNANSWERED_S)
                 if not self._welcome.done():
                     slow()
                 left -= quick.UNANSWERED_S
             welcome = self._welcome.result(left)
             self.config: ArmConfig = parse_config(welcome["config"], "the server's configuration")
-        except TimeoutError:
+        except FutureTimeout:  # the built-in TimeoutError from Python 3.11 on only
             self.close()
             raise LaneStalled(f"the owner did not answer hello within {timeout:g} s") from None
         except BaseException:  # Ctrl-C, a welcome this version cannot read: nothing left open

@@ -90,6 +90,12 @@ def stop(namespace: str, timeout: float) -> int | None:
     except EOFError:
         print(f"stop [{ident}]: the server closed the lane without answering: {unknown}")
         return 1
+    except KeyboardInterrupt:
+        print(
+            f"stop [{ident}]: Ctrl-C: left before its answer: {unknown} (the server obeys it "
+            "when it takes it)"
+        )
+        return 130  # `al5d.exits.INTERRUPTED`, which this path does not import
     if outcome is None:
         return None
     ok = outcome.get("result") == "done"

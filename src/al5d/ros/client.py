@@ -278,9 +278,10 @@ class Client:
     def wait_for_state(self, state: str, timeout: float = OUTCOME_S) -> Reading:
         """Until the arm's state is `state` (a word, as `state` says it); the reading then.
         Raises NoOutcome if it was not within `timeout` seconds, `LaneLost` where the lane
-        closed meanwhile (the server ended: the arm's state is unknown)."""
+        closed meanwhile (the server ended: the arm's state is unknown), NoServer where it
+        had closed and no server took it again within `wait_s`, as `read`."""
         deadline = Deadline(timeout)
-        self._lane_back(timeout)
+        self._lane_back(min(timeout, self.wait_s))
         while True:
             # In slices: a lane that closes tells the view nothing (an outside try: the
             # server killed, this waited its whole timeout and said the arm was 'moving').

@@ -44,6 +44,9 @@ log = logging.getLogger("al5d")
 REOPEN_EVERY_S = 0.1
 #: The least wait for the answer to a stop, release or shutdown sent on a lane just opened.
 ANSWER_MIN_S = 1.0
+#: The least a new client waits for the owner's welcome, whatever its `wait_s`: an idle
+#: owner welcomes in milliseconds, a loaded one may take a second.
+WELCOME_MIN_S = 3.0
 
 
 class Way(Protocol):
@@ -86,7 +89,7 @@ class LaneWay:
         self._connect = connect
         # Within the client's own wait for a server, not the owner's (a stalled one: an
         # outside try's `al5d send --wait 2` waited 10 s).
-        self.lane = connect(max(wait_s, ANSWER_MIN_S))
+        self.lane = connect(max(wait_s, WELCOME_MIN_S))
         self.names = names
         self.wait_s = wait_s
         self.via = f"the local lane {where.path(names.namespace)}"
