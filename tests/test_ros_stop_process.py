@@ -562,6 +562,10 @@ from al5d.arm import instruction as ins
 from al5d.ros.client import Client
 with Client(namespace="", local=False, wait_s=60) as arm:
     arm.wait_for_server(60)
+    # The server's lease of its clients (a minute here): the client takes the server for
+    # lost only after it, so the frozen bridge is a full writer, not a lost server (without
+    # the lease, 1.5 s: a CI run beside two busy loops took longer to fill the writer).
+    arm.config()
     print("ready", flush=True)
     sys.stdin.readline()
     sent, errors = [0], []
