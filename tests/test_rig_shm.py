@@ -3,6 +3,7 @@ process's are kept (`al5d_rig.shm`)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -24,8 +25,16 @@ time.sleep(600)
 """
 
 
-def segments() -> set[str]:
-    return {n for n in os.listdir(shm.SHM) if shm._LOCK.match(n)}
+def held(pid: int) -> set[str]:
+    """The lock files in /dev/shm that process `pid` holds open (Fast DDS keeps each of its
+    segments' and ports' locks open while it lives)."""
+    names = set()
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        with contextlib.suppress(OSError):
+            target = Path(os.readlink(f"/proc/{pid}/fd/{fd}"))
+            if target.parent == shm.SHM and shm._LOCK.match(target.name):
+                names.add(target.name)
+    return names
 
 
 def inode(path: Path) -> int | None:
@@ -42,25 +51,33 @@ def participant() -> subprocess.Popen[str]:
 
 
 def test_a_killed_process_s_files_go_a_live_one_s_stay() -> None:
-    before = segments()
+    # Each participant's files are those it holds open, not those new since the test
+    # began: other tests' processes make and remove theirs meanwhile (an idle CI run saw
+    # another process's port lock gone, its port file still there, and took it for one
+    # the clean had half removed).
     live, killed = participant(), participant()
     try:
-        theirs = segments() - before
-        assert theirs, "the participants made no shared-memory files"
+        alive = held(live.pid)
+        dead = held(killed.pid) - alive
+        segment = {name for name in dead if "_port" not in name}
+        assert alive and segment, (alive, dead)
+        before = {name: inode(shm.SHM / name) for name in dead}
+        assert all((shm.SHM / name[:-3]).exists() for name in segment), segment
         killed.send_signal(signal.SIGKILL)
         killed.wait(30)
-        files = {name: inode(shm.SHM / name[:-3]) for name in theirs}
         shm.clean()
-        left = segments()
-        # The live one's segment stays (and every port some live process holds); at
-        # least the killed one's own segment is gone.
-        assert theirs & left, (theirs, left)
-        assert theirs - left, (theirs, left)
-        for name in theirs - left:
-            # Gone, or made again since by a process of another test (a port's number is
-            # the domain's: an idle CI run saw one there again).
-            now = inode(shm.SHM / name[:-3])
-            assert now is None or now != files[name], name
+        # The live one's files stay, each lock with its segment or port.
+        for name in alive:
+            assert (shm.SHM / name).exists() and (shm.SHM / name[:-3]).exists(), name
+        # The killed one's own segment goes, its lock and itself (its name is random: no
+        # other process makes it again).
+        for name in segment:
+            assert inode(shm.SHM / name) is None and inode(shm.SHM / name[:-3]) is None, name
+        # Its ports are numbered: another process may take one up since; none is left
+        # with the killed one's lock unowned.
+        for name in dead - segment:
+            lock = shm.SHM / name
+            assert inode(lock) != before[name] or shm._owned(lock), name
     finally:
         live.kill()
         live.wait(30)
