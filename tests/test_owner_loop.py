@@ -7,6 +7,7 @@ import contextlib
 import itertools
 import json
 import logging
+import math
 import shutil
 import socket
 import tempfile
@@ -582,3 +583,36 @@ def test_a_lane_stop_stamped_in_the_future_is_taken_as_sent_when_it_came(
         owner.close()
         ours.close()
         theirs.close()
+
+
+def test_a_leased_clients_signs_are_answered_so_that_it_hears_the_owner_turn(
+    config: ArmConfig,
+) -> None:
+    """An idle owner said nothing to its clients: one whose owner had frozen (its lane open)
+    could not tell it from a quiet one, and waited for an outcome without a word. A leased
+    client's signs (four a lease) are answered by the owner's thread: its `quiet` stays
+    short while the owner turns (without the answers it grew to the whole 3 s here); a
+    client not leased is told nothing while idle, and says so (None)."""
+    owner = Owner(config, VirtualTransport(Board(config, baud=config.server.baud))).start()
+    pairs = [socket.socketpair() for _ in range(2)]
+    try:
+        owner.wait_for_state(State.READY, 10)
+        for _, theirs in pairs:
+            owner.adopt(theirs)
+        with (
+            Remote(pairs[0][0], lease=True, watch=()) as leased,
+            Remote(pairs[1][0], watch=()) as idle,
+        ):
+            every = leased.settings.client_lease_s / 4
+            quiet: list[float] = []
+            end = time.monotonic() + 12 * every
+            while time.monotonic() < end:
+                time.sleep(every / 5)
+                quiet.append(leased.quiet() or math.inf)
+                assert idle.quiet() is None
+            assert max(quiet) < 6 * every, quiet
+    finally:
+        owner.close()
+        for pair in pairs:
+            for sock in pair:
+                sock.close()

@@ -592,3 +592,44 @@ def test_a_shells_stop_line_waits_for_its_answer_as_al5d_send_stop_does(
         finally:
             shell.kill()
             shell.wait(10)
+
+
+def test_a_request_in_flight_to_a_frozen_server_on_the_lane_is_said_while_it_waits(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """An outside try: with the server frozen (its lane open), a move already sent waited
+    in silence (a client's 16.5 s, a shell's line 20 s): the owner says nothing while idle,
+    so its silence was not seen. Now the owner answers each lease sign, and a move waited
+    for, by `al5d send` and by a shell's line, says within seconds that the server has
+    said nothing, while it still waits; thawed, each move ends done."""
+    with served(config, tmp_path, "al5d_lane_in_flight_peer") as arm:
+        shell, shell_out, shell_err = talking([AL5D, "shell", "--via", "lane"])
+        assert shell.stdin is not None
+        send: subprocess.Popen[str] | None = None
+        server = family(arm.proc.popen.pid)
+        try:
+            shell.stdin.write("ready\n")
+            shell.stdin.flush()
+            shell_out.wait_for("ready [", SCRIPT_S)
+            send, send_out, send_err = talking([AL5D, "send", "move base=40 time=4000"])
+            wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+            shell.stdin.write("move base=-20 time=500\n")
+            shell.stdin.flush()
+            with gone(server, "ros"):  # frozen, its lane open
+                for err in (send_err, shell_err):
+                    said = err.wait_for("no word from the server on this machine's lane", SCRIPT_S)
+                    assert "busy or stalled" in said and "still waiting, up to" in said, said
+                assert send.poll() is None and shell.poll() is None  # both still wait
+            done = send_out.wait_for("move [", SCRIPT_S)
+            assert "done" in done, done
+            assert send.wait(SCRIPT_S) == 0
+            line = shell_out.wait_for("move [", SCRIPT_S)
+            assert "done" in line, shell_out.all
+            shell.stdin.close()
+            assert shell.wait(SCRIPT_S) == 0
+            assert not [x for x in send_err.all + shell_err.all if "Traceback" in x]
+        finally:
+            for proc in (shell, send):
+                if proc is not None:
+                    proc.kill()
+                    proc.wait(10)

@@ -105,6 +105,10 @@ class Remote:
         )
         #: Set once when the lane closes (the owner has ended, or the socket failed).
         self.closed = threading.Event()
+        #: When the owner was last heard (monotonic): a leased client's signs are answered
+        #: by the owner's thread, so a silence is the owner's (`quiet`).
+        self.heard = time.monotonic()
+        self.leased = lease
         self._welcome: Future[dict[str, Any]] = Future()
         self._pose: dict[str, float | None] = {}
         self._motion: Motion | None = None
@@ -163,6 +167,13 @@ class Remote:
                 self._send({"op": "sign"})
             except LaneClosed:
                 return
+
+    def quiet(self) -> float | None:
+        """For how long the owner has said nothing (s); None where this client is not leased
+        (an idle owner says nothing to it) or the lane has closed."""
+        if not self.leased or self.closed.is_set():
+            return None
+        return time.monotonic() - self.heard
 
     @classmethod
     def connect(cls, path: Path, **kwargs: Any) -> Remote:
@@ -321,6 +332,7 @@ class Remote:
                 data = self._sock.recv(65536)
                 if not data:
                     break
+                self.heard = time.monotonic()
                 for message in lines.feed(data):
                     if isinstance(message, ln.LaneError):
                         raise message

@@ -180,7 +180,9 @@ class Desk:
             elif op == "ping":
                 self._send(conn, {"op": "pong", "ref": ref, "t": now()})
             elif op == "sign":  # a leased client is there (`Conn.heard`, set as it was read)
-                pass
+                # Answered by the owner's thread: the client's sign that the owner turns (a
+                # frozen owner's lane stays open and says nothing: `Remote.quiet`).
+                self._send(conn, {"op": "signed"})
             elif op == "bye":
                 conn.bye = True
             elif op == "gone":

@@ -21,6 +21,9 @@ log = logging.getLogger("al5d")
 
 #: A stop, a release or a shutdown is answered at once.
 ANSWER_S = 10.0
+#: A silence of the server this long is said at once (a WARNING) by a client that waits
+#: for it, before it gives up.
+SILENCE_SAID_S = 1.0
 #: How long a client waits past its timeout for the server's word on what it gave up on:
 #: the server cancels it, or halts it, at the same deadline (`Instruction.wait_ms`), and
 #: says so.

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -23,6 +24,7 @@ from al5d.owner.client import WELCOME_S, LaneClosed, Remote
 from al5d.owner.lane import outcome_in
 from al5d.ros.answers import (
     GIVE_UP_WORD_S,
+    SILENCE_SAID_S,
     Answer,
     LaneLost,
     NoOutcome,
@@ -40,6 +42,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("al5d")
 
+#: A wait for an outcome looks at the owner's silence this often (`LaneWay._silence`).
+WATCH_EVERY_S = 0.25
 #: A lane found closed is tried again this often while a call waits for its server.
 REOPEN_EVERY_S = 0.1
 #: The least wait for the answer to a stop, release or shutdown sent on a lane just opened.
@@ -99,6 +103,11 @@ class LaneWay:
         self._view: ArmView | None = None
         self._reopening = threading.Lock()
         self._closed = False
+        #: Each instruction sent: its name and when its sender gives up on it (monotonic).
+        self._waits: dict[str, tuple[str, float]] = {}
+        #: The owner's last word before a silence said (`_silence`: once an outage).
+        self._silence_said: float | None = None
+        self._said_lock = threading.Lock()
 
     def _open(self, what: str, patience: float) -> Remote:
         """The lane for `what` (an instruction's name), opened again if it has closed and a
@@ -162,6 +171,7 @@ class LaneWay:
         instr = replace(instr, wait_ms=wait_ms(wait_s))
         with ctrl_c_after():
             future = self._futures[instr.id] = lane.submit(instr)
+            self._waits[instr.id] = (instr.name, time.monotonic() + wait_s)
             watcher = self._watchers.pop(instr.id, None)
             if watcher is not None:
                 _watch(future, watcher)
@@ -177,12 +187,43 @@ class LaneWay:
         future = self._futures.get(ident)
         if future is None:
             return None
+        deadline = Deadline(timeout)
         try:
-            return future.result(timeout)
-        except FutureTimeout:
-            return None
+            while True:
+                with contextlib.suppress(FutureTimeout):
+                    return future.result(max(min(deadline.left(), WATCH_EVERY_S), 0.0))
+                self._silence(ident)  # also for a glance (`LinkWatch`'s at a background line)
+                if deadline.expired:
+                    return None
         except LaneClosed as e:
             raise LaneLost(f"[{ident}]: {e}: whether it ran is unknown") from None
+
+    def _silence(self, ident: str) -> None:
+        """A silence of the owner (`Remote.quiet`) said at once, a WARNING once an outage,
+        while `ident` waits: a frozen server's lane stays open and says nothing (an outside
+        try: a client's move waited 16.5 s without a word). The wait goes on: the owner
+        gives the move up at its sender's deadline (`Instruction.wait_ms`), however late
+        it turns again."""
+        lane = self.lane
+        quiet = lane.quiet()
+        if quiet is None or quiet <= SILENCE_SAID_S:
+            return
+        with self._said_lock:
+            if self._silence_said == lane.heard:
+                return
+            self._silence_said = lane.heard
+        name, give_up = self._waits.get(ident, ("", math.inf))
+        log.warning(
+            "%s [%s]: no word from the server on this machine's lane for %.1f s (busy or "
+            "stalled: a frozen process?); still waiting%s",
+            name or "instruction",
+            ident,
+            quiet,
+            f", up to {give_up - time.monotonic():.1f} s more: the server does not go on "
+            "with it after that"
+            if give_up < math.inf
+            else "",
+        )
 
     def execute(self, instr: Instruction, timeout: float) -> Outcome:
         self.send(instr, timeout)
@@ -199,6 +240,7 @@ class LaneWay:
 
     def forget(self, ident: str) -> None:
         self._futures.pop(ident, None)
+        self._waits.pop(ident, None)
 
     def sent(self, ident: str) -> bool:
         return ident in self._futures

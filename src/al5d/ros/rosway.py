@@ -27,6 +27,7 @@ from al5d.interrupts import ctrl_c_after
 from al5d.ros.answers import (
     ANSWER_S,
     GIVE_UP_WORD_S,
+    SILENCE_SAID_S,
     Answer,
     LostContact,
     NoOutcome,
@@ -65,9 +66,6 @@ SERVICE_GRACE_S = 5.0
 #: whose client it has not matched 100 ms after the request (ros2/rmw_fastrtps#390), which
 #: on a loaded machine can befall a new client's first call.
 SERVICE_SETTLE_S = 0.5
-#: A silence this long is said at once (a WARNING) by a client that waits for the server,
-#: before it gives up.
-SILENCE_SAID_S = 1.0
 #: A client that has not found its server in this long names the servers it sees under other
 #: namespaces at once (a WARNING), before it gives up.
 OTHERS_SAID_AFTER_S = 1.0
