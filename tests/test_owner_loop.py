@@ -25,7 +25,7 @@ from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Kind, Point
 from al5d.arm.states import State
 from al5d.owner import lane as ln
-from al5d.owner.client import Remote
+from al5d.owner.client import SIGN_EVERY_MAX_S, Remote
 from al5d.owner.loop import Owner
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator.board import Board
@@ -585,14 +585,19 @@ def test_a_lane_stop_stamped_in_the_future_is_taken_as_sent_when_it_came(
         theirs.close()
 
 
+@pytest.mark.parametrize("lease_s", [1.0, 60.0])
 def test_a_leased_clients_signs_are_answered_so_that_it_hears_the_owner_turn(
-    config: ArmConfig,
+    config: ArmConfig, lease_s: float
 ) -> None:
     """An idle owner said nothing to its clients: one whose owner had frozen (its lane open)
     could not tell it from a quiet one, and waited for an outcome without a word. A leased
-    client's signs (four a lease) are answered by the owner's thread: its `quiet` stays
-    short while the owner turns (without the answers it grew to the whole 3 s here); a
-    client not leased is told nothing while idle, and says so (None)."""
+    client's signs (four a second at least) are answered by the owner's thread: its
+    `quiet` stays short while the owner turns (without the answers it grew to the whole
+    3 s here); a client not leased is told nothing while idle, and says so (None). A long
+    lease signs as often (a 60 s lease signed every 15 s: a client could not tell a
+    turning owner from a frozen one)."""
+    server = config.server.model_copy(update={"client_lease_s": lease_s})
+    config = config.model_copy(update={"server": server})
     owner = Owner(config, VirtualTransport(Board(config, baud=config.server.baud))).start()
     pairs = [socket.socketpair() for _ in range(2)]
     try:
@@ -603,12 +608,13 @@ def test_a_leased_clients_signs_are_answered_so_that_it_hears_the_owner_turn(
             Remote(pairs[0][0], lease=True, watch=()) as leased,
             Remote(pairs[1][0], watch=()) as idle,
         ):
-            every = leased.settings.client_lease_s / 4
+            every = SIGN_EVERY_MAX_S
             quiet: list[float] = []
             end = time.monotonic() + 12 * every
             while time.monotonic() < end:
                 time.sleep(every / 5)
-                quiet.append(leased.quiet() or math.inf)
+                said = leased.quiet()
+                quiet.append(math.inf if said is None else said)
                 assert idle.quiet() is None
             assert max(quiet) < 6 * every, quiet
     finally:

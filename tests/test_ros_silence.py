@@ -594,23 +594,42 @@ def test_a_shells_stop_line_waits_for_its_answer_as_al5d_send_stop_does(
             shell.wait(10)
 
 
+#: A client over the lane that asks a release when told (a new one could not reach a
+#: frozen server: it would wait for its welcome).
+RELEASE = """
+import sys
+from al5d.ros.client import Client
+c = Client(wait_s=30, local=True)
+print("ready", flush=True)
+sys.stdin.readline()
+print(c.release(timeout=60), flush=True)
+c.close()
+"""
+
+
 def test_a_request_in_flight_to_a_frozen_server_on_the_lane_is_said_while_it_waits(
     config: ArmConfig, tmp_path: Path
 ) -> None:
     """An outside try: with the server frozen (its lane open), a move already sent waited
     in silence (a client's 16.5 s, a shell's line 20 s): the owner says nothing while idle,
     so its silence was not seen. Now the owner answers each lease sign, and a move waited
-    for, by `al5d send` and by a shell's line, says within seconds that the server has
-    said nothing, while it still waits; thawed, each move ends done."""
+    for, by `al5d send` and by a shell's line, and a client's release, say within seconds
+    that the server has said nothing, while they still wait; thawed, each move ends
+    done, the release is answered."""
     with served(config, tmp_path, "al5d_lane_in_flight_peer") as arm:
         shell, shell_out, shell_err = talking([AL5D, "shell", "--via", "lane"])
         assert shell.stdin is not None
         send: subprocess.Popen[str] | None = None
+        release: subprocess.Popen[str] | None = None
         server = family(arm.proc.popen.pid)
         try:
             shell.stdin.write("ready\n")
             shell.stdin.flush()
             shell_out.wait_for("ready [", SCRIPT_S)
+            script = tmp_path / "release.py"
+            script.write_text(RELEASE)
+            release, release_out, release_err = talking([sys.executable, str(script)])
+            release_out.wait_for("ready", SCRIPT_S)
             send, send_out, send_err = talking([AL5D, "send", "move base=40 time=4000"])
             wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
             shell.stdin.write("move base=-20 time=500\n")
@@ -620,16 +639,60 @@ def test_a_request_in_flight_to_a_frozen_server_on_the_lane_is_said_while_it_wai
                     said = err.wait_for("no word from the server on this machine's lane", SCRIPT_S)
                     assert "busy or stalled" in said and "still waiting, up to" in said, said
                 assert send.poll() is None and shell.poll() is None  # both still wait
+                # A release's answer awaited: said too (it is no move: no deadline to say).
+                assert release.stdin is not None
+                release.stdin.write("release\n")
+                release.stdin.flush()
+                said = release_err.wait_for("no word from the server", SCRIPT_S)
+                assert said.startswith("release ["), said
+                assert release.poll() is None
             done = send_out.wait_for("move [", SCRIPT_S)
             assert "done" in done, done
             assert send.wait(SCRIPT_S) == 0
             line = shell_out.wait_for("move [", SCRIPT_S)
             assert "done" in line, shell_out.all
+            # The arm was not stopped: refused, once the server answers.
+            assert "refused" in release_out.wait_for("release", SCRIPT_S)
+            assert release.wait(SCRIPT_S) == 0
             shell.stdin.close()
             assert shell.wait(SCRIPT_S) == 0
             assert not [x for x in send_err.all + shell_err.all if "Traceback" in x]
         finally:
-            for proc in (shell, send):
+            for proc in (shell, send, release):
                 if proc is not None:
                     proc.kill()
                     proc.wait(10)
+
+
+def test_a_ros_client_of_a_server_whose_owner_alone_stalls_is_told_and_its_move_halted(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """An outside try: with the owner frozen and its ROS 2 bridge alive, `al5d send --via
+    ros` said nothing for 11 s: the bridge went on publishing joint states (where the last
+    move told had the arm by then) and so answered the client's lease. Now the bridge,
+    not hearing its owner for its lease, publishes none and says why: the client says the
+    silence and gives up naming the lost contact, and the owner, thawed, halts the move
+    as the lost client's (it was to run 60 s)."""
+    with served(config, tmp_path, "al5d_owner_alone_peer") as arm:
+        send, out, err = talking([AL5D, "send", "--via", "ros", "move base=60 time=60000"])
+        owner = arm.proc.popen.pid
+        try:
+            wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+            freeze(owner)
+            try:
+                said = err.wait_for("no sign of the server for", SCRIPT_S)
+                assert said_silence(said) >= 1.0, said
+                assert send.wait(SCRIPT_S) != 0
+            finally:
+                os.kill(owner, signal.SIGCONT)
+            lost = out.wait_for("lost contact with the server", SCRIPT_S)
+            assert lost.startswith("move ["), lost
+            arm.proc.err.wait_for_each(
+                ["the owner has said nothing for", "lost contact with client", "heard again"],
+                SCRIPT_S,
+            )
+            # Halted well before its 60 s (after the thaw: the bridge's loss of the client).
+            wait_until(lambda: arm.states[-1] == "ready", STATE_S, "ready")
+        finally:
+            send.kill()
+            send.wait(10)

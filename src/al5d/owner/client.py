@@ -12,11 +12,14 @@ The arm's configuration is the server's, as its `welcome` says.
 
 from __future__ import annotations
 
+import array
 import contextlib
+import fcntl
 import itertools
 import logging
 import math
 import socket
+import termios
 import threading
 import time
 from collections.abc import Callable, Hashable, Iterable
@@ -45,8 +48,10 @@ WELCOME_S = 10.0
 
 
 #: A leased client signs this many times in the owner's lease of it: a busy host may hold
-#: one or two back.
+#: one or two back; and at least every `SIGN_EVERY_MAX_S`, as the owner answers each: a
+#: client hears a turning owner within that however long its lease (`Remote.quiet`).
 SIGNS_PER_LEASE = 4
+SIGN_EVERY_MAX_S = 0.25
 
 
 class LaneClosed(ConnectionError):
@@ -106,9 +111,10 @@ class Remote:
         #: Set once when the lane closes (the owner has ended, or the socket failed).
         self.closed = threading.Event()
         #: When the owner was last heard (monotonic): a leased client's signs are answered
-        #: by the owner's thread, so a silence is the owner's (`quiet`).
+        #: by the owner's thread, so a silence is the owner's (`quiet`), where its welcome
+        #: says it answers them (`_signs`: an owner of an older version answers none).
         self.heard = time.monotonic()
-        self.leased = lease
+        self._signs = False
         self._welcome: Future[dict[str, Any]] = Future()
         self._pose: dict[str, float | None] = {}
         self._motion: Motion | None = None
@@ -150,8 +156,9 @@ class Remote:
         self.baud: int = welcome["baud"]
         self.client: int = welcome["client"]
         self.pid: int = welcome["pid"]
+        self._signs = lease and welcome.get("signs") is True
         if lease:
-            every = self.settings.client_lease_s / SIGNS_PER_LEASE
+            every = min(self.settings.client_lease_s / SIGNS_PER_LEASE, SIGN_EVERY_MAX_S)
             threading.Thread(
                 target=self._sign, args=(every,), name=f"{name}-lease", daemon=True
             ).start()
@@ -169,10 +176,17 @@ class Remote:
                 return
 
     def quiet(self) -> float | None:
-        """For how long the owner has said nothing (s); None where this client is not leased
-        (an idle owner says nothing to it) or the lane has closed."""
-        if not self.leased or self.closed.is_set():
+        """For how long the owner has said nothing (s), what it has sent and this client's
+        reader has not yet read counting as said (a reader held back is not a silent
+        owner); None where this client is not leased (an idle owner says nothing to it),
+        its owner answers no signs (an older version), or the lane has closed."""
+        if not self._signs or self.closed.is_set():
             return None
+        unread = array.array("i", [0])
+        with contextlib.suppress(OSError):  # closed meanwhile: said by `closed` next time
+            fcntl.ioctl(self._sock.fileno(), termios.FIONREAD, unread)
+        if unread[0] > 0:
+            return 0.0
         return time.monotonic() - self.heard
 
     @classmethod

@@ -582,6 +582,7 @@ class Owner:
             "baud": self.baud,
             "pid": os.getpid(),
             "client": conn.ident,
+            "signs": True,  # each sign of a leased client answered (`Remote.quiet`)
             "state": c.state.value,
             "locked": c.locked,
             "pose": c.book.pose,

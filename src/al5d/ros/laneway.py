@@ -171,7 +171,9 @@ class LaneWay:
         instr = replace(instr, wait_ms=wait_ms(wait_s))
         with ctrl_c_after():
             future = self._futures[instr.id] = lane.submit(instr)
-            self._waits[instr.id] = (instr.name, time.monotonic() + wait_s)
+            # 0: waited for for ever (`wait_ms`), so never given up on.
+            give_up = time.monotonic() + wait_s if instr.wait_ms else math.inf
+            self._waits[instr.id] = (instr.name, give_up)
             watcher = self._watchers.pop(instr.id, None)
             if watcher is not None:
                 _watch(future, watcher)
@@ -187,42 +189,54 @@ class LaneWay:
         future = self._futures.get(ident)
         if future is None:
             return None
-        deadline = Deadline(timeout)
         try:
-            while True:
-                with contextlib.suppress(FutureTimeout):
-                    return future.result(max(min(deadline.left(), WATCH_EVERY_S), 0.0))
-                self._silence(ident)  # also for a glance (`LinkWatch`'s at a background line)
-                if deadline.expired:
-                    return None
+            return self._result(future, timeout, ident)
         except LaneClosed as e:
             raise LaneLost(f"[{ident}]: {e}: whether it ran is unknown") from None
 
-    def _silence(self, ident: str) -> None:
+    def _result(
+        self, future: Future[Outcome], timeout: float, ident: str, name: str = "instruction"
+    ) -> Outcome | None:
+        """`future`'s outcome (of instruction `ident`) within `timeout` s, else None; the
+        owner's silence said meanwhile (`_silence`)."""
+        deadline = Deadline(timeout)
+        while True:
+            with contextlib.suppress(FutureTimeout):
+                return future.result(max(min(deadline.left(), WATCH_EVERY_S), 0.0))
+            self._silence(ident, name)  # also for a glance (`LinkWatch`'s at a background line)
+            if deadline.expired:
+                return None
+
+    def _silence(self, ident: str, name: str) -> None:
         """A silence of the owner (`Remote.quiet`) said at once, a WARNING once an outage,
         while `ident` waits: a frozen server's lane stays open and says nothing (an outside
         try: a client's move waited 16.5 s without a word). The wait goes on: the owner
         gives the move up at its sender's deadline (`Instruction.wait_ms`), however late
         it turns again."""
         lane = self.lane
+        heard = lane.heard  # read once: what it says of is this silence's
         quiet = lane.quiet()
         if quiet is None or quiet <= SILENCE_SAID_S:
             return
         with self._said_lock:
-            if self._silence_said == lane.heard:
+            if self._silence_said == heard:
                 return
-            self._silence_said = lane.heard
-        name, give_up = self._waits.get(ident, ("", math.inf))
+            self._silence_said = heard
+        name, give_up = self._waits.get(ident, (name, math.inf))
+        left = give_up - time.monotonic()
+        if left == math.inf:
+            then = ""
+        elif left > 0:
+            then = f", up to {left:.1f} s more: the server does not go on with it after that"
+        else:  # said in the margin after its sender's wait (`GIVE_UP_WORD_S`)
+            then = ": its sender's wait is over, and the server gives it up as it turns again"
         log.warning(
             "%s [%s]: no word from the server on this machine's lane for %.1f s (busy or "
             "stalled: a frozen process?); still waiting%s",
-            name or "instruction",
+            name,
             ident,
             quiet,
-            f", up to {give_up - time.monotonic():.1f} s more: the server does not go on "
-            "with it after that"
-            if give_up < math.inf
-            else "",
+            then,
         )
 
     def execute(self, instr: Instruction, timeout: float) -> Outcome:
@@ -266,18 +280,22 @@ class LaneWay:
         else:
             deadline = Deadline(timeout)
             lane = self._open(kind.value, timeout)
+            instr = Instruction(kind)
             try:
                 # A lane opened again late in the wait still gives the answer its moment.
-                outcome = lane.submit(Instruction(kind)).result(max(deadline.left(), ANSWER_MIN_S))
-            except FutureTimeout:
-                raise NoOutcome(
-                    f"{kind.value}: no answer on the local lane within {timeout:g} s "
-                    "(whether the server obeyed is unknown)"
-                ) from None
+                answer = self._result(
+                    lane.submit(instr), max(deadline.left(), ANSWER_MIN_S), instr.id, kind.value
+                )
             except LaneClosed as e:
                 raise NoOutcome(
                     f"{kind.value}: {e} (whether the server obeyed is unknown)"
                 ) from None
+            if answer is None:
+                raise NoOutcome(
+                    f"{kind.value}: no answer on the local lane within {timeout:g} s "
+                    "(whether the server obeyed is unknown)"
+                )
+            outcome = answer
         message = outcome.reason or f"{kind.value}: {outcome.result.value}"
         return Answer(kind.value, outcome.ok, message, "the local lane")
 

@@ -45,6 +45,7 @@ from al5d.owner.lane import LaneError
 from al5d.owner.teller import RefusalLog, Repeats
 from al5d.ros import params
 from al5d.ros.actions import MoveAction
+from al5d.ros.answers import SILENCE_SAID_S
 from al5d.ros.controllers import FollowTrajectoryAction, GripperAction
 from al5d.ros.convert import (
     COPY_MARK,
@@ -422,6 +423,10 @@ class RobotNode(Node):
             1.0 / settings.idle_joint_state_rate_hz, self._idle_tick
         )
         arm.motion_listeners.append(self._on_motion)
+        #: The owner unheard this long (its lease of this bridge, 1 s at least): no joint
+        #: states (`_owner_silent`).
+        self._owner_silence_s = max(settings.client_lease_s, SILENCE_SAID_S)
+        self._silence_said = False
 
     def set_rates(self, settings: ServerSettings) -> None:
         """The joint-state rates changed (a parameter, at run time): the timer running now
@@ -447,8 +452,32 @@ class RobotNode(Node):
                 self.idle_timer.cancel()
                 self.moving_timer.reset()
 
+    def _owner_silent(self) -> bool:
+        """Whether the owner has said nothing for `_owner_silence_s`, its lane open (a frozen
+        or stalled process; it answers this bridge's lease signs four times a second).
+        Then no joint states go out: they would say where the last move told has the arm
+        by now, which nobody knows, and the ROS clients, hearing none, take the server
+        for lost as over a lost link and say so (`al5d.ros.leasing`; an outside try: with
+        the owner frozen a move over ROS 2 waited 11 s in silence, and a web page showed
+        a healthy arm). Said once each way."""
+        quiet = self.arm.quiet()
+        silent = quiet is not None and quiet > self._owner_silence_s
+        if silent != self._silence_said:
+            self._silence_said = silent
+            if silent:
+                log.warning(
+                    "the owner has said nothing for %.1f s (busy or stalled): no joint states "
+                    "until it does (the ROS clients take the server for lost)",
+                    quiet,
+                )
+            else:
+                log.info("the owner is heard again: joint states go out again")
+        return silent
+
     def _tick(self) -> None:
         """/joint_states and /tf (radians, REP 103) at the moving rate, until a second at rest."""
+        if self._owner_silent():
+            return
         changed = self.robot.publish(self.arm.positions())
         with self._rate_lock:
             self._quiet = 0 if changed else self._quiet + 1
@@ -461,7 +490,7 @@ class RobotNode(Node):
         """The same at the idle rate."""
         # A change that no written move announced (a stop's or a reconnection's read-back)
         # brings the moving rate back too.
-        if self.robot.publish(self.arm.positions()):
+        if not self._owner_silent() and self.robot.publish(self.arm.positions()):
             self._speed_up()
 
 
