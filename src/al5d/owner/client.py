@@ -110,10 +110,12 @@ class Remote:
         )
         #: Set once when the lane closes (the owner has ended, or the socket failed).
         self.closed = threading.Event()
-        #: When the owner was last heard (monotonic): a leased client's signs are answered
-        #: by the owner's thread, so a silence is the owner's (`quiet`), where its welcome
-        #: says it answers them (`_signs`: an owner of an older version answers none).
-        self.heard = time.monotonic()
+        #: When the first of this client's signs that the owner has not answered since it
+        #: was last heard went (monotonic; None: none such). The owner's thread answers
+        #: each, where its welcome says so (`_signs`: an older version answers none), so a
+        #: silence counted from there is the owner's, not this process's own stall
+        #: (`quiet`: a process stopped and resumed sends its next sign first).
+        self.unanswered: float | None = None
         self._signs = False
         self._welcome: Future[dict[str, Any]] = Future()
         self._pose: dict[str, float | None] = {}
@@ -170,24 +172,30 @@ class Remote:
         # Quietly where the OS refuses it (a user's command is not to warn of it each time).
         make_urgent("the lane's signs", quiet=True)
         while not self.closed.wait(every):
+            if self.unanswered is None:
+                self.unanswered = time.monotonic()
             try:
                 self._send({"op": "sign"})
             except LaneClosed:
                 return
 
     def quiet(self) -> float | None:
-        """For how long the owner has said nothing (s), what it has sent and this client's
-        reader has not yet read counting as said (a reader held back is not a silent
-        owner); None where this client is not leased (an idle owner says nothing to it),
-        its owner answers no signs (an older version), or the lane has closed."""
+        """For how long the owner has left a sign of this client's unanswered (s), what it
+        has sent and this client's reader has not yet read counting as an answer (a
+        reader held back is not a silent owner); None where this client is not leased
+        (an idle owner says nothing to it), its owner answers no signs (an older
+        version), or the lane has closed."""
         if not self._signs or self.closed.is_set():
             return None
+        asked = self.unanswered
+        if asked is None:
+            return 0.0
         unread = array.array("i", [0])
         with contextlib.suppress(OSError):  # closed meanwhile: said by `closed` next time
             fcntl.ioctl(self._sock.fileno(), termios.FIONREAD, unread)
         if unread[0] > 0:
             return 0.0
-        return time.monotonic() - self.heard
+        return max(time.monotonic() - asked, 0.0)
 
     @classmethod
     def connect(cls, path: Path, **kwargs: Any) -> Remote:
@@ -346,7 +354,7 @@ class Remote:
                 data = self._sock.recv(65536)
                 if not data:
                     break
-                self.heard = time.monotonic()
+                self.unanswered = None  # the owner said something: it turns
                 for message in lines.feed(data):
                     if isinstance(message, ln.LaneError):
                         raise message

@@ -105,7 +105,7 @@ class LaneWay:
         self._closed = False
         #: Each instruction sent: its name and when its sender gives up on it (monotonic).
         self._waits: dict[str, tuple[str, float]] = {}
-        #: The owner's last word before a silence said (`_silence`: once an outage).
+        #: The silence said (`_silence`: once each, by its first sign unanswered).
         self._silence_said: float | None = None
         self._said_lock = threading.Lock()
 
@@ -214,14 +214,14 @@ class LaneWay:
         gives the move up at its sender's deadline (`Instruction.wait_ms`), however late
         it turns again."""
         lane = self.lane
-        heard = lane.heard  # read once: what it says of is this silence's
+        since = lane.unanswered  # read once: this silence's, which is said once
         quiet = lane.quiet()
-        if quiet is None or quiet <= SILENCE_SAID_S:
+        if since is None or quiet is None or quiet <= SILENCE_SAID_S:
             return
         with self._said_lock:
-            if self._silence_said == heard:
+            if self._silence_said == since:
                 return
-            self._silence_said = heard
+            self._silence_said = since
         name, give_up = self._waits.get(ident, (name, math.inf))
         left = give_up - time.monotonic()
         if left == math.inf:
