@@ -344,6 +344,55 @@ def test_a_client_killed_or_hung_mid_move_leaves_nothing_moving(arm: Served, how
         client.wait(10)
 
 
+#: A client over the lane whose move is cut by its own stop (SIGSTOP by the test, for
+#: longer than its lease), then asks again.
+STOPPED_CLIENT = """
+from al5d.ros.client import Client, LaneLost
+c = Client(wait_s=30, local=True)
+print("ready", flush=True)
+try:
+    c.execute("move base=70 time=8000", timeout=60)
+except LaneLost as e:
+    print(f"lost: {e}", flush=True)
+print(f"again: {c.state()}", flush=True)
+c.close()
+"""
+
+
+def test_a_client_stopped_for_longer_than_its_lease_is_told_why_its_lane_closed(
+    arm: Served,
+) -> None:
+    """An outside try: a client stopped (Ctrl-Z) for longer than its lease and resumed said
+    that the server had ended ("the lane to the owner closed: whether it ran is unknown",
+    then "the server's lane had closed (the server ended)"), where the server had taken
+    it for lost and halted its move. Now the owner says why as it closes the lane, and
+    the client says that."""
+    arm.ready()
+    client = subprocess.Popen(
+        [sys.executable, "-c", STOPPED_CLIENT],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert client.stdout is not None and said(client.stdout) == "ready"
+        wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
+        client.send_signal(signal.SIGSTOP)
+        wait_until(lambda: arm.states[-1] == "ready", CMD_S, "halted as a lost client's")
+        client.send_signal(signal.SIGCONT)
+        lost = said(client.stdout)
+        assert "the server took this client for lost (nothing heard from it" in lost, lost
+        assert "halts what this client commanded" in lost and "unknown" not in lost, lost
+        assert said(client.stdout) == "again: ready"
+        _, err = client.communicate(timeout=CMD_S)
+        assert "the server had taken this client for lost" in err, err
+        assert "the server ended" not in err, err
+        assert client.returncode == 0
+    finally:
+        client.kill()
+        client.wait(10)
+
+
 def lane_socket() -> socket.socket:
     """A raw connection to the server's lane: the lines a client of any language writes."""
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)

@@ -22,7 +22,16 @@ import pytest
 from al5d import exits
 from al5d.arm.config import ArmConfig
 from al5d.ros.rosway import silence_warning
-from al5d_rig.proc import AL5D, Lines, Tty, dies_with_parent, family, freeze, kill_all
+from al5d_rig.proc import (
+    AL5D,
+    Lines,
+    Tty,
+    dies_with_parent,
+    family,
+    freeze,
+    kill_all,
+    patient_config,
+)
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import served
 
@@ -664,16 +673,20 @@ def test_a_request_in_flight_to_a_frozen_server_on_the_lane_is_said_while_it_wai
                     proc.wait(10)
 
 
+@pytest.mark.parametrize("lease_s", [1.0, 60.0])
 def test_a_ros_client_of_a_server_whose_owner_alone_stalls_is_told_and_its_move_halted(
-    config: ArmConfig, tmp_path: Path
+    config: ArmConfig, tmp_path: Path, lease_s: float
 ) -> None:
     """An outside try: with the owner frozen and its ROS 2 bridge alive, `al5d send --via
     ros` said nothing for 11 s: the bridge went on publishing joint states (where the last
     move told had the arm by then) and so answered the client's lease. Now the bridge,
     not hearing its owner for its lease, publishes none and says why: the client says the
     silence and gives up naming the lost contact, and the owner, thawed, halts the move
-    as the lost client's (it was to run 60 s)."""
-    with served(config, tmp_path, "al5d_owner_alone_peer") as arm:
+    as the lost client's (it was to run 60 s). With a 60 s lease the joint states stop
+    as soon (an outside try: they went on for the whole lease), the client's lease runs
+    on for a minute: its move is not halted within this test."""
+    lease = patient_config(client_lease_s=lease_s)
+    with served(config, tmp_path, "al5d_owner_alone_peer", lease) as arm:
         send, out, err = talking([AL5D, "send", "--via", "ros", "move base=60 time=60000"])
         owner = arm.proc.popen.pid
         try:
@@ -687,6 +700,11 @@ def test_a_ros_client_of_a_server_whose_owner_alone_stalls_is_told_and_its_move_
                 os.kill(owner, signal.SIGCONT)
             lost = out.wait_for("lost contact with the server", SCRIPT_S)
             assert lost.startswith("move ["), lost
+            if lease_s > 10:
+                said = arm.proc.err.wait_for("the owner has said nothing for", SCRIPT_S)
+                found = re.search(r"said nothing for (\d+\.\d) s", said)
+                assert found is not None and float(found.group(1)) < 10, said  # not its lease
+                return
             arm.proc.err.wait_for_each(
                 ["the owner has said nothing for", "lost contact with client", "heard again"],
                 SCRIPT_S,

@@ -102,10 +102,13 @@ def _serving(
 
 
 @contextmanager
-def served(config: ArmConfig, workdir: Path, name: str) -> Iterator[Served]:
+def served(
+    config: ArmConfig, workdir: Path, name: str, config_file: str | None = None
+) -> Iterator[Served]:
     """A server on a board behind a link in `workdir`, ready, and a peer named `name` that
-    has matched it."""
-    with _serving(config, workdir, name, patient_config()) as (emu, proc, peer):
+    has matched it; its configuration `config_file` (`patient_config()` unless given)."""
+    config_file = config_file or patient_config()
+    with _serving(config, workdir, name, config_file) as (emu, proc, peer):
         states: list[str] = []
 
         def on_state(msg: String) -> None:

@@ -117,6 +117,9 @@ class Remote:
         #: (`quiet`: a process stopped and resumed sends its next sign first).
         self.unanswered: float | None = None
         self._signs = False
+        #: Why the owner took this client for lost, where it said so before it closed the
+        #: lane (a client stopped and resumed: not a server that ended).
+        self.lost_why = ""
         self._welcome: Future[dict[str, Any]] = Future()
         self._pose: dict[str, float | None] = {}
         self._motion: Motion | None = None
@@ -370,6 +373,8 @@ class Remote:
             self._settle(m.get("ref"), ln.outcome_in(m["outcome"]))
         elif op in ("reply",):
             self._settle(m.get("ref"), bool(m.get("ok")))
+        elif op == "lost":  # the owner took this client for lost: it closes the lane next
+            self.lost_why = str(m.get("why", ""))[:200]
         elif op in ("judged", "pong"):
             self._settle(m.get("ref"), m)
         elif op == "told":
@@ -436,8 +441,14 @@ class Remote:
         if self.closed.is_set():
             return
         self.closed.set()
+        closed = (
+            f"the server took this client for lost ({self.lost_why}) and closed its lane: it "
+            "halts what this client commanded"
+            if self.lost_why
+            else "the lane to the owner closed"
+        )
         for ref, future in list(self._futures.items()):
-            _fail(future, LaneClosed("the lane to the owner closed"))
+            _fail(future, LaneClosed(closed))
             self._futures.pop(ref, None)
         if not self._welcome.done():
             self._welcome.set_exception(LaneClosed("the owner closed the lane"))

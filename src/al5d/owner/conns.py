@@ -192,7 +192,11 @@ class Conns:
         gone = []
         for conn in list(self.conns.values()):
             if conn.lease_s and t > _lease_end(conn, stalled):
-                self.drop(conn, f"nothing heard from it for {conn.lease_s:g} s (hung or stopped)")
+                why = f"nothing heard from it for {conn.lease_s:g} s (hung or stopped)"
+                # Told, where its socket takes it now: a client stopped and resumed (Ctrl-Z)
+                # said its server had ended (an outside try), which was there all along.
+                self.write(conn, ln.dumps({"op": "lost", "why": why}))
+                self.drop(conn, why)
                 gone.append(conn.sock)
         return gone
 

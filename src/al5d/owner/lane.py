@@ -15,7 +15,8 @@ watching `asked` is told each instruction asked by a client whose hello did not 
 (what came over ROS 2 a recording has from there): the bridge's recording holds them.
 A leased client (`lease` in its hello) says `sign` at least four times a lease and a
 second; the owner's thread answers each (`signed`), so that the client hears an owner
-that turns, and can tell one frozen with its lane open (`Remote.quiet`).
+that turns, and can tell one frozen with its lane open (`Remote.quiet`); a leased
+client the owner takes for lost is told why (`lost`) as its lane is closed.
 
 Everything here is pure, and light to import (the standard library and
 `al5d.arm.instruction`): `al5d send stop`'s own path (`quick`) imports nothing else.

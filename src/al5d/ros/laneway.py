@@ -116,6 +116,7 @@ class LaneWay:
         closed" for as long as it ran). Raises `NoServer` where none does: nothing sent."""
         deadline = Deadline(patience)
         reopened = False
+        lost_why = self.lane.lost_why  # the old lane's, if the owner said why it closed it
         if self._reopening.acquire(timeout=max(patience, 0.0)):
             try:
                 while self.lane.closed.is_set() and not self._closed:
@@ -133,7 +134,13 @@ class LaneWay:
             finally:
                 self._reopening.release()
         lane, view = self.lane, self._view
-        if reopened:
+        if reopened and lost_why:
+            log.warning(
+                "the server had taken this client for lost (%s) and closed its lane; opened "
+                "again: it halted what this client had commanded",
+                lost_why,
+            )
+        elif reopened:
             log.warning(
                 "the server's lane had closed (the server ended); opened again: what was "
                 "in flight on the old one is unknown"
@@ -192,7 +199,9 @@ class LaneWay:
         try:
             return self._result(future, timeout, ident)
         except LaneClosed as e:
-            raise LaneLost(f"[{ident}]: {e}: whether it ran is unknown") from None
+            # The owner's word on why, where it said it, holds what became of it.
+            said = "" if self.lane.lost_why else ": whether it ran is unknown"
+            raise LaneLost(f"[{ident}]: {e}{said}") from None
 
     def _result(
         self, future: Future[Outcome], timeout: float, ident: str, name: str = "instruction"

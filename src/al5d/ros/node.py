@@ -423,9 +423,10 @@ class RobotNode(Node):
             1.0 / settings.idle_joint_state_rate_hz, self._idle_tick
         )
         arm.motion_listeners.append(self._on_motion)
-        #: The owner unheard this long (its lease of this bridge, 1 s at least): no joint
-        #: states (`_owner_silent`).
-        self._owner_silence_s = max(settings.client_lease_s, SILENCE_SAID_S)
+        #: A sign of this bridge's unanswered by the owner this long: no joint states
+        #: (`_owner_silent`), whatever the lease (an outside try: with a 60 s lease a
+        #: frozen owner's joint states went on for 60 s, and its clients heard nothing).
+        self._owner_silence_s = SILENCE_SAID_S
         self._silence_said = False
 
     def set_rates(self, settings: ServerSettings) -> None:

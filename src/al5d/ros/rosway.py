@@ -195,12 +195,15 @@ class RosWay:
             return LOST_S
         return self._config.server.client_lease_s + LOST_AFTER_LEASE_S
 
-    def _lost(self, what: str) -> LostContact:
+    def _lost(self, what: str, sent: bool = True) -> LostContact:
         quiet = self.lost_contact() or self.lost_after_s
+        # One not sent is known not to run (an outside try: "not sent: ... whether it ran
+        # is unknown").
+        unknown = "; whether it ran is unknown" if sent else ""
         return LostContact(
-            f"{what}: lost contact with the server (nothing heard from it for {quiet:.1f} s; "
-            "whether it ran is unknown): once this client's lease runs out the server halts "
-            "what it commanded, and never runs what it sent meanwhile"
+            f"{what}: lost contact with the server (nothing heard from it for {quiet:.1f} s"
+            f"{unknown}): once this client's lease runs out the server halts what it "
+            "commanded, and never runs what it sent meanwhile"
         )
 
     # -- finding the server ------------------------------------------------------------
@@ -322,7 +325,7 @@ class RosWay:
         if not self.matched:
             self.wait_for_server(self.wait_s)
         if self.lost_contact() is not None:
-            raise self._lost(f"{instr.name} [{instr.id}]: not sent")
+            raise self._lost(f"{instr.name} [{instr.id}]: not sent", sent=False)
         msg = to_message(instr)
         msg.client = self.key
         msg.wait_ms = wait_ms(wait_s)
