@@ -387,13 +387,16 @@ def test_a_shells_ctrl_c_unanswered_by_a_frozen_server_does_not_wait_for_the_mov
             shell.wait(10)
 
 
-LANE_STOP = """
+#: A client over the lane that asks a stop or a release (its argument) when told: one
+#: connected before the server froze (a new one could not reach a frozen server: it
+#: would wait for its welcome).
+LANE_ASKS = """
 import sys
 from al5d.ros.client import Client
 c = Client(wait_s=30, local=True)
 print("ready", flush=True)
 sys.stdin.readline()  # the server is frozen now
-print(c.stop(timeout=60), flush=True)
+print(getattr(c, sys.argv[1])(timeout=60), flush=True)
 c.close()
 """
 
@@ -406,9 +409,9 @@ def test_a_stop_by_the_local_lane_unanswered_says_so_while_it_waits(
     try: said only when the 10 s timeout ran out, where over ROS 2 the client warns at
     0.8 s); the server, thawed, obeys, and each says it done."""
     with served(config, tmp_path, "al5d_lane_unanswered_peer") as arm:
-        script = tmp_path / "lane_stop.py"
-        script.write_text(LANE_STOP)
-        client, out, err = talking([sys.executable, str(script)])
+        script = tmp_path / "lane_asks.py"
+        script.write_text(LANE_ASKS)
+        client, out, err = talking([sys.executable, str(script), "stop"])
         assert client.stdin is not None
         server = family(arm.proc.popen.pid)
         send: subprocess.Popen[str] | None = None
@@ -603,19 +606,6 @@ def test_a_shells_stop_line_waits_for_its_answer_as_al5d_send_stop_does(
             shell.wait(10)
 
 
-#: A client over the lane that asks a release when told (a new one could not reach a
-#: frozen server: it would wait for its welcome).
-RELEASE = """
-import sys
-from al5d.ros.client import Client
-c = Client(wait_s=30, local=True)
-print("ready", flush=True)
-sys.stdin.readline()
-print(c.release(timeout=60), flush=True)
-c.close()
-"""
-
-
 def test_a_request_in_flight_to_a_frozen_server_on_the_lane_is_said_while_it_waits(
     config: ArmConfig, tmp_path: Path
 ) -> None:
@@ -635,9 +625,9 @@ def test_a_request_in_flight_to_a_frozen_server_on_the_lane_is_said_while_it_wai
             shell.stdin.write("ready\n")
             shell.stdin.flush()
             shell_out.wait_for("ready [", SCRIPT_S)
-            script = tmp_path / "release.py"
-            script.write_text(RELEASE)
-            release, release_out, release_err = talking([sys.executable, str(script)])
+            script = tmp_path / "lane_asks.py"
+            script.write_text(LANE_ASKS)
+            release, release_out, release_err = talking([sys.executable, str(script), "release"])
             release_out.wait_for("ready", SCRIPT_S)
             send, send_out, send_err = talking([AL5D, "send", "move base=40 time=4000"])
             wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
