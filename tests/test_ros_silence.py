@@ -21,7 +21,7 @@ import pytest
 
 from al5d import exits
 from al5d.arm.config import ArmConfig
-from al5d.ros.rosway import silence_warning
+from al5d.ros.rosway import LOST_S, silence_warning
 from al5d_rig.proc import (
     AL5D,
     Lines,
@@ -673,8 +673,10 @@ def test_a_ros_client_of_a_server_whose_owner_alone_stalls_is_told_and_its_move_
     not hearing its owner for its lease, publishes none and says why: the client says the
     silence and gives up naming the lost contact, and the owner, thawed, halts the move
     as the lost client's (it was to run 60 s). With a 60 s lease the joint states stop
-    as soon (an outside try: they went on for the whole lease), the client's lease runs
-    on for a minute: its move is not halted within this test."""
+    as soon (an outside try: they went on for the whole lease), and the client, which
+    hears the server's lease as it finds it, waits that lease out, as the server does (an
+    outside try: it gave up after 1.5 s, saying the server had halted what it commanded,
+    which it would do a minute later): thawed within it, its move goes on."""
     lease = patient_config(client_lease_s=lease_s)
     with served(config, tmp_path, "al5d_owner_alone_peer", lease) as arm:
         send, out, err = talking([AL5D, "send", "--via", "ros", "move base=60 time=60000"])
@@ -685,16 +687,28 @@ def test_a_ros_client_of_a_server_whose_owner_alone_stalls_is_told_and_its_move_
             try:
                 said = err.wait_for("no sign of the server for", SCRIPT_S)
                 assert said_silence(said) >= 1.0, said
-                assert send.wait(SCRIPT_S) != 0
+                if lease_s > 10:
+                    left = re.search(r"gives up on what it waits for in (\d+\.\d) s", said)
+                    assert left is not None and float(left.group(1)) > lease_s - 10, said
+                    # Well past the 1.5 s a client that knew no lease gave up after.
+                    with contextlib.suppress(subprocess.TimeoutExpired):
+                        send.wait(3 * LOST_S)
+                    assert send.poll() is None, "it gave up within its server's lease"
+                else:
+                    assert send.wait(SCRIPT_S) != 0
             finally:
                 os.kill(owner, signal.SIGCONT)
-            lost = out.wait_for("lost contact with the server", SCRIPT_S)
-            assert lost.startswith("move ["), lost
             if lease_s > 10:
                 said = arm.proc.err.wait_for("the owner has said nothing for", SCRIPT_S)
                 found = re.search(r"said nothing for (\d+\.\d) s", said)
                 assert found is not None and float(found.group(1)) < 10, said  # not its lease
+                arm.proc.err.wait_for("heard again", SCRIPT_S)
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    send.wait(3 * LOST_S)
+                assert send.poll() is None and arm.states[-1] == "moving"
                 return
+            lost = out.wait_for("lost contact with the server", SCRIPT_S)
+            assert lost.startswith("move ["), lost
             arm.proc.err.wait_for_each(
                 ["the owner has said nothing for", "lost contact with client", "heard again"],
                 SCRIPT_S,

@@ -47,7 +47,6 @@ from al5d.arm.config import (
     ServerSettings,
     load_config,
     on_embedded_board,
-    parse_config,
 )
 from al5d.arm.config import with_changes as config_with
 from al5d.clock import Deadline
@@ -363,8 +362,8 @@ def served_config_file(node: Node, names: Names, timeout: float) -> Path | None:
     if not found:
         return None
     timeout = deadline.left()
-    # Kept until the node ends, as `served_config`'s reader is, and asked again the next time
-    # (the web view asks at each calibration it writes).
+    # Kept until the node ends, and asked again the next time (the web view asks at each
+    # calibration it writes).
     name = names.private("get_parameters", min(found))
     service = next((c for c in node.clients if c.srv_name == name), None)
     if service is None:
@@ -382,30 +381,3 @@ def served_config_file(node: Node, names: Names, timeout: float) -> Path | None:
         return None
     served = str(values[0].string_value)
     return Path(served) if served else DEFAULT_CONFIG
-
-
-def served_config(node: Node, names: Names, timeout: float) -> ArmConfig | None:
-    """The configuration a running server judges with, as it says it on its latched
-    `al5d/config`, heard by a client's `node`; None if nothing came within `timeout` (a
-    server that does not say it). Raises ConfigError if it is no configuration this
-    version reads."""
-    import json
-
-    from std_msgs.msg import String
-
-    from al5d.ros.qos import QOS_LATCHED
-
-    said: list[str] = []
-    came = threading.Event()
-
-    def heard(msg: String) -> None:
-        said.append(msg.data)
-        came.set()
-
-    # Kept until the node ends, where its spinner is halted first (`Spinner.close`): one
-    # destroyed while another thread spins the node's executor can make that executor raise
-    # `InvalidHandle` (rclpy's issues 1206 and 1284; seen once in CI: `al5d run` printed the
-    # executor's traceback). One reader, asked once per client.
-    node.create_subscription(String, names.config, heard, QOS_LATCHED)
-    came.wait(timeout)
-    return parse_config(json.loads(said[0]), "the server's configuration") if said else None

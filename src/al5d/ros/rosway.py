@@ -9,6 +9,7 @@ local server starts without rclpy and the messages (about half a second less).
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import threading
@@ -19,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 from al5d_interfaces.msg import ArmInstruction, InstructionResult
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from al5d.arm.instruction import SAFETY, Instruction, Kind, Outcome, new_id
@@ -43,7 +45,7 @@ from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.leasing import LEASE_EVERY_S, LOST_AFTER_LEASE_S, Leaser, new_key
 from al5d.ros.names import PING, Names, reaches_server, server_nodes
-from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SAFETY, QOS_SERVICES, QOS_STREAM
+from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_LATCHED, QOS_SAFETY, QOS_SERVICES, QOS_STREAM
 from al5d.ros.reading import ArmView, follow_ros
 from al5d.ros.rosstop import StopCall
 from al5d.ros.workarounds import PublishFailed
@@ -71,7 +73,7 @@ SERVICE_SETTLE_S = 0.5
 OTHERS_SAID_AFTER_S = 1.0
 #: A client takes the server for lost when it has heard nothing from it (its joint states,
 #: 10 a second when idle) for the server's lease (`server.client_lease_s`, 1 s until the
-#: client has read the server's configuration) and `LOST_AFTER_LEASE_S` more
+#: client has heard the server's configuration) and `LOST_AFTER_LEASE_S` more
 #: (`al5d.ros.leasing`): by then the server has halted what this client commanded.
 LOST_S = 1.0 + LOST_AFTER_LEASE_S
 
@@ -137,6 +139,14 @@ class RosWay:
         )
         #: This client's lease (`al5d.ros.leases`), named in what it sends.
         self.lease = Leaser(self.node, names, new_key())
+        #: The server's configuration as it says it on its latched topic, heard from the
+        #: start: its lease of this client is known before the first silence, whether or
+        #: not the configuration is ever asked for (`al5d send` never does: with a 60 s
+        #: lease it gave up after 1.5 s, saying the server had halted what it commanded).
+        self._said: str | None = None
+        self._said_lease_s: float | None = None
+        self._config_came = threading.Event()
+        self.node.create_subscription(String, names.config, self._on_config, QOS_LATCHED)
         self.key = self.lease.key
         #: The last sign of the server whose silence has been said (once an outage).
         self._silence_said: float | None = None
@@ -189,11 +199,24 @@ class RosWay:
     def lost_after_s(self) -> float:
         """How long the server may go unheard before this client takes it for lost: the
         server's lease of this client and `LOST_AFTER_LEASE_S` (`LOST_S` until the server's
-        configuration is read), so that the server has halted what this client commanded
+        configuration is heard), so that the server has halted what this client commanded
         before the client gives up on it."""
-        if self._config is None:
-            return LOST_S
-        return self._config.server.client_lease_s + LOST_AFTER_LEASE_S
+        if self._config is not None:
+            return self._config.server.client_lease_s + LOST_AFTER_LEASE_S
+        if self._said_lease_s is not None:
+            return self._said_lease_s + LOST_AFTER_LEASE_S
+        return LOST_S
+
+    def _on_config(self, msg: String) -> None:
+        self._said = msg.data
+        # Only the lease here, in the executor's thread: the whole configuration is
+        # validated when it is asked for (`config`).
+        try:
+            lease = json.loads(msg.data)["server"]["client_lease_s"]
+            self._said_lease_s = float(lease) if lease else None
+        except (ValueError, KeyError, TypeError):
+            self._said_lease_s = None
+        self._config_came.set()
 
     def _lost(self, what: str, sent: bool = True) -> LostContact:
         quiet = self.lost_contact() or self.lost_after_s
@@ -427,16 +450,16 @@ class RosWay:
         return self._config
 
     def _served_config(self) -> ArmConfig:
-        from al5d.arm.config import load_config
-        from al5d.ros.params import served_config
+        """Raises ConfigError if what the server says is no configuration this version
+        reads."""
+        from al5d.arm.config import load_config, parse_config
 
         if not self.matched:
             self.wait_for_server(self.wait_s)
-        config = served_config(self.node, self.names, ANSWER_S)
-        if config is None:
+        if not self._config_came.wait(ANSWER_S) or self._said is None:
             log.warning("the server did not say its configuration: judged by the shipped one")
             return load_config(None)
-        return config
+        return parse_config(json.loads(self._said), "the server's configuration")
 
     def view(self) -> ArmView:
         """The arm as the server's state and joint states say it, in its configuration's
