@@ -718,3 +718,34 @@ def test_a_ros_client_of_a_server_whose_owner_alone_stalls_is_told_and_its_move_
         finally:
             send.kill()
             send.wait(10)
+
+
+def test_a_ros_client_that_was_itself_stopped_says_so_and_tells_the_servers_outcome(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """An outside try: `al5d send --via ros` stopped by Ctrl-Z (SIGSTOP) for 4 s during its
+    move, then resumed, said 'lost contact with the server ... the link may be lost', of a
+    server that had been there all along and had halted the move, its client's lease run
+    out. Now the client finds that it was held itself, says so, and hears the server's
+    outcome of its move: halted for the lost contact with the client."""
+    with served(config, tmp_path, "al5d_held_client_peer") as arm:
+        send, out, err = talking([AL5D, "send", "--via", "ros", "move base=60 time=60000"])
+        try:
+            wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+            freeze(send.pid)
+            try:
+                arm.proc.err.wait_for("lost contact with client", SCRIPT_S)
+                time.sleep(3 * LOST_S)  # the client's lease and its margin, and more
+            finally:
+                os.kill(send.pid, signal.SIGCONT)
+            outcome = out.wait_for("move [", SCRIPT_S)
+            assert "lost contact with the client" in outcome, outcome
+            held = err.wait_for("this client was held for", SCRIPT_S)
+            assert "has taken it for lost and halted what it commanded" in held, held
+            assert send.wait(SCRIPT_S) != 0
+            said = out.drain() + err.drain()
+            assert not [x for x in said if "lost contact with the server" in x], said
+            assert not [x for x in said if "link may be lost" in x], said
+        finally:
+            send.kill()
+            send.wait(10)

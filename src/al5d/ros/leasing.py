@@ -34,6 +34,10 @@ LEASE_EVERY_S = 0.1
 LOST_AFTER_LEASE_S = 0.5
 #: How long a closing client waits for the server to have its last lease.
 BYE_S = 0.5
+#: A thread of a client that wakes this much later than it asked to was held, and the
+#: process with it (stopped by Ctrl-Z or SIGSTOP, or starved by a busy host): what it
+#: did not hear meanwhile is no silence of the server's.
+HELD_S = LOST_AFTER_LEASE_S
 
 
 def new_key(kind: str = "") -> str:
@@ -58,6 +62,13 @@ class Leaser:
         self.key = key
         #: When the server was last heard (monotonic s; None: not yet).
         self.heard: float | None = None
+        #: When this client last found itself held (`woke`), for how long (s), and how many
+        #: holds it has found.
+        self.held_until: float | None = None
+        self.held_for = 0.0
+        self.holds = 0
+        #: When the lease's thread last ran (monotonic s): see `judged`.
+        self.looked = time.monotonic()
         self._pub = node.create_publisher(ClientLease, names.clients, QOS_LEASES)
         node.create_subscription(JointState, names.joint_states, self.sign, QOS_LATEST)
         self._closing = threading.Event()
@@ -73,9 +84,36 @@ class Leaser:
         heard = self.heard
         return heard is not None and time.monotonic() - heard > LOST_AFTER_LEASE_S
 
+    def silent_since(self) -> float | None:
+        """Since when the server has been silent for this client (monotonic s): when it was
+        last heard, or when this client was last held, whichever is later; None before
+        it is first heard, or while this client may be held without knowing it yet (the
+        lease's thread, which finds a hold, has not run for `HELD_S`: the threads of a
+        process stopped and resumed wake in no set order, and the first to look would
+        take its own stop for the server's silence)."""
+        heard = self.heard
+        if heard is None or time.monotonic() - self.looked > HELD_S:
+            return None
+        return max(heard, self.held_until or heard)
+
+    def woke(self, asked_at: float, within: float) -> None:
+        """A thread of this client that asked at `asked_at` (monotonic s) to wake within
+        `within` s has woken: if later than that by more than `HELD_S`, the client was held
+        until now."""
+        t = time.monotonic()
+        if t - asked_at - within <= HELD_S:
+            return
+        if self.held_until is None or self.held_until < asked_at:
+            self.holds += 1  # not one another thread has found already
+            self.held_for = t - asked_at - within
+        self.held_until = t
+
     def _run(self) -> None:
         every_ms = round(LEASE_EVERY_S * 1000)
+        asked = time.monotonic()
         while not self._closing.wait(LEASE_EVERY_S):
+            self.woke(asked, LEASE_EVERY_S)
+            asked = self.looked = time.monotonic()
             if not self.deaf():
                 self._pub.publish(
                     ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=every_ms)

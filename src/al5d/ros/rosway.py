@@ -148,8 +148,10 @@ class RosWay:
         self._config_came = threading.Event()
         self.node.create_subscription(String, names.config, self._on_config, QOS_LATCHED)
         self.key = self.lease.key
-        #: The last sign of the server whose silence has been said (once an outage).
+        #: The last sign of the server whose silence has been said (once an outage), and
+        #: the last hold of this client said (`_say_held`).
         self._silence_said: float | None = None
+        self._held_said = 0
         #: The shutdown's service (a stop and a release go on the topic: `StopCall`,
         #: `_release`).
         self._services: dict[Kind, tuple[str, Any]] = {
@@ -179,15 +181,32 @@ class RosWay:
         """Once the server has been heard: for how long it has not been, if more than
         `lost_after_s` (None: not lost). The silence is said once, as a WARNING, before that
         is returned (`silence_warning`)."""
-        heard = self.lease.heard
-        if heard is None:
+        since = self.lease.silent_since()
+        if since is None:
             return None
-        quiet = time.monotonic() - heard
+        quiet = time.monotonic() - since
         lost_after = self.lost_after_s
-        if self._silence_said != heard and (warning := silence_warning(quiet, lost_after)):
-            self._silence_said = heard
+        self._say_held(lost_after - LOST_AFTER_LEASE_S)
+        if self._silence_said != since and (warning := silence_warning(quiet, lost_after)):
+            self._silence_said = since
             log.warning("%s", warning)
         return quiet if quiet > lost_after else None
+
+    def _say_held(self, lease_s: float) -> None:
+        """Once a hold of this client longer than the server's lease of it: the server took
+        it for lost (an outside try: a client stopped for 4 s by Ctrl-Z said, resumed,
+        'lost contact with the server ... the link may be lost')."""
+        held = self.lease.holds
+        if held == self._held_said or self.lease.held_for <= lease_s:
+            return
+        self._held_said = held
+        log.warning(
+            "this client was held for %.1f s (its process stopped, by Ctrl-Z or SIGSTOP, or "
+            "starved by a busy host): longer than the server's lease of it (%g s), so the "
+            "server, if it is there, has taken it for lost and halted what it commanded",
+            self.lease.held_for,
+            lease_s,
+        )
 
     def out_of_contact(self) -> str | None:
         quiet = self.lost_contact()
@@ -396,7 +415,10 @@ class RosWay:
                     return None
                 if self.lost_contact() is not None:
                     raise self._lost(f"[{ident}]")
-                self._cv.wait(min(deadline.left(), LEASE_EVERY_S))
+                asked, within = time.monotonic(), min(deadline.left(), LEASE_EVERY_S)
+                self._cv.wait(within)
+                self.lease.woke(asked, within)
+                self._say_held(self.lost_after_s - LOST_AFTER_LEASE_S)
             return self._outcomes[ident]
 
     def forget(self, ident: str) -> None:
