@@ -8,6 +8,7 @@ import contextlib
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -251,6 +252,39 @@ def test_a_stop_and_a_release_that_nobody_answers_are_said_unanswered(
             False,
         ),
     ]
+
+
+def test_a_stop_by_the_lane_of_a_stalled_server_says_so_while_it_waits(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A lane whose owner reads nothing (a listening socket here, as a frozen owner's is):
+    the page said only that the STOP's answer was awaited for the whole 10 s, then "no
+    answer (timed out)" (an outside try). Now it says, as `al5d send stop` does, that none
+    came in 0.8 s and that it still waits, then how long it waited in all."""
+    monkeypatch.setattr(web_stopping, "LANE_STOP_S", 2.0)
+    said: list[tuple[str, bool | None]] = []
+    lane = tmp_path / "lane"
+    frozen = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    frozen.bind(str(lane))
+    frozen.listen(4)
+    try:
+        stops = web_stopping.StopRelease(lambda instr: None, lambda t, ok: said.append((t, ok)))
+        assert stops.stop(lane) == "the local lane"
+        wait_until(lambda: len(said) == 3, 20, "the STOP said unanswered")
+        assert said == [
+            ("STOP by the local lane: sent, the server's answer awaited", None),
+            (
+                "STOP by the local lane: no answer in 0.8 s (the server busy or stalled); still "
+                "waiting, up to 1.2 s more: whether the arm has stopped is unknown",
+                None,
+            ),
+            (
+                "STOP by the local lane: no answer in 2 s: whether the arm has stopped is unknown",
+                False,
+            ),
+        ]
+    finally:
+        frozen.close()
 
 
 def test_a_stop_answered_after_the_page_said_none_came_is_said_answered(

@@ -184,14 +184,27 @@ class StopRelease:
         self._say(number, text, False)
 
     def _lane_answer(self, sock: socket.socket, stop: str, number: int) -> None:
+        def unanswered() -> None:
+            # As `al5d send stop` says it: a page that said only that the answer was awaited
+            # for the whole 10 s hid a frozen server (an outside try).
+            log.warning("web: STOP by the local lane: no answer in %g s", quick.UNANSWERED_S)
+            self._say(
+                number,
+                f"STOP by the local lane: no answer in {quick.UNANSWERED_S:g} s (the server "
+                f"busy or stalled); still waiting, up to {LANE_STOP_S - quick.UNANSWERED_S:.1f}"
+                " s more: whether the arm has stopped is unknown",
+                None,
+            )
+
         try:
-            answer = quick.answer(sock, LANE_STOP_S)
+            answer = quick.answer(sock, LANE_STOP_S, unanswered)
         except (OSError, EOFError) as e:
+            why = f"in {LANE_STOP_S:g} s" if isinstance(e, TimeoutError) else f"({e})"
             with self._late_lock:
                 self._unanswered(
                     stop,
                     number,
-                    f"STOP by the local lane: no answer ({e}): whether the arm has stopped is "
+                    f"STOP by the local lane: no answer {why}: whether the arm has stopped is "
                     "unknown",
                 )
             return
