@@ -25,6 +25,7 @@ from al5d.arm.config import ArmConfig
 from al5d.arm.instruction import Kind, Point
 from al5d.arm.states import State
 from al5d.owner import lane as ln
+from al5d.owner import quick
 from al5d.owner.client import SIGN_EVERY_MAX_S, Remote
 from al5d.owner.loop import Owner
 from al5d.ssc32u import protocol as p
@@ -622,3 +623,42 @@ def test_a_leased_clients_signs_are_answered_so_that_it_hears_the_owner_turn(
         for pair in pairs:
             for sock in pair:
                 sock.close()
+
+
+def test_a_stop_on_a_new_connection_goes_before_what_an_older_one_sent_in_the_same_stall(
+    config: ArmConfig,
+) -> None:
+    """An owner held (here in a write to the board; a frozen process in an outside try)
+    while a client it knows sends a move and then a new connection hands it a stop (`al5d
+    send stop`, the web page's STOP): the new connection was accepted in the first turn
+    after, but read only in the next, so the older one's move was taken first (in the
+    outside try, a lost client's halt ran 1 ms before the STOP). A new connection is read
+    as it is accepted: the STOP goes out before any of the move's bytes."""
+    transport = HeldOnce(Board(config, baud=config.server.baud))
+    where = Path(tempfile.mkdtemp(prefix="al5d-"))  # short: a socket's path has a limit
+    lane = where / "lane"
+    owner = Owner(config, transport, lane=lane).start()
+    older = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        owner.wait_for_state(State.READY, 10)
+        older.connect(str(lane))
+        owner.sync()
+        transport.hold = True  # the next write: the idle check's query
+        assert transport.holding.wait(30), "no write held"
+        held = len(transport.writes)
+        move = ln.instruction_out(ins.move(time_ms=500, base=30))
+        older.sendall(ln.dumps({"op": "ask", "ref": 1, "instr": move}))
+        stop = quick.hand_stop(lane, "new-stop", 1.0)
+        assert stop is not None
+        transport.release.set()
+        answer = quick.answer(stop, 10)
+        assert answer.get("result") == "done", answer
+        owner.sync()
+        after = [data for data, _ in transport.writes[held:]]
+        first_stop = next(i for i, data in enumerate(after) if b"STOP" in data)
+        assert not [d for d in after[:first_stop] if d.startswith(b"#")], after
+    finally:
+        transport.release.set()
+        older.close()
+        owner.close()
+        shutil.rmtree(where, ignore_errors=True)

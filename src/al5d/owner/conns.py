@@ -114,21 +114,25 @@ class Conns:
                 line = line or ln.dumps(message)
                 self.write(conn, line)
 
-    def accept(self) -> None:
+    def accept(self) -> list[Conn]:
+        """The clients waiting to connect (16 at most a turn), now connected."""
         assert self._listener is not None
+        accepted: list[Conn] = []
         for _ in range(16):
             try:
                 sock, _ = self._listener.accept()
             except (BlockingIOError, OSError):
-                return
+                break
             sock.setblocking(False)
-            self.connect(sock)
+            accepted.append(self.connect(sock))
+        return accepted
 
-    def connect(self, sock: socket.socket) -> None:
+    def connect(self, sock: socket.socket) -> Conn:
         """A client on `sock` (non-blocking)."""
         conn = Conn(sock, self.new_ident())
         self.conns[conn.ident] = conn
         self._selector.register(sock, selectors.EVENT_READ, conn)
+        return conn
 
     def read(self, conn: Conn, stalled: float) -> list[dict[str, Any] | ln.LaneError]:
         """The lines `conn` has sent, each a message or what is wrong with it; none when it

@@ -410,7 +410,10 @@ class Owner:
             with contextlib.suppress(BlockingIOError, OSError):
                 os.read(self._wake_r, 4096)
         elif data == "listen":
-            self._lanes.accept()
+            # Read as accepted, in this turn: a stop handed over on a new connection (`al5d
+            # send stop`, the web page's STOP) goes before what older ones sent meanwhile.
+            for conn in self._lanes.accept():
+                self._desk.read(conn, self._stalled)
         elif data == "board":
             self._read_board(now(), ready=True)
         elif isinstance(data, Conn):
