@@ -613,27 +613,6 @@ def test_a_time_due_while_the_owner_did_not_run_is_kept_when_it_runs_again(
     assert outcome.result is Result.DONE, outcome.reason
 
 
-def test_a_stop_that_finds_a_move_s_time_over_leaves_it_done_not_cancelled(sim: Sim) -> None:
-    """The owner held past a move's end (frozen: an outside try), a stop taken first as it
-    runs again: the board ran the move to its end meanwhile, so its outcome is done (said
-    unconfirmed), not "cancelled by stop"; the stop is obeyed and locks the arm. A stop
-    within a move's time still cancels it."""
-    ref = sim.ask(ins.move(base=30, time_ms=800))
-    sim.run(0.2)
-    sim.stall(2.0)
-    stop = sim.ask(ins.stop())
-    outcome = sim.outcome(ref)
-    assert outcome.result is Result.DONE, outcome
-    assert "its time was over when a stop came" in outcome.reason, outcome.reason
-    assert sim.outcome(stop).ok and sim.core.state is State.STOPPED
-    assert sim.core.positions(sim.t)["base"] == pytest.approx(30, abs=0.5)
-    sim.ask(ins.release())
-    cut = sim.ask(ins.move(base=-30, time_ms=800))
-    sim.run(0.3)
-    sim.ask(ins.stop())
-    assert sim.outcome(cut).result is Result.CANCELLED
-
-
 def test_a_late_point_is_off_its_path_by_no_more_than_its_servo_goes(config: ArmConfig) -> None:
     """A point faster than its servo, written late: the board moves the joint at the servo's
     speed whatever the point asked, so the lateness puts it behind by that speed times the

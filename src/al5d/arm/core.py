@@ -206,7 +206,7 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
             out.append(Resolve(ev.ref, answer, ev.tell))
             return replace(c, order=c.order.obeyed(copy, answer))
     sent = _sent(ev)
-    c, jobs = drop(running.over_before(c, ev.t, out), "cancelled by stop", sent)
+    c, jobs = drop(c, "cancelled by stop", sent)
     c = lock_arm(c, LOCKED_BY_STOP, sent)
     board_open = c.link.open
     c = fire(halt(c, ev.t, out), Event.STOP, out)

@@ -447,20 +447,3 @@ def end_run(c: Core, reason: str, t: float, out: Out, result: Result = Result.CA
         c = fire(c, Event.MOVE_DONE, out)
     posed(c, out)
     return c
-
-
-def over_before(c: Core, t: float, out: Out) -> Core:
-    """Before a stop taken at `t`: the current move, if its last step's time was over by
-    then (its `Q` awaited, or the owner held past its end: the board ran it to its end
-    meanwhile), is done as the board ran it, not cancelled by the stop (an outside try:
-    the owner frozen 20 s in a 20 s move, thawed by a STOP, said it cancelled, the arm
-    at its target)."""
-    run = c.run
-    if run is None or run.job.mode is not Mode.QUEUE or run.k != len(run.steps) - 1:
-        return c
-    written = run.written
-    if written is None or t < written.t_end or c.link.rest:
-        return c
-    note = "its time was over when a stop came (not yet confirmed by the board)"
-    finish(run.job, Result.DONE, "; ".join((*run.notes, note)), t, out, run.expected_ms)
-    return replace(c, run=None, book=c.book.reached(run.steps[-1].target).at_rest())
