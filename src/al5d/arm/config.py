@@ -221,6 +221,10 @@ class Mount(_Frozen):
 MIN_JOINT_STATE_RATE_HZ = 4.0
 
 
+#: The longest lease of a client (`server.client_lease_s`), in seconds.
+MAX_CLIENT_LEASE_S = 60.0
+
+
 class ServerSettings(_Frozen):
     """How the high-level driver behaves, independent of the arm's geometry."""
 
@@ -259,7 +263,7 @@ class ServerSettings(_Frozen):
     #: A ROS client that commands motion sends its lease a few times a second; when none
     #: has come for this long, the client is lost (cut off, killed, hung) and what it
     #: commanded is halted, its queued moves cancelled (docs/ros.md, "Across a network").
-    client_lease_s: float = Field(default=1.0, gt=0, le=60)
+    client_lease_s: float = Field(default=1.0, gt=0, le=MAX_CLIENT_LEASE_S)
     trajectory_path_tolerance_deg: FiniteFloat = Field(default=1.0, gt=0, le=45)
     #: Every move (joint or Cartesian, a trajectory's every point and the path between, a
     #: set-point) is refused whole if its path would take a body of the arm under the table

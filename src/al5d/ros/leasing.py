@@ -67,8 +67,9 @@ class Leaser:
         self.held_until: float | None = None
         self.held_for = 0.0
         self.holds = 0
-        #: When the lease's thread last ran (monotonic s): see `judged`.
+        #: When the lease's thread last ran (monotonic s): see `silent_since`.
         self.looked = time.monotonic()
+        self._holding = threading.Lock()  # the threads that wake together after a hold
         self._pub = node.create_publisher(ClientLease, names.clients, QOS_LEASES)
         node.create_subscription(JointState, names.joint_states, self.sign, QOS_LATEST)
         self._closing = threading.Event()
@@ -92,8 +93,10 @@ class Leaser:
         process stopped and resumed wake in no set order, and the first to look would
         take its own stop for the server's silence)."""
         heard = self.heard
-        if heard is None or time.monotonic() - self.looked > HELD_S:
+        if heard is None:
             return None
+        if time.monotonic() - self.looked > HELD_S and self._thread.is_alive():
+            return None  # (a thread that has ended finds no hold: judged by `heard` alone)
         return max(heard, self.held_until or heard)
 
     def woke(self, asked_at: float, within: float) -> None:
@@ -103,10 +106,16 @@ class Leaser:
         t = time.monotonic()
         if t - asked_at - within <= HELD_S:
             return
-        if self.held_until is None or self.held_until < asked_at:
-            self.holds += 1  # not one another thread has found already
-            self.held_for = t - asked_at - within
-        self.held_until = t
+        with self._holding:
+            if self.held_until is None or self.held_until < asked_at:
+                self.holds += 1  # not one another thread has found already
+                self.held_for = t - asked_at - within
+            self.held_until = max(t, self.held_until or t)
+
+    def hold(self) -> tuple[int, float]:
+        """How many holds this client has found, and how long the last one was (s)."""
+        with self._holding:
+            return self.holds, self.held_for
 
     def _run(self) -> None:
         every_ms = round(LEASE_EVERY_S * 1000)

@@ -26,7 +26,7 @@ from al5d.clock import Deadline
 from al5d.owner import quick
 from al5d.ros.answers import Answer, NoOutcome, NoServer, said_late
 from al5d.ros.convert import COPY_MARK
-from al5d.ros.leasing import Leaser
+from al5d.ros.leasing import LOST_AFTER_LEASE_S, Leaser
 
 log = logging.getLogger("al5d")
 
@@ -209,7 +209,8 @@ class StopCall:
         self._copied = at
 
     def _warn(self) -> None:
-        last = self.way.lease.heard
+        # Counted from a hold of this client's own (resumed after Ctrl-Z), as its way does.
+        since = self.way.lease.silent_since()
         # A stop meant for another arm must say so at once, not when it gives up: with only
         # /left and /right running, `al5d send stop` waited 10 s before it named them.
         others = self.way.others() if self._found is None else ""
@@ -221,11 +222,11 @@ class StopCall:
             else "the server found, but its answer not heard yet: a slow or lossy link, or "
             "its side has not found this client yet"
         )
+        quiet = 0.0 if since is None else time.monotonic() - since
         why = (
             unfound
-            if last is None or not self.way.lease.deaf()
-            else f"nothing heard from the server for {time.monotonic() - last:.1f} s: the "
-            "link may be lost"
+            if quiet <= LOST_AFTER_LEASE_S
+            else f"nothing heard from the server for {quiet:.1f} s: the link may be lost"
         )
         if self._answered_at - self._asked < STOP_UNANSWERED_S:
             # Answered before the warning was due. One answered while this looked (the

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import threading
 import time
@@ -23,6 +24,7 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
+from al5d.arm.config import MAX_CLIENT_LEASE_S
 from al5d.arm.instruction import SAFETY, Instruction, Kind, Outcome, new_id
 from al5d.clock import Deadline
 from al5d.interrupts import ctrl_c_after
@@ -196,15 +198,16 @@ class RosWay:
         """Once a hold of this client longer than the server's lease of it: the server took
         it for lost (an outside try: a client stopped for 4 s by Ctrl-Z said, resumed,
         'lost contact with the server ... the link may be lost')."""
-        held = self.lease.holds
-        if held == self._held_said or self.lease.held_for <= lease_s:
-            return
-        self._held_said = held
+        held, held_for = self.lease.hold()
+        with self._cv:
+            if held == self._held_said or held_for <= lease_s:
+                return
+            self._held_said = held
         log.warning(
             "this client was held for %.1f s (its process stopped, by Ctrl-Z or SIGSTOP, or "
             "starved by a busy host): longer than the server's lease of it (%g s), so the "
             "server, if it is there, has taken it for lost and halted what it commanded",
-            self.lease.held_for,
+            held_for,
             lease_s,
         )
 
@@ -220,10 +223,12 @@ class RosWay:
         server's lease of this client and `LOST_AFTER_LEASE_S` (`LOST_S` until the server's
         configuration is heard), so that the server has halted what this client commanded
         before the client gives up on it."""
-        if self._config is not None:
-            return self._config.server.client_lease_s + LOST_AFTER_LEASE_S
+        # What the server said first: a configuration judged by the shipped one (none
+        # said in time) must not hide a lease said later.
         if self._said_lease_s is not None:
             return self._said_lease_s + LOST_AFTER_LEASE_S
+        if self._config is not None:
+            return self._config.server.client_lease_s + LOST_AFTER_LEASE_S
         return LOST_S
 
     def _on_config(self, msg: String) -> None:
@@ -231,10 +236,11 @@ class RosWay:
         # Only the lease here, in the executor's thread: the whole configuration is
         # validated when it is asked for (`config`).
         try:
-            lease = json.loads(msg.data)["server"]["client_lease_s"]
-            self._said_lease_s = float(lease) if lease else None
-        except (ValueError, KeyError, TypeError):
-            self._said_lease_s = None
+            lease = float(json.loads(msg.data)["server"]["client_lease_s"])
+        except Exception:  # whatever the text: no lease said (an executor's callback)
+            lease = math.nan
+        # As the configuration's own check takes it (NaN or infinity: never lost).
+        self._said_lease_s = lease if 0 < lease <= MAX_CLIENT_LEASE_S else None
         self._config_came.set()
 
     def _lost(self, what: str, sent: bool = True) -> LostContact:
