@@ -741,7 +741,7 @@ def test_a_ros_client_that_was_itself_stopped_says_so_and_tells_the_servers_outc
             outcome = out.wait_for("move [", SCRIPT_S)
             assert "lost contact with the client" in outcome, outcome
             held = err.wait_for("this client was held for", SCRIPT_S)
-            assert "has taken it for lost and halted what it commanded" in held, held
+            assert "has taken it for lost, and halted what of this client" in held, held
             assert send.wait(SCRIPT_S) != 0
             said = out.drain() + err.drain()
             assert not [x for x in said if "lost contact with the server" in x], said

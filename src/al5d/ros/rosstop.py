@@ -26,7 +26,7 @@ from al5d.clock import Deadline
 from al5d.owner import quick
 from al5d.ros.answers import Answer, NoOutcome, NoServer, said_late
 from al5d.ros.convert import COPY_MARK
-from al5d.ros.leasing import LOST_AFTER_LEASE_S, Leaser
+from al5d.ros.leasing import HELD_S, LOST_AFTER_LEASE_S, Leaser
 
 log = logging.getLogger("al5d")
 
@@ -142,9 +142,16 @@ class StopCall:
                 at = time.monotonic()
                 self._copy(at, at - start)
                 self._look(at)
+                waited = time.monotonic()
                 if self._answered.wait(0.02):
                     break
-                if not warned and time.monotonic() - start >= STOP_UNANSWERED_S:
+                # This client's own hold (Ctrl-Z) is no time the server took to answer:
+                # counted from its end, and judged once the lease's thread has looked.
+                lease = self.way.lease
+                lease.woke(waited, 0.02)
+                start = max(start, lease.held_until or start)
+                looked = time.monotonic() - lease.looked <= HELD_S
+                if not warned and looked and time.monotonic() - start >= STOP_UNANSWERED_S:
                     warned = True
                     # Said by a thread of its own: it looks at this machine's lanes and the
                     # graph (`others`), which the stop's copies must not wait for.
@@ -154,7 +161,7 @@ class StopCall:
                 if self._deadline is not None and self._deadline.expired:
                     break
         finally:
-            self.way.discovery_s += (self._found or time.monotonic()) - start
+            self.way.discovery_s += max(0.0, (self._found or time.monotonic()) - start)
             with self._lock:
                 if not self._told:
                     self._gave_up = time.monotonic()

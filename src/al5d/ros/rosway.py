@@ -206,7 +206,8 @@ class RosWay:
         log.warning(
             "this client was held for %.1f s (its process stopped, by Ctrl-Z or SIGSTOP, or "
             "starved by a busy host): longer than the server's lease of it (%g s), so the "
-            "server, if it is there, has taken it for lost and halted what it commanded",
+            "server, if it is there, has taken it for lost, and halted what of this client's "
+            "was still running",
             held_for,
             lease_s,
         )
