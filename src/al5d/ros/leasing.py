@@ -8,6 +8,8 @@ has lost them.
 from __future__ import annotations
 
 import contextlib
+import json
+import logging
 import os
 import secrets
 import socket
@@ -21,6 +23,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
+from al5d.arm.config import MAX_CLIENT_LEASE_S
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_LATEST, QOS_LEASES
 
@@ -38,6 +41,19 @@ BYE_S = 0.5
 #: process with it (stopped by Ctrl-Z or SIGSTOP, or starved by a busy host): what it
 #: did not hear meanwhile is no silence of the server's.
 HELD_S = LOST_AFTER_LEASE_S
+
+log = logging.getLogger("al5d")
+
+
+def said_lease(config_json: str) -> float | None:
+    """The lease (`server.client_lease_s`, s) in a server's configuration as it says it
+    (JSON); None where it says none, or one its configuration's own check refuses (NaN or
+    infinity: never lost)."""
+    try:
+        lease = float(json.loads(config_json)["server"]["client_lease_s"])
+    except Exception:  # whatever the text: no lease said (an executor's callback)
+        return None
+    return lease if 0 < lease <= MAX_CLIENT_LEASE_S else None
 
 
 def new_key(kind: str = "") -> str:
@@ -67,6 +83,7 @@ class Leaser:
         self.held_until: float | None = None
         self.held_for = 0.0
         self.holds = 0
+        self._held_said = 0  # the last hold said (`say_held`)
         #: When the lease's thread last ran (monotonic s): see `silent_since`.
         self.looked = time.monotonic()
         self._holding = threading.Lock()  # the threads that wake together after a hold
@@ -112,10 +129,22 @@ class Leaser:
                 self.held_for = t - asked_at - within
             self.held_until = max(t, self.held_until or t)
 
-    def hold(self) -> tuple[int, float]:
-        """How many holds this client has found, and how long the last one was (s)."""
+    def say_held(self, lease_s: float) -> None:
+        """Once a hold of this client longer than the server's lease of it (`lease_s`): the
+        server took it for lost (an outside try: a client stopped for 4 s by Ctrl-Z said,
+        resumed, 'lost contact with the server ... the link may be lost')."""
         with self._holding:
-            return self.holds, self.held_for
+            if self.holds == self._held_said or self.held_for <= lease_s:
+                return
+            self._held_said, held_for = self.holds, self.held_for
+        log.warning(
+            "this client was held for %.1f s (its process stopped, by Ctrl-Z or SIGSTOP, or "
+            "starved by a busy host): longer than the server's lease of it (%g s), so the "
+            "server, if it is there, has taken it for lost, and halted what of this client's "
+            "was still running",
+            held_for,
+            lease_s,
+        )
 
     def _run(self) -> None:
         every_ms = round(LEASE_EVERY_S * 1000)

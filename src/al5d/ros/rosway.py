@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import threading
 import time
@@ -24,7 +23,6 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from al5d.arm.config import MAX_CLIENT_LEASE_S
 from al5d.arm.instruction import SAFETY, Instruction, Kind, Outcome, new_id
 from al5d.clock import Deadline
 from al5d.interrupts import ctrl_c_after
@@ -45,7 +43,7 @@ from al5d.ros.answers import (
 from al5d.ros.convert import outcome_from_message, to_message
 from al5d.ros.dds import start_context
 from al5d.ros.executors import Spinner
-from al5d.ros.leasing import LEASE_EVERY_S, LOST_AFTER_LEASE_S, Leaser, new_key
+from al5d.ros.leasing import LEASE_EVERY_S, LOST_AFTER_LEASE_S, Leaser, new_key, said_lease
 from al5d.ros.names import PING, Names, reaches_server, server_nodes
 from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_LATCHED, QOS_SAFETY, QOS_SERVICES, QOS_STREAM
 from al5d.ros.reading import ArmView, follow_ros
@@ -150,10 +148,8 @@ class RosWay:
         self._config_came = threading.Event()
         self.node.create_subscription(String, names.config, self._on_config, QOS_LATCHED)
         self.key = self.lease.key
-        #: The last sign of the server whose silence has been said (once an outage), and
-        #: the last hold of this client said (`_say_held`).
+        #: The last sign of the server whose silence has been said (once an outage).
         self._silence_said: float | None = None
-        self._held_said = 0
         #: The shutdown's service (a stop and a release go on the topic: `StopCall`,
         #: `_release`).
         self._services: dict[Kind, tuple[str, Any]] = {
@@ -188,29 +184,11 @@ class RosWay:
             return None
         quiet = time.monotonic() - since
         lost_after = self.lost_after_s
-        self._say_held(lost_after - LOST_AFTER_LEASE_S)
+        self.lease.say_held(lost_after - LOST_AFTER_LEASE_S)
         if self._silence_said != since and (warning := silence_warning(quiet, lost_after)):
             self._silence_said = since
             log.warning("%s", warning)
         return quiet if quiet > lost_after else None
-
-    def _say_held(self, lease_s: float) -> None:
-        """Once a hold of this client longer than the server's lease of it: the server took
-        it for lost (an outside try: a client stopped for 4 s by Ctrl-Z said, resumed,
-        'lost contact with the server ... the link may be lost')."""
-        held, held_for = self.lease.hold()
-        with self._cv:
-            if held == self._held_said or held_for <= lease_s:
-                return
-            self._held_said = held
-        log.warning(
-            "this client was held for %.1f s (its process stopped, by Ctrl-Z or SIGSTOP, or "
-            "starved by a busy host): longer than the server's lease of it (%g s), so the "
-            "server, if it is there, has taken it for lost, and halted what of this client's "
-            "was still running",
-            held_for,
-            lease_s,
-        )
 
     def out_of_contact(self) -> str | None:
         quiet = self.lost_contact()
@@ -236,12 +214,7 @@ class RosWay:
         self._said = msg.data
         # Only the lease here, in the executor's thread: the whole configuration is
         # validated when it is asked for (`config`).
-        try:
-            lease = float(json.loads(msg.data)["server"]["client_lease_s"])
-        except Exception:  # whatever the text: no lease said (an executor's callback)
-            lease = math.nan
-        # As the configuration's own check takes it (NaN or infinity: never lost).
-        self._said_lease_s = lease if 0 < lease <= MAX_CLIENT_LEASE_S else None
+        self._said_lease_s = said_lease(msg.data)
         self._config_came.set()
 
     def _lost(self, what: str, sent: bool = True) -> LostContact:
@@ -425,7 +398,7 @@ class RosWay:
                 asked, within = time.monotonic(), min(deadline.left(), LEASE_EVERY_S)
                 self._cv.wait(within)
                 self.lease.woke(asked, within)
-                self._say_held(self.lost_after_s - LOST_AFTER_LEASE_S)
+                self.lease.say_held(self.lost_after_s - LOST_AFTER_LEASE_S)
             return self._outcomes[ident]
 
     def forget(self, ident: str) -> None:
