@@ -703,6 +703,9 @@ def test_a_ros_client_of_a_server_whose_owner_alone_stalls_is_told_and_its_move_
                 found = re.search(r"said nothing for (\d+\.\d) s", said)
                 assert found is not None and float(found.group(1)) < 10, said  # not its lease
                 arm.proc.err.wait_for("heard again", SCRIPT_S)
+                # The client's warning is not its last word while it waits on.
+                again = err.wait_for("the server is heard again after", SCRIPT_S)
+                assert said_again(again) >= 1.0, again
                 with contextlib.suppress(subprocess.TimeoutExpired):
                     send.wait(3 * LOST_S)
                 assert send.poll() is None and arm.states[-1] == "moving"
@@ -715,6 +718,41 @@ def test_a_ros_client_of_a_server_whose_owner_alone_stalls_is_told_and_its_move_
             )
             # Halted well before its 60 s (after the thaw: the bridge's loss of the client).
             wait_until(lambda: arm.states[-1] == "ready", STATE_S, "ready")
+        finally:
+            send.kill()
+            send.wait(10)
+
+
+def said_again(line: str) -> float:
+    """The seconds of silence a client's word that the server answers again says."""
+    found = re.search(r"again,? after (\d+\.\d) s", line)
+    assert found is not None, line
+    return float(found.group(1))
+
+
+def test_a_lane_client_says_when_its_stalled_server_answers_again(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """With a 60 s lease, a frozen server's silence said by a lane client waiting for its
+    move was its last word until the outcome, a minute later, though the server had
+    turned again within seconds. Now the client says that the server answers again, and
+    waits on: the move goes on."""
+    lease = patient_config(client_lease_s=60.0)
+    with served(config, tmp_path, "al5d_lane_again_peer", lease) as arm:
+        send, _, err = talking([AL5D, "send", "--via", "lane", "move base=60 time=60000"])
+        owner = arm.proc.popen.pid
+        try:
+            wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+            freeze(owner)
+            try:
+                err.wait_for("no word from the server on this machine's lane", SCRIPT_S)
+            finally:
+                os.kill(owner, signal.SIGCONT)
+            again = err.wait_for("answers again", SCRIPT_S)
+            assert again.startswith("move [") and said_again(again) >= 1.0, again
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                send.wait(3 * LOST_S)
+            assert send.poll() is None and arm.states[-1] == "moving"
         finally:
             send.kill()
             send.wait(10)

@@ -225,13 +225,27 @@ class LaneWay:
         lane = self.lane
         since = lane.unanswered  # read once: this silence's, which is said once
         quiet = lane.quiet()
+        name, give_up = self._waits.get(ident, (name, math.inf))
+        with self._said_lock:
+            said = self._silence_said
+            if said is not None and said != since:  # only the owner's word moves it on
+                self._silence_said = None
+            else:
+                said = None
+        if said is not None:
+            log.warning(
+                "%s [%s]: the server on this machine's lane answers again, after %.1f s; still "
+                "waiting",
+                name,
+                ident,
+                time.monotonic() - said,
+            )
         if since is None or quiet is None or quiet <= SILENCE_SAID_S:
             return
         with self._said_lock:
             if self._silence_said == since:
                 return
             self._silence_said = since
-        name, give_up = self._waits.get(ident, (name, math.inf))
         left = give_up - time.monotonic()
         if left == math.inf:
             then = ""

@@ -148,8 +148,10 @@ class RosWay:
         self._config_came = threading.Event()
         self.node.create_subscription(String, names.config, self._on_config, QOS_LATCHED)
         self.key = self.lease.key
-        #: The last sign of the server whose silence has been said (once an outage).
+        #: The last sign of the server whose silence has been said (once an outage), until
+        #: it is heard again (`_said_again`).
         self._silence_said: float | None = None
+        self._said_lock = threading.Lock()  # the command's thread and `LinkWatch`'s look
         #: The shutdown's service (a stop and a release go on the topic: `StopCall`,
         #: `_release`).
         self._services: dict[Kind, tuple[str, Any]] = {
@@ -185,10 +187,29 @@ class RosWay:
         quiet = time.monotonic() - since
         lost_after = self.lost_after_s
         self.lease.say_held(lost_after - LOST_AFTER_LEASE_S)
-        if self._silence_said != since and (warning := silence_warning(quiet, lost_after)):
-            self._silence_said = since
+        with self._said_lock:
+            self._said_again(lost_after)
+            warning = silence_warning(quiet, lost_after) if self._silence_said != since else None
+            if warning:
+                self._silence_said = since
+        if warning:
             log.warning("%s", warning)
         return quiet if quiet > lost_after else None
+
+    def _said_again(self, lost_after: float) -> None:
+        """A silence said, and the server heard since, within `lost_after`: said too, so
+        that the warning is not the last word while the wait goes on (with a 60 s lease it
+        stood alone until the outcome, a minute later). One heard again after `lost_after`
+        was taken for lost: the command says contact again (`al5d.app.report.LinkWatch`)."""
+        said, heard = self._silence_said, self.lease.heard
+        if said is None or heard is None or heard <= said:
+            return
+        self._silence_said = None
+        if heard - said <= lost_after:
+            log.warning(
+                "the server is heard again after %.1f s of silence; this client goes on waiting",
+                heard - said,
+            )
 
     def out_of_contact(self) -> str | None:
         quiet = self.lost_contact()
