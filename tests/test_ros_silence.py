@@ -11,6 +11,7 @@ import contextlib
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -21,6 +22,7 @@ import pytest
 
 from al5d import exits
 from al5d.arm.config import ArmConfig
+from al5d.owner import where
 from al5d.ros.rosway import LOST_S, silence_warning
 from al5d_rig.proc import (
     AL5D,
@@ -756,6 +758,45 @@ def test_a_lane_client_says_when_its_stalled_server_answers_again(
         finally:
             send.kill()
             send.wait(10)
+
+
+def test_a_client_of_a_frozen_server_whose_lane_takes_no_more_connections_ends_saying_so(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """A server frozen with its lane's queue of connections untaken full (64): `al5d send`
+    by the lane waited in its connect for ever, without a word. Now it says at 0.8 s that
+    the server has not answered, and ends within its wait, nothing sent, naming the
+    stalled server."""
+    with served(config, tmp_path, "al5d_lane_queue_peer") as arm:
+        owner = arm.proc.popen.pid
+        waiting: list[socket.socket] = []
+        freeze(owner)
+        try:
+            while True:  # the queue filled as the owner takes none
+                sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+                sock.setblocking(False)
+                try:
+                    sock.connect(str(where.path()))
+                except BlockingIOError:
+                    sock.close()
+                    break
+                waiting.append(sock)
+            send, out, err = talking(
+                [AL5D, "send", "--via", "lane", "--wait", "3", "move base=10 time=500"]
+            )
+            try:
+                assert send.wait(SCRIPT_S) == exits.NO_SERVER
+            finally:
+                send.kill()
+            said = err.drain() + out.drain()
+            assert any("has not answered in 0.8 s" in line for line in said), said
+            ended = [line for line in said if "has taken no connection in" in line]
+            assert ended and "stalled" in ended[0] and "nothing sent" in ended[0], said
+        finally:
+            os.kill(owner, signal.SIGCONT)
+            for sock in waiting:
+                sock.close()
+        assert len(waiting) >= 64, len(waiting)  # the owner's queue (`listen(64)`)
 
 
 def test_a_ros_client_that_was_itself_stopped_says_so_and_tells_the_servers_outcome(

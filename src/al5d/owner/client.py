@@ -45,6 +45,8 @@ log = logging.getLogger("al5d")
 
 #: How long a client waits for the owner's welcome.
 WELCOME_S = 10.0
+#: A lane whose owner has left a full queue of connections untaken is tried this often.
+CONNECT_AGAIN_S = 0.05
 
 
 #: A leased client signs this many times in the owner's lease of it: a busy host may hold
@@ -202,15 +204,40 @@ class Remote:
 
     @classmethod
     def connect(cls, path: Path, **kwargs: Any) -> Remote:
-        """The owner on the lane at `path`. Raises LaneClosed where none is there."""
+        """The owner on the lane at `path`, its welcome within `timeout` s (`WELCOME_S`),
+        the other keywords as `Remote` takes them. Raises LaneClosed where none is there,
+        LaneStalled where one is there but takes no connection or does not welcome it in
+        time (busy or stalled: a frozen process)."""
+        timeout: float = kwargs.pop("timeout", WELCOME_S)
+        slow: Callable[[], None] | None = kwargs.pop("slow", None)
+        asked = time.monotonic()
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        sock.setblocking(False)  # a connection its owner has not taken waits: not this
         try:
-            sock.connect(str(path))
+            while True:
+                try:
+                    sock.connect(str(path))
+                    break
+                except BlockingIOError:  # its queue of connections untaken is full
+                    waited = time.monotonic() - asked
+                    if waited > timeout:
+                        raise LaneStalled(
+                            f"the al5d server on this machine's lane ({path}) has taken no "
+                            f"connection in {timeout:g} s (too many wait for it): it is "
+                            "busy or stalled (a frozen process?)"
+                        ) from None
+                    if slow is not None and waited > quick.UNANSWERED_S:
+                        slow()
+                        slow = None  # said once
+                    time.sleep(CONNECT_AGAIN_S)
         except OSError as e:
             sock.close()
+            if isinstance(e, LaneStalled):
+                raise
             raise LaneClosed(f"no al5d server on {path}: {e.strerror or e}") from None
+        left = max(timeout - (time.monotonic() - asked), CONNECT_AGAIN_S)
         try:
-            return cls(sock, **kwargs)
+            return cls(sock, **kwargs, timeout=left, slow=slow)
         except LaneStalled as e:
             raise LaneStalled(
                 f"the al5d server on this machine's lane ({path}) took the connection but {e}: "
