@@ -54,6 +54,10 @@ CONNECT_AGAIN_S = 0.05
 #: client hears a turning owner within that however long its lease (`Remote.quiet`).
 SIGNS_PER_LEASE = 4
 SIGN_EVERY_MAX_S = 0.25
+#: A silence of the owner's this long is kept (`Remote.silence`): shorter than any a client
+#: says (1 s), longer than a turning owner takes to answer a sign, so that the answers to
+#: the signs sent after it do not take its place.
+SILENCE_KEPT_S = 0.5
 
 
 class LaneClosed(ConnectionError):
@@ -90,10 +94,14 @@ class Remote:
         lease: bool = False,
         ros: bool = False,
         slow: Callable[[], None] | None = None,
+        asked: float | None = None,
     ) -> None:
-        """Say hello on `sock` and wait `timeout` s for the welcome; `slow` is called once, on
-        this thread, where it has not come within `quick.UNANSWERED_S` (the wait goes on).
-        Raises LaneStalled where it does not come, LaneClosed where the lane closes first."""
+        """Say hello on `sock` and wait for the welcome until `timeout` s after `asked` (when
+        the connection was asked for, monotonic s; None: now); `slow` is called once, on
+        this thread, where it has not come within `quick.UNANSWERED_S` of then (the wait
+        goes on). Raises LaneStalled where it does not come, LaneClosed where the lane
+        closes first."""
+        asked = time.monotonic() if asked is None else asked
         self._sock = sock
         sock.setblocking(True)
         self._send_lock = threading.Lock()
@@ -118,6 +126,9 @@ class Remote:
         #: silence counted from there is the owner's, not this process's own stall
         #: (`quiet`: a process stopped and resumed sends its next sign first).
         self.unanswered: float | None = None
+        #: The last silence of the owner's longer than `SILENCE_KEPT_S` that a sign found:
+        #: when that sign went and when the owner next said something (monotonic).
+        self.silence: tuple[float, float] | None = None
         self._signs = False
         #: Why the owner took this client for lost, where it said so before it closed the
         #: lane (a client stopped and resumed: not a server that ended).
@@ -139,14 +150,12 @@ class Remote:
             hello["ros"] = True
         try:
             self._send(hello)
-            left = timeout
             if slow is not None and timeout > quick.UNANSWERED_S:
                 with contextlib.suppress(FutureTimeout):
-                    self._welcome.result(quick.UNANSWERED_S)
+                    self._welcome.result(max(asked + quick.UNANSWERED_S - time.monotonic(), 0))
                 if not self._welcome.done():
                     slow()
-                left -= quick.UNANSWERED_S
-            welcome = self._welcome.result(left)
+            welcome = self._welcome.result(max(asked + timeout - time.monotonic(), 0))
             self.config: ArmConfig = parse_config(welcome["config"], "the server's configuration")
         except FutureTimeout:  # the built-in TimeoutError from Python 3.11 on only
             self.close()
@@ -235,9 +244,8 @@ class Remote:
             if isinstance(e, LaneStalled):
                 raise
             raise LaneClosed(f"no al5d server on {path}: {e.strerror or e}") from None
-        left = max(timeout - (time.monotonic() - asked), CONNECT_AGAIN_S)
         try:
-            return cls(sock, **kwargs, timeout=left, slow=slow)
+            return cls(sock, **kwargs, timeout=timeout, slow=slow, asked=asked)
         except LaneStalled as e:
             raise LaneStalled(
                 f"the al5d server on this machine's lane ({path}) took the connection but {e}: "
@@ -384,6 +392,9 @@ class Remote:
                 data = self._sock.recv(65536)
                 if not data:
                     break
+                t, unanswered = time.monotonic(), self.unanswered
+                if unanswered is not None and t - unanswered > SILENCE_KEPT_S:
+                    self.silence = (unanswered, t)
                 self.unanswered = None  # the owner said something: it turns
                 for message in lines.feed(data):
                     if isinstance(message, ln.LaneError):

@@ -33,11 +33,14 @@ def path(namespace: str = "", domain: str | None = None) -> Path:
 
 def answers(lane: Path) -> bool:
     """Whether a server listens on `lane` (a lane left behind by a server that was killed
-    takes no connection)."""
+    takes no connection; one whose queue of untaken connections is full, a frozen
+    server's, is there all the same)."""
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
         sock.settimeout(0.5)
         try:
             sock.connect(str(lane))
+        except BlockingIOError:  # a full queue: not a lane left behind, taken over
+            return True
         except OSError:
             return False
     return True

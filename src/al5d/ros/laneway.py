@@ -105,8 +105,8 @@ class LaneWay:
         self._closed = False
         #: Each instruction sent: its name and when its sender gives up on it (monotonic).
         self._waits: dict[str, tuple[str, float]] = {}
-        #: The silence said (`_silence`: once each, by its first sign unanswered).
-        self._silence_said: float | None = None
+        #: The silence said (`_silence`: once each, by its lane and first sign unanswered).
+        self._silence_said: tuple[Remote, float] | None = None
         self._said_lock = threading.Lock()
 
     def _open(self, what: str, patience: float) -> Remote:
@@ -211,7 +211,10 @@ class LaneWay:
         deadline = Deadline(timeout)
         while True:
             with contextlib.suppress(FutureTimeout):
-                return future.result(max(min(deadline.left(), WATCH_EVERY_S), 0.0))
+                outcome = future.result(max(min(deadline.left(), WATCH_EVERY_S), 0.0))
+                with self._said_lock:  # the owner spoke: what follows says a silence over
+                    self._silence_said = None
+                return outcome
             self._silence(ident, name)  # also for a glance (`LinkWatch`'s at a background line)
             if deadline.expired:
                 return None
@@ -223,29 +226,30 @@ class LaneWay:
         gives the move up at its sender's deadline (`Instruction.wait_ms`), however late
         it turns again."""
         lane = self.lane
-        since = lane.unanswered  # read once: this silence's, which is said once
-        quiet = lane.quiet()
         name, give_up = self._waits.get(ident, (name, math.inf))
+        # Under the lock: a look that read the silence before another said it over would
+        # say it again.
         with self._said_lock:
-            said = self._silence_said
-            if said is not None and said != since:  # only the owner's word moves it on
-                self._silence_said = None
-            else:
-                said = None
-        if said is not None:
+            since = lane.unanswered  # read once: this silence's, which is said once
+            quiet = lane.quiet()
+            said, over = self._silence_said, None
+            if said is not None and (said[0] is not lane or said[1] != since):
+                self._silence_said = None  # only the owner's word moves it on
+                if said[0] is lane:
+                    over = lane.silence
+            warn = False
+            if since is not None and (quiet or 0.0) > SILENCE_SAID_S and not self._silence_said:
+                self._silence_said, warn = (lane, since), True
+        if said is not None and over is not None:
+            after = f", after {over[1] - said[1]:.1f} s" if over[0] == said[1] else ""
             log.warning(
-                "%s [%s]: the server on this machine's lane answers again, after %.1f s; still "
-                "waiting",
+                "%s [%s]: the server on this machine's lane answers again%s; still waiting",
                 name,
                 ident,
-                time.monotonic() - said,
+                after,
             )
-        if since is None or quiet is None or quiet <= SILENCE_SAID_S:
+        if not warn:
             return
-        with self._said_lock:
-            if self._silence_said == since:
-                return
-            self._silence_said = since
         left = give_up - time.monotonic()
         if left == math.inf:
             then = ""

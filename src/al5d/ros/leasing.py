@@ -41,6 +41,10 @@ BYE_S = 0.5
 #: process with it (stopped by Ctrl-Z or SIGSTOP, or starved by a busy host): what it
 #: did not hear meanwhile is no silence of the server's.
 HELD_S = LOST_AFTER_LEASE_S
+#: A silence of the server's longer than this is kept (`Leaser.back`): shorter than one a
+#: client says with the shipped lease (1 s), longer than the joint states' period (10 a
+#: second at rest), so that those that follow it do not take its place.
+GAP_S = 0.5
 
 log = logging.getLogger("al5d")
 
@@ -78,6 +82,9 @@ class Leaser:
         self.key = key
         #: When the server was last heard (monotonic s; None: not yet).
         self.heard: float | None = None
+        #: The last silence of the server's longer than `GAP_S`: when it was heard before
+        #: it and after it (monotonic s).
+        self.back: tuple[float, float] | None = None
         #: When this client last found itself held (`woke`), for how long (s), and how many
         #: holds it has found.
         self.held_until: float | None = None
@@ -95,7 +102,10 @@ class Leaser:
 
     def sign(self, *_: object) -> None:
         """The server was heard now (a callback of any of its topics)."""
-        self.heard = time.monotonic()
+        t, heard = time.monotonic(), self.heard
+        if heard is not None and t - heard > GAP_S:
+            self.back = (heard, t)
+        self.heard = t
 
     def deaf(self) -> bool:
         """The server heard once, and not for more than `LOST_AFTER_LEASE_S` since."""

@@ -180,36 +180,46 @@ class RosWay:
     def lost_contact(self) -> float | None:
         """Once the server has been heard: for how long it has not been, if more than
         `lost_after_s` (None: not lost). The silence is said once, as a WARNING, before that
-        is returned (`silence_warning`)."""
-        since = self.lease.silent_since()
-        if since is None:
-            return None
-        quiet = time.monotonic() - since
+        is returned (`silence_warning`), and so is its end (`_over`)."""
         lost_after = self.lost_after_s
         self.lease.say_held(lost_after - LOST_AFTER_LEASE_S)
+        # Under the lock: a look that read the silence before another said it over would
+        # say it again.
         with self._said_lock:
-            self._said_again(lost_after)
+            since = self.lease.silent_since()
+            if since is None:
+                return None
+            quiet = time.monotonic() - since
+            over = self._over(lost_after)
             warning = silence_warning(quiet, lost_after) if self._silence_said != since else None
             if warning:
                 self._silence_said = since
+        if over:
+            log.warning("%s", over)
         if warning:
             log.warning("%s", warning)
         return quiet if quiet > lost_after else None
 
-    def _said_again(self, lost_after: float) -> None:
-        """A silence said, and the server heard since, within `lost_after`: said too, so
-        that the warning is not the last word while the wait goes on (with a 60 s lease it
-        stood alone until the outcome, a minute later). One heard again after `lost_after`
-        was taken for lost: the command says contact again (`al5d.app.report.LinkWatch`)."""
+    def _over(self, lost_after: float) -> str | None:
+        """The silence said over, the server heard since: what to say of it (with a 60 s
+        lease the warning stood alone until the outcome, a minute later), None where there
+        is nothing to say: no silence said, or one that lasted past `lost_after`, taken for
+        lost, whose end the command says (`al5d.app.report.LinkWatch`)."""
         said, heard = self._silence_said, self.lease.heard
         if said is None or heard is None or heard <= said:
-            return
+            return None
         self._silence_said = None
-        if heard - said <= lost_after:
-            log.warning(
-                "the server is heard again after %.1f s of silence; this client goes on waiting",
-                heard - said,
-            )
+        back = self.lease.back
+        ended = back[1] if back is not None and back[0] <= said < back[1] else heard
+        if ended - said > lost_after:
+            return None
+        return f"the server is heard again, after {ended - said:.1f} s of silence"
+
+    def silence_over(self) -> None:
+        """A wait has ended with its outcome, a sign of the server: a silence said is over,
+        and what follows it says so (no word of it later, under another line)."""
+        with self._said_lock:
+            self._silence_said = None
 
     def out_of_contact(self) -> str | None:
         quiet = self.lost_contact()
@@ -420,6 +430,7 @@ class RosWay:
                 self._cv.wait(within)
                 self.lease.woke(asked, within)
                 self.lease.say_held(self.lost_after_s - LOST_AFTER_LEASE_S)
+            self.silence_over()
             return self._outcomes[ident]
 
     def forget(self, ident: str) -> None:
