@@ -76,6 +76,20 @@ def gone(server: list[int], via: str) -> Iterator[None]:
                 os.kill(pid, signal.SIGCONT)
 
 
+@contextlib.contextmanager
+def stopped(pid: int) -> Iterator[list[float]]:
+    """Process `pid` stopped (SIGSTOP) for the block, resumed on the way out; for how long
+    (s), in the list yielded once it is over."""
+    held: list[float] = []
+    freeze(pid)
+    start = time.monotonic()
+    try:
+        yield held
+    finally:
+        os.kill(pid, signal.SIGCONT)
+        held.append(time.monotonic() - start)
+
+
 #: The client's WARNING of a silence, with the seconds it says.
 SILENCE_SAID = re.compile(r"no sign of the server for (\d+\.\d) s")
 
@@ -686,9 +700,7 @@ def test_a_ros_client_of_a_server_whose_owner_alone_stalls_is_told_and_its_move_
         owner = arm.proc.popen.pid
         try:
             wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
-            freeze(owner)
-            frozen = time.monotonic()
-            try:
+            with stopped(owner) as frozen:
                 said = err.wait_for("no sign of the server for", SCRIPT_S)
                 assert said_silence(said) >= 1.0, said
                 if lease_s > 10:
@@ -700,9 +712,6 @@ def test_a_ros_client_of_a_server_whose_owner_alone_stalls_is_told_and_its_move_
                     assert send.poll() is None, "it gave up within its server's lease"
                 else:
                     assert send.wait(SCRIPT_S) != 0
-            finally:
-                os.kill(owner, signal.SIGCONT)
-                frozen = time.monotonic() - frozen
             if lease_s > 10:
                 said = arm.proc.err.wait_for("the owner has said nothing for", SCRIPT_S)
                 found = re.search(r"said nothing for (\d+\.\d) s", said)
@@ -711,7 +720,7 @@ def test_a_ros_client_of_a_server_whose_owner_alone_stalls_is_told_and_its_move_
                 # The client's warning is not its last word while it waits on; the silence
                 # it says is the one it warned of, within the freeze (and its thaw's second).
                 again = err.wait_for("the server is heard again", SCRIPT_S)
-                assert 1.0 <= said_again(again) <= frozen + 1.0, (again, frozen)
+                assert 1.0 <= said_again(again) <= frozen[0] + 1.0, (again, frozen)
                 with contextlib.suppress(subprocess.TimeoutExpired):
                     send.wait(3 * LOST_S)
                 assert send.poll() is None and arm.states[-1] == "moving"
@@ -749,16 +758,11 @@ def test_a_lane_client_says_when_its_stalled_server_answers_again(
         owner = arm.proc.popen.pid
         try:
             wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
-            freeze(owner)
-            frozen = time.monotonic()
-            try:
+            with stopped(owner) as frozen:
                 err.wait_for("no word from the server on this machine's lane", SCRIPT_S)
-            finally:
-                os.kill(owner, signal.SIGCONT)
-                frozen = time.monotonic() - frozen
             again = err.wait_for("answers again", SCRIPT_S)
             assert again.startswith("move ["), again
-            assert 1.0 <= said_again(again) <= frozen + 1.0, (again, frozen)
+            assert 1.0 <= said_again(again) <= frozen[0] + 1.0, (again, frozen)
             with contextlib.suppress(subprocess.TimeoutExpired):
                 send.wait(3 * LOST_S)
             assert send.poll() is None and arm.states[-1] == "moving"
