@@ -221,7 +221,9 @@ class Remote:
         slow: Callable[[], None] | None = kwargs.pop("slow", None)
         asked = time.monotonic()
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        sock.setblocking(False)  # a connection its owner has not taken waits: not this
+        # Not blocking: with the owner's queue of untaken connections full, a blocking
+        # connect would wait, without a word, until the owner turns again.
+        sock.setblocking(False)
         try:
             while True:
                 try:

@@ -149,7 +149,7 @@ class RosWay:
         self.node.create_subscription(String, names.config, self._on_config, QOS_LATCHED)
         self.key = self.lease.key
         #: The last sign of the server whose silence has been said (once an outage), until
-        #: it is heard again (`_said_again`).
+        #: it is heard again (`_over`).
         self._silence_said: float | None = None
         self._said_lock = threading.Lock()  # the command's thread and `LinkWatch`'s look
         #: The shutdown's service (a stop and a release go on the topic: `StopCall`,
@@ -215,7 +215,7 @@ class RosWay:
             return None
         return f"the server is heard again, after {ended - said:.1f} s of silence"
 
-    def silence_over(self) -> None:
+    def _silence_over(self) -> None:
         """A wait has ended with its outcome, a sign of the server: a silence said is over,
         and what follows it says so (no word of it later, under another line)."""
         with self._said_lock:
@@ -430,7 +430,7 @@ class RosWay:
                 self._cv.wait(within)
                 self.lease.woke(asked, within)
                 self.lease.say_held(self.lost_after_s - LOST_AFTER_LEASE_S)
-            self.silence_over()
+            self._silence_over()
             return self._outcomes[ident]
 
     def forget(self, ident: str) -> None:
