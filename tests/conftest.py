@@ -101,6 +101,10 @@ def pytest_sessionstart(session: pytest.Session) -> None:
         faulthandler.enable(file=record, all_threads=True)
 
 
+#: A test still running this long after its timeout has a hang that holds the interpreter.
+HELD_PAST_TIMEOUT_S = 30.0
+
+
 @pytest.hookimpl(tryfirst=True, optionalhook=True)
 def pytest_timeout_set_timer(item: pytest.Item, settings: Any) -> bool | None:
     """In a worker: a test that overran its timeout is named in the worker's fault record,
@@ -120,8 +124,15 @@ def pytest_timeout_set_timer(item: pytest.Item, settings: Any) -> bool | None:
 
     timer = threading.Timer(settings.timeout, overran)
     timer.name = f"timeout {item.nodeid}"
+    # The timer's thread needs the interpreter, which a hang in native code may hold for
+    # ever (seen: Fast DDS spinning in a participant's destruction, the run held until
+    # `make test`'s own limit); faulthandler's watchdog needs nothing, and ends the worker.
+    faulthandler.dump_traceback_later(
+        settings.timeout + HELD_PAST_TIMEOUT_S, exit=True, file=record
+    )
 
     def cancel() -> None:
+        faulthandler.cancel_dump_traceback_later()
         timer.cancel()
         timer.join()
 
