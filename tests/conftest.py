@@ -9,6 +9,7 @@ import logging
 import os
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,7 @@ from al5d.owner.loop import Owner
 from al5d.ssc32u.driver import SSC32U
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import ON_FAILURE, Rig, make_rig
+from al5d_rig.proc import said_so_far
 
 
 @pytest.fixture(scope="session")
@@ -236,7 +238,23 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
             report.sections.append(("at the failure", facts()))
         except Exception as error:  # the report must not be lost for its extra facts
             report.sections.append(("at the failure", f"not found: {error!r}"))
+    if report.when == "call" and report.failed:
+        try:
+            said = said_so_far(item.stash[STARTED])
+        except Exception as error:
+            said = f"not found: {error!r}"
+        if said:
+            report.sections.append(("what the test's processes said", said))
     return report
+
+
+#: When a test's setup began (monotonic): the processes it started are those started since.
+STARTED = pytest.StashKey[float]()
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    item.stash[STARTED] = time.monotonic()
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

@@ -60,7 +60,7 @@ def test_sigterm_and_sigint_park_first_then_exit_0(group: bool) -> None:
             assert any("shutdown: parked" in line for line in proc.err.all)
             # Its ROS side ends with it, not taken for a crash (nor started again).
             said = [line for line in proc.err.all if "ERROR" in line or "Traceback" in line]
-            assert not said, said
+            assert not said, "\n".join(proc.err.all)
         finally:
             proc.kill()
 

@@ -189,6 +189,10 @@ class Lines:
 _LIVE: weakref.WeakSet[Proc] = weakref.WeakSet()
 
 
+#: Every `Tty` not yet closed, for a failure's report (`said_so_far`).
+_TTYS: weakref.WeakSet[Tty] = weakref.WeakSet()
+
+
 @atexit.register
 def _kill_live() -> None:
     for proc in list(_LIVE):
@@ -236,6 +240,7 @@ class Proc:
         """`group`: in a process group of its own (its children too), as a shell or systemd
         starts a service, for a signal to the whole group."""
         _LIVE.add(self)
+        self.started = time.monotonic()
         self.command = " ".join(("al5d" if program == AL5D else Path(program).name, *args))
         self.popen = subprocess.Popen(
             [program, *args],
@@ -378,10 +383,13 @@ class Tty:
     def __init__(self, args: list[str]) -> None:
         self.master, slave = os.openpty()
         env = {**os.environ, "TERM": "dumb"}  # no terminal's escapes but the shell's own
+        self.command = " ".join(args)
         self.proc = subprocess.Popen(
             args, stdin=slave, stdout=slave, stderr=slave, env=env, preexec_fn=dies_with_parent
         )
         os.close(slave)
+        _TTYS.add(self)
+        self.started = time.monotonic()
         self.drawn = ""
         self._cursor = 0
         self._lock = threading.Lock()
@@ -411,13 +419,46 @@ class Tty:
                     self._cursor = found.end()
                     return found
                 if time.monotonic() > deadline:
-                    raise AssertionError(
-                        f"nothing drawn matches {pattern!r} in {timeout} s; drawn since the "
-                        f"last match:\n{self.drawn[self._cursor :]!r}"
-                    )
+                    drawn = self.drawn[self._cursor :]
+                    break
             time.sleep(0.05)
+        # Where it waits, taken now: the test's cleanup ends it before the report is made.
+        where = stacks(self.proc.pid) if self.proc.poll() is None else "(it has ended)"
+        raise AssertionError(
+            f"nothing drawn matches {pattern!r} in {timeout} s; drawn since the last "
+            f"match:\n{drawn!r}\n{where}"
+        )
 
     def close(self) -> None:
         self.proc.kill()
         self.proc.wait(10)
         os.close(self.master)
+
+
+def said_so_far(since: float, lines: int = 120) -> str:
+    """What each `Proc` and `Tty` started at or after `since` (monotonic) said, its last
+    `lines` lines, and where each still running waits (`stacks`): for the report of a test
+    that failed. A failure seen once in a CI run (a server's stderr with one "Traceback"
+    line; a shell that drew nothing for 90 s) left nothing else to find its cause by."""
+    parts = []
+    for proc in sorted((p for p in list(_LIVE) if p.started >= since), key=lambda p: p.started):
+        running = proc.popen.poll() is None
+        state = "running" if running else f"ended with {proc.popen.returncode}"
+        err = proc.err.drain(0)[-lines:]
+        out = proc.out.drain(0)[-lines:]
+        parts.append(f"--- {proc.command} ({state}); its stderr, last {len(err)} lines:")
+        parts += err
+        parts.append(f"--- its stdout, last {len(out)} lines:")
+        parts += out
+        if running:
+            parts.append(proc.stacks())
+    for tty in sorted((t for t in list(_TTYS) if t.started >= since), key=lambda t: t.started):
+        running = tty.proc.poll() is None
+        state = "running" if running else f"ended with {tty.proc.returncode}"
+        with tty._lock:
+            drawn = tty.drawn.splitlines()[-lines:]
+        parts.append(f"--- {tty.command} at a terminal ({state}); drawn:")
+        parts += [repr(line) for line in drawn]
+        if running:
+            parts.append(stacks(tty.proc.pid))
+    return "\n".join(parts)
