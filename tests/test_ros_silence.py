@@ -23,6 +23,8 @@ import pytest
 from al5d import exits
 from al5d.arm.config import ArmConfig
 from al5d.owner import where
+from al5d.ros.answers import NoOutcome
+from al5d.ros.client import Client
 from al5d.ros.rosway import LOST_S, silence_warning
 from al5d_rig.proc import (
     AL5D,
@@ -780,19 +782,7 @@ def test_a_client_of_a_frozen_server_whose_lane_takes_no_more_connections_ends_s
     the server has not answered, and ends within its wait, nothing sent, naming the
     stalled server."""
     with served(config, tmp_path, "al5d_lane_queue_peer") as arm:
-        owner = arm.proc.popen.pid
-        waiting: list[socket.socket] = []
-        freeze(owner)
-        try:
-            while True:  # the queue filled as the owner takes none
-                sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-                sock.setblocking(False)
-                try:
-                    sock.connect(str(where.path()))
-                except BlockingIOError:
-                    sock.close()
-                    break
-                waiting.append(sock)
+        with lane_full(arm.proc.popen.pid) as waiting:
             # Not a lane left behind, which a server starting would take over.
             assert where.answers(where.path())
             send, out, err = talking(
@@ -806,11 +796,79 @@ def test_a_client_of_a_frozen_server_whose_lane_takes_no_more_connections_ends_s
             assert any("has not answered in 0.8 s" in line for line in said), said
             ended = [line for line in said if "has taken no connection in" in line]
             assert ended and "stalled" in ended[0] and "nothing sent" in ended[0], said
-        finally:
-            os.kill(owner, signal.SIGCONT)
-            for sock in waiting:
-                sock.close()
         assert len(waiting) >= 64, len(waiting)  # the owner's queue (`listen(64)`)
+
+
+@contextlib.contextmanager
+def lane_full(owner: int) -> Iterator[list[socket.socket]]:
+    """The server's owner `owner` frozen, and its lane's queue of connections not taken
+    filled (the connections, yielded, closed once it is thawed on the way out)."""
+    waiting: list[socket.socket] = []
+    freeze(owner)
+    try:
+        while True:  # the queue filled as the owner takes none
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            sock.setblocking(False)
+            try:
+                sock.connect(str(where.path()))
+            except BlockingIOError:
+                sock.close()
+                break
+            waiting.append(sock)
+        yield waiting
+    finally:
+        os.kill(owner, signal.SIGCONT)
+        for sock in waiting:
+            sock.close()
+
+
+def test_a_stop_typed_while_the_lane_of_a_frozen_server_is_full_goes_by_ros_2(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """`al5d send stop` to a server whose owner is frozen, its lane's queue of connections
+    full: it waited 10 s for a connection and ended 'nothing sent', the arm moving on once
+    the owner turned again. Now it says so at once and goes by ROS 2, whose stop node holds
+    a connection to the owner: the owner, thawed, stops the arm first, and the command
+    says the stop done."""
+    with served(config, tmp_path, "al5d_full_lane_stop_peer") as arm:
+        move, _, _ = talking([AL5D, "send", "--via", "lane", "move base=60 time=60000"])
+        try:
+            wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+            with lane_full(arm.proc.popen.pid):
+                stop, out, err = talking([AL5D, "send", "stop", "--timeout", "60"])
+                went = err.wait_for("takes no new connection", SCRIPT_S)
+                assert "it goes by ROS 2" in went, went
+                # Asked of the stop node, and handed to the owner (which does not answer).
+                err.wait_for("no answer in 0.8 s", SCRIPT_S)
+            done = out.wait_for("stop", SCRIPT_S)
+            assert stop.wait(SCRIPT_S) == exits.DONE, (done, err.drain(), out.drain())
+            assert done.startswith("stop: done (by /al5d/"), done
+            wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
+        finally:
+            move.kill()
+            move.wait(10)
+
+
+def test_a_python_clients_stop_while_the_lane_of_a_frozen_server_is_full_is_obeyed(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """A Python client's stop (by the lane) to a server whose owner is frozen for longer
+    than the stop's wait, its lane's queue of connections full: it said 'not sent: no al5d
+    server takes its lane', of a server that is there, and the arm moved on once the owner
+    turned again. Now it goes on the client's own connection, says it has no answer
+    (whether obeyed unknown), and the owner, thawed, obeys it."""
+    with (
+        served(config, tmp_path, "al5d_full_lane_client_peer") as arm,
+        Client(local=True) as client,
+    ):
+        client.send("move base=60 time=60000")
+        wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+        with (
+            lane_full(arm.proc.popen.pid),
+            pytest.raises(NoOutcome, match="no answer on the local lane within 2 s"),
+        ):
+            client.stop(timeout=2.0)
+        wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
 
 
 def test_a_ros_client_that_was_itself_stopped_says_so_and_tells_the_servers_outcome(

@@ -31,6 +31,12 @@ _STOP_MARKS = "!.,;:"
 UNANSWERED_S = 0.8
 
 
+class LaneFull(ConnectionError):
+    """A server is on the lane, but its queue of connections not yet taken is full: it is
+    busy or stalled (a frozen process). A stop goes by a connection already open to it,
+    which it reads, stops first, as it turns again."""
+
+
 def parse(argv: list[str]) -> tuple[str, float] | None:
     """`send stop [words]` with the options `_FLAGS` (each with its value) anywhere among its
     words: the namespace and the timeout; None for any other command line. A stop is read
@@ -61,7 +67,10 @@ def parse(argv: list[str]) -> tuple[str, float] | None:
 
 def stop(namespace: str, timeout: float) -> int | None:
     """Ask the local server for the stop and print its answer as `al5d send` does; the exit
-    code, or None where no server's lane answers here (then ROS 2 is the way)."""
+    code, or None where no server's lane answers here (then ROS 2 is the way). Raises
+    LaneFull, said, where the server's lane takes no new connection: the stop then goes
+    by ROS 2 alone, whose stop node holds a connection to the server (by the lane, the
+    full command line would wait for one, and end with nothing sent)."""
     ident = f"{os.getpid():x}-stop"
 
     def unanswered() -> None:
@@ -76,6 +85,13 @@ def stop(namespace: str, timeout: float) -> int | None:
     unknown = "whether the arm has stopped is unknown"
     try:
         outcome = ask_stop(where.path(namespace), ident, timeout, unanswered)
+    except LaneFull as e:
+        print(
+            f"stop: {e}; it goes by ROS 2, whose stop node holds a connection to the server",
+            file=sys.stderr,
+            flush=True,
+        )
+        raise
     except TimeoutError:
         # The stop waits in the server's lane: one that comes back obeys it then.
         print(
@@ -111,8 +127,8 @@ def ask_stop(
     """The stop `ident` asked of the server whose lane is `lane`, and its outcome as the lane
     carries it; None where no server's lane takes a connection there. `unanswered` as
     `answer` says. Raises OSError where the lane failed or no answer came within `timeout`
-    s (the stop may have been obeyed), EOFError where the server closed it without
-    answering."""
+    s (the stop may have been obeyed), LaneFull (`hand_stop`), EOFError where the server
+    closed it without answering."""
     sock = hand_stop(lane, ident, timeout)
     return None if sock is None else answer(sock, timeout, unanswered)
 
@@ -121,11 +137,18 @@ def hand_stop(lane: Path, ident: str, timeout: float) -> socket.socket | None:
     """The stop `ident` handed to the server whose lane is `lane` (within `timeout` s: a
     Unix socket takes a line at once, unless the owner has not read a backlog of them);
     the socket its answer comes on (`answer`), or None where no server's lane takes a
-    connection there. Raises OSError where the lane failed."""
+    connection there. Raises LaneFull where one is there but takes no new connection now,
+    OSError where the lane failed."""
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     sock.settimeout(timeout)
     try:
         sock.connect(str(lane))
+    except BlockingIOError:  # at once, whatever the timeout: a Unix socket does not wait
+        sock.close()
+        raise LaneFull(
+            f"the al5d server on this machine's lane ({lane}) takes no new connection (too "
+            "many wait for it): it is busy or stalled"
+        ) from None
     except OSError:
         sock.close()
         return None

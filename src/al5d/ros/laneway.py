@@ -302,9 +302,8 @@ class LaneWay:
         return view
 
     def ask(self, kind: Kind, timeout: float) -> Answer:
-        if kind is Kind.STOP:
-            outcome = self._stop(timeout)
-        else:
+        outcome = self._stop(timeout) if kind is Kind.STOP else None
+        if outcome is None:  # not a stop, or one whose connection of its own was not taken
             deadline = Deadline(timeout)
             lane = self._open(kind.value, timeout)
             instr = Instruction(kind)
@@ -326,11 +325,14 @@ class LaneWay:
         message = outcome.reason or f"{kind.value}: {outcome.result.value}"
         return Answer(kind.value, outcome.ok, message, "the local lane")
 
-    def _stop(self, timeout: float) -> Outcome:
+    def _stop(self, timeout: float) -> Outcome | None:
         """A stop on a connection of its own (`quick.hand_stop`), as the web view's and
         `al5d send stop`'s: not behind what this client's lane carries (a trajectory's
         bytes on their way, another thread's send holding the lane). A server started
-        again meanwhile takes it: the lane is looked for again until `timeout`."""
+        again meanwhile takes it: the lane is looked for again until `timeout`. None where
+        the server takes no new connection (`quick.LaneFull`: busy or stalled): this
+        client's own connection, taken long since, is then the way (given up on until
+        `timeout`, the stop was not sent, and the server, turning again, moved on)."""
         deadline = Deadline(timeout)
         path = where.path(self.names.namespace)
         ident = new_id()
@@ -364,6 +366,9 @@ class LaneWay:
                 said_late(ident, after, told.ok, told.result.value, told.reason)
 
             outcome = outcome_in(quick.answer(sock, left, unanswered, late))
+        except quick.LaneFull as e:
+            log.warning("stop: %s; it goes on this client's own connection to it", e)
+            return None
         except TimeoutError:
             raise NoOutcome(
                 f"stop: no answer on the local lane within {timeout:g} s (whether the server "
