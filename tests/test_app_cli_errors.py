@@ -35,6 +35,8 @@ from al5d_rig.served import Served, served
 #: Generous bounds: rclpy's start, discovery and a move on a loaded machine.
 CMD_S = 90.0
 STATE_S = 30.0
+#: What a shell says of its stop on Ctrl-C, answered by the local lane (under its id).
+STOPPED_BY_LANE = r"Ctrl-C: stop \[[^\]]+\]: done \(by the local lane\)"
 
 
 @pytest.fixture(scope="module")
@@ -478,12 +480,10 @@ def test_the_shell_runs_each_line_over_one_connection(arm: Served) -> None:
     assert code == exits.BAD_INPUT, err  # a line was bad; the others ran
     assert out[0] == "> ready" and re.fullmatch(r"ready \[.*\]: done.*", out[1]), out
     # Each line is said before its outcome, the stop's and the release's too.
-    assert out[2:6] == [
-        "> stop",
-        "stop: done (by the local lane)",
-        "> release",
-        "release: done (by the local lane)",
-    ], out
+    assert out[2] == "> stop" and out[4] == "> release", out
+    # Each answer names its id, as a warning while it waited would.
+    assert re.fullmatch(r"stop \[[^\]]+\]: done \(by the local lane\)", out[3]), out
+    assert re.fullmatch(r"release \[[^\]]+\]: done \(by the local lane\)", out[5]), out
     assert "> move base=10 time=200" in out
     assert sum(": done" in line for line in out) == 5, out
     assert "al5d shell: word 2 'base=x': 'x' is not a number of degrees" in err
@@ -500,9 +500,8 @@ def test_ctrl_c_in_the_shell_stops_a_move_in_the_background(arm: Served) -> None
         shell.send("move base=80 time=5000 &")
         wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
         shell.popen.send_signal(signal.SIGINT)
-        assert (
-            shell.out.wait_for("Ctrl-C: stop: ", CMD_S) == "Ctrl-C: stop: done (by the local lane)"
-        )
+        said = shell.out.wait_for("Ctrl-C: stop [", CMD_S)
+        assert re.fullmatch(STOPPED_BY_LANE, said), said
         wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
         assert abs(arm.emu.servo_degrees()["base"] - 80) > 5  # halted on its way
         code, out, err = ended(shell)  # Ctrl-C ended its piped input
@@ -541,8 +540,8 @@ def test_ctrl_c_in_a_piped_shell_stops_the_arm_and_ends_its_input(arm: Served) -
         shell.out.wait_for("> move base=80 time=5000", CMD_S)
         wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
         shell.popen.send_signal(signal.SIGINT)
-        said = shell.out.wait_for("Ctrl-C: stop: ", CMD_S)
-        assert said == "Ctrl-C: stop: done (by the local lane)"
+        said = shell.out.wait_for("Ctrl-C: stop [", CMD_S)
+        assert re.fullmatch(STOPPED_BY_LANE, said), said
         assert "cancelled" in shell.out.wait_for("move [", CMD_S)
         wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
         assert abs(arm.emu.servo_degrees()["base"] - 80) > 5  # halted on its way
@@ -565,8 +564,8 @@ def test_ctrl_c_in_a_shells_wait_stops_its_move_in_the_background(arm: Served) -
         shell.out.wait_for("wait 60000 ms", CMD_S)
         wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
         shell.popen.send_signal(signal.SIGINT)
-        said = shell.out.wait_for("Ctrl-C: stop: ", CMD_S)
-        assert said == "Ctrl-C: stop: done (by the local lane)"
+        said = shell.out.wait_for("Ctrl-C: stop [", CMD_S)
+        assert re.fullmatch(STOPPED_BY_LANE, said), said
         code, out, err = ended(shell)
     finally:
         shell.kill()
@@ -603,12 +602,12 @@ def test_ctrl_c_at_the_shells_terminal_stops_the_arm_and_prompts_again(arm: Serv
         shell.type("move base=80 time=5000\r")
         wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
         shell.proc.send_signal(signal.SIGINT)
-        shell.wait_for(r"Ctrl-C: stop: done \(by the local lane\)", CMD_S)
+        shell.wait_for(STOPPED_BY_LANE, CMD_S)
         shell.wait_for(r"move \[[^\]]+\]: cancelled.*\r\nal5d> ", CMD_S)
         wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
         assert abs(arm.emu.servo_degrees()["base"] - 80) > 5  # halted on its way
         shell.type("release\r")
-        shell.wait_for(r"release: done \(by the local lane\)\r\nal5d> ", CMD_S)
+        shell.wait_for(r"release \[[^\]]+\]: done \(by the local lane\)\r\nal5d> ", CMD_S)
         shell.type("exit\r")
         assert shell.proc.wait(CMD_S) == exits.NOT_DONE, shell.drawn  # the move cancelled
     finally:

@@ -205,14 +205,16 @@ def test_al5d_send_stops_and_releases_and_says_by_what(arm: Served) -> None:
     stop = Proc("send", "--via", "ros", "stop")
     assert stop.wait(SCRIPT_S) == 0, stop.err.drain()
     # On the topic: copies of one stop until one is answered (`al5d.ros.rosstop`).
-    assert stop.out.drain() == ["stop: done (by /al5d/instruction)"]
+    (said,) = stop.out.drain()
+    assert re.fullmatch(r"stop \[[^\]]+\]: done \(by /al5d/instruction\)", said), said
     locked = Proc("send", "--via", "ros", "move", "base=5")
     assert locked.wait(SCRIPT_S) == 1
     assert any("refused: the arm is stopped" in line for line in locked.out.drain())
     release = Proc("send", "--via", "ros", "release")
     assert release.wait(SCRIPT_S) == 0, release.err.drain()
     # On the topic, with the client's lease: judged on the server's clock (docs/ros.md).
-    assert release.out.drain() == ["release: done (by /al5d/instruction)"]
+    (said,) = release.out.drain()
+    assert re.fullmatch(r"release \[[^\]]+\]: done \(by /al5d/instruction\)", said), said
     twice = Proc("send", "--via", "ros", "release")
     assert twice.wait(SCRIPT_S) == 1
     assert any("refused: the arm is not stopped" in line for line in twice.out.drain())
@@ -330,9 +332,9 @@ def test_a_stop_taken_by_a_reader_that_is_no_server_is_said_sent_and_unanswered(
         out = sent.out.drain()
         assert any(
             re.fullmatch(
-                r"stop: sent \d+ times on /al5d/instruction, which a reader took, but no al5d "
-                r"server was found within 4 s to answer it \(whether the arm has stopped is "
-                r"unknown\)",
+                r"stop \[[^\]]+\]: sent \d+ times on /al5d/instruction, which a reader took, but "
+                r"no al5d server was found within 4 s to answer it \(whether the arm has "
+                r"stopped is unknown\)",
                 line,
             )
             for line in out
@@ -346,7 +348,7 @@ def test_a_stop_unanswered_for_a_while_is_said_to_be_so_while_it_is_still_sent()
     lost = Proc("send", "--wait", "3", "stop", env=alone())
     assert lost.wait(SCRIPT_S) == exits.NO_SERVER
     err = lost.err.drain()
-    said = [i for i, line in enumerate(err) if "stop: no answer in 0.8 s" in line]
+    said = [i for i, line in enumerate(err) if re.search(r"stop \[.+\]: no answer in 0.8 s", line)]
     ended = [
         i for i, line in enumerate(err) if "no al5d server answers on /al5d/instruction" in line
     ]
@@ -362,10 +364,10 @@ def test_the_readme_example_runs_as_written(arm: Served, tmp_path: Path) -> None
     assert state == "ready elbow 132 deg"
     assert re.fullmatch(r"x=\S+ y=\S+ z=\S+ pitch=\S+ roll=\S+", tool), tool
     # A server on this machine: the client reaches it by its local lane.
-    assert stop == "stop: done (by the local lane)"
+    assert re.fullmatch(r"stop \[[^\]]+\]: done \(by the local lane\)", stop), stop
     assert cancelled.startswith("move [") and cancelled.endswith(": cancelled: cancelled by stop")
     assert locked.startswith("ready [") and "refused: the arm is stopped" in locked
-    assert release == "release: done (by the local lane)"
+    assert re.fullmatch(r"release \[[^\]]+\]: done \(by the local lane\)", release), release
     wait_until(lambda: arm.states[-1] == "ready", STATE_S, "ready after the release")
 
 
@@ -481,11 +483,11 @@ def test_the_client_reads_the_arm(arm: Served, tmp_path: Path, local: bool) -> N
     assert abs(float(tool["z"]) - 100) < 1.5 and abs(float(tool["pitch"]) + 30) < 1, lines[3]
     assert lines[4] == "base 0.0"
     assert lines[5] == "moving moving"
-    assert lines[6].startswith("stop: done")
+    assert lines[6].startswith("stop [") and ": done (" in lines[6]
     assert lines[7] == "stopped True"
     assert ": cancelled" in lines[8]
     assert lines[9] == "stopped short True"
-    assert lines[10].startswith("release: done")
+    assert lines[10].startswith("release [") and ": done (" in lines[10]
     assert lines[11] == "ready False"
     assert lines[12] == "heard True"
     assert lines[13] == "timeout the arm was not fault within 0.5 s (it is 'ready')"
@@ -548,11 +550,11 @@ def test_ctrl_c_as_an_instruction_goes_out_leaves_it_known_as_sent(
     assert ended_normally(done) and done.returncode == 0, done.stdout + done.stderr
     lines = own_lines(done.stdout)
     assert lines[0] == "Ctrl-C True", lines
-    assert lines[1].startswith("stop: done"), lines
+    assert lines[1].startswith("stop [") and ": done (" in lines[1], lines
     # Cancelled by the stop; or, where the stop (by the service) overtook the move (on the
     # topic) on its way over DDS, refused as the stopped arm's: a CI run saw both.
     found = re.fullmatch(r"move \[\S+\]: (cancelled|refused: the arm is stopped).*", lines[2])
     assert found, lines
     assert lines[3] == f"watched [{found.group(1).split(':')[0]!r}]", lines
-    assert lines[4].startswith("release: done"), lines
+    assert lines[4].startswith("release [") and ": done (" in lines[4], lines
     assert lines[5] == "False None True", lines

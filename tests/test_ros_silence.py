@@ -149,7 +149,7 @@ def test_a_stop_unanswered_while_the_server_is_silent_says_the_link_may_be_lost(
                 time.sleep(2.0)  # the client has heard nothing for 1.5 s: lost contact
                 client.stdin.write("stop\n")
                 client.stdin.flush()
-                said = err.wait_for("stop: no answer in 0.8 s", SCRIPT_S)
+                said = err.wait_for("]: no answer in 0.8 s", SCRIPT_S)
             finally:
                 for pid in server:
                     os.kill(pid, signal.SIGCONT)
@@ -157,7 +157,11 @@ def test_a_stop_unanswered_while_the_server_is_silent_says_the_link_may_be_lost(
                 r"nothing heard from the server for \d+\.\d s: the link may be lost", said
             ), said
             assert "discovery" not in said and "not found" not in said, said
-            assert out.wait_for("stop: ", SCRIPT_S).startswith("stop: done"), out.all
+            # Its answer names the stop its warning named (it named none).
+            warned = re.search(r"stop (\[[^\]]+\]): no answer", said)
+            assert warned is not None, said
+            answer = out.wait_for("stop [", SCRIPT_S)
+            assert answer.startswith(f"stop {warned.group(1)}: done"), (answer, said)
             wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
             assert client.wait(SCRIPT_S) == 0
             assert not [line for line in err.all if "Traceback" in line], err.all
@@ -456,7 +460,7 @@ def test_a_stop_by_the_local_lane_unanswered_says_so_while_it_waits(
             answer = send_out.wait_for("stop [", SCRIPT_S)
             assert answer.endswith("done (by the local lane)"), answer
             assert send.wait(SCRIPT_S) == 0
-            assert out.wait_for("stop", SCRIPT_S).startswith("stop: done"), out.all
+            assert re.match(r"stop \[[^\]]+\]: done", out.wait_for("stop", SCRIPT_S)), out.all
             wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
             assert client.wait(SCRIPT_S) == 0
             assert not [x for x in err.all + send_err.all if "Traceback" in x], err.all
@@ -842,7 +846,7 @@ def test_a_stop_typed_while_the_lane_of_a_frozen_server_is_full_goes_by_ros_2(
                 err.wait_for("no answer in 0.8 s", SCRIPT_S)
             done = out.wait_for("stop", SCRIPT_S)
             assert stop.wait(SCRIPT_S) == exits.DONE, (done, err.drain(), out.drain())
-            assert done.startswith("stop: done (by /al5d/"), done
+            assert re.match(r"stop \[[^\]]+\]: done \(by /al5d/", done), done
             wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
         finally:
             move.kill()

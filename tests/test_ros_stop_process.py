@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -501,7 +502,7 @@ def test_a_python_clients_stop_held_on_its_way_does_not_lock_the_arm_after_a_rel
         time.sleep(4.0)
         again = [line for line in said.drain(0)[released:] if "STATE: stopped" in line]
         assert result.outcome == "done" and not again, (result.outcome, result.reason, again)
-        assert "stop: done" in answer and "(by /al5d/instruction)" in answer, answer
+        assert re.search(r"stop \[[^\]]+\]: done \(by /al5d/instruction\)", answer), answer
     finally:
         with contextlib.suppress(OSError):  # it has ended: what it said tells why
             client.send("")
@@ -610,8 +611,8 @@ def test_a_python_clients_stop_goes_while_its_own_flood_waits_unacknowledged(
             assert run_state(bridge) == "T"
         finally:
             os.kill(bridge, signal.SIGCONT)
-        answer = client.out.wait_for("stop:", 60)
-        assert "stop: done" in answer, answer
+        answer = client.out.wait_for("stop [", 60)
+        assert re.search(r"stop \[[^\]]+\]: done", answer), answer
     finally:
         with contextlib.suppress(OSError):  # it has ended: what it said tells why
             client.send("")

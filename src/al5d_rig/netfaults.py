@@ -56,7 +56,8 @@ def say(*words):
 import logging
 class Unanswered(logging.Handler):  # the client's word that a stop has had no answer yet
     def emit(self, record):
-        if record.getMessage().startswith("stop: no answer in"):
+        said = record.getMessage()
+        if said.startswith("stop [") and "]: no answer in" in said:
             say("unanswered", time.time())
 logging.getLogger("al5d").addHandler(Unanswered())
 quiet = threading.Event()  # set from a stop to its release: no move asked meanwhile

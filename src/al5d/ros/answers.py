@@ -75,24 +75,29 @@ def no_outcome(what: str, timeout: float) -> NoOutcome:
 
 @dataclass(frozen=True)
 class Answer:
-    """The server's answer to a stop, a release or a shutdown: whether it was obeyed and the
-    server's message, and `via` what took it: the local lane, the instruction topic (a stop
-    or a release over ROS 2, `by_service` False), or the shutdown's service (the topic
-    where that is not found)."""
+    """The server's answer to a stop, a release or a shutdown: whether it was obeyed, the
+    server's message, the id it went under, and `via` what took it: the local lane, the
+    instruction topic (a stop or a release over ROS 2, `by_service` False), or the
+    shutdown's service (the topic where that is not found)."""
 
     instruction: str
     success: bool
     message: str
     via: str
     by_service: bool = True
+    #: The id it went under, which the client's warnings while it waited named ("": a
+    #: service's request, which names none).
+    ident: str = ""
 
     @property
     def ok(self) -> bool:
         return self.success
 
     def __str__(self) -> str:
-        text = f"{self.instruction}: {'done' if self.success else 'refused'}"
-        if self.message and self.message != text:
+        result = "done" if self.success else "refused"
+        text = f"{self.instruction} [{self.ident}]" if self.ident else self.instruction
+        text += f": {result}"
+        if self.message and self.message != f"{self.instruction}: {result}":
             text += f": {self.message}"
         return f"{text} (by {self.via})"
 

@@ -323,7 +323,7 @@ class LaneWay:
                 )
             outcome = answer
         message = outcome.reason or f"{kind.value}: {outcome.result.value}"
-        return Answer(kind.value, outcome.ok, message, "the local lane")
+        return Answer(kind.value, outcome.ok, message, "the local lane", ident=outcome.id)
 
     def _stop(self, timeout: float) -> Outcome | None:
         """A stop on a connection of its own (`quick.hand_stop`), as the web view's and
@@ -367,17 +367,18 @@ class LaneWay:
 
             outcome = outcome_in(quick.answer(sock, left, unanswered, late))
         except quick.LaneFull as e:
-            log.warning("stop: %s; it goes on this client's own connection to it", e)
+            log.warning("stop [%s]: %s; it goes on this client's own connection to it", ident, e)
             return None
         except TimeoutError:
             raise NoOutcome(
-                f"stop: no answer on the local lane within {timeout:g} s (whether the server "
-                "obeyed is unknown; it obeys a stop however late it takes it, and this client "
-                "says so if the answer comes)"
+                f"stop [{ident}]: no answer on the local lane within {timeout:g} s (whether the "
+                "server obeyed is unknown; it obeys a stop however late it takes it, and this "
+                "client says so if the answer comes)"
             ) from None
         except (OSError, EOFError, ValueError) as e:  # a garbled answer: LaneError, JSON's
             raise NoOutcome(
-                f"stop: no answer on the local lane: {e} (whether the server obeyed is unknown)"
+                f"stop [{ident}]: no answer on the local lane: {e} (whether the server obeyed "
+                "is unknown)"
             ) from None
         # The client's own lane, closed by a server that ended, is opened again to the one
         # that answered, as any call opens it (its reads hear the stopped arm).

@@ -241,8 +241,9 @@ class StopCall:
             # a restarted server's stop obeyed 1.01 s after it was asked went unsaid.
             return
         log.warning(
-            "stop: no answer in %g s (%s); still sending it: whether the arm has stopped is "
-            "unknown",
+            "stop [%s]: no answer in %g s (%s); still sending it: whether the arm has stopped "
+            "is unknown",
+            self._stop,
             STOP_UNANSWERED_S,
             why,
         )
@@ -253,10 +254,10 @@ class StopCall:
         if self._told:
             told = self._told[0]
             message = told.reason or f"stop: {told.result.value}"
-            return Answer("stop", told.ok, message, topic, False)
+            return Answer("stop", told.ok, message, topic, False, self._stop)
         raise NoOutcome(
-            f"stop: no answer on {topic} within {self.timeout:g} s (whether the server "
-            "obeyed is unknown)"
+            f"stop [{self._stop}]: no answer on {topic} within {self.timeout:g} s (whether "
+            "the server obeyed is unknown)"
         )
 
     def _unfound(self) -> NoOutcome | NoServer:
@@ -267,7 +268,7 @@ class StopCall:
         if not self._reached:
             return NoServer(f"stop: reached nobody: {self.way.no_server(topic, wait_s)}")
         return NoOutcome(
-            f"stop: sent {len(self._copies)} times on {topic}, which a reader took, but no "
-            f"al5d server was found within {wait_s:g} s to answer it (whether the arm has "
-            "stopped is unknown)"
+            f"stop [{self._stop}]: sent {len(self._copies)} times on {topic}, which a reader "
+            f"took, but no al5d server was found within {wait_s:g} s to answer it (whether "
+            "the arm has stopped is unknown)"
         )

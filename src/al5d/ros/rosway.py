@@ -524,7 +524,9 @@ class RosWay:
             )
             outcome = self.execute(Instruction(kind), timeout)
             message = outcome.reason or f"{kind.value}: {outcome.result.value}"
-            return Answer(kind.value, outcome.ok, message, self.names.instruction, False)
+            return Answer(
+                kind.value, outcome.ok, message, self.names.instruction, False, outcome.id
+            )
         # The server matches our reader of its answers a moment after we match its
         # service; an answer it cannot deliver 100 ms on is dropped (`SERVICE_SETTLE_S`).
         time.sleep(self._settled[kind].left())
@@ -546,7 +548,7 @@ class RosWay:
         stop, obeyed already: `al5d.ros.rosstop`)."""
         outcome = self.execute(Instruction(Kind.RELEASE), timeout)
         message = outcome.reason or f"release: {outcome.result.value}"
-        return Answer("release", outcome.ok, message, self.names.instruction, False)
+        return Answer("release", outcome.ok, message, self.names.instruction, False, outcome.id)
 
     @property
     def topic(self) -> str:
