@@ -8,6 +8,7 @@ Each test has a server of its own, frozen or killed: the other files' servers ar
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import re
 import signal
@@ -398,8 +399,8 @@ def test_a_shells_ctrl_c_unanswered_by_a_frozen_server_does_not_wait_for_the_mov
             wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
             with gone(server, "ros"):  # frozen, its lane open
                 shell.send_signal(signal.SIGINT)
-                said = out.wait_for("Ctrl-C: stop: ", SCRIPT_S)
-                assert "no answer" in said, said
+                said = out.wait_for("Ctrl-C: stop [", SCRIPT_S)
+                assert "]: no answer" in said, said
                 line = out.wait_for("move [", SCRIPT_S)
                 assert "not waited for: the stop was not answered" in line, line
                 assert shell.wait(SCRIPT_S) == exits.INTERRUPTED, (out.all, err.all)
@@ -619,7 +620,10 @@ def test_a_shells_stop_line_waits_for_its_answer_as_al5d_send_stop_does(
                 said = err.wait_for("no answer in 0.8 s by the local lane", SCRIPT_S)
                 # 10 s from the stop's start, less the 0.8 s and its hand-over.
                 assert re.search(r"up to 9\.\d s more", said), said
-                gave_up = out.wait_for("stop: no answer", SCRIPT_S)
+                warned = re.search(r"stop (\[[^\]]+\]): no answer", said)
+                assert warned is not None, said
+                # The stop it gives up on is the one it warned of.
+                gave_up = out.wait_for(f"stop {warned.group(1)}: no answer", SCRIPT_S)
                 assert "within 10 s" in gave_up, gave_up
                 assert shell.poll() is None  # the shell goes on
             shell.stdin.close()
@@ -808,8 +812,8 @@ def lane_full(owner: int) -> Iterator[list[socket.socket]]:
     """The server's owner `owner` frozen, and its lane's queue of connections not taken
     filled (the connections, yielded, closed once it is thawed on the way out)."""
     waiting: list[socket.socket] = []
-    freeze(owner)
     try:
+        freeze(owner)
         while True:  # the queue filled as the owner takes none
             sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
             sock.setblocking(False)
@@ -826,20 +830,25 @@ def lane_full(owner: int) -> Iterator[list[socket.socket]]:
             sock.close()
 
 
+@pytest.mark.parametrize(
+    "options", [(), ("--verbose",)], ids=["the-quick-way", "the-full-command-line"]
+)
 def test_a_stop_typed_while_the_lane_of_a_frozen_server_is_full_goes_by_ros_2(
-    config: ArmConfig, tmp_path: Path
+    config: ArmConfig, tmp_path: Path, options: tuple[str, ...]
 ) -> None:
     """`al5d send stop` to a server whose owner is frozen, its lane's queue of connections
     full: it waited 10 s for a connection and ended 'nothing sent', the arm moving on once
     the owner turned again. Now it says so at once and goes by ROS 2, whose stop node holds
     a connection to the owner: the owner, thawed, stops the arm first, and the command
-    says the stop done."""
+    says the stop done. So does the full command line (`--verbose` is not the quick
+    way's)."""
     with served(config, tmp_path, "al5d_full_lane_stop_peer") as arm:
         move, _, _ = talking([AL5D, "send", "--via", "lane", "move base=60 time=60000"])
+        stop = None
         try:
             wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
             with lane_full(arm.proc.popen.pid):
-                stop, out, err = talking([AL5D, "send", "stop", "--timeout", "60"])
+                stop, out, err = talking([AL5D, "send", *options, "stop", "--timeout", "60"])
                 went = err.wait_for("takes no new connection", SCRIPT_S)
                 assert "it goes by ROS 2" in went, went
                 # Asked of the stop node, and handed to the owner (which does not answer).
@@ -849,18 +858,22 @@ def test_a_stop_typed_while_the_lane_of_a_frozen_server_is_full_goes_by_ros_2(
             assert re.match(r"stop \[[^\]]+\]: done \(by /al5d/", done), done
             wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
         finally:
-            move.kill()
-            move.wait(10)
+            for proc in (move, stop):
+                if proc is not None:
+                    proc.kill()
+                    proc.wait(10)
 
 
 def test_a_python_clients_stop_while_the_lane_of_a_frozen_server_is_full_is_obeyed(
-    config: ArmConfig, tmp_path: Path
+    config: ArmConfig, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     """A Python client's stop (by the lane) to a server whose owner is frozen for longer
     than the stop's wait, its lane's queue of connections full: it said 'not sent: no al5d
     server takes its lane', of a server that is there, and the arm moved on once the owner
     turned again. Now it goes on the client's own connection, says it has no answer
-    (whether obeyed unknown), and the owner, thawed, obeys it."""
+    (whether obeyed unknown), and the owner, thawed, obeys it; the client says so, under
+    the stop's one id."""
+    caplog.set_level(logging.WARNING, logger="al5d")
     with (
         served(config, tmp_path, "al5d_full_lane_client_peer") as arm,
         Client(local=True) as client,
@@ -869,10 +882,20 @@ def test_a_python_clients_stop_while_the_lane_of_a_frozen_server_is_full_is_obey
         wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
         with (
             lane_full(arm.proc.popen.pid),
-            pytest.raises(NoOutcome, match="no answer on the local lane within 2 s"),
+            pytest.raises(NoOutcome, match="no answer on the local lane within 2 s") as raised,
         ):
             client.stop(timeout=2.0)
         wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped")
+        ident = re.match(r"stop (\[[^\]]+\])", str(raised.value))
+        assert ident is not None, raised.value
+
+        def said() -> list[str]:
+            return [r.getMessage() for r in caplog.records]
+
+        wait_until(lambda: any("answered after" in m for m in said()), STATE_S, "the answer")
+        for words in ("it goes on this client's own connection", "answered after"):
+            found = [m for m in said() if words in m]
+            assert found and found[0].startswith(f"stop {ident.group(1)}: "), said()
 
 
 def test_a_ros_client_that_was_itself_stopped_says_so_and_tells_the_servers_outcome(

@@ -189,7 +189,8 @@ class Lines:
 _LIVE: weakref.WeakSet[Proc] = weakref.WeakSet()
 
 
-#: Every `Tty` not yet closed, for a failure's report (`said_so_far`).
+#: Every `Tty` still referenced (closed or not: what it drew is kept), for a failure's
+#: report (`said_so_far`).
 _TTYS: weakref.WeakSet[Tty] = weakref.WeakSet()
 
 
@@ -200,7 +201,7 @@ def _kill_live() -> None:
             proc.kill()
 
 
-def stacks(pid: int) -> str:
+def stacks(pid: int, timeout: float = 60.0) -> str:
     """Every thread's stack in the Python process `pid` and its children now (py-spy, with
     the native frames of C extensions such as rclpy's), for a failure's reader: where a
     process that went silent is waiting (a server waits on its bridge and its stop
@@ -213,7 +214,7 @@ def stacks(pid: int) -> str:
                 [spy, "dump", *native, "--subprocesses", "--pid", str(pid)],
                 capture_output=True,
                 text=True,
-                timeout=60,
+                timeout=timeout,
             )
         except (OSError, subprocess.TimeoutExpired) as e:
             said += f"(no stacks: {e})\n"
@@ -440,19 +441,15 @@ def said_so_far(since: float, lines: int = 120) -> str:
     `lines` lines, and where each still running waits (`stacks`): for the report of a test
     that failed. A failure seen once in a CI run (a server's stderr with one "Traceback"
     line; a shell that drew nothing for 90 s) left nothing else to find its cause by."""
-    parts = []
-    for proc in sorted((p for p in list(_LIVE) if p.started >= since), key=lambda p: p.started):
-        running = proc.popen.poll() is None
-        state = "running" if running else f"ended with {proc.popen.returncode}"
-        err = proc.err.drain(0)[-lines:]
-        out = proc.out.drain(0)[-lines:]
-        parts.append(f"--- {proc.command} ({state}); its stderr, last {len(err)} lines:")
-        parts += err
-        parts.append(f"--- its stdout, last {len(out)} lines:")
-        parts += out
-        if running:
-            parts.append(proc.stacks())
-    for tty in sorted((t for t in list(_TTYS) if t.started >= since), key=lambda t: t.started):
+    parts: list[str] = []
+    procs = sorted((p for p in list(_LIVE) if p.started >= since), key=lambda p: p.started)
+    ttys = sorted((t for t in list(_TTYS) if t.started >= since), key=lambda t: t.started)
+    for proc in procs:
+        try:
+            parts += _said_by(proc, lines)
+        except Exception as error:  # one process's report must not lose the others'
+            parts.append(f"--- {proc.command}: not read: {error!r}")
+    for tty in ttys:
         running = tty.proc.poll() is None
         state = "running" if running else f"ended with {tty.proc.returncode}"
         with tty._lock:
@@ -460,5 +457,24 @@ def said_so_far(since: float, lines: int = 120) -> str:
         parts.append(f"--- {tty.command} at a terminal ({state}); drawn:")
         parts += [repr(line) for line in drawn]
         if running:
-            parts.append(stacks(tty.proc.pid))
+            parts.append(stacks(tty.proc.pid, REPORT_STACKS_S))
     return "\n".join(parts)
+
+
+#: py-spy's limit for each process's stacks in a failure's report: within the test's own
+#: timeout, which ends the worker, report and all, when it passes.
+REPORT_STACKS_S = 15.0
+
+
+def _said_by(proc: Proc, lines: int) -> list[str]:
+    running = proc.popen.poll() is None
+    state = "running" if running else f"ended with {proc.popen.returncode}"
+    # One that ended: its last lines (a traceback, often) may still be on their way in.
+    wait = 0.0 if running else 0.5
+    err = proc.err.drain(wait)[-lines:]
+    out = proc.out.drain(wait)[-lines:]
+    parts = [f"--- {proc.command} ({state}); its stderr, last {len(err)} lines:", *err]
+    parts += [f"--- its stdout, last {len(out)} lines:", *out]
+    if running:
+        parts.append(stacks(proc.popen.pid, REPORT_STACKS_S))
+    return parts

@@ -155,6 +155,13 @@ def send(
     except GrammarError as e:
         print(f"al5d send: {e}", file=err)
         return exits.BAD_INPUT
+    if instr.kind is Kind.STOP and via == "auto":
+        # As the quick path (`al5d.owner.quick.stop`) does: by the lane, the client would
+        # wait for a connection a stalled server does not take, and end with nothing sent.
+        full = quick.full(where.path(Names.of(namespace).namespace))
+        if full is not None:
+            print(f"al5d send: stop: {full}; {quick.BY_ROS}", file=err)
+            via = "ros"
     started = connect("al5d send", namespace, wait_s, via, verbose, err)
     if started is None:
         return exits.NO_SERVER

@@ -37,6 +37,10 @@ class LaneFull(ConnectionError):
     which it reads, stops first, as it turns again."""
 
 
+#: Where a stop goes when the lane takes no new connection (`LaneFull`), as said.
+BY_ROS = "it goes by ROS 2, whose stop node holds a connection to the server"
+
+
 def parse(argv: list[str]) -> tuple[str, float] | None:
     """`send stop [words]` with the options `_FLAGS` (each with its value) anywhere among its
     words: the namespace and the timeout; None for any other command line. A stop is read
@@ -86,11 +90,7 @@ def stop(namespace: str, timeout: float) -> int | None:
     try:
         outcome = ask_stop(where.path(namespace), ident, timeout, unanswered)
     except LaneFull as e:
-        print(
-            f"stop: {e}; it goes by ROS 2, whose stop node holds a connection to the server",
-            file=sys.stderr,
-            flush=True,
-        )
+        print(f"stop: {e}; {BY_ROS}", file=sys.stderr, flush=True)
         raise
     except TimeoutError:
         # The stop waits in the server's lane: one that comes back obeys it then.
@@ -133,6 +133,27 @@ def ask_stop(
     return None if sock is None else answer(sock, timeout, unanswered)
 
 
+def full(lane: Path) -> LaneFull | None:
+    """Why the server on `lane` takes no new connection now (`LaneFull`), or None: it takes
+    one, or no server is there (the connection asked is closed at once)."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.setblocking(False)
+        try:
+            sock.connect(str(lane))
+        except BlockingIOError:
+            return _full(lane)
+        except OSError:
+            return None
+    return None
+
+
+def _full(lane: Path) -> LaneFull:
+    return LaneFull(
+        f"the al5d server on this machine's lane ({lane}) takes no new connection (too many "
+        "wait for it): it is busy or stalled"
+    )
+
+
 def hand_stop(lane: Path, ident: str, timeout: float) -> socket.socket | None:
     """The stop `ident` handed to the server whose lane is `lane` (within `timeout` s: a
     Unix socket takes a line at once, unless the owner has not read a backlog of them);
@@ -145,10 +166,7 @@ def hand_stop(lane: Path, ident: str, timeout: float) -> socket.socket | None:
         sock.connect(str(lane))
     except BlockingIOError:  # at once, whatever the timeout: a Unix socket does not wait
         sock.close()
-        raise LaneFull(
-            f"the al5d server on this machine's lane ({lane}) takes no new connection (too "
-            "many wait for it): it is busy or stalled"
-        ) from None
+        raise _full(lane) from None
     except OSError:
         sock.close()
         return None

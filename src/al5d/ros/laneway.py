@@ -16,7 +16,7 @@ from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import replace
 from typing import TYPE_CHECKING, Protocol
 
-from al5d.arm.instruction import Instruction, Kind, Outcome, new_id
+from al5d.arm.instruction import Instruction, Kind, Outcome
 from al5d.clock import Deadline
 from al5d.interrupts import ctrl_c_after
 from al5d.owner import quick, where
@@ -302,40 +302,60 @@ class LaneWay:
         return view
 
     def ask(self, kind: Kind, timeout: float) -> Answer:
-        outcome = self._stop(timeout) if kind is Kind.STOP else None
+        deadline, instr = Deadline(timeout), Instruction(kind)
+        outcome = self._stop(deadline, instr.id, timeout) if kind is Kind.STOP else None
         if outcome is None:  # not a stop, or one whose connection of its own was not taken
-            deadline = Deadline(timeout)
             lane = self._open(kind.value, timeout)
-            instr = Instruction(kind)
+            name = f"{kind.value} [{instr.id}]"
+            unknown = "whether the server obeyed is unknown"
+            future = self._hand(lane, instr, deadline, name, timeout)
             try:
                 # A lane opened again late in the wait still gives the answer its moment.
                 answer = self._result(
-                    lane.submit(instr), max(deadline.left(), ANSWER_MIN_S), instr.id, kind.value
+                    future, max(deadline.left(), ANSWER_MIN_S), instr.id, kind.value
                 )
             except LaneClosed as e:
-                raise NoOutcome(
-                    f"{kind.value}: {e} (whether the server obeyed is unknown)"
-                ) from None
+                raise NoOutcome(f"{name}: {e} ({unknown})") from None
             if answer is None:
+                if kind is Kind.STOP:  # obeyed however late: said if its answer comes
+                    _said_when_late(future, instr.id, time.monotonic() - timeout)
                 raise NoOutcome(
-                    f"{kind.value}: no answer on the local lane within {timeout:g} s "
-                    "(whether the server obeyed is unknown)"
+                    f"{name}: no answer on the local lane within {timeout:g} s ({unknown})"
                 )
             outcome = answer
         message = outcome.reason or f"{kind.value}: {outcome.result.value}"
         return Answer(kind.value, outcome.ok, message, "the local lane", ident=outcome.id)
 
-    def _stop(self, timeout: float) -> Outcome | None:
-        """A stop on a connection of its own (`quick.hand_stop`), as the web view's and
-        `al5d send stop`'s: not behind what this client's lane carries (a trajectory's
+    @staticmethod
+    def _hand(
+        lane: Remote, instr: Instruction, deadline: Deadline, name: str, timeout: float
+    ) -> Future[Outcome]:
+        """`instr` handed to the owner on this client's lane within `deadline`: its outcome's
+        future. Raises NoOutcome where it is not: the lane's buffer full behind another
+        thread's send (a trajectory's bytes) to an owner that reads nothing (frozen), its
+        send still waiting to go."""
+        handed: list[Future[Outcome]] = []
+        sender = threading.Thread(
+            target=lambda: handed.append(lane.submit(instr)), name="al5d-hand", daemon=True
+        )
+        sender.start()
+        sender.join(max(deadline.left(), ANSWER_MIN_S))  # as the answer's wait
+        if not handed:
+            raise NoOutcome(
+                f"{name}: not handed over within {timeout:g} s: this client's lane to the "
+                "server is full (the server busy or stalled); it goes when the server reads "
+                "the lane"
+            )
+        return handed[0]
+
+    def _stop(self, deadline: Deadline, ident: str, timeout: float) -> Outcome | None:
+        """The stop `ident` on a connection of its own (`quick.hand_stop`), as the web view's
+        and `al5d send stop`'s: not behind what this client's lane carries (a trajectory's
         bytes on their way, another thread's send holding the lane). A server started
-        again meanwhile takes it: the lane is looked for again until `timeout`. None where
-        the server takes no new connection (`quick.LaneFull`: busy or stalled): this
-        client's own connection, taken long since, is then the way (given up on until
-        `timeout`, the stop was not sent, and the server, turning again, moved on)."""
-        deadline = Deadline(timeout)
+        again meanwhile takes it: the lane is looked for again until `deadline`. None
+        where the server takes no new connection (`quick.LaneFull`: busy or stalled): this
+        client's own connection, taken long since, is then the way."""
         path = where.path(self.names.namespace)
-        ident = new_id()
         asked = time.monotonic()
         try:
             while (sock := quick.hand_stop(path, ident, max(deadline.left(), 0.1))) is None:
@@ -390,6 +410,20 @@ class LaneWay:
         self._closed = True
         with self._reopening:
             self.lane.close()
+
+
+def _said_when_late(future: Future[Outcome], stop: str, asked: float) -> None:
+    """The answer to the stop `stop` (asked at `asked`, monotonic) said if it comes after
+    its client gave up on it (`said_late`), as the stop's own connection's is."""
+
+    def told(done: Future[Outcome]) -> None:
+        if done.cancelled() or done.exception() is not None:  # the lane closed: none came
+            return
+        outcome = done.result()
+        after = time.monotonic() - asked
+        said_late(stop, after, outcome.ok, outcome.result.value, outcome.reason)
+
+    future.add_done_callback(told)
 
 
 def _watch(future: Future[Outcome], watcher: Callable[[Outcome], None]) -> None:
