@@ -318,7 +318,7 @@ class LaneWay:
                 raise NoOutcome(f"{name}: {e} ({unknown})") from None
             if answer is None:
                 if kind is Kind.STOP:  # obeyed however late: said if its answer comes
-                    _said_when_late(future, instr.id, time.monotonic() - timeout)
+                    _said_when_late(future, instr.id, deadline.at - timeout)
                 raise NoOutcome(
                     f"{name}: no answer on the local lane within {timeout:g} s ({unknown})"
                 )
