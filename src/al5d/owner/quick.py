@@ -135,16 +135,8 @@ def ask_stop(
 
 def full(lane: Path) -> LaneFull | None:
     """Why the server on `lane` takes no new connection now (`LaneFull`), or None: it takes
-    one, or no server is there (the connection asked is closed at once)."""
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
-        sock.setblocking(False)
-        try:
-            sock.connect(str(lane))
-        except BlockingIOError:
-            return _full(lane)
-        except OSError:
-            return None
-    return None
+    one, or no server is there (`where.probe`)."""
+    return _full(lane) if where.probe(lane) is False else None
 
 
 def _full(lane: Path) -> LaneFull:

@@ -35,14 +35,21 @@ def answers(lane: Path) -> bool:
     """Whether a server listens on `lane` (a lane left behind by a server that was killed
     takes no connection; one whose queue of untaken connections is full, a frozen
     server's, is there all the same)."""
+    return probe(lane) is not None
+
+
+def probe(lane: Path) -> bool | None:
+    """Whether the server on `lane` takes a new connection now (a connection asked, closed
+    at once): True, False where its queue of untaken connections is full (busy or
+    stalled: a frozen process), None where no server is there."""
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
         sock.settimeout(0.5)
         try:
             sock.connect(str(lane))
-        except BlockingIOError:  # a full queue: not a lane left behind, taken over
-            return True
-        except OSError:
+        except BlockingIOError:  # a full queue, at once: a Unix socket does not wait
             return False
+        except OSError:
+            return None
     return True
 
 
