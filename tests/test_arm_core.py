@@ -251,6 +251,71 @@ def test_a_lost_client_s_motion_is_halted_and_its_waiting_moves_cancelled(sim: S
     assert sim.outcome(other).result is Result.DONE
 
 
+#: What can end a running move, each as the owner hands it to the core (client 7 sent it).
+ENDINGS = {
+    "a stop": lambda sim, ident: sim.ask(ins.stop()),
+    "a cancel": lambda sim, ident: sim.cancel(ident),
+    "its client lost": lambda sim, ident: sim.gone(7, "its lease ran out"),
+    "the shutdown": lambda sim, ident: sim.ask(ins.shutdown()),
+    "its sender's giving up": lambda sim, ident: sim.run(0),
+}
+
+
+@pytest.mark.parametrize("ending", list(ENDINGS))
+def test_a_move_the_board_ran_to_its_end_while_the_owner_did_not_look_is_done(
+    sim: Sim, ending: str
+) -> None:
+    """The owner frozen or starved past a move's end, then a stop (or a cancel, ...) that
+    waited for it taken first: the arm is where the move sent it, and the move is done, not
+    `cancelled by stop` (an outside try of a frozen owner, thawed with a stop waiting)."""
+    move = replace(ins.move(base=50, elbow=80, time_ms=400), wait_ms=1500)
+    ref = sim.ask(move, client=7)
+    sim.run(0.1)
+    assert ref not in sim.outcomes
+    sim.stall(1.5)  # the owner's thread does not run: the board runs the move to its end
+    assert sim.degrees()["base"] == pytest.approx(50, abs=0.5)
+    ENDINGS[ending](sim, move.id)
+    outcome = sim.outcome(ref, 0)
+    assert (outcome.result, outcome.reason) == (Result.DONE, "")
+    if ending != "the shutdown":  # which parks the arm next
+        sim.run(0.5)
+        assert sim.degrees()["base"] == pytest.approx(50, abs=0.5)
+
+
+@pytest.mark.parametrize("ending", list(ENDINGS))
+def test_a_move_still_on_its_way_when_the_owner_looks_again_is_cut_short(
+    sim: Sim, ending: str
+) -> None:
+    """The same, the stall ending before the move's time (or its line's last bytes not yet
+    written): the move is cut short where it is, and says so."""
+    move = replace(ins.move(base=50, elbow=80, time_ms=1400), wait_ms=1300)
+    ref = sim.ask(move, client=7)
+    sim.run(0.1)
+    sim.stall(1.25)
+    ENDINGS[ending](sim, move.id)
+    outcome = sim.outcome(ref, 0)
+    assert outcome.result is Result.CANCELLED, outcome
+    sim.run(0.5)
+    assert sim.degrees()["base"] < 49
+
+
+def test_a_move_whose_last_bytes_waited_for_the_owner_is_not_taken_for_done(
+    config: ArmConfig,
+) -> None:
+    """At 9600 baud a six-joint line goes out in pieces, each written by the owner on the
+    wire's pace: frozen after its first piece, the rest never went, and however long the
+    freeze, the board never ran the move; a stop then cancels it."""
+    sim = Sim(config, baud=9600).ready()
+    ref = sim.ask(ins.move(base=40, shoulder=30, elbow=80, wrist=-40, gripper=20, time_ms=300))
+    sim.run(0.012)
+    assert sim.core.link.rest  # a piece still to go
+    sim.stall(2.0)
+    sim.ask(ins.stop())
+    assert sim.outcome(ref, 0).result is Result.CANCELLED
+    sim.run(0.5)
+    assert sim.degrees()["base"] == pytest.approx(0, abs=0.5)
+
+
 def test_a_newer_set_point_replaces_the_one_that_waits(sim: Sim) -> None:
     sim.ask(ins.move(base=40, time_ms=500))
     a = sim.ask(ins.move(elbow=80, id="a"), stream="joint_commands", tell=False)

@@ -8,14 +8,17 @@ set-points of a stream (bursts, a stream that goes quiet, one that goes on throu
 stop), trajectories, Cartesian lines, stops (some seen twice, as the bridge's node and
 the stop watcher both see a stop on the topic), releases (some sent before the last stop
 and arriving after it), cancels, lost clients, a board pulled and plugged back, a silent
-board, a reset, time passing and a shutdown; several of them at one instant, in any
-order. After every input:
+board, a reset, time passing (some of it with the owner's thread not running: a frozen or
+starved owner) and a shutdown; several of them at one instant, in any order. After every
+input:
 
 - the state and the outcomes agree: `ready`, `stopped`, `fault` and `shutting_down` only
   while no motion request is without its outcome, `moving` only while one is;
 - every request has at most one outcome, a stop and a release theirs at once;
 - a move whose sender waits for it only so long (`Instruction.wait_ms`) has its outcome
-  by then (`GIVE_UP_SLACK_S`), and is never given up on before;
+  by then (`GIVE_UP_SLACK_S`, and the time the owner did not run), and is never given up
+  on before;
+- no move the board had run to its end is reported cut short (cancelled);
 - no line on the wire holds a partial number (a line cut by a stop's ESC holds whole
   commands only), and one thread wrote every byte;
 
@@ -45,8 +48,9 @@ from hypothesis.stateful import RuleBasedStateMachine, invariant, precondition, 
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig, load_config
-from al5d.arm.corestate import Ask, Effect, Input, Resolve, Send
+from al5d.arm.corestate import Ask, Cancelled, Effect, Input, Resolve, Send
 from al5d.arm.instruction import Instruction, Kind, Point, Result
+from al5d.arm.running import OVER_BY_S
 from al5d.arm.states import State
 from al5d.model.table import PATH_TOLERANCE_M, below
 from al5d.ssc32u import protocol as p
@@ -66,6 +70,10 @@ OUTCOME_BOUND_S = 60.0
 #: A move whose sender has given up on it has its outcome this soon after (virtual s): a
 #: query's answer, or a line going out, may be waited for first.
 GIVE_UP_SLACK_S = 0.1
+#: How much earlier than the core's `OVER_BY_S` the board must have finished a move for it
+#: to count as run to its end here: the core knows a line's arrival to its wire time and
+#: the USB link's.
+FINISHED_SLACK_S = 0.01
 MOTION = (Kind.MOVE, Kind.PRESET, Kind.MOVE_TO, Kind.TRAJECTORY)
 #: States in which no motion request may wait for its outcome.
 AT_REST = (State.READY, State.STOPPED, State.FAULT, State.SHUTTING_DOWN)
@@ -112,6 +120,8 @@ class CoreProtocol(RuleBasedStateMachine):
         self.problems: list[str] = []
         self.stop_sends: list[float] = []  # when each stop's STOP burst was written
         self.released: list[float] = []  # when each release was done
+        self.stalls: list[tuple[float, float]] = []  # when the owner's thread did not run
+        self.reset_seen = False  # the board has reset in this example
         self.sim = Sim(CONFIG, baud=random.choice((9600, 115_200)))
         self.sim.watch = self._after_input
         self.sim.ready()
@@ -130,21 +140,25 @@ class CoreProtocol(RuleBasedStateMachine):
             resolved = {e.ref for e in effects if isinstance(e, Resolve)}
             if ev.ref not in resolved:
                 self.problems.append(f"{ev.instr.kind.value} {ev.instr.id} not answered at once")
+        stop = isinstance(ev, Ask) and ev.instr.kind is Kind.STOP
         for e in effects:
-            stop = isinstance(ev, Ask) and ev.instr.kind is Kind.STOP
             if stop and isinstance(e, Send) and e.data.startswith(p.CANCEL + b"STOP"):
                 self.stop_sends.append(self.sim.t)
-            if isinstance(e, Resolve):
-                asked = self.by_ref.get(e.ref)
-                if asked is not None and asked.kind == "release" and e.outcome.ok:
-                    self.released.append(self.sim.t)
-                if asked is not None and "given up" in e.outcome.reason:
-                    count("arm core: moves given up on by their senders")
-                    if self.sim.t < _gives_up(asked) - 1e-9:
-                        self.problems.append(f"{asked.instr.id} given up on before its time")
-                if asked is not None and self.sim.t > _gives_up(asked) + GIVE_UP_SLACK_S:
-                    late = self.sim.t - _gives_up(asked)
-                    self.problems.append(f"{e.outcome} {late:.3f} s after its sender gave up")
+        for e in _resolves(effects):
+            asked = self.by_ref.get(e.ref)
+            if asked is None:
+                continue
+            if asked.kind == "release" and e.outcome.ok:
+                self.released.append(self.sim.t)
+            if "given up" in e.outcome.reason:
+                count("arm core: moves given up on by their senders")
+                if self.sim.t < _gives_up(asked) - 1e-9:
+                    self.problems.append(f"{asked.instr.id} given up on before its time")
+            if self._late(asked) > GIVE_UP_SLACK_S:
+                late = self.sim.t - _gives_up(asked)
+                self.problems.append(f"{e.outcome} {late:.3f} s after its sender gave up")
+            if e.outcome.result is Result.CANCELLED:
+                self._not_finished(asked, e.outcome.reason)
         state = self.sim.core.state
         pending = self._pending_motion()
         if state in AT_REST and pending:
@@ -152,9 +166,41 @@ class CoreProtocol(RuleBasedStateMachine):
             self.problems.append(f"state {state.value} while {len(pending)} move(s) wait: {ids}")
         if state is State.MOVING and not pending and self.sim.core.run is None:
             self.problems.append("state moving with no move running or waiting")
-        overdue = [a for a in pending if self.sim.t > _gives_up(a) + GIVE_UP_SLACK_S]
+        overdue = [a for a in pending if self._late(a) > GIVE_UP_SLACK_S]
         if overdue:
             self.problems.append(f"{overdue[0].instr.id} goes on, given up on by its sender")
+
+    def _late(self, asked: Asked) -> float:
+        """How long after its sender gave up on `asked` it is now, but for the time the
+        owner's thread did not run meanwhile (nothing can be done then)."""
+        since = _gives_up(asked)
+        stalled = sum(max(0.0, min(b, self.sim.t) - max(a, since)) for a, b in self.stalls)
+        return self.sim.t - since - stalled
+
+    def _not_finished(self, asked: Asked, reason: str) -> None:
+        """A move reported cancelled had not been run to its end by the board: its line
+        written, its joints were not all where it sent them with the board at rest since
+        `OVER_BY_S` before, as `Q` would have said (a stop taken by an owner that was
+        frozen past the move's end reported `cancelled by stop`). Not where the link is
+        lost (a board that does not answer may have run it or not), nor once the board has
+        reset: it takes each joint's first line after a reset at full speed, its time
+        ignored (D1), and ends it long before the core expects, until the core learns of
+        the reset."""
+        if asked.kind != "move" or self.reset_seen or self.sim.core.fault:
+            return
+        if not any(m.sent.instr.id == asked.instr.id for m in self.sim.moved):
+            return  # never written: where the arm is came of other moves
+        then = self.sim.t - OVER_BY_S - FINISHED_SLACK_S
+        if not self.sim.board.moving(then) and self._at(asked.instr, self.sim.t):
+            self.problems.append(f"{asked.instr.id} reported {reason!r}: the board had run it")
+
+    def _at(self, instr: Instruction, t: float) -> bool:
+        """Whether the board puts out `instr`'s pulses at `t` (to within a microsecond)."""
+        joints = CONFIG.joints
+        return bool(instr.joints) and all(
+            abs(self.sim.board.pulse_us(joints[name].channel, t) - joints[name].to_us(deg)) <= 1.0
+            for name, deg in instr.joints
+        )
 
     def _above_the_table(self) -> None:
         """Where the board holds the servos now is above the table, within the path
@@ -187,6 +233,7 @@ class CoreProtocol(RuleBasedStateMachine):
 
     def _ask(self, kind: str, instr: Instruction, late: bool = False, **kw: object) -> Asked:
         count("arm core: requests")
+        self.sim.catch_up()  # the board's bytes first, where the owner did not run (`stall`)
         # Registered before the core sees it: the check after its input knows it waits.
         ref = self.sim.next_ref()
         client = kw.get("client", 0)
@@ -235,6 +282,7 @@ class CoreProtocol(RuleBasedStateMachine):
             return
         key = self.keyed[pick % len(self.keyed)]
         copy = ins.stop()
+        self.sim.run(0)  # what fell due while the owner did not run (`stall`) is done first
         told, locked, sent = len(self.sim.told), self.sim.core.locked, len(self.sim.sent)
         # A copy, not a stop of its own: a release sent between the stop and its copy undoes
         # the stop (`_release` judges by the last stop, not by a copy's later time).
@@ -406,6 +454,19 @@ class CoreProtocol(RuleBasedStateMachine):
     def wait(self, ms: int) -> None:
         self.sim.run(ms / 1000)
 
+    @precondition(lambda self: not self.ended)
+    @rule(ms=st.integers(1, 1500), then=st.sampled_from(["", "stop", "cancel"]), pick=st.integers())
+    def stall(self, ms: int, then: str, pick: int) -> None:
+        """The owner's thread does not run for `ms` (frozen, or starved of the CPU) while
+        the board runs on; what was due meanwhile is done when it runs again, after what
+        waited for it (`then`: a stop, or a cancel, taken first as it runs again)."""
+        self.stalls.append((self.sim.t, self.sim.t + ms / 1000))
+        self.sim.stall(ms / 1000)
+        if then == "stop":
+            self._stop(False)
+        elif then == "cancel":
+            self._cancel(pick)
+
     @precondition(lambda self: not self.ended and not self.pulled)
     @rule(fault=st.sampled_from([Fault.DISCONNECT, Fault.NO_ANSWER, Fault.GARBAGE]))
     def pull(self, fault: Fault) -> None:
@@ -421,6 +482,7 @@ class CoreProtocol(RuleBasedStateMachine):
     @precondition(lambda self: not self.ended)
     @rule()
     def reset(self) -> None:
+        self.reset_seen = True
         self.sim.board.reset(self.sim.t)
 
     @precondition(lambda self: not self.ended)
@@ -482,6 +544,17 @@ class CoreProtocol(RuleBasedStateMachine):
             # board that reset before it): the move gets its answer; tried again.
             assert "has reset" in outcome.reason or "link is lost" in outcome.reason, outcome
         raise AssertionError(f"a move after stop and release: {outcome}")
+
+
+def _resolves(effects: tuple[Effect, ...]) -> list[Resolve]:
+    """Every outcome among `effects`, those of a batch cancelled at once among them."""
+    out: list[Resolve] = []
+    for e in effects:
+        if isinstance(e, Cancelled):
+            out.extend(e.resolves())
+        elif isinstance(e, Resolve):
+            out.append(e)
+    return out
 
 
 def _cut_lines(sim: Sim, since: int) -> list[bytes]:

@@ -94,6 +94,8 @@ class Sim:
         self._refs = itertools.count(1)
         self._open = False
         self._made: list[Input] = []
+        self._late = False  # time passed unseen (`stall`): the board is read first
+        self.stalled_s = 0.0
         self.states.append(self.core.state)
 
     # -- the owner's part ------------------------------------------------------------------
@@ -105,6 +107,8 @@ class Sim:
     def put(self, ev: Input) -> None:
         """Hand the core one input and carry out what it says; then, as the owner does, the
         inputs its effects made (a port opened, a write that failed)."""
+        if not isinstance(ev, Received | Failed):
+            self.catch_up()
         self._made.append(ev)
         if len(self._made) > 1:
             return  # an effect's: taken once the effects before it are carried out
@@ -210,20 +214,39 @@ class Sim:
         self.t = max(self.t, until)
         self._wake()
 
+    def catch_up(self) -> None:
+        """After a `stall`, what the board sent meanwhile is read, as the owner running again
+        reads it before it takes what waited for it (a stop, a request)."""
+        if self._late:
+            self._late = False
+            self._read()
+
     def _wake(self) -> None:
+        self._late = False
+        self._read()
+        stalled = self.stalling * (self.t - self.t0) + self.stalled_s
+        self.put(Tick(self.t, self.wall, stalled))
+
+    def _read(self) -> None:
+        """What the board has sent by now, read (or the port found unplugged)."""
         if self._open and not self.board.has_fault(Fault.DISCONNECT):
             data = self.wire.read(self.t)
             if data:
                 self.put(Received(self.t, self.wall, data))
         elif self._open and self.core.link.open:
             self.put(Failed(self.t, self.wall, LinkLost("virtual", "read failed: unplugged")))
-        self.put(Tick(self.t, self.wall, self.stalling * (self.t - self.t0)))
 
     def stall(self, seconds: float) -> None:
         """Time passes and nobody looks (the owner's thread was not running): what was due
         meanwhile is done late, as soon as time is let pass again (the owner's thread runs
-        again)."""
+        again). The board runs on meanwhile: what was on the wire reaches it, its answers
+        wait for the owner to read them, which it does first when it runs again, and it
+        counts the time among its stalls (`Tick.stalled`)."""
         self.t += seconds
+        self.stalled_s += seconds
+        self._late = True
+        if self._open:
+            self.wire.advance(self.t)
 
     def run(self, seconds: float) -> None:
         self.advance(self.t + seconds)

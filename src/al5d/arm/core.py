@@ -18,11 +18,14 @@ The lanes
 - **Moves** are admitted in the order they come: refused, cancelled, queued, or, on an
   idle arm, started at once (its first line in the same step). One job runs at a time
   (`Core.run`); only its steps are written; whoever ends it (done, stop, cancel, fault,
-  shutdown) makes it not current, in one step. A move whose sender waits for its outcome
-  only so long (`Instruction.wait_ms`, from when it was sent) is refused as stale if that
-  has passed when it comes, cancelled if it passes while the move waits, and halted
-  where it is (as a cancel does) if it passes while the move runs: its sender has given
-  up on it, and what nobody waits for does not go on.
+  shutdown) makes it not current, in one step. One whose last line's time was over
+  (`running.over`) when a stop, a cancel, its client's loss, its sender's giving up or
+  the shutdown comes is done: the board ran it to its end while the owner did not look.
+  A move whose sender waits for its outcome only so long (`Instruction.wait_ms`, from
+  when it was sent) is refused as stale if that has passed when it comes, cancelled if
+  it passes while the move waits, and halted where it is (as a cancel does) if it
+  passes while the move runs: its sender has given up on it, and what nobody waits for
+  does not go on.
 - **Set-points** (a stream such as ros2_control's joint commands, or the web view's jog)
   are moves whose latest wins: a new one replaces the one of its stream that waits (it
   ends cancelled, never written), and one where the arm is heading already (within half
@@ -206,6 +209,7 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
             out.append(Resolve(ev.ref, answer, ev.tell))
             return replace(c, order=c.order.obeyed(copy, answer))
     sent = _sent(ev)
+    c = running.over(c, ev.t, out)
     c, jobs = drop(c, "cancelled by stop", sent)
     c = lock_arm(c, LOCKED_BY_STOP, sent)
     board_open = c.link.open
@@ -255,16 +259,17 @@ def _shutdown(c: Core, ev: Ask, out: Out) -> Core:
         _refuse(ev, "the server is already shutting down", out)
         return c
     sent = _sent(ev)
+    c = running.over(c, ev.t, out)
     # Only a move cut short here may still run on the board: with none, there is nothing
     # to halt (and no way to ask while `Q` counts a stopped move down).
-    running = c.run is not None
+    cut = c.run is not None
     c, jobs = drop(c, "cancelled by shutdown", sent)
     park = (Step(dict(c.arm.config.presets["park"]), None),)
     fraction = c.arm.settings.startup_speed_fraction
     job = Job(ev.ref, ev.instr, park, ev.t, sent, c.epoch, fraction, Mode.SHUTDOWN, tell=ev.tell)
     c = fire(replace(c, shutdown=job), Event.SHUTDOWN, out)
     if c.link.checked:
-        c = replace(c, link=replace(c.link, next=Next.SHUTDOWN, halt_checked=not running))
+        c = replace(c, link=replace(c.link, next=Next.SHUTDOWN, halt_checked=not cut))
     cancel_all(jobs, "cancelled by shutdown", ev.t, out)
     return c
 
@@ -457,6 +462,7 @@ def _cancel(c: Core, ev: Cancel, out: Out) -> Core:
         finish(job, Result.CANCELLED, ev.reason, ev.t, out)
         out.append(Reply(ev.ref, True))
         return c
+    c = running.over(c, ev.t, out)
     run = c.run
     if run is None or run.job.instr.id != ev.ident or run.job.mode is not Mode.QUEUE:
         out.append(Reply(ev.ref, False))
@@ -476,6 +482,7 @@ def _gone(c: Core, ev: Gone, out: Out) -> Core:
         cancel_all(mine, why, ev.t, out)
         if c.run is None and not c.queue and c.state is State.MOVING:
             c = fire(c, Event.MOVE_DONE, out)
+    c = running.over(c, ev.t, out)
     run = c.run
     if run is not None and run.job.client == ev.client and run.job.mode is Mode.QUEUE:
         say(out, logging.WARNING, f"{run.job.instr.name} [{run.job.instr.id}]: {why}: halted")
@@ -528,6 +535,9 @@ def _next(c: Core, t: float, wall: int, out: Out) -> Core:
     if c.run is not None:
         job = c.run.job
         if t >= job.give_up_at and job.mode is Mode.QUEUE:
+            done = running.over(c, t, out)
+            if done is not c:
+                return done
             reason = given_up(job.instr)
             say(out, logging.WARNING, f"{job.instr.name} [{job.instr.id}]: {reason}: halted")
             return running.end_run(c, f"{reason}: halted", t, out)

@@ -333,6 +333,8 @@ class Run:
     #: The last step's time is over: `Q` is asked (every `POLL_S`) until it says done.
     confirming: bool = False
     poll_at: float = 0.0
+    #: A `Q` after the last step's time said the board still moves it.
+    still_moving: bool = False
     #: The step's line, planned: its bytes and its time (sent with the line's first piece).
     line: bytes = b""
     #: Of `line`, the bytes of the line before the step's own that puts the joints of

@@ -309,7 +309,7 @@ def _confirmed(c: Core, moving: bool, t: float, wall: int, out: Out) -> Core:
             c.arm.port, f"Q still says moving {COMPLETION_GRACE_S} s after the move's time"
         )
         return lose(c, error, t, wall, out)
-    return replace(c, run=replace(run, poll_at=t + POLL_S))
+    return replace(c, run=replace(run, poll_at=t + POLL_S, still_moving=True))
 
 
 def _halt_cancelled(c: Core, t: float, out: Out) -> Core:

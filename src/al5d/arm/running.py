@@ -424,6 +424,30 @@ def progress(c: Core, t: float, out: Out) -> Core:
     return c
 
 
+#: A run whose last line (all its pieces: `Run.written`) has been over this long is one the
+#: board has run to its end (the line's arrival is known to within its wire time and a USB
+#: frame), unless a `Q` since said otherwise.
+OVER_BY_S = 0.02
+
+
+def over(c: Core, t: float, out: Out) -> Core:
+    """The current run completed, if the board has run it to its end by `t`: what ends it
+    now (a stop, a cancel, its client lost or its sender's giving up) came after the arm got
+    there, though before the owner looked (its thread frozen or starved, or a `Q` on its
+    way), and must not report as cut short a move the arm finished. The core as it was if
+    not, and for the owner's own parks (at start-up, at the shutdown), which a stop cuts
+    short as before."""
+    run = c.run
+    written = run.written if run is not None else None
+    if run is None or written is None or run.k < len(run.steps) - 1:
+        return c
+    if run.job.mode is not Mode.QUEUE:
+        return c
+    if run.still_moving or t < written.t_end + OVER_BY_S:
+        return c
+    return complete(c, t, out)
+
+
 def _hold(c: Core, t: float, out: Out) -> Core:
     """The watchdog: the stream of the running set-point has gone quiet mid-move (its source
     stopped, or lost its link): the arm is held where it is, as a cancelled move is halted
