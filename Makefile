@@ -206,7 +206,8 @@ bench: install
 	$(BIN)/python bench/run.py
 
 # The reliability suites, longer than in `make test`, with their figures (about 28 minutes):
-# faults and floods, the link cut mid-move 20 times between two hosts (network namespaces), the contention suite (several flooded servers beside busy loops, a
+# faults and floods, the link cut mid-move 20 times between two hosts (network namespaces), a
+# server's owner frozen mid-move, the contention suite (several flooded servers beside busy loops, a
 # goal flood at 9600 baud, ten minutes of false link faults at load 6), then the fuzz
 # suites, the arm's model-based test and issue 22's sequences over DDS with ten times the
 # cases.
@@ -215,6 +216,7 @@ soak: install
 	$(BIN)/python bench/network_cut.py
 	$(BIN)/python bench/network_faults.py
 	$(BIN)/python bench/network_restart.py
+	$(BIN)/python bench/owner_silence.py
 	$(BIN)/python bench/busy_host.py
 	AL5D_FUZZ_SCALE=10 $(BIN)/python -m pytest -q -p no:cacheprovider -o timeout=1800 \
 	  tests/test_fuzz_text.py tests/test_fuzz_ros.py tests/test_arm_model.py tests/test_ros_sequences.py

@@ -40,12 +40,11 @@ from al5d.arm.instruction import MAX_ID, MAX_QUOTE, Kind, Outcome, Result, new_i
 from al5d.arm.jobs import Sent
 from al5d.arm.states import State
 from al5d.clock import now
-from al5d.owner.client import LaneClosed, Remote
+from al5d.owner.client import SILENCE_KEPT_S, LaneClosed, Remote
 from al5d.owner.lane import LaneError
 from al5d.owner.teller import RefusalLog, Repeats
 from al5d.ros import params
 from al5d.ros.actions import MoveAction
-from al5d.ros.answers import SILENCE_SAID_S
 from al5d.ros.controllers import FollowTrajectoryAction, GripperAction
 from al5d.ros.convert import (
     COPY_MARK,
@@ -426,7 +425,10 @@ class RobotNode(Node):
         #: A sign of this bridge's unanswered by the owner this long: no joint states
         #: (`_owner_silent`), whatever the lease (an outside try: with a 60 s lease a
         #: frozen owner's joint states went on for 60 s, and its clients heard nothing).
-        self._owner_silence_s = SILENCE_SAID_S
+        #: The lane's own measure of a silence (a turning owner answers a sign sooner),
+        #: not the 1 s its clients say a silence after: theirs counts from here, and they
+        #: first said the owner's silence 2.0 to 2.3 s after it began.
+        self._owner_silence_s = SILENCE_KEPT_S
         self._silence_said = False
 
     def set_rates(self, settings: ServerSettings) -> None:
