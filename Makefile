@@ -205,7 +205,7 @@ test: install
 bench: install
 	$(BIN)/python bench/run.py
 
-# The reliability suites, longer than in `make test`, with their figures (about 28 minutes):
+# The reliability suites, longer than in `make test`, with their figures (about 30 minutes):
 # faults and floods, the link cut mid-move 20 times between two hosts (network namespaces), a
 # server's owner frozen mid-move, the contention suite (several flooded servers beside busy loops, a
 # goal flood at 9600 baud, ten minutes of false link faults at load 6), then the fuzz

@@ -286,8 +286,8 @@ def test_a_move_the_board_ran_to_its_end_while_the_owner_did_not_look_is_done(
 def test_a_move_still_on_its_way_when_the_owner_looks_again_is_cut_short(
     sim: Sim, ending: str
 ) -> None:
-    """The same, the stall ending before the move's time (or its line's last bytes not yet
-    written): the move is cut short where it is, and says so."""
+    """The same, the stall ending before the move's time: the move is cut short where it
+    is, and says so."""
     move = replace(ins.move(base=50, elbow=80, time_ms=1400), wait_ms=1300)
     ref = sim.ask(move, client=7)
     sim.run(0.1)
@@ -297,6 +297,43 @@ def test_a_move_still_on_its_way_when_the_owner_looks_again_is_cut_short(
     assert outcome.result is Result.CANCELLED, outcome
     sim.run(0.5)
     assert sim.degrees()["base"] < 49
+
+
+def test_a_move_past_its_time_that_q_said_still_moving_is_not_taken_for_done(sim: Sim) -> None:
+    """Past its time, a move that `Q` said the board still moves is not done by the clock: a
+    stop then cuts it short, as before."""
+    ref = sim.ask(ins.move(base=50, time_ms=300))
+    sim.run(0.1)
+    run = sim.core.run
+    assert run is not None and run.written is not None
+    sim.core = replace(sim.core, run=replace(run, still_moving=True))
+    sim.stall(1.0)
+    sim.ask(ins.stop())
+    outcome = sim.outcome(ref, 0)
+    assert (outcome.result, outcome.reason) == (Result.CANCELLED, "cancelled by stop")
+
+
+def test_a_q_on_its_way_for_a_move_done_by_its_time_is_not_the_next_moves(sim: Sim) -> None:
+    """A move done by its time (a stop after the owner's stall) while its `Q` waits for the
+    answer: that answer, when it comes, says only that the link lives; the next move must
+    not take it for its own confirmation."""
+    ref = sim.ask(ins.move(base=50, time_ms=300))
+    assert sim.until(lambda: sim.core.run is not None and sim.core.run.written is not None)
+    written = sim.core.run.written  # type: ignore[union-attr]
+    assert written is not None
+    sim.advance(written.t_end - 0.001)
+    sim.board.inject(Fault.NO_ANSWER)  # from the Q that confirms it on
+
+    def confirming() -> bool:
+        query, run = sim.core.link.query, sim.core.run
+        return query is not None and query.purpose is Purpose.DONE and run is not None
+
+    assert sim.until(confirming, 5.0)
+    sim.stall(1.0)
+    sim.ask(ins.stop())
+    assert sim.outcome(ref, 0).result is Result.DONE
+    query = sim.core.link.query
+    assert query is None or query.purpose is not Purpose.DONE
 
 
 def test_a_move_whose_last_bytes_waited_for_the_owner_is_not_taken_for_done(

@@ -18,7 +18,8 @@ input:
 - a move whose sender waits for it only so long (`Instruction.wait_ms`) has its outcome
   by then (`GIVE_UP_SLACK_S`, and the time the owner did not run), and is never given up
   on before;
-- no move the board had run to its end is reported cut short (cancelled);
+- no move the board had run to its end is reported cut short (cancelled), and none is
+  reported done before the board has it where it was sent;
 - no line on the wire holds a partial number (a line cut by a stop's ESC holds whole
   commands only), and one thread wrote every byte;
 
@@ -159,6 +160,8 @@ class CoreProtocol(RuleBasedStateMachine):
                 self.problems.append(f"{e.outcome} {late:.3f} s after its sender gave up")
             if e.outcome.result is Result.CANCELLED:
                 self._not_finished(asked, e.outcome.reason)
+            elif e.outcome.ok and self._judged(asked) and not self._at(asked.instr, self.sim.t):
+                self.problems.append(f"{asked.instr.id} done, its joints not yet there")
         state = self.sim.core.state
         pending = self._pending_motion()
         if state in AT_REST and pending:
@@ -186,13 +189,22 @@ class CoreProtocol(RuleBasedStateMachine):
         reset: it takes each joint's first line after a reset at full speed, its time
         ignored (D1), and ends it long before the core expects, until the core learns of
         the reset."""
-        if asked.kind != "move" or self.reset_seen or self.sim.core.fault:
+        if not self._judged(asked):
             return
-        if not any(m.sent.instr.id == asked.instr.id for m in self.sim.moved):
-            return  # never written: where the arm is came of other moves
         then = self.sim.t - OVER_BY_S - FINISHED_SLACK_S
         if not self.sim.board.moving(then) and self._at(asked.instr, self.sim.t):
             self.problems.append(f"{asked.instr.id} reported {reason!r}: the board had run it")
+
+    def _judged(self, asked: Asked) -> bool:
+        """Whether the board's pulses tell how `asked` ended: a move whose line was written
+        (else where the arm is came of other moves), the link not lost, the board never
+        reset."""
+        return (
+            asked.kind == "move"
+            and not self.reset_seen
+            and not self.sim.core.fault
+            and any(m.sent.instr.id == asked.instr.id for m in self.sim.moved)
+        )
 
     def _at(self, instr: Instruction, t: float) -> bool:
         """Whether the board puts out `instr`'s pulses at `t` (to within a microsecond)."""

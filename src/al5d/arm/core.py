@@ -18,9 +18,10 @@ The lanes
 - **Moves** are admitted in the order they come: refused, cancelled, queued, or, on an
   idle arm, started at once (its first line in the same step). One job runs at a time
   (`Core.run`); only its steps are written; whoever ends it (done, stop, cancel, fault,
-  shutdown) makes it not current, in one step. One whose last line's time was over
-  (`running.over`) when a stop, a cancel, its client's loss, its sender's giving up or
-  the shutdown comes is done: the board ran it to its end while the owner did not look.
+  shutdown) makes it not current, in one step. One whose last line's time was over by
+  the board's lag (`running.over`), no `Q` saying it still moves, when a stop, a cancel,
+  its client's loss, its sender's giving up or the shutdown comes is done: the board ran
+  it to its end while the owner did not look.
   A move whose sender waits for its outcome only so long (`Instruction.wait_ms`, from
   when it was sent) is refused as stale if that has passed when it comes, cancelled if
   it passes while the move waits, and halted where it is (as a cancel does) if it
@@ -476,13 +477,13 @@ def _gone(c: Core, ev: Gone, out: Out) -> Core:
     """A client has gone without saying goodbye: what it commanded does not go on (its
     waiting moves are cancelled, its running one is halted where it is)."""
     why = f"lost contact with the client{f' ({ev.why})' if ev.why else ''}"
+    c = running.over(c, ev.t, out)  # done before what waited behind it is cancelled
     mine = [j for j in c.queue if j.client == ev.client]
     if mine:
         c = replace(c, queue=c.queue.where(lambda j: j.client != ev.client))
         cancel_all(mine, why, ev.t, out)
         if c.run is None and not c.queue and c.state is State.MOVING:
             c = fire(c, Event.MOVE_DONE, out)
-    c = running.over(c, ev.t, out)
     run = c.run
     if run is not None and run.job.client == ev.client and run.job.mode is Mode.QUEUE:
         say(out, logging.WARNING, f"{run.job.instr.name} [{run.job.instr.id}]: {why}: halted")

@@ -34,6 +34,7 @@ from al5d.arm.corestate import (
 from al5d.arm.instruction import Kind, Result
 from al5d.arm.jobs import Job, Mode, Motion, Sent, Written
 from al5d.arm.link import ask, can_ask, watch
+from al5d.arm.pose import SETTLE_GRACE_S
 from al5d.arm.states import Event, State
 from al5d.arm.validate import from_start, planned
 from al5d.ssc32u import protocol as p
@@ -425,26 +426,28 @@ def progress(c: Core, t: float, out: Out) -> Core:
 
 
 #: A run whose last line (all its pieces: `Run.written`) has been over this long is one the
-#: board has run to its end (the line's arrival is known to within its wire time and a USB
-#: frame), unless a `Q` since said otherwise.
-OVER_BY_S = 0.02
+#: board has run to its end: the board's own timing lags the owner's estimate by its link
+#: and its host (`pose.SETTLE_GRACE_S`), unless a `Q` since said otherwise.
+OVER_BY_S = SETTLE_GRACE_S
 
 
 def over(c: Core, t: float, out: Out) -> Core:
     """The current run completed, if the board has run it to its end by `t`: what ends it
-    now (a stop, a cancel, its client lost or its sender's giving up) came after the arm got
-    there, though before the owner looked (its thread frozen or starved, or a `Q` on its
-    way), and must not report as cut short a move the arm finished. The core as it was if
-    not, and for the owner's own parks (at start-up, at the shutdown), which a stop cuts
-    short as before."""
+    now (a stop, a cancel, its client lost, its sender's giving up or the shutdown) came
+    after the arm got there, though before the owner looked (its thread frozen or starved),
+    and must not report as cut short a move the arm finished. The core as it was if not,
+    and for the owner's own parks (at start-up, at the shutdown), which a stop cuts short
+    as before. A `Q` of this run's still on its way says only that the link lives when
+    its answer comes: the next run must not take it for its own."""
     run = c.run
     written = run.written if run is not None else None
     if run is None or written is None or run.k < len(run.steps) - 1:
         return c
-    if run.job.mode is not Mode.QUEUE:
+    if run.job.mode is not Mode.QUEUE or run.still_moving or t < written.t_end + OVER_BY_S:
         return c
-    if run.still_moving or t < written.t_end + OVER_BY_S:
-        return c
+    query = c.link.query
+    if query is not None and query.purpose is Purpose.DONE:
+        c = replace(c, link=replace(c.link, query=replace(query, purpose=Purpose.ALIVE)))
     return complete(c, t, out)
 
 
