@@ -575,6 +575,44 @@ def test_the_gripper_command_opens_and_closes_to_a_gap_in_metres(rig: Rig, gap_m
     assert abs(board - gap_mm / 1000) < 0.0005
 
 
+def gripper_goal(gap_m: float) -> GripperCommand.Goal:
+    goal = GripperCommand.Goal()
+    goal.command.position = gap_m
+    return goal
+
+
+def test_a_new_gripper_goal_preempts_the_one_before_it(rig: Rig) -> None:
+    """As ros2_controllers' gripper controller: the newest gripper goal wins, and the one
+    before it ends CANCELED, with its one outcome on /al5d/result naming the newer goal
+    (they queued before: the first closed the gripper, then the second opened it). Here the
+    first waits behind the arm's trajectory, which a gripper goal does not preempt."""
+    rig.recover()
+    rig.emu.clear_records()
+    arm = rig.send(rig.fjt, rig.trajectory([(1.5, pose(base=30))]))
+    first = rig.send(rig.gripper, gripper_goal(0.002))
+    time.sleep(0.3)  # handed to the owner, where it waits behind the trajectory
+    second = rig.send(rig.gripper, gripper_goal(0.030))
+    assert arm.accepted and first.accepted and second.accepted
+    old = wait_future(first.get_result_async(), 10)
+    assert old.status == GoalStatus.STATUS_CANCELED, old.status
+    told = rig.peer.result(bytes(first.goal_id.uuid).hex(), 10)
+    assert told.outcome == "cancelled", told
+    assert told.reason == f"preempted by gripper goal {bytes(second.goal_id.uuid).hex()}", told
+    new = wait_future(second.get_result_async(), 10)
+    assert new.status == GoalStatus.STATUS_SUCCEEDED and new.result.reached_goal, new.status
+    assert wait_future(arm.get_result_async(), 10).status == GoalStatus.STATUS_SUCCEEDED
+    # The first goal never moved the gripper: no line took it below the second's gap.
+    channel = rig.config.joints["gripper"].channel
+    to_m = rig.config.model.to_urdf
+    gaps = [
+        to_m({"gripper": rig.config.joints["gripper"].to_deg(t.pulse_us)})["gripper"]
+        for move in group_moves(rig.emu.records)
+        for t in move.targets
+        if t.channel == channel
+    ]
+    assert gaps and min(gaps) > 0.025, gaps
+
+
 def test_a_gripper_gap_beyond_its_opening_is_rejected(rig: Rig) -> None:
     rig.recover()
     goal = GripperCommand.Goal()

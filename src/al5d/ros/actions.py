@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable
-from concurrent.futures import Future
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from typing import Any, TypeVar
 
@@ -32,7 +32,7 @@ from al5d.owner.client import Judged, LaneClosed, Remote
 from al5d.ros.convert import move_from_fields, tool_from_fields
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_SERVICES, QOS_STREAM
-from al5d.ros.workarounds import IdentifiedActionServer
+from al5d.ros.workarounds import IdentifiedActionServer, preempted
 
 #: The reason of a goal cancelled by its client before it was handed to the owner.
 CANCELLED_BEFORE_RUN = "cancelled by its client before it ran: the arm did not move for it"
@@ -125,11 +125,17 @@ def _goal_instruction(goal: Any, ident: str, model: ArmModel) -> Instruction | s
 
 class GoalRunner:
     """What every action of ours shares: its running goals by instruction id (the goal's
-    UUID in hex), and a cancel that halts the arm where it is (without the lock), or, of
-    a goal accepted that has not yet run, ends it before it runs."""
+    UUID in hex), a cancel that halts the arm where it is (without the lock), or, of
+    a goal accepted that has not yet run, ends it before it runs; and, for an action whose
+    newest goal wins (`preempts`), the halt of the goals before it."""
 
     #: The action's name (its goals' topic: `~/goals/<name>`).
     name = "goal"
+    #: Whether a new goal preempts the goals before it, running or waiting, as
+    #: ros2_controllers' trajectory and gripper controllers do; else it waits behind them.
+    preempts = False
+    #: The reason a preempted goal's halt, or its end, gives: then it ends CANCELED.
+    preempted_reason = "preempted by goal"
     server: IdentifiedActionServer
     #: The message a goal's contents are published as (`goal_message`), on `~/goals/<name>`.
     goal_type: Any = ArmInstruction
@@ -151,6 +157,16 @@ class GoalRunner:
         #: Publishes on the result topic the outcome of a goal that ended before the owner
         #: had it (cancelled, or preempted, while it waited): every goal has one there.
         self.tell: Callable[[Outcome], None] | None = None
+        #: Of each goal a newer one preempted while it ran: the first such goal (its halt
+        #: names that one), until the goal's end takes it (`preempter`).
+        self.preempters: dict[str, str] = {}
+        #: Goals waiting for the goals they preempt to be halted, each with the goal that
+        #: preempted it meanwhile ("": none has).
+        self.starting: dict[str, str] = {}
+        # A preempted goal's halt waits for the wire (tens of ms at 9600 baud): this thread
+        # writes it, and the executor's answers the goals that come meanwhile (a preempting
+        # client at 100 goals a second outran an executor that wrote each halt itself).
+        self._halts = ThreadPoolExecutor(max_workers=1, thread_name_prefix="al5d-preempt")
 
     def judge(self, goal: Any, ident: str, sent: int) -> Any:
         """What the goal asks for, ready to run, or the reason to reject it (a str)."""
@@ -199,7 +215,51 @@ class GoalRunner:
 
     def waiting(self, ident: str) -> bool:
         """Whether goal `ident` is accepted and has not yet been handed to the owner."""
-        return ident in self.judged
+        return ident in self.judged or ident in self.starting
+
+    async def _preempt(self, ident: str, word: str) -> str:
+        """The newest goal wins (`preempts`), as in the JTC: halt the goals running (in the
+        halts' thread), and end those still waiting for theirs. The goal that preempted
+        `ident` (the instruction `word`) meanwhile, or ""."""
+        if not self.preempts:
+            return ""
+        ended = list(self.running)
+        for other in ended:
+            # The first goal to preempt it is the one its halt names (a goal that came
+            # while the halt was on its way said another: the newest).
+            self.preempters.setdefault(other, ident)
+        for other in self.starting:
+            self.starting[other] = ident
+        if not ended:
+            return ""
+        self.starting[ident] = ""
+        reason = f"{self.preempted_reason} {ident}"
+        try:
+            await outcome_of(
+                self.node, self._halts.submit(lambda: [self.arm.cancel(o, reason) for o in ended])
+            )
+        except Exception as e:  # the owner gone, or silent: rclpy aborts the goal
+            self.not_run(ident, word, f"not run: the halt before it failed: {e}")
+            raise
+        finally:
+            by = self.starting.pop(ident, "")
+        return by
+
+    def preempter(self, ident: str, outcome: Outcome) -> str:
+        """The goal that preempted goal `ident`, ended with `outcome`, if its halt was the
+        preemption's ("": not preempted; a stop that came first aborts it)."""
+        by = self.preempters.pop(ident, "")
+        cut = outcome.result is Result.CANCELLED
+        return by if cut and outcome.reason.startswith(self.preempted_reason) else ""
+
+    def preempted_first(
+        self, handle: ServerGoalHandle, ident: str, ticket: Judged, by: str, word: str
+    ) -> None:
+        """Goal `ident` (the instruction `word`), preempted by goal `by` before the owner
+        had it, ends CANCELED: said on the result topic, its ticket dropped."""
+        self.not_run(ident, word, f"{self.preempted_reason} {by}")
+        self.drop(ticket)
+        preempted(handle)
 
     def _cancel(self, handle: ServerGoalHandle) -> CancelResponse:
         """A running goal is halted where it is; one still waiting to run is taken off

@@ -9,7 +9,8 @@ do where it matters to a client:
 - the goal callback judges the whole goal and rejects a bad one before it is
   accepted (nothing is written for it; the reason is also published on the
   result topic, with the goal's UUID in hex as the id);
-- a new trajectory goal preempts a running one, which ends CANCELED and says so;
+- a new trajectory goal preempts a running one, which ends CANCELED and says so, and a
+  new gripper goal preempts the gripper's;
 - a cancel halts the arm where it is, without the emergency lock: CANCELED; a goal
   cancelled while it waits to run (for the halt of the goal it preempts) ends
   CANCELED before it runs;
@@ -30,7 +31,6 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -50,16 +50,12 @@ from al5d.ros.actions import (
     GoalRunner,
     action_server,
     inactive,
-    outcome_of,
 )
 from al5d.ros.convert import trajectory_from_message
 from al5d.ros.workarounds import preempted
 
 log = logging.getLogger("al5d")
 FJT = FollowJointTrajectory.Result
-#: The reason of a goal's halt, or its end, when a newer goal preempted it: then its goal
-#: ends CANCELED as preempted.
-PREEMPTED_BY = "preempted by trajectory goal"
 #: The gripper's gap counts as reached within this (metres): a quarter of a servo
 #: microsecond's worth is far below it, a visible miss far above.
 GRIPPER_REACHED_M = 0.0005
@@ -115,7 +111,6 @@ class Running:
     #: reached at the servos' speed), when that point is reached (as the driver counts).
     origin: float | None = None
     violated: str = ""  # a path tolerance broken: why
-    preempted_by: str = ""
     written: int = 0  # its points written so far
     #: Per point written: how late the board will reach it after its time_from_start (s).
     late: list[float] = field(default_factory=list)
@@ -160,13 +155,6 @@ class FollowTrajectoryAction(GoalRunner):
         #: Before every joint name of a goal and its feedback (`server.joint_prefix`).
         self.prefix = arm.config.server.joint_name_prefix
         self.running: dict[str, Running] = {}
-        #: Goals waiting for the goals they preempt to be halted, each with the goal that
-        #: preempted it meanwhile ("": none has).
-        self.starting: dict[str, str] = {}
-        # A preempted goal's halt waits for the wire (tens of ms at 9600 baud): this thread
-        # writes it, and the executor's answers the goals that come meanwhile (a preempting
-        # client at 100 goals a second outran an executor that wrote each halt itself).
-        self._halts = ThreadPoolExecutor(max_workers=1, thread_name_prefix="al5d-preempt")
         self.server = action_server(
             node, FollowJointTrajectory, name, self._execute, self._goal, self._cancel
         )
@@ -176,6 +164,8 @@ class FollowTrajectoryAction(GoalRunner):
 
     name = "follow_joint_trajectory"
     goal_type = JointTrajectory
+    preempts = True
+    preempted_reason = "preempted by trajectory goal"
 
     def word(self, goal: Any) -> str:
         return Kind.TRAJECTORY.value
@@ -241,9 +231,6 @@ class FollowTrajectoryAction(GoalRunner):
 
     # -- running it -------------------------------------------------------------------
 
-    def waiting(self, ident: str) -> bool:
-        return super().waiting(ident) or ident in self.starting
-
     async def _execute(self, handle: ServerGoalHandle) -> Any:
         ident, judged = self._take_judged(handle)
         goal = handle.request
@@ -253,10 +240,8 @@ class FollowTrajectoryAction(GoalRunner):
         # A goal cancelled before it began does not preempt: it never would have run.
         if self.ended_before_run(handle, ident, judged.ticket):
             return _result(FJT.SUCCESSFUL, CANCELLED_BEFORE_RUN)
-        if by := await self._preempt(ident):
-            self.not_run(ident, Kind.TRAJECTORY.value, f"{PREEMPTED_BY} {by}")
-            self.drop(judged.ticket)
-            preempted(handle)
+        if by := await self._preempt(ident, Kind.TRAJECTORY.value):
+            self.preempted_first(handle, ident, judged.ticket, by, Kind.TRAJECTORY.value)
             return _preempted_result(by)
         if self.ended_before_run(handle, ident, judged.ticket):
             return _result(FJT.SUCCESSFUL, CANCELLED_BEFORE_RUN)
@@ -273,40 +258,15 @@ class FollowTrajectoryAction(GoalRunner):
             judged.ticket.knots,
         )
         outcome = await self._run(ident, run, judged.ticket)
-        return self._finish(run, outcome, judged.end, goal)
+        return self._finish(ident, run, outcome, judged.end, goal)
 
-    async def _preempt(self, ident: str) -> str:
-        """The newest goal wins, as in the JTC: halt the goals running (in the halts' thread),
-        and end those still waiting for theirs. The goal that preempted `ident` meanwhile,
-        or ""."""
-        ended = list(self.running)
-        for run in self.running.values():
-            # The first goal to preempt it is the one its halt names (a goal that came
-            # while the halt was on its way said another: the newest).
-            run.preempted_by = run.preempted_by or ident
-        for other in self.starting:
-            self.starting[other] = ident
-        if not ended:
-            return ""
-        self.starting[ident] = ""
-        reason = f"{PREEMPTED_BY} {ident}"
-        try:
-            await outcome_of(
-                self.node, self._halts.submit(lambda: [self.arm.cancel(o, reason) for o in ended])
-            )
-        except Exception as e:  # the owner gone, or silent: rclpy aborts the goal
-            self.not_run(ident, Kind.TRAJECTORY.value, f"not run: the halt before it failed: {e}")
-            raise
-        finally:
-            by = self.starting.pop(ident, "")
-        return by
-
-    def _finish(self, run: Running, outcome: Outcome, end: list[Tolerance], goal: Any) -> Any:
+    def _finish(
+        self, ident: str, run: Running, outcome: Outcome, end: list[Tolerance], goal: Any
+    ) -> Any:
         handle = run.handle
-        # Preempted, if its halt was the preemption's: a stop that came first aborts it.
-        if outcome.result is Result.CANCELLED and outcome.reason.startswith(PREEMPTED_BY):
+        if by := self.preempter(ident, outcome):
             preempted(handle)
-            return _preempted_result(run.preempted_by)
+            return _preempted_result(by)
         if outcome.result is Result.CANCELLED and run.violated:
             handle.abort()
             return _result(FJT.PATH_TOLERANCE_VIOLATED, run.violated)
@@ -438,7 +398,9 @@ def _result(code: int, text: str) -> Any:
 class GripperAction(GoalRunner):
     """`gripper_controller/gripper_cmd`: the gap in metres, through the gripper servo.
 
-    No force sensing: `effort` is 0 and `stalled` always false.
+    A new goal preempts the gripper's goals before it, as ros2_controllers' gripper
+    controller does: they end CANCELED. No force sensing: `effort` is 0 and `stalled`
+    always false.
     """
 
     JOINT = "gripper"
@@ -452,6 +414,8 @@ class GripperAction(GoalRunner):
 
     name = "gripper_cmd"
     goal_type = JointState
+    preempts = True
+    preempted_reason = "preempted by gripper goal"
 
     def goal_message(self, goal: Any, ident: str) -> JointState:
         """The gap asked for as the gripper joint's position (its max_effort as its effort),
@@ -481,6 +445,15 @@ class GripperAction(GoalRunner):
             handle.abort()
             return GripperCommand.Result()
         result = GripperCommand.Result()
+        word = Kind.MOVE.value
+        # A goal cancelled before it began does not preempt: it never would have run.
+        if self.ended_before_run(handle, ident, ticket):
+            result.position = self._gap()
+            return result
+        if by := await self._preempt(ident, word):
+            self.preempted_first(handle, ident, ticket, by, word)
+            result.position = self._gap()
+            return result
         if self.ended_before_run(handle, ident, ticket):
             result.position = self._gap()
             return result
@@ -494,6 +467,8 @@ class GripperAction(GoalRunner):
         )
         if outcome.ok:
             handle.succeed()
+        elif self.preempter(ident, outcome):
+            preempted(handle)
         elif outcome.result is Result.CANCELLED and handle.is_cancel_requested:
             handle.canceled()
         else:
