@@ -287,19 +287,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class Default(float):
-    """--timeout's default, told from a value given on the command line: argparse keeps a
-    default that is no string as it is. A stop's or a release's answer is waited for its own
-    default (`answer_s`), as `al5d send stop`'s quick path waits, unless --timeout is given."""
-
-
-def answer_s(timeout: float) -> float:
-    """How long a stop's or a release's answer is waited for, by --timeout's value."""
-    from al5d.ros.answers import ANSWER_S
-
-    return ANSWER_S if isinstance(timeout, Default) else timeout
-
-
 def _add_waits(
     cmd: argparse.ArgumentParser, timeout: float, what: str = "an outcome", stops: bool = False
 ) -> None:
@@ -315,7 +302,7 @@ def _add_waits(
     cmd.add_argument(
         "--timeout",
         type=_seconds,
-        default=Default(timeout),
+        default=commands.Default(timeout),
         help=f"seconds to wait for {what}; default %(default)g"
         # `al5d.ros.answers.ANSWER_S`, not imported here: it imports the configuration.
         + (" (a stop's or release's answer: 10)" if stops else ""),

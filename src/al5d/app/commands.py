@@ -12,6 +12,19 @@ from al5d import exits
 from al5d.arm.config import load_config
 
 
+class Default(float):
+    """--timeout's default, told from a value given on the command line: argparse keeps a
+    default that is no string as it is. A stop's or a release's answer is waited for its own
+    default (`answer_s`), as `al5d send stop`'s quick path waits, unless --timeout is given."""
+
+
+def answer_s(timeout: float) -> float:
+    """How long a stop's or a release's answer is waited for, by --timeout's value."""
+    from al5d.ros.answers import ANSWER_S
+
+    return ANSWER_S if isinstance(timeout, Default) else timeout
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
     from al5d.app.server import ServerOptions, serve
     from al5d.logs import setup_logging
@@ -116,7 +129,6 @@ def cmd_moveit(args: argparse.Namespace) -> int:
 
 
 def cmd_send(args: argparse.Namespace) -> int:
-    from al5d.app.cli import answer_s
     from al5d.app.terminal import send
     from al5d.interrupts import cancelling
 
@@ -211,7 +223,6 @@ def check(path: str, poses: str | None, namespace: str | None, wait_s: float) ->
 
 
 def cmd_shell(args: argparse.Namespace) -> int:
-    from al5d.app.cli import answer_s
     from al5d.app.shell import shell
 
     return shell(
