@@ -282,6 +282,26 @@ def test_a_move_the_board_ran_to_its_end_while_the_owner_did_not_look_is_done(
         assert sim.degrees()["base"] == pytest.approx(50, abs=0.5)
 
 
+@pytest.mark.parametrize("stall_s", [1.5, 0.2])
+def test_a_set_point_the_board_ran_to_its_end_while_the_owner_did_not_look_is_done(
+    sim: Sim, stall_s: float
+) -> None:
+    """The same for a set-point and its stream's next, taken first after the stall: the
+    first was reported superseded, though the board had run it to its end; a stall that
+    ends before its time leaves it superseded, as before."""
+    first = sim.ask(ins.move(base=50, elbow=80, time_ms=400), stream="jog")
+    sim.run(0.1)
+    sim.stall(stall_s)
+    second = sim.ask(ins.move(base=40), stream="jog")
+    outcome = sim.outcome(first, 0)
+    if stall_s > 0.4:
+        assert (outcome.result, outcome.reason) == (Result.DONE, ""), outcome
+    else:
+        assert outcome.reason.startswith("superseded by set-point"), outcome
+    assert sim.outcome(second, 5).ok
+    assert sim.degrees()["base"] == pytest.approx(40, abs=0.5)
+
+
 @pytest.mark.parametrize("ending", list(ENDINGS))
 def test_a_move_still_on_its_way_when_the_owner_looks_again_is_cut_short(
     sim: Sim, ending: str

@@ -200,7 +200,7 @@ class CoreProtocol(RuleBasedStateMachine):
         (else where the arm is came of other moves), the link not lost, the board never
         reset."""
         return (
-            asked.kind == "move"
+            asked.kind in ("move", "set-point")
             and not self.reset_seen
             and not self.sim.core.fault
             and any(m.sent.instr.id == asked.instr.id for m in self.sim.moved)
@@ -467,17 +467,24 @@ class CoreProtocol(RuleBasedStateMachine):
         self.sim.run(ms / 1000)
 
     @precondition(lambda self: not self.ended)
-    @rule(ms=st.integers(1, 1500), then=st.sampled_from(["", "stop", "cancel"]), pick=st.integers())
+    @rule(
+        ms=st.integers(1, 1500),
+        then=st.sampled_from(["", "stop", "cancel", "set-point"]),
+        pick=st.integers(),
+    )
     def stall(self, ms: int, then: str, pick: int) -> None:
         """The owner's thread does not run for `ms` (frozen, or starved of the CPU) while
         the board runs on; what was due meanwhile is done when it runs again, after what
-        waited for it (`then`: a stop, or a cancel, taken first as it runs again)."""
+        waited for it (`then`: a stop, a cancel, or the stream's next set-point, taken
+        first as it runs again)."""
         self.stalls.append((self.sim.t, self.sim.t + ms / 1000))
         self.sim.stall(ms / 1000)
         if then == "stop":
             self._stop(False)
         elif then == "cancel":
             self._cancel(pick)
+        elif then == "set-point":
+            self._set_points(1, random.Random(pick), False)
 
     @precondition(lambda self: not self.ended and not self.pulled)
     @rule(fault=st.sampled_from([Fault.DISCONNECT, Fault.NO_ANSWER, Fault.GARBAGE]))

@@ -224,6 +224,23 @@ def test_points_the_servos_cannot_reach_in_time_are_refused_with_a_time_toleranc
     assert isinstance(far, str) and far.startswith("servo speed: point 0 asks base for 80 deg")
 
 
+def test_a_point_late_for_the_wire_alone_is_refused_naming_the_wire(config: ArmConfig) -> None:
+    """An outside try: two points of the five arm joints 20 ms apart, each 0.573 deg of base
+    (1.7 ms of its servo), at 9600 baud with a tolerance of 1 ms were refused for the
+    servo's speed ("0.573 deg at once (572958 deg/s)"), where the second line cannot take
+    effect before 47 ms: the wire's doing, which the refusal now names."""
+    still = tuple((j, 0.0) for j in ("shoulder", "elbow", "wrist", "wrist_rotate"))
+    points = [
+        ins.Point((("base", 0.573), *still), 20.0),
+        ins.Point((("base", 1.146), *still), 40.0),
+    ]
+    limits = Limits.of(config, 9600)
+    start = {j: 0.0 for j in ("base", "shoulder", "elbow", "wrist", "wrist_rotate")}
+    reason = check(ins.trajectory(points), limits, Follow(late_ms=1.0, start=start))
+    assert isinstance(reason, str) and reason.startswith("the wire: point 1's group move"), reason
+    assert "beyond the time tolerance of 1 ms" in reason, reason
+
+
 def test_points_naming_different_joints_are_kept_as_they_are(config: ArmConfig) -> None:
     points = [
         ins.Point((("base", 0.0),), 0.0),

@@ -117,7 +117,14 @@ from al5d.arm.corestate import (
     posed,
     say,
 )
-from al5d.arm.instruction import FRESH_MARK, Instruction, Kind, Result, beyond_its_word
+from al5d.arm.instruction import (
+    FRESH_MARK,
+    NOT_RUN,
+    Instruction,
+    Kind,
+    Result,
+    beyond_its_word,
+)
 from al5d.arm.jobs import NO_JOBS, Job, Mode, outcome
 from al5d.arm.states import (
     LOCKED_BY_STOP,
@@ -338,6 +345,9 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
                 c = fire(c, Event.MOVE_DONE, out)
             finish(job, Result.DONE, "at this set-point, or on its way: nothing written", ev.t, out)
             return c
+        # A running set-point the board has run to its end while the owner did not look is
+        # done, not superseded (`running.over`).
+        c = running.over(c, ev.t, out)
         if _supersedes(c, job):
             if c.link.rest and not c.link.rest_is_halt:
                 # The running set-point's line is going out. Cutting it would make the
@@ -460,7 +470,9 @@ def _cancel(c: Core, ev: Cancel, out: Out) -> Core:
         c = replace(c, queue=c.queue.where(lambda j: j is not job))
         if c.run is None and not c.queue and c.state is State.MOVING:
             c = fire(c, Event.MOVE_DONE, out)
-        finish(job, Result.CANCELLED, ev.reason, ev.t, out)
+        # Said as a goal cancelled before the bridge handed it over is (`NOT_RUN`): one
+        # outcome's words whichever side of the owner it waited on.
+        finish(job, Result.CANCELLED, f"{ev.reason}{NOT_RUN}", ev.t, out)
         out.append(Reply(ev.ref, True))
         return c
     c = running.over(c, ev.t, out)
@@ -547,6 +559,9 @@ def _next(c: Core, t: float, wall: int, out: Out) -> Core:
         if c.queue and not c.link.rest and c.queue.first().stream:
             waiting = c.queue.first()
             if _supersedes(replace(c, queue=NO_JOBS), waiting):
+                done = running.over(c, t, out)
+                if done is not c:  # then the waiting one starts as any next one does
+                    return done
                 return _supersede(replace(c, queue=c.queue.rest()), waiting, t, out)
         return running.progress(c, t, out)
     if c.shutdown is not None:

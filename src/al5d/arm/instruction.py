@@ -215,6 +215,11 @@ class Result(enum.Enum):
     CANCELLED = "cancelled"
 
 
+#: After the reason of a motion cancelled while it waited (never written), whichever side
+#: of the board's owner it waited on.
+NOT_RUN = " before it ran: the arm did not move for it"
+
+
 @dataclass(frozen=True, slots=True)
 class Outcome:
     """What became of an instruction: exactly one per instruction."""

@@ -319,7 +319,10 @@ def _lateness(path: _Path, knots: tuple[int, ...], budget: Budget) -> float | st
                 if ms > need:
                     need, joint = ms, j
         window = t[k] - a
-        if culprit is None and here is not None and joint >= 0 and need > window:
+        # The servo is to blame where it needs more than the points give it, the wire
+        # aside (a line that can only take effect after the point's time is the wire's).
+        given = t[k] - (t[knots[n - 1]] if n else 0.0)
+        if culprit is None and here is not None and joint >= 0 and need > given:
             culprit = (k, names[joint], abs(p[k][joint] - here[joint]), window, speeds[joint])
         end = max(t[k], begin + need)
         late = end - t[k]

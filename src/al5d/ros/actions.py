@@ -24,7 +24,7 @@ from rclpy.action.server import CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.node import Node
 from rclpy.task import Future as RosFuture
 
-from al5d.arm.instruction import Instruction, Kind, Outcome, Result
+from al5d.arm.instruction import NOT_RUN, Instruction, Kind, Outcome, Result
 from al5d.arm.states import refusal
 from al5d.clock import wall_ns
 from al5d.model import ArmModel
@@ -35,7 +35,7 @@ from al5d.ros.qos import QOS_SERVICES, QOS_STREAM
 from al5d.ros.workarounds import IdentifiedActionServer, preempted
 
 #: The reason of a goal cancelled by its client before it was handed to the owner.
-CANCELLED_BEFORE_RUN = "cancelled by its client before it ran: the arm did not move for it"
+CANCELLED_BEFORE_RUN = f"cancelled by the client{NOT_RUN}"
 #: How long a finished goal's result is kept for its client to fetch (rclpy keeps them
 #: 900 s by default). Its status leaves the status messages sooner:
 #: `workarounds.IdentifiedActionServer` says why.

@@ -105,7 +105,11 @@ class Board(RecordLog, ServoObserver):
     """
 
     def __init__(
-        self, config: ArmDescription | None = None, **settings: Unpack[BoardSettings]
+        self,
+        config: ArmDescription | None = None,
+        *,
+        powered_at: float | None = None,
+        **settings: Unpack[BoardSettings],
     ) -> None:
         # The type checker sees a misspelt setting; a caller without one must hear of it too,
         # not get the factory's value for it.
@@ -156,7 +160,7 @@ class Board(RecordLog, ServoObserver):
             self._registers[facts.R_ENABLE] |= facts.ENABLE_STARTUP_STRING
         self._tx_free = float("-inf")  # when the board's serial output has sent its last answer
         #: When the board last powered up (a reset is one): a partial line from before is lost.
-        self.powered_at = t = now()
+        self.powered_at = t = now() if powered_at is None else powered_at
         if config is not None:
             pose = initial_pose if initial_pose is not None else config.presets.get("park", {})
             for name, joint in config.joints.items():
