@@ -505,7 +505,7 @@ def test_a_stop_is_not_held_by_an_idle_check_that_waits_for_its_answer(config: A
 
 def test_a_reset_then_a_move_at_once_is_found_during_that_move(sim: Sim) -> None:
     assert sim.outcome(sim.ask(ins.move(base=30))).result is Result.DONE
-    sim.board.inject(Fault.RESET)
+    sim.board.reset(sim.t)
     asked = sim.t
     move = sim.outcome(sim.ask(ins.move(base=0, time_ms=2000)))
     assert move.result is Result.CANCELLED and "the board has reset" in move.reason
@@ -581,7 +581,7 @@ def test_late_answers_from_before_a_fault_do_not_fail_the_reconnect(sim: Sim) ->
 
 
 def test_a_reset_locks_the_arm_and_forgets_the_pose(sim: Sim) -> None:
-    sim.board.inject(Fault.RESET)
+    sim.board.reset(sim.t)
     assert sim.until(lambda: sim.core.state is State.FAULT, 2.0)
     assert sim.core.locked
     assert sim.until(lambda: sim.core.state is State.STOPPED, 5.0)

@@ -239,6 +239,11 @@ def test_a_point_late_for_the_wire_alone_is_refused_naming_the_wire(config: ArmC
     reason = check(ins.trajectory(points), limits, Follow(late_ms=1.0, start=start))
     assert isinstance(reason, str) and reason.startswith("the wire: point 1's group move"), reason
     assert "beyond the time tolerance of 1 ms" in reason, reason
+    # 30 deg there are the servo's doing (90 ms of it), said in the time the points give.
+    far = [ins.Point((("base", 0.573), *still), 20.0), ins.Point((("base", 30.573), *still), 40.0)]
+    servo = check(ins.trajectory(far), limits, Follow(late_ms=1.0, start=start))
+    assert isinstance(servo, str), servo
+    assert servo.startswith("servo speed: point 1 asks base for 30 deg in 20 ms (1500 deg/s)")
 
 
 def test_points_naming_different_joints_are_kept_as_they_are(config: ArmConfig) -> None:

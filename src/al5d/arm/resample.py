@@ -323,7 +323,10 @@ def _lateness(path: _Path, knots: tuple[int, ...], budget: Budget) -> float | st
         # aside (a line that can only take effect after the point's time is the wire's).
         given = t[k] - (t[knots[n - 1]] if n else 0.0)
         if culprit is None and here is not None and joint >= 0 and need > given:
-            culprit = (k, names[joint], abs(p[k][joint] - here[joint]), window, speeds[joint])
+            # The time it has: the points' less the wire's wait, or theirs where the wire
+            # leaves none (it is the servo that cannot make even that).
+            has = window if window > 0 else given
+            culprit = (k, names[joint], abs(p[k][joint] - here[joint]), has, speeds[joint])
         end = max(t[k], begin + need)
         late = end - t[k]
         if late > worst:

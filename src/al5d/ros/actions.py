@@ -210,6 +210,9 @@ class GoalRunner:
             self.started()
         try:
             return await outcome_of(self.node, self.arm.submit(ticket))
+        except BaseException:
+            self.preempters.pop(ident, None)  # its end, which takes it, never comes
+            raise
         finally:
             self.running.pop(ident, None)
 
@@ -256,8 +259,9 @@ class GoalRunner:
         self, handle: ServerGoalHandle, ident: str, ticket: Judged, by: str, word: str
     ) -> None:
         """Goal `ident` (the instruction `word`), preempted by goal `by` before the owner
-        had it, ends CANCELED: said on the result topic, its ticket dropped."""
-        self.not_run(ident, word, f"{self.preempted_reason} {by}")
+        had it, ends CANCELED: said on the result topic as the owner says one it drops
+        while it waits (`NOT_RUN`), its ticket dropped."""
+        self.not_run(ident, word, f"{self.preempted_reason} {by}{NOT_RUN}")
         self.drop(ticket)
         preempted(handle)
 

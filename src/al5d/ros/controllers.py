@@ -465,9 +465,11 @@ class GripperAction(GoalRunner):
             outcome.ok
             and abs(result.position - handle.request.command.position) <= GRIPPER_REACHED_M
         )
+        # Taken whatever the outcome: a goal preempted as it ended done keeps nothing behind.
+        by = self.preempter(ident, outcome)
         if outcome.ok:
             handle.succeed()
-        elif self.preempter(ident, outcome):
+        elif by:
             preempted(handle)
         elif outcome.result is Result.CANCELLED and handle.is_cancel_requested:
             handle.canceled()
