@@ -20,8 +20,8 @@ The lanes
   (`Core.run`); only its steps are written; whoever ends it (done, stop, cancel, fault,
   shutdown) makes it not current, in one step. One whose last line's time was over by
   the board's lag (`running.over`), no `Q` saying it still moves, when a stop, a cancel,
-  its client's loss, its sender's giving up or the shutdown comes is done: the board ran
-  it to its end while the owner did not look.
+  its client's loss, its sender's giving up, the shutdown or its stream's next set-point
+  comes is done: the board ran it to its end while the owner did not look.
   A move whose sender waits for its outcome only so long (`Instruction.wait_ms`, from
   when it was sent) is refused as stale if that has passed when it comes, cancelled if
   it passes while the move waits, and halted where it is (as a cancel does) if it
@@ -547,22 +547,26 @@ def _next(c: Core, t: float, wall: int, out: Out) -> Core:
         return c
     if c.run is not None:
         job = c.run.job
-        if t >= job.give_up_at and job.mode is Mode.QUEUE:
+        given = t >= job.give_up_at and job.mode is Mode.QUEUE
+        # A set-point that waited for the running one's line takes its place once it is out,
+        # ahead of what came after it.
+        waiting = c.queue.first() if c.queue and not c.link.rest else None
+        if waiting is not None and not (
+            waiting.stream and _supersedes(replace(c, queue=NO_JOBS), waiting)
+        ):
+            waiting = None
+        if given or waiting is not None:
+            # Either ends the run: done instead if the board ran it to its end meanwhile
+            # (`running.over`); then what waits starts as any next one does.
             done = running.over(c, t, out)
             if done is not c:
                 return done
+        if given:
             reason = given_up(job.instr)
             say(out, logging.WARNING, f"{job.instr.name} [{job.instr.id}]: {reason}: halted")
             return running.end_run(c, f"{reason}: halted", t, out)
-        # A set-point that waited for the running one's line takes its place once it is out,
-        # ahead of what came after it.
-        if c.queue and not c.link.rest and c.queue.first().stream:
-            waiting = c.queue.first()
-            if _supersedes(replace(c, queue=NO_JOBS), waiting):
-                done = running.over(c, t, out)
-                if done is not c:  # then the waiting one starts as any next one does
-                    return done
-                return _supersede(replace(c, queue=c.queue.rest()), waiting, t, out)
+        if waiting is not None:
+            return _supersede(replace(c, queue=c.queue.rest()), waiting, t, out)
         return running.progress(c, t, out)
     if c.shutdown is not None:
         if c.shutdown_taken:

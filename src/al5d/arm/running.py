@@ -434,12 +434,12 @@ OVER_BY_S = SETTLE_GRACE_S
 def over(c: Core, t: float, out: Out) -> Core:
     """The current run completed, if the board has run it to its end by `t`: what ends it
     now (a stop, a cancel, its client lost, its sender's giving up, the shutdown or its
-    stream's next set-point) came
-    after the arm got there, though before the owner looked (its thread frozen or starved),
-    and must not report as cut short a move the arm finished. The core as it was if not,
-    and for the owner's own parks (at start-up, at the shutdown), which a stop cuts short
-    as before. A `Q` of this run's still on its way says only that the link lives when
-    its answer comes: the next run must not take it for its own."""
+    stream's next set-point) came after the arm got there, though before the owner looked
+    (its thread frozen or starved), and must not report as cut short a move the arm
+    finished. The core as it was if not, and for the owner's own parks (at start-up, at
+    the shutdown), which a stop cuts short as before. A `Q` of this run's still on its way
+    says only that the link lives when its answer comes: the next run must not take it
+    for its own."""
     run = c.run
     written = run.written if run is not None else None
     if run is None or written is None or run.k < len(run.steps) - 1:
