@@ -432,6 +432,28 @@ def test_a_goal_cancelled_while_it_waits_behind_another_move_says_it_did_not_mov
     wait_until(lambda: rig.states[-1] == "ready", 10, "ready")
 
 
+def test_a_goal_waiting_behind_another_move_keeps_its_path_tolerance(rig: Rig) -> None:
+    """A second reading: a goal queued at the owner behind a move of another channel was
+    judged against the arm's place when it was accepted while the other move carried the
+    arm away, and aborted for a path it had not begun (its result said the violation,
+    /al5d/result that it was cancelled). Its path starts where the board starts it."""
+    rig.recover()
+    elbow = rig.emu.servo_degrees()["elbow"]
+    away = 10.0 if elbow > 35 else 60.0  # 25 deg or more: far beyond the tolerance
+    rig.peer.send("carrier", "move", 1500, elbow=away)
+    wait_until(lambda: rig.states[-1] == "moving", 10, "the topic's move running")
+    goal = rig.trajectory([(1.0, pose(base=10, elbow=away))])
+    goal.path_tolerance = [JointTolerance(name=j, position=0.05) for j in ARM]
+    handle = rig.send(rig.fjt, goal)
+    assert handle.accepted
+    answer = wait_future(handle.get_result_async(), 20)
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result.error_string
+    told = rig.peer.result(bytes(handle.goal_id.uuid).hex(), 20)
+    assert told.outcome == "done", told
+    assert rig.peer.result("carrier", 20).outcome == "done"
+    assert abs(rig.emu.servo_degrees()["base"] - 10) < 1
+
+
 def test_a_result_is_kept_after_its_goal_has_left_the_status_messages(rig: Rig) -> None:
     """The status messages carry only recent goals (each message lists every goal kept, so
     a long list costs every goal), while a result stays for a client that asks late."""

@@ -338,8 +338,10 @@ class FollowTrajectoryAction(GoalRunner):
         values = self.model.to_urdf(degrees)
         stamp = self.node.get_clock().now().to_msg()
         for ident, run in list(self.running.items()):
-            desired = run.desired(t)
             actual = [values[n] for n in run.names]
+            # Not yet on the board (it waits behind another move): its path starts where
+            # the board will start it, so nothing is off it yet.
+            desired = run.desired(t) if run.t0 is not None else actual
             error = [d - a for d, a in zip(desired, actual, strict=True)]
             fb = FollowJointTrajectory.Feedback()
             fb.header.stamp = stamp
