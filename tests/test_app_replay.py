@@ -4,6 +4,7 @@ instructions repeat an id, lie decades apart, or number a million."""
 
 from __future__ import annotations
 
+import io
 import os
 import random
 import signal
@@ -21,6 +22,7 @@ from rclpy.serialization import serialize_message
 from al5d import exits
 from al5d.app.mcapfile import RecordFile, message_definition
 from al5d.app.replay import INSTRUCTION_TYPE, MAX_MESSAGE_BYTES
+from al5d.app.report import HELD_MAX, Report
 from al5d_rig.proc import Proc, patient_config
 
 TOPIC = "/al5d/instruction"
@@ -286,6 +288,32 @@ def many(path: Path, n: int) -> Path:
             add(channel, log_time=i, data=data, publish_time=i, sequence=i)
         writer.finish()  # type: ignore[no-untyped-call]
     return path
+
+
+class Writes(io.StringIO):
+    """An output that counts its writes (each a system call where the interpreter runs
+    unbuffered, as with PYTHONUNBUFFERED)."""
+
+    count = 0
+
+    def write(self, s: str) -> int:
+        self.count += 1
+        return super().write(s)
+
+
+def test_lines_held_are_written_a_thousand_at_once_in_their_order() -> None:
+    """A replay's refusals are held, not printed one by one: under PYTHONUNBUFFERED each
+    print was two writes, and a million refusals took 49 s to replay rather than 41."""
+    out = Writes()
+    report = Report(out, 1.0)
+    for i in range(2 * HELD_MAX + 500):
+        report.line(f"refused {i}", flush=False)
+    assert out.count == 2  # two thousands; the last 500 are held
+    report.line("sent")  # a line flushed: the ones held go first
+    report.line("held", flush=False)
+    report.flush()
+    lines = out.getvalue().splitlines()
+    assert lines == [f"refused {i}" for i in range(2 * HELD_MAX + 500)] + ["sent", "held"]
 
 
 @pytest.mark.timeout(900)  # two readings of a million messages: about 80 s here

@@ -480,7 +480,7 @@ def _send(
                 # never judged), and no "> " line: a million of them would be two million.
                 name = repr(fields.instruction[:MAX_QUOTE])[1:-1]
                 said = f"{name} [{repr(_sent_id(each))[1:-1]}]: refused: {instr} (not sent)"
-                # Out with the next line sent, or before a wait (a million, a write each).
+                # Out with the next line sent, or before a wait (a million: a write per thousand).
                 report.line(said, flush=rate == "recorded")
                 continue
             if rate == "recorded":
@@ -510,7 +510,7 @@ def _send(
             if rate != "recorded" and not outcomes.wait(arrived, timeout + GIVE_UP_WORD_S):
                 outcomes.forget(instr.id)
                 report.outcome(None, instr=instr)
-        out.flush()  # the refusals after the last sent, before the wait for its outcome
+        report.flush()  # the refusals after the last sent, before the wait for its outcome
         if not outcomes.wait(
             lambda: not outcomes.pending(),
             timeout + GIVE_UP_WORD_S - (time.monotonic() - last_sent),
@@ -534,6 +534,7 @@ def _send(
         )
         return exits.NOT_DONE
     finally:
+        report.flush()  # the refusals held, whatever ended the replay
         client.close()
 
 
