@@ -424,6 +424,26 @@ def test_a_line_waited_for_and_not_done_ends_the_sequence(arm: Served, tmp_path:
     assert re.match(r"move \[\S+\]: done", out[-1]), out
 
 
+def test_a_piped_shells_line_not_done_ends_its_input_as_a_sequence_does(arm: Served) -> None:
+    """An outside try: a script piped into `al5d shell` went on after another client's
+    emergency stop had cancelled its move, and its `release` unlocked the arm for the rest.
+    Piped, a line waited for that is not done ends the input, as it ends `al5d run`."""
+    shell = Proc("shell", stdin=True)
+    try:
+        for line in ("move base=60 time=3000", "move base=-60 time=2000", "release", "park"):
+            shell.send(line)
+        wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
+        assert arm.peer.trigger("stop").success
+        code, out, err = ended(shell)
+    finally:
+        shell.kill()
+    assert code == exits.NOT_DONE, (out, err)
+    assert any("cancelled by stop" in line for line in out), out
+    assert out[-1] == "not done: the shell's input ends here: no line after it runs", out
+    assert not [line for line in out if line.startswith(("> move base=-60", "> release"))], out
+    assert arm.states[-1] == "stopped", arm.states[-3:]
+
+
 def test_a_slow_discovery_is_said_without_verbose(arm: Served) -> None:
     """The measure is the client's own (its wait for a server under a namespace that has
     none, 1.5 s); what is said of it is what `al5d send` says."""
@@ -592,6 +612,32 @@ def test_ctrl_c_in_a_piped_shell_with_nothing_running_stops_nothing(arm: Served)
     assert out[-1] == "Ctrl-C: the shell's input ends here: no line after it runs", out
     assert not [line for line in out if line.startswith("Ctrl-C: stop")], out
     assert "stopped" not in arm.states[seen:], arm.states[seen:]
+
+
+def test_a_stop_typed_at_the_shells_terminal_while_a_move_runs_goes_at_once(
+    arm: Served,
+) -> None:
+    """An outside try: `stop`, typed 1 s into a 5 s move, was read when the move had ended:
+    the arm was never stopped, and locked when it was idle. It goes at once now, as
+    Ctrl-C's stop does; a line typed after it waits its turn, as typed ahead in a shell."""
+    shell = Tty([AL5D, "shell"])
+    try:
+        shell.wait_for(r"Ctrl-D ends\r\nal5d> ", CMD_S)
+        shell.type("move base=80 time=5000\r")
+        wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+        shell.type("stop\rrelease\r")
+        # The stop's answer and the move's outcome, in either order.
+        said = (r"stop \[[^\]]+\]: done \(by the local lane\)", r"move \[[^\]]+\]: cancelled")
+        wait_until(lambda: all(re.search(s, shell.drawn) for s in said), CMD_S, "both said")
+        assert "stopped" in arm.states
+        assert abs(arm.emu.servo_degrees()["base"] - 80) > 5  # halted on its way
+        # The release typed ahead runs after the move's outcome, drawn at a prompt.
+        shell.wait_for(r"al5d> release\r\nrelease \[[^\]]+\]: done", CMD_S)
+        wait_until(lambda: arm.states[-1] == "ready", STATE_S, "ready")
+        shell.type("exit\r")
+        assert shell.proc.wait(CMD_S) == exits.NOT_DONE, shell.drawn  # the move cancelled
+    finally:
+        shell.close()
 
 
 def test_ctrl_c_at_the_shells_terminal_stops_the_arm_and_prompts_again(arm: Served) -> None:

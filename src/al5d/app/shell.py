@@ -10,10 +10,15 @@ first one's answers are awaited ends the shell.
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import logging
+import os
+import select
 import sys
+import threading
 import time
-from collections.abc import Generator, Iterable
+from collections.abc import Callable, Generator, Iterable, Iterator
 from pathlib import Path
 from typing import TextIO
 
@@ -27,6 +32,7 @@ from al5d.arm.instruction import (
     Instruction,
     Kind,
     SequenceStep,
+    is_stop,
 )
 from al5d.arm.poses import PosesError, beside, load_poses
 from al5d.arm.sequence import SequenceJudge
@@ -40,10 +46,65 @@ SHELL_PROMPT = "al5d> "
 CTRL_C = "\x03"
 
 
-def _lines(inp: TextIO, interactive: bool, report: Report | None) -> Generator[str, None, None]:
+class _TypedAhead:
+    """At a terminal, the lines typed while a line of the shell runs (the terminal's own
+    line discipline has them whole, echoed): a stop among them goes at once, as Ctrl-C's
+    does; the others wait their turn at the prompt, as typed ahead in a shell. (An outside
+    try: `stop`, typed 1 s into a 5 s move, was read when the move had ended: the arm was
+    never stopped, and locked 4 s later.)"""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self.lines: list[str] = []
+        self.ended = False  # Ctrl-D typed meanwhile: the input ends after `lines`
+        self._partial = b""
+
+    @contextlib.contextmanager
+    def watching(self, stop: Callable[[], None]) -> Iterator[None]:
+        """While the body runs, typed lines are read: `stop` is called (in a thread of its
+        own) for a stop, the rest kept. Its answer is said before this returns."""
+        done = threading.Event()
+        reader = threading.Thread(
+            target=self._read, args=(done, stop), name="al5d-typed-ahead", daemon=True
+        )
+        reader.start()
+        try:
+            yield
+        finally:
+            done.set()
+            reader.join()
+
+    def _read(self, done: threading.Event, stop: Callable[[], None]) -> None:
+        while not done.is_set() and not self.ended:
+            # The wait only bounds how long `done` goes unseen: a line typed wakes it.
+            if not select.select([self.fd], [], [], 0.05)[0]:
+                continue
+            data = os.read(self.fd, 4096)
+            if not data:  # Ctrl-D at the start of a line
+                self.ended = True
+                return
+            *whole, self._partial = (self._partial + data).split(b"\n")
+            for raw in whole:
+                line = raw.decode(errors="replace")
+                words = line.split("#", 1)[0].split()
+                if words and is_stop(words[0]):
+                    stop()
+                else:
+                    self.lines.append(line)
+
+    def drop(self) -> None:
+        """A Ctrl-C drops what was typed ahead, as the terminal drops what it holds."""
+        self.lines.clear()
+        self._partial = b""
+
+
+def _lines(
+    inp: TextIO, interactive: bool, report: Report | None, typed: _TypedAhead | None = None
+) -> Generator[str, None, None]:
     """The shell's input, a line at a time; at a terminal with a prompt and line editing,
     and Ctrl-C there drops the line typed, as a shell does: it is `CTRL_C`, after a new
-    line. What `report` (its output a terminal) says while the prompt waits goes above it.
+    line. What `report` (its output a terminal) says while the prompt waits goes above it;
+    what was `typed` ahead comes first, drawn after a prompt as if typed at it.
     Piped, a Ctrl-C is raised through this, as anywhere else in the shell."""
     if not interactive:
         yield from inp
@@ -59,6 +120,15 @@ def _lines(inp: TextIO, interactive: bool, report: Report | None) -> Generator[s
     hook(drawn)
     try:
         while True:
+            if typed is not None and typed.lines:
+                ahead = typed.lines.pop(0)
+                print(f"{SHELL_PROMPT}{ahead}", flush=True)
+                readline.add_history(ahead)
+                yield ahead
+                continue
+            if typed is not None and typed.ended:
+                return
+            line: str | None
             try:
                 line = input(SHELL_PROMPT)
             except KeyboardInterrupt:
@@ -129,7 +199,8 @@ def shell(
                 "al5d shell: one instruction a line (as in a sequence file); Ctrl-C while "
                 "one runs stops the arm; help lists them; exit or Ctrl-D ends"
             )
-        lines = _lines(inp, interactive, report if redraw else None)
+        typed = _TypedAhead(inp.fileno()) if interactive else None
+        lines = _lines(inp, interactive, report if redraw else None, typed)
         while True:
             step: SequenceStep | None = None  # the line running: a Ctrl-C's is said
             try:
@@ -159,9 +230,26 @@ def shell(
                     continue
                 watch.lost.clear()  # the shell goes on after a loss: a later `wait` waits
                 try:
-                    _shell_step(
-                        client, report, step, (timeout, answer_s), background, watch, interactive
-                    )
+                    with (
+                        typed.watching(functools.partial(_typed_stop, client, report, answer_s))
+                        if typed is not None
+                        else contextlib.nullcontext()
+                    ):
+                        done = _shell_step(
+                            client,
+                            report,
+                            step,
+                            (timeout, answer_s),
+                            background,
+                            watch,
+                            interactive,
+                        )
+                    if not done and not interactive:
+                        # As `al5d run`: a line not done (refused, or cancelled: by a stop
+                        # from anywhere) ends a script, so that a release after a stop does
+                        # not take up the rest of it.
+                        report.line("not done: the shell's input ends here: no line after it runs")
+                        break
                 except (NoOutcome, NoServer) as e:  # a server gone: said, the shell goes on
                     report.line(str(e))
                     report.all_done = False
@@ -179,7 +267,9 @@ def shell(
                 interrupted = True
                 break
             lines.close()  # a Ctrl-C may have ended it: a new one, its prompt drawn again
-            lines = _lines(inp, interactive, report if redraw else None)
+            if typed is not None:
+                typed.drop()
+            lines = _lines(inp, interactive, report if redraw else None, typed)
         try:
             drain(client, report, background, timeout)
         except KeyboardInterrupt:  # the outcomes waited for at the input's end
@@ -223,8 +313,9 @@ def _shell_step(
     background: list[Instruction],
     watch: LinkWatch,
     interactive: bool,
-) -> None:
-    """One line: `waits`, how long its outcome and a stop's or release's answer are waited for."""
+) -> bool:
+    """One line: `waits`, how long its outcome and a stop's or release's answer are waited
+    for. False where a line waited for was not done (`run_step`)."""
     item, in_background = step
     timeout, answer_s = waits
     if isinstance(item, Instruction) and item.kind in (Kind.STOP, Kind.RELEASE):
@@ -233,9 +324,23 @@ def _shell_step(
         answer = stop_or_release(client, item, answer_s)
         report.all_done &= answer.success
         report.line(str(answer))
-        return
+        return True
     # At a terminal the line typed is on the screen already: it is not echoed.
-    run_step(client, report, item, in_background, timeout, background, watch, echo=not interactive)
+    return run_step(
+        client, report, item, in_background, timeout, background, watch, echo=not interactive
+    )
+
+
+def _typed_stop(client: Client, report: Report, answer_s: float) -> None:
+    """A stop typed while a line runs (`_TypedAhead`): sent at once, its answer said."""
+    try:
+        answer = stop_or_release(client, Instruction(Kind.STOP), answer_s)
+    except (NoOutcome, NoServer) as e:
+        report.line(str(e))
+        report.fail()
+        return
+    report.all_done &= answer.success
+    report.line(str(answer))
 
 
 def _stop(client: Client) -> tuple[str, bool]:
