@@ -187,6 +187,23 @@ def test_ctrl_c_on_run_cancels_the_line_running_and_those_in_the_background(
     wait_until(lambda: arm.states[-1] == "ready", CMD_S, "ready")
 
 
+def test_ctrl_c_on_run_in_a_wait_with_nothing_running_says_where_the_sequence_ended(
+    arm: Served, tmp_path: Path
+) -> None:
+    """An outside try: Ctrl-C in a `wait` with nothing running said nothing (exit 130), the
+    rest of the file silently not run."""
+    arm.ready()
+    seq = tmp_path / "waits.seq"
+    seq.write_text("ready\nwait 30000\nmove base=30\npark\n")
+    run = Proc("run", str(seq))
+    run.out.wait_for("wait 30000 ms", CMD_S)
+    run.popen.send_signal(signal.SIGINT)
+    assert run.wait(CMD_S) == exits.INTERRUPTED
+    out = run.out.drain()
+    assert out[-1] == "Ctrl-C: the sequence ends here: the 2 steps after it not sent", out
+    assert not any(line.startswith("> move") for line in out), out
+
+
 @pytest.mark.parametrize("command", ["send", "run"])
 def test_two_quick_ctrl_cs_do_not_cut_the_cancel(arm: Served, tmp_path: Path, command: str) -> None:
     """A user who presses Ctrl-C twice: the second press, a moment after the first, does not

@@ -463,6 +463,14 @@ with Client(local={local}) as arm:
         arm.wait_for_state("fault", 0.5)
     except TimeoutError as e:
         print("timeout", e)
+    try:  # a word that is no state: at once, not after the wait
+        arm.wait_for_state("Moving", 30)
+    except ValueError as e:
+        print("no state", e)
+    try:
+        arm.execute(None)
+    except TypeError as e:
+        print("no instruction", e)
     print(arm.execute("ready time=10"))
 """
 
@@ -491,13 +499,20 @@ def test_the_client_reads_the_arm(arm: Served, tmp_path: Path, local: bool) -> N
     assert lines[11] == "ready False"
     assert lines[12] == "heard True"
     assert lines[13] == "timeout the arm was not fault within 0.5 s (it is 'ready')"
+    assert lines[14] == (
+        "no state 'Moving' is not a state of the arm; did you mean 'moving'? (one of "
+        "initializing, ready, moving, stopped, shutting_down, fault)"
+    )
+    assert lines[15] == (
+        "no instruction an instruction or its text (as `al5d send` takes it), not NoneType"
+    )
     # What the server changed is in the outcome the client prints (issue 45).
     raised = re.fullmatch(
         r"ready \[\S+\]: done: INF03: ready \[\S+\] cannot be done in the requested 10 ms; "
         r"expected (\d+) ms \((\d+) ms\)",
-        lines[14],
+        lines[16],
     )
-    assert raised and int(raised.group(1)) > 10, lines[14]
+    assert raised and int(raised.group(1)) > 10, lines[16]
 
 
 CTRL_C_IN_SEND = """

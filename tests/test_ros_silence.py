@@ -287,15 +287,20 @@ def test_a_run_in_a_wait_with_nothing_running_says_its_server_is_gone(
         try:
             out.wait_for("wait 600000 ms", SCRIPT_S)
             with gone(server, via):
-                said = out.wait_for("nothing of this command's runs", SCRIPT_S)
+                said = out.wait_for("nothing this command sent is running", SCRIPT_S)
             if via == "ros":
                 assert said.startswith("lost contact with the server (nothing heard"), said
             else:
-                assert said.startswith("the lane to the owner is closed"), said
+                assert said.startswith(
+                    "the server on this machine closed its lane (it ended or restarted)"
+                ), said
             ended = out.wait_for("not done", SCRIPT_S)
             assert ended == "not done: the 1 step after it not sent", ended
             assert run.wait(SCRIPT_S) == exits.NOT_DONE
-            assert len([line for line in out.all if "nothing of this" in line]) == 1, out.all
+            assert (
+                len([line for line in out.all if "nothing this command sent is running" in line])
+                == 1
+            ), out.all
             assert not [line for line in err.all if "Traceback" in line], err.all
         finally:
             run.kill()
@@ -327,7 +332,7 @@ def test_the_shells_prompt_says_its_server_lost_and_back_and_keeps_the_line_type
             with gone(server, "ros"):
                 shell.wait_for(
                     r"\r\x1b\[Klost contact with the server \(nothing heard from it for "
-                    r"\d+\.\d s\): nothing of this command's runs\r\nal5d> move base=5",
+                    r"\d+\.\d s\): nothing this command sent is running\r\nal5d> move base=5",
                     SCRIPT_S,
                 )
             shell.wait_for(
@@ -362,7 +367,7 @@ def test_a_piped_shell_waiting_for_its_next_line_says_its_server_is_gone(
             shell.stdin.flush()
             assert ": done" in out.wait_for("ready [", SCRIPT_S)
             with gone(server, via):
-                said = out.wait_for("nothing of this command's runs", SCRIPT_S)
+                said = out.wait_for("nothing this command sent is running", SCRIPT_S)
             if via == "ros":
                 assert said.startswith("lost contact with the server (nothing heard"), said
                 back = out.wait_for("contact with the server again", SCRIPT_S)
@@ -371,10 +376,15 @@ def test_a_piped_shell_waiting_for_its_next_line_says_its_server_is_gone(
                 shell.stdin.flush()
                 assert ": done" in out.wait_for("move [", SCRIPT_S)
             else:
-                assert said.startswith("the lane to the owner is closed"), said
+                assert said.startswith(
+                    "the server on this machine closed its lane (it ended or restarted)"
+                ), said
             shell.stdin.close()
             assert shell.wait(SCRIPT_S) == exits.DONE
-            assert len([line for line in out.all if "nothing of this" in line]) == 1, out.all
+            assert (
+                len([line for line in out.all if "nothing this command sent is running" in line])
+                == 1
+            ), out.all
             assert not [line for line in err.all if "Traceback" in line], err.all
         finally:
             shell.kill()

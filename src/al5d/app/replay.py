@@ -534,8 +534,8 @@ def _send(
         )
         return exits.NOT_DONE
     finally:
-        report.flush()  # the refusals held, whatever ended the replay
         client.close()
+        report.flush()  # the refusals held, whatever ended the replay (a closed pipe raises)
 
 
 def _reporter(report: Any, instr: Any) -> Callable[[Any], None]:

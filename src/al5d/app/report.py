@@ -179,7 +179,7 @@ class LinkWatch:
                 )
         elif self._gone_said is None and self._waiting.is_set():
             self.said_lost()
-            self.report.line(f"{gone}: nothing of this command's runs")
+            self.report.line(f"{gone}: nothing this command sent is running")
 
     @contextlib.contextmanager
     def waiting(self) -> Iterator[None]:

@@ -255,6 +255,7 @@ def run(
     sent: list[Instruction] = []
     background: list[Instruction] = []
     watch = LinkWatch(client, report, background)
+    left = 0  # the steps after the one running: not sent after a Ctrl-C
     try:
         client.wait_for_server(wait_s)
         timing.discovered(client)
@@ -264,13 +265,14 @@ def run(
             print(each_line("al5d run: ", f"nothing sent: {e}"), file=err)
             return exits.BAD_INPUT
         for n, (item, in_background) in enumerate(steps):
+            left = len(steps) - n - 1
             if isinstance(item, Instruction):
                 sent.append(item)
             if not run_step(client, report, item, in_background, timeout, background, watch):
                 # As the web view's Teach tab: a line waited for and not done (refused, or
                 # cancelled: by a stop, say) ends the sequence, so that a release after a
                 # stop does not take up the rest of it.
-                if left := len(steps) - n - 1:
+                if left:
                     report.line(f"not done: the {left} step{'s'[: left != 1]} after it not sent")
                 break
         drain(client, report, background, timeout)
@@ -282,7 +284,11 @@ def run(
         report.line(str(e))
         return exits.NOT_DONE
     except KeyboardInterrupt:
-        return interrupted(client, report, sent, {i.id for i in background})
+        code = interrupted(client, report, sent, {i.id for i in background})
+        if left:  # said even where nothing was running (an outside try: Ctrl-C in a `wait`)
+            steps_left = f"{left} step{'s'[: left != 1]}"
+            report.line(f"Ctrl-C: the sequence ends here: the {steps_left} after it not sent")
+        return code
     finally:
         watch.close()
         client.close()

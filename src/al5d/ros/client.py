@@ -15,6 +15,7 @@ release too) and its shutdown service.
 from __future__ import annotations
 
 import atexit
+import difflib
 import logging
 import os
 import threading
@@ -23,6 +24,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from al5d.arm.instruction import PRESET_NAMES, Instruction, Kind, Outcome, parse_instruction
+from al5d.arm.states import State
 from al5d.clock import Deadline
 from al5d.owner import where
 from al5d.owner.client import LaneClosed, LaneStalled, Remote, said_slow
@@ -61,6 +63,18 @@ __all__ = [
 #: The defaults of `al5d send` and `al5d run`: finding the server, and an outcome.
 WAIT_S = 10.0
 OUTCOME_S = 120.0
+
+
+def _instruction(instr: object) -> Instruction:
+    """`instr` as an Instruction: one, or its text parsed (GrammarError); TypeError for
+    anything else (an outside try's `execute(None)` raised AttributeError deep inside)."""
+    if isinstance(instr, str):
+        return parse_instruction(instr, PRESET_NAMES)
+    if not isinstance(instr, Instruction):
+        raise TypeError(
+            f"an instruction or its text (as `al5d send` takes it), not {type(instr).__name__}"
+        )
+    return instr
 
 
 class Client:
@@ -191,9 +205,8 @@ class Client:
         the client's `wait_s`). Raises `GrammarError` for text that is not an instruction,
         `LostContact` while the server is out of contact, `NotSent` over ROS 2 while it
         has not acknowledged what this client sent before (as many as DDS keeps): nothing
-        is sent then."""
-        if isinstance(instr, str):
-            instr = parse_instruction(instr, PRESET_NAMES)
+        is sent then; TypeError for what is neither."""
+        instr = _instruction(instr)
         self._check_open()
         self._way.send(instr, wait_s)
         return instr
@@ -219,10 +232,10 @@ class Client:
 
         Raises `GrammarError` for text that is not an instruction, `NoServer` if no server
         is found within `wait_s` (on first use), `NoOutcome` if no outcome comes, not even
-        the cancel (`LostContact`, `LaneLost`: the server went out of contact first).
+        the cancel (`LostContact`, `LaneLost`: the server went out of contact first);
+        TypeError for what is neither an instruction nor its text.
         """
-        if isinstance(instr, str):
-            instr = parse_instruction(instr, PRESET_NAMES)
+        instr = _instruction(instr)
         self._check_open()
         return self._way.execute(instr, timeout)
 
@@ -279,7 +292,15 @@ class Client:
         """Until the arm's state is `state` (a word, as `state` says it); the reading then.
         Raises NoOutcome if it was not within `timeout` seconds, `LaneLost` where the lane
         closed meanwhile (the server ended: the arm's state is unknown), NoServer where it
-        had closed and no server took it again within `wait_s`, as `read`."""
+        had closed and no server took it again within `wait_s`, as `read`; ValueError at
+        once for a word that is no state (an outside try's "Moving" waited 120 s)."""
+        known = [s.value for s in State]
+        if state not in known:
+            near = difflib.get_close_matches(state.lower(), known, n=1, cutoff=0.6)
+            hint = f"; did you mean {near[0]!r}?" if near else ""
+            raise ValueError(
+                f"{state!r} is not a state of the arm{hint} (one of {', '.join(known)})"
+            )
         deadline = Deadline(timeout)
         self._lane_back(min(timeout, self.wait_s))
         while True:

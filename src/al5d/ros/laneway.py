@@ -171,7 +171,11 @@ class LaneWay:
         return None  # a lane that closes ends what waits on it (`LaneLost`)
 
     def out_of_contact(self) -> str | None:
-        return "the lane to the owner is closed" if self.lane.closed.is_set() else None
+        return (
+            "the server on this machine closed its lane (it ended or restarted)"
+            if self.lane.closed.is_set()
+            else None
+        )
 
     def send(self, instr: Instruction, wait_s: float) -> None:
         lane = self._open(f"{instr.name} [{instr.id}]", self.wait_s)
