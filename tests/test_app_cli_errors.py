@@ -353,6 +353,33 @@ def test_check_judges_a_file_without_a_server(tmp_path: Path) -> None:
     assert len(err) == 101 and err[-1] == "al5d run: ... and 50 more bad lines", err[-3:]
 
 
+def test_a_sequence_from_standard_input_runs_and_an_empty_one_says_so(
+    arm: Served, tmp_path: Path
+) -> None:
+    """An outside try: `al5d run -` said "cannot read -", and a file of nothing but comments
+    ran without a word (exit 0)."""
+    run = Proc("run", "-", stdin=True)
+    for line in ("ready", "move base=10 time=200"):
+        run.send(line)
+    assert run.popen.stdin is not None
+    run.popen.stdin.close()
+    code, out, err = ended(run)
+    assert code == exits.DONE, (out, err)
+    assert [line.split(" [")[0] for line in out if ": done" in line] == ["ready", "move"], out
+    bad = Proc("run", "-", stdin=True)
+    bad.send("move base=x")
+    assert bad.popen.stdin is not None
+    bad.popen.stdin.close()
+    code, out, err = ended(bad)
+    assert code == exits.BAD_INPUT, (out, err)
+    assert any(line.startswith("al5d run: nothing sent: <stdin>:1: ") for line in err), err
+    empty = tmp_path / "empty.seq"
+    empty.write_text("# nothing yet\n\n")
+    code, out, err = ended(Proc("run", str(empty)))
+    assert code == exits.DONE, (out, err)
+    assert err == [f"al5d run: {empty}: no instruction in it: nothing sent"], err
+
+
 def test_a_file_that_cannot_be_read_is_bad_input(tmp_path: Path) -> None:
     code, _, err = ended(Proc("run", str(tmp_path / "missing.seq"), env=alone()))
     assert code == exits.BAD_INPUT
@@ -441,7 +468,7 @@ def test_a_piped_shells_line_not_done_ends_its_input_as_a_sequence_does(arm: Ser
     assert any("cancelled by stop" in line for line in out), out
     assert out[-1] == "not done: the shell's input ends here: no line after it runs", out
     assert not [line for line in out if line.startswith(("> move base=-60", "> release"))], out
-    assert arm.states[-1] == "stopped", arm.states[-3:]
+    wait_until(lambda: arm.states[-1] == "stopped", STATE_S, "stopped, not released")
 
 
 def test_a_slow_discovery_is_said_without_verbose(arm: Served) -> None:
@@ -619,23 +646,47 @@ def test_a_stop_typed_at_the_shells_terminal_while_a_move_runs_goes_at_once(
 ) -> None:
     """An outside try: `stop`, typed 1 s into a 5 s move, was read when the move had ended:
     the arm was never stopped, and locked when it was idle. It goes at once now, as
-    Ctrl-C's stop does; a line typed after it waits its turn, as typed ahead in a shell."""
+    Ctrl-C's stop does; a line typed before it waits its turn, as typed ahead in a shell."""
     shell = Tty([AL5D, "shell"])
     try:
         shell.wait_for(r"Ctrl-D ends\r\nal5d> ", CMD_S)
         shell.type("move base=80 time=5000\r")
         wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
-        shell.type("stop\rrelease\r")
+        shell.type("move elbow=30\rstop\r")  # a line for later, then the stop
         # The stop's answer and the move's outcome, in either order.
         said = (r"stop \[[^\]]+\]: done \(by the local lane\)", r"move \[[^\]]+\]: cancelled")
         wait_until(lambda: all(re.search(s, shell.drawn) for s in said), CMD_S, "both said")
-        assert "stopped" in arm.states
+        wait_until(lambda: "stopped" in arm.states, STATE_S, "stopped")
         assert abs(arm.emu.servo_degrees()["base"] - 80) > 5  # halted on its way
-        # The release typed ahead runs after the move's outcome, drawn at a prompt.
-        shell.wait_for(r"al5d> release\r\nrelease \[[^\]]+\]: done", CMD_S)
+        # The line typed ahead runs after the move's outcome, drawn after a prompt: refused,
+        # the arm locked by the stop typed after it.
+        shell.wait_for(r"al5d> move elbow=30\r\nmove \[[^\]]+\]: refused", CMD_S)
+        shell.type("release\r")
+        shell.wait_for(r"release \[[^\]]+\]: done \(by the local lane\)", CMD_S)
         wait_until(lambda: arm.states[-1] == "ready", STATE_S, "ready")
         shell.type("exit\r")
         assert shell.proc.wait(CMD_S) == exits.NOT_DONE, shell.drawn  # the move cancelled
+    finally:
+        shell.close()
+
+
+def test_a_ctrl_d_typed_while_a_move_runs_ends_the_shell_after_it_and_a_stop_still_goes(
+    arm: Served,
+) -> None:
+    """A second reading: a Ctrl-D typed during a line ended the reading of what was typed,
+    and a stop typed after it waited for the move's end (then went to the user's shell)."""
+    shell = Tty([AL5D, "shell"])
+    try:
+        shell.wait_for(r"Ctrl-D ends\r\nal5d> ", CMD_S)
+        shell.type("move base=80 time=5000\r")
+        wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving")
+        shell.type("\x04")  # at the start of a line: the end of the input
+        time.sleep(0.2)
+        shell.type("stop\r")
+        said = (r"stop \[[^\]]+\]: done \(by the local lane\)", r"move \[[^\]]+\]: cancelled")
+        wait_until(lambda: all(re.search(s, shell.drawn) for s in said), CMD_S, "both said")
+        assert abs(arm.emu.servo_degrees()["base"] - 80) > 5  # halted on its way
+        assert shell.proc.wait(CMD_S) == exits.NOT_DONE, shell.drawn  # its input has ended
     finally:
         shell.close()
 

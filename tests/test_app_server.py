@@ -19,6 +19,22 @@ from al5d.ssc32u.emulator import Emulator, Fault
 from al5d_rig.proc import Proc, patient_config
 
 
+def test_the_end_of_serves_standard_input_is_said_and_the_server_goes_on() -> None:
+    proc = Proc("serve", "--stdin", "--no-ros", stdin=True)
+    try:
+        proc.err.wait_for("STATE: ready")
+        assert proc.popen.stdin is not None
+        proc.popen.stdin.close()
+        said = proc.out.wait_for("standard input ended")
+        assert said.endswith("the server goes on (Ctrl-C ends it)"), said
+        time.sleep(0.5)
+        assert proc.popen.poll() is None
+        proc.popen.send_signal(signal.SIGINT)
+        assert proc.wait() == 0
+    finally:
+        proc.kill()
+
+
 def test_serve_parks_takes_instructions_and_shuts_down() -> None:
     proc = Proc("serve", "--stdin", "--log-level", "DEBUG", stdin=True)
     try:

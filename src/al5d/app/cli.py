@@ -178,7 +178,9 @@ def build_parser() -> argparse.ArgumentParser:
             cmd.add_argument("instruction", nargs="+", help="e.g. move base=30 elbow=90 time=800")
         elif name == "run":
             cmd.add_argument(
-                "file", help="one instruction a line; wait <ms>; # comments; & = go on"
+                "file",
+                help="one instruction a line; wait <ms>; # comments; & = go on "
+                "(-: standard input, read to its end first)",
             )
             cmd.add_argument(
                 "--check",

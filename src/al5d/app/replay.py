@@ -534,8 +534,10 @@ def _send(
         )
         return exits.NOT_DONE
     finally:
-        client.close()
-        report.flush()  # the refusals held, whatever ended the replay (a closed pipe raises)
+        try:
+            report.flush()  # the refusals held, whatever ended the replay
+        finally:
+            client.close()
 
 
 def _reporter(report: Any, instr: Any) -> Callable[[Any], None]:

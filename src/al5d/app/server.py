@@ -139,6 +139,14 @@ def _read_instructions(owner: Owner, stream: TextIO, out: TextIO) -> None:
             print(f"error: {e}", file=out, flush=True)
             continue
         owner.submit(instr).add_done_callback(lambda f: show(f.result()))
+    # An outside try: Ctrl-D left a server that said nothing, and a user who took it for
+    # one that would end.
+    print(
+        "standard input ended: no more instructions are read from it; the server goes on "
+        "(Ctrl-C ends it)",
+        file=out,
+        flush=True,
+    )
 
 
 class RosSide:

@@ -11,11 +11,14 @@ first one's answers are awaited ends the shell.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import functools
 import logging
 import os
 import select
+import struct
 import sys
+import termios
 import threading
 import time
 from collections.abc import Callable, Generator, Iterable, Iterator
@@ -46,23 +49,36 @@ SHELL_PROMPT = "al5d> "
 CTRL_C = "\x03"
 
 
+#: How long the prompt waits for the answer of a stop typed as its line ended (the answer
+#: is said when it comes, all the same).
+TYPED_STOP_SAID_S = 1.0
+
+
 class _TypedAhead:
     """At a terminal, the lines typed while a line of the shell runs (the terminal's own
     line discipline has them whole, echoed): a stop among them goes at once, as Ctrl-C's
     does; the others wait their turn at the prompt, as typed ahead in a shell. (An outside
     try: `stop`, typed 1 s into a 5 s move, was read when the move had ended: the arm was
-    never stopped, and locked 4 s later.)"""
+    never stopped, and locked 4 s later.)
 
-    def __init__(self, fd: int) -> None:
+    Only what the terminal holds is read (`FIONREAD`): the terminal drops what it holds at
+    a Ctrl-C, and a read of more would wait for the next line (but for a Ctrl-C between
+    the count and the read, microseconds). The reader ends before the prompt reads again
+    (`watching`), but for one sending a stop, which reads nothing more."""
+
+    def __init__(self, fd: int, say: Callable[[str], None]) -> None:
         self.fd = fd
+        self.say = say  # a line typed ahead, drawn after a prompt when its turn comes
         self.lines: list[str] = []
+        #: Text the terminal gave without its line's end (typed before a Ctrl-D, or the
+        #: rest of a paste): put back after the next prompt, to be ended there.
+        self.unfinished = ""
         self.ended = False  # Ctrl-D typed meanwhile: the input ends after `lines`
-        self._partial = b""
 
     @contextlib.contextmanager
     def watching(self, stop: Callable[[], None]) -> Iterator[None]:
-        """While the body runs, typed lines are read: `stop` is called (in a thread of its
-        own) for a stop, the rest kept. Its answer is said before this returns."""
+        """While the body runs, typed lines are read: `stop` is called (in the reader's
+        thread) for a stop, the rest kept. A stop's answer is waited for a moment after."""
         done = threading.Event()
         reader = threading.Thread(
             target=self._read, args=(done, stop), name="al5d-typed-ahead", daemon=True
@@ -72,30 +88,37 @@ class _TypedAhead:
             yield
         finally:
             done.set()
-            reader.join()
+            reader.join(TYPED_STOP_SAID_S)
 
     def _read(self, done: threading.Event, stop: Callable[[], None]) -> None:
-        while not done.is_set() and not self.ended:
+        while not done.is_set():
             # The wait only bounds how long `done` goes unseen: a line typed wakes it.
-            if not select.select([self.fd], [], [], 0.05)[0]:
+            if not select.select([self.fd], [], [], 0.05)[0] or done.is_set():
                 continue
-            data = os.read(self.fd, 4096)
-            if not data:  # Ctrl-D at the start of a line
-                self.ended = True
-                return
-            *whole, self._partial = (self._partial + data).split(b"\n")
-            for raw in whole:
-                line = raw.decode(errors="replace")
+            held = struct.unpack("i", fcntl.ioctl(self.fd, termios.FIONREAD, b"\0" * 4))[0]
+            # Nothing held, yet readable: a Ctrl-D at the start of a line, read at once
+            # (or, just after the select, a line: whole in one read).
+            data = os.read(self.fd, held or 4096)
+            if not data:
+                self.ended = True  # stops typed after it are still read
+                continue
+            # The last piece, unless empty, is text without its line's end. Each read's is
+            # its own: joined to the next read, a `stop` typed later would be no stop.
+            *whole, rest = data.decode(errors="replace").split("\n")
+            for line, ended in [(w, True) for w in whole] + ([(rest, False)] if rest else []):
                 words = line.split("#", 1)[0].split()
                 if words and is_stop(words[0]):
                     stop()
-                else:
+                elif ended:
                     self.lines.append(line)
+                else:
+                    self.unfinished += line
 
     def drop(self) -> None:
         """A Ctrl-C drops what was typed ahead, as the terminal drops what it holds."""
         self.lines.clear()
-        self._partial = b""
+        self.unfinished = ""
+        self.ended = False
 
 
 def _lines(
@@ -122,12 +145,15 @@ def _lines(
         while True:
             if typed is not None and typed.lines:
                 ahead = typed.lines.pop(0)
-                print(f"{SHELL_PROMPT}{ahead}", flush=True)
+                typed.say(f"{SHELL_PROMPT}{ahead}")
                 readline.add_history(ahead)
                 yield ahead
                 continue
             if typed is not None and typed.ended:
                 return
+            if typed is not None and typed.unfinished:  # after the prompt, to be ended there
+                unfinished, typed.unfinished = typed.unfinished, ""
+                readline.set_startup_hook(functools.partial(readline.insert_text, unfinished))
             line: str | None
             try:
                 line = input(SHELL_PROMPT)
@@ -136,6 +162,7 @@ def _lines(
             except EOFError:
                 line = None
             finally:
+                readline.set_startup_hook(None)
                 if report is not None:
                     report.at_prompt(None)
             if line is None or line == CTRL_C:
@@ -199,7 +226,7 @@ def shell(
                 "al5d shell: one instruction a line (as in a sequence file); Ctrl-C while "
                 "one runs stops the arm; help lists them; exit or Ctrl-D ends"
             )
-        typed = _TypedAhead(inp.fileno()) if interactive else None
+        typed = _TypedAhead(inp.fileno(), report.line) if interactive else None
         lines = _lines(inp, interactive, report if redraw else None, typed)
         while True:
             step: SequenceStep | None = None  # the line running: a Ctrl-C's is said
@@ -244,10 +271,11 @@ def shell(
                             watch,
                             interactive,
                         )
-                    if not done and not interactive:
+                    if not done and not interactive and isinstance(step[0], Instruction):
                         # As `al5d run`: a line not done (refused, or cancelled: by a stop
                         # from anywhere) ends a script, so that a release after a stop does
-                        # not take up the rest of it.
+                        # not take up the rest of it. (A server lost in a `wait` is said,
+                        # and the shell goes on, as after a line that lost it.)
                         report.line("not done: the shell's input ends here: no line after it runs")
                         break
                 except (NoOutcome, NoServer) as e:  # a server gone: said, the shell goes on
@@ -339,7 +367,8 @@ def _typed_stop(client: Client, report: Report, answer_s: float) -> None:
         report.line(str(e))
         report.fail()
         return
-    report.all_done &= answer.success
+    if not answer.success:
+        report.fail()  # under the report's lock: the reader's thread is not the shell's
     report.line(str(answer))
 
 

@@ -224,6 +224,7 @@ def run(
     its outcome arrives, not after the next line's. Its `pose <name>` lines name poses of
     the file `poses` (by default `poses.yaml` beside the sequence, if there).
     """
+    name = "<stdin>" if str(path) == "-" else str(path)  # as each problem names the file
     try:
         book = load_poses(beside(path) if poses is None else poses, required=poses is not None)
         data = read_sequence(path)
@@ -235,7 +236,7 @@ def run(
             if via == "ros"  # the lane not asked: the way the user chose is ROS 2
             else local_config(where.path(Names.of(namespace).namespace), max(wait_s, 1.0))
         )
-        first = judge_sequence(data, here or load_config(), str(path), book)
+        first = judge_sequence(data, here or load_config(), name, book)
         if any(problem.grammar for problem in first.problems):
             raise first.error()
     except LaneStalled as e:  # before OSError, of which it is one
@@ -247,6 +248,9 @@ def run(
     except (PosesError, GrammarError) as e:  # each problem a line
         print(each_line("al5d run: ", f"nothing sent: {e}"), file=err)
         return exits.BAD_INPUT
+    if not first.lines:  # an outside try: a file of nothing but comments ran without a word
+        print(f"al5d run: {name}: no instruction in it: nothing sent", file=err)
+        return exits.DONE
     started = connect("al5d run", namespace, wait_s, via, verbose, err)
     if started is None:
         return exits.NO_SERVER
@@ -260,7 +264,7 @@ def run(
         client.wait_for_server(wait_s)
         timing.discovered(client)
         try:
-            steps = judged_steps(data, str(path), book, client.config())
+            steps = judged_steps(data, name, book, client.config())
         except GrammarError as e:
             print(each_line("al5d run: ", f"nothing sent: {e}"), file=err)
             return exits.BAD_INPUT
@@ -274,6 +278,7 @@ def run(
                 # stop does not take up the rest of it.
                 if left:
                     report.line(f"not done: the {left} step{'s'[: left != 1]} after it not sent")
+                    left = 0  # said: a Ctrl-C in the wait below says it not again
                 break
         drain(client, report, background, timeout)
         return exits.DONE if report.all_done else exits.NOT_DONE

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import codecs
 import errno
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -205,10 +206,14 @@ MAX_FILE_BYTES = 16 * 1024 * 1024
 
 
 def read_sequence(path: str | Path) -> bytes:
-    """A sequence file's bytes; OSError (its `strerror` says why) where it cannot be read or
-    is larger than `MAX_FILE_BYTES` (`/dev/zero` was read until memory ran out)."""
-    with open(path, "rb") as f:
-        data = f.read(MAX_FILE_BYTES + 1)
+    """A sequence file's bytes (`-`: standard input's, to its end); OSError (its `strerror`
+    says why) where it cannot be read or is larger than `MAX_FILE_BYTES` (`/dev/zero` was
+    read until memory ran out)."""
+    if str(path) == "-":
+        data = sys.stdin.buffer.read(MAX_FILE_BYTES + 1)
+    else:
+        with open(path, "rb") as f:
+            data = f.read(MAX_FILE_BYTES + 1)
     if len(data) > MAX_FILE_BYTES:
         raise OSError(errno.EFBIG, f"larger than {MAX_FILE_BYTES // 2**20} MiB: no sequence file")
     return data

@@ -288,12 +288,14 @@ class Client:
             raise NoOutcome("the tool's pose is not known: an arm joint's angle is not known yet")
         return tool
 
-    def wait_for_state(self, state: str, timeout: float = OUTCOME_S) -> Reading:
-        """Until the arm's state is `state` (a word, as `state` says it); the reading then.
+    def wait_for_state(self, state: str | State, timeout: float = OUTCOME_S) -> Reading:
+        """Until the arm's state is `state` (a word, as `state` says it, or a `State`); the
+        reading then.
         Raises NoOutcome if it was not within `timeout` seconds, `LaneLost` where the lane
         closed meanwhile (the server ended: the arm's state is unknown), NoServer where it
         had closed and no server took it again within `wait_s`, as `read`; ValueError at
         once for a word that is no state (an outside try's "Moving" waited 120 s)."""
+        state = state.value if isinstance(state, State) else state
         known = [s.value for s in State]
         if state not in known:
             near = difflib.get_close_matches(state.lower(), known, n=1, cutoff=0.6)

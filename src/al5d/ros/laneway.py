@@ -171,11 +171,11 @@ class LaneWay:
         return None  # a lane that closes ends what waits on it (`LaneLost`)
 
     def out_of_contact(self) -> str | None:
-        return (
-            "the server on this machine closed its lane (it ended or restarted)"
-            if self.lane.closed.is_set()
-            else None
-        )
+        if not self.lane.closed.is_set():
+            return None
+        if why := self.lane.lost_why:  # the server goes on: it took this client for lost
+            return f"the server took this client for lost ({why}) and closed its lane"
+        return "the server on this machine closed its lane (it ended or restarted)"
 
     def send(self, instr: Instruction, wait_s: float) -> None:
         lane = self._open(f"{instr.name} [{instr.id}]", self.wait_s)
