@@ -7,8 +7,9 @@
   command does with its parsed arguments.
 - `emulator`: `al5d emulator`, a standalone emulated SSC-32U on a pseudo terminal.
 - `terminal`: `al5d send` and `al5d run`, the client's commands at the terminal; `shell`:
-  `al5d shell`, a line at a time (its `help`, its Ctrl-C); `report`: how they report
-  (outcomes, the link watched, where the time went).
+  `al5d shell`, a line at a time (its `help`, its Ctrl-C; `typed`: what is typed while a
+  line runs, a stop at once); `report`: how they report (outcomes, the link watched, where
+  the time went).
 - `server`: `al5d serve`, the owner of the board on a port or on the embedded emulator,
   with the ROS side's processes beside it; `bridgeproc`: the ROS 2 bridge's process (it
   records, for `serve --record`).

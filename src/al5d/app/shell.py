@@ -11,23 +11,18 @@ first one's answers are awaited ends the shell.
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import functools
 import logging
-import os
-import select
-import struct
 import sys
-import termios
-import threading
 import time
-from collections.abc import Callable, Generator, Iterable, Iterator
+from collections.abc import Generator, Iterable
 from pathlib import Path
 from typing import TextIO
 
 from al5d import exits
 from al5d.app.report import LinkWatch, Report, each_line
 from al5d.app.terminal import connect, drain, run_step, stop_or_release
+from al5d.app.typed import TypedAhead
 from al5d.arm.instruction import (
     SHELL_HELP,
     SHELL_QUIT,
@@ -35,7 +30,6 @@ from al5d.arm.instruction import (
     Instruction,
     Kind,
     SequenceStep,
-    is_stop,
 )
 from al5d.arm.poses import PosesError, beside, load_poses
 from al5d.arm.sequence import SequenceJudge
@@ -49,80 +43,8 @@ SHELL_PROMPT = "al5d> "
 CTRL_C = "\x03"
 
 
-#: How long the prompt waits for the answer of a stop typed as its line ended (the answer
-#: is said when it comes, all the same).
-TYPED_STOP_SAID_S = 1.0
-
-
-class _TypedAhead:
-    """At a terminal, the lines typed while a line of the shell runs (the terminal's own
-    line discipline has them whole, echoed): a stop among them goes at once, as Ctrl-C's
-    does; the others wait their turn at the prompt, as typed ahead in a shell. (An outside
-    try: `stop`, typed 1 s into a 5 s move, was read when the move had ended: the arm was
-    never stopped, and locked 4 s later.)
-
-    Only what the terminal holds is read (`FIONREAD`): the terminal drops what it holds at
-    a Ctrl-C, and a read of more would wait for the next line (but for a Ctrl-C between
-    the count and the read, microseconds). The reader ends before the prompt reads again
-    (`watching`), but for one sending a stop, which reads nothing more."""
-
-    def __init__(self, fd: int, say: Callable[[str], None]) -> None:
-        self.fd = fd
-        self.say = say  # a line typed ahead, drawn after a prompt when its turn comes
-        self.lines: list[str] = []
-        #: Text the terminal gave without its line's end (typed before a Ctrl-D, or the
-        #: rest of a paste): put back after the next prompt, to be ended there.
-        self.unfinished = ""
-        self.ended = False  # Ctrl-D typed meanwhile: the input ends after `lines`
-
-    @contextlib.contextmanager
-    def watching(self, stop: Callable[[], None]) -> Iterator[None]:
-        """While the body runs, typed lines are read: `stop` is called (in the reader's
-        thread) for a stop, the rest kept. A stop's answer is waited for a moment after."""
-        done = threading.Event()
-        reader = threading.Thread(
-            target=self._read, args=(done, stop), name="al5d-typed-ahead", daemon=True
-        )
-        reader.start()
-        try:
-            yield
-        finally:
-            done.set()
-            reader.join(TYPED_STOP_SAID_S)
-
-    def _read(self, done: threading.Event, stop: Callable[[], None]) -> None:
-        while not done.is_set():
-            # The wait only bounds how long `done` goes unseen: a line typed wakes it.
-            if not select.select([self.fd], [], [], 0.05)[0] or done.is_set():
-                continue
-            held = struct.unpack("i", fcntl.ioctl(self.fd, termios.FIONREAD, b"\0" * 4))[0]
-            # Nothing held, yet readable: a Ctrl-D at the start of a line, read at once
-            # (or, just after the select, a line: whole in one read).
-            data = os.read(self.fd, held or 4096)
-            if not data:
-                self.ended = True  # stops typed after it are still read
-                continue
-            # The last piece, unless empty, is text without its line's end. Each read's is
-            # its own: joined to the next read, a `stop` typed later would be no stop.
-            *whole, rest = data.decode(errors="replace").split("\n")
-            for line, ended in [(w, True) for w in whole] + ([(rest, False)] if rest else []):
-                words = line.split("#", 1)[0].split()
-                if words and is_stop(words[0]):
-                    stop()
-                elif ended:
-                    self.lines.append(line)
-                else:
-                    self.unfinished += line
-
-    def drop(self) -> None:
-        """A Ctrl-C drops what was typed ahead, as the terminal drops what it holds."""
-        self.lines.clear()
-        self.unfinished = ""
-        self.ended = False
-
-
 def _lines(
-    inp: TextIO, interactive: bool, report: Report | None, typed: _TypedAhead | None = None
+    inp: TextIO, interactive: bool, report: Report | None, typed: TypedAhead | None = None
 ) -> Generator[str, None, None]:
     """The shell's input, a line at a time; at a terminal with a prompt and line editing,
     and Ctrl-C there drops the line typed, as a shell does: it is `CTRL_C`, after a new
@@ -226,7 +148,7 @@ def shell(
                 "al5d shell: one instruction a line (as in a sequence file); Ctrl-C while "
                 "one runs stops the arm; help lists them; exit or Ctrl-D ends"
             )
-        typed = _TypedAhead(inp.fileno(), report.line) if interactive else None
+        typed = TypedAhead(inp.fileno(), report.line) if interactive else None
         lines = _lines(inp, interactive, report if redraw else None, typed)
         while True:
             step: SequenceStep | None = None  # the line running: a Ctrl-C's is said
@@ -360,7 +282,7 @@ def _shell_step(
 
 
 def _typed_stop(client: Client, report: Report, answer_s: float) -> None:
-    """A stop typed while a line runs (`_TypedAhead`): sent at once, its answer said."""
+    """A stop typed while a line runs (`TypedAhead`): sent at once, its answer said."""
     try:
         answer = stop_or_release(client, Instruction(Kind.STOP), answer_s)
     except (NoOutcome, NoServer) as e:
