@@ -185,6 +185,9 @@ demo: runtime
 # `make test WORKERS=2 DURATIONS=0` for another count and every test's time.
 # Each part is interrupted (pytest then reports what ran and what failed) long after it
 # should have ended: a CI run once waited out its 90 minutes on a stuck suite.
+# A worker that crashes (a segmentation fault in a test's DDS, seen once) ends the part at
+# once, naming its test: pytest-xdist 3.8's loadfile scheduling, replacing a crashed
+# worker, can wait for ever (pytest-dev/pytest-xdist#784; a CI run hung until interrupted).
 # On a machine already busy two workers (.ci/workers says which): four beside two busy
 # loops starved the boards emulated in the test processes (no answer for 450 ms: a lost
 # link) and a page's browser. Read when make starts, before the install (whose message
@@ -199,7 +202,8 @@ PART_S    ?= 1800
 SOLO      := $(shell grep -l '^pytestmark = pytest.mark.solo' tests/test_*.py)
 test: install
 	timeout -s INT -k 60 $(PART_S) \
-	  $(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile --no-loadscope-reorder -m "not solo" --durations=$(DURATIONS)
+	  $(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile --no-loadscope-reorder \
+	  --max-worker-restart=0 -m "not solo" --durations=$(DURATIONS)
 	timeout -s INT -k 60 $(PART_S) $(BIN)/python -m pytest -q -m solo $(SOLO)
 
 bench: install

@@ -475,7 +475,7 @@ def _send(
                 _message(fields, _sent_id(each)), presets, arm.model
             )
             if isinstance(instr, str):  # as the server would refuse it: nothing is sent
-                report.all_done = False
+                report.fail()
                 # One line, as an outcome is told (the file's words escaped: they were
                 # never judged), and no "> " line: a million of them would be two million.
                 name = repr(fields.instruction[:MAX_QUOTE])[1:-1]
@@ -518,7 +518,7 @@ def _send(
             for ident in outcomes.pending():
                 outcomes.forget(ident)
                 report.line(str(no_outcome(f"[{ident}]", timeout)))
-            report.all_done = False
+            report.fail()
         return exits.DONE if report.all_done else exits.NOT_DONE
     except NoServer as e:
         print(f"al5d replay: {e}", file=err)

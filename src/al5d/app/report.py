@@ -94,7 +94,7 @@ class Report:
     def not_sent(self, instr: Instruction) -> None:
         """`instr` was never sent: a Ctrl-C came first."""
         self.line(f"{instr.name} [{instr.id}]: not sent (Ctrl-C)")
-        self.all_done = False
+        self.fail()
 
     def outcome(self, outcome: Outcome | None, *, instr: Instruction) -> None:
         if outcome is None:

@@ -202,7 +202,7 @@ def shell(
                         break
                 except (NoOutcome, NoServer) as e:  # a server gone: said, the shell goes on
                     report.line(str(e))
-                    report.all_done = False
+                    report.fail()
                     if isinstance(e, (LostContact, LaneLost)):
                         watch.said_lost()  # contact back is said
                 continue
@@ -272,7 +272,8 @@ def _shell_step(
         if not interactive:
             report.line(f"> {item}")
         answer = stop_or_release(client, item, answer_s)
-        report.all_done &= answer.success
+        if not answer.success:
+            report.fail()
         report.line(str(answer))
         return True
     # At a terminal the line typed is on the screen already: it is not echoed.
