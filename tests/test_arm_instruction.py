@@ -197,3 +197,11 @@ class TestSequenceFiles:
             "Instruction",
         ]
         assert [bg for _, bg in steps] == [False, True, False, False]
+
+
+def test_the_move_builder_takes_its_time_as_time_ms_not_as_a_joint() -> None:
+    """An outside try's `ins.move(base=40, time=1000)` went to the server, which refused
+    a joint named time; the builder says so at once."""
+    with pytest.raises(TypeError, match=r"time_ms= \(milliseconds\); `time` is no joint"):
+        ins.move(base=40, time=1000)
+    assert ins.move(base=40, time_ms=1000).time_ms == 1000

@@ -15,6 +15,7 @@ import re
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -122,7 +123,8 @@ def test_a_script_that_raises_in_its_with_block_ends_with_its_traceback(
     assert "Traceback (most recent call last)" in done.stderr
     assert "RuntimeError: the script's own error" in done.stderr
     assert re.fullmatch(r"move \[[0-9a-f]+-\d+\]: done \(\d+ ms\)\n", done.stdout), done.stdout
-    # Leaving the block closed the client and nothing more: no stop reached the arm.
+    # Left by an error, the client closed without its goodbye: nothing of its ran, so
+    # nothing was halted, and no stop reached the arm.
     wait_until(lambda: arm.states[-1] == "ready", STATE_S, "ready after the move")
     assert arm.stops() == before and "stopped" not in arm.states[seen:]
 
@@ -433,6 +435,7 @@ def test_the_first_instruction_waits_until_the_servers_answers_reach_the_client(
 
 READS = """
 import time
+from al5d.arm.instruction import parse_instruction
 from al5d.ros.client import Client
 
 seen = []
@@ -472,6 +475,16 @@ with Client(local={local}) as arm:
     except TypeError as e:
         print("no instruction", e)
     print(arm.execute("ready time=10"))
+    for bad in (-1, float("nan")):  # refused before anything is sent
+        try:
+            arm.execute("move base=30 time=300", timeout=bad)
+        except ValueError as e:
+            print("no timeout", e)
+    again = parse_instruction("move base=0 time=100")  # sent twice: two requests
+    first, second = arm.send(again), arm.send(again)
+    print("ids", first is again, second.id != first.id)
+    print("both", arm.outcome(first.id, 30).ok, arm.outcome(second.id, 30).ok)
+    print("base", round(arm.joints()["base"], 1) + 0.0)
 """
 
 
@@ -513,6 +526,63 @@ def test_the_client_reads_the_arm(arm: Served, tmp_path: Path, local: bool) -> N
         lines[16],
     )
     assert raised and int(raised.group(1)) > 10, lines[16]
+    # An outside try: timeout=-1 sent the move (which ran) and raised at once; nan raised
+    # from deep inside. A second send of one instruction had the first's id, and the
+    # outcome of the one stood for both.
+    assert lines[17] == "no timeout timeout=-1: seconds to wait, more than 0 (math.inf: for ever)"
+    assert lines[18] == "no timeout timeout=nan: seconds to wait, more than 0 (math.inf: for ever)"
+    assert lines[19:] == ["ids True True", "both True True", "base 0.0"], lines[19:]
+
+
+CTRL_C_IN_WITH = """
+from al5d.ros.client import Client
+
+with Client(local={local}) as arm:
+    arm.execute("move base=0 time=300")
+    moves = [arm.send("move base=60 time=6000"), arm.send("move base=-60 time=3000")]
+    print("sent", flush=True)
+    print(arm.outcome(moves[-1].id, 60))
+"""
+
+
+@pytest.mark.parametrize("local", [False, True], ids=["over DDS", "over the lane"])
+def test_ctrl_c_in_a_scripts_with_block_halts_what_it_sent(
+    arm: Served, tmp_path: Path, local: bool
+) -> None:
+    """A script that sent two moves and waits, Ctrl-C'd as the first runs: the first halts
+    where it is and the second never runs (an outside try: the arm ran both to their end,
+    where a script killed, or ended by SIGTERM, halted them). Over the lane the server
+    hears the lane close without a goodbye; over ROS 2 the lease ends unsaid."""
+    script = tmp_path / "script.py"
+    script.write_text(CTRL_C_IN_WITH.format(local=local))
+    with subprocess.Popen(
+        [sys.executable, str(script)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    ) as proc:
+        try:
+            assert proc.stdout is not None
+            assert proc.stdout.readline() == "sent\n"
+            wait_until(lambda: arm.emu.servo_degrees()["base"] > 5, STATE_S, "the base moving")
+            wait_until(lambda: arm.states[-1] == "moving", STATE_S, "moving, said")
+            before = len(arm.states)
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=SCRIPT_S)
+        finally:
+            proc.kill()
+    assert "KeyboardInterrupt" in err and "Traceback" in err, err
+    assert (
+        "al5d client left by KeyboardInterrupt: what it commanded and is not over is halted" in err
+    ), err
+    assert out == "", out  # the second move's outcome never came to it
+    wait_until(lambda: "ready" in arm.states[before:], STATE_S, "ready, halted")
+    halted = arm.emu.servo_degrees()["base"]
+    assert 5 < halted < 55, halted
+    time.sleep(1.5)  # nothing of the script's runs after the halt: the base stays
+    assert abs(arm.emu.servo_degrees()["base"] - halted) < 0.5
+    assert arm.states[-1] == "ready" and "stopped" not in arm.states[before:]
 
 
 CTRL_C_IN_SEND = """

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -63,6 +64,32 @@ def test_other_commands_bytes() -> None:
 def test_encoding_refuses_what_the_board_would_not_take(call: object, message: str) -> None:
     with pytest.raises(p.ProtocolError, match=message):
         call()  # type: ignore[operator]
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda: p.encode_group_move([CT(0, 1600.7)]), r"pulse 1600\.7 is not a whole number"),
+        (lambda: p.encode_group_move([CT(0, 1700.0)]), r"pulse 1700\.0 is not a whole"),
+        (lambda: p.encode_group_move([CT(0, True)]), "pulse True is not a whole"),
+        (lambda: p.encode_group_move([CT(0, 1500)], 100.0), r"time 100\.0 is not a whole"),
+        (lambda: p.encode_group_move([CT(0, 1500, 7.5)]), r"speed 7\.5 is not a whole"),
+        (lambda: p.encode_group_move([CT(0.0, 1500)]), r"channel 0\.0 is not a whole"),
+        (lambda: p.encode_pulse_offset({0: 10.0}), r"offset 10\.0 is not a whole"),
+        (lambda: p.encode_register_write(0, 8.0), r"register value 8\.0 is not a whole"),
+    ],
+)
+def test_a_number_that_is_not_a_whole_one_is_refused_not_written_with_its_point(
+    call: object, message: str
+) -> None:
+    """The board reads digits only: `#0P1700.0T100` is a line it ignores, which the
+    encoder wrote without a word (an outside try of the driver, pulses from angles)."""
+    with pytest.raises(p.ProtocolError, match=message):
+        call()
+
+
+def test_numpy_integers_are_whole_numbers() -> None:
+    assert p.encode_group_move([CT(np.int64(0), np.int32(1500))], np.int64(100)) == b"#0P1500T100\r"
 
 
 def test_parse_ignores_case_and_blanks_and_reads_several_commands() -> None:

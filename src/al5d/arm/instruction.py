@@ -173,6 +173,11 @@ def preset(name: str, time_ms: int | None = None, id: str | None = None) -> Inst
 
 
 def move(time_ms: int | None = None, id: str | None = None, **joints: float) -> Instruction:
+    """Joints to their angles (degrees), optionally in `time_ms`; TypeError for `time=`,
+    which the text grammar says but this takes as `time_ms` (an outside try's `time=1000`
+    went to the server as a joint named time)."""
+    if "time" in joints:
+        raise TypeError("move() takes its time as time_ms= (milliseconds); `time` is no joint")
     return Instruction(Kind.MOVE, joints=tuple(joints.items()), time_ms=time_ms, id=id or new_id())
 
 

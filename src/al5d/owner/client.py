@@ -140,6 +140,7 @@ class Remote:
         self._state = StateTold(State.INITIALIZING)
         self.locked = False
         self._reader = threading.Thread(target=self._read, name=f"{name}-lane", daemon=True)
+        self._signer: threading.Thread | None = None  # the lease's signs, if any
         self._reader.start()
         hello = {"op": "hello", "name": name, "watch": list(watch), "version": ln.VERSION}
         if recorder:  # told first the board's writes the owner kept for its recorder
@@ -175,9 +176,10 @@ class Remote:
         self._signs = lease and welcome.get("signs") is True
         if lease:
             every = min(self.settings.client_lease_s / SIGNS_PER_LEASE, SIGN_EVERY_MAX_S)
-            threading.Thread(
+            self._signer = threading.Thread(
                 target=self._sign, args=(every,), name=f"{name}-lease", daemon=True
-            ).start()
+            )
+            self._signer.start()
 
     def _sign(self, every: float) -> None:
         """A sign to the owner every `every` s while the lane is open: the lease the hello
@@ -505,6 +507,9 @@ class Remote:
         if self._reader is not threading.current_thread():
             self._reader.join(5)
         self._lost()
+        # Ended when close returns (an outside try found it alive after close, 3 in 20).
+        if self._signer is not None and self._signer is not threading.current_thread():
+            self._signer.join(5)
 
 
 def _fail(future: Future[Any], error: Exception) -> None:

@@ -31,7 +31,10 @@ GIVE_UP_WORD_S = 1.0
 
 
 def wait_ms(wait_s: float) -> int:
-    """`wait_s` as an instruction carries it: ms, within a message's uint32 (0: for ever)."""
+    """`wait_s` as an instruction carries it: ms, within a message's uint32 (0: for ever,
+    as is infinity)."""
+    if math.isinf(wait_s):
+        return 0
     return min(math.ceil(max(wait_s, 0.0) * 1000), 2**32 - 1)
 
 

@@ -15,15 +15,25 @@ release too) and its shutdown service.
 from __future__ import annotations
 
 import atexit
+import dataclasses
 import difflib
 import logging
+import math
 import os
+import sys
 import threading
 import weakref
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from al5d.arm.instruction import PRESET_NAMES, Instruction, Kind, Outcome, parse_instruction
+from al5d.arm.instruction import (
+    PRESET_NAMES,
+    Instruction,
+    Kind,
+    Outcome,
+    new_id,
+    parse_instruction,
+)
 from al5d.arm.states import State
 from al5d.clock import Deadline
 from al5d.owner import where
@@ -63,6 +73,8 @@ __all__ = [
 #: The defaults of `al5d send` and `al5d run`: finding the server, and an outcome.
 WAIT_S = 10.0
 OUTCOME_S = 120.0
+#: `math.inf` seconds as the client waits them: a thread's wait takes no more.
+FOR_EVER_S = 1e9
 
 
 def _instruction(instr: object) -> Instruction:
@@ -77,15 +89,37 @@ def _instruction(instr: object) -> Instruction:
     return instr
 
 
+def _seconds(name: str, value: object, *, zero: bool = True) -> float:
+    """`value` as seconds to wait: a number, not below 0 (or 0 itself where not `zero`),
+    `math.inf` for ever. ValueError or TypeError, naming `name`, before anything is sent
+    (an outside try's `timeout=-1` sent the move and raised at once, the move running
+    on; `nan` and `inf` raised from deep inside)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{name}: seconds as a number, not {type(value).__name__}")
+    if math.isnan(value) or value < 0 or (value == 0 and not zero):
+        least = "0 or more" if zero else "more than 0"
+        raise ValueError(f"{name}={value!r}: seconds to wait, {least} (math.inf: for ever)")
+    return min(float(value), FOR_EVER_S)
+
+
+def _left_halting(exc: object) -> bool:
+    """Whether a client left with `exc` raised (a `with` block's, or the script's at exit)
+    halts what it commanded: anything but a plain exit (SystemExit) or none."""
+    return isinstance(exc, BaseException) and not isinstance(exc, SystemExit)
+
+
 class Client:
     """A client of the server in `namespace` (none by default): on this machine by its local
     lane, else a ROS 2 node that publishes instructions and collects their outcomes by id;
     `wait_s`: how long its first use waits for the server. `local`: True, the local lane
     only; False, ROS 2 only; None, the lane where a server's is here.
 
-    A context manager: leaving the `with` block closes it, and nothing else: the arm is
-    never stopped by it, whatever the block raised. A client left open is closed when
-    the interpreter exits.
+    A context manager: leaving the `with` block closes it. Left as the block ends (or by
+    `sys.exit`), what it sent goes on. Left by an exception (Ctrl-C's KeyboardInterrupt,
+    an error of the script), what it commanded and is not over is halted, and its
+    waiting moves are cancelled, as for a client killed: it closes without its goodbye
+    (`close(halt=True)`). Neither stops (locks) the arm. A client left open is closed
+    when the interpreter exits, the same way by how the script ended.
     """
 
     def __init__(
@@ -140,8 +174,8 @@ class Client:
         """The server's local lane, where this client takes it (else None: ROS 2)."""
         return self._way.lane if isinstance(self._way, LaneWay) else None
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, kind: object, exc: object, tb: object) -> None:
+        self.close(halt=_left_halting(exc), why=type(exc).__name__)
 
     @property
     def via(self) -> str:
@@ -206,9 +240,18 @@ class Client:
         `LostContact` while the server is out of contact, `NotSent` over ROS 2 while it
         has not acknowledged what this client sent before (as many as DDS keeps): nothing
         is sent then; TypeError for what is neither."""
-        instr = _instruction(instr)
+        instr = self._fresh(_instruction(instr))
+        wait_s = _seconds("wait_s", wait_s)
         self._check_open()
-        self._way.send(instr, wait_s)
+        self._way.send(instr, 0.0 if math.isinf(wait_s) else wait_s)
+        return instr
+
+    def _fresh(self, instr: Instruction) -> Instruction:
+        """`instr` under a new id where this client has sent it already: each send is a
+        request with its one outcome (an outside try's loop over the same instructions
+        sent one id twice, and its two runs had one outcome between them)."""
+        if self._way.sent(instr.id):
+            return dataclasses.replace(instr, id=new_id())
         return instr
 
     def watch(self, ident: str, watcher: Callable[[Outcome], None]) -> None:
@@ -219,8 +262,9 @@ class Client:
         """The outcome of `ident`, sent by this client (and not forgotten): None if it does
         not come within `timeout` seconds, or at once where this client did not send it
         (Ctrl-C before the send was made). Raises `NoOutcome` where the lane closed first,
-        `LostContact` where the server went out of contact."""
-        return self._way.outcome(ident, timeout)
+        `LostContact` where the server went out of contact; ValueError for a timeout that
+        is none (`execute`)."""
+        return self._way.outcome(ident, _seconds("timeout", timeout))
 
     def execute(self, instr: Instruction | str, timeout: float = OUTCOME_S) -> Outcome:
         """Send an instruction (or its text, in `al5d send`'s grammar) on the instruction topic
@@ -230,12 +274,17 @@ class Client:
         since it was sent: its outcome then is that cancel, which the client waits for up
         to `GIVE_UP_WORD_S` more.
 
+        `timeout`: more than 0, `math.inf` for ever. An instruction this client has sent
+        already goes under a new id (`send`).
+
         Raises `GrammarError` for text that is not an instruction, `NoServer` if no server
         is found within `wait_s` (on first use), `NoOutcome` if no outcome comes, not even
         the cancel (`LostContact`, `LaneLost`: the server went out of contact first);
-        TypeError for what is neither an instruction nor its text.
+        TypeError for what is neither an instruction nor its text, ValueError for a
+        timeout that is none (nothing is sent).
         """
-        instr = _instruction(instr)
+        instr = self._fresh(_instruction(instr))
+        timeout = _seconds("timeout", timeout, zero=False)
         self._check_open()
         return self._way.execute(instr, timeout)
 
@@ -296,6 +345,7 @@ class Client:
         had closed and no server took it again within `wait_s`, as `read`; ValueError at
         once for a word that is no state (an outside try's "Moving" waited 120 s)."""
         state = state.value if isinstance(state, State) else state
+        timeout = _seconds("timeout", timeout)
         known = [s.value for s in State]
         if state not in known:
             near = difflib.get_close_matches(state.lower(), known, n=1, cutoff=0.6)
@@ -367,29 +417,38 @@ class Client:
         reached nobody within `wait_s`, `NoOutcome` where it was sent (a reader of the
         topic took it) but not answered: whether the arm stopped is unknown."""
         self._check_open()
-        return self._way.ask(Kind.STOP, timeout)
+        return self._way.ask(Kind.STOP, _seconds("timeout", timeout, zero=False))
 
     def release(self, timeout: float = ANSWER_S) -> Answer:
         """Unlock the arm after a stop: over ROS 2 on the instruction topic, with this
         client's lease (`al5d.ros.rosway.RosWay._release`); on the local lane, by it."""
         self._check_open()
-        return self._way.ask(Kind.RELEASE, timeout)
+        return self._way.ask(Kind.RELEASE, _seconds("timeout", timeout, zero=False))
 
     def shutdown(self, timeout: float = ANSWER_S) -> Answer:
         """Park the arm and end the server, by its shutdown service (answered before the
         parking is done)."""
         self._check_open()
-        return self._way.ask(Kind.SHUTDOWN, timeout)
+        return self._way.ask(Kind.SHUTDOWN, _seconds("timeout", timeout, zero=False))
 
-    def close(self) -> None:
+    def close(self, halt: bool = False, why: str = "close(halt=True)") -> None:
         """End the client's lane, or its node and ROS context; again, or at exit, it does
-        nothing."""
+        nothing. With `halt`, what this client commanded and is not over is halted, and
+        its waiting moves are cancelled (`why` says why, in a WARNING): it leaves without
+        its goodbye, so that the server takes it for lost (over the lane at once, over
+        ROS 2 once its lease, `server.client_lease_s`, has run out)."""
         with self._closing:
             if self._closed:
                 return
             self._closed = True
             _open.discard(self)
-            self._way.close()
+            if halt:
+                log.warning(
+                    "al5d client left by %s: what it commanded and is not over is halted "
+                    "(the server takes it for lost)",
+                    why,
+                )
+            self._way.close(halt)
 
 
 #: Every client not yet closed, closed at interpreter exit (`_close_open_clients`).
@@ -401,5 +460,8 @@ def _close_open_clients() -> None:
     """Close what a script left open. rclpy's executor thread and context still alive when
     the interpreter finalizes abort the process ("terminate called without an active
     exception", exit 134) and hide the script's own exit code and traceback."""
+    # The script's own exception, if it ended by one (Python sets it before exit); not in
+    # an interactive session, where it may be one long handled.
+    exc = None if hasattr(sys, "ps1") else getattr(sys, "last_value", None)
     for client in list(_open):
-        client.close()
+        client.close(halt=_left_halting(exc), why=type(exc).__name__)

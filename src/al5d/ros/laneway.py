@@ -76,7 +76,7 @@ class Way(Protocol):
     def config(self) -> ArmConfig: ...
     def view(self) -> ArmView: ...
     def ask(self, kind: Kind, timeout: float) -> Answer: ...
-    def close(self) -> None: ...
+    def close(self, halt: bool = False) -> None: ...
 
 
 class LaneWay:
@@ -410,10 +410,10 @@ class LaneWay:
             self._open("stop", ANSWER_MIN_S)
         return outcome
 
-    def close(self) -> None:
+    def close(self, halt: bool = False) -> None:
         self._closed = True
         with self._reopening:
-            self.lane.close()
+            self.lane.close(bye=not halt)
 
 
 def _said_when_late(future: Future[Outcome], stop: str, asked: float) -> None:

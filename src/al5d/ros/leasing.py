@@ -167,15 +167,15 @@ class Leaser:
                     ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=every_ms)
                 )
 
-    def close(self, sent_by: Sequence[Any] = ()) -> None:
+    def close(self, sent_by: Sequence[Any] = (), goodbye: bool = True) -> None:
         """End the lease. Still in contact, say goodbye (what this client commanded goes on)
         and wait a moment for what it sent (on `sent_by`, its writers) and that word to
         reach the server: a client it never hears close, it takes for lost. Out of contact,
-        no goodbye: the server, if it hears this client still, takes it for lost and halts
-        what it commanded, as this client said when it gave up."""
+        or without `goodbye`, none: the server takes this client for lost once its lease
+        has run out, and halts what it commanded, as this client said when it gave up."""
         self._closing.set()
         self._thread.join()
-        if self.deaf():
+        if self.deaf() or not goodbye:
             return
         self._pub.publish(ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=0))
         with contextlib.suppress(Exception):  # what it sent, then its last word

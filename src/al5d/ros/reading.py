@@ -115,7 +115,11 @@ class ArmView:
         joints: Mapping[str, float] | None = None,
     ) -> None:
         """News of the arm: what is None has not changed. Listeners are called with the new
-        reading on this (the backend's) thread."""
+        reading on this (the backend's) thread. With `live` joints, a reading heard without
+        joints has them as they are now (an outside try: the end of a move, told as its
+        state, gave the joints as the move had begun until its pose was told after it)."""
+        if joints is None and self._live is not None:
+            joints = self._live()
         with self._cv:
             old = self._reading
             known = (

@@ -607,8 +607,8 @@ class RosWay:
         service.remove_pending_request(future)
         return None
 
-    def close(self) -> None:
-        """End the lease (with a goodbye if in contact: `Leaser.close`), and end the node
-        and its ROS context."""
-        self.lease.close([self.pub, self.safety_pub])
+    def close(self, halt: bool = False) -> None:
+        """End the lease (with a goodbye if in contact and not `halt`: `Leaser.close`), and
+        end the node and its ROS context."""
+        self.lease.close([self.pub, self.safety_pub], goodbye=not halt)
         self.spinner.close()

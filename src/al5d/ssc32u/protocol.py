@@ -9,6 +9,7 @@ refuses (`ProtocolError`) bytes the board would never send.
 
 from __future__ import annotations
 
+import operator
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -217,7 +218,22 @@ def wire_time_s(n_bytes: int, baud: int) -> float:
 # every byte costs 10 bit times on the wire.
 
 
+def _whole(value: object, what: str) -> None:
+    """A number the board reads is digits only: `value` must be an integer (numpy's too).
+    A float passed on (`1700.0`) went out as `#0P1700.0`, which the board ignores, with
+    no error here (an outside try of the driver, with pulses computed from angles)."""
+    try:
+        if isinstance(value, bool):
+            raise TypeError
+        operator.index(value)  # type: ignore[arg-type]
+    except TypeError:
+        raise ProtocolError(
+            f"{what} {value!r} is not a whole number: the board reads digits only (round it first)"
+        ) from None
+
+
 def _check_channel(channel: int) -> None:
+    _whole(channel, "channel")
     if channel not in CHANNELS:
         raise ProtocolError(f"channel {channel} is outside 0..31")
 
@@ -250,6 +266,7 @@ def encode_group_move(targets: Sequence[ChannelTarget], time_ms: int | None = No
     _check_distinct([t.channel for t in targets])
     parts: list[str] = []
     for t in targets:
+        _whole(t.pulse_us, f"channel {t.channel}: pulse")
         if t.pulse_us != PULSE_OFF and not PULSE_MIN_US <= t.pulse_us <= PULSE_MAX_US:
             raise ProtocolError(
                 f"channel {t.channel}: pulse {t.pulse_us} us is outside "
@@ -258,9 +275,12 @@ def encode_group_move(targets: Sequence[ChannelTarget], time_ms: int | None = No
         if t.speed_us_s is None:
             parts.append(f"{move_prefix(t.channel)}{t.pulse_us}")
         else:
+            _whole(t.speed_us_s, f"channel {t.channel}: speed")
             if t.speed_us_s <= 0:
                 raise ProtocolError(f"channel {t.channel}: speed {t.speed_us_s} must be positive")
             parts.append(f"{move_prefix(t.channel)}{t.pulse_us}S{t.speed_us_s}")
+    if time_ms is not None:
+        _whole(time_ms, "time")
     if time_ms is not None and not 0 <= time_ms <= TIME_MAX_MS:
         raise ProtocolError(f"time {time_ms} ms is outside 0..{TIME_MAX_MS}")
     parts.append(time_suffix(time_ms))
@@ -300,6 +320,7 @@ def encode_pulse_offset(offsets: Mapping[int, int]) -> bytes:
         raise ProtocolError("a pulse offset needs at least one channel")
     for ch, off in offsets.items():
         _check_channel(ch)
+        _whole(off, f"channel {ch}: offset")
         if off not in OFFSET_RANGE:
             raise ProtocolError(f"channel {ch}: offset {off} us is outside -100..100")
     return ("".join(f"#{ch}PO{off}" for ch, off in offsets.items()) + "\r").encode("ascii")
@@ -318,6 +339,8 @@ def encode_digital_output(levels: Mapping[int, bool]) -> bytes:
 
 def encode_byte_output(bank: int, value: int) -> bytes:
     """`#3:123\\r`: bit 0 of the value is the bank's lowest channel."""
+    _whole(bank, "bank")
+    _whole(value, "byte")
     if bank not in range(4):
         raise ProtocolError(f"bank {bank} is outside 0..3")
     if value not in range(256):
@@ -345,6 +368,7 @@ def encode_input_reads(reads: Iterable[ReadDigital | ReadAnalog]) -> bytes:
 
 
 def _check_register(number: int) -> None:
+    _whole(number, "register")
     if number not in REGISTERS:
         raise ProtocolError(f"register {number} is outside 0..255")
 
@@ -356,6 +380,7 @@ def encode_register_read(number: int) -> bytes:
 
 def encode_register_write(number: int, value: int) -> bytes:
     _check_register(number)
+    _whole(value, "register value")
     if value not in REGISTER_VALUES:
         raise ProtocolError(f"register value {value} is outside -32768..65535")
     return f"R{number}={value}\r".encode("ascii")
