@@ -8,11 +8,9 @@ from __future__ import annotations
 
 import math
 import re
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -28,7 +26,6 @@ from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
 from al5d_rig.armrig import LINK_CHECK, board_pulses, group_moves, holds
 from al5d_rig.host import Shortage
-from al5d_rig.proc import patient_config
 from al5d_rig.rospeer import LockedActionClient, Peer, first_goal_answer, wait_future, wait_until
 from al5d_rig.served import served
 from al5d_rig.trajectories import multi_dof_goal
@@ -648,56 +645,6 @@ def test_a_new_gripper_goal_preempts_the_one_before_it(rig: Rig) -> None:
         if t.channel == channel
     ]
     assert gaps and min(gaps) > 0.025, gaps
-
-
-def test_a_gripper_goal_preempted_on_the_board_halts_the_gripper_on_its_way(
-    config: ArmConfig, tmp_path: Path
-) -> None:
-    """A gripper goal whose line is on the board when a newer one comes (the test above:
-    one still waiting): it ends CANCELED, its one outcome on /al5d/result naming the newer
-    goal; the gripper halts where it is, short of the first goal's gap, and then goes to
-    the newer one's. A gripper slowed to 20 deg/s, so that its close is still running when
-    the newer goal comes, however busy the host."""
-    slow = patient_config((("gripper", 20.0),))
-    with served(config, tmp_path, "al5d_gripper_preempt_peer", slow) as arm:
-        name = "/gripper_controller/gripper_cmd"
-        client = LockedActionClient(arm.peer.node, GripperCommand, name)
-        try:
-            assert client.wait_for_server(timeout_sec=10)
-            wait_until(lambda: arm.states[-1] == "ready", 30, "ready")
-            to_deg = config.model.from_urdf
-            closed, between = 0.002, 0.020
-            far = to_deg({"gripper": closed})["gripper"]  # about 4 s away from open
-            seen: list[float] = []  # the gripper's degrees, every 10 ms from here to the end
-            done = threading.Event()
-
-            def watch() -> None:
-                while not done.wait(0.01):
-                    seen.append(arm.emu.servo_degrees()["gripper"])
-
-            watcher = threading.Thread(target=watch, daemon=True)
-            watcher.start()
-            first = wait_future(client.send_goal_async(gripper_goal(closed)))
-            wait_until(lambda: bool(seen) and seen[-1] > 15, 20, "the gripper closing")
-            second = wait_future(client.send_goal_async(gripper_goal(between)))
-            assert first.accepted and second.accepted
-            old = wait_future(first.get_result_async(), 20)
-            assert old.status == GoalStatus.STATUS_CANCELED, old.status
-            by = bytes(second.goal_id.uuid).hex()
-            told = arm.peer.result(bytes(first.goal_id.uuid).hex(), 20)
-            assert told.outcome == "cancelled" and told.reason == f"preempted by gripper goal {by}"
-            new = wait_future(second.get_result_async(), 20)
-            assert new.status == GoalStatus.STATUS_SUCCEEDED and new.result.reached_goal
-            assert abs(new.result.position - between) < 0.0005, new.result.position
-            there = to_deg({"gripper": between})["gripper"]
-            wait_until(lambda: abs(seen[-1] - there) < 0.5, 10, "the gripper at the newer gap")
-            done.set()
-            watcher.join()
-            # Halted on its way: the servo never came near the first goal's end.
-            assert max(seen) < far - 10, (max(seen), far)
-        finally:
-            done.set()
-            arm.peer.destroy(client)
 
 
 def test_a_gripper_gap_beyond_its_opening_is_rejected(rig: Rig) -> None:

@@ -34,3 +34,25 @@ def test_a_wait_sees_a_state_that_came_and_went_before_its_thread_ran(config: Ar
     assert view.reading.state == "ready"
     # A state heard before the wait began is not one it waits for.
     assert view.wait(lambda r: r.state == "stopped", 0.1) is None
+
+
+def test_a_state_heard_without_joints_carries_the_live_joints(config: ArmConfig) -> None:
+    """Over the lane the joints are estimated along the move the owner told (`live`). The
+    end of a move is told as the state first, its pose after: the `ready` reading, as a
+    wait for it and a listener have it, had the joints the move began with (an outside
+    try: base 20 after a move to -20)."""
+    here = {"base": 20.0}
+    view = ArmView(config.model, live=lambda: dict(here))
+    view.heard("moving", False, {"base": 20.0})
+    heard: list[Reading] = []
+    view.on_change(heard.append)
+    here["base"] = -20.0  # where the move told has brought it
+    view.heard("ready", False)
+    ready = view.wait(lambda r: r.state == "ready", 1)
+    assert ready is not None and ready.joints["base"] == -20.0, ready
+    assert [(r.state, r.joints["base"]) for r in heard] == [("ready", -20.0)]
+    # Without `live` (over ROS 2 the joints come on their own topic), the last told.
+    told = ArmView(config.model)
+    told.heard("moving", False, {"base": 20.0})
+    told.heard("ready", False)
+    assert told.reading.joints["base"] == 20.0

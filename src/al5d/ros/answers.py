@@ -30,10 +30,15 @@ SILENCE_SAID_S = 1.0
 GIVE_UP_WORD_S = 1.0
 
 
+#: `math.inf` seconds as a client waits them (a thread's wait takes no more), and what an
+#: instruction carries as waited for for ever.
+FOR_EVER_S = 1e9
+
+
 def wait_ms(wait_s: float) -> int:
     """`wait_s` as an instruction carries it: ms, within a message's uint32 (0: for ever,
-    as is infinity)."""
-    if math.isinf(wait_s):
+    as is `FOR_EVER_S` or more)."""
+    if wait_s >= FOR_EVER_S:
         return 0
     return min(math.ceil(max(wait_s, 0.0) * 1000), 2**32 - 1)
 

@@ -19,6 +19,7 @@ import dataclasses
 import difflib
 import logging
 import math
+import numbers
 import os
 import sys
 import threading
@@ -40,6 +41,7 @@ from al5d.owner import where
 from al5d.owner.client import LaneClosed, LaneStalled, Remote, said_slow
 from al5d.ros.answers import (
     ANSWER_S,
+    FOR_EVER_S,
     Answer,
     LaneLost,
     LostContact,
@@ -73,8 +75,6 @@ __all__ = [
 #: The defaults of `al5d send` and `al5d run`: finding the server, and an outcome.
 WAIT_S = 10.0
 OUTCOME_S = 120.0
-#: `math.inf` seconds as the client waits them: a thread's wait takes no more.
-FOR_EVER_S = 1e9
 
 
 def _instruction(instr: object) -> Instruction:
@@ -90,22 +90,47 @@ def _instruction(instr: object) -> Instruction:
 
 
 def _seconds(name: str, value: object, *, zero: bool = True) -> float:
-    """`value` as seconds to wait: a number, not below 0 (or 0 itself where not `zero`),
-    `math.inf` for ever. ValueError or TypeError, naming `name`, before anything is sent
-    (an outside try's `timeout=-1` sent the move and raised at once, the move running
-    on; `nan` and `inf` raised from deep inside)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    """`value` as seconds to wait: a real number (numpy's too), not below 0 (nor 0 itself
+    where not `zero`), `math.inf` for ever (`FOR_EVER_S`). ValueError or TypeError,
+    naming `name`, before anything is sent (an outside try's `timeout=-1` sent the move
+    and raised at once, the move running on; `nan` and `inf` raised from deep inside)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name}: seconds as a number, not {type(value).__name__}")
-    if math.isnan(value) or value < 0 or (value == 0 and not zero):
+    seconds = float(value)
+    if math.isnan(seconds) or seconds < 0 or (seconds == 0 and not zero):
         least = "0 or more" if zero else "more than 0"
         raise ValueError(f"{name}={value!r}: seconds to wait, {least} (math.inf: for ever)")
-    return min(float(value), FOR_EVER_S)
+    return min(seconds, FOR_EVER_S)
+
+
+def _stop_seconds(value: object) -> float:
+    """A stop's timeout: as `_seconds`, but a stop is never refused for it: one that is
+    none (0, -1, nan) waits the least a stop waits for its answer (`LaneWay.ask`)."""
+    try:
+        return _seconds("timeout", value)
+    except (TypeError, ValueError):
+        return 0.0
 
 
 def _left_halting(exc: object) -> bool:
     """Whether a client left with `exc` raised (a `with` block's, or the script's at exit)
-    halts what it commanded: anything but a plain exit (SystemExit) or none."""
-    return isinstance(exc, BaseException) and not isinstance(exc, SystemExit)
+    halts what it commanded: anything but a plain exit (SystemExit, a generator closed
+    early: GeneratorExit) or none."""
+    return isinstance(exc, BaseException) and not isinstance(exc, (SystemExit, GeneratorExit))
+
+
+#: The exception that ended the script, if one did (`_note_uncaught`): the clients left
+#: open then halt at exit. Not `sys.last_value`, which test runners set for each failure.
+_uncaught: list[BaseException] = []
+_excepthook = sys.excepthook
+
+
+def _note_uncaught(kind: type[BaseException], exc: BaseException, tb: Any) -> None:
+    _uncaught.append(exc)
+    _excepthook(kind, exc, tb)
+
+
+sys.excepthook = _note_uncaught
 
 
 class Client:
@@ -126,7 +151,7 @@ class Client:
         self, namespace: str | None = None, *, wait_s: float = WAIT_S, local: bool | None = None
     ) -> None:
         self.names = names = Names.of(namespace)
-        self.wait_s = wait_s
+        self.wait_s = wait_s = _seconds("wait_s", wait_s)
         self._closing = threading.Lock()
         self._closed = False
         self._view: ArmView | None = None
@@ -226,7 +251,7 @@ class Client:
         """Until our instructions reach a server and its results reach us: over ROS 2 a ping
         of ours answered (`NoServer` if none is within `timeout` s)."""
         self._check_open()
-        self._way.wait_for_server(timeout)
+        self._way.wait_for_server(_seconds("timeout", timeout))
 
     def send(self, instr: Instruction | str, wait_s: float = 0.0) -> Instruction:
         """Send `instr` (or its text, in `al5d send`'s grammar) on the lane or the instruction
@@ -243,7 +268,7 @@ class Client:
         instr = self._fresh(_instruction(instr))
         wait_s = _seconds("wait_s", wait_s)
         self._check_open()
-        self._way.send(instr, 0.0 if math.isinf(wait_s) else wait_s)
+        self._way.send(instr, wait_s)
         return instr
 
     def _fresh(self, instr: Instruction) -> Instruction:
@@ -314,7 +339,7 @@ class Client:
         """The arm as last heard: its state, joints (degrees) and tool pose (`Reading`). The
         first read waits for the server's news up to `timeout` (default `wait_s`); raises
         NoServer if none came."""
-        timeout = self.wait_s if timeout is None else timeout
+        timeout = self.wait_s if timeout is None else _seconds("timeout", timeout)
         self._lane_back(timeout)
         reading = self._arm().wait(lambda r: bool(r.state and r.joints_told), timeout)
         if reading is None:
@@ -417,19 +442,19 @@ class Client:
         reached nobody within `wait_s`, `NoOutcome` where it was sent (a reader of the
         topic took it) but not answered: whether the arm stopped is unknown."""
         self._check_open()
-        return self._way.ask(Kind.STOP, _seconds("timeout", timeout, zero=False))
+        return self._way.ask(Kind.STOP, _stop_seconds(timeout))
 
     def release(self, timeout: float = ANSWER_S) -> Answer:
         """Unlock the arm after a stop: over ROS 2 on the instruction topic, with this
         client's lease (`al5d.ros.rosway.RosWay._release`); on the local lane, by it."""
         self._check_open()
-        return self._way.ask(Kind.RELEASE, _seconds("timeout", timeout, zero=False))
+        return self._way.ask(Kind.RELEASE, _seconds("timeout", timeout))
 
     def shutdown(self, timeout: float = ANSWER_S) -> Answer:
         """Park the arm and end the server, by its shutdown service (answered before the
         parking is done)."""
         self._check_open()
-        return self._way.ask(Kind.SHUTDOWN, _seconds("timeout", timeout, zero=False))
+        return self._way.ask(Kind.SHUTDOWN, _seconds("timeout", timeout))
 
     def close(self, halt: bool = False, why: str = "close(halt=True)") -> None:
         """End the client's lane, or its node and ROS context; again, or at exit, it does
@@ -460,8 +485,7 @@ def _close_open_clients() -> None:
     """Close what a script left open. rclpy's executor thread and context still alive when
     the interpreter finalizes abort the process ("terminate called without an active
     exception", exit 134) and hide the script's own exit code and traceback."""
-    # The script's own exception, if it ended by one (Python sets it before exit); not in
-    # an interactive session, where it may be one long handled.
-    exc = None if hasattr(sys, "ps1") else getattr(sys, "last_value", None)
+    # Not in an interactive session, whose prompt says each error and goes on.
+    exc = _uncaught[-1] if _uncaught and not hasattr(sys, "ps1") else None
     for client in list(_open):
         client.close(halt=_left_halting(exc), why=type(exc).__name__)
