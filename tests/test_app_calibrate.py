@@ -196,6 +196,35 @@ def test_quitting_writes_nothing(server: Emulator, arm_file: Path) -> None:
     assert list(arm_file.parent.glob("*.bak")) == []
 
 
+def test_a_file_changed_since_the_server_started_is_not_calibrated(
+    server: Emulator, arm_file: Path
+) -> None:
+    """The procedure reads the file's pulses, the server turns degrees into pulses by the
+    calibration it started with: where the two differ (a calibration written, the server
+    not restarted), an outside try's second run wrote a calibration 40 us off, exit 0.
+    Now it says so and writes nothing."""
+    shipped = "calibration: [{deg: -90, us: 600}, {deg: 90, us: 2400}]"
+    text = arm_file.read_text("utf-8")
+    wrist = text.index("\n  wrist:\n")  # the first such calibration after it is the wrist's
+    assert text.index(shipped, wrist) < text.index("\n  gripper:\n"), text
+    changed = text[:wrist] + text[wrist:].replace(
+        shipped, "calibration: [{deg: -90, us: 640}, {deg: 90, us: 2440}]", 1
+    )
+    arm_file.write_text(changed, "utf-8")
+    cal = Proc(
+        *("calibrate", "--joints", "wrist", "--wait", "30", "--config", str(arm_file)),
+        stdin=True,
+    )
+    try:
+        assert cal.wait(60) == exits.USAGE
+    finally:
+        cal.kill()
+    said = "\n".join(cal.err.drain())
+    assert "the calibration of wrist differs from the one the server drives the arm with" in said
+    assert "nothing written" in said
+    assert arm_file.read_text("utf-8") == changed
+
+
 def test_calibrate_at_a_terminal_takes_single_keys(server: Emulator, arm_file: Path) -> None:
     """On a terminal (a pty here): a key each, no Enter after it, Enter itself accepts."""
     main, terminal = pty.openpty()

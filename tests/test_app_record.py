@@ -339,7 +339,9 @@ def test_a_recording_cut_short_is_an_error_or_with_partial_what_it_holds(tmp_pat
     assert 0 < partial.instructions["/al5d/instruction"] <= 200
     refused = Proc("replay", str(cut), "--wait", "1")
     assert refused.wait(30) == exits.BAD_INPUT
-    assert "cut.mcap is damaged or cut short" in refused.err.wait_for("al5d replay:", 5)
+    said = refused.err.wait_for("al5d replay:", 5)
+    assert "cut.mcap is damaged or cut short" in said, said
+    assert said.endswith("; --partial replays the instructions before the damage"), said
 
 
 def test_what_a_recording_is_handed_is_on_disk_a_moment_later(tmp_path: Path) -> None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -247,6 +248,68 @@ def test_ctrl_c_ends_the_replay_with_a_line(server: Proc, tmp_path: Path) -> Non
     err = "\n".join(proc.err.drain(0.5))
     assert "interrupted (Ctrl-C) after 1 of 3 instructions sent" in err, err
     assert "Traceback" not in err
+
+
+def test_a_stop_the_replay_did_not_send_ends_it_before_its_release(
+    server: Proc, tmp_path: Path
+) -> None:
+    """An outside try: an operator's stop during a replay; the replay went on, its
+    recorded release unlocked the arm, and its recorded moves ran 5.8 and 10.5 s after the
+    stop. Now the replay ends at the stop, as `al5d run`'s sequence does; a stop and release
+    of its own, recorded, it goes through."""
+    s = 10**9
+    path = recording(
+        tmp_path / "estop.mcap",
+        [
+            (1 * s, instruction("stop", "own")),  # its own stop and release: gone through
+            (1 * s + 1, instruction("release", "free")),
+            (2 * s, instruction("ready", "r")),
+            (8 * s, instruction("move", "m1", 300, base=10.0)),  # the operator's stop before
+            (10 * s, instruction("release", "rel")),
+            (11 * s, instruction("move", "m2", 300, base=20.0)),
+        ],
+    )
+    replay = Proc("replay", str(path))
+    try:
+        replay.out.wait_for("r#3]: ", 60)  # done; the next instruction is 6 s away
+        assert Proc("send", "stop").wait(60) == exits.DONE
+        assert replay.wait(60) == exits.NOT_DONE
+        lines = replay.out.drain(0.5)
+        assert outcomes(lines) == {"own#1": "done", "free#2": "done", "r#3": "done"}, lines
+        assert (
+            "the arm is stopped by a stop this replay did not send: the replay ends here: "
+            "instruction 4 and those after it are not sent"
+        ) in lines, lines
+    finally:
+        assert Proc("send", "release").wait(60) == exits.DONE
+
+
+def test_a_replay_whose_server_shuts_down_ends_at_once(tmp_path: Path) -> None:
+    """An outside try: the server shut down 4 s into a replay; the replay sent the rest
+    into the void and waited out its timeout for each (120 s), 131.8 s in all. It now ends
+    as the server says it is shutting down, and says how far it came (exit 5)."""
+    namespace = "replay_gone"
+    served = Proc("serve", "--config", patient_config(), "--namespace", namespace)
+    try:
+        served.err.wait_for("STATE: ready", 60)
+        s = 10**9
+        path = recording(
+            tmp_path / "gone.mcap",
+            [(3 * k * s, instruction("ready" if k % 2 else "park", f"g{k}")) for k in range(6)],
+        )
+        replay = Proc("replay", str(path), "--namespace", namespace)  # 3 s apart
+        replay.out.wait_for("g0#1]: ", 60)
+        served.popen.send_signal(signal.SIGINT)  # parks, then ends
+        assert replay.wait(60) == exits.NO_SERVER  # not 120 s for each instruction left
+        err = "\n".join(replay.err.drain(0.5))
+        assert re.search(
+            r"al5d replay: (the server is shutting down|lost contact with the server .*): "
+            r"the replay ends here, after \d of 6 instructions sent; [01] of them not told",
+            err,
+        ), err
+        assert "Traceback" not in err
+    finally:
+        served.kill()
 
 
 def peak_rss_mb(args: list[str]) -> tuple[int, float, list[str]]:

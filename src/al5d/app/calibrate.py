@@ -305,6 +305,26 @@ def server_config(served: Path | None, given: str | None) -> tuple[Path | None, 
     return served, ""
 
 
+def stale_calibration(file: ArmConfig, served: ArmConfig, joints: tuple[str, ...]) -> str:
+    """Why the file's calibration of `joints` is not the one the server drives them with
+    (the file written since the server started), or "". The procedure reads the file's
+    pulses while the server turns its degrees into pulses by its own: an outside try's
+    second run before the restart wrote a calibration 40 us off, with exit 0."""
+    differ = [
+        j
+        for j in joints
+        if j in served.joints and file.joints[j].calibration != served.joints[j].calibration
+    ]
+    if not differ:
+        return ""
+    return (
+        f"the calibration of {', '.join(differ)} differs from the one the server drives the "
+        "arm with (the file changed since the server started: a calibration written and the "
+        "server not restarted?): restart the server with this file, then calibrate again; "
+        "nothing written"
+    )
+
+
 def calibrate_command(
     *,
     config_path: str | None,
@@ -343,6 +363,9 @@ def calibrate_command(
             procedure = Procedure(config, joints or tuple(config.joints), step_us)
         except CalibrationRefused as e:
             print(f"al5d calibrate: {e}", file=err)
+            return exits.USAGE
+        if stale := stale_calibration(config, client.config(), procedure.joints):
+            print(f"al5d calibrate: {path}: {stale}", file=err)
             return exits.USAGE
         print(f"al5d calibrate: {path}, joints {', '.join(procedure.joints)}", file=out)
         # Where an emulated arm truly stands is on ROS 2 only (`al5d emulator --misalign`).

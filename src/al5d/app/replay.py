@@ -35,7 +35,7 @@ from mcap.reader import NonSeekingReader
 from mcap.records import Channel, Message, Schema
 
 from al5d.app.record import INSTRUCTION_TYPE
-from al5d.arm.instruction import MAX_ID, MAX_QUOTE, TIME_FIELD_MAX_MS
+from al5d.arm.instruction import MAX_ID, MAX_QUOTE, TIME_FIELD_MAX_MS, Kind
 from al5d.ros.names import NODE, PING
 
 #: An arm's instruction topic ends so (`Names.instruction`: `<ns>/al5d/instruction`).
@@ -363,15 +363,22 @@ class _Outcomes:
             with contextlib.suppress(ValueError):  # an outcome word no server says
                 then(outcome_from_message(msg))
 
-    def wait(self, idents: Callable[[], bool], timeout: float) -> bool:
-        """Until `idents()` says the awaited outcomes have come, or `timeout` seconds."""
+    def wait(
+        self, idents: Callable[[], bool], timeout: float, gone: Callable[[], str | None]
+    ) -> bool:
+        """Until `idents()` says the awaited outcomes have come, or `timeout` seconds.
+        Raises `ServerGone` once `gone()` says why the server is gone (looked at each
+        `GONE_EVERY_S`: an outside try's replay of a server shut down waited out its
+        timeout for each instruction, 131.8 s)."""
         deadline = time.monotonic() + timeout
         with self._cv:
             while not idents():
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return False
-                self._cv.wait(left)
+                if why := gone():
+                    raise ServerGone(why)
+                self._cv.wait(min(left, GONE_EVERY_S))
             return True
 
     def pending(self) -> list[str]:
@@ -412,7 +419,10 @@ def replay(
         survey = reader.survey(partial)
         topic = choose_topic(path, survey.instructions, arm, namespace)
     except BadRecording as e:
-        print(f"al5d replay: {e}", file=err)
+        # An outside try did not learn of --partial from the refusal of a file cut short.
+        cut = "is damaged or cut short" in str(e)
+        hint = "; --partial replays the instructions before the damage" if cut else ""
+        print(f"al5d replay: {e}{hint}", file=err)
         return exits.BAD_INPUT
     except KeyboardInterrupt:
         print(f"al5d replay: interrupted (Ctrl-C) while reading {path}: nothing sent", file=err)
@@ -462,6 +472,15 @@ def _send(
         client.wait_for_server(wait_s)
         if not outcomes.handshake(client, wait_s):
             raise NoServer(f"the server's results do not reach this replay within {wait_s:g} s")
+        locks = _Locks()
+        client.on_change(lambda r: locks.heard(r.state))
+        locks.heard(client.read(wait_s).state)
+
+        def gone() -> str | None:
+            if locks.shutting_down:
+                return "the server is shutting down"
+            return client.out_of_contact()
+
         started = time.monotonic()
         first: int | None = None
         before: int | None = None
@@ -497,23 +516,34 @@ def _send(
                     )
                 due = started + (each.sent_ns - first) / 1e9 - cut_s
                 time.sleep(max(0.0, due - time.monotonic()))
+            if lost := gone():
+                raise ServerGone(lost)
+            if locks.foreign():
+                report.line(
+                    "the arm is stopped by a stop this replay did not send: the replay ends "
+                    f"here: instruction {each.index} and those after it are not sent"
+                )
+                report.fail()
+                break
             report.line(f"> {instr}")
             outcome_of = _reporter(report, instr)
             outcomes.expect(instr.id, outcome_of)
             msg = to_message(instr)
             msg.client = client.key  # a replay cut off or killed leaves nothing moving
             msg.wait_ms = wait_ms(timeout)  # nor does what it gives up on
+            locks.sent(instr.kind)  # before its state can come back
             client.pub.publish(msg)
             sent += 1
             last_sent = time.monotonic()
             arrived = functools.partial(outcomes.arrived, instr.id)
-            if rate != "recorded" and not outcomes.wait(arrived, timeout + GIVE_UP_WORD_S):
+            if rate != "recorded" and not outcomes.wait(arrived, timeout + GIVE_UP_WORD_S, gone):
                 outcomes.forget(instr.id)
                 report.outcome(None, instr=instr)
         report.flush()  # the refusals after the last sent, before the wait for its outcome
         if not outcomes.wait(
             lambda: not outcomes.pending(),
             timeout + GIVE_UP_WORD_S - (time.monotonic() - last_sent),
+            gone,
         ):
             for ident in outcomes.pending():
                 outcomes.forget(ident)
@@ -522,6 +552,15 @@ def _send(
         return exits.DONE if report.all_done else exits.NOT_DONE
     except NoServer as e:
         print(f"al5d replay: {e}", file=err)
+        return exits.NO_SERVER
+    except ServerGone as e:
+        report.flush()
+        unknown = len(outcomes.pending())
+        print(
+            f"al5d replay: {e}: the replay ends here, after {sent} of {total} instructions "
+            f"sent; {unknown} of them not told (whether they ran is unknown)",
+            file=err,
+        )
         return exits.NO_SERVER
     except BadRecording as e:  # the file changed since it was checked
         print(f"al5d replay: {e}", file=err)
@@ -538,6 +577,55 @@ def _send(
             report.flush()  # the refusals held, whatever ended the replay
         finally:
             client.close()
+
+
+#: How often a replay waiting for outcomes looks whether its server is gone.
+GONE_EVERY_S = 0.25
+
+
+class ServerGone(Exception):
+    """The server a replay sends to is gone (out of contact, or shutting down)."""
+
+
+class _Locks:
+    """Whether the arm is stopped by a stop the replay did not send (an operator's), which
+    ends the replay, as a line not done ends `al5d run`'s sequence (an outside try: the
+    replay went on, its recorded release unlocked the arm, and recorded moves ran 5.8 and
+    10.5 s after the operator's stop). A stop of its own it may release: the lock is its
+    own from the stop it sent until the arm is heard to leave `stopped` after its release
+    (a state heard late, from before its stop, does not end it)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._state = ""
+        self._ours = False  # the lock, if any, is the replay's own stop's
+        self._releasing = False  # its release sent, the arm not yet heard unlocked
+        self.shutting_down = False  # the server said it is ending, not by the replay's word
+        self.sent_shutdown = False
+
+    def heard(self, state: str) -> None:
+        """The arm's state, as the server said it."""
+        if state == "shutting_down" and not self.sent_shutdown:
+            self.shutting_down = True
+        with self._lock:
+            if self._releasing and self._state == "stopped" and state != "stopped":
+                self._ours = self._releasing = False
+            self._state = state
+
+    def sent(self, kind: Kind) -> None:
+        """The replay sent an instruction of `kind`."""
+        if kind is Kind.SHUTDOWN:
+            self.sent_shutdown = True
+        with self._lock:
+            if kind is Kind.STOP:
+                self._ours, self._releasing = True, False
+            elif kind is Kind.RELEASE and self._ours:
+                self._releasing = True
+
+    def foreign(self) -> bool:
+        """Whether the arm is stopped, and not by the replay's own stop."""
+        with self._lock:
+            return self._state == "stopped" and not self._ours
 
 
 def _reporter(report: Any, instr: Any) -> Callable[[Any], None]:

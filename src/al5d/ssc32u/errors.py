@@ -39,7 +39,10 @@ class PortUnavailable(SerialFault):
 class NotAnSSC32U(SerialFault):
     """The device at the port does not answer `VER` like an SSC-32U (or the baud is wrong)."""
 
-    advice = "check the port, the baud rate (the board's button) and the board's power"
+    advice = (
+        "check the port, the baud rate (the board's button; `al5d doctor --port PORT` finds "
+        "it) and the board's power"
+    )
 
 
 class LinkLost(SerialFault):
