@@ -250,38 +250,61 @@ def test_ctrl_c_ends_the_replay_with_a_line(server: Proc, tmp_path: Path) -> Non
     assert "Traceback" not in err
 
 
+S = 10**9
+#: (recording, the outcome line after which an operator stops the arm, the outcomes then,
+#: the instruction at which the replay ends): with the arm ready, and while a stop of the
+#: replay's own holds it (no state changes then: the stop is heard by its outcome).
+OPERATOR_STOPS = {
+    "ready": (
+        [
+            (1 * S, instruction("stop", "own")),  # its own stop and release: gone through
+            (1 * S + 1, instruction("release", "free")),
+            (2 * S, instruction("ready", "r")),
+            (11 * S, instruction("move", "m1", 300, base=10.0)),  # 9 s: the operator's stop
+            (12 * S, instruction("release", "rel")),
+            (13 * S, instruction("move", "m2", 300, base=20.0)),
+        ],
+        "r#3]: ",
+        {"own#1": "done", "free#2": "done", "r#3": "done"},
+        4,
+    ),
+    "its own stop holding": (
+        [
+            (1 * S, instruction("stop", "own")),  # 8 s: the operator's stop
+            (9 * S, instruction("release", "free")),
+            (10 * S, instruction("move", "m", 300, base=10.0)),
+        ],
+        "own#1]: ",
+        {"own#1": "done"},
+        2,
+    ),
+}
+
+
+@pytest.mark.parametrize("case", OPERATOR_STOPS)
 def test_a_stop_the_replay_did_not_send_ends_it_before_its_release(
-    server: Proc, tmp_path: Path
+    server: Proc, tmp_path: Path, case: str
 ) -> None:
     """An outside try: an operator's stop during a replay; the replay went on, its
     recorded release unlocked the arm, and its recorded moves ran 5.8 and 10.5 s after the
-    stop. Now the replay ends at the stop, as `al5d run`'s sequence does; a stop and release
-    of its own, recorded, it goes through."""
-    s = 10**9
-    path = recording(
-        tmp_path / "estop.mcap",
-        [
-            (1 * s, instruction("stop", "own")),  # its own stop and release: gone through
-            (1 * s + 1, instruction("release", "free")),
-            (2 * s, instruction("ready", "r")),
-            (8 * s, instruction("move", "m1", 300, base=10.0)),  # the operator's stop before
-            (10 * s, instruction("release", "rel")),
-            (11 * s, instruction("move", "m2", 300, base=20.0)),
-        ],
-    )
-    replay = Proc("replay", str(path))
+    stop. Now the replay ends at the stop, as `al5d run`'s sequence does, also where a
+    stop of its own holds the arm already; a stop and release of its own it goes through."""
+    messages, after, told, ends_at = OPERATOR_STOPS[case]
+    replay = Proc("replay", str(recording(tmp_path / "estop.mcap", messages)))
     try:
-        replay.out.wait_for("r#3]: ", 60)  # done; the next instruction is 6 s away
+        replay.out.wait_for(after, 60)  # done; the next instruction is 8 s or more away
         assert Proc("send", "stop").wait(60) == exits.DONE
         assert replay.wait(60) == exits.NOT_DONE
         lines = replay.out.drain(0.5)
-        assert outcomes(lines) == {"own#1": "done", "free#2": "done", "r#3": "done"}, lines
-        assert (
-            "the arm is stopped by a stop this replay did not send: the replay ends here: "
-            "instruction 4 and those after it are not sent"
-        ) in lines, lines
+        assert outcomes(lines) == told, lines
+        assert re.fullmatch(
+            r"the arm is stopped by stop \[\S+\], which this replay did not send: the replay "
+            rf"ends here: instruction {ends_at} and those after it are not sent",
+            lines[-1],
+        ), lines
     finally:
-        assert Proc("send", "release").wait(60) == exits.DONE
+        replay.kill()
+        Proc("send", "release").wait(60)  # for the module's next test
 
 
 def test_a_replay_whose_server_shuts_down_ends_at_once(tmp_path: Path) -> None:

@@ -364,7 +364,10 @@ def calibrate_command(
         except CalibrationRefused as e:
             print(f"al5d calibrate: {e}", file=err)
             return exits.USAGE
-        if stale := stale_calibration(config, client.config(), procedure.joints):
+        # Over the lane, whose welcome holds the server's configuration for sure (over ROS 2
+        # a server that does not say it is judged by the shipped file: no check there).
+        lane = client.lane
+        if lane is not None and (stale := stale_calibration(config, lane.config, procedure.joints)):
             print(f"al5d calibrate: {path}: {stale}", file=err)
             return exits.USAGE
         print(f"al5d calibrate: {path}, joints {', '.join(procedure.joints)}", file=out)

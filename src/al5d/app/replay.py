@@ -326,6 +326,11 @@ class _Outcomes:
 
         self._cv = threading.Condition()
         self._waiting: dict[str, Callable[[Any], None]] = {}
+        #: The stops the replay sent, and the first stop it did not (an operator's, by any
+        #: channel: every stop's outcome is told on the result topic, before those of what
+        #: it cancelled), or why the arm was locked as the replay began.
+        self.own_stops: set[str] = set()
+        self.stopped_by: str | None = None
         self._sub = client.node.create_subscription(
             InstructionResult, client.names.result, self._on_result, QOS_STREAM
         )
@@ -357,6 +362,8 @@ class _Outcomes:
         from al5d.ros.convert import outcome_from_message
 
         with self._cv:
+            if msg.instruction == STOP_WORD and msg.id not in self.own_stops:
+                self.stopped_by = self.stopped_by or msg.id  # before what it cancelled
             then = self._waiting.pop(msg.id, None)
             self._cv.notify_all()
         if then is not None:
@@ -454,7 +461,7 @@ def _send(
 ) -> int:
     from al5d import exits
     from al5d.app.report import Report
-    from al5d.arm.config import load_config
+    from al5d.arm.config import ConfigError, load_config
     from al5d.arm.instruction import Instruction
     from al5d.ros.answers import GIVE_UP_WORD_S, no_outcome, wait_ms
     from al5d.ros.client import Client, NoServer
@@ -472,12 +479,16 @@ def _send(
         client.wait_for_server(wait_s)
         if not outcomes.handshake(client, wait_s):
             raise NoServer(f"the server's results do not reach this replay within {wait_s:g} s")
-        locks = _Locks()
-        client.on_change(lambda r: locks.heard(r.state))
-        locks.heard(client.read(wait_s).state)
+        heard = _Heard()
+        try:
+            client.on_change(lambda r: heard.heard(r.state))  # its state topic, latched
+        except ConfigError as e:  # a server of another version
+            raise NoServer(f"the server's configuration cannot be read: {e}") from None
+        if heard.came.wait(wait_s) and heard.state == "stopped":
+            outcomes.stopped_by = "a stop before the replay began"
 
         def gone() -> str | None:
-            if locks.shutting_down:
+            if heard.shutting_down:
                 return "the server is shutting down"
             return client.out_of_contact()
 
@@ -515,13 +526,18 @@ def _send(
                         flush=True,
                     )
                 due = started + (each.sent_ns - first) / 1e9 - cut_s
-                time.sleep(max(0.0, due - time.monotonic()))
+                # In slices: a server gone, or a stop, is heard in a gap of up to --max-gap.
+                while (left := due - time.monotonic()) > 0 and outcomes.stopped_by is None:
+                    if lost := gone():
+                        raise ServerGone(lost)
+                    time.sleep(min(left, GONE_EVERY_S))
             if lost := gone():
                 raise ServerGone(lost)
-            if locks.foreign():
+            if (by := outcomes.stopped_by) is not None:
+                said = by if by.startswith("a stop") else f"stop [{by}]"
                 report.line(
-                    "the arm is stopped by a stop this replay did not send: the replay ends "
-                    f"here: instruction {each.index} and those after it are not sent"
+                    f"the arm is stopped by {said}, which this replay did not send: the replay "
+                    f"ends here: instruction {each.index} and those after it are not sent"
                 )
                 report.fail()
                 break
@@ -531,7 +547,10 @@ def _send(
             msg = to_message(instr)
             msg.client = client.key  # a replay cut off or killed leaves nothing moving
             msg.wait_ms = wait_ms(timeout)  # nor does what it gives up on
-            locks.sent(instr.kind)  # before its state can come back
+            if instr.kind is Kind.STOP:  # before its outcome can come back
+                outcomes.own_stops.add(instr.id)
+            elif instr.kind is Kind.SHUTDOWN:
+                heard.sent_shutdown = True
             client.pub.publish(msg)
             sent += 1
             last_sent = time.monotonic()
@@ -581,51 +600,31 @@ def _send(
 
 #: How often a replay waiting for outcomes looks whether its server is gone.
 GONE_EVERY_S = 0.25
+#: The instruction word of a stop, as the result topic names it.
+STOP_WORD = Kind.STOP.value
 
 
 class ServerGone(Exception):
     """The server a replay sends to is gone (out of contact, or shutting down)."""
 
 
-class _Locks:
-    """Whether the arm is stopped by a stop the replay did not send (an operator's), which
-    ends the replay, as a line not done ends `al5d run`'s sequence (an outside try: the
-    replay went on, its recorded release unlocked the arm, and recorded moves ran 5.8 and
-    10.5 s after the operator's stop). A stop of its own it may release: the lock is its
-    own from the stop it sent until the arm is heard to leave `stopped` after its release
-    (a state heard late, from before its stop, does not end it)."""
+class _Heard:
+    """What the server says of the arm that a replay heeds: its state (the first as the
+    replay begins: an arm already stopped), and whether it is shutting down, not by the
+    replay's own word."""
 
     def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._state = ""
-        self._ours = False  # the lock, if any, is the replay's own stop's
-        self._releasing = False  # its release sent, the arm not yet heard unlocked
-        self.shutting_down = False  # the server said it is ending, not by the replay's word
+        self.state = ""
+        self.came = threading.Event()
+        self.shutting_down = False
         self.sent_shutdown = False
 
     def heard(self, state: str) -> None:
-        """The arm's state, as the server said it."""
         if state == "shutting_down" and not self.sent_shutdown:
             self.shutting_down = True
-        with self._lock:
-            if self._releasing and self._state == "stopped" and state != "stopped":
-                self._ours = self._releasing = False
-            self._state = state
-
-    def sent(self, kind: Kind) -> None:
-        """The replay sent an instruction of `kind`."""
-        if kind is Kind.SHUTDOWN:
-            self.sent_shutdown = True
-        with self._lock:
-            if kind is Kind.STOP:
-                self._ours, self._releasing = True, False
-            elif kind is Kind.RELEASE and self._ours:
-                self._releasing = True
-
-    def foreign(self) -> bool:
-        """Whether the arm is stopped, and not by the replay's own stop."""
-        with self._lock:
-            return self._state == "stopped" and not self._ours
+        if state:
+            self.state = state
+            self.came.set()
 
 
 def _reporter(report: Any, instr: Any) -> Callable[[Any], None]:
