@@ -298,10 +298,13 @@ def family(pid: int) -> list[int]:
 
 
 def kill_all(pids: list[int]) -> None:
-    """SIGKILL each of `pids` (a `family`). One already gone is not an error: the children
-    of `al5d serve` die with it (`dies_with_parent`) and are reaped at once (seen: a CI run
-    beside two busy loops found the bridge gone by the time the test came to kill it)."""
-    for pid in pids:
+    """SIGKILL each of `pids` (a `family`), its children before their parent. One already
+    gone is not an error (seen: a CI run beside two busy loops found the bridge gone by the
+    time the test came to kill it). Children first: killed after their parent, they died
+    with it (`dies_with_parent`) and were reaped at once, and their pids could already
+    belong to another process (pids wrap, at 32,768 on the CI machine): a CI run's worker
+    was once killed outright, with nothing said, as its test killed a server this way."""
+    for pid in reversed(pids):
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
 
