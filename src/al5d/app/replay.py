@@ -63,6 +63,11 @@ class BadRecording(Exception):
     """The file is no recording that can be replayed: check its name, or record it again."""
 
 
+class CutShort(BadRecording):
+    """A recording damaged or cut short (its recorder killed): what comes before the
+    damage can be replayed (`--partial`)."""
+
+
 @dataclass(frozen=True)
 class Fields:
     """One recorded instruction's fields, checked: what `ArmInstruction` holds."""
@@ -202,7 +207,7 @@ class _Reader:
                 f.seek(0)
                 mcap = f.read(len(MCAP_MAGIC)) == MCAP_MAGIC
                 what = "is damaged or cut short" if mcap else "is not an MCAP recording"
-                raise BadRecording(
+                raise (CutShort if mcap else BadRecording)(
                     f"{self.path} {what} ({_after(channel, message, n)}: {_named(e)})"
                 ) from None
 
@@ -238,8 +243,8 @@ class _Reader:
         try:
             for each in self.instructions():
                 found.instructions[each.topic] += 1
-        except BadRecording as e:
-            if not partial or "is damaged or cut short" not in str(e):
+        except CutShort as e:
+            if not partial:
                 raise
             found.damage = str(e)
         return found
@@ -427,8 +432,8 @@ def replay(
         topic = choose_topic(path, survey.instructions, arm, namespace)
     except BadRecording as e:
         # An outside try did not learn of --partial from the refusal of a file cut short.
-        cut = "is damaged or cut short" in str(e)
-        hint = "; --partial replays the instructions before the damage" if cut else ""
+        partial_hint = "; --partial replays the instructions before the damage"
+        hint = partial_hint if isinstance(e, CutShort) else ""
         print(f"al5d replay: {e}{hint}", file=err)
         return exits.BAD_INPUT
     except KeyboardInterrupt:
