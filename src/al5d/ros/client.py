@@ -142,9 +142,9 @@ class Client:
     A context manager: leaving the `with` block closes it. Left as the block ends (or by
     `sys.exit`), what it sent goes on. Left by an exception (Ctrl-C's KeyboardInterrupt,
     an error of the script), what it commanded and is not over is halted, and its
-    waiting moves are cancelled, as for a client killed: it closes without its goodbye
-    (`close(halt=True)`). Neither stops (locks) the arm. A client left open is closed
-    when the interpreter exits, the same way by how the script ended.
+    waiting moves are cancelled, as for a client killed (`close(halt=True)`). Neither
+    stops (locks) the arm. A client left open is closed when the interpreter exits, the
+    same way by how the script ended.
     """
 
     def __init__(
@@ -459,9 +459,9 @@ class Client:
     def close(self, halt: bool = False, why: str = "close(halt=True)") -> None:
         """End the client's lane, or its node and ROS context; again, or at exit, it does
         nothing. With `halt`, what this client commanded and is not over is halted, and
-        its waiting moves are cancelled (`why` says why, in a WARNING): it leaves without
-        its goodbye, so that the server takes it for lost (over the lane at once, over
-        ROS 2 once its lease, `server.client_lease_s`, has run out)."""
+        its waiting moves are cancelled (`why` says why, in a WARNING, and over ROS 2 to
+        the server too): the server takes it for lost at once (over ROS 2, were that word
+        lost, once its lease, `server.client_lease_s`, has run out)."""
         with self._closing:
             if self._closed:
                 return
@@ -473,7 +473,7 @@ class Client:
                     "(the server takes it for lost)",
                     why,
                 )
-            self._way.close(halt)
+            self._way.close(why if halt else "")
 
 
 #: Every client not yet closed, closed at interpreter exit (`_close_open_clients`).

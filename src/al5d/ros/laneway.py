@@ -76,7 +76,7 @@ class Way(Protocol):
     def config(self) -> ArmConfig: ...
     def view(self) -> ArmView: ...
     def ask(self, kind: Kind, timeout: float) -> Answer: ...
-    def close(self, halt: bool = False) -> None: ...
+    def close(self, halt: str = "") -> None: ...
 
 
 class LaneWay:
@@ -410,7 +410,7 @@ class LaneWay:
             self._open("stop", ANSWER_MIN_S)
         return outcome
 
-    def close(self, halt: bool = False) -> None:
+    def close(self, halt: str = "") -> None:
         self._closed = True
         with self._reopening:
             self.lane.close(bye=not halt)

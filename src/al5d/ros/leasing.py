@@ -167,17 +167,21 @@ class Leaser:
                     ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=every_ms)
                 )
 
-    def close(self, sent_by: Sequence[Any] = (), goodbye: bool = True) -> None:
-        """End the lease. Still in contact, say goodbye (what this client commanded goes on)
-        and wait a moment for what it sent (on `sent_by`, its writers) and that word to
-        reach the server: a client it never hears close, it takes for lost. Out of contact,
-        or without `goodbye`, none: the server takes this client for lost once its lease
-        has run out, and halts what it commanded, as this client said when it gave up."""
+    def close(self, sent_by: Sequence[Any] = (), left_by: str = "") -> None:
+        """End the lease. Still in contact, say goodbye and wait a moment for what it sent
+        (on `sent_by`, its writers) and that word to reach the server: a client it never
+        hears close, it takes for lost. The goodbye names `left_by` where the client leaves
+        without seeing what it commanded through (what made it leave: KeyboardInterrupt),
+        and the server halts that at once; else what it commanded goes on. Out of contact,
+        none: the server takes this client for lost once its lease has run out, and halts
+        what it commanded, as this client said when it gave up."""
         self._closing.set()
         self._thread.join()
-        if self.deaf() or not goodbye:
+        if self.deaf():
             return
-        self._pub.publish(ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=0))
+        self._pub.publish(
+            ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=0, left_by=left_by)
+        )
         with contextlib.suppress(Exception):  # what it sent, then its last word
             for pub in (*sent_by, self._pub):
                 pub.wait_for_all_acked(Duration(seconds=BYE_S))

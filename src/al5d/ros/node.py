@@ -260,9 +260,12 @@ class ArmNode(Node):
         came = came_ns(info)
         with self._leases_lock:
             self.leases.heard(str(msg.client), msg.sent_ns, msg.every_ms, now(), came)
-        if msg.every_ms == 0:  # closed: what it commanded goes on
+        if msg.every_ms == 0:  # closed: what it commanded goes on, unless it left by an error
+            why = f"it left by {str(msg.left_by)[:80]}" if msg.left_by else ""
+            if why:
+                log.warning("client %s: %s, and what it commanded is halted", msg.client, why)
             with contextlib.suppress(LaneClosed):  # the owner has ended
-                self.arm.gone(str(msg.client), "")
+                self.arm.gone(str(msg.client), why)
 
     def _keep_leases(self) -> None:
         """Every tenth of the lease: a client not heard for the lease is lost, and what it

@@ -607,8 +607,8 @@ class RosWay:
         service.remove_pending_request(future)
         return None
 
-    def close(self, halt: bool = False) -> None:
-        """End the lease (with a goodbye if in contact and not `halt`: `Leaser.close`), and
-        end the node and its ROS context."""
-        self.lease.close([self.pub, self.safety_pub], goodbye=not halt)
+    def close(self, halt: str = "") -> None:
+        """End the lease (its goodbye, if in contact, says this client left by `halt`,
+        halting what it commanded: `Leaser.close`), and end the node and its ROS context."""
+        self.lease.close([self.pub, self.safety_pub], left_by=halt)
         self.spinner.close()
