@@ -56,7 +56,10 @@ def ended(proc: Proc) -> tuple[int, list[str], list[str]]:
     return code, proc.out.drain(), proc.err.drain()
 
 
-@pytest.mark.parametrize("args", [(), ("send",), ("run",), ("shell",), ("doctor",)])
+@pytest.mark.parametrize(
+    "args",
+    [(), ("send",), ("run",), ("shell",), ("doctor",), ("record",), ("replay",), ("calibrate",)],
+)
 def test_help_lists_the_exit_codes(args: tuple[str, ...]) -> None:
     code, out, _ = ended(Proc(*args, "--help"))
     assert code == exits.DONE

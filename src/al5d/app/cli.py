@@ -316,6 +316,8 @@ def _add_recordings(sub: Any) -> None:
     rec = sub.add_parser(
         "record",
         help="record the arms and their transforms in an MCAP file (rosbag2's format) until Ctrl-C",
+        epilog=exits.describe(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     rec.add_argument("file", help="the MCAP file to write, e.g. run.mcap (replaced if there)")
     rec.add_argument(
@@ -328,7 +330,12 @@ def _add_recordings(sub: Any) -> None:
     rec.add_argument("--duration", type=_seconds, help="seconds to record; default: until Ctrl-C")
     rec.set_defaults(func=commands.cmd_record)
 
-    rep = sub.add_parser("replay", help="send a recording's instructions again")
+    rep = sub.add_parser(
+        "replay",
+        help="send a recording's instructions again",
+        epilog=exits.describe(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     rep.add_argument("file", help="an MCAP file of al5d record or al5d serve --record")
     rep.add_argument(
         "--rate",
