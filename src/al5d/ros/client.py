@@ -473,7 +473,7 @@ class Client:
                     "(the server takes it for lost)",
                     why,
                 )
-            self._way.close(why if halt else "")
+            self._way.close((why or "close(halt=True)") if halt else "")
 
 
 #: Every client not yet closed, closed at interpreter exit (`_close_open_clients`).
