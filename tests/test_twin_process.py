@@ -18,6 +18,7 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
+from al5d import exits
 from al5d.arm.config import ArmConfig
 from al5d.ros.names import Names
 from al5d.ssc32u.driver import SSC32U
@@ -138,7 +139,9 @@ def test_the_twin_of_an_emulator_in_a_namespace_is_in_that_namespace(tmp_path: P
     """`al5d emulator --namespace left --physics`: the twin's topics are under /left, beside
     the server that drives that board (`al5d web --namespace left` shows it). Before, the
     option reached only the misaligned arm's true angles, and the twin was under the
-    configuration's namespace (none)."""
+    configuration's namespace (none). Its joints are named as the server's own there
+    (`left_shoulder`): an outside try found them unprefixed, which RViz and a second arm
+    match to nothing."""
     link = tmp_path / "left"
     joints: list[JointState] = []
     peer = Peer(results=False)
@@ -147,8 +150,25 @@ def test_the_twin_of_an_emulator_in_a_namespace_is_in_that_namespace(tmp_path: P
         peer.read(JointState, Names.of("left").twin_joint_states, joints.append, 10)
         board.out.wait_for(str(link), START_S)
         wait_until(lambda: joints, START_S, "the twin's joint states under /left")
+        assert {"left_shoulder", "left_gripper_left"} <= set(joints[-1].name), joints[-1].name
+        assert all(name.startswith("left_") for name in joints[-1].name), joints[-1].name
         board.popen.send_signal(signal.SIGINT)
         assert board.wait(60) == 0
     finally:
         board.kill()
         peer.close()
+
+
+def test_a_twin_that_cannot_render_says_why_in_a_line() -> None:
+    """`MUJOCO_GL` naming no GL MuJoCo has: the emulator ends at once, exit 2, with the
+    twin's reason and what to do, not a traceback (an outside try: a traceback from the
+    twin's process, then "did not start in 60 s" after 0.6 s)."""
+    board = Proc("emulator", "--physics", env={"MUJOCO_GL": "bogus"})
+    try:
+        assert board.wait(START_S) == exits.USAGE
+    finally:
+        board.kill()
+    err = "\n".join(board.err.drain())
+    assert "the physical twin could not start: RuntimeError: invalid value" in err, err
+    assert "MUJOCO_GL=bogus" in err and "egl" in err, err
+    assert "Traceback" not in err and "in 60 s" not in err, err

@@ -40,8 +40,7 @@ _ATTACHED: weakref.WeakKeyDictionary[Board, TwinLink] = weakref.WeakKeyDictionar
 
 
 class TwinFailed(RuntimeError):
-    """The twin's process did not start: its own words are above (stderr); check that
-    MuJoCo and Mesa are installed (`make install`) and MUJOCO_GL (egl or osmesa)."""
+    """The twin's process did not start: why, as it said (MuJoCo, its GL: `MUJOCO_GL`)."""
 
 
 @dataclass(frozen=True)
@@ -79,6 +78,8 @@ class TwinLink:
         self.deepest_mm: dict[str, float] = {}
         self.ended: dict[str, Any] | None = None
         self.ready: dict[str, Any] | None = None
+        #: Why it could not start, as it said (None: it did not say).
+        self.failed: str | None = None
         self._say = say or (lambda text: log.warning("twin: %s", text))
         self._changed = threading.Condition()
         self._pulses: queue.SimpleQueue[str | None] = queue.SimpleQueue()
@@ -114,9 +115,14 @@ class TwinLink:
                 lambda: self.ready is not None or self.ended is not None, READY_S
             )
         if self.ready is None:
+            failed, ended = self.failed, self.ended is not None
             self.close()
+            if failed:
+                raise TwinFailed(f"the physical twin could not start: {failed}")
             raise TwinFailed(
-                f"the physical twin did not start in {READY_S:.0f} s (exit {self._proc.poll()})"
+                f"the physical twin ended as it started (exit {self._proc.poll()})"
+                if ended
+                else f"the physical twin did not start in {READY_S:.0f} s"
             )
         _ATTACHED[board] = self
         cam = self.ready.get("camera") or "no camera"
@@ -162,6 +168,8 @@ class TwinLink:
         with self._changed:
             if "ready" in event:
                 self.ready = event["ready"]
+            elif "failed" in event:
+                self.failed = str(event["failed"])
             elif "held" in event:
                 self.held.append(event["held"])
             elif "objects" in event:

@@ -64,8 +64,12 @@ class TwinNode:
         scene: Scene,
         camera_pose: tuple[Vec3, Quat] | None,
         intrinsics: Intrinsics | None,
+        joint_prefix: str = "",
     ) -> None:
         self.names = names
+        #: Before each URDF joint name, as the server's own joint states and URDF have it
+        #: (`server.joint_prefix`, or the namespace's: `left_`).
+        self.joint_prefix = joint_prefix
         self.scene = scene
         self.base = names.frame_prefix + BASE_LINK
         self.context = start_context()
@@ -92,12 +96,13 @@ class TwinNode:
         return self.node.get_clock().now().to_msg()
 
     def publish_joints(self, values: Mapping[str, float], stamp: object) -> None:
-        """The twin's joints, URDF names and values (the fingers' half gaps included)."""
+        """The twin's joints, URDF names (prefixed) and values (the fingers' half gaps
+        included)."""
         msg = JointState()
         msg.header.stamp = stamp
         names = [n for n in values if n != "gripper"] + ["gripper", *GRIPPER_FINGERS]
         gap = values["gripper"]
-        msg.name = names
+        msg.name = [self.joint_prefix + n for n in names]
         msg.position = [float(values[n]) for n in names[:-3]] + [gap, gap / 2, gap / 2]
         self.joints.publish(msg)
 

@@ -6,8 +6,9 @@ then one JSON line per change of a channel's pulses (`{"ch": 1, "pulse": [on, st
 end_us, t0, t1, offset_us]}`). Its stdout: one JSON line per event, for its board's
 process (`al5d.twin.link`): `ready`, `held` (a joint held short), `objects` (their poses,
 a few times a second while they move), `behind` (the physics could not keep up and
-skipped time), `end`. It ends when stdin closes (its board's process has gone) or at
-SIGTERM; SIGINT (a terminal's Ctrl-C, which its board's process handles) does not end it.
+skipped time), `end`; or `failed` (it could not start: why). It ends when stdin closes
+(its board's process has gone) or at SIGTERM; SIGINT (a terminal's Ctrl-C, which its
+board's process handles) does not end it.
 
 A process of its own, so that neither the physics nor the software rendering ever holds
 the board's or the server's interpreter, and behind both for the CPU (`NICE`): on a busy
@@ -100,7 +101,8 @@ class Loop:
                 d = self.twin.data
                 pose = camera_pose(d.cam_xpos[0], d.cam_xmat[0])
             intrinsics = self.camera.intrinsics if self.camera is not None else None
-            self.node = TwinNode(Names.of(start.namespace), self.scene, pose, intrinsics)
+            prefix = config.server.joint_prefix_in(start.namespace)
+            self.node = TwinNode(Names.of(start.namespace), self.scene, pose, intrinsics, prefix)
         self.pulses: queue.SimpleQueue[tuple[int, Any]] = queue.SimpleQueue()
         self.done = threading.Event()
         self.busy_s = 0.0
@@ -236,7 +238,19 @@ def main() -> int:
     if not line:
         return 0
     start = Start(**json.loads(line))
-    loop = Loop(start, sys.stdout)
+    try:
+        loop = Loop(start, sys.stdout)
+    except Exception as e:  # whatever MuJoCo or its GL raised: said in a line, no traceback
+        gl = os.environ.get("MUJOCO_GL", "")
+        why = f"{type(e).__name__}: {e}"
+        if "gl" in why.lower():  # MuJoCo's renderer: a GL missing, or MUJOCO_GL not one
+            why += (
+                f" (MUJOCO_GL={gl}: its camera renders with egl, the default, from Debian's "
+                "Mesa, which `make install` installs; osmesa needs libosmesa6; or give the "
+                "scene no camera)"
+            )
+        print(json.dumps({"failed": why}), flush=True)
+        return 1
     signal.signal(signal.SIGTERM, lambda signum, frame: loop.done.set())
     threading.Thread(target=loop.read, args=(sys.stdin,), name="twin-pulses", daemon=True).start()
     try:
