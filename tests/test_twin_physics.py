@@ -269,3 +269,17 @@ def test_a_joint_held_short_by_less_than_its_servo_gives_is_not_said_held_by_its
         "wrist held 9 deg short of its target by what it holds or touches, not by its load: "
         "0 kg cm needed, the servo gives 9.6"
     )
+
+
+def test_the_shipped_scenes_objects_are_clear_of_every_preset(config: ArmConfig) -> None:
+    """Through every preset, from power-up and back, nothing on the shipped scene's table
+    moves: `ready` is the first command a user sends (an outside try: at (330, 30) the
+    block stood where ready puts the fingers, and was knocked over without a word)."""
+    rig = TwinRig(config, load_scene())
+    starts = {name: state.position for name, state in rig.twin.objects().items()}
+    for preset in [*config.presets, "ready"]:
+        rig.move(config.presets[preset], 1500)
+        rig.settle(2.0)
+        for name, state in rig.twin.objects().items():
+            moved_mm = math.dist(state.position, starts[name]) * 1000
+            assert moved_mm < 1.0, f"{name} moved {moved_mm:.1f} mm at {preset}"

@@ -508,14 +508,15 @@ def describe_errors(err: ValidationError, source: str, names: Mapping[str, str])
     where one is close."""
     lines = []
     for e in err.errors():
-        loc = ".".join(str(x) for x in e["loc"]) or "(top level)"
+        loc = ".".join(str(x) for x in e["loc"])
         loc = names.get(loc, loc)
         msg = e["msg"].removeprefix("Value error, ")
         if e["type"] == "extra_forbidden":
             msg += _unknown_key_hint(e["loc"])
         shown = e.get("input")
         value = "" if isinstance(shown, Mapping) else f" (value: {shown!r})"
-        lines.append(f"{source}: {loc}: {msg}{value}")
+        # A check of the whole names the keys it judges in its message.
+        lines.append(f"{source}: {loc}: {msg}{value}" if loc else f"{source}: {msg}{value}")
     return "\n".join(lines)
 
 
