@@ -5,14 +5,17 @@ holds the camera's pictures beside the joint states, read back with the `mcap` r
 
 from __future__ import annotations
 
+import math
 import re
 import signal
 from collections import Counter
 from pathlib import Path
 
+import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from al5d.app.demo import Placement, tilt_deg
 from al5d.ros.names import Names
 from al5d_rig.proc import Proc
 
@@ -66,3 +69,24 @@ def test_the_demo_picks_the_cup_and_sets_it_down_at_its_goal_recorded(tmp_path: 
     assert picture is not None
     assert (picture.width, picture.height, picture.encoding) == (320, 240, "rgb8")
     assert len(picture.data) == 320 * 240 * 3
+
+
+def test_the_demos_verdict_says_how_each_object_ended() -> None:
+    """Set down, standing, at its goal: held. A cup fallen on its side, or never lifted, is
+    said so and MISSED (an outside try read "set down" of both: 13.1 mm above the table
+    was a cup of radius 13 on its side)."""
+    side = (math.sin(math.pi / 4), 0.0, 0.0, math.cos(math.pi / 4))  # 90 deg about x
+    assert tilt_deg(side) == pytest.approx(90.0)
+    assert tilt_deg((0.0, 0.0, math.sin(0.3), math.cos(0.3))) == pytest.approx(0.0)  # yawed
+    goal = (200.0, 110.0)
+    placed = Placement("cup", goal, (197.8, 108.7, 0.0), 70.0, 1.0)
+    assert placed.held and "set down at (197.8, 108.7) mm" in placed.line()
+    fallen = Placement("cup", goal, (211.8, -83.3, 13.1), 14.0, 90.0)
+    assert not fallen.held
+    assert "lies on its side (90 deg from upright) at (211.8, -83.3)" in fallen.line()
+    assert "MISSED" in fallen.line() and "set down" not in fallen.line()
+    tipped_at_goal = Placement("cup", goal, (200.0, 110.0, 13.0), 70.0, 85.0)
+    assert not tipped_at_goal.held
+    never = Placement("cup", goal, (200.0, -100.0, 0.0), 0.0, 0.0)
+    assert not never.held
+    assert "cup: never lifted; stands at (200.0, -100.0) mm" in never.line()

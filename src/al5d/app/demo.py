@@ -35,36 +35,58 @@ REFUSED_SEQUENCE = DEMO_SEQUENCE.with_name("refused.seq")
 PICK_SEQUENCE = DEMO_SEQUENCE.with_name("pick.seq")
 #: An object set down this close to its goal is where it was meant to go...
 GOAL_MM = 10.0
-#: ...and it must have been lifted at least this high on its way (carried, not pushed).
+#: ...and it must have been lifted at least this high on its way (carried, not pushed)...
 LIFT_MM = 50.0
+#: ...and stand: tilted more than this, it lies on its side (a cup knocked over).
+UPRIGHT_DEG = 30.0
 
 
 @dataclass(frozen=True)
 class Placement:
-    """Where an object with a goal ended (mm, base frame), and how high it was lifted."""
+    """Where an object with a goal ended (mm, base frame), how far it leans from upright
+    (degrees), and how high it was lifted."""
 
     name: str
     goal: tuple[float, float]
     ended: tuple[float, float, float]
     lifted_mm: float
+    tilt_deg: float = 0.0
 
     @property
     def off_mm(self) -> float:
         return math.dist(self.goal, self.ended[:2])
 
     @property
+    def upright(self) -> bool:
+        return self.tilt_deg <= UPRIGHT_DEG
+
+    @property
     def held(self) -> bool:
-        return self.off_mm <= GOAL_MM and self.lifted_mm >= LIFT_MM
+        return self.off_mm <= GOAL_MM and self.lifted_mm >= LIFT_MM and self.upright
 
     def line(self) -> str:
         x, y, z = (round(v, 1) + 0.0 for v in self.ended)  # no "-0.0"
         gx, gy = self.goal
         verdict = "held" if self.held else "MISSED"
+        # Said as it is: "set down" only for one lifted that stands (an outside try read
+        # "set down" of a cup never lifted, and of one fallen on its side).
+        was_lifted = self.lifted_mm >= 1
+        lifted = f"lifted {self.lifted_mm:.0f} mm at most" if was_lifted else "never lifted"
+        ended = "set down" if was_lifted else "stands"
+        if not self.upright:
+            ended = f"lies on its side ({self.tilt_deg:.0f} deg from upright)"
         return (
-            f"{self.name}: lifted {self.lifted_mm:.0f} mm at most; set down at ({x:.1f}, "
-            f"{y:.1f}) mm, {z:.1f} mm above the table, {self.off_mm:.1f} mm from its goal "
-            f"({gx:g}, {gy:g}): {verdict} (lifted >= {LIFT_MM:g} mm, within {GOAL_MM:g} mm)"
+            f"{self.name}: {lifted}; {ended} at ({x:.1f}, {y:.1f}) mm, {z:.1f} mm above the "
+            f"table, {self.off_mm:.1f} mm from its goal ({gx:g}, {gy:g}): {verdict} (lifted "
+            f">= {LIFT_MM:g} mm, upright, within {GOAL_MM:g} mm)"
         )
+
+
+def tilt_deg(quat: tuple[float, ...]) -> float:
+    """How far a body whose rotation is `quat` (x, y, z, w) leans from upright (degrees):
+    the angle of its z axis from the vertical."""
+    qx, qy = quat[0], quat[1]
+    return math.degrees(math.acos(max(-1.0, min(1.0, 1 - 2 * (qx * qx + qy * qy)))))
 
 
 def placements(twin: TwinLink) -> list[Placement]:
@@ -75,7 +97,7 @@ def placements(twin: TwinLink) -> list[Placement]:
         if obj.goal_mm is None or pose is None:
             continue
         ended = (pose.xyz[0] * 1000, pose.xyz[1] * 1000, pose.xyz[2] * 1000)
-        out.append(Placement(name, obj.goal_mm, ended, pose.lifted_m * 1000))
+        out.append(Placement(name, obj.goal_mm, ended, pose.lifted_m * 1000, tilt_deg(pose.quat)))
     return out
 
 
