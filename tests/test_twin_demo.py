@@ -87,6 +87,8 @@ def test_the_demos_verdict_says_how_each_object_ended() -> None:
     assert "MISSED" in fallen.line() and "set down" not in fallen.line()
     tipped_at_goal = Placement("cup", goal, (200.0, 110.0, 13.0), 70.0, 85.0)
     assert not tipped_at_goal.held
+    upside_down = Placement("cup", goal, (200.0, 110.0, 55.0), 70.0, 178.0)
+    assert not upside_down.held and "lies upside down (178 deg" in upside_down.line()
     never = Placement("cup", goal, (200.0, -100.0, 0.0), 0.0, 0.0)
     assert not never.held
     assert "cup: never lifted; stands at (200.0, -100.0) mm" in never.line()

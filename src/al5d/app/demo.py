@@ -74,7 +74,8 @@ class Placement:
         lifted = f"lifted {self.lifted_mm:.0f} mm at most" if was_lifted else "never lifted"
         ended = "set down" if was_lifted else "stands"
         if not self.upright:
-            ended = f"lies on its side ({self.tilt_deg:.0f} deg from upright)"
+            side = "upside down" if self.tilt_deg > 180 - UPRIGHT_DEG else "on its side"
+            ended = f"lies {side} ({self.tilt_deg:.0f} deg from upright)"
         return (
             f"{self.name}: {lifted}; {ended} at ({x:.1f}, {y:.1f}) mm, {z:.1f} mm above the "
             f"table, {self.off_mm:.1f} mm from its goal ({gx:g}, {gy:g}): {verdict} (lifted "

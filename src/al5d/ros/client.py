@@ -112,6 +112,10 @@ def _stop_seconds(value: object) -> float:
         return 0.0
 
 
+#: What a client closed with `halt` and no reason says made it leave.
+HALT_WHY = "close(halt=True)"
+
+
 def _left_halting(exc: object) -> bool:
     """Whether a client left with `exc` raised (a `with` block's, or the script's at exit)
     halts what it commanded: anything but a plain exit (SystemExit, a generator closed
@@ -456,7 +460,7 @@ class Client:
         self._check_open()
         return self._way.ask(Kind.SHUTDOWN, _seconds("timeout", timeout))
 
-    def close(self, halt: bool = False, why: str = "close(halt=True)") -> None:
+    def close(self, halt: bool = False, why: str = HALT_WHY) -> None:
         """End the client's lane, or its node and ROS context; again, or at exit, it does
         nothing. With `halt`, what this client commanded and is not over is halted, and
         its waiting moves are cancelled (`why` says why, in a WARNING, and over ROS 2 to
@@ -473,7 +477,7 @@ class Client:
                     "(the server takes it for lost)",
                     why,
                 )
-            self._way.close((why or "close(halt=True)") if halt else "")
+            self._way.close((why or HALT_WHY) if halt else "")
 
 
 #: Every client not yet closed, closed at interpreter exit (`_close_open_clients`).

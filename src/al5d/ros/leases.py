@@ -6,7 +6,8 @@ keeps one `Lease` per client here:
 
 - **Lost.** No lease heard for `server.client_lease_s`: the client is lost (cut off,
   killed, hung), and what it commanded is halted (`al5d.arm.core`'s `Gone`). A client
-  that closes says so (`every_ms` 0) and is forgotten: what it commanded goes on. A lease
+  that closes says so (`every_ms` 0) and is forgotten: what it commanded goes on, unless
+  its last word says it left by an error (`left_by`: halted at once, `al5d.ros.node`). A lease
   shows the client was there when it was sent, which is when it is read unless it waited
   (a server frozen for seconds reads what waited for it at once): it counts from the last
   lease's time on as far as its client's clock went on between the two, never later than

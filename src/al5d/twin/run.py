@@ -25,6 +25,7 @@ import signal
 import sys
 import threading
 import time
+import traceback
 from dataclasses import asdict, dataclass
 from typing import Any, TextIO
 
@@ -45,6 +46,9 @@ CATCH_UP_S = 0.06
 MAX_BEHIND_S = 1.0
 #: An object that moved less than this since it was last reported is not reported again.
 MOVED_M = 0.0005
+#: Words of what MuJoCo raises when the GL its renderer needs is missing, or `MUJOCO_GL`
+#: names none (egl, osmesa, glfw: a missing library, no display, no such value).
+GL_WORDS = ("OpenGL", "MUJOCO_GL", "glGetError", "GLFW", "EGL", "OSMesa", "mjr_makeContext")
 
 
 @dataclass(frozen=True)
@@ -203,7 +207,7 @@ class Loop:
         states = self.twin.objects()
         moved = {}
         for name, s in states.items():
-            key = (*s.position, s.lifted_m)
+            key = (*s.position, *s.rotation, s.lifted_m)  # a tilt that barely moves it too
             last = self._reported.get(name)
             if (
                 force
@@ -240,10 +244,12 @@ def main() -> int:
     start = Start(**json.loads(line))
     try:
         loop = Loop(start, sys.stdout)
-    except Exception as e:  # whatever MuJoCo or its GL raised: said in a line, no traceback
+    except Exception as e:  # said in a line to the board's process, which ends at it
         gl = os.environ.get("MUJOCO_GL", "")
         why = f"{type(e).__name__}: {e}"
-        if "gl" in why.lower():  # MuJoCo's renderer: a GL missing, or MUJOCO_GL not one
+        if not any(word in why for word in GL_WORDS):
+            traceback.print_exc()  # not MuJoCo's GL: a defect, with where it is
+        else:
             why += (
                 f" (MUJOCO_GL={gl}: its camera renders with egl, the default, from Debian's "
                 "Mesa, which `make install` installs; osmesa needs libosmesa6; or give the "
