@@ -43,18 +43,20 @@ UPRIGHT_DEG = 30.0
 
 @dataclass(frozen=True)
 class Placement:
-    """Where an object with a goal ended (mm, base frame), how far it leans from upright
-    (degrees), and how high it was lifted."""
+    """Where an object ended (mm, base frame), how far it leans from upright (degrees), and
+    how high it was lifted; against its goal, or, without one (`goal` None), against where
+    it stood (`start`): an object the arm was not sent to must not be knocked."""
 
     name: str
-    goal: tuple[float, float]
+    goal: tuple[float, float] | None
     ended: tuple[float, float, float]
     lifted_mm: float
     tilt_deg: float = 0.0
+    start: tuple[float, float] = (0.0, 0.0)
 
     @property
     def off_mm(self) -> float:
-        return math.dist(self.goal, self.ended[:2])
+        return math.dist(self.goal or self.start, self.ended[:2])
 
     @property
     def upright(self) -> bool:
@@ -62,10 +64,19 @@ class Placement:
 
     @property
     def held(self) -> bool:
-        return self.off_mm <= GOAL_MM and self.lifted_mm >= LIFT_MM and self.upright
+        carried = self.goal is None or self.lifted_mm >= LIFT_MM
+        return self.off_mm <= GOAL_MM and carried and self.upright
 
     def line(self) -> str:
         x, y, z = (round(v, 1) + 0.0 for v in self.ended)  # no "-0.0"
+        if self.goal is None:
+            sx, sy = self.start
+            leans = "" if self.upright else f", {self.tilt_deg:.0f} deg from upright"
+            return (
+                f"{self.name}: no goal; {self.off_mm:.1f} mm from where it stood ({sx:g}, "
+                f"{sy:g}){leans}: {'stayed' if self.held else 'MISSED'} (within "
+                f"{GOAL_MM:g} mm, upright)"
+            )
         gx, gy = self.goal
         verdict = "held" if self.held else "MISSED"
         # Said as it is: "set down" only for one lifted that stands (an outside try read
@@ -91,14 +102,18 @@ def tilt_deg(quat: tuple[float, ...]) -> float:
 
 
 def placements(twin: TwinLink) -> list[Placement]:
-    """Every object of the twin's scene that has a goal, as the twin last saw it."""
+    """Every object of the twin's scene on the table, as the twin last saw it."""
     out = []
     for name, obj in twin.scene.objects.items():
         pose = twin.objects.get(name)
-        if obj.goal_mm is None or pose is None:
-            continue
-        ended = (pose.xyz[0] * 1000, pose.xyz[1] * 1000, pose.xyz[2] * 1000)
-        out.append(Placement(name, obj.goal_mm, ended, pose.lifted_m * 1000, tilt_deg(pose.quat)))
+        if pose is None or (obj.in_gripper and obj.goal_mm is None):
+            continue  # (one carried from the start stood nowhere on the table)
+        mm = tuple(v * 1000 for v in pose.xyz)
+        start = (pose.start[0] * 1000, pose.start[1] * 1000)
+        lifted = pose.lifted_m * 1000
+        out.append(
+            Placement(name, obj.goal_mm, (mm[0], mm[1], mm[2]), lifted, tilt_deg(pose.quat), start)
+        )
     return out
 
 
@@ -107,7 +122,7 @@ def run_demo(
 ) -> int:
     """Run the sequence through `al5d run` against this process's server; 0 if SA03 held
     (and with `physics`, a scene file or "" for the shipped one, every object set down at
-    its goal)."""
+    its goal, and every other where it stood)."""
     if sequence is None:
         sequence = PICK_SEQUENCE if physics is not None else DEMO_SEQUENCE
 
@@ -160,7 +175,7 @@ def run_demo(
     print(format_table(rows))
     if physics is not None:
         print("\nWhere the objects ended against their goals (the physical twin):")
-        print("\n".join(p.line() for p in placed) or "no object of the scene has a goal")
+        print("\n".join(p.line() for p in placed) or "no object on the scene's table")
     on_purpose = " (1 is expected: the demo refuses and cancels on purpose)"
     expected = "" if physics is not None else on_purpose
     print()
