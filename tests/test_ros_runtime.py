@@ -171,6 +171,71 @@ def test_a_writer_hears_its_reader_has_what_it_sent_well_within_a_second() -> No
     assert done.stdout.split() == ["True"] * 3, done.stdout + done.stderr
 
 
+#: A writer whose reader (another process, stopped) never acknowledges: how far a thread
+#: of the writer's process counts while it sleeps 1 s, and while `acked` waits 1 s.
+UNACKED_READER = """
+from al5d.ros.dds import start_context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+context = start_context()
+node = Node("al5d_unacked_reader", context=context)
+qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+node.create_subscription(String, "/al5d_unacked", lambda _: None, qos)
+executor = SingleThreadedExecutor(context=context)
+executor.add_node(node)
+executor.spin()
+"""
+UNACKED = """
+import os, signal, subprocess, sys, threading, time
+os.environ.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
+from al5d.ros.dds import acked, start_context
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+reader = subprocess.Popen([sys.executable, "-c", sys.argv[1]])
+try:
+    node = Node("al5d_unacked_writer", context=start_context())
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    pub = node.create_publisher(String, "/al5d_unacked", qos)
+    deadline = time.monotonic() + 30
+    while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(1.0)
+    os.kill(reader.pid, signal.SIGSTOP)
+    for _ in range(20):
+        pub.publish(String(data="x" * 1000))
+    count, done = [0], threading.Event()
+    def counting():
+        while not done.is_set():
+            count[0] += 1
+    thread = threading.Thread(target=counting)
+    thread.start()
+    time.sleep(0.2)
+    c0 = count[0]; time.sleep(1.0); asleep = count[0] - c0
+    c0 = count[0]; ok = acked([pub], 1.0); waiting = count[0] - c0
+    done.set(); thread.join()
+    print(ok, waiting / asleep)
+finally:
+    reader.kill()
+"""
+
+
+def test_waiting_for_a_reader_that_never_acknowledges_holds_nothing_else_of_the_process() -> None:
+    """`al5d.ros.dds.acked` (a closing client's wait for its last words to be heard, the
+    server's for its last results) lets the process's other threads run: rclpy's
+    `wait_for_all_acked` held the GIL while it waited (a thread counted 1 % of its pace),
+    and a CI run's emulated board in a closing client's process went unanswered."""
+    done = subprocess.run(
+        [sys.executable, "-c", UNACKED, UNACKED_READER], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    ok, share = done.stdout.split()
+    assert ok == "False", done.stdout  # the reader was stopped: nothing acknowledged
+    assert float(share) > 0.3, done.stdout  # the counting thread ran (about 1 %: held)
+
+
 def udp_sockets(pid: int) -> list[ipaddress.IPv4Address]:
     """The local address of every UDP socket process `pid` holds (what `ss -uanp` shows),
     read where `ss` reads it: the socket inodes among its file descriptors, and

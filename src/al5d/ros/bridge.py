@@ -22,7 +22,6 @@ import os
 from collections.abc import Sequence
 from typing import Any
 
-import rclpy
 from rclpy.context import Context
 from rclpy.node import Node
 
@@ -30,7 +29,7 @@ from al5d.arm.config import ArmConfig, ConfigError
 from al5d.owner.client import Remote
 from al5d.priority import built_urgently
 from al5d.ros import params
-from al5d.ros.dds import dds_profile, start_context
+from al5d.ros.dds import acked, dds_profile, start_context
 from al5d.ros.executors import Spinner
 from al5d.ros.names import NODE, SAFETY_NODE, Names
 from al5d.ros.node import ActionsNode, ArmNode, RobotNode
@@ -191,7 +190,7 @@ class Bridge:
         self.node.results.close()
         self.node.detach()
         self.robot.detach()
-        self.node.result_pub.wait_for_all_acked(rclpy.duration.Duration(seconds=1))
+        acked([self.node.result_pub], 1.0)
         if self.stop is not None:
             self.stop.close()
         self.safety_spinner.close()

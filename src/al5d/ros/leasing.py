@@ -19,11 +19,11 @@ from collections.abc import Sequence
 from typing import Any
 
 from al5d_interfaces.msg import ClientLease
-from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from al5d.arm.config import MAX_CLIENT_LEASE_S
+from al5d.ros.dds import acked
 from al5d.ros.names import Names
 from al5d.ros.qos import QOS_LATEST, QOS_LEASES
 
@@ -182,8 +182,7 @@ class Leaser:
         # on a busy host let the lease run out before the goodbye (a CI run).
         if not self.deaf():
             with contextlib.suppress(Exception):
-                for pub in sent_by:
-                    pub.wait_for_all_acked(Duration(seconds=BYE_S))
+                acked(sent_by, BYE_S * len(sent_by))
         self._closing.set()
         self._thread.join()
         if self.deaf():
@@ -192,4 +191,4 @@ class Leaser:
             ClientLease(client=self.key, sent_ns=time.time_ns(), every_ms=0, left_by=left_by)
         )
         with contextlib.suppress(Exception):
-            self._pub.wait_for_all_acked(Duration(seconds=BYE_S))
+            acked([self._pub], BYE_S)
