@@ -6,11 +6,11 @@ input the core takes.
 emulated board on a virtual wire: moves, moves whose sender waits only so long,
 set-points of a stream (bursts, a stream that goes quiet, one that goes on through a
 stop), trajectories, Cartesian lines, stops (some seen twice, as the bridge's node and
-the stop watcher both see a stop on the topic), releases (some sent before the last stop
-and arriving after it), cancels, lost clients, a board pulled and plugged back, a silent
-board, a reset, time passing (some of it with the owner's thread not running: a frozen or
-starved owner) and a shutdown; several of them at one instant, in any order. After every
-input:
+the stop watcher both see a stop on the topic), stops that come after a release sent
+after them, releases (some sent before the last stop and arriving after it), cancels,
+lost clients, a board pulled and plugged back, a silent board, a reset, time passing (some
+of it with the owner's thread not running: a frozen or starved owner) and a shutdown;
+several of them at one instant, in any order. After every input:
 
 - the state and the outcomes agree: `ready`, `stopped`, `fault` and `shutting_down` only
   while no motion request is without its outcome, `moving` only while one is;
@@ -26,6 +26,8 @@ input:
 and at the end of each example:
 
 - no move went to the board after a stop's STOP and before a release was done;
+- a stop that comes after a release sent after it halts the arm but leaves it as that
+  release did (unlocked); one that finds the arm locked leaves it locked;
 - a release sent before the stop that holds the lock was refused;
 - every request has its outcome within a bound of virtual time, and a probe move after
   a stop and a release is done.
@@ -141,7 +143,10 @@ class CoreProtocol(RuleBasedStateMachine):
             resolved = {e.ref for e in effects if isinstance(e, Resolve)}
             if ev.ref not in resolved:
                 self.problems.append(f"{ev.instr.kind.value} {ev.instr.id} not answered at once")
+        # A late stop's STOP is not a lock's: a release sent after it stands.
         stop = isinstance(ev, Ask) and ev.instr.kind is Kind.STOP
+        late = isinstance(ev, Ask) and ev.ref in self.by_ref and self.by_ref[ev.ref].kind
+        stop = stop and late != "late stop"
         for e in effects:
             if stop and isinstance(e, Send) and e.data.startswith(p.CANCEL + b"STOP"):
                 self.stop_sends.append(self.sim.t)
@@ -286,6 +291,33 @@ class CoreProtocol(RuleBasedStateMachine):
         if times != 1:
             self.problems.append(f"a stop seen twice was told {times} times")
 
+    def _late_stop(self, pick: int) -> None:
+        """A stop sent before a release that was done, coming only now (held up behind a
+        flood, or across a link that was down): obeyed (its STOP written where the board is
+        reached), but the arm stays as it is: unlocked if that release left it so."""
+        outcomes = self.sim.outcomes
+        released = [
+            a
+            for a in self.asked
+            if a.kind == "release" and a.ref in outcomes and outcomes[a.ref].ok
+        ]
+        if not released:
+            return
+        release = released[pick % len(released)]
+        sent = (release.instr.sent_ns or release.wall) - 1_000_000
+        self.sim.run(0)  # what fell due while the owner did not run (`stall`) is done first
+        locked, writes = self.sim.core.locked, len(self.sim.sent)
+        late = dataclasses.replace(ins.stop(), sent_ns=sent)
+        asked = self._ask("late stop", late)
+        if not self.sim.outcomes[asked.ref].ok:
+            self.problems.append(f"a late stop not obeyed: {self.sim.outcomes[asked.ref]}")
+        if self.sim.core.locked != locked:
+            self.problems.append(f"a late stop turned the lock from {locked}")
+        if self.sim.core.link.open and not any(
+            data.startswith(p.CANCEL + b"STOP") for _, data in self.sim.sent[writes:]
+        ):
+            self.problems.append("a late stop wrote no STOP")
+
     def _copy(self, pick: int) -> None:
         """A copy of a stop obeyed earlier (its key, an id of its own), coming now, after
         whatever came since (a release): answered and told once under its id, as the stop
@@ -369,6 +401,10 @@ class CoreProtocol(RuleBasedStateMachine):
         self._copy(pick)
 
     @precondition(lambda self: not self.ended)
+    @rule(pick=st.integers(0, 100))
+    def late_stop(self, pick: int) -> None:
+        self._late_stop(pick)
+
     @rule(late=st.booleans())
     def release(self, late: bool) -> None:
         self._release(late)
@@ -440,7 +476,16 @@ class CoreProtocol(RuleBasedStateMachine):
     @rule(
         actions=st.lists(
             st.sampled_from(
-                ["moves", "impatient", "stop", "stop twice", "release", "cancel", "set-points"]
+                [
+                    "moves",
+                    "impatient",
+                    "stop",
+                    "stop twice",
+                    "late stop",
+                    "release",
+                    "cancel",
+                    "set-points",
+                ]
             ),
             min_size=2,
             max_size=4,
@@ -455,6 +500,7 @@ class CoreProtocol(RuleBasedStateMachine):
             "impatient": lambda: self._impatient(2, rng),
             "stop": lambda: self._stop(False),
             "stop twice": lambda: self._stop(True),
+            "late stop": lambda: self._late_stop(seed),
             "release": lambda: self._release(False),
             "cancel": lambda: self._cancel(seed),
             "set-points": lambda: self._set_points(3, rng, False),

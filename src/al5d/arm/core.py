@@ -61,7 +61,9 @@ owner took it, where the channel does not say), and the order of sending, not of
 
 1. A release unlocks only if it was sent after every stop that holds the lock; an
    older one is refused with a reason naming that stop. So a stop is never undone by a
-   release sent before it, whatever the channels.
+   release sent before it, whatever the channels. The other way, a stop that comes after
+   a release sent after it, which unlocked the arm, is obeyed (the arm halted, everything
+   pending dropped) but leaves the arm unlocked: that release stands.
 2. A move sent before the last event that dropped every pending move (a stop, a fault,
    the shutdown) is cancelled by that event, as it would have been had it waited in
    the queue; a move sent between a stop and the release that unlocked the arm is
@@ -126,6 +128,7 @@ from al5d.arm.instruction import (
     beyond_its_word,
 )
 from al5d.arm.jobs import NO_JOBS, Job, Mode, outcome
+from al5d.arm.order import Order
 from al5d.arm.states import (
     LOCKED_BY_STOP,
     Event,
@@ -217,6 +220,9 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
             out.append(Resolve(ev.ref, answer, ev.tell))
             return replace(c, order=c.order.obeyed(copy, answer))
     sent = _sent(ev)
+    # Rule 1, the other way: a release sent after this stop has unlocked the arm already
+    # (the stop came late: behind a flood, or across a link that was down).
+    before = c.order if not c.locked and sent < c.order.released_ns else None
     c = running.over(c, ev.t, out)
     c, jobs = drop(c, "cancelled by stop", sent)
     c = lock_arm(c, LOCKED_BY_STOP, sent)
@@ -228,6 +234,13 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
         else f"the serial link is lost ({c.fault or 'the board not reached yet'}); the arm "
         "is locked, and STOP is written as soon as the board is reached again"
     )
+    if before is not None:
+        c = _released_since(c, before, out)
+        later_ms = (before.released_ns - sent) / 1e6
+        note = (
+            f"halted; it was sent {later_ms:.0f} ms before the release that had unlocked "
+            "the arm, which stands: the arm is not locked" + (f" ({note})" if note else "")
+        )
     done = outcome(ev.instr, Result.DONE, note, ev.t, ev.t)
     out.append(Resolve(ev.ref, done, ev.tell))
     if ev.key is not None:
@@ -241,6 +254,15 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
             c, "stopped before the arm reached park: the arm is not parked", ev.t, out
         )
     return c
+
+
+def _released_since(c: Core, before: Order, out: Out) -> Core:
+    """A late stop obeyed (halted, everything pending dropped): the release sent after it,
+    taken before it came, unlocks the arm again; the lock's record is as that release left it."""
+    if next_state(c.state, Event.RELEASE, guards(c)) is not None:
+        c = fire(c, Event.RELEASE, out)
+    order = replace(c.order, locked_ns=before.locked_ns, locked_by=before.locked_by)
+    return replace(c, locked=False, order=order)
 
 
 def _release(c: Core, ev: Ask, out: Out) -> Core:

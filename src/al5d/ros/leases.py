@@ -133,6 +133,11 @@ class Leases:
         """A request that took at most half a lease longer than the quickest trip."""
         return wall_ns - sent_ns - lease.offset_ns <= self.lease_s * 5e8
 
+    def offset(self, key: str) -> int | None:
+        """Client `key`'s `Lease.offset_ns`, or None before any sample of its clock."""
+        lease = self._leases.get(key)
+        return lease.offset_ns if lease is not None and lease.gaps else None
+
     def on_server_clock(self, key: str, sent_ns: int) -> int:
         """`sent_ns` of client `key`'s clock, on the server's (as it is, for an unknown client)."""
         lease = self._leases.get(key)

@@ -313,9 +313,10 @@ class ArmNode(Node):
             with contextlib.suppress(LaneClosed):  # the owner has ended: refused below
                 self._halt(verdict.lost)
             stale = verdict.stale
+        if msg.instruction.strip().lower() == "stop":  # as the stop watcher's
+            sent = stop_time(sent, came, self.leases.offset(client) if client else None)
+        elif sent is not None and client:
             sent = self.leases.on_server_clock(client, sent)
-        if msg.instruction.strip().lower() == "stop":
-            sent = stop_time(sent, came)  # as the stop watcher's
         instr = from_message(msg, self.presets, self.model, sent)
         if isinstance(instr, str):
             self.refuse(msg.id or new_id(), msg.instruction, instr)

@@ -37,7 +37,7 @@ from collections.abc import Callable
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Any
 
-from al5d_interfaces.msg import ArmInstruction
+from al5d_interfaces.msg import ArmInstruction, ClientLease
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
@@ -46,8 +46,9 @@ from std_srvs.srv import Trigger
 from al5d.arm.instruction import Instruction, Kind
 from al5d.owner.client import LaneClosed, Remote
 from al5d.ros.convert import came_ns, from_message, sent_ns, stop_key, stop_time
+from al5d.ros.leases import Leases
 from al5d.ros.names import SAFETY_NODE, STOP_NODE, Names, pinned
-from al5d.ros.qos import QOS_SERVICES, qos_watch
+from al5d.ros.qos import QOS_LEASES, QOS_SERVICES, qos_watch
 from al5d.ros.workarounds import (
     Reader,
     ReaderOnly,
@@ -109,7 +110,8 @@ def answered(arm: Remote, kind: Kind, sent: int | None) -> tuple[bool, str]:
 def _trigger(arm: Remote, kind: Kind) -> Callable[[Any, Any, int], Any]:
     def answer(request: Trigger.Request, response: Trigger.Response, sent: int) -> Any:
         if kind is Kind.STOP:
-            sent = stop_time(sent, time.time_ns())
+            # A service's request names no client whose clock is known: when it came.
+            sent = stop_time(sent, time.time_ns(), None)
         response.success, response.message = answered(arm, kind, sent)
         return response
 
@@ -134,7 +136,8 @@ class SafetyNode(Node):
 
 class StopNode(Node):
     """Node `al5d_stop`: the `/al5d/stop` service, and the stop watcher, which reads the
-    instruction topic beside the node `al5d` and obeys a stop as soon as it sees one.
+    instruction topic beside the node `al5d` and obeys a stop as soon as it sees one, on
+    this machine's clock by its client's lease (`clocks`), as the node `al5d` judges it.
 
     The watcher has a thread of its own: reading a flood takes it milliseconds at a time,
     which the stop service must never wait for (measured: with the two on one thread, a
@@ -162,11 +165,28 @@ class StopNode(Node):
         # Only what could be a stop reaches this participant: a flood's moves never queue
         # ahead of a stop here, nor take this process's interpreter.
         filter_content(watched, STOP_FILTER)
+        # The clients' leases, for their clocks only (what is lost is the node `al5d`'s to
+        # halt): a stop is judged as sent on this machine's clock (`convert.stop_time`).
+        # Depth 1: a flood of leases never holds the watcher.
+        leases = self.create_subscription(
+            ClientLease, names.clients, taken_by_reader, QOS_LEASES, callback_group=group
+        )
+        self.clocks = Leases(arm.config.server.client_lease_s)
         # A thread of its own takes what waits, up to `WATCH_BATCH` at a time, in one go:
         # under a flood, one GIL hand-over a message would leave the watcher behind.
         self.reader = Reader(
-            self, [(watched, self._watch)], "al5d-stop-watcher", WATCH_BATCH, True, group
+            self,
+            [(watched, self._watch), (leases, self._on_lease)],
+            "al5d-stop-watcher",
+            WATCH_BATCH,
+            True,
+            group,
         )
+
+    def _on_lease(self, msg: ClientLease, info: dict[str, int]) -> None:
+        t = time.monotonic()
+        self.clocks.heard(str(msg.client), msg.sent_ns, msg.every_ms, t, came_ns(info))
+        self.clocks.lapsed(t)  # those lost long ago forgotten
 
     def _watch(self, raw: bytes, info: dict[str, int]) -> None:
         """A message on the instruction topic, serialized: a stop is obeyed at once. A failure
@@ -174,7 +194,9 @@ class StopNode(Node):
         if first_word(raw) != _STOP:
             return
         msg = deserialize_message(raw, ArmInstruction)
-        instr = from_message(msg, self.presets, self.model, stop_time(sent_ns(info), came_ns(info)))
+        offset = self.clocks.offset(str(msg.client)) if msg.client else None
+        sent = stop_time(sent_ns(info), came_ns(info), offset)
+        instr = from_message(msg, self.presets, self.model, sent)
         if isinstance(instr, Instruction) and instr.kind is Kind.STOP:
             self.arm.submit(instr, key=stop_key(msg, info))
 
