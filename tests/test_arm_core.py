@@ -184,6 +184,26 @@ def test_a_stop_that_comes_after_a_release_sent_after_it_halts_and_leaves_it_rel
     sim.ask(ins.stop())
     sim.ask(held_up)
     assert sim.core.locked and sim.core.state is State.STOPPED
+    # One sent nearly as late as the release (within `LATE_STOP_NS`: two clients' times
+    # differ by their trips) locks the arm, as a stop does.
+    near = ins.Instruction(ins.Kind.STOP, sent_ns=sim.wall)
+    sim.run(0.3)
+    assert sim.outcomes[sim.ask(ins.release())].ok
+    assert sim.outcomes[sim.ask(near)].reason == ""
+    assert sim.core.locked and sim.core.state is State.STOPPED
+    # One that comes while the link is lost: its STOP owed, said so, and not locked; the
+    # board back, the arm is ready.
+    held_up = ins.Instruction(ins.Kind.STOP, sent_ns=sim.wall)
+    sim.run(1.0)
+    assert sim.outcomes[sim.ask(ins.release())].ok
+    sim.board.inject(Fault.DISCONNECT)
+    assert sim.until(lambda: sim.core.state is State.FAULT, 2.0)
+    late = sim.outcomes[sim.ask(held_up)]
+    assert late.ok and late.reason.startswith("the serial link is lost ("), late
+    assert "STOP owed; it was sent 1000 ms before the release" in late.reason, late
+    assert not sim.core.locked
+    sim.board.clear(Fault.DISCONNECT)
+    assert sim.until(lambda: sim.core.state is State.READY, 5.0)
 
 
 def test_what_a_word_does_not_take_is_refused_and_a_stop_is_obeyed_whatever_it_carries(

@@ -53,6 +53,7 @@ from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig, load_config
 from al5d.arm.corestate import Ask, Cancelled, Effect, Input, Resolve, Send
 from al5d.arm.instruction import Instruction, Kind, Point, Result
+from al5d.arm.order import LATE_STOP_NS
 from al5d.arm.running import OVER_BY_S
 from al5d.arm.states import State
 from al5d.model.table import PATH_TOLERANCE_M, below
@@ -132,6 +133,7 @@ class CoreProtocol(RuleBasedStateMachine):
         self.pulled = False
         self.ended = False
         self.keyed: list[tuple[str, int]] = []  # the keys of the stops obeyed under one
+        self.lock_holder: Asked | None = None  # the stop that holds the lock, if one does
         self.n_records = len(self.sim.records)
         self.started = time.perf_counter()
 
@@ -156,6 +158,7 @@ class CoreProtocol(RuleBasedStateMachine):
                 continue
             if asked.kind == "release" and e.outcome.ok:
                 self.released.append(self.sim.t)
+                self.lock_holder = None
             if "given up" in e.outcome.reason:
                 count("arm core: moves given up on by their senders")
                 if self.sim.t < _gives_up(asked) - 1e-9:
@@ -258,7 +261,13 @@ class CoreProtocol(RuleBasedStateMachine):
         asked = Asked(ref, kind, instr, self.sim.t, self.sim.wall, late, client)
         self.asked.append(asked)
         self.by_ref[ref] = asked
+        locked = self.sim.core.locked
         self.sim.ask(instr, ref=ref, **kw)  # type: ignore[arg-type]
+        # The stop that holds the lock: the one sent last since the arm was locked.
+        holder = self.lock_holder
+        newer = not locked or holder is None or _sent(asked) > _sent(holder)
+        if kind == "stop" and self.sim.core.locked and newer:
+            self.lock_holder = asked
         return asked
 
     def _moves(self, n: int, rng: random.Random) -> None:
@@ -297,22 +306,24 @@ class CoreProtocol(RuleBasedStateMachine):
         reached), but the arm stays as it is: unlocked if that release left it so."""
         outcomes = self.sim.outcomes
         released = [
-            a
+            _sent(a)
             for a in self.asked
             if a.kind == "release" and a.ref in outcomes and outcomes[a.ref].ok
         ]
         if not released:
             return
-        release = released[pick % len(released)]
-        sent = (release.instr.sent_ns or release.wall) - 1_000_000
+        # Clearly older than the last release (`order.LATE_STOP_NS`), or nearly as old:
+        # that one locks, as a stop does.
+        sent = released[pick % len(released)] - _late_by_ns(pick)
         self.sim.run(0)  # what fell due while the owner did not run (`stall`) is done first
         locked, writes = self.sim.core.locked, len(self.sim.sent)
+        stands = sent + LATE_STOP_NS < max(released) and not locked
         late = dataclasses.replace(ins.stop(), sent_ns=sent)
-        asked = self._ask("late stop", late)
+        asked = self._ask("late stop" if stands else "stop", late)
         if not self.sim.outcomes[asked.ref].ok:
             self.problems.append(f"a late stop not obeyed: {self.sim.outcomes[asked.ref]}")
-        if self.sim.core.locked != locked:
-            self.problems.append(f"a late stop turned the lock from {locked}")
+        if self.sim.core.locked == stands:
+            self.problems.append(f"a late stop turned the lock from {locked} ({stands=})")
         if self.sim.core.link.open and not any(
             data.startswith(p.CANCEL + b"STOP") for _, data in self.sim.sent[writes:]
         ):
@@ -342,16 +353,17 @@ class CoreProtocol(RuleBasedStateMachine):
             self.problems.append("a copy of a stop obeyed already acted again")
 
     def _release(self, late: bool) -> None:
-        stops = [a for a in self.asked if a.kind == "stop"]
-        if not late or not stops:
+        holder = self.lock_holder
+        if not late or holder is None:
             self._ask("release", ins.release())
             return
-        # Sent before the last stop (a release queued behind a flood on the topic).
-        sent = stops[-1].wall - 1_000_000
+        # Sent before the stop that holds the lock (a release queued behind a flood on the
+        # topic).
+        sent = _sent(holder) - 1_000_000
         locked = self.sim.core.locked
         asked = self._ask("release", dataclasses.replace(ins.release(), sent_ns=sent), late=True)
         if locked and self.sim.outcomes[asked.ref].ok:
-            self.problems.append(f"a release sent before stop {stops[-1].instr.id} undid it")
+            self.problems.append(f"a release sent before stop {holder.instr.id} undid it")
 
     def _set_points(self, n: int, rng: random.Random, here: bool) -> None:
         if here:
@@ -405,6 +417,7 @@ class CoreProtocol(RuleBasedStateMachine):
     def late_stop(self, pick: int) -> None:
         self._late_stop(pick)
 
+    @precondition(lambda self: not self.ended)
     @rule(late=st.booleans())
     def release(self, late: bool) -> None:
         self._release(late)
@@ -609,6 +622,16 @@ class CoreProtocol(RuleBasedStateMachine):
             # board that reset before it): the move gets its answer; tried again.
             assert "has reset" in outcome.reason or "link is lost" in outcome.reason, outcome
         raise AssertionError(f"a move after stop and release: {outcome}")
+
+
+def _sent(asked: Asked) -> int:
+    """When `asked` was sent (this machine's clock, ns)."""
+    return asked.instr.sent_ns if asked.instr.sent_ns is not None else asked.wall
+
+
+def _late_by_ns(pick: int) -> int:
+    """How long before a release a late stop was sent: within the margin, or well past it."""
+    return (1_000_000, LATE_STOP_NS, LATE_STOP_NS + 1_000_000, 3 * LATE_STOP_NS)[pick % 4]
 
 
 def _resolves(effects: tuple[Effect, ...]) -> list[Resolve]:

@@ -574,10 +574,11 @@ def test_ctrl_c_in_a_script_halts_what_it_sent(
 ) -> None:
     """A script that sent two moves and waits, Ctrl-C'd as the first runs: the first halts
     where it is and the second never runs (an outside try: the arm ran both to their end,
-    where a script killed, or ended by SIGTERM, halted them). Over the lane the server
-    hears the lane close without a goodbye; over ROS 2 the lease's last word says what
-    made the client leave, and the server halts at once (it waited for the lease to run
-    out, 1.1 s). A client the script left open is closed at exit the same way."""
+    where a script killed, or ended by SIGTERM, halted them). The client's last word says
+    what made it leave (its lane's `bye`, its lease's over ROS 2), and the server halts at
+    once and says why (over ROS 2 it waited for the lease to run out, 1.1 s; over the lane
+    it said only that the connection closed). A client the script left open is closed at
+    exit the same way."""
     script = tmp_path / "script.py"
     script.write_text(script_text.format(local=local))
     with subprocess.Popen(
@@ -602,8 +603,9 @@ def test_ctrl_c_in_a_script_halts_what_it_sent(
         "al5d client left by KeyboardInterrupt: what it commanded and is not over is halted" in err
     ), err
     assert out == "", out  # the second move's outcome never came to it
-    said = "it left by KeyboardInterrupt" if not local else "its connection closed"
-    arm.proc.err.wait_for(f"{said}): halted", STATE_S)  # the move it commanded
+    # Over either way, its last word says why (over the lane it said only that its
+    # connection closed).
+    arm.proc.err.wait_for("it left by KeyboardInterrupt): halted", STATE_S)
     wait_until(lambda: "ready" in arm.states[before:], STATE_S, "ready, halted")
     # The board in this (busy) test process may take the halt a moment after it is said.
     time.sleep(0.5)

@@ -495,12 +495,13 @@ class Remote:
         if not self._welcome.done():
             self._welcome.set_exception(LaneClosed("the owner closed the lane"))
 
-    def close(self, bye: bool = True) -> None:
+    def close(self, bye: bool = True, left_by: str = "") -> None:
         """Leave the lane; with `bye`, what this client commanded goes on (without, the owner
-        takes it for a lost client)."""
-        if bye and not self.closed.is_set():
+        takes it for a lost client); `left_by`: it leaves by that error, which the owner
+        says as it halts what this client commanded."""
+        if (bye or left_by) and not self.closed.is_set():
             with contextlib.suppress(LaneClosed):
-                self._send({"op": "bye"})
+                self._send({"op": "bye", "left_by": left_by} if left_by else {"op": "bye"})
         with contextlib.suppress(OSError):
             self._sock.shutdown(socket.SHUT_RDWR)
         self._sock.close()

@@ -49,6 +49,9 @@ class Conn:
     #: client of the core of its own, lost on its own (`gone`).
     subs: dict[str, int] = field(default_factory=dict)
     bye: bool = False
+    #: It left by an error (its `bye` named it: `left_by`): what it commanded is halted,
+    #: and the loss says why.
+    left_by: str = ""
     #: It said hello, and was welcomed (once a connection).
     welcomed: bool = False
     #: It asks what came over ROS 2 (the bridge, the stop process; its hello says so): a
@@ -145,7 +148,8 @@ class Conns:
         except OSError:
             data = b""
         if not data:
-            self.drop(conn, "" if conn.bye else "its connection closed")
+            left = f"it left by {conn.left_by}" if conn.left_by else "its connection closed"
+            self.drop(conn, "" if conn.bye else left)
             return []
         conn.heard, conn.stalled = now(), stalled
         return list(conn.lines.feed(data))

@@ -183,8 +183,11 @@ class Desk:
                 # Answered by the owner's thread: the client's sign that the owner turns (a
                 # frozen owner's lane stays open and says nothing: `Remote.quiet`).
                 self._send(conn, {"op": "signed"})
-            elif op == "bye":
-                conn.bye = True
+            elif op == "bye":  # `left_by`: it leaves by an error, and what it commanded halts
+                left_by = m.get("left_by", "")
+                if not isinstance(left_by, str):
+                    raise ln.LaneError("bye: left_by must be text")
+                conn.left_by, conn.bye = left_by[:200], not left_by
             elif op == "gone":
                 self._gone(conn, m)
             else:

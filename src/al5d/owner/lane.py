@@ -3,20 +3,22 @@
 A Unix socket (the user's own: its folder is the user's alone, nothing is on the
 network), one JSON object a line each way. A client says `hello` (and what it wants to
 hear: `watch`), then asks (`ask`, `judge`, `cancel`; `drop` lets go of a ticket of
-`judge` it will not ask with, unanswered); the owner answers each request
-once under its `ref`, and tells watchers what happens (`state`, `told`, `moved`,
-`posed`, `wire`). A client that goes without `bye` is a lost client: what it commanded
-does not go on (`al5d.arm.core`, `Gone`). A client that speaks for others (the ROS
-bridge for the ROS clients) names one in an `ask` (`for`: its key) and says when it has
-lost one (`gone`, with `why`) or one has closed (`gone` without `why`): each is a client
-of its own to the core. A recorder (`recorder` in its `hello`, watching `wire`) is told
-first the board's writes the owner kept for it from its start, where it keeps them; one
-watching `asked` is told each instruction asked by a client whose hello did not say `ros`
-(what came over ROS 2 a recording has from there): the bridge's recording holds them.
-A leased client (`lease` in its hello) says `sign` at least four times a lease and a
-second; the owner's thread answers each (`signed`), so that the client hears an owner
-that turns, and can tell one frozen with its lane open (`Remote.quiet`); a leased
-client the owner takes for lost is told why (`lost`) as its lane is closed.
+`judge` it will not ask with, unanswered); the owner answers each request once under its
+`ref`, and tells watchers what happens (`state`, `told`, `moved`, `posed`, `wire`). A
+client that goes without `bye` is a lost client: what it commanded does not go on
+(`al5d.arm.core`, `Gone`); nor does it after a `bye` that names why the client leaves
+(`left_by`: an error, Ctrl-C's `KeyboardInterrupt`). A client that speaks for others
+(the ROS bridge for the ROS clients) names one in an `ask` (`for`: its key) and says
+when it has lost one (`gone`, with `why`) or one has closed (`gone` without `why`): each
+is a client of its own to the core. A recorder (`recorder` in its `hello`, watching
+`wire`) is told first the board's writes the owner kept for it from its start, where it
+keeps them; one watching `asked` is told each instruction asked by a client whose hello
+did not say `ros` (what came over ROS 2 a recording has from there): the bridge's
+recording holds them. A leased client (`lease` in its hello) says `sign` at least four
+times a lease and a second; the owner's thread answers each (`signed`), so that the
+client hears an owner that turns, and can tell one frozen with its lane open
+(`Remote.quiet`); a leased client the owner takes for lost is told why (`lost`) as its
+lane is closed.
 
 Everything here is pure, and light to import (the standard library and
 `al5d.arm.instruction`): `al5d send stop`'s own path (`quick`) imports nothing else.

@@ -157,7 +157,7 @@ def stop_time(sent: int | None, came: int, offset: int | None) -> int:
     before it undid it, or a release taken before it, though sent later, kept it from
     locking the arm (`al5d.arm.core`, rule 1); one from a client seconds ahead would hold
     every release sent in those seconds. Docs/ros.md, "Across a network"."""
-    return came if sent is None or offset is None else min(sent + offset, came)
+    return came if not sent or offset is None else min(sent + offset, came)
 
 
 def from_message(

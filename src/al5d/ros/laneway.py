@@ -413,7 +413,7 @@ class LaneWay:
     def close(self, halt: str = "") -> None:
         self._closed = True
         with self._reopening:
-            self.lane.close(bye=not halt)
+            self.lane.close(bye=not halt, left_by=halt)
 
 
 def _said_when_late(future: Future[Outcome], stop: str, asked: float) -> None:
