@@ -155,57 +155,6 @@ def test_a_release_sent_before_the_stop_is_refused_one_sent_after_unlocks(sim: S
     assert sim.core.state is State.READY
 
 
-def test_a_stop_that_comes_after_a_release_sent_after_it_halts_and_leaves_it_released(
-    sim: Sim,
-) -> None:
-    """A stop held up (behind a flood, across a link that was down) until after a release
-    sent later: obeyed at once (STOP written, the running and waiting moves cancelled),
-    but the release stands, as it would have had the stop come in time: the arm is not
-    locked, and a move sent after it runs (it was locked until a release came)."""
-    sim.ask(ins.stop())
-    sim.run(0.05)
-    held_up = ins.Instruction(ins.Kind.STOP, sent_ns=sim.wall)
-    sim.run(2.0)
-    assert sim.outcomes[sim.ask(ins.release())].ok
-    moving = [sim.ask(ins.move(base=b, time_ms=500)) for b in (30, -30)]
-    sim.run(0.1)
-    assert sim.core.state is State.MOVING
-    sent = len(sim.sent)
-    late = sim.outcomes[sim.ask(held_up)]
-    assert late.result is Result.DONE
-    assert "2000 ms before the release that had unlocked the arm" in late.reason, late
-    assert sim.sent[sent][1].startswith(p.CANCEL + b"STOP"), sim.sent[sent:]
-    assert [sim.outcomes[r].reason for r in moving] == ["cancelled by stop"] * 2
-    assert not sim.core.locked and sim.core.state is State.READY
-    after = sim.ask(ins.move(base=10, time_ms=100))
-    sim.run(1.0)
-    assert sim.outcomes[after].ok, sim.outcomes[after]
-    # One that comes after a newer stop locked the arm again: that lock holds.
-    sim.ask(ins.stop())
-    sim.ask(held_up)
-    assert sim.core.locked and sim.core.state is State.STOPPED
-    # One sent nearly as late as the release (within `LATE_STOP_NS`: two clients' times
-    # differ by their trips) locks the arm, as a stop does.
-    near = ins.Instruction(ins.Kind.STOP, sent_ns=sim.wall)
-    sim.run(0.3)
-    assert sim.outcomes[sim.ask(ins.release())].ok
-    assert sim.outcomes[sim.ask(near)].reason == ""
-    assert sim.core.locked and sim.core.state is State.STOPPED
-    # One that comes while the link is lost: its STOP owed, said so, and not locked; the
-    # board back, the arm is ready.
-    held_up = ins.Instruction(ins.Kind.STOP, sent_ns=sim.wall)
-    sim.run(1.0)
-    assert sim.outcomes[sim.ask(ins.release())].ok
-    sim.board.inject(Fault.DISCONNECT)
-    assert sim.until(lambda: sim.core.state is State.FAULT, 2.0)
-    late = sim.outcomes[sim.ask(held_up)]
-    assert late.ok and late.reason.startswith("the serial link is lost ("), late
-    assert "STOP owed; it was sent 1000 ms before the release" in late.reason, late
-    assert not sim.core.locked
-    sim.board.clear(Fault.DISCONNECT)
-    assert sim.until(lambda: sim.core.state is State.READY, 5.0)
-
-
 def test_what_a_word_does_not_take_is_refused_and_a_stop_is_obeyed_whatever_it_carries(
     sim: Sim,
 ) -> None:

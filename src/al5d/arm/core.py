@@ -61,10 +61,7 @@ owner took it, where the channel does not say), and the order of sending, not of
 
 1. A release unlocks only if it was sent after every stop that holds the lock; an
    older one is refused with a reason naming that stop. So a stop is never undone by a
-   release sent before it, whatever the channels. The other way, a stop that comes after
-   a release sent clearly after it (`order.LATE_STOP_NS`), which unlocked the arm, is
-   obeyed (the arm halted, everything pending dropped) but leaves the arm unlocked: that
-   release stands.
+   release sent before it, whatever the channels.
 2. A move sent before the last event that dropped every pending move (a stop, a fault,
    the shutdown) is cancelled by that event, as it would have been had it waited in
    the queue; a move sent between a stop and the release that unlocked the arm is
@@ -129,7 +126,6 @@ from al5d.arm.instruction import (
     beyond_its_word,
 )
 from al5d.arm.jobs import NO_JOBS, Job, Mode, outcome
-from al5d.arm.order import Order
 from al5d.arm.states import (
     LOCKED_BY_STOP,
     Event,
@@ -206,8 +202,7 @@ def _refuse(ev: Ask, reason: str, out: Out, result: Result = Result.REFUSED) -> 
 
 
 def _stop(c: Core, ev: Ask, out: Out) -> Core:
-    """VE01/D4: halt at once, drop everything, lock (unless a release sent clearly after it
-    has unlocked the arm already: rule 1). A stop obeyed already under the same
+    """VE01/D4: halt at once, drop everything, lock. A stop obeyed already under the same
     key is answered as it was, and nobody else hears of it again; a copy of it (the same
     key, an id of its own) is answered so under its id, and told: it asked too."""
     if ev.key is not None:
@@ -222,9 +217,6 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
             out.append(Resolve(ev.ref, answer, ev.tell))
             return replace(c, order=c.order.obeyed(copy, answer))
     sent = _sent(ev)
-    # Rule 1, the other way: a release sent after this stop has unlocked the arm already
-    # (the stop came late: behind a flood, or across a link that was down).
-    before = c.order if not c.locked and c.order.late_stop(sent) else None
     c = running.over(c, ev.t, out)
     c, jobs = drop(c, "cancelled by stop", sent)
     c = lock_arm(c, LOCKED_BY_STOP, sent)
@@ -236,15 +228,6 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
         else f"the serial link is lost ({c.fault or 'the board not reached yet'}); the arm "
         "is locked, and STOP is written as soon as the board is reached again"
     )
-    if before is not None:
-        c = _released_since(c, before, out)
-        later_ms = (before.released_ns - sent) / 1e6
-        lost = c.fault or "the board not reached yet"
-        halted = "halted" if board_open else f"the serial link is lost ({lost}): STOP owed"
-        note = (
-            f"{halted}; it was sent {later_ms:.0f} ms before the release that had unlocked "
-            "the arm, which stands: the arm is not locked"
-        )
     done = outcome(ev.instr, Result.DONE, note, ev.t, ev.t)
     out.append(Resolve(ev.ref, done, ev.tell))
     if ev.key is not None:
@@ -258,15 +241,6 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
             c, "stopped before the arm reached park: the arm is not parked", ev.t, out
         )
     return c
-
-
-def _released_since(c: Core, before: Order, out: Out) -> Core:
-    """A late stop obeyed (halted, everything pending dropped): the release sent after it,
-    taken before it came, unlocks the arm again; the lock's record is as that release left it."""
-    if next_state(c.state, Event.RELEASE, guards(c)) is not None:
-        c = fire(c, Event.RELEASE, out)
-    order = replace(c.order, locked_ns=before.locked_ns, locked_by=before.locked_by)
-    return replace(c, locked=False, order=order)
 
 
 def _release(c: Core, ev: Ask, out: Out) -> Core:

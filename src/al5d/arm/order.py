@@ -16,11 +16,6 @@ from al5d.arm.instruction import Outcome
 
 #: Stop identities remembered, so that a stop both readers see is obeyed once.
 STOPS_REMEMBERED = 1024
-#: How much earlier than the release that unlocked the arm a stop that comes after it must
-#: have been sent for that release to stand (`late_stop`): two clients' times on this
-#: machine's clock differ by their quickest trips (`al5d.ros.leases`), and a stop judged
-#: older than it was would not lock the arm; one nearly as old locks it, as a stop does.
-LATE_STOP_NS = 500_000_000
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,11 +70,6 @@ class Order:
             f"it was sent while the arm was locked ({self.locked_by}), before the release: "
             "send it again"
         )
-
-    def late_stop(self, sent_ns: int) -> bool:
-        """Rule 1, the other way: a stop sent at `sent_ns` clearly before the release that
-        unlocked the arm (`LATE_STOP_NS`), come after it: that release stands."""
-        return sent_ns + LATE_STOP_NS < self.released_ns
 
     def release_too_old(self, sent_ns: int) -> str:
         """Rule 1: why a release sent at `sent_ns` may not unlock the arm, or ""."""

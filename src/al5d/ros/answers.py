@@ -198,17 +198,8 @@ for _public in (NoServer, NoOutcome, LostContact, LaneLost, Answer):
 def said_late(stop: str, after_s: float, ok: bool, result: str, reason: str) -> None:
     """The answer to the stop `stop` that its client had given up on, `after_s` after it
     was asked, said as a WARNING (over ROS 2 and the local lane alike): a stop is obeyed
-    however late, and whoever asked must hear that it locked the arm (or, where a release
-    sent clearly after it stands, that it did not: its `reason` says so)."""
-    if ok and reason:  # obeyed, and the server says more: not locked, or a lost link
-        log.warning(
-            "stop [%s]: answered after this client gave up on it (%.1f s after it was "
-            "asked): the server obeyed it: %s",
-            stop,
-            after_s,
-            reason,
-        )
-    elif ok:
+    however late, and whoever asked must hear that it locked the arm."""
+    if ok:
         # The server obeyed it when it came (or before, its answer lost), which locked
         # the arm; a release sent since may have unlocked it: not said locked now.
         log.warning(

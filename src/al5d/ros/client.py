@@ -442,10 +442,9 @@ class Client:
     def stop(self, timeout: float = ANSWER_S) -> Answer:
         """The emergency stop, by the local lane, or over ROS 2 on the instruction topic,
         sent again until it is answered (`al5d.ros.rosstop.StopCall`): the arm halts and
-        stays locked (refusing moves) until a release (one that comes late, after a release
-        sent clearly after it, only halts it: the answer says so). Raises `NoServer` where
-        the stop reached nobody within `wait_s`, `NoOutcome` where it was sent (a reader of
-        the topic took it) but not answered: whether the arm stopped is unknown."""
+        stays locked (refusing moves) until a release. Raises `NoServer` where the stop
+        reached nobody within `wait_s`, `NoOutcome` where it was sent (a reader of the
+        topic took it) but not answered: whether the arm stopped is unknown."""
         self._check_open()
         return self._way.ask(Kind.STOP, _stop_seconds(timeout))
 

@@ -14,7 +14,7 @@ do where it matters to a client:
 - a cancel halts the arm where it is, without the emergency lock: CANCELED; a goal
   cancelled while it waits to run (for the halt of the goal it preempts) ends
   CANCELED before it runs;
-- an emergency stop aborts the goal, and the arm is locked as a stop locks it.
+- an emergency stop aborts the goal, and the arm is locked as always.
 
 A trajectory denser than the serial link carries is thinned by the driver's
 judgement (`al5d.arm.resample`) within the goal's `path_tolerance` (the

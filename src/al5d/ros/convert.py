@@ -150,14 +150,15 @@ def stop_key(msg: ArmInstruction, info: Mapping[str, int | None]) -> Hashable:
 
 
 def stop_time(sent: int | None, came: int, offset: int | None) -> int:
-    """When a stop counts from, on this machine's clock: when it was sent, where its
-    sender's clock is known (`offset`: `al5d.ros.leases.Lease.offset_ns`, its client's
-    lease), never later than when it came; else when it came. Its sender's clock as it
-    is would put a stop from a client seconds behind seconds early, so that a release sent
-    before it undid it, or a release taken before it, though sent later, kept it from
-    locking the arm (`al5d.arm.core`, rule 1); one from a client seconds ahead would hold
-    every release sent in those seconds. Docs/ros.md, "Across a network"."""
-    return came if not sent or offset is None else min(sent + offset, came)
+    """When a stop counts from: when it was sent, on this machine's clock where its
+    sender's is known (`offset`: `al5d.ros.leases.Lease.offset_ns`, its client's lease),
+    else on its sender's (as its releases are judged), never later than when it came to
+    this machine. Taken on its sender's clock, a stop from a client seconds behind was
+    undone by a release sent before it that came after it (`al5d.arm.core`, rule 1); one
+    from a client seconds ahead would hold every release sent in those seconds.
+    Docs/ros.md, "Across a network".
+    """
+    return came if not sent else min(sent + (offset or 0), came)
 
 
 def from_message(

@@ -110,7 +110,7 @@ def answered(arm: Remote, kind: Kind, sent: int | None) -> tuple[bool, str]:
 def _trigger(arm: Remote, kind: Kind) -> Callable[[Any, Any, int], Any]:
     def answer(request: Trigger.Request, response: Trigger.Response, sent: int) -> Any:
         if kind is Kind.STOP:
-            # A service's request names no client whose clock is known: when it came.
+            # A service's request names no client whose clock is known.
             sent = stop_time(sent, time.time_ns(), None)
         response.success, response.message = answered(arm, kind, sent)
         return response
