@@ -424,7 +424,7 @@ def test_a_client_whose_clock_is_seconds_off_is_judged_on_the_servers_clock(
         # A stop by the skewed client, then a release by the right one; five times for a
         # clock behind, as either reader of the topic may take the stop first (the node
         # `al5d` alone put a stop on the server's clock: on the code before, one try failed
-        # in 2 of 4 runs, five in 3 of 3).
+        # in 2 of 4 runs, five in 5 of 5).
         for _ in range(5 if skew_s < 0 else 1):
             before_stop = time.time_ns()
             time.sleep(0.5)
