@@ -108,12 +108,10 @@ def placements(twin: TwinLink) -> list[Placement]:
         pose = twin.objects.get(name)
         if pose is None or (obj.in_gripper and obj.goal_mm is None):
             continue  # (one carried from the start stood nowhere on the table)
-        mm = tuple(v * 1000 for v in pose.xyz)
+        x, y, z = (v * 1000 for v in pose.xyz)
         start = (pose.start[0] * 1000, pose.start[1] * 1000)
         lifted = pose.lifted_m * 1000
-        out.append(
-            Placement(name, obj.goal_mm, (mm[0], mm[1], mm[2]), lifted, tilt_deg(pose.quat), start)
-        )
+        out.append(Placement(name, obj.goal_mm, (x, y, z), lifted, tilt_deg(pose.quat), start))
     return out
 
 

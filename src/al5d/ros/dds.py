@@ -239,8 +239,8 @@ ACK_POLL_S = 0.005
 def acked(publishers: Sequence[Any], within_s: float) -> bool:
     """Whether every reader of each of `publishers` has acknowledged all it was sent, looked
     at until `within_s` seconds have passed. rclpy's `wait_for_all_acked` holds the GIL
-    for as long as it waits (measured: a thread of the same process counted 1 % of its
-    pace during a wait of 1 s), which starved everything else of the process, the lease's
+    for as long as it waits (measured: a thread of the same process counted 0.8 to 2 % of
+    its pace during a wait of 1 s), which starved everything else of the process, the lease's
     thread and an emulated board among them (a CI run's board went unanswered): here each
     look waits for nothing, and the GIL is let go between looks."""
     deadline = time.monotonic() + within_s
