@@ -4,12 +4,13 @@ what the server's DDS and threads are given."""
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import ipaddress
 import os
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -132,9 +133,64 @@ def test_fast_dds_takes_the_servers_profile_whole(in_process: bool) -> None:
     done = subprocess.run(
         [sys.executable, "-c", script], capture_output=True, text=True, timeout=60
     )
-    said = done.stdout + done.stderr  # Fast DDS logs its errors on stdout
+    said = done.stdout + done.stderr  # Fast DDS's errors: stdout by default, stderr by ours
     assert done.returncode == 0 and "started" in done.stdout, said
     assert "XMLPARSER" not in said and "Error" not in said, said
+
+
+OWN_STDOUT_CHECK = """
+import os
+os.environ.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
+from al5d.ros.dds import start_context
+from rclpy.node import Node
+Node("al5d_stdout_check", context=start_context())
+print("mine")
+"""
+#: Fast DDS's first shared-memory port (Fast DDS 2.14: 7000 whatever the domain); a
+#: participant takes the first of the ports above it that no live process holds.
+FIRST_SHM_PORT = 7000
+
+
+@contextlib.contextmanager
+def shm_ports_held(n: int) -> Iterator[list[int]]:
+    """Hold (flock, as a live participant does) the first `n` shared-memory ports from
+    `FIRST_SHM_PORT` that no process holds: a participant started meanwhile meets them
+    ("Failed init_port fastrtps_port7002: open_and_lock_file failed") and takes a later one."""
+    held: list[int] = []
+    files = []
+    try:
+        port = FIRST_SHM_PORT
+        while len(held) < n:
+            f = open(f"/dev/shm/fastrtps_port{port}_el", "ab")  # noqa: SIM115 (held on)
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                f.close()  # a live participant's
+            else:
+                files.append(f)
+                held.append(port)
+            port += 1
+        yield held
+    finally:
+        for f in files:
+            f.close()
+
+
+def test_fast_dds_logs_on_stderr_and_leaves_a_processs_stdout_its_own() -> None:
+    """Fast DDS's default log prints on stdout: a CI run's client script, started while
+    other processes held shared-memory ports, printed Fast DDS's "Failed init_port ...
+    open_and_lock_file failed" lines among its own words, and the test that read its answer
+    failed. Our profile sends Fast DDS's log to stderr (`al5d.ros.dds`); on the code before,
+    each of these runs had three such lines on its stdout."""
+    for _ in range(5):
+        with shm_ports_held(4):
+            done = subprocess.run(
+                [sys.executable, "-c", OWN_STDOUT_CHECK], capture_output=True, text=True, timeout=60
+            )
+        assert done.returncode == 0 and done.stdout == "mine\n", done.stdout + done.stderr
+        if "open_and_lock_file failed" in done.stderr:
+            return  # a held port met, and said on stderr
+    pytest.fail("in 5 tries no participant met a held port: Fast DDS's log was not seen")
 
 
 ACK_CHECK = """

@@ -35,6 +35,7 @@ _prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before any fork
 #: A line of Fast DDS's own log (its default consumer prints on stdout, coloured or not:
 #: "2026-11-28 16:18:09.319 [RTPS_TRANSPORT_SHM Error] Failed init_port ...", seen when a
 #: shared-memory port's lock file was held), not a word of the process that printed it.
+#: The project's profile sends that log to stderr; a profile of the user's may not.
 _FASTDDS_LOG = re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d+ \[\w+ (Error|Warning|Info)\]")
 _ESCAPES = re.compile(r"\x1b\[[0-9;]*m")
 

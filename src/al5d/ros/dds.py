@@ -1,6 +1,6 @@
 """Starting DDS as this project needs it: the environment's defaults, the Fast DDS profile
 (loopback only unless the user opens it, a deeper shared-memory port, the instruction
-reader's bound) and the ROS context (a DDS participant)."""
+reader's bound, Fast DDS's log on stderr) and the ROS context (a DDS participant)."""
 
 from __future__ import annotations
 
@@ -102,6 +102,17 @@ _PROFILES = """<?xml version="1.0" encoding="UTF-8"?>
       </propertiesPolicy>
     </data_writer>{reader}
   </profiles>
+  <!-- al5d: Fast DDS's own log on stderr, where a process's stdout stays its own. -->
+  <log>
+    <use_default>FALSE</use_default>
+    <consumer>
+      <class>StdoutErrConsumer</class>
+      <property>
+        <name>stderr_threshold</name>
+        <value>Log::Kind::Info</value>
+      </property>
+    </consumer>
+  </log>
 </dds>
 """
 _LOOPBACK = """
@@ -149,7 +160,10 @@ def dds_profile(instructions: tuple[str, int] | None = None, in_process: bool = 
     (`local_only`): discovery kept to this machine is not enough, since a participant
     still listens on every interface for anyone who knows its port. Every process's
     shared-memory port is deeper than Fast DDS's default (below), and every writer's
-    fragments leave room for the content filters' inline QoS (`WRITER_MESSAGE`). The server's
+    fragments leave room for the content filters' inline QoS (`WRITER_MESSAGE`), and Fast
+    DDS logs on stderr: its default prints on stdout, where its lines ("Failed init_port
+    fastrtps_port7002: open_and_lock_file failed" when other processes hold shared-memory
+    ports) fell among a script's own output and spoiled what read it. The server's
     (`instructions`: the topic and its backlog) also bounds that topic's reader:
 
     With KEEP_ALL and no bound, a flood faster than the server piles up in its reader,
