@@ -1154,3 +1154,40 @@ def test_a_held_stream_resumes_on_a_set_point_its_source_says_is_new(sim: Sim) -
     # Resumed: the stream's next set-point, unmarked, is taken too.
     then = sim.ask(ins.move(elbow=60), stream=stream, tell=False)
     assert sim.outcome(then).result is Result.DONE
+
+
+def test_a_trajectory_with_a_start_ahead_waits_for_it_and_one_too_far_ahead_is_refused(
+    sim: Sim,
+) -> None:
+    """A trajectory's start (`header.stamp`, as ros2_control's controllers take it) 0.8 s
+    ahead: nothing of it is written before then, its first line then; a stop while it waits
+    cancels it unwritten; a start further ahead than `START_AHEAD_S` (a sender's clock
+    likely wrong) is refused, nothing written; one already past starts at once."""
+    points = (Point((("base", 10.0),), 200.0), Point((("base", 20.0),), 400.0))
+    written = len(sim.sent)
+    start = sim.t
+    ahead = replace(ins.trajectory(points), start_ns=sim.wall + 800_000_000)
+    ref = sim.ask(ahead)
+    sim.run(0.79)
+    assert sim.sent[written:] == [] and sim.core.state is State.MOVING
+    assert sim.outcome(ref).result is Result.DONE
+    first = next(t for t, data in sim.sent[written:] if data.startswith(b"#"))
+    assert first - start == pytest.approx(0.8, abs=1e-3)
+    waiting = sim.ask(replace(ins.trajectory(points), start_ns=sim.wall + 2_000_000_000))
+    sim.run(0.5)
+    written = len(sim.sent)
+    sim.ask(ins.stop())
+    assert sim.outcome(waiting).result is Result.CANCELLED
+    sim.run(3.0)
+    assert not [data for _, data in sim.sent[written:] if data.startswith(b"#")]
+    sim.outcome(sim.ask(ins.release()))
+    written = len(sim.sent)
+    too_far = replace(ins.trajectory(points), start_ns=sim.wall + 10_500_000_000)
+    reason = sim.outcome(sim.ask(too_far)).reason
+    assert reason.startswith("its start (header.stamp) is 10.5 s ahead"), reason
+    assert sim.sent[written:] == []
+    past = replace(ins.trajectory(points), start_ns=sim.wall - 5_000_000_000)
+    start = sim.t
+    assert sim.outcome(sim.ask(past)).result is Result.DONE
+    first = next(t for t, data in sim.sent[written:] if data.startswith(b"#"))
+    assert first - start < 0.01

@@ -5,13 +5,13 @@ input the core takes.
 `hypothesis.stateful` plays clients on the pure core (`al5d.arm.core.step`) with an
 emulated board on a virtual wire: moves, moves whose sender waits only so long,
 set-points of a stream (bursts, a stream that goes quiet, one that goes on through a
-stop), trajectories, Cartesian lines, stops (some seen twice, as the bridge's node and
-the stop watcher both see a stop on the topic), stops that come after a release sent
-after them (held up behind a flood, or by a link that was down), releases (some sent
-before the last stop and arriving after it), cancels, lost clients, a board pulled and
-plugged back, a silent board, a reset, time passing (some of it with the owner's thread
-not running: a frozen or starved owner) and a shutdown;
-several of them at one instant, in any order. After every input:
+stop), trajectories (some to start later: `Instruction.start_ns`), Cartesian lines,
+stops (some seen twice, as the bridge's node and the stop watcher both see a stop on the
+topic), stops that come after a release sent after them (held up behind a flood, or by a
+link that was down), releases (some sent before the last stop and arriving after it),
+cancels, lost clients, a board pulled and plugged back, a silent board, a reset, time
+passing (some of it with the owner's thread not running: a frozen or starved owner) and
+a shutdown; several of them at one instant, in any order. After every input:
 
 - the state and the outcomes agree: `ready`, `stopped`, `fault` and `shutting_down` only
   while no motion request is without its outcome, `moving` only while one is;
@@ -23,6 +23,7 @@ several of them at one instant, in any order. After every input:
   reported done before the board has it where it was sent;
 - no line on the wire holds a partial number (a line cut by a stop's ESC holds whole
   commands only), and one thread wrote every byte;
+- no trajectory's first line is written before its start;
 
 and at the end of each example:
 
@@ -53,7 +54,7 @@ from hypothesis.stateful import RuleBasedStateMachine, invariant, precondition, 
 
 from al5d.arm import instruction as ins
 from al5d.arm.config import ArmConfig, load_config
-from al5d.arm.corestate import Ask, Cancelled, Effect, Input, Resolve, Send
+from al5d.arm.corestate import Ask, Cancelled, Effect, Input, Moved, Resolve, Send
 from al5d.arm.instruction import Instruction, Kind, Point, Result
 from al5d.arm.running import OVER_BY_S
 from al5d.arm.states import State
@@ -127,6 +128,7 @@ class CoreProtocol(RuleBasedStateMachine):
         self.released: list[float] = []  # when each release was done
         self.stalls: list[tuple[float, float]] = []  # when the owner's thread did not run
         self.reset_seen = False  # the board has reset in this example
+        self.starts: dict[str, float] = {}  # a trajectory's start, by id (the sim's clock)
         self.sim = Sim(CONFIG, baud=random.choice((9600, 115_200)))
         self.sim.watch = self._after_input
         self.sim.ready()
@@ -150,6 +152,11 @@ class CoreProtocol(RuleBasedStateMachine):
         for e in effects:
             if stop and isinstance(e, Send) and e.data.startswith(p.CANCEL + b"STOP"):
                 self.stop_sends.append(self.sim.t)
+            if isinstance(e, Moved) and e.sent.step == 0:
+                start = self.starts.get(e.sent.instr.id, -math.inf)
+                if e.sent.t_write < start - 1e-9:
+                    early = (start - e.sent.t_write) * 1000
+                    self.problems.append(f"{e.sent.instr.id} written {early:.1f} ms early")
         for e in _resolves(effects):
             asked = self.by_ref.get(e.ref)
             if asked is None:
@@ -382,7 +389,13 @@ class CoreProtocol(RuleBasedStateMachine):
             Point(((joint, self.ready[joint] + 1.5 * (k + 1)),), step * (k + 1))
             for k in range(rng.randint(2, 12))
         )
-        self._ask("trajectory", ins.trajectory(points))
+        instr = ins.trajectory(points)
+        ahead_ms = rng.choice([0, 0, 0, 100, 400])
+        if ahead_ms:
+            count("arm core: trajectories to start later")
+            instr = dataclasses.replace(instr, start_ns=self.sim.wall + ahead_ms * 1_000_000)
+            self.starts[instr.id] = self.sim.t + ahead_ms / 1000
+        self._ask("trajectory", instr)
 
     # -- rules -------------------------------------------------------------------------
 

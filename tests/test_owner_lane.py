@@ -481,6 +481,8 @@ def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:
         b'{"op": "ask", "ref": 11, "instr": {"kind": "preset", "preset": "park", '
         b'"joints": [["base", 3]]}}\n',
         b'{"op": "bye", "ref": 12, "left_by": 5}\n',
+        b'{"op": "ask", "ref": 13, "instr": {"kind": "trajectory", '
+        b'"start_ns": 9223372036854775808}}\n',
         b'{"op": "ask", "ref": 5, "instr": {"kind": "move", "joints": [["base", 3]]}}\n',
     ]
     sock.sendall(b"".join(lines))
@@ -494,6 +496,7 @@ def test_bad_lines_get_clear_errors_and_the_lane_goes_on(arm: Served) -> None:
     for ref in (6, 7):  # a number past a message's uint32 failed the owner's step
         assert "wait_ms is how long its sender waits" in str(got[ref]["error"])
     assert "sent_ns is a time in ns since 1970" in str(got[8]["error"])
+    assert "start_ns is a time in ns since 1970" in str(got[13]["error"])
     assert "bye: left_by must be text" in str(got[12]["error"])
     # As over ROS 2: what the word does not take is refused, not dropped without a word.
     for ref, reason in (

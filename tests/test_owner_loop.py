@@ -422,6 +422,7 @@ def _lane_messages() -> st.SearchStrategy[dict[str, object]]:
                 "tool": st.lists(anything, min_size=7, max_size=7),
                 "sent_ns": st.integers(),
                 "wait_ms": st.integers(),
+                "start_ns": st.integers(),
             }.items()
         },
     )

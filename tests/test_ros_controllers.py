@@ -161,6 +161,39 @@ def test_a_trajectory_runs_one_group_move_per_point_in_order_at_its_times(rig: R
         assert abs(ends[j] - deg) < 0.5
 
 
+def test_a_trajectory_stamped_ahead_starts_at_its_stamp(rig: Rig) -> None:
+    """`header.stamp` 1.5 s ahead: the goal is accepted at once and its first line reaches
+    the board no earlier than the stamp (ros2_control's controllers start a trajectory at
+    its stamp; it started at once, whatever the stamp said). A stamp 60 s ahead (a
+    sender's clock likely wrong) is rejected, naming the stamp, with nothing written."""
+    rig.recover()
+    rig.emu.clear_records()
+    goal = rig.trajectory([(0.3, pose(base=15, shoulder=10, elbow=60))])
+    ahead_s = 1.5
+    asked, wall = time.monotonic(), time.time_ns()
+    stamp = wall + round(ahead_s * 1e9)
+    goal.trajectory.header.stamp.sec, goal.trajectory.header.stamp.nanosec = divmod(stamp, 10**9)
+    handle = rig.send(rig.fjt, goal)
+    assert handle.accepted
+    answer = wait_future(handle.get_result_async(), 30)
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result.error_string
+    moves = [r for r in rig.emu.records if any(isinstance(c, p.GroupMove) for c in r.commands)]
+    assert moves, rig.emu.records
+    # A lower bound, which a busy host only makes later: the line's CR came after the stamp.
+    assert moves[0].t_effect >= asked + ahead_s, moves[0].t_effect - asked
+    rig.emu.clear_records()
+    far = rig.trajectory([(0.3, pose(base=-15, shoulder=10, elbow=60))])
+    stamp = time.time_ns() + 60 * 10**9
+    far.trajectory.header.stamp.sec, far.trajectory.header.stamp.nanosec = divmod(stamp, 10**9)
+    handle = rig.send(rig.fjt, far)
+    assert not handle.accepted
+    refusal = rig.peer.result(bytes(handle.goal_id.uuid).hex())
+    assert refusal.outcome == "refused", refusal
+    assert refusal.reason.startswith("its start (header.stamp) is 60.0 s ahead"), refusal.reason
+    time.sleep(0.2)
+    assert only_link_checks(rig), "a rejected goal wrote to the board"
+
+
 def test_a_moveit_shaped_trajectory_from_the_start_state_succeeds(rig: Rig) -> None:
     # What MoveIt sends: the first point is the current state (from /joint_states) at
     # time_from_start 0, then points about 0.1 s apart with velocities and accelerations.

@@ -124,6 +124,7 @@ from al5d.arm.instruction import (
     Kind,
     Result,
     beyond_its_word,
+    start_too_far,
 )
 from al5d.arm.jobs import NO_JOBS, Job, Mode, outcome
 from al5d.arm.states import (
@@ -289,6 +290,14 @@ def takes_no_moves(c: Core) -> str:
     return refusal(c.state, c.fault, c.order.locked_by)
 
 
+def _start_at(instr: Instruction, ev: Ask) -> tuple[float, str]:
+    """When (the owner's clock) `instr` may be written, from its `start_ns`, and why it is
+    refused for it ("")."""
+    if instr.start_ns is None or instr.start_ns <= ev.wall:
+        return -math.inf, ""
+    return ev.t + (instr.start_ns - ev.wall) / 1e9, start_too_far(instr.start_ns, ev.wall)
+
+
 def _admit(c: Core, ev: Ask, out: Out) -> Core:
     """A motion instruction comes: judged whole (unless its ticket was), then cancelled,
     refused, queued, or started now."""
@@ -309,6 +318,8 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
         give_up_at = ev.t + instr.wait_ms / 1000 - max(0, ev.wall - sent) / 1e9
         if give_up_at <= ev.t:
             reason = f"{given_up(instr)}: stale, not run"
+    start_at, too_far = _start_at(instr, ev)
+    reason = reason or too_far
     if reason:
         _refuse(ev, reason, out)
         return c
@@ -324,6 +335,7 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
         tell=ev.tell,
         follow=ticket.follow,
         give_up_at=give_up_at,
+        start_at=start_at,
     )
     replaced = None
     if job.stream:

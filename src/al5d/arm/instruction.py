@@ -145,6 +145,10 @@ class Instruction:
     #: How long its sender waits for its outcome, from when it was sent (ms; 0: for ever).
     #: Then the sender has given up on it: it is cancelled if it waits, halted if it runs.
     wait_ms: int = field(default=0, compare=False)
+    #: Not written before this (CLOCK_REALTIME ns, this machine's clock): a trajectory's
+    #: `header.stamp`, where ros2_control's controllers start one too. None, or a time
+    #: already past: when its turn comes.
+    start_ns: int | None = field(default=None, compare=False)
 
     @property
     def name(self) -> str:
@@ -153,6 +157,24 @@ class Instruction:
 
     def __str__(self) -> str:
         return format_instruction(self)
+
+
+#: How far ahead of this machine's clock a start (`Instruction.start_ns`) may be: further is
+#: more likely a sender's clock that is wrong than a wait meant (the queue waits behind it).
+START_AHEAD_S = 10.0
+
+
+def start_too_far(start_ns: int | None, wall_ns: int) -> str:
+    """Why a start `start_ns` is refused when this machine's clock says `wall_ns` (more than
+    `START_AHEAD_S` ahead), or ""."""
+    ahead_s = ((start_ns or 0) - wall_ns) / 1e9
+    if ahead_s <= START_AHEAD_S:
+        return ""
+    return (
+        f"its start (header.stamp) is {ahead_s:.1f} s ahead of this machine's clock, more than "
+        f"{START_AHEAD_S:g} s: is its sender's clock right? (a zero stamp starts it when its "
+        "turn comes)"
+    )
 
 
 def beyond_its_word(instr: Instruction) -> str:

@@ -57,6 +57,8 @@ class Job:
     follow: Follow | None = None
     #: When its sender gives up on it (the owner's clock, s; inf: never): `Instruction.wait_ms`.
     give_up_at: float = math.inf
+    #: Not written before this (the owner's clock, s): `Instruction.start_ns`.
+    start_at: float = -math.inf
 
 
 #: A list of jobs as nested pairs (first, rest): adding to its head shares its tail.

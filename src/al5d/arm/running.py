@@ -107,7 +107,8 @@ def start(c: Core, job: Job, t: float, out: Out) -> Core:
         return c
     # A run of one step checked in this step is written in it: its check took microseconds.
     worked = not job.steps or len(steps) > 1
-    return replace(c, run=Run(job, steps, not_before=t if worked else -math.inf))
+    not_before = max(t if worked else -math.inf, job.start_at)
+    return replace(c, run=Run(job, steps, not_before=not_before))
 
 
 # -- planning a step --------------------------------------------------------------------

@@ -142,6 +142,8 @@ def instruction_out(instr: Instruction) -> dict[str, Any]:
         out["sent_ns"] = instr.sent_ns
     if instr.wait_ms:
         out["wait_ms"] = instr.wait_ms
+    if instr.start_ns is not None:
+        out["start_ns"] = instr.start_ns
     return out
 
 
@@ -224,9 +226,10 @@ def instruction_in(data: Any) -> Instruction:
             _maybe(t[5], "gripper"),
             bool(t[6]),
         )
-    sent = data.get("sent_ns")
-    if sent is not None and not 0 <= _int(sent, "sent_ns") < 2**63:
-        raise LaneError("instr: sent_ns is a time in ns since 1970 (0 to 2**63 - 1)")
+    sent, start = data.get("sent_ns"), data.get("start_ns")
+    for name, ns in (("sent_ns", sent), ("start_ns", start)):
+        if ns is not None and not 0 <= _int(ns, name) < 2**63:
+            raise LaneError(f"instr: {name} is a time in ns since 1970 (0 to 2**63 - 1)")
     wait_ms = _int(data.get("wait_ms", 0), "wait_ms")
     if not 0 <= wait_ms < 2**32:
         raise LaneError("instr: wait_ms is how long its sender waits: 0 (for ever) to 2**32 - 1")
@@ -240,6 +243,7 @@ def instruction_in(data: Any) -> Instruction:
         tool=tool,
         sent_ns=None if sent is None else _int(sent, "sent_ns"),
         wait_ms=wait_ms,
+        start_ns=None if start is None else _int(start, "start_ns"),
     )
 
 

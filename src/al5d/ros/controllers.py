@@ -40,9 +40,10 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from al5d.arm.instruction import Instruction, Kind, Outcome, Result
+from al5d.arm.instruction import Instruction, Kind, Outcome, Result, start_too_far
 from al5d.arm.jobs import Sent
 from al5d.arm.resample import Follow
+from al5d.clock import wall_ns
 from al5d.model import ArmModel, ModelError
 from al5d.owner.client import Judged, Remote
 from al5d.ros.actions import (
@@ -185,7 +186,12 @@ class FollowTrajectoryAction(GoalRunner):
         instr = trajectory_from_message(goal.trajectory, self.model, prefix=self.prefix)
         if isinstance(instr, str):
             return instr
-        instr = Instruction(Kind.TRAJECTORY, points=instr.points, id=ident, sent_ns=sent)
+        too_far = start_too_far(instr.start_ns, wall_ns())  # rejected, as the owner would
+        if too_far:
+            return too_far
+        instr = Instruction(
+            Kind.TRAJECTORY, points=instr.points, id=ident, sent_ns=sent, start_ns=instr.start_ns
+        )
         names = list(goal.trajectory.joint_names)
         path = tolerances(goal.path_tolerance, names, self.prefix)
         end = tolerances(goal.goal_tolerance, names, self.prefix)

@@ -279,7 +279,8 @@ def trajectory_from_message(
     """The trajectory of a message (the URDF's joint values to the arm's degrees, times to
     ms), or why it is not one. The points' joints and times are judged by the driver's
     validation, whole; a name the URDF does not have is kept for it to name. Every name
-    carries the arm's joint `prefix` (`server.joint_prefix`)."""
+    carries the arm's joint `prefix` (`server.joint_prefix`). A `header.stamp` that is not
+    zero is when it starts (`Instruction.start_ns`), as ros2_control's controllers take it."""
     names: list[str] = []
     for given in msg.joint_names:
         name = model_joint(given, prefix)
@@ -321,7 +322,15 @@ def trajectory_from_message(
                 return f"point {i}: {deg}"
             degrees.append((name, deg))
         points.append(Point(tuple(degrees), at_ms))
-    return Instruction(Kind.TRAJECTORY, points=tuple(points), id=trajectory_id(msg), sent_ns=sent)
+    stamp = msg.header.stamp
+    start = stamp.sec * 1_000_000_000 + stamp.nanosec  # before 1970 (sec < 0): past
+    return Instruction(
+        Kind.TRAJECTORY,
+        points=tuple(points),
+        id=trajectory_id(msg),
+        sent_ns=sent,
+        start_ns=start if start > 0 else None,
+    )
 
 
 #: What a value may be off its URDF limit and still be taken (it is checked again, in the
