@@ -25,6 +25,7 @@ from al5d.arm.states import State
 from al5d.arm.validate import judge
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator.board import Fault
+from al5d_rig.armrig import LINK_CHECK
 from al5d_rig.sim import Sim
 
 #: Two moves from the shipped configuration: the second is judged fine when it comes (its
@@ -1162,14 +1163,18 @@ def test_a_trajectory_with_a_start_ahead_waits_for_it_and_one_too_far_ahead_is_r
     """A trajectory's start (`header.stamp`, as ros2_control's controllers take it) 0.8 s
     ahead: nothing of it is written before then, its first line then; a stop while it waits
     cancels it unwritten; a start further ahead than `START_AHEAD_S` (a sender's clock
-    likely wrong) is refused, nothing written; one already past starts at once."""
+    likely wrong) is refused, nothing written; one already past starts at once. While it
+    waits the link is checked as during a move: a board that resets then is found before
+    the start (the arm locked, nothing written). A start after its sender gives up, or on
+    anything but a trajectory, is refused."""
     points = (Point((("base", 10.0),), 200.0), Point((("base", 20.0),), 400.0))
     written = len(sim.sent)
     start = sim.t
     ahead = replace(ins.trajectory(points), start_ns=sim.wall + 800_000_000)
     ref = sim.ask(ahead)
     sim.run(0.79)
-    assert sim.sent[written:] == [] and sim.core.state is State.MOVING
+    assert sim.core.state is State.MOVING
+    assert [data for _, data in sim.sent[written:] if not LINK_CHECK.fullmatch(data[:-1])] == []
     assert sim.outcome(ref).result is Result.DONE
     first = next(t for t, data in sim.sent[written:] if data.startswith(b"#"))
     assert first - start == pytest.approx(0.8, abs=1e-3)
@@ -1191,3 +1196,32 @@ def test_a_trajectory_with_a_start_ahead_waits_for_it_and_one_too_far_ahead_is_r
     assert sim.outcome(sim.ask(past)).result is Result.DONE
     first = next(t for t, data in sim.sent[written:] if data.startswith(b"#"))
     assert first - start < 0.01
+    late = replace(ins.trajectory(points), start_ns=sim.wall + 500_000_000, wait_ms=300)
+    reason = sim.outcome(sim.ask(late)).reason
+    assert reason == "it would start after its sender gives up on it (300 ms)", reason
+    move = replace(ins.move(base=5), start_ns=sim.wall + 500_000_000)
+    reason = sim.outcome(sim.ask(move)).reason
+    assert reason == "move takes no start (start_ns): only a trajectory does", reason
+    written = len(sim.sent)
+    reset = sim.ask(replace(ins.trajectory(points), start_ns=sim.wall + 5_000_000_000))
+    sim.run(0.5)
+    sim.board.reset(sim.t)
+    assert sim.until(lambda: sim.core.state is State.FAULT, 1.0)
+    assert sim.outcomes[reset].result is Result.CANCELLED and sim.core.locked
+    assert not [data for _, data in sim.sent[written:] if data.startswith(b"#")]
+
+
+def test_a_stop_seen_by_both_readers_locks_from_the_earlier_of_their_times(sim: Sim) -> None:
+    """The node and the stop watcher each put a client's stop on this machine's clock by
+    their own measure of its clock: 3 ms apart here. A release its client sent 1 ms after
+    the stop unlocks the arm, whichever reader's time came first (a CI run: a replay's stop
+    and release, recorded 1 ns apart, the release refused as sent before the stop); one
+    sent before the earlier time does not."""
+    t = sim.wall - 10_000_000
+    for first, again in ((t + 3_000_000, t), (t, t + 3_000_000)):
+        key = ("both readers", first)
+        sim.outcome(sim.ask(replace(ins.stop(id=f"s{first}"), sent_ns=first), key=key))
+        sim.outcome(sim.ask(replace(ins.stop(id=f"s{first}"), sent_ns=again), key=key))
+        older = sim.outcome(sim.ask(replace(ins.release(), sent_ns=t - 1_000_000)))
+        assert older.result is Result.REFUSED, older
+        assert sim.outcome(sim.ask(replace(ins.release(), sent_ns=t + 1_000_000))).ok

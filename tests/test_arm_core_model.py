@@ -7,11 +7,12 @@ emulated board on a virtual wire: moves, moves whose sender waits only so long,
 set-points of a stream (bursts, a stream that goes quiet, one that goes on through a
 stop), trajectories (some to start later: `Instruction.start_ns`), Cartesian lines,
 stops (some seen twice, as the bridge's node and the stop watcher both see a stop on the
-topic), stops that come after a release sent after them (held up behind a flood, or by a
-link that was down), releases (some sent before the last stop and arriving after it),
-cancels, lost clients, a board pulled and plugged back, a silent board, a reset, time
-passing (some of it with the owner's thread not running: a frozen or starved owner) and
-a shutdown; several of them at one instant, in any order. After every input:
+topic, each reader's time for it a few ms apart), stops that come after a release sent
+after them (held up behind a flood, or by a link that was down), releases (some sent
+before the last stop and arriving after it), cancels, lost clients, a board pulled and
+plugged back, a silent board, a reset, time passing (some of it with the owner's thread
+not running: a frozen or starved owner) and a shutdown; several of them at one instant,
+in any order. After every input:
 
 - the state and the outcomes agree: `ready`, `stopped`, `fault` and `shutting_down` only
   while no motion request is without its outcome, `moving` only while one is;
@@ -290,15 +291,21 @@ class CoreProtocol(RuleBasedStateMachine):
             move = ins.move(time_ms=rng.choice([0, 300, 1500]), **target)
             self._ask("move", dataclasses.replace(move, wait_ms=rng.randint(1, 900)))
 
-    def _stop(self, twice: bool) -> None:
+    def _stop(self, twice: bool, apart_ms: int = 3) -> None:
         if not twice:
             self._ask("stop", ins.stop())
             return
         instr, key = ins.stop(), ("model", next(KEYS))
         self.keyed.append(key)
         told = len(self.sim.told)
-        first = self._ask("stop", instr, key=key)
-        again = self._ask("stop", instr, key=key)
+        # Each reader puts the stop's time on this machine's clock by its own measure of
+        # its client's: a few ms apart.
+        sent = self.sim.wall - 5_000_000
+        first = self._ask("stop", dataclasses.replace(instr, sent_ns=sent), key=key)
+        later = dataclasses.replace(instr, sent_ns=sent + apart_ms * 1_000_000)
+        again = self._ask("stop", later, key=key)
+        if self.lock_holder in (first, again):  # the lock counts from the earlier
+            self.lock_holder = min(first, again, key=_sent)
         if self.sim.outcomes[first.ref] != self.sim.outcomes[again.ref]:
             self.problems.append("a stop seen twice was answered differently")
         times = sum(o.id == instr.id for o in self.sim.told[told:])
@@ -410,9 +417,9 @@ class CoreProtocol(RuleBasedStateMachine):
         self._impatient(n, random.Random(seed))
 
     @precondition(lambda self: not self.ended)
-    @rule(twice=st.booleans())
-    def stop(self, twice: bool) -> None:
-        self._stop(twice)
+    @rule(twice=st.booleans(), apart_ms=st.sampled_from([-3, 0, 3]))
+    def stop(self, twice: bool, apart_ms: int) -> None:
+        self._stop(twice, apart_ms)
 
     @precondition(lambda self: not self.ended)
     @rule(pick=st.integers(0, 100))

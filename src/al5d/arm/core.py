@@ -71,7 +71,8 @@ owner took it, where the channel does not say), and the order of sending, not of
    or, for a copy `<stop>~<n>` that names its client, its client's and the stop's id,
    which every copy its client sends again shares), obeyed once and answered once; a copy
    (an id of its own) that comes later, even after a release, is that stop: answered,
-   not obeyed again.
+   not obeyed again. Its lock counts from the earlier of the two readers' times for it
+   (each measures its client's clock on its own: `Order.seen_earlier`).
 
 A fault, a board's reset and the shutdown are the owner's own events: they count as
 sent when the owner takes them.
@@ -211,7 +212,10 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
         if known is not None:
             answer = replace(known, id=ev.instr.id)
             copy = (ev.key, ev.instr.id)
-            if known.id == ev.instr.id or copy in c.order.stops:  # seen by another reader
+            if known.id == ev.instr.id:  # the stop, seen by the other reader
+                out.append(Resolve(ev.ref, answer, tell=False))
+                return replace(c, order=c.order.seen_earlier(ev.key, _sent(ev)))
+            if copy in c.order.stops:  # a copy, seen by the other reader
                 out.append(Resolve(ev.ref, answer, tell=False))
                 return c
             # A copy of its own id: answered under it, and told, once.
@@ -220,7 +224,7 @@ def _stop(c: Core, ev: Ask, out: Out) -> Core:
     sent = _sent(ev)
     c = running.over(c, ev.t, out)
     c, jobs = drop(c, "cancelled by stop", sent)
-    c = lock_arm(c, LOCKED_BY_STOP, sent)
+    c = lock_arm(c, LOCKED_BY_STOP, sent, ev.key)
     board_open = c.link.open
     c = fire(halt(c, ev.t, out), Event.STOP, out)
     note = (
@@ -319,6 +323,8 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
         if give_up_at <= ev.t:
             reason = f"{given_up(instr)}: stale, not run"
     start_at, too_far = _start_at(instr, ev)
+    if start_at >= give_up_at:
+        too_far = f"it would start after its sender gives up on it ({instr.wait_ms} ms)"
     reason = reason or too_far
     if reason:
         _refuse(ev, reason, out)

@@ -362,6 +362,7 @@ class Run:
     #: work, or the wire's account starts that long before its bytes do: the next hop of a
     #: line takes effect before this one has ended (its corner cut), and every point of a
     #: trajectory is written that much early (its schedule counts from the first line).
+    #: Or its job's start, where that is later (`Job.start_at`: a trajectory's stamp).
     not_before: float = -math.inf
 
 
@@ -489,9 +490,10 @@ def send(c: Core, data: bytes, t: float, out: Out, *, pulses: bool = True) -> Co
     return replace(c, link=link)
 
 
-def lock_arm(c: Core, by: str, sent_ns: int) -> Core:
-    """Lock (or keep locked), by an event sent at `sent_ns`: a release must be sent later."""
-    return replace(c, locked=True, order=c.order.locked(by, sent_ns, c.locked))
+def lock_arm(c: Core, by: str, sent_ns: int, key: Hashable | None = None) -> Core:
+    """Lock (or keep locked), by an event sent at `sent_ns` (a stop known by `key`): a
+    release must be sent later."""
+    return replace(c, locked=True, order=c.order.locked(by, sent_ns, c.locked, key))
 
 
 def drop(c: Core, why: str, sent_ns: int) -> tuple[Core, list[Job]]:

@@ -179,14 +179,16 @@ def start_too_far(start_ns: int | None, wall_ns: int) -> str:
 
 def beyond_its_word(instr: Instruction) -> str:
     """Why `instr` carries what its word does not take (ambiguous: which did its sender
-    mean?), or "". A preset takes a time only; a release or a shutdown nothing; a stop is
-    obeyed whatever it carries."""
+    mean?), or "". A preset takes a time only; a release or a shutdown nothing; a start
+    only a trajectory; a stop is obeyed whatever it carries."""
     if instr.kind is Kind.PRESET and (instr.joints or instr.points or instr.tool):
         return f"{instr.preset} is a preset: it takes no joints (ambiguous); send a move instead"
     if instr.kind in (Kind.RELEASE, Kind.SHUTDOWN) and (
         instr.joints or instr.time_ms or instr.points or instr.tool or instr.preset
     ):
         return f"{instr.kind.value} takes no joints or time (ambiguous); send it alone"
+    if instr.start_ns is not None and instr.kind not in (Kind.TRAJECTORY, Kind.STOP):
+        return f"{instr.name} takes no start (start_ns): only a trajectory does"
     return ""
 
 

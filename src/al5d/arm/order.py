@@ -26,6 +26,8 @@ class Order:
     dropped_why: str = ""
     locked_ns: int = -1
     locked_by: str = ""
+    #: The key of the stop that holds the lock, where it has one (`Ask.key`).
+    locked_key: Hashable | None = None
     released_ns: int = -1
     #: The stops obeyed by key, oldest first, with their outcomes.
     stops: Mapping[Hashable, Outcome] = field(default_factory=dict)
@@ -38,12 +40,24 @@ class Order:
             return self
         return replace(self, dropped_ns=sent_ns, dropped_why=why)
 
-    def locked(self, by: str, sent_ns: int, already: bool) -> Order:
-        """The arm was locked (or `already` was) by an event sent at `sent_ns`: a release must
-        be sent after the latest such event."""
+    def locked(self, by: str, sent_ns: int, already: bool, key: Hashable | None = None) -> Order:
+        """The arm was locked (or `already` was) by an event sent at `sent_ns` (a stop known
+        by `key`): a release must be sent after the latest such event."""
         if already and sent_ns < self.locked_ns:
             return self
-        return replace(self, locked_ns=sent_ns, locked_by=by)
+        return replace(self, locked_ns=sent_ns, locked_by=by, locked_key=key)
+
+    def seen_earlier(self, key: Hashable, sent_ns: int) -> Order:
+        """The stop known by `key` seen again by the other reader of its topic, as sent at
+        `sent_ns`: where it holds the lock, the lock counts from the earlier of the two.
+        Each reader (the node `al5d` and the stop watcher, two processes) puts a client's
+        times on this machine's clock by its own measure of that client's clock, and the
+        two measures differ by milliseconds: a release sent by the same client right after
+        its stop, judged by the node, was taken for older than the stop as the watcher
+        judged it (a CI run: a replay's stop and release, recorded 1 ns apart)."""
+        if key != self.locked_key or sent_ns >= self.locked_ns:
+            return self
+        return replace(self, locked_ns=sent_ns)
 
     def released(self, sent_ns: int) -> Order:
         return replace(self, released_ns=max(self.released_ns, sent_ns))

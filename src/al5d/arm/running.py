@@ -46,6 +46,9 @@ WIRE_HORIZON_S = 0.02
 #: A line longer than this on the wire goes out in pieces of about it (9 bytes at 9600
 #: baud, 115 at 115200: only the slow bauds' long lines are cut).
 WIRE_PIECE_S = 0.01
+#: A run that waits longer than this for its start (`Job.start_at`) says so: the arm stands
+#: still while `moving`, and what comes after waits behind it.
+SAID_WAIT_S = 0.5
 #: A point of a trajectory whose line takes effect later than its schedule by more than
 #: this is judged against the path tolerance (less is the wire's and the host's jitter).
 LATE_JUDGED_S = 0.005
@@ -108,6 +111,9 @@ def start(c: Core, job: Job, t: float, out: Out) -> Core:
     # A run of one step checked in this step is written in it: its check took microseconds.
     worked = not job.steps or len(steps) > 1
     not_before = max(t if worked else -math.inf, job.start_at)
+    if job.start_at - t > SAID_WAIT_S:
+        wait = f"waits {job.start_at - t:.2f} s for its start (header.stamp)"
+        say(out, logging.INFO, f"{job.instr.name} [{job.instr.id}]: {wait}")
     return replace(c, run=Run(job, steps, not_before=not_before))
 
 
@@ -320,7 +326,8 @@ def wakes(c: Core, run: Run) -> list[float]:
     """When the run has something to do next (`core.wake_at`)."""
     written = run.written
     if written is None:
-        return [max(c.link.free_at - horizon(run.job), math.nextafter(run.not_before, math.inf))]
+        write_at = max(c.link.free_at - horizon(run.job), math.nextafter(run.not_before, math.inf))
+        return [write_at, _start_watch_at(c, run)]
     if run.confirming:
         return [run.poll_at]
     times = [_until(run, written), _watch_at(c, written)]
@@ -334,6 +341,15 @@ def _until(run: Run, written: Written) -> float:
     takes effect as this one ends), or at its end for the last."""
     last = run.k == len(run.steps) - 1
     return written.t_end if last else written.t_end - written.wire_s
+
+
+def _start_watch_at(c: Core, run: Run) -> float:
+    """When the link is next checked while a run waits for its start (`Job.start_at`), as
+    during a step: every `moving_check_interval_s`, while at least half of that is left
+    before the start, so that the check's answer is in before the first line is due."""
+    every = c.arm.settings.moving_check_interval_s
+    at = c.link.watched + every
+    return at if run.job.start_at - at > every / 2 else math.inf
 
 
 def _watch_at(c: Core, written: Written) -> float:
@@ -387,6 +403,8 @@ def progress(c: Core, t: float, out: Out) -> Core:
     assert run is not None
     written = run.written
     if written is None:
+        if t >= _start_watch_at(c, run) and can_ask(c, t):
+            c = watch(c, t, out)
         return _write(c, run, t, out)
     settings = c.arm.settings
     if run.job.stream and _quiet_at(c, run, written) <= t < written.t_end:
