@@ -16,6 +16,10 @@ from al5d.arm.instruction import Outcome
 
 #: Stop identities remembered, so that a stop both readers see is obeyed once.
 STOPS_REMEMBERED = 1024
+#: How much earlier the other reader's time for a stop may put its lock (`seen_earlier`):
+#: the two readers' measures of one client's clock differ by milliseconds; by more, one of
+#: them had no measure yet (the stop watcher takes the client's own clock then).
+SEEN_EARLIER_NS = 50_000_000
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,7 +48,8 @@ class Order:
         """The arm was locked (or `already` was) by an event sent at `sent_ns` (a stop known
         by `key`): a release must be sent after the latest such event."""
         if already and sent_ns < self.locked_ns:
-            return self
+            # Held by a later event: the lock may no longer go below this one's time.
+            return self if key == self.locked_key else replace(self, locked_key=None)
         return replace(self, locked_ns=sent_ns, locked_by=by, locked_key=key)
 
     def seen_earlier(self, key: Hashable, sent_ns: int) -> Order:
@@ -54,10 +59,11 @@ class Order:
         times on this machine's clock by its own measure of that client's clock, and the
         two measures differ by milliseconds: a release sent by the same client right after
         its stop, judged by the node, was taken for older than the stop as the watcher
-        judged it (a CI run: a replay's stop and release, recorded 1 ns apart)."""
+        judged it (a CI run: a replay's stop and release, recorded 1 ns apart). Never by
+        more than `SEEN_EARLIER_NS`, nor where another event has held the lock since."""
         if key != self.locked_key or sent_ns >= self.locked_ns:
             return self
-        return replace(self, locked_ns=sent_ns)
+        return replace(self, locked_ns=max(sent_ns, self.locked_ns - SEEN_EARLIER_NS))
 
     def released(self, sent_ns: int) -> Order:
         return replace(self, released_ns=max(self.released_ns, sent_ns))
