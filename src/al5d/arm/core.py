@@ -322,10 +322,10 @@ def _admit(c: Core, ev: Ask, out: Out) -> Core:
         give_up_at = ev.t + instr.wait_ms / 1000 - max(0, ev.wall - sent) / 1e9
         if give_up_at <= ev.t:
             reason = f"{given_up(instr)}: stale, not run"
-    start_at, too_far = _start_at(instr, ev)
+    start_at, late_start = _start_at(instr, ev)
     if start_at >= give_up_at:
-        too_far = f"it would start after its sender gives up on it ({instr.wait_ms} ms)"
-    reason = reason or too_far
+        late_start = f"it would start after its sender gives up on it ({instr.wait_ms} ms)"
+    reason = reason or late_start
     if reason:
         _refuse(ev, reason, out)
         return c

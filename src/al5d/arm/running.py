@@ -327,10 +327,10 @@ def wakes(c: Core, run: Run) -> list[float]:
     written = run.written
     if written is None:
         write_at = max(c.link.free_at - horizon(run.job), math.nextafter(run.not_before, math.inf))
-        return [write_at, _start_watch_at(c, run)]
+        return [write_at, _watch_at(c, run.job.start_at)]
     if run.confirming:
         return [run.poll_at]
-    times = [_until(run, written), _watch_at(c, written)]
+    times = [_until(run, written), _watch_at(c, written.t_end)]
     if run.job.stream:
         times.append(_quiet_at(c, run, written))
     return times
@@ -343,21 +343,13 @@ def _until(run: Run, written: Written) -> float:
     return written.t_end if last else written.t_end - written.wire_s
 
 
-def _start_watch_at(c: Core, run: Run) -> float:
-    """When the link is next checked while a run waits for its start (`Job.start_at`), as
-    during a step: every `moving_check_interval_s`, while at least half of that is left
-    before the start, so that the check's answer is in before the first line is due."""
+def _watch_at(c: Core, until: float) -> float:
+    """When the link is next checked before `until` (a step's end, or a run's start:
+    `Job.start_at`): every `moving_check_interval_s`, while at least half of that is left,
+    so that the check's answer is in by then (inf: not before it)."""
     every = c.arm.settings.moving_check_interval_s
     at = c.link.watched + every
-    return at if run.job.start_at - at > every / 2 else math.inf
-
-
-def _watch_at(c: Core, written: Written) -> float:
-    """When the link is next checked during a step: every `moving_check_interval_s`, while
-    at least half of that is left of the step (inf: not during this one)."""
-    every = c.arm.settings.moving_check_interval_s
-    at = c.link.watched + every
-    return at if written.t_end - at > every / 2 else math.inf
+    return at if until - at > every / 2 else math.inf
 
 
 def _quiet_at(c: Core, run: Run, written: Written) -> float:
@@ -403,7 +395,7 @@ def progress(c: Core, t: float, out: Out) -> Core:
     assert run is not None
     written = run.written
     if written is None:
-        if t >= _start_watch_at(c, run) and can_ask(c, t):
+        if t >= _watch_at(c, run.job.start_at) and can_ask(c, t):
             c = watch(c, t, out)
         return _write(c, run, t, out)
     settings = c.arm.settings
@@ -411,7 +403,7 @@ def progress(c: Core, t: float, out: Out) -> Core:
         return _hold(c, t, out)
     last = run.k == len(run.steps) - 1
     if t < _until(run, written):
-        if t >= _watch_at(c, written) and can_ask(c, t):
+        if t >= _watch_at(c, written.t_end) and can_ask(c, t):
             c = watch(c, t, out)
         return c
     if not last:
