@@ -1120,6 +1120,24 @@ def test_a_jog_the_server_refuses_puts_the_sliders_back(config: ArmConfig) -> No
         server.stop()
 
 
+def test_the_jog_goes_at_the_servers_speeds_from_its_robot_description(
+    config: ArmConfig,
+) -> None:
+    """The page's jog keeps the arm going for as long as the server takes: at the speeds of
+    the server's robot description, not of the page's own configuration (a server with a
+    slower base, the page's jog given up short of the slider)."""
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    page = Page(server, config, "al5d test", joint_prefix="left_")
+    try:
+        assert page.jog.speeds == config.speeds_deg_s
+        speeds = {**config.speeds_deg_s, "base": 10.0, "gripper": 40.0}
+        page.on_description(urdf(config.model, speeds, joint_prefix="left_"))
+        assert page.jog.speeds == pytest.approx(speeds)
+    finally:
+        page.close()
+        server.stop()
+
+
 def test_a_jog_held_by_the_servers_watchdog_is_sent_again(rig: Rig) -> None:
     """The page stalls longer than the server's stream watchdog (as on a busy host) while
     the jog's last set-point runs: the server holds the arm short of the slider, and the

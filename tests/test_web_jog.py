@@ -61,6 +61,19 @@ def test_a_moving_arm_keeps_the_jog_alive_for_its_way_and_no_longer() -> None:
     assert jog.due(1.0 + FOLLOW_AFTER_S + 0.1, True, ARM) == (None, "")  # another's move
 
 
+def test_a_jog_is_kept_alive_all_its_way_as_the_arm_goes() -> None:
+    """A slow way (100 deg at 20 deg/s: 5 s), the arm on it at its speed: the set-point is
+    sent at every tick until the arm is there. A window of the way left, measured anew at
+    each tick, ended halfway (at 3.25 s): the server's watchdog held the arm short of the
+    slider, again and again (a CI run of the browser's jog beside two busy loops)."""
+    jog = Jog({"base": 20.0, "shoulder": 50.0})
+    take(jog, "base", 100.0, 0.0)
+    assert jog.due(0.0, False, ARM)[0] == {"base": 100.0}
+    for t in (u / 20 for u in range(int(QUIET_S * 20) + 1, 100)):
+        here = {"base": 20.0 * t, "shoulder": 0.0}
+        assert jog.due(t, True, here)[0] == {"base": 100.0}, t
+
+
 def test_a_target_the_server_would_refuse_is_not_sent_and_said_once_let_go() -> None:
     jog = Jog(SPEEDS)
     take(jog, "base", 500.0, 0.0, "base 500 deg is outside its range")

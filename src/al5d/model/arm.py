@@ -12,6 +12,7 @@ from al5d.model.joints import (
     Ranges,
     degrees_to_urdf,
     urdf_limits,
+    urdf_speeds_to_degrees,
     urdf_to_degrees,
 )
 
@@ -53,6 +54,11 @@ class ArmModel:
     def from_urdf(self, values: Mapping[str, float]) -> dict[str, float]:
         """{URDF joint: radians or metres} -> {joint: arm degrees}."""
         return urdf_to_degrees(values, self.gripper_map)
+
+    def speeds_from_urdf(self, velocities: Mapping[str, float]) -> dict[str, float]:
+        """{URDF joint: velocity limit, rad/s or m/s for the gripper} -> {joint: deg/s}, the
+        servos' speeds a URDF of `al5d.model.urdf` was made with; other joints left out."""
+        return urdf_speeds_to_degrees(velocities, self.gripper_map)
 
     def urdf_limits(self, joint: str) -> tuple[float, float]:
         """(lower, upper) of a URDF joint (radians, or metres for the gripper)."""

@@ -210,6 +210,20 @@ def degrees_to_urdf(degrees: Mapping[str, float], gripper: GripperMap) -> dict[s
     return out
 
 
+def urdf_speeds_to_degrees(
+    velocities: Mapping[str, float], gripper: GripperMap
+) -> dict[str, float]:
+    """{URDF joint: velocity limit, rad/s or m/s for the gripper} -> {joint: deg/s}; the
+    finger mimics and joints not the arm's are left out."""
+    out: dict[str, float] = {}
+    for joint, v in velocities.items():
+        if joint == "gripper":
+            out[joint] = v / gripper.metres_per_deg
+        elif joint in CONVENTIONS:
+            out[joint] = math.degrees(v)
+    return out
+
+
 def urdf_to_degrees(values: Mapping[str, float], gripper: GripperMap) -> dict[str, float]:
     """{URDF joint: radians or metres} -> {joint: arm degrees}; the finger mimics are ignored."""
     out: dict[str, float] = {}

@@ -48,6 +48,9 @@ class Jog:
     #: arm has been idle short of it (None: it is not).
     set_t: float = -math.inf
     short_t: float | None = field(default=None)
+    #: Until when the arm, moving, is on the latest target's way: the target's way from
+    #: where the arm stood when it was last sent, at the servos' speeds, and FOLLOW_AFTER_S.
+    way_until: float = -math.inf
 
     def take(self, joint: str, degrees: float, now: float) -> dict[str, float]:
         """The user moved `joint`'s slider to `degrees`: the jog's whole target now."""
@@ -120,10 +123,13 @@ class Jog:
             self.target, self.refused, self.touched = None, "", -math.inf
             return None, said
         here = degrees or {}
-        # A set-point goes at the servos' speed: there within FOLLOW_AFTER_S of its way's
-        # time (a move of another client's that runs then is not the jog's to keep alive).
-        way_s = FOLLOW_AFTER_S + self._way_s(jog, here)
-        if not self.sent or at_it or (moving and now - self.set_t < way_s):
+        if not self.sent or at_it:
+            # A set-point goes at the servos' speed: there within FOLLOW_AFTER_S of its way's
+            # time from here (a move of another client's that runs after is not the jog's to
+            # keep alive). Measured from where the arm is now, not at each tick: the way left
+            # shrinks as the arm goes, and a window of the way left ended halfway there.
+            self.way_until = now + FOLLOW_AFTER_S + self._way_s(jog, here)
+        if not self.sent or at_it or (moving and now < self.way_until):
             self.sent = True
             self.short_t = None
             return dict(jog), ""
@@ -146,6 +152,7 @@ class Jog:
         if now - self.set_t < JOG_RESEND_S:
             return None, ""
         self.set_t = now
+        self.way_until = now + FOLLOW_AFTER_S + self._way_s(jog, here)
         log.info("web: the jog stopped short of its target: sent again")
         return dict(jog), ""
 

@@ -145,6 +145,10 @@ class Page:
         with self._lock:
             if not self.scene.load(urdf):
                 return
+            # The server's speeds, not this process's configuration's: the jog keeps the
+            # arm going for as long as the server takes to get it there.
+            speeds = self.model.speeds_from_urdf(self.scene.velocities)
+            self.jog.speeds = {**self.jog.speeds, **speeds}
             if self.degrees is not None:
                 self.scene.show_arm(self.degrees)
             self._show_ghost()

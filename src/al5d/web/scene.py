@@ -58,6 +58,9 @@ class ArmScene:
         #: Before the joint names of the URDF the server describes (`server.joint_prefix`).
         self.joint_prefix = joint_prefix
         self.urdf_text: str | None = None
+        #: The velocity limits of the URDF shown, by joint (its prefix taken off): the
+        #: server's servo speeds.
+        self.velocities: dict[str, float] = {}
         self.robot: ViserUrdf | None = None
         self.ghost: ViserUrdf | None = None
         self.physical: ViserUrdf | None = None
@@ -107,7 +110,13 @@ class ArmScene:
         for shown in (self.robot, self.ghost, self.physical):
             if shown is not None:
                 shown.remove()
-        self.robot = ViserUrdf(self.server, _load_urdf(urdf), root_node_name=f"{ROOT}/arm")
+        robot = _load_urdf(urdf)
+        self.velocities = {
+            name.removeprefix(self.joint_prefix): joint.limit.velocity
+            for name, joint in robot.joint_map.items()
+            if joint.limit is not None and joint.limit.velocity
+        }
+        self.robot = ViserUrdf(self.server, robot, root_node_name=f"{ROOT}/arm")
         self.ghost = ViserUrdf(
             self.server,
             _load_urdf(urdf),
