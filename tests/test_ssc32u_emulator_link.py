@@ -3,8 +3,10 @@ and the USB chip's latency timer (issue 11)."""
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 import serial
@@ -14,7 +16,7 @@ from hypothesis import strategies as st
 from al5d.arm.config import ArmConfig
 from al5d.ssc32u import facts
 from al5d.ssc32u import protocol as p
-from al5d.ssc32u.emulator import UART, USB, Emulator, LinkModel, Transport
+from al5d.ssc32u.emulator import UART, USB, Emulator, Fault, LinkModel, Transport
 from al5d.ssc32u.emulator.usb import FtdiChip, Packet, byte_arrivals
 
 
@@ -27,6 +29,27 @@ def usb(config: ArmConfig) -> Iterator[tuple[Emulator, serial.Serial]]:
 def moves(emu: Emulator) -> list[bytes]:
     """The moves the board ran (not those an ESC cancelled half-way)."""
     return [r.raw for r in emu.records if r.commands and r.raw.startswith(b"#0P")]
+
+
+def test_an_unplugged_boards_link_is_gone_until_it_is_plugged_back(
+    config: ArmConfig, tmp_path: Path
+) -> None:
+    """Unplugged, the board's link goes, as a USB adapter's device path does; plugged back,
+    it leads to the board's new pty. Left to the closed pty, it led to whatever took that
+    pty's number next: a reconnecting client opened another process's terminal."""
+    link = tmp_path / "ssc32u"
+    with Emulator(config, link=link) as emu:
+        assert os.readlink(link) == emu.device
+        emu.inject(Fault.DISCONNECT)
+        assert not os.path.lexists(link)
+        with pytest.raises(serial.SerialException):
+            serial.Serial(str(link), 9600, timeout=1).close()
+        emu.reconnect()
+        assert os.readlink(link) == emu.device
+        with serial.Serial(str(link), 9600, timeout=1) as port:
+            port.write(p.encode_version())
+            assert port.read_until(b"\r") == f"{facts.FIRMWARE}\r".encode()
+    assert not os.path.lexists(link)
 
 
 # -- line feeds -------------------------------------------------------------------------------

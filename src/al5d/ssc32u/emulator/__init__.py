@@ -122,10 +122,16 @@ class Emulator(Board):
     # -- faults on the link ---------------------------------------------------
 
     def inject(self, fault: Fault) -> None:
-        """Start a fault. DISCONNECT closes the pty: the client's I/O fails until reconnect().
+        """Start a fault. DISCONNECT closes the pty and takes its link away, as an unplugged
+        adapter's device path goes: the client's I/O and opens fail until reconnect().
         RESET restarts the board now (see `reset`)."""
         super().inject(fault)
         if fault is Fault.DISCONNECT:
+            # The link goes first: left to the closed pty's number, which the system gives
+            # the next pty opened anywhere, a client reopening it opened that (a CI run: a
+            # server reconnecting wrote VER and STOP to another test's terminal, and its
+            # serial settings took the terminal's line ends away).
+            self._link.remove_link()
             self._link.close()
 
     def reset(self, t: float | None = None, announce: bool | None = None) -> list[Answer]:
