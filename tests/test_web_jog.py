@@ -74,6 +74,19 @@ def test_a_jog_is_kept_alive_all_its_way_as_the_arm_goes() -> None:
         assert jog.due(t, True, here)[0] == {"base": 100.0}, t
 
 
+def test_slower_speeds_that_come_on_its_way_keep_the_jog_alive_longer() -> None:
+    """The server's speeds come (its robot description) while a jog is on its way: it is
+    kept alive for its way at them, from where the arm is then."""
+    jog = Jog({"base": 100.0, "shoulder": 50.0})
+    take(jog, "base", 100.0, 0.0)
+    assert jog.due(0.0, False, ARM)[0] == {"base": 100.0}
+    jog.new_speeds({"base": 10.0}, 0.5, {"base": 5.0})
+    assert jog.speeds == {"base": 10.0, "shoulder": 50.0}
+    t = 0.5 + 95 / 10 + FOLLOW_AFTER_S - 0.1  # at 100 deg/s, over at 2.5 s
+    assert jog.due(t, True, {"base": 99.0, "shoulder": 0.0})[0] == {"base": 100.0}
+    assert jog.due(t + 0.2, True, {"base": 99.0, "shoulder": 0.0}) == (None, "")
+
+
 def test_a_target_the_server_would_refuse_is_not_sent_and_said_once_let_go() -> None:
     jog = Jog(SPEEDS)
     take(jog, "base", 500.0, 0.0, "base 500 deg is outside its range")

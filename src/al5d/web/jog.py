@@ -48,8 +48,9 @@ class Jog:
     #: arm has been idle short of it (None: it is not).
     set_t: float = -math.inf
     short_t: float | None = field(default=None)
-    #: Until when the arm, moving, is on the latest target's way: the target's way from
-    #: where the arm stood when it was last sent, at the servos' speeds, and FOLLOW_AFTER_S.
+    #: Until when the arm, moving, is on the latest target's way: the target's way at the
+    #: servos' speeds from where the arm stood when it was sent as new (or while the user
+    #: was at it, or sent again after the arm stopped short), and FOLLOW_AFTER_S.
     way_until: float = -math.inf
 
     def take(self, joint: str, degrees: float, now: float) -> dict[str, float]:
@@ -71,6 +72,16 @@ class Jog:
             return False
         self.refused, self.judged = reason, True
         return True
+
+    def new_speeds(
+        self, speeds: Mapping[str, float], now: float, degrees: Mapping[str, float] | None
+    ) -> None:
+        """The servos' speeds are `speeds` (the server's, by joint; others kept): a target on
+        its way is kept alive for as long as its way takes at them, from `degrees`."""
+        self.speeds = {**self.speeds, **speeds}
+        if self.target is not None and self.sent:
+            way = FOLLOW_AFTER_S + self._way_s(self.target, degrees or {})
+            self.way_until = max(self.way_until, now + way)
 
     def hold(self, now: float) -> None:
         """A slider's new value has come and is not taken yet: the sliders do not follow the
@@ -126,8 +137,8 @@ class Jog:
         if not self.sent or at_it:
             # A set-point goes at the servos' speed: there within FOLLOW_AFTER_S of its way's
             # time from here (a move of another client's that runs after is not the jog's to
-            # keep alive). Measured from where the arm is now, not at each tick: the way left
-            # shrinks as the arm goes, and a window of the way left ended halfway there.
+            # keep alive). Measured from where the arm is now, not at each keep-alive: the way
+            # left shrinks as the arm goes, and a window of the way left ended halfway there.
             self.way_until = now + FOLLOW_AFTER_S + self._way_s(jog, here)
         if not self.sent or at_it or (moving and now < self.way_until):
             self.sent = True

@@ -148,7 +148,7 @@ class Page:
             # The server's speeds, not this process's configuration's: the jog keeps the
             # arm going for as long as the server takes to get it there.
             speeds = self.model.speeds_from_urdf(self.scene.velocities)
-            self.jog.speeds = {**self.jog.speeds, **speeds}
+            self.jog.new_speeds(speeds, time.monotonic(), self.degrees)
             if self.degrees is not None:
                 self.scene.show_arm(self.degrees)
             self._show_ghost()

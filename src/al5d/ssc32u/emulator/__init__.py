@@ -96,8 +96,8 @@ class Emulator(Board):
         return self
 
     def close(self) -> None:
+        self._link.remove_link()  # first: see inject
         self._link.close()
-        self._link.remove_link()
 
     def __enter__(self) -> Emulator:
         return self.start()
@@ -123,7 +123,8 @@ class Emulator(Board):
 
     def inject(self, fault: Fault) -> None:
         """Start a fault. DISCONNECT closes the pty and takes its link away, as an unplugged
-        adapter's device path goes: the client's I/O and opens fail until reconnect().
+        adapter's device path goes: the client's I/O and opens fail until reconnect() (a
+        board with no link has only its pty's path, which the next pty opened may take).
         RESET restarts the board now (see `reset`)."""
         super().inject(fault)
         if fault is Fault.DISCONNECT:
@@ -144,6 +145,7 @@ class Emulator(Board):
         """Plug the adapter back in: a new pty behind the same link; the servos kept their state."""
         self.clear(Fault.DISCONNECT)
         if self._link.is_open:
+            self._link.remove_link()  # first: see inject
             self._link.close()
         self._link.open()
 

@@ -88,7 +88,8 @@ class PtyLink:
     """A pty whose master side is the board: opened by `open()`, ended by `close()`.
 
     `link` (optional) is a symlink kept pointing at the current slave, so that a
-    client's path survives a reconnect (a new pty) as a USB device path would.
+    client's path survives a reconnect (a new pty) as a USB device path would; while
+    unplugged (the emulator's DISCONNECT) there is none, as there is no such device.
     `model` is what the link between computer and board does (USB or UART).
     """
 
