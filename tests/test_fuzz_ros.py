@@ -4,13 +4,16 @@ hypothesis generates ArmInstruction messages (unknown words, empty, huge and
 unicode strings, mismatched joints and degrees, NaN, inf, huge and negative
 values, repeated joints, huge times, long and missing ids), JointTrajectory
 messages (bad sizes, equal or decreasing times, bad points among good ones,
-none) and Move goals (bad or ambiguous fields). The invariants, checked on the
-server's answers and on the emulated board's record:
+none; stamps of no start, past, ahead, too far ahead, and the type's extremes) and
+Move goals (bad or ambiguous fields). The invariants, checked on the server's answers
+and on the emulated board's record:
 
 - every instruction gets exactly one outcome (counted, so that a second one shows);
 - nothing refused writes a byte: the server's trace names the instruction of every
   move it wrote, and none of them was refused (a refused trajectory or goal leaves
   the board's record unchanged);
+- a trajectory stamped ahead writes nothing before its stamp, and one stamped more than
+  `START_AHEAD_S` ahead is refused;
 - no pulse outside the configured ranges ever reaches the wire (a line a stop's ESC cut,
   which the board drops, may end in the first digits of one inside them);
 - the server lives on, and its memory stays bounded.
@@ -40,6 +43,7 @@ from hypothesis import strategies as st
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from al5d.arm.config import ArmConfig, load_config
+from al5d.arm.instruction import START_AHEAD_S
 from al5d_rig.armrig import board_pulses, group_moves, holds
 from al5d_rig.boardproc import BoardProcess
 from al5d_rig.fuzzcount import count, examples
@@ -134,6 +138,42 @@ def trajectories(draw: st.DrawFn) -> JointTrajectory:
             )
         )
     return traj
+
+
+@st.composite
+def valid_trajectories(draw: st.DrawFn) -> JointTrajectory:
+    """Trajectories the server runs: joints of the arm, within their URDF limits, in time."""
+    names = draw(st.lists(st.sampled_from(["base", "elbow", "wrist"]), min_size=1, unique=True))
+    traj = JointTrajectory(joint_names=names)
+    at = 0
+    for _ in range(draw(st.integers(1, 3))):
+        at += draw(st.integers(50, 400))
+        limits = [CONFIG.model.urdf_limits(name) for name in names]
+        positions = [draw(st.floats(lo + (hi - lo) / 4, hi - (hi - lo) / 4)) for lo, hi in limits]
+        traj.points.append(
+            JointTrajectoryPoint(
+                positions=positions,
+                time_from_start=Duration(sec=at // 1000, nanosec=(at % 1000) * 10**6),
+            )
+        )
+    return traj
+
+
+#: A trajectory's `header.stamp`: ("none"), milliseconds from when it is published
+#: ("ahead", negative: past), or a stamp itself ("stamp": sec, nanosec), the type's extremes.
+STARTS = st.one_of(
+    st.just(("none", 0, 0)),
+    st.tuples(st.just("ahead"), st.integers(-5000, 800), st.just(0)),
+    st.tuples(st.just("ahead"), st.integers(int(START_AHEAD_S * 1000) + 500, 10**9), st.just(0)),
+    st.tuples(
+        st.just("stamp"),
+        st.sampled_from([0, 1, -(2**31), 2**31 - 1]),
+        st.sampled_from([0, 1, 999_999_999, 2**32 - 1]),
+    ),
+)
+#: How much sooner than its stamp a line may take effect on the board: the stamp's wall
+#: time is put on the monotonic clock twice (here and in the server), each a few us apart.
+STAMP_SLACK_S = 0.005
 
 
 @st.composite
@@ -275,13 +315,26 @@ def test_instruction_messages(target: Target, batch: list[ArmInstruction]) -> No
 
 
 @settings(RUN, max_examples=examples(60))
-@given(traj=trajectories())
-def test_trajectory_messages(target: Target, traj: JointTrajectory) -> None:
+@given(traj=st.one_of(trajectories(), valid_trajectories()), start=STARTS)
+def test_trajectory_messages(
+    target: Target, traj: JointTrajectory, start: tuple[str, int, int]
+) -> None:
     count("JointTrajectory messages")
     peer, pub = target.peer, target.trajectories
     traj.header.frame_id = uuid.uuid4().hex
     moves_before = moves_so_far(target)
+    records_before = len(target.emu.records)
     pulses_before = board_pulses(target.emu.model())
+    kind, a, b = start
+    published, wall = time.monotonic(), time.time_ns()
+    ahead_s = 0.0
+    if kind == "ahead":
+        ahead_s = a / 1000
+        stamp = wall + a * 1_000_000
+        traj.header.stamp.sec, traj.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+    elif kind == "stamp":
+        traj.header.stamp.sec, traj.header.stamp.nanosec = a, b
+        ahead_s = (a * 1_000_000_000 + b - wall) / 1e9 if a * 1_000_000_000 + b > 0 else 0.0
     pub.publish(traj)
     try:
         result = peer.result(traj.header.frame_id, 30)
@@ -294,10 +347,18 @@ def test_trajectory_messages(target: Target, traj: JointTrajectory) -> None:
         raise AssertionError(
             f"no result for trajectory {traj}; server log:\n{tail}\nserver threads:\n{stacks}"
         ) from None
+    if ahead_s > START_AHEAD_S + 0.5:
+        count("trajectories stamped too far ahead")
+        assert result.outcome == "refused", (ahead_s, result)
     if result.outcome == "refused":
         # Refused whole: nothing written.
         assert len(group_moves(target.emu.records)) == moves_before
-    elif result.outcome == "done":
+    elif ahead_s > 0:
+        count("trajectories stamped ahead, written")
+        written = [r.t_effect for r in target.emu.records[records_before:] if group_moves([r])]
+        early = [t for t in written if t < published + ahead_s - STAMP_SLACK_S]
+        assert not early, f"written {published + ahead_s - min(early):.3f} s before its stamp"
+    if result.outcome == "done":
         moves = group_moves(target.emu.records)[moves_before:]
         held = holds(moves, len(traj.points), pulses_before)
         count("trajectories done after a stop, unsure joints held first", held)
