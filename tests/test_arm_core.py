@@ -1211,6 +1211,39 @@ def test_a_trajectory_with_a_start_ahead_waits_for_it_and_one_too_far_ahead_is_r
     assert not [data for _, data in sim.sent[written:] if data.startswith(b"#")]
 
 
+def test_a_trajectory_cancelled_while_it_waits_for_its_start_writes_nothing(sim: Sim) -> None:
+    """A trajectory waiting for its start, the arm still, cancelled (by its client, or its
+    client lost): nothing to halt, so no STOP goes out and no pose is read back, and the
+    next move is written at once. One cancelled once it has written halts the arm."""
+    points = (Point((("base", 10.0),), 200.0), Point((("base", 20.0),), 400.0))
+    for end in ("cancel", "gone"):
+        waiting = replace(ins.trajectory(points), start_ns=sim.wall + 2_000_000_000)
+        ref = sim.ask(waiting, client=7)
+        sim.run(0.5)
+        written = len(sim.sent)
+        if end == "cancel":
+            sim.cancel(waiting.id)
+        else:
+            sim.gone(7, "lost contact")
+        assert sim.until(lambda: ref in sim.outcomes, 1.0)  # noqa: B023
+        assert sim.outcomes[ref].result is Result.CANCELLED
+        start = sim.t
+        assert sim.outcome(sim.ask(ins.move(base=-5, time_ms=100))).result is Result.DONE
+        sent = [(t, data) for t, data in sim.sent[written:] if not LINK_CHECK.fullmatch(data[:-1])]
+        assert not [data for _, data in sent if p.CANCEL in data or b"STOP" in data], sent
+        assert not [data for _, data in sent if data.startswith(b"QP")], sent
+        first = next(t for t, data in sent if data.startswith(b"#"))
+        assert first - start < 0.01, (end, first - start)
+    # Once written, a cancel halts it.
+    running = ins.trajectory(points)
+    ref = sim.ask(running)
+    sim.run(0.1)
+    written = len(sim.sent)
+    sim.cancel(running.id)
+    assert sim.until(lambda: ref in sim.outcomes, 1.0)
+    assert any(b"STOP" in data for _, data in sim.sent[written:])
+
+
 def test_a_stop_seen_by_both_readers_locks_from_the_earlier_of_their_times(sim: Sim) -> None:
     """The node and the stop watcher each put a client's stop on this machine's clock by
     their own measure of its clock: 3 ms apart here. A release its client sent 1 ms after

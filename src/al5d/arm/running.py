@@ -474,13 +474,31 @@ def _hold(c: Core, t: float, out: Out) -> Core:
     return end_run(c, reason, t, out)
 
 
+def _unwritten(c: Core, run: Run, t: float) -> bool:
+    """Nothing of `run` has gone out, and the arm is still (no motion, no joint on its way)."""
+    book = c.book
+    return (
+        run.k == 0
+        and run.written is None
+        and not run.line
+        and book.motion is None
+        and all(book.way(joint, t) is None for joint in book.ways)
+    )
+
+
 def end_run(c: Core, reason: str, t: float, out: Out, result: Result = Result.CANCELLED) -> Core:
     """The current run ends (cancelled, or refused as it was to be written: `reason`), the
     arm halted where it is on the wire's pace (no lock); the next may start once the pose
-    is read back."""
+    is read back. A run that wrote nothing, the arm still, ends with nothing written."""
     run = c.run
     assert run is not None
-    c = halt(replace(c, run=None), t, out, urgent=False)
+    if _unwritten(c, run, t):
+        # Nothing to halt, nor to read back: the next may start at once (a preempting goal
+        # waited for a STOP and the pose's read-back after a trajectory that waited for its
+        # start and had written nothing).
+        c = replace(c, run=None)
+    else:
+        c = halt(replace(c, run=None), t, out, urgent=False)
     finish(run.job, result, reason, t, out)
     if c.state is State.MOVING and run.job.mode is Mode.QUEUE:
         c = fire(c, Event.MOVE_DONE, out)
