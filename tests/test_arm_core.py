@@ -19,7 +19,7 @@ from al5d.arm import instruction as ins
 from al5d.arm import link as lk
 from al5d.arm.config import ArmConfig
 from al5d.arm.corestate import Announce, Ask, Cancelled, Effect, Posed, Purpose, Received, Say, Send
-from al5d.arm.instruction import FRESH_MARK, Point, Result
+from al5d.arm.instruction import FRESH_MARK, NOT_RUN, Point, Result
 from al5d.arm.resample import Follow
 from al5d.arm.states import State
 from al5d.arm.validate import judge
@@ -1213,8 +1213,9 @@ def test_a_trajectory_with_a_start_ahead_waits_for_it_and_one_too_far_ahead_is_r
 
 def test_a_trajectory_cancelled_while_it_waits_for_its_start_writes_nothing(sim: Sim) -> None:
     """A trajectory waiting for its start, the arm still, cancelled (by its client, or its
-    client lost): nothing to halt, so no STOP goes out and no pose is read back, and the
-    next move is written at once. One cancelled once it has written halts the arm."""
+    client lost): nothing to halt, so no STOP goes out and no pose is read back, the next
+    move is written at once, and the outcome says the arm did not move for it (not that
+    it was halted). One cancelled once it has written halts the arm."""
     points = (Point((("base", 10.0),), 200.0), Point((("base", 20.0),), 400.0))
     for end in ("cancel", "gone"):
         waiting = replace(ins.trajectory(points), start_ns=sim.wall + 2_000_000_000)
@@ -1227,6 +1228,7 @@ def test_a_trajectory_cancelled_while_it_waits_for_its_start_writes_nothing(sim:
             sim.gone(7, "lost contact")
         assert sim.until(lambda: ref in sim.outcomes, 1.0)  # noqa: B023
         assert sim.outcomes[ref].result is Result.CANCELLED
+        assert sim.outcomes[ref].reason.endswith(NOT_RUN), sim.outcomes[ref].reason
         start = sim.t
         assert sim.outcome(sim.ask(ins.move(base=-5, time_ms=100))).result is Result.DONE
         sent = [(t, data) for t, data in sim.sent[written:] if not LINK_CHECK.fullmatch(data[:-1])]

@@ -385,7 +385,8 @@ class CoreProtocol(RuleBasedStateMachine):
             self._ask("set-point", ins.move(**target), stream=STREAM, tell=False)
 
     def _cancel(self, pick: int) -> None:
-        moves = [a for a in self._pending_motion() if a.kind == "move"]
+        # A trajectory too: one that waits for its start ends with nothing written.
+        moves = [a for a in self._pending_motion() if a.kind in ("move", "trajectory")]
         if moves:
             self.sim.cancel(moves[pick % len(moves)].instr.id)
 

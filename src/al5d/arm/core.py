@@ -498,7 +498,8 @@ def _cancel(c: Core, ev: Cancel, out: Out) -> Core:
     if run is None or run.job.instr.id != ev.ident or run.job.mode is not Mode.QUEUE:
         out.append(Reply(ev.ref, False))
         return c
-    c = running.end_run(c, ev.reason, ev.t, out)
+    still = running.unwritten(c, ev.t)
+    c = running.end_run(c, f"{ev.reason}{NOT_RUN if still else ''}", ev.t, out)
     out.append(Reply(ev.ref, True))
     return c
 
@@ -516,8 +517,10 @@ def _gone(c: Core, ev: Gone, out: Out) -> Core:
             c = fire(c, Event.MOVE_DONE, out)
     run = c.run
     if run is not None and run.job.client == ev.client and run.job.mode is Mode.QUEUE:
-        say(out, logging.WARNING, f"{run.job.instr.name} [{run.job.instr.id}]: {why}: halted")
-        c = running.end_run(c, why, ev.t, out)
+        still = running.unwritten(c, ev.t)
+        said = f"{why}{NOT_RUN}" if still else f"{why}: halted"
+        say(out, logging.WARNING, f"{run.job.instr.name} [{run.job.instr.id}]: {said}")
+        c = running.end_run(c, f"{why}{NOT_RUN}" if still else why, ev.t, out)
     return c
 
 
@@ -581,8 +584,9 @@ def _next(c: Core, t: float, wall: int, out: Out) -> Core:
                 return done
         if given:
             reason = given_up(job.instr)
-            say(out, logging.WARNING, f"{job.instr.name} [{job.instr.id}]: {reason}: halted")
-            return running.end_run(c, f"{reason}: halted", t, out)
+            reason += NOT_RUN if running.unwritten(c, t) else ": halted"
+            say(out, logging.WARNING, f"{job.instr.name} [{job.instr.id}]: {reason}")
+            return running.end_run(c, reason, t, out)
         if waiting is not None:
             return _supersede(replace(c, queue=c.queue.rest()), waiting, t, out)
         return running.progress(c, t, out)

@@ -474,9 +474,12 @@ def _hold(c: Core, t: float, out: Out) -> Core:
     return end_run(c, reason, t, out)
 
 
-def _unwritten(c: Core, run: Run, t: float) -> bool:
-    """Nothing of `run` has gone out, and the arm is still (no motion, no joint on its way)."""
-    book = c.book
+def unwritten(c: Core, t: float) -> bool:
+    """Nothing of the current run has gone out, and the arm is still (no motion, no joint
+    on its way): its end writes nothing (`end_run`)."""
+    run, book = c.run, c.book
+    if run is None:
+        return False
     return (
         run.k == 0
         and run.written is None
@@ -492,7 +495,7 @@ def end_run(c: Core, reason: str, t: float, out: Out, result: Result = Result.CA
     is read back. A run that wrote nothing, the arm still, ends with nothing written."""
     run = c.run
     assert run is not None
-    if _unwritten(c, run, t):
+    if unwritten(c, t):
         # Nothing to halt, nor to read back: the next may start at once (a preempting goal
         # waited for a STOP and the pose's read-back after a trajectory that waited for its
         # start and had written nothing).
