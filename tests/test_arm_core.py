@@ -1281,3 +1281,14 @@ def test_a_stop_seen_by_both_readers_locks_from_the_earlier_of_their_times(sim: 
     stop("unmeasured", t, "unmeasured")  # 400 ms earlier: lowered by 50 ms at most
     assert not released(t + 300 * ms)
     assert released(t + 360 * ms)
+    # Two stops sent at once (or the second later), the second seen earlier by the other
+    # reader: the lock goes no lower than the first one's time (a CI run's model-based
+    # test: a release sent between the two unlocked the arm).
+    for second in (0, 2):
+        sim.run(0.1)
+        t = sim.wall - 10 * ms
+        stop(f"first{second}", t, f"first{second}")
+        stop(f"second{second}", t + second * ms, f"second{second}")
+        stop(f"second{second}", t - 3 * ms, f"second{second}")
+        assert not released(t - ms)
+        assert released(t + ms)

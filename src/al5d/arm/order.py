@@ -32,6 +32,9 @@ class Order:
     locked_by: str = ""
     #: The key of the stop that holds the lock, where it has one (`Ask.key`).
     locked_key: Hashable | None = None
+    #: The time of the event that held the lock before that stop took it (-1: none): its
+    #: other sighting (`seen_earlier`) lowers the lock no further.
+    lock_floor_ns: int = -1
     released_ns: int = -1
     #: The stops obeyed by key, oldest first, with their outcomes.
     stops: Mapping[Hashable, Outcome] = field(default_factory=dict)
@@ -50,7 +53,11 @@ class Order:
         if already and sent_ns < self.locked_ns:
             # Held by a later event: the lock may no longer go below this one's time.
             return self if key == self.locked_key else replace(self, locked_key=None)
-        return replace(self, locked_ns=sent_ns, locked_by=by, locked_key=key)
+        # Taken from an event that held it (sent at the same time, or earlier): the lock
+        # never goes below that one's time (a CI run's model-based test: two stops sent at
+        # once, the second seen earlier by the other reader, lowered it below the first).
+        floor = self.locked_ns if already and key != self.locked_key else -1
+        return replace(self, locked_ns=sent_ns, locked_by=by, locked_key=key, lock_floor_ns=floor)
 
     def seen_earlier(self, key: Hashable, sent_ns: int) -> Order:
         """The stop known by `key` seen again by the other reader of its topic, as sent at
@@ -60,10 +67,11 @@ class Order:
         two measures differ by milliseconds: a release sent by the same client right after
         its stop, judged by the node, was taken for older than the stop as the watcher
         judged it (a CI run: a replay's stop and release, recorded 1 ns apart). Never by
-        more than `SEEN_EARLIER_NS`, nor where another event has held the lock since."""
+        more than `SEEN_EARLIER_NS`, nor below another event that holds the lock too."""
         if key != self.locked_key or sent_ns >= self.locked_ns:
             return self
-        return replace(self, locked_ns=max(sent_ns, self.locked_ns - SEEN_EARLIER_NS))
+        lowest = max(sent_ns, self.locked_ns - SEEN_EARLIER_NS, self.lock_floor_ns)
+        return replace(self, locked_ns=lowest)
 
     def released(self, sent_ns: int) -> Order:
         return replace(self, released_ns=max(self.released_ns, sent_ns))
