@@ -498,8 +498,7 @@ def _cancel(c: Core, ev: Cancel, out: Out) -> Core:
     if run is None or run.job.instr.id != ev.ident or run.job.mode is not Mode.QUEUE:
         out.append(Reply(ev.ref, False))
         return c
-    still = running.unwritten(c, ev.t)
-    c = running.end_run(c, f"{ev.reason}{NOT_RUN if still else ''}", ev.t, out)
+    c = running.end_run(c, ev.reason, ev.t, out)
     out.append(Reply(ev.ref, True))
     return c
 
@@ -517,10 +516,7 @@ def _gone(c: Core, ev: Gone, out: Out) -> Core:
             c = fire(c, Event.MOVE_DONE, out)
     run = c.run
     if run is not None and run.job.client == ev.client and run.job.mode is Mode.QUEUE:
-        still = running.unwritten(c, ev.t)
-        said = f"{why}{NOT_RUN}" if still else f"{why}: halted"
-        say(out, logging.WARNING, f"{run.job.instr.name} [{run.job.instr.id}]: {said}")
-        c = running.end_run(c, f"{why}{NOT_RUN}" if still else why, ev.t, out)
+        c = running.end_run(c, why, ev.t, out, warn=True)
     return c
 
 
@@ -583,10 +579,7 @@ def _next(c: Core, t: float, wall: int, out: Out) -> Core:
             if done is not c:
                 return done
         if given:
-            reason = given_up(job.instr)
-            reason += NOT_RUN if running.unwritten(c, t) else ": halted"
-            say(out, logging.WARNING, f"{job.instr.name} [{job.instr.id}]: {reason}")
-            return running.end_run(c, reason, t, out)
+            return running.end_run(c, given_up(job.instr), t, out, halted=": halted", warn=True)
         if waiting is not None:
             return _supersede(replace(c, queue=c.queue.rest()), waiting, t, out)
         return running.progress(c, t, out)

@@ -31,7 +31,7 @@ from al5d.arm.corestate import (
     say,
     send,
 )
-from al5d.arm.instruction import Kind, Result
+from al5d.arm.instruction import NOT_RUN, Kind, Result
 from al5d.arm.jobs import Job, Mode, Motion, Sent, Written
 from al5d.arm.link import ask, can_ask, watch
 from al5d.arm.pose import SETTLE_GRACE_S
@@ -489,19 +489,32 @@ def unwritten(c: Core, t: float) -> bool:
     )
 
 
-def end_run(c: Core, reason: str, t: float, out: Out, result: Result = Result.CANCELLED) -> Core:
+def end_run(
+    c: Core,
+    reason: str,
+    t: float,
+    out: Out,
+    result: Result = Result.CANCELLED,
+    *,
+    halted: str = "",
+    warn: bool = False,
+) -> Core:
     """The current run ends (cancelled, or refused as it was to be written: `reason`), the
     arm halted where it is on the wire's pace (no lock); the next may start once the pose
-    is read back. A run that wrote nothing, the arm still, ends with nothing written."""
+    is read back. A run that wrote nothing, the arm still, ends with nothing written, its
+    outcome's reason followed by `NOT_RUN` (else by `halted`); `warn`: the log says so."""
     run = c.run
     assert run is not None
-    if unwritten(c, t):
-        # Nothing to halt, nor to read back: the next may start at once (a preempting goal
-        # waited for a STOP and the pose's read-back after a trajectory that waited for its
-        # start and had written nothing).
-        c = replace(c, run=None)
-    else:
-        c = halt(replace(c, run=None), t, out, urgent=False)
+    still = unwritten(c, t)
+    if warn:
+        said = f"{reason}{NOT_RUN if still else ': halted'}"
+        say(out, logging.WARNING, f"{run.job.instr.name} [{run.job.instr.id}]: {said}")
+    reason += NOT_RUN if still else halted
+    # Nothing to halt, nor to read back, when still: the next may start at once (a preempting
+    # goal waited for a STOP and the pose's read-back after a trajectory that waited for its
+    # start and had written nothing).
+    c = replace(c, run=None)
+    c = c if still else halt(c, t, out, urgent=False)
     finish(run.job, result, reason, t, out)
     if c.state is State.MOVING and run.job.mode is Mode.QUEUE:
         c = fire(c, Event.MOVE_DONE, out)
