@@ -27,7 +27,7 @@ from al5d.arm.config import load_config
 from al5d.arm.instruction import PRESET_NAMES, Wait, parse_sequence
 from al5d.ros.client import Client
 from al5d.ros.dds import start_context
-from al5d.ros.names import PING, Names, reaches_server
+from al5d.ros.names import PING, Names, reaches_server, server_nodes
 from al5d.ros.qos import QOS_INSTRUCTIONS
 from al5d.ssc32u import protocol as p
 from al5d.ssc32u.emulator import Emulator
@@ -479,6 +479,16 @@ def test_a_servers_recording_holds_what_came_by_its_local_lane(tmp_path: Path) -
     assert [r.fields.instruction for r in read_instructions(served)] == ["move", "park"]
 
 
+def graph_seen(node: Node, pub: Any, names: Names) -> str:
+    """What `reaches_server` judges by: the readers the graph lists, and how many matched."""
+    readers = node.get_subscriptions_info_by_topic(names.instruction)
+    listed = [f"{r.node_namespace.rstrip('/')}/{r.node_name}" for r in readers]
+    return (
+        f"readers listed {listed}, matched {pub.get_subscription_count()}, "
+        f"server nodes {sorted(server_nodes(node, names))}"
+    )
+
+
 def test_a_servers_recording_holds_every_instruction_its_node_read(tmp_path: Path) -> None:
     """One-shot senders, each a participant of its own that publishes as soon as it has
     matched the server node's reader: the server answers each, and each is in its
@@ -502,6 +512,7 @@ def test_a_servers_recording_holds_every_instruction_its_node_read(tmp_path: Pat
                     lambda node=node, pub=pub: reaches_server(node, pub, Names()),
                     30,
                     "the server's reader",
+                    lambda node=node, pub=pub: graph_seen(node, pub, Names()),
                 )
                 pub.publish(ArmInstruction(instruction="frobnicate", id=ident))
                 assert pub.wait_for_all_acked(Duration(seconds=10))

@@ -24,11 +24,15 @@ from al5d.ros.qos import QOS_INSTRUCTIONS, QOS_SERVICES, QOS_STREAM
 from al5d.ros.workarounds import Reader, ReaderOnly, taken_by_reader
 
 
-def wait_until(predicate: Any, timeout: float = 10.0, what: str = "condition") -> None:
+def wait_until(
+    predicate: Any, timeout: float = 10.0, what: str = "condition", seen: Any = None
+) -> None:
+    """Wait for `predicate()`; else fail saying `what`, and what `seen()` (if given) finds
+    then, so that a failure that comes once in many runs says why."""
     deadline = time.monotonic() + timeout
     while not predicate():
         if time.monotonic() > deadline:
-            raise AssertionError(f"{what} not met in {timeout} s")
+            raise AssertionError(f"{what} not met in {timeout} s{f': {seen()}' if seen else ''}")
         time.sleep(0.01)
 
 
