@@ -21,7 +21,7 @@ from al5d.owner import where
 from al5d.owner.client import Remote
 from al5d.ros.dds import HEARTBEAT_NS, WRITER_MESSAGE
 from al5d.ros.leases import FORGET_S, PACE_SLACK, Leases
-from al5d_rig.proc import Lines, said, stacks
+from al5d_rig.proc import Lines, Proc, said, stacks
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import Served, served
 
@@ -498,3 +498,91 @@ def test_a_copy_of_a_clients_stop_that_comes_after_another_clients_release_is_th
     wait_until(lambda: arm.states[-1] == "ready", CMD_S, "released once more")
     stop("new-stop")
     wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped by the same id again")
+
+
+ACTION_CLIENT = """
+import rclpy
+from builtin_interfaces.msg import Duration
+from control_msgs.action import FollowJointTrajectory
+from rclpy.action import ActionClient
+from rclpy.node import Node
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+rclpy.init()
+node = Node("al5d_leaving_action_client")
+client = ActionClient(node, FollowJointTrajectory, "{action}")
+assert client.wait_for_server(60)
+goal = FollowJointTrajectory.Goal()
+goal.trajectory.joint_names = {names!r}
+goal.trajectory.points = [
+    JointTrajectoryPoint(positions={start!r}, time_from_start=Duration()),
+    JointTrajectoryPoint(positions={end!r}, time_from_start=Duration(sec=12)),
+]
+future = client.send_goal_async(goal)
+rclpy.spin_until_future_complete(node, future, timeout_sec=60)
+assert future.result().accepted
+print("accepted", flush=True)
+input()  # {then}
+node.destroy_node()
+rclpy.shutdown()
+"""
+
+
+def action_client(arm: Served, then: str) -> subprocess.Popen[str]:
+    """A plain rclpy client of FollowJointTrajectory (as MoveIt is: no lease of ours) whose
+    goal takes the base from where it is to -80 deg over 12 s; it leaves, cleanly, at a line on its
+    stdin, its goal running."""
+    joints = ["base", "shoulder", "elbow", "wrist", "wrist_rotate"]
+    here = arm.emu.servo_degrees()
+    start, end = ({**here, "base": b} for b in (here["base"], -80.0))
+    script = ACTION_CLIENT.format(
+        action=arm.peer.names.follow_joint_trajectory,
+        names=joints,
+        start=[arm.config.model.to_urdf(start)[j] for j in joints],
+        end=[arm.config.model.to_urdf(end)[j] for j in joints],
+        then=then,
+    )
+    return subprocess.Popen(
+        [sys.executable, "-c", script], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+
+
+def test_a_trajectory_goal_whose_every_client_has_left_is_halted(
+    arm: Served, tmp_path: Path
+) -> None:
+    """MoveIt's way has no lease of ours: its goals are halted once no client of the action
+    is left in the ROS graph (here one that leaves mid-goal; a killed or cut-off one
+    leaves the graph when DDS ends its lease), a recording's reader of the action's status
+    left out. On the code before, the arm went on to -80 deg."""
+    arm.ready()
+    recorder = Proc("record", str(tmp_path / "recorded.mcap"))
+    client = action_client(arm, "leave without waiting for the result")
+    try:
+        recorder.out.wait_for("recording to", CMD_S)
+        status = f"{arm.peer.names.follow_joint_trajectory}/_action/status"
+        wait_until(
+            lambda: any(
+                r.node_name == "al5d_recorder"
+                for r in arm.peer.node.get_subscriptions_info_by_topic(status)
+            ),
+            CMD_S,
+            "the recording's reader of the action's status",
+        )
+        assert client.stdout is not None and client.stdin is not None
+        assert said(client.stdout) == "accepted"
+        wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
+        time.sleep(1.0)
+        client.stdin.write("\n")
+        client.stdin.flush()
+        assert client.wait(CMD_S) == 0
+        halted = arm.proc.err.wait_for("lost contact with every client of the action", CMD_S)
+        wait_until(lambda: arm.states[-1] == "ready", CMD_S, "ready: halted, not locked")
+        base = arm.emu.servo_degrees()["base"]
+    finally:
+        client.kill()
+        client.wait(10)
+        recorder.popen.send_signal(signal.SIGINT)  # ended: its reader leaves the graph at once
+        recorder.wait(20)
+        recorder.kill()
+    assert "follow_joint_trajectory goals" in halted and halted.endswith("halted"), halted
+    assert base > -70, base  # halted well before the goal's end (12 s), not locked

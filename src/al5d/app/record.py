@@ -148,8 +148,10 @@ class Recorder:
     ) -> None:
         from rclpy.node import Node
 
+        from al5d.ros.names import RECORDER_NODE
+
         self.file = file
-        self.node = Node("al5d_recorder", namespace=namespace, context=context)
+        self.node = Node(RECORDER_NODE, namespace=namespace, context=context)
         self.inputs: list[tuple[Any, Any]] = []
         self._readers: list[Any] = []
         self._lock = threading.Lock()  # the groups, added while the writers are counted

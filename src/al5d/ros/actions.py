@@ -13,6 +13,7 @@ a goal is a service request, which no subscriber sees.
 from __future__ import annotations
 
 import contextlib
+import logging
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
@@ -30,12 +31,16 @@ from al5d.clock import wall_ns
 from al5d.model import ArmModel
 from al5d.owner.client import Judged, LaneClosed, Remote
 from al5d.ros.convert import move_from_fields, tool_from_fields
-from al5d.ros.names import Names
+from al5d.ros.names import RECORDER_NODE, Names
 from al5d.ros.qos import QOS_SERVICES, QOS_STREAM
 from al5d.ros.workarounds import IdentifiedActionServer, preempted
 
+log = logging.getLogger("al5d")
+
 #: The reason of a goal cancelled by its client before it was handed to the owner.
 CANCELLED_BEFORE_RUN = f"cancelled by the client{NOT_RUN}"
+#: The reason of a goal halted because no client of its action is left (`GoalRunner.orphans`).
+NO_CLIENT_LEFT = "lost contact with every client of the action: none is left in the ROS graph"
 #: How long a finished goal's result is kept for its client to fetch (rclpy keeps them
 #: 900 s by default). Its status leaves the status messages sooner:
 #: `workarounds.IdentifiedActionServer` says why.
@@ -163,6 +168,8 @@ class GoalRunner:
         #: Goals waiting for the goals they preempt to be halted, each with the goal that
         #: preempted it meanwhile ("": none has).
         self.starting: dict[str, str] = {}
+        #: Whether a client of the action was in the ROS graph while goals ran (`orphans`).
+        self.clients_seen = False
         # A preempted goal's halt waits for the wire (tens of ms at 9600 baud): this thread
         # writes it, and the executor's answers the goals that come meanwhile (a preempting
         # client at 100 goals a second outran an executor that wrote each halt itself).
@@ -247,6 +254,30 @@ class GoalRunner:
         finally:
             by = self.starting.pop(ident, "")
         return by
+
+    def orphans(self) -> None:
+        """Halt the running goals once no client of the action is left in the ROS graph
+        (each reads the action's status topic; a recording's reader is no client), having
+        been there while they ran: their commander is gone (its process ended, or DDS
+        ended its participant's lease: killed, or cut off).
+
+        rclpy does not say which client sent a goal (its request header has no writer), so
+        a goal of a client that has gone runs on while another client of the action stays.
+        Where no client was ever seen (one whose reader the graph did not list yet), the
+        goals run on: the graph is not read as a client's absence before it has shown one."""
+        if not self.running:
+            self.clients_seen = False
+            return
+        readers = self.node.get_subscriptions_info_by_topic(self.server.status_topic)
+        if any(r.node_name != RECORDER_NODE for r in readers):  # a recording commands nothing
+            self.clients_seen = True
+            return
+        if not self.clients_seen:
+            return
+        self.clients_seen = False
+        ended = list(self.running)
+        log.warning("%s goals %s: %s: halted", self.name, ", ".join(ended), NO_CLIENT_LEFT)
+        self._halts.submit(lambda: [self.arm.cancel(o, NO_CLIENT_LEFT) for o in ended])
 
     def preempter(self, ident: str, outcome: Outcome) -> str:
         """The goal that preempted goal `ident`, ended with `outcome`, if its halt was the

@@ -15,6 +15,8 @@ SAFETY_NODE = "al5d_safety"
 STOP_NODE = "al5d_stop"
 ACTIONS_NODE = "al5d_actions"
 ROBOT_NODE = "al5d_robot"
+#: A recording's node (`al5d record`, `al5d serve --record`): it reads, and commands nothing.
+RECORDER_NODE = "al5d_recorder"
 #: The physical twin's node, in a process of its own (`al5d.twin`).
 TWIN_NODE = "al5d_twin"
 #: The node name that discovery lists for an endpoint whose node it has not heard of yet.

@@ -341,8 +341,13 @@ class IdentifiedActionServer(ActionServer):
 
     goal_id_now = ""
 
-    def __init__(self, *args: Any, results_kept_s: float, **kwargs: Any) -> None:
-        super().__init__(*args, result_timeout=STATUS_KEPT_S, **kwargs)
+    def __init__(
+        self, node: Any, action_type: Any, name: str, *, results_kept_s: float, **kwargs: Any
+    ) -> None:
+        super().__init__(node, action_type, name, result_timeout=STATUS_KEPT_S, **kwargs)
+        #: The action's status topic (rcl's name for it), which every client of the action
+        #: reads: the ROS graph lists the action's clients there.
+        self.status_topic = f"{name}/_action/status"
         self._results_kept_s = results_kept_s
         # goal UUID -> (when it left rcl, its result future); in that order.
         self._ended: OrderedDict[bytes, tuple[float, Future]] = OrderedDict()
