@@ -170,6 +170,8 @@ class GoalRunner:
         self.starting: dict[str, str] = {}
         #: Whether a client of the action was in the ROS graph while goals ran (`orphans`).
         self.clients_seen = False
+        #: Goals accepted, not yet handed to the owner, whose every client has left.
+        self.left: set[str] = set()
         # A preempted goal's halt waits for the wire (tens of ms at 9600 baud): this thread
         # writes it, and the executor's answers the goals that come meanwhile (a preempting
         # client at 100 goals a second outran an executor that wrote each halt itself).
@@ -212,6 +214,8 @@ class GoalRunner:
 
     async def _run(self, ident: str, entry: Any, ticket: Judged) -> Outcome:
         """Submit the goal's ticket and await its outcome, listed as running meanwhile."""
+        if not self.running:  # a client seen for goals before these says nothing of theirs
+            self.clients_seen = False
         self.running[ident] = entry
         if self.started is not None:
             self.started()
@@ -264,11 +268,16 @@ class GoalRunner:
         rclpy does not say which client sent a goal (its request header has no writer), so
         a goal of a client that has gone runs on while another client of the action stays.
         Where no client was ever seen (one whose reader the graph did not list yet), the
-        goals run on: the graph is not read as a client's absence before it has shown one."""
-        if not self.running:
+        goals run on: the graph is not read as a client's absence before it has shown one.
+        Goals accepted that wait to run end before they run (`ended_before_run`)."""
+        waiting = set(self.judged) | set(self.starting)
+        if not (self.running or waiting):
             self.clients_seen = False
             return
-        readers = self.node.get_subscriptions_info_by_topic(self.server.status_topic)
+        try:
+            readers = self.node.get_subscriptions_info_by_topic(self.server.status_topic)
+        except Exception:  # the node closing: a graph that cannot be read says nothing
+            return
         if any(r.node_name != RECORDER_NODE for r in readers):  # a recording commands nothing
             self.clients_seen = True
             return
@@ -276,8 +285,20 @@ class GoalRunner:
             return
         self.clients_seen = False
         ended = list(self.running)
-        log.warning("%s goals %s: %s: halted", self.name, ", ".join(ended), NO_CLIENT_LEFT)
-        self._halts.submit(lambda: [self.arm.cancel(o, NO_CLIENT_LEFT) for o in ended])
+        self.left |= waiting
+        log.warning(
+            "%s goals %s: %s: cancelled", self.name, ", ".join([*ended, *waiting]), NO_CLIENT_LEFT
+        )
+        self._halts.submit(self._cancel_all, ended, NO_CLIENT_LEFT)
+
+    def _cancel_all(self, idents: list[str], reason: str) -> None:
+        """Cancel each of the goals `idents` (the halts' thread); a failure is logged, as
+        nobody waits for this."""
+        try:
+            for ident in idents:
+                self.arm.cancel(ident, reason)
+        except Exception as e:
+            log.error("%s goals %s: not cancelled: %s", self.name, ", ".join(idents), e)
 
     def preempter(self, ident: str, outcome: Outcome) -> str:
         """The goal that preempted goal `ident`, ended with `outcome`, if its halt was the
@@ -312,15 +333,22 @@ class GoalRunner:
         if self.tell is not None:
             self.tell(Outcome(ident, word, Result.CANCELLED, reason))
 
-    def ended_before_run(self, handle: ServerGoalHandle, ident: str, ticket: Judged) -> bool:
-        """Whether the goal's cancel was accepted while it waited: then it ends CANCELED,
-        said on the result topic, and is never handed to the owner (its ticket dropped)."""
-        if not handle.is_cancel_requested:
-            return False
-        handle.canceled()
-        self.not_run(ident, self.word(handle.request), CANCELLED_BEFORE_RUN)
+    def ended_before_run(self, handle: ServerGoalHandle, ident: str, ticket: Judged) -> str:
+        """Why the goal ended while it waited, or "": its cancel was accepted (it ends
+        CANCELED), or every client of its action left (`orphans`: ABORTED). Said on the
+        result topic; the goal is never handed to the owner (its ticket dropped)."""
+        if ident in self.left:
+            self.left.discard(ident)
+            reason = f"{NO_CLIENT_LEFT}{NOT_RUN}"
+            handle.abort()
+        elif handle.is_cancel_requested:
+            reason = CANCELLED_BEFORE_RUN
+            handle.canceled()
+        else:
+            return ""
+        self.not_run(ident, self.word(handle.request), reason)
         self.drop(ticket)
-        return True
+        return reason
 
     def drop(self, ticket: Judged) -> None:
         """The owner lets go of a ticket that will not run (a goal that ended first)."""
@@ -364,8 +392,8 @@ class MoveAction(GoalRunner):
             result.outcome, result.reason = "refused", "the goal was never judged"
             handle.abort()
             return result
-        if self.ended_before_run(handle, ident, ticket):
-            result.outcome, result.reason = Result.CANCELLED.value, CANCELLED_BEFORE_RUN
+        if reason := self.ended_before_run(handle, ident, ticket):
+            result.outcome, result.reason = Result.CANCELLED.value, reason
             return result
         outcome = await self._run(ident, handle, ticket)
         result.outcome = outcome.result.value

@@ -244,13 +244,13 @@ class FollowTrajectoryAction(GoalRunner):
             handle.abort()
             return _result(FJT.INVALID_GOAL, "the goal was never judged")
         # A goal cancelled before it began does not preempt: it never would have run.
-        if self.ended_before_run(handle, ident, judged.ticket):
-            return _result(FJT.SUCCESSFUL, CANCELLED_BEFORE_RUN)
+        if reason := self.ended_before_run(handle, ident, judged.ticket):
+            return _unrun(reason)
         if by := await self._preempt(ident, Kind.TRAJECTORY.value):
             self.preempted_first(handle, ident, judged.ticket, by, Kind.TRAJECTORY.value)
             return _preempted_result(by)
-        if self.ended_before_run(handle, ident, judged.ticket):
-            return _result(FJT.SUCCESSFUL, CANCELLED_BEFORE_RUN)
+        if reason := self.ended_before_run(handle, ident, judged.ticket):
+            return _unrun(reason)
         # The model's names (the goal's carry the arm's joint prefix, as its feedback does).
         names = [n[len(self.prefix) :] for n in goal.trajectory.joint_names]
         here = self._actual(names)
@@ -394,6 +394,12 @@ def _preempted_result(by: str) -> Any:
     """As the joint_trajectory_controller ends a preempted goal."""
     why = "current goal cancelled due to new incoming action"
     return _result(FJT.INVALID_GOAL, f"preempted by goal {by}: {why}")
+
+
+def _unrun(reason: str) -> Any:
+    """A goal that ended before it ran (`GoalRunner.ended_before_run`): cancelled by its
+    client, as the joint_trajectory_controller ends one; or left by every client."""
+    return _result(FJT.SUCCESSFUL if reason == CANCELLED_BEFORE_RUN else FJT.INVALID_GOAL, reason)
 
 
 def _result(code: int, text: str) -> Any:

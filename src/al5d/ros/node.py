@@ -528,6 +528,8 @@ class ActionsNode(Node):
         self.timer.timer_period_ns = round(1e9 / settings.joint_state_rate_hz)
 
     def _feedback(self) -> None:
+        for action in (self.move_action, self.trajectory_action, self.gripper_action):
+            action.orphans()
         if not (
             self.move_action.running
             or self.trajectory_action.running
@@ -538,8 +540,6 @@ class ActionsNode(Node):
         # One instant for where the arm is and where a trajectory wants it: a thread switch
         # between two readings of the clock would show the arm behind its path.
         t = now()
-        for action in (self.move_action, self.trajectory_action, self.gripper_action):
-            action.orphans()
         degrees = self.arm.positions(t)
         self.move_action.feedback(degrees)
         self.trajectory_action.feedback(degrees, t)
