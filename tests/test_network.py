@@ -12,11 +12,14 @@ import signal
 import sys
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
 from al5d import exits
-from al5d_rig import netfaults, netrig, webrig
+from al5d.arm.config import load_config
+from al5d.ros.names import Names
+from al5d_rig import actionclient, netfaults, netrig, webrig
 from al5d_rig.proc import AL5D, Lines, family, freeze, patient_config
 
 CMD_S = 60.0
@@ -326,3 +329,33 @@ def test_a_server_closed_to_the_network_is_said_to_be_so(hosts: netrig.Hosts) ->
     finally:
         closed.kill()
         closed.wait(10)
+
+
+def test_a_trajectory_client_cut_off_mid_goal_has_it_halted_once_its_lease_ends(
+    hosts: netrig.Hosts, server: Lines, tmp_path: Path
+) -> None:
+    """MoveIt's way across the network: a client of FollowJointTrajectory on the laptop (no
+    lease of ours; its DDS lease docs/ros.md's 2 s) cut off 1.5 s into its 12 s goal: once
+    DDS ends its lease, no client of the action is left, and the server halts the goal,
+    long before its end. On the code before, the goal ran to its end."""
+    profile = tmp_path / "short_lease.xml"
+    profile.write_text(actionclient.short_lease_profile())
+    env = {**hosts.env(hosts.laptop), "FASTRTPS_DEFAULT_PROFILES_FILE": str(profile)}
+    to = load_config().model.to_urdf({"base": -80.0})["base"]
+    action = Names().follow_joint_trajectory
+    laptop = hosts.popen(hosts.laptop, actionclient.argv(action, ["base"], [(12, [to])]), env)
+    assert laptop.stdout is not None
+    try:
+        said(Lines(laptop.stdout), "accepted")
+        time.sleep(1.5)
+        cut = time.time()
+        hosts.cut()
+        halted = said(server, "lost contact with every client of the action")
+    finally:
+        hosts.mend()
+        laptop.kill()
+        laptop.wait(10)
+    halted_s = netfaults.log_clock(halted, cut) - cut
+    print(f"the goal halted {halted_s:.2f} s after the cut")
+    assert "follow_joint_trajectory goals" in halted, halted
+    assert halted_s < 9.0, halted  # before the goal's end (12 s, 1.5 s of it gone)

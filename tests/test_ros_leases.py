@@ -5,7 +5,6 @@ for it, never moves the arm, whatever the client's clock says."""
 from __future__ import annotations
 
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -22,6 +21,7 @@ from al5d.owner import where
 from al5d.owner.client import Remote
 from al5d.ros.dds import HEARTBEAT_NS, WRITER_MESSAGE
 from al5d.ros.leases import FORGET_S, PACE_SLACK, Leases
+from al5d_rig import actionclient
 from al5d_rig.proc import Lines, Proc, said, stacks
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import Served, served
@@ -501,58 +501,16 @@ def test_a_copy_of_a_clients_stop_that_comes_after_another_clients_release_is_th
     wait_until(lambda: arm.states[-1] == "stopped", CMD_S, "stopped by the same id again")
 
 
-ACTION_CLIENT = """
-import rclpy
-from builtin_interfaces.msg import Duration
-from control_msgs.action import FollowJointTrajectory
-from rclpy.action import ActionClient
-from rclpy.node import Node
-from trajectory_msgs.msg import JointTrajectoryPoint
-
-rclpy.init()
-node = Node("al5d_leaving_action_client")
-client = ActionClient(node, FollowJointTrajectory, "{action}")
-assert client.wait_for_server(60)
-goal = FollowJointTrajectory.Goal()
-goal.trajectory.joint_names = {names!r}
-goal.trajectory.points = [
-    JointTrajectoryPoint(positions={start!r}, time_from_start=Duration()),
-    JointTrajectoryPoint(positions={end!r}, time_from_start=Duration(sec=12)),
-]
-future = client.send_goal_async(goal)
-rclpy.spin_until_future_complete(node, future, timeout_sec=60)
-assert future.result().accepted
-print("accepted", flush=True)
-input()  # then leaves, its goal running
-node.destroy_node()
-rclpy.shutdown()
-"""
-
-
-def short_lease_profile() -> str:
-    """docs/ros.md's Fast DDS profile for MoveIt's processes, as the page gives it: a
-    participant's lease of 2 s (Fast DDS's own: 20 s)."""
-    page = (Path(__file__).parents[1] / "docs" / "ros.md").read_text()
-    found = re.search(r"with a 2 s lease:\n\n  ```xml\n(.*?)\n  ```", page, re.S)
-    assert found, "docs/ros.md gives no profile with a 2 s lease"
-    return "\n".join(line.removeprefix("  ") for line in found.group(1).splitlines())
-
-
 def action_client(arm: Served, env: dict[str, str]) -> subprocess.Popen[str]:
-    """A plain rclpy client of FollowJointTrajectory (as MoveIt is: no lease of ours) whose
-    goal takes the base from where it is to -80 deg over 12 s; it leaves, cleanly, at a
-    line on its stdin, its goal running."""
+    """A client of FollowJointTrajectory as MoveIt is (`al5d_rig.actionclient`) whose goal
+    takes the base from where it is to -80 deg over 12 s."""
     joints = ["base", "shoulder", "elbow", "wrist", "wrist_rotate"]
     here = arm.emu.servo_degrees()
     start, end = ({**here, "base": b} for b in (here["base"], -80.0))
-    script = ACTION_CLIENT.format(
-        action=arm.peer.names.follow_joint_trajectory,
-        names=joints,
-        start=[arm.config.model.to_urdf(start)[j] for j in joints],
-        end=[arm.config.model.to_urdf(end)[j] for j in joints],
-    )
+    urdf = arm.config.model.to_urdf
+    points = [(s, [urdf(d)[j] for j in joints]) for s, d in ((0, start), (12, end))]
     return subprocess.Popen(
-        [sys.executable, "-c", script],
+        actionclient.argv(arm.peer.names.follow_joint_trajectory, joints, points),
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
@@ -571,7 +529,7 @@ def test_a_trajectory_goal_whose_every_client_has_left_is_halted(
     arm.ready()
     recorder = Proc("record", str(tmp_path / "recorded.mcap"))
     profile = tmp_path / "short_lease.xml"
-    profile.write_text(short_lease_profile())
+    profile.write_text(actionclient.short_lease_profile())
     client = action_client(arm, {"FASTRTPS_DEFAULT_PROFILES_FILE": str(profile)})
     try:
         recorder.out.wait_for("recording to", CMD_S)
@@ -585,7 +543,7 @@ def test_a_trajectory_goal_whose_every_client_has_left_is_halted(
         assert said(client.stdout) == "accepted"
         wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
         # The graph as the peer sees it stands for the server's: the client's reader there.
-        wait_until(lambda: "al5d_leaving_action_client" in readers(), CMD_S, "the client's reader")
+        wait_until(lambda: actionclient.NODE in readers(), CMD_S, "the client's reader")
         time.sleep(1.0)
         if how == "exits":
             client.stdin.write("\n")
