@@ -339,18 +339,27 @@ def test_a_trajectory_client_cut_off_mid_goal_has_it_halted_once_its_lease_ends(
     DDS ends its lease, no client of the action is left, and the server halts the goal,
     long before its end. On the code before, the goal ran to its end."""
     profile = tmp_path / "short_lease.xml"
-    profile.write_text(actionclient.short_lease_profile())
+    profile.write_text(actionclient.short_lease_profile(Path(__file__).parents[1] / "docs"))
     env = {**hosts.env(hosts.laptop), "FASTRTPS_DEFAULT_PROFILES_FILE": str(profile)}
     to = load_config().model.to_urdf({"base": -80.0})["base"]
     action = Names().follow_joint_trajectory
     laptop = hosts.popen(hosts.laptop, actionclient.argv(action, ["base"], [(12, [to])]), env)
     assert laptop.stdout is not None
     try:
-        said(Lines(laptop.stdout), "accepted")
+        out = Lines(laptop.stdout)
+        said(out, "accepted")
+        said(out, "feedback")  # the server has matched the client's readers
         time.sleep(1.5)
         cut = time.time()
         hosts.cut()
         halted = said(server, "lost contact with every client of the action")
+        # The arm at rest again after it (halted, not locked): the state's next word.
+        rest = server.all.index(halted)
+        deadline = time.monotonic() + CMD_S
+        while not any("STATE: ready" in line for line in server.all[rest:]):
+            assert time.monotonic() < deadline, server.all[rest:]
+            server.drain(0.1)
+        ready = next(line for line in server.all[rest:] if "STATE: ready" in line)
     finally:
         hosts.mend()
         laptop.kill()
@@ -358,4 +367,6 @@ def test_a_trajectory_client_cut_off_mid_goal_has_it_halted_once_its_lease_ends(
     halted_s = netfaults.log_clock(halted, cut) - cut
     print(f"the goal halted {halted_s:.2f} s after the cut")
     assert "follow_joint_trajectory goals" in halted, halted
-    assert halted_s < 9.0, halted  # before the goal's end (12 s, 1.5 s of it gone)
+    # After the client's lease (2 s) ran out, long before the goal's end (12 s, 1.5 s gone).
+    assert 1.0 < halted_s < 9.0, halted
+    assert netfaults.log_clock(ready, cut) - cut < 9.5, ready

@@ -21,12 +21,13 @@ from al5d.owner import where
 from al5d.owner.client import Remote
 from al5d.ros.dds import HEARTBEAT_NS, WRITER_MESSAGE
 from al5d.ros.leases import FORGET_S, PACE_SLACK, Leases
-from al5d_rig import actionclient
+from al5d_rig import actionclient, netfaults
 from al5d_rig.proc import Lines, Proc, said, stacks
 from al5d_rig.rospeer import wait_until
 from al5d_rig.served import Served, served
 
 CMD_S = 60.0
+DOCS = Path(__file__).parents[1] / "docs"
 S = 1_000_000_000  # ns
 
 
@@ -529,7 +530,7 @@ def test_a_trajectory_goal_whose_every_client_has_left_is_halted(
     arm.ready()
     recorder = Proc("record", str(tmp_path / "recorded.mcap"))
     profile = tmp_path / "short_lease.xml"
-    profile.write_text(actionclient.short_lease_profile())
+    profile.write_text(actionclient.short_lease_profile(DOCS))
     client = action_client(arm, {"FASTRTPS_DEFAULT_PROFILES_FILE": str(profile)})
     try:
         recorder.out.wait_for("recording to", CMD_S)
@@ -541,10 +542,12 @@ def test_a_trajectory_goal_whose_every_client_has_left_is_halted(
         wait_until(lambda: "al5d_recorder" in readers(), CMD_S, "the recording's reader")
         assert client.stdout is not None and client.stdin is not None
         assert said(client.stdout) == "accepted"
+        assert said(client.stdout) == "feedback"  # the server has matched its readers
         wait_until(lambda: arm.states[-1] == "moving", CMD_S, "moving")
         # The graph as the peer sees it stands for the server's: the client's reader there.
         wait_until(lambda: actionclient.NODE in readers(), CMD_S, "the client's reader")
         time.sleep(1.0)
+        left = time.time()
         if how == "exits":
             client.stdin.write("\n")
             client.stdin.flush()
@@ -560,5 +563,8 @@ def test_a_trajectory_goal_whose_every_client_has_left_is_halted(
         recorder.popen.send_signal(signal.SIGINT)  # ended: its reader leaves the graph at once
         recorder.wait(20)
         recorder.kill()
-    assert "follow_joint_trajectory goals" in halted and halted.endswith("cancelled"), halted
+    assert "follow_joint_trajectory goals" in halted, halted
+    # Not before it left (a killed one: not before its 2 s lease ran out).
+    after = netfaults.log_clock(halted, left) - left
+    assert after > (1.0 if how == "is killed" else -0.05), (after, halted)
     assert base > -70, base  # halted well before the goal's end (12 s), not locked

@@ -1,6 +1,7 @@
 """A client of FollowJointTrajectory as MoveIt is (plain rclpy, no lease of ours), in a
-process of its own: it sends one goal, says `accepted`, and leaves at a line on its stdin,
-its goal running; and docs/ros.md's Fast DDS profile that shortens a client's lease."""
+process of its own: it sends one goal, says `accepted`, then `feedback` at the goal's first
+feedback (the server has matched the client's readers), and leaves at a line on its
+stdin, its goal running; and docs/ros.md's Fast DDS profile that shortens a lease."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from pathlib import Path
 
 SCRIPT = """
 import rclpy
+import rclpy.task
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory
 from rclpy.action import ActionClient
@@ -26,10 +28,14 @@ goal.trajectory.joint_names = {names!r}
 goal.trajectory.points = [
     JointTrajectoryPoint(positions=p, time_from_start=Duration(sec=s)) for s, p in {points!r}
 ]
-future = client.send_goal_async(goal)
+fed = rclpy.task.Future()
+future = client.send_goal_async(goal, feedback_callback=lambda _: fed.set_result(True))
 rclpy.spin_until_future_complete(node, future, timeout_sec=60)
 assert future.result().accepted
 print("accepted", flush=True)
+rclpy.spin_until_future_complete(node, fed, timeout_sec=60)
+assert fed.done()
+print("feedback", flush=True)
 input()  # then leaves, its goal running
 node.destroy_node()
 rclpy.shutdown()
@@ -46,10 +52,10 @@ def argv(action: str, names: Sequence[str], points: Sequence[tuple[int, list[flo
     return [sys.executable, "-c", script]
 
 
-def short_lease_profile() -> str:
-    """docs/ros.md's Fast DDS profile for MoveIt's processes, as the page gives it: a
-    participant's lease of 2 s (Fast DDS's own: 20 s)."""
-    page = (Path(__file__).parents[2] / "docs" / "ros.md").read_text()
+def short_lease_profile(docs: Path) -> str:
+    """The Fast DDS profile for MoveIt's processes that `docs`/ros.md gives, as the page
+    gives it: a participant's lease of 2 s (Fast DDS's own: 20 s)."""
+    page = (docs / "ros.md").read_text()
     found = re.search(r"with a 2 s lease:\n\n  ```xml\n(.*?)\n  ```", page, re.S)
     assert found, "docs/ros.md gives no profile with a 2 s lease"
     return "\n".join(line.removeprefix("  ") for line in found.group(1).splitlines())

@@ -168,8 +168,9 @@ class GoalRunner:
         #: Goals waiting for the goals they preempt to be halted, each with the goal that
         #: preempted it meanwhile ("": none has).
         self.starting: dict[str, str] = {}
-        #: Whether a client of the action was in the ROS graph while goals ran (`orphans`).
-        self.clients_seen = False
+        #: The goals (running or waiting) that a client of the action was in the ROS graph
+        #: for, while they were (`orphans`).
+        self.seen: set[str] = set()
         #: Goals accepted, not yet handed to the owner, whose every client has left.
         self.left: set[str] = set()
         # A preempted goal's halt waits for the wire (tens of ms at 9600 baud): this thread
@@ -214,8 +215,6 @@ class GoalRunner:
 
     async def _run(self, ident: str, entry: Any, ticket: Judged) -> Outcome:
         """Submit the goal's ticket and await its outcome, listed as running meanwhile."""
-        if not self.running:  # a client seen for goals before these says nothing of theirs
-            self.clients_seen = False
         self.running[ident] = entry
         if self.started is not None:
             self.started()
@@ -260,45 +259,45 @@ class GoalRunner:
         return by
 
     def orphans(self) -> None:
-        """Halt the running goals once no client of the action is left in the ROS graph
-        (each reads the action's status topic; a recording's reader is no client), having
-        been there while they ran: their commander is gone (its process ended, or DDS
-        ended its participant's lease: killed, or cut off).
+        """End the goals whose every client has left: no client of the action is in the ROS
+        graph now (each reads the action's status topic; a recording's reader is not one),
+        and one was while the goal was running or waiting. Their commander is gone (its
+        process ended, or DDS ended its participant's lease: killed, cut off, or stalled
+        longer than the lease). Running goals are halted where the arm is; goals accepted
+        that wait to run end before they run (`ended_before_run`).
 
         rclpy does not say which client sent a goal (its request header has no writer), so
         a goal of a client that has gone runs on while another client of the action stays.
-        Where no client was ever seen (one whose reader the graph did not list yet), the
-        goals run on: the graph is not read as a client's absence before it has shown one.
-        Goals accepted that wait to run end before they run (`ended_before_run`)."""
+        A goal no client was seen for (one whose reader the graph did not list yet) runs
+        on: the graph is not read as a client's absence before it has shown one."""
         waiting = set(self.judged) | set(self.starting)
-        if not (self.running or waiting):
-            self.clients_seen = False
+        active = set(self.running) | waiting
+        self.seen &= active
+        self.left &= waiting
+        if not active:
             return
         try:
             readers = self.node.get_subscriptions_info_by_topic(self.server.status_topic)
         except Exception:  # the node closing: a graph that cannot be read says nothing
             return
         if any(r.node_name != RECORDER_NODE for r in readers):  # a recording commands nothing
-            self.clients_seen = True
+            self.seen |= active
             return
-        if not self.clients_seen:
+        doomed, self.seen = self.seen, set()
+        if not doomed:
             return
-        self.clients_seen = False
-        ended = list(self.running)
-        self.left |= waiting
-        log.warning(
-            "%s goals %s: %s: cancelled", self.name, ", ".join([*ended, *waiting]), NO_CLIENT_LEFT
-        )
-        self._halts.submit(self._cancel_all, ended, NO_CLIENT_LEFT)
+        self.left |= doomed & waiting
+        log.warning("%s goals %s: %s", self.name, ", ".join(sorted(doomed)), NO_CLIENT_LEFT)
+        self._halts.submit(self._cancel_each, sorted(doomed - waiting), NO_CLIENT_LEFT)
 
-    def _cancel_all(self, idents: list[str], reason: str) -> None:
-        """Cancel each of the goals `idents` (the halts' thread); a failure is logged, as
-        nobody waits for this."""
-        try:
-            for ident in idents:
+    def _cancel_each(self, idents: list[str], reason: str) -> None:
+        """Cancel each of the running goals `idents` (the halts' thread); a failure is
+        logged, as nobody waits for this."""
+        for ident in idents:
+            try:
                 self.arm.cancel(ident, reason)
-        except Exception as e:
-            log.error("%s goals %s: not cancelled: %s", self.name, ", ".join(idents), e)
+            except Exception as e:
+                log.error("%s goal %s: not cancelled: %s", self.name, ident, e)
 
     def preempter(self, ident: str, outcome: Outcome) -> str:
         """The goal that preempted goal `ident`, ended with `outcome`, if its halt was the

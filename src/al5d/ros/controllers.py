@@ -398,8 +398,11 @@ def _preempted_result(by: str) -> Any:
 
 def _unrun(reason: str) -> Any:
     """A goal that ended before it ran (`GoalRunner.ended_before_run`): cancelled by its
-    client, as the joint_trajectory_controller ends one; or left by every client."""
-    return _result(FJT.SUCCESSFUL if reason == CANCELLED_BEFORE_RUN else FJT.INVALID_GOAL, reason)
+    client, as the joint_trajectory_controller ends one; or left by every client, as a
+    running one is (`_finish`: ended off its path, which a waiting goal never took)."""
+    if reason == CANCELLED_BEFORE_RUN:
+        return _result(FJT.SUCCESSFUL, reason)
+    return _result(FJT.PATH_TOLERANCE_VIOLATED, f"{Result.CANCELLED.value}: {reason}")
 
 
 def _result(code: int, text: str) -> Any:
