@@ -18,6 +18,7 @@ import pytest
 
 from al5d import exits
 from al5d.arm.config import load_config
+from al5d.ros.actions import NO_CLIENT_LEFT
 from al5d.ros.names import Names
 from al5d_rig import actionclient, netfaults, netrig, webrig
 from al5d_rig.proc import AL5D, Lines, family, freeze, patient_config
@@ -350,23 +351,24 @@ def test_a_trajectory_client_cut_off_mid_goal_has_it_halted_once_its_lease_ends(
         said(out, "accepted")
         said(out, "feedback")  # the server has matched the client's readers
         time.sleep(1.5)
+        # Not before the cut (an order, not a time: nothing of the kind in the log yet).
+        before = server.drain(0)
+        assert not [line for line in before if NO_CLIENT_LEFT in line]
+        since = len(before)
         cut = time.time()
         hosts.cut()
-        halted = said(server, "lost contact with every client of the action")
-        # The arm at rest again after it (halted, not locked): the state's next word.
-        rest = server.all.index(halted)
+        halted = said(server, NO_CLIENT_LEFT)
+        # The arm at rest since the cut (halted, not locked). Its line and the halt's come
+        # from two processes, each through a logging thread of its own: in either order.
+        # Were the goal over first, none of its clients would have been looked for.
         deadline = time.monotonic() + CMD_S
-        while not any("STATE: ready" in line for line in server.all[rest:]):
-            assert time.monotonic() < deadline, server.all[rest:]
+        while not any("STATE: ready" in line for line in server.all[since:]):
+            assert time.monotonic() < deadline, server.all[since:]
             server.drain(0.1)
-        ready = next(line for line in server.all[rest:] if "STATE: ready" in line)
     finally:
         hosts.mend()
         laptop.kill()
         laptop.wait(10)
-    halted_s = netfaults.log_clock(halted, cut) - cut
-    print(f"the goal halted {halted_s:.2f} s after the cut")
+    # The figure (docs/ros.md), not asserted: timing is measured, in bench/ and here.
+    print(f"the goal halted {netfaults.log_clock(halted, cut) - cut:.2f} s after the cut")
     assert "follow_joint_trajectory goals" in halted, halted
-    # After the client's lease (2 s) ran out, long before the goal's end (12 s, 1.5 s gone).
-    assert 1.0 < halted_s < 9.0, halted
-    assert netfaults.log_clock(ready, cut) - cut < 9.5, ready

@@ -38,6 +38,8 @@ among its modules run as `python -m al5d_rig.NAME`. It sits above every subpacka
   link, cut and mended; `cable`: a link that delays and loses frames (a process: `python
   -m al5d_rig.cable`), where the kernel has no netem; `netfaults`: random faults on it
   under a client, server restarts, and the promises checked.
+- `actionclient`: a client of FollowJointTrajectory as MoveIt is (a process), which leaves
+  with its goal running; and docs/ros.md's Fast DDS profile of a short lease.
 
 The pytest fixtures stay in tests/conftest.py, not here as a plugin: they claim the run's
 ROS domain when pytest loads them, which only the test suite must do (a benchmark
