@@ -21,6 +21,9 @@ log = logging.getLogger("al5d")
 
 #: A stop, a release or a shutdown is answered at once.
 ANSWER_S = 10.0
+#: The least wait for the answer to a stop, release or shutdown, whatever the timeout asked
+#: (a stop is never refused for its timeout: 0 waits this; on a lane, from its opening).
+ANSWER_MIN_S = 1.0
 #: A silence of the server this long is said at once (a WARNING) by a client that waits
 #: for it, before it gives up.
 SILENCE_SAID_S = 1.0

@@ -23,6 +23,7 @@ from al5d.owner import quick, where
 from al5d.owner.client import WELCOME_S, LaneClosed, Remote
 from al5d.owner.lane import outcome_in
 from al5d.ros.answers import (
+    ANSWER_MIN_S,
     GIVE_UP_WORD_S,
     SILENCE_SAID_S,
     Answer,
@@ -46,8 +47,6 @@ log = logging.getLogger("al5d")
 WATCH_EVERY_S = 0.25
 #: A lane found closed is tried again this often while a call waits for its server.
 REOPEN_EVERY_S = 0.1
-#: The least wait for the answer to a stop, release or shutdown sent on a lane just opened.
-ANSWER_MIN_S = 1.0
 #: The least a new client waits for the owner's welcome, whatever its `wait_s`: an idle
 #: owner welcomes in milliseconds, a loaded one may take a second.
 WELCOME_MIN_S = 3.0
