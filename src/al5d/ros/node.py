@@ -44,7 +44,7 @@ from al5d.owner.client import SILENCE_KEPT_S, LaneClosed, Remote
 from al5d.owner.lane import LaneError
 from al5d.owner.teller import RefusalLog, Repeats
 from al5d.ros import params
-from al5d.ros.actions import MoveAction
+from al5d.ros.actions import GoalRunner, MoveAction
 from al5d.ros.controllers import FollowTrajectoryAction, GripperAction
 from al5d.ros.convert import (
     COPY_MARK,
@@ -516,11 +516,16 @@ class ActionsNode(Node):
         self.move_action = MoveAction(self, arm, names.move)
         self.trajectory_action = FollowTrajectoryAction(self, arm, names.follow_joint_trajectory)
         self.gripper_action = GripperAction(self, arm, names.gripper_command)
+        self.actions: tuple[GoalRunner, ...] = (
+            self.move_action,
+            self.trajectory_action,
+            self.gripper_action,
+        )
         # The timer runs only while a goal does: rclpy's Python executor rebuilds its wait set
         # at every tick, which an idle server should not pay at the joint-state rate.
         self.timer = self.create_timer(1.0 / arm.settings.joint_state_rate_hz, self._feedback)
         self.timer.cancel()
-        for action in (self.move_action, self.trajectory_action, self.gripper_action):
+        for action in self.actions:
             action.started = self.timer.reset
 
     def set_rate(self, settings: ServerSettings) -> None:
@@ -528,13 +533,9 @@ class ActionsNode(Node):
         self.timer.timer_period_ns = round(1e9 / settings.joint_state_rate_hz)
 
     def _feedback(self) -> None:
-        for action in (self.move_action, self.trajectory_action, self.gripper_action):
+        for action in self.actions:
             action.orphans()
-        if not (
-            self.move_action.running
-            or self.trajectory_action.running
-            or self.gripper_action.running
-        ):
+        if not any(action.running for action in self.actions):
             self.timer.cancel()
             return
         # One instant for where the arm is and where a trajectory wants it: a thread switch
